@@ -1,0 +1,174 @@
+"""The ``lfsf`` command line (see INTERFACE.md).
+
+Bad input ends with one line ``lfsf <command>: error: <what and where>`` on stderr and exit
+status 2, never a traceback; every file is written under a temporary name and renamed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+EXIT_BAD_INPUT = 2
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, with usage errors reported like every other bad input (status 2)."""
+
+    def error(self, message):  # pragma: no cover - exercised through main()
+        self.print_usage(sys.stderr)
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message}\n")
+
+
+def _log(args, message: str) -> None:
+    if not getattr(args, "quiet", False):
+        print(message, file=sys.stderr, flush=True)
+
+
+def _size(text: str) -> int:
+    value = int(text)
+    if value < 8:
+        raise argparse.ArgumentTypeError(f"image size must be at least 8 pixels, got {value}")
+    return value
+
+
+def _positive(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+# --- synth ---------------------------------------------------------------------------------
+
+def cmd_synth(args) -> int:
+    from lfsf import synth
+    from lfsf.device import resolve_device
+
+    if args.list or args.scene is None:
+        if not args.list:
+            raise ValueError("name a scene (lfsf synth SCENE --out DIR) or use --list")
+        for name, text in synth.list_scenes().items():
+            print(f"{name:<14} {text}")
+        return 0
+    if args.out is None:
+        raise ValueError("--out DIR is required")
+    synth.get_scene(args.scene)  # unknown scene: clear error before any work
+    device = resolve_device(args.device)
+    width, height = args.size
+    _log(args, f"rendering '{args.scene}' at {width}×{height}, {args.grid}×{args.grid} views, t1 and t2, on {device} …")
+    t0 = time.perf_counter()
+    paths = synth.write_scene(args.scene, args.out, size=(width, height), grid=args.grid,
+                              supersample=args.supersample, colour=args.colour, device=device)
+    _log(args, f"wrote {', '.join(str(p) for p in paths.values())} in {time.perf_counter() - t0:.1f} s")
+    if args.preview:
+        from lfsf.io import read_lightfield
+        from lfsf.viz import overview_figure
+        import numpy as np
+
+        with np.load(paths["gt"]) as z:
+            gt = {k: z[k] for k in ("disp1", "disp2", "u", "v", "valid")}
+        c1 = read_lightfield(paths["lf1"]).centre
+        c2 = read_lightfield(paths["lf2"]).centre
+        overview_figure(c1, c2, gt["disp1"], gt["disp2"], gt["u"], gt["v"],
+                        path=Path(args.out) / "preview.png", title=f"{args.scene}: ground truth")
+        _log(args, f"wrote {Path(args.out) / 'preview.png'}")
+    return 0
+
+
+# --- eval ----------------------------------------------------------------------------------
+
+def cmd_eval(args) -> int:
+    from lfsf._files import write_bytes_atomic
+    from lfsf.evaluate import evaluate, format_table, load_estimate, load_ground_truth
+
+    estimate = load_estimate(args.result)
+    gt, default_border = load_ground_truth(args.gt)
+    border = default_border if args.border is None else args.border
+    errors = evaluate(estimate, gt, border=border)
+    print(f"{args.result} against {args.gt} (border {border} px)")
+    print(format_table(errors))
+    if args.json:
+        report = {"result": str(args.result), "ground_truth": str(args.gt), "border": border, "errors": errors}
+        write_bytes_atomic(args.json, (json.dumps(report, indent=2) + "\n").encode())
+    return 0
+
+
+# --- commands that need the estimator --------------------------------------------------------
+
+def cmd_not_yet(args) -> int:
+    raise NotImplementedError(
+        f"'lfsf {args.command}' needs the scene-flow estimator, which is not implemented yet "
+        "(issue 3); 'lfsf synth' and 'lfsf eval' work"
+    )
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="lfsf", description="Scene flow from light fields (Heber & Pock, GCPR 2014).")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    p = sub.add_parser("synth", help="render a synthetic light-field pair with exact ground truth",
+                       description="Render SCENE at t1 and t2 into DIR/lf1.npz, DIR/lf2.npz and its "
+                                   "ground truth DIR/gt.npz.")
+    p.add_argument("scene", nargs="?", help="scene name (see --list)")
+    p.add_argument("--list", action="store_true", help="list the scenes and exit")
+    p.add_argument("--out", type=Path, help="output folder")
+    p.add_argument("--size", nargs=2, type=_size, metavar=("W", "H"), default=(640, 480),
+                   help="view size in pixels (default 640 480)")
+    p.add_argument("--grid", type=_positive, default=9, metavar="N", help="N×N views (default 9)")
+    p.add_argument("--supersample", type=_positive, default=2, metavar="K",
+                   help="K×K rays per pixel (default 2)")
+    p.add_argument("--colour", action="store_true", help="RGB views (default grey)")
+    p.add_argument("--preview", action="store_true", help="also write DIR/preview.png of the ground truth")
+    p.add_argument("--device", help="cpu or cuda:N (default: $LFSF_DEVICE, else cuda:0 if present, else cpu)")
+    p.add_argument("--quiet", action="store_true", help="no progress messages")
+    p.set_defaults(func=cmd_synth)
+
+    p = sub.add_parser("eval", help="errors of a result against ground truth",
+                       description="Print MSE per variable, flow end-point error, disparity "
+                                   "BadPix(0.07) and MSE×100 over valid pixels.")
+    p.add_argument("result", type=Path, help="a folder written by 'lfsf run', or a .npz/.pfm/.flo")
+    p.add_argument("gt", type=Path, help="gt.npz of 'lfsf synth' or an HCI gt_disp_lowres.pfm")
+    p.add_argument("--border", type=int, default=None,
+                   help="pixels left out at each edge (default 15 for a .pfm, as the HCI benchmark; 8 for gt.npz)")
+    p.add_argument("--json", type=Path, help="also write the figures to this JSON file")
+    p.set_defaults(func=cmd_eval)
+
+    for name, text in (("run", "estimate scene flow from two light fields"),
+                       ("demo", "render a built-in scene, estimate it, print its errors")):
+        p = sub.add_parser(name, help=f"{text} (not implemented yet)")
+        p.add_argument("rest", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
+        p.set_defaults(func=cmd_not_yet)
+    return parser
+
+
+def _version() -> str:
+    from lfsf import __version__
+
+    return __version__
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help(sys.stderr)
+        return EXIT_BAD_INPUT
+    prog = f"lfsf {args.command}"
+    try:
+        return int(args.func(args) or 0)
+    except (ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError,
+            NotImplementedError) as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,180 @@
+"""Device choice and kernel launches.
+
+Every kernel in :mod:`lfsf.kernels` is written once and runs on the CPU and on CUDA. Warp
+runs a CPU launch on a single thread, so :func:`launch_rows` splits the outer launch
+dimension into row bands and launches them from a thread pool (Warp releases the GIL
+while a CPU kernel runs); on CUDA it is a single launch.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from typing import Sequence
+
+ENV_DEVICE = "LFSF_DEVICE"
+ENV_THREADS = "LFSF_THREADS"
+
+_init_lock = threading.Lock()
+_loaded: set[tuple[int, str]] = set()
+_pool: ThreadPoolExecutor | None = None
+_initialised = False
+
+
+@contextlib.contextmanager
+def _stderr_filtered(drop: str):
+    """Hold back what native code writes to file descriptor 2; re-emit all but lines with ``drop``."""
+    import tempfile
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile(mode="w+b") as buf:
+        os.dup2(buf.fileno(), 2)
+        try:
+            yield
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            buf.seek(0)
+            kept = [ln for ln in buf.read().decode(errors="replace").splitlines() if drop not in ln]
+            if kept:
+                print("\n".join(kept), file=sys.stderr)
+
+
+def warp():
+    """Import and initialise Warp quietly; return the module."""
+    import warp as wp
+
+    global _initialised
+    if not _initialised:
+        with _init_lock:
+            # A machine without an NVIDIA driver is normal for us (CPU runs): keep Warp's
+            # start-up banner and driver warning out of the output; asking for a CUDA
+            # device that is not there is still a clear error in resolve_device.
+            wp.config.log_level = wp.LOG_ERROR
+            with _stderr_filtered("NVIDIA CUDA driver"):
+                wp.init()
+            wp.config.log_level = wp.LOG_WARNING
+            _initialised = True
+    return wp
+
+
+def available_devices() -> list[str]:
+    """Names of the devices Warp can launch on, e.g. ``['cpu', 'cuda:0']``."""
+    wp = warp()
+    return [str(d) for d in wp.get_devices()]
+
+
+def resolve_device(device: str | None = None) -> str:
+    """Return the device to run on, as Warp names it.
+
+    Order: the argument, else the ``LFSF_DEVICE`` environment variable, else ``cuda:0``
+    when CUDA is present, else ``cpu``. ``"cuda"`` means the first CUDA device.
+
+    Raises
+    ------
+    ValueError
+        If the device named is not one Warp can use here.
+    """
+    name = device if device not in (None, "") else os.environ.get(ENV_DEVICE) or None
+    wp = warp()
+    devices = available_devices()
+    if name is None:
+        return "cuda:0" if wp.is_cuda_available() else "cpu"
+    key = name.strip().lower()
+    if key == "cuda":
+        key = "cuda:0"
+    if key not in devices:
+        source = "" if device not in (None, "") else f" (from ${ENV_DEVICE})"
+        raise ValueError(f"unknown device '{name}'{source}: this machine has {', '.join(devices)}")
+    return key
+
+
+def cpu_threads() -> int:
+    """Threads used for banded CPU launches: ``$LFSF_THREADS`` or the usable cores."""
+    env = os.environ.get(ENV_THREADS)
+    if env:
+        try:
+            return max(1, int(env))
+        except ValueError:
+            raise ValueError(f"{ENV_THREADS} must be a whole number, got {env!r}") from None
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _thread_pool() -> ThreadPoolExecutor:
+    global _pool
+    with _init_lock:
+        if _pool is None:
+            _pool = ThreadPoolExecutor(max_workers=cpu_threads(), thread_name_prefix="lfsf-band")
+        return _pool
+
+
+def _ensure_loaded(kernel, device) -> None:
+    # Compile/load the kernel's module once, before threads race to do it.
+    key = (id(kernel.module), str(device))
+    if key in _loaded:
+        return
+    wp = warp()
+    with _init_lock:
+        if key not in _loaded:
+            wp.load_module(kernel.module, device=device)
+            _loaded.add(key)
+
+
+def row_bands(rows: int, bands: int) -> list[tuple[int, int]]:
+    """Split ``range(rows)`` into at most ``bands`` contiguous, near-equal ``(start, stop)``."""
+    bands = max(1, min(bands, rows))
+    edges = [rows * i // bands for i in range(bands + 1)]
+    return [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+
+def launch_rows(
+    kernel,
+    dim: int | Sequence[int],
+    inputs: Sequence = (),
+    outputs: Sequence = (),
+    device: str | None = None,
+    bands: int | None = None,
+) -> None:
+    """Launch ``kernel`` over ``dim``, in row bands on the CPU.
+
+    The kernel's first parameter must be ``row0: int``, the first row (index along
+    ``dim[0]``) of the band it is launched on; it adds ``row0`` to its first thread index.
+    ``inputs`` are the remaining inputs. On CUDA (or with one band) this is one launch with
+    ``row0 = 0``; on the CPU the rows are split into ``bands`` bands (default: one per
+    thread of :func:`cpu_threads`) launched concurrently, and the call returns when all are
+    done. Results are identical to a single launch: each thread's work depends only on its
+    own index.
+    """
+    wp = warp()
+    dims = (dim,) if isinstance(dim, int) else tuple(dim)
+    dev = wp.get_device(device)
+    if dev.is_cuda:
+        wp.launch(kernel=kernel, dim=dims, inputs=[0, *inputs], outputs=list(outputs), device=dev)
+        return
+    parts = row_bands(dims[0], bands or cpu_threads())
+    if len(parts) <= 1:
+        wp.launch(kernel=kernel, dim=dims, inputs=[0, *inputs], outputs=list(outputs), device=dev)
+        return
+    _ensure_loaded(kernel, dev)
+    pool = _thread_pool()
+    futures = [
+        pool.submit(
+            wp.launch,
+            kernel=kernel,
+            dim=(stop - start, *dims[1:]),
+            inputs=[start, *inputs],
+            outputs=list(outputs),
+            device=dev,
+        )
+        for start, stop in parts
+    ]
+    for f in futures:
+        f.result()

@@ -1,0 +1,182 @@
+"""Accuracy of a scene-flow estimate against ground truth.
+
+Metrics, each over the pixels where the ground truth is valid and finite, with a border
+of ``border`` pixels left out:
+
+* every variable: mean squared error (MSE), as in the paper (Fig. 3);
+* disparity: MSE×100 and BadPix(0.07) — the share (in %) of pixels whose absolute error
+  exceeds 0.07 px per view step — as the HCI 4D light-field benchmark defines them;
+* flow: mean end-point error (EPE), ``mean(sqrt((u − u*)² + (v − v*)²))``.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+VARIABLES = ("disp1", "disp2", "u", "v")
+BADPIX_THRESHOLD = 0.07
+#: Border left out by default: the HCI benchmark's 15 px for its PFM ground truth, 8 px
+#: for our synthetic ground truth.
+HCI_BORDER = 15
+SYNTH_BORDER = 8
+
+
+def _mask(shape, valid, border: int) -> np.ndarray:
+    mask = np.ones(shape, dtype=bool) if valid is None else np.asarray(valid, dtype=bool).copy()
+    if mask.shape != tuple(shape):
+        raise ValueError(f"valid mask has shape {mask.shape}, expected {tuple(shape)}")
+    if border > 0:
+        mask[:border, :] = False
+        mask[-border:, :] = False
+        mask[:, :border] = False
+        mask[:, -border:] = False
+    return mask
+
+
+def _check_pair(name, est, ref):
+    if est.shape != ref.shape:
+        raise ValueError(f"{name}: the estimate is {est.shape[1]}×{est.shape[0]} but the ground truth is "
+                         f"{ref.shape[1]}×{ref.shape[0]}")
+
+
+def disparity_errors(est, gt, valid=None, border: int = 0) -> dict[str, float]:
+    """MSE, MSE×100 and BadPix(0.07) (%) of a disparity map over valid, finite pixels."""
+    est = np.asarray(est, dtype=np.float64)
+    gt = np.asarray(gt, dtype=np.float64)
+    _check_pair("disparity", est, gt)
+    m = _mask(gt.shape, valid, border) & np.isfinite(gt)
+    n = int(m.sum())
+    if n == 0:
+        return {"mse": math.nan, "mse_x100": math.nan, "badpix_0.07": math.nan, "pixels": 0}
+    err = est[m] - gt[m]
+    err = np.where(np.isfinite(err), err, np.inf)  # a non-finite estimate counts as wrong
+    sq = np.square(err)
+    mse = float(np.mean(sq))
+    return {
+        "mse": mse,
+        "mse_x100": 100.0 * mse,
+        "badpix_0.07": 100.0 * float(np.mean(np.abs(err) > BADPIX_THRESHOLD)),
+        "pixels": n,
+    }
+
+
+def flow_errors(u, v, gt_u, gt_v, valid=None, border: int = 0) -> dict[str, float]:
+    """Mean end-point error and the MSE of each component over valid, finite pixels."""
+    u, v, gt_u, gt_v = (np.asarray(a, dtype=np.float64) for a in (u, v, gt_u, gt_v))
+    _check_pair("flow", u, gt_u)
+    _check_pair("flow", v, gt_v)
+    m = _mask(gt_u.shape, valid, border) & np.isfinite(gt_u) & np.isfinite(gt_v)
+    n = int(m.sum())
+    if n == 0:
+        return {"epe": math.nan, "mse_u": math.nan, "mse_v": math.nan, "pixels": 0}
+    du = u[m] - gt_u[m]
+    dv = v[m] - gt_v[m]
+    du = np.where(np.isfinite(du), du, np.inf)
+    dv = np.where(np.isfinite(dv), dv, np.inf)
+    return {
+        "epe": float(np.mean(np.hypot(du, dv))),
+        "mse_u": float(np.mean(du * du)),
+        "mse_v": float(np.mean(dv * dv)),
+        "pixels": n,
+    }
+
+
+def evaluate(estimate: dict, gt: dict, border: int = SYNTH_BORDER) -> dict[str, dict[str, float]]:
+    """Errors of an estimate (a mapping with some of ``disp1, disp2, u, v``) against a
+    ground truth (the same keys, optional bool ``valid``). Only variables present in both
+    are evaluated; the flow needs both ``u`` and ``v``."""
+    valid = gt.get("valid")
+    out: dict[str, dict[str, float]] = {}
+    for name in ("disp1", "disp2"):
+        if name in estimate and name in gt:
+            out[name] = disparity_errors(estimate[name], gt[name], valid, border)
+    if all(k in estimate and k in gt for k in ("u", "v")):
+        out["flow"] = flow_errors(estimate["u"], estimate["v"], gt["u"], gt["v"], valid, border)
+    if not out:
+        raise ValueError("the estimate and the ground truth have no variable in common "
+                         f"(estimate: {sorted(estimate)}, ground truth: {sorted(gt)})")
+    return out
+
+
+def load_estimate(path: str | Path) -> dict[str, np.ndarray]:
+    """Read a result: a folder written by ``lfsf run`` (``sceneflow.npz``, else
+    ``disp1.pfm``/``disp2.pfm``/``flow.flo``), or a ``.npz`` / ``.pfm`` / ``.flo`` file."""
+    from lfsf import io
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file or folder")
+    if path.is_dir():
+        if (path / "sceneflow.npz").exists():
+            return load_estimate(path / "sceneflow.npz")
+        out: dict[str, np.ndarray] = {}
+        for name in ("disp1", "disp2"):
+            if (path / f"{name}.pfm").exists():
+                out[name] = io.read_pfm(path / f"{name}.pfm")
+        if (path / "flow.flo").exists():
+            flow = io.read_flo(path / "flow.flo")
+            out["u"], out["v"] = flow[..., 0], flow[..., 1]
+        if not out:
+            raise ValueError(f"{path}: no sceneflow.npz, disp1.pfm, disp2.pfm or flow.flo in this folder")
+        return out
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        return _load_npz(path, VARIABLES)
+    if suffix == ".pfm":
+        return {"disp1": io.read_pfm(path)}
+    if suffix == ".flo":
+        flow = io.read_flo(path)
+        return {"u": flow[..., 0], "v": flow[..., 1]}
+    raise ValueError(f"{path}: not a result (expected a folder, .npz, .pfm or .flo)")
+
+
+def load_ground_truth(path: str | Path) -> tuple[dict[str, np.ndarray], int]:
+    """Read ground truth: a ``gt.npz`` of ``lfsf synth`` or an HCI ``gt_disp_lowres.pfm``
+    (disparity at t1 only). Returns the arrays and the default border for that kind."""
+    from lfsf import io
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file")
+    if path.is_dir():
+        for name in ("gt.npz", "gt_disp_lowres.pfm"):
+            if (path / name).exists():
+                return load_ground_truth(path / name)
+        raise ValueError(f"{path}: no gt.npz or gt_disp_lowres.pfm in this folder")
+    suffix = path.suffix.lower()
+    if suffix == ".pfm":
+        return {"disp1": io.read_pfm(path)}, HCI_BORDER
+    if suffix == ".npz":
+        return _load_npz(path, VARIABLES + ("valid", "occluded")), SYNTH_BORDER
+    raise ValueError(f"{path}: not a ground truth (expected gt.npz or a .pfm disparity)")
+
+
+def _load_npz(path: Path, keys) -> dict[str, np.ndarray]:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            out = {k: np.asarray(z[k]) for k in keys if k in z.files}
+    except (OSError, ValueError, EOFError) as exc:
+        raise ValueError(f"{path}: not a readable .npz file ({exc})") from None
+    if not any(k in out for k in VARIABLES):
+        raise ValueError(f"{path}: holds none of the keys {', '.join(VARIABLES)}")
+    for k, a in out.items():
+        if a.ndim != 2:
+            raise ValueError(f"{path}: '{k}' should be a 2-D map, got shape {a.shape}")
+    return out
+
+
+def format_table(errors: dict[str, dict[str, float]]) -> str:
+    """A small fixed-width table of :func:`evaluate`'s result."""
+    lines = [f"{'variable':<8} {'MSE':>10} {'MSE×100':>9} {'BadPix.07':>9} {'EPE':>8} {'pixels':>8}"]
+    for name, e in errors.items():
+        if name == "flow":
+            lines.append(f"{'u':<8} {e['mse_u']:>10.5f} {'':>9} {'':>9} {'':>8} {e['pixels']:>8d}")
+            lines.append(f"{'v':<8} {e['mse_v']:>10.5f} {'':>9} {'':>9} {'':>8} {e['pixels']:>8d}")
+            lines.append(f"{'flow':<8} {'':>10} {'':>9} {'':>9} {e['epe']:>8.4f} {e['pixels']:>8d}")
+        else:
+            lines.append(f"{name:<8} {e['mse']:>10.5f} {e['mse_x100']:>9.3f} {e['badpix_0.07']:>8.2f}% "
+                         f"{'':>8} {e['pixels']:>8d}")
+    return "\n".join(lines)

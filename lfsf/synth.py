@@ -1,0 +1,386 @@
+"""Synthetic light-field pairs with exact ground truth.
+
+Scenes are textured convex primitives, each with its own rigid motion between t1 and t2,
+seen by a regular grid of pinhole cameras (a camera array, or a plenoptic camera's views).
+Geometry is fixed in the world; the focal length scales with the image width, so a scene
+looks the same at every size. Two things are kept the same *in pixels* at every size,
+because they are what an estimator's difficulty depends on: the disparity range (the
+baseline scales as 1/width, as the angular sampling of a plenoptic camera would) and the
+translational image motion of each object (``shift``, in pixels). Rotations are angles.
+
+The ground truth follows MODEL.md §1: ``disp1`` is the disparity δ1 (px per view step) of
+the point seen at each centre pixel at t1, ``u, v`` its flow to the centre view at t2,
+``disp2`` its disparity at t2 (indexed by its t1 pixel), ``valid`` is false where a pixel
+straddles a depth edge, ``occluded`` is true where the point is hidden (or leaves the
+image) at t2.
+
+>>> lf1, lf2, gt = render_scene("paper", size=(160, 120), grid=9)   # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from lfsf import device as _device
+
+#: Depth (world units) seen with zero disparity, and f·B (px · world units): a point at
+#: depth Z has disparity δ = f·B/Z − f·B/Z0, so Z = 4 gives +2 and Z = 12 gives −2.
+ZERO_DISPARITY_DEPTH = 6.0
+FOCAL_BASELINE = 24.0
+#: Focal length in units of the image width (a horizontal field of view of about 53°).
+FOCAL_PER_WIDTH = 1.0
+#: Image width at which texture periods are given; textures scale with the image but
+#: never get finer than MIN_TEXTURE_PERIOD pixels, so that the finest octave (a quarter
+#: of the period) stays above the Nyquist limit at small sizes.
+REFERENCE_WIDTH = 640
+MIN_TEXTURE_PERIOD = 10.0
+
+
+@dataclass(frozen=True)
+class Texture:
+    """Solid value-noise texture: feature ``period`` in pixels (at the object's depth in a
+    640-pixel-wide image), grey level ``mean ± contrast``, RGB tint ``colour``."""
+
+    period: float = 16.0
+    mean: float = 0.5
+    contrast: float = 0.45
+    colour: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class Primitive:
+    """A textured primitive and its motion from t1 to t2.
+
+    Parameters
+    ----------
+    kind : "plane", "sphere" or "box"
+    at : centre position at t1, as fractions (x, y) of the image width and height
+    depth : depth Z of the centre at t1 (world units; see ZERO_DISPARITY_DEPTH)
+    size : plane (half width, half height), sphere (radius,), box (three half extents),
+        as fractions of the image width at the object's depth
+    tilt : orientation at t1, degrees of rotation about x, then y, then z
+    shift : image motion (px) of the centre from t1 to t2
+    approach : change of the centre's depth from t1 to t2 (negative: towards the camera)
+    spin : rotation from t1 to t2 about the centre, degrees about x, y, z
+    """
+
+    kind: str
+    at: tuple[float, float]
+    depth: float
+    size: tuple[float, ...]
+    texture: Texture = field(default_factory=Texture)
+    tilt: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    shift: tuple[float, float] = (0.0, 0.0)
+    approach: float = 0.0
+    spin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Scene:
+    name: str
+    description: str
+    objects: tuple[Primitive, ...]
+
+
+def _backdrop(depth, texture, tilt=(0.0, 0.0, 0.0), shift=(0.0, 0.0)):
+    return Primitive("plane", (0.5, 0.5), depth, (3.0, 3.0), texture, tilt=tilt, shift=shift)
+
+
+SCENES: dict[str, Scene] = {
+    s.name: s
+    for s in (
+        Scene(
+            "paper",
+            "several objects at different depths moving independently (like the paper's "
+            "rendered scenes): a slanted backdrop, a tilted card, a spinning box that comes "
+            "closer, two spheres",
+            (
+                _backdrop(11.0, Texture(22, 0.5, 0.4, (0.9, 0.95, 1.0), 1), tilt=(0, 12, 0), shift=(1.5, 0.5)),
+                Primitive("plane", (0.24, 0.3), 8.0, (0.13, 0.1), Texture(14, 0.55, 0.45, (1.0, 0.9, 0.7), 2),
+                          tilt=(0, 0, 12), shift=(-3.0, 1.5), spin=(0, 0, 3)),
+                Primitive("box", (0.7, 0.33), 6.5, (0.08, 0.08, 0.08), Texture(12, 0.5, 0.45, (0.8, 1.0, 0.8), 3),
+                          tilt=(25, 35, 0), shift=(2.0, 2.5), approach=-0.6, spin=(0, 8, 0)),
+                Primitive("sphere", (0.42, 0.64), 4.2, (0.1,), Texture(12, 0.5, 0.5, (1.0, 0.8, 0.8), 4),
+                          shift=(4.5, -2.5), spin=(0, 15, 0)),
+                Primitive("sphere", (0.82, 0.76), 5.2, (0.06,), Texture(10, 0.45, 0.45, (0.8, 0.85, 1.0), 5),
+                          shift=(-2.0, -3.0), approach=0.4),
+            ),
+        ),
+        Scene(
+            "slanted",
+            "slanted planar surfaces only: piecewise-linear disparity on a tilted backdrop",
+            (
+                _backdrop(10.0, Texture(20, 0.5, 0.4, (1.0, 1.0, 0.9), 11), tilt=(10, 28, 0), shift=(1.0, -0.5)),
+                Primitive("plane", (0.3, 0.45), 6.0, (0.14, 0.24), Texture(14, 0.5, 0.45, (0.9, 1.0, 1.0), 12),
+                          tilt=(0, -42, 0), shift=(2.0, 1.0), spin=(0, 4, 0)),
+                Primitive("plane", (0.72, 0.55), 4.8, (0.13, 0.13), Texture(12, 0.5, 0.45, (1.0, 0.9, 0.9), 13),
+                          tilt=(38, 22, 10), shift=(-2.5, 1.5), spin=(-3, 0, 4)),
+                Primitive("plane", (0.55, 0.2), 8.0, (0.18, 0.06), Texture(16, 0.5, 0.4, (0.9, 0.9, 1.0), 14),
+                          tilt=(-50, 0, 0), shift=(0.5, 2.0)),
+            ),
+        ),
+        Scene(
+            "large_motion",
+            "large displacements: objects move 12-18 px between the two times, over a "
+            "moving backdrop",
+            (
+                _backdrop(10.0, Texture(20, 0.5, 0.4, (1.0, 0.95, 0.9), 21), shift=(3.0, 1.0)),
+                Primitive("sphere", (0.3, 0.48), 5.0, (0.1,), Texture(12, 0.5, 0.5, (0.9, 1.0, 0.9), 22),
+                          shift=(14.0, 6.0), spin=(0, 10, 0)),
+                Primitive("box", (0.7, 0.38), 7.0, (0.08, 0.07, 0.08), Texture(12, 0.5, 0.45, (1.0, 0.85, 0.85), 23),
+                          tilt=(15, 25, 5), shift=(-12.0, 9.0), spin=(0, 0, 6)),
+                Primitive("plane", (0.52, 0.76), 4.2, (0.12, 0.08), Texture(12, 0.5, 0.45, (0.85, 0.9, 1.0), 24),
+                          tilt=(0, 0, -8), shift=(8.0, -11.0), approach=-0.3),
+            ),
+        ),
+        Scene(
+            "weak_texture",
+            "weakly textured, low-contrast surfaces with coarse features: the regulariser "
+            "has to fill in where the data term says little",
+            (
+                _backdrop(10.0, Texture(44, 0.5, 0.07, (1.0, 1.0, 1.0), 31), tilt=(0, 8, 0), shift=(1.0, 0.5)),
+                Primitive("sphere", (0.35, 0.5), 5.0, (0.12,), Texture(36, 0.55, 0.1, (1.0, 1.0, 1.0), 32),
+                          shift=(3.0, 1.0), spin=(0, 8, 0)),
+                Primitive("box", (0.7, 0.45), 6.5, (0.09, 0.09, 0.09), Texture(40, 0.45, 0.1, (1.0, 1.0, 1.0), 33),
+                          tilt=(20, 30, 0), shift=(-2.5, 2.0), approach=-0.4),
+            ),
+        ),
+    )
+}
+
+
+def list_scenes() -> dict[str, str]:
+    """Names of the built-in scenes and a line describing each."""
+    return {name: scene.description for name, scene in SCENES.items()}
+
+
+def _rotation(degrees) -> np.ndarray:
+    """Rotation matrix of successive rotations about x, y, z (degrees)."""
+    ax, ay, az = np.deg2rad(np.asarray(degrees, dtype=np.float64))
+    rx = np.array([[1, 0, 0], [0, math.cos(ax), -math.sin(ax)], [0, math.sin(ax), math.cos(ax)]])
+    ry = np.array([[math.cos(ay), 0, math.sin(ay)], [0, 1, 0], [-math.sin(ay), 0, math.cos(ay)]])
+    rz = np.array([[math.cos(az), -math.sin(az), 0], [math.sin(az), math.cos(az), 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+@dataclass(frozen=True)
+class CameraArray:
+    """The camera array at a given image size: focal length f (px), principal point,
+    baseline B between neighbouring views and sensor shift s (px per view step)."""
+
+    width: int
+    height: int
+    focal: float
+    baseline: float
+    shift: float
+
+    @classmethod
+    def for_size(cls, width: int, height: int) -> "CameraArray":
+        focal = FOCAL_PER_WIDTH * width
+        return cls(width, height, focal, FOCAL_BASELINE / focal, FOCAL_BASELINE / ZERO_DISPARITY_DEPTH)
+
+    @property
+    def cx(self) -> float:
+        return (self.width - 1) / 2.0
+
+    @property
+    def cy(self) -> float:
+        return (self.height - 1) / 2.0
+
+    def disparity(self, depth):
+        """δ = f·B/Z − s, px per view step."""
+        return self.focal * self.baseline / np.asarray(depth) - self.shift
+
+    def back_project(self, x, y, depth) -> np.ndarray:
+        """World point seen by the centre view at image point (x, y) and depth Z."""
+        return np.array([(x - self.cx) * depth / self.focal, (y - self.cy) * depth / self.focal, depth])
+
+
+def _object_poses(prim: Primitive, cam: CameraArray):
+    """World poses (rotation, centre) at t1 and t2, world size and texture frequency."""
+    x1 = prim.at[0] * (cam.width - 1)
+    y1 = prim.at[1] * (cam.height - 1)
+    z1 = prim.depth
+    z2 = prim.depth + prim.approach
+    if z2 <= 0:
+        raise ValueError(f"object moves behind the camera (depth {z1} + approach {prim.approach})")
+    c1 = cam.back_project(x1, y1, z1)
+    c2 = cam.back_project(x1 + prim.shift[0], y1 + prim.shift[1], z2)
+    r1 = _rotation(prim.tilt)
+    r2 = _rotation(prim.spin) @ r1
+    # sizes are fractions of the image width at the object's depth
+    world_per_px = z1 / cam.focal
+    size = np.zeros(3)
+    size[: len(prim.size)] = np.asarray(prim.size, dtype=np.float64) * cam.width * world_per_px
+    period_px = max(prim.texture.period * cam.width / REFERENCE_WIDTH, MIN_TEXTURE_PERIOD)
+    tex_freq = 1.0 / (period_px * world_per_px)
+    return (r1, c1), (r2, c2), size, tex_freq
+
+
+_KINDS = {"plane": 0, "sphere": 1, "box": 2}
+
+
+def _scene_arrays(scene: Scene, cam: CameraArray, device: str):
+    """Warp arrays of SceneObject at t1 and at t2."""
+    import warp as wp
+
+    from lfsf.kernels import render
+
+    per_time = ([], [])
+    for prim in scene.objects:
+        if prim.kind not in _KINDS:
+            raise ValueError(f"scene {scene.name!r}: unknown primitive kind {prim.kind!r}")
+        poses1, poses2, size, tex_freq = _object_poses(prim, cam)
+        for (rot, centre), out in zip((poses1, poses2), per_time):
+            obj = render.SceneObject()
+            obj.kind = _KINDS[prim.kind]
+            obj.rot = wp.mat33(*rot.astype(np.float32).ravel())
+            obj.pos = wp.vec3(*centre.astype(np.float32))
+            obj.size = wp.vec3(*size.astype(np.float32))
+            obj.tex_seed = int(prim.texture.seed)
+            obj.tex_freq = float(tex_freq)
+            obj.tex_mean = float(prim.texture.mean)
+            obj.tex_contrast = float(prim.texture.contrast)
+            obj.colour = wp.vec3(*prim.texture.colour)
+            out.append(obj)
+    return tuple(wp.array(objs, dtype=render.SceneObject, device=device) for objs in per_time)
+
+
+def _warp_camera(cam: CameraArray):
+    from lfsf.kernels import render
+
+    c = render.Camera()
+    c.focal = float(cam.focal)
+    c.cx = float(cam.cx)
+    c.cy = float(cam.cy)
+    c.baseline = float(cam.baseline)
+    c.shift = float(cam.shift)
+    return c
+
+
+def _grid(grid) -> tuple[int, int]:
+    rows, cols = (grid, grid) if np.isscalar(grid) else tuple(grid)
+    if int(rows) < 1 or int(cols) < 1:
+        raise ValueError(f"the view grid must be at least 1×1, got {rows}×{cols}")
+    return int(rows), int(cols)
+
+
+def _check_size(size) -> tuple[int, int]:
+    width, height = (int(s) for s in size)
+    if width < 8 or height < 8:
+        raise ValueError(f"image size must be at least 8×8 pixels, got {width}×{height}")
+    return width, height
+
+
+def get_scene(scene: str | Scene) -> Scene:
+    if isinstance(scene, Scene):
+        return scene
+    if scene not in SCENES:
+        raise ValueError(f"unknown scene {scene!r}: the scenes are {', '.join(SCENES)}")
+    return SCENES[scene]
+
+
+def render_scene(
+    scene: str | Scene,
+    *,
+    size: tuple[int, int] = (640, 480),
+    grid: int | tuple[int, int] = 9,
+    supersample: int = 2,
+    colour: bool = False,
+    device: str | None = None,
+):
+    """Render a light-field pair of a scene and its exact ground truth.
+
+    Parameters
+    ----------
+    scene : name of a built-in scene (see :func:`list_scenes`) or a :class:`Scene`
+    size : (width, height) of each view in pixels
+    grid : views per side (or (rows, cols)); the angular centre is the grid's centre
+    supersample : rays per pixel along each axis (box-filtered)
+    colour : RGB views if true, else grey (BT.601 luma of the same colours)
+    device : Warp device (default as :func:`lfsf.device.resolve_device`)
+
+    Returns
+    -------
+    lf1, lf2 : :class:`lfsf.io.LightField` at t1 and t2
+    gt : dict of float32 (H, W) ``disp1``, ``disp2``, ``u``, ``v`` and bool ``valid``,
+        ``occluded`` (MODEL.md §1 conventions), plus the camera as scalars
+        (``focal``, ``baseline``, ``shift``)
+    """
+    from lfsf.io import LightField
+    from lfsf.kernels import render
+
+    wp = _device.warp()
+    sc = get_scene(scene)
+    width, height = _check_size(size)
+    rows, cols = _grid(grid)
+    if int(supersample) < 1:
+        raise ValueError(f"supersample must be at least 1, got {supersample}")
+    dev = _device.resolve_device(device)
+    cam = CameraArray.for_size(width, height)
+    wcam = _warp_camera(cam)
+    objects = _scene_arrays(sc, cam, dev)
+    channels = 3 if colour else 1
+
+    lfs = []
+    for t, objs in enumerate(objects):
+        views = wp.empty((rows * cols, height, width, channels), dtype=float, device=dev)
+        _device.launch_rows(
+            render.render_views,
+            dim=(rows * cols * height, width),
+            inputs=[wcam, objs, cols, (rows - 1) / 2.0, (cols - 1) / 2.0, int(supersample)],
+            outputs=[views],
+            device=dev,
+        )
+        arr = views.numpy().reshape(rows, cols, height, width, channels)
+        if channels == 1:
+            arr = arr[..., 0]
+        lfs.append(LightField(arr, source=f"synthetic scene '{sc.name}' at t{t + 1}"))
+
+    out = {k: wp.empty((height, width), dtype=float, device=dev) for k in ("disp1", "disp2", "u", "v")}
+    masks = {k: wp.empty((height, width), dtype=wp.uint8, device=dev) for k in ("valid", "occluded")}
+    _device.launch_rows(
+        render.ground_truth,
+        dim=(height, width),
+        inputs=[wcam, objects[0], objects[1], width, height],
+        outputs=[out["disp1"], out["disp2"], out["u"], out["v"], masks["valid"], masks["occluded"]],
+        device=dev,
+    )
+    gt = {k: a.numpy().astype(np.float32) for k, a in out.items()}
+    gt.update({k: a.numpy().astype(bool) for k, a in masks.items()})
+    gt.update(focal=np.float32(cam.focal), baseline=np.float32(cam.baseline), shift=np.float32(cam.shift))
+    return lfs[0], lfs[1], gt
+
+
+def write_scene(
+    scene: str | Scene,
+    out: str | Path,
+    *,
+    size: tuple[int, int] = (640, 480),
+    grid: int | tuple[int, int] = 9,
+    supersample: int = 2,
+    colour: bool = False,
+    device: str | None = None,
+) -> dict[str, Path]:
+    """Render a scene and write ``lf1.npz``, ``lf2.npz`` and ``gt.npz`` into ``out``.
+
+    Each file is written under a temporary name and renamed when complete. Returns the
+    paths written.
+    """
+    from lfsf._files import savez_atomic
+    from lfsf.io import write_lightfield
+
+    lf1, lf2, gt = render_scene(scene, size=size, grid=grid, supersample=supersample, colour=colour, device=device)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {"lf1": out / "lf1.npz", "lf2": out / "lf2.npz", "gt": out / "gt.npz"}
+    write_lightfield(lf1, paths["lf1"])
+    write_lightfield(lf2, paths["lf2"])
+    sc = get_scene(scene)
+    savez_atomic(paths["gt"], compressed=True, scene=np.str_(sc.name), **gt)
+    return paths

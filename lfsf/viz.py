@@ -1,0 +1,630 @@
+"""Pictures of scene-flow results: colour-coded flow, disparity and error maps, and an
+overview figure that sets estimates beside ground truth.
+
+Everything here returns RGB ``uint8`` arrays of shape ``(H, W, 3)``; nothing draws on
+screen, and the only dependencies are NumPy, imageio and Pillow (no matplotlib). Every PNG
+is written atomically (:func:`lfsf._files.atomic_path`), so an interrupted run never
+leaves a half-written picture.
+
+Conventions (see MODEL.md §1): pixel ``x`` to the right, ``y`` down; flow ``(u, v)`` moves
+the point seen at ``p`` in the centre view at t1 to ``p + (u, v)`` at t2; disparity in
+pixels per view step.
+
+References
+----------
+.. [1] S. Baker, D. Scharstein, J. P. Lewis, S. Roth, M. J. Black and R. Szeliski,
+   "A Database and Evaluation Methodology for Optical Flow", IJCV 92(1), 2011.
+   Colour coding of flow: the authors' ``flow-code`` (``colorcode.cpp``,
+   ``computeColor.m``).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import imageio.v3 as iio
+import numpy as np
+from PIL import Image, ImageDraw, ImageFont
+
+from lfsf._files import atomic_path
+
+__all__ = [
+    "disparity_to_color",
+    "error_to_color",
+    "flow_to_color",
+    "flow_wheel_legend",
+    "make_color_wheel",
+    "overview_figure",
+    "save_png",
+]
+
+# Segment lengths of the Middlebury colour wheel [1]_: red-yellow, yellow-green,
+# green-cyan, cyan-blue, blue-magenta, magenta-red. Chosen by the authors so that the
+# hues are perceptually roughly equally spaced; 55 colours in all.
+_WHEEL_SEGMENTS = (
+    (15, (255, 0, 0), (255, 255, 0)),
+    (6, (255, 255, 0), (0, 255, 0)),
+    (4, (0, 255, 0), (0, 255, 255)),
+    (11, (0, 255, 255), (0, 0, 255)),
+    (13, (0, 0, 255), (255, 0, 255)),
+    (6, (255, 0, 255), (255, 0, 0)),
+)
+
+# Middlebury .flo files mark unknown flow with 1e10; the reference code treats any
+# component above 1e9 as unknown, and so do we.
+_UNKNOWN_FLOW_THRESH = 1e9
+
+# Viridis (CC0, van der Walt & Smith) sampled at t = 0, 0.1, ..., 1. Linear interpolation
+# between these stops keeps its two properties that matter here: luminance rises
+# monotonically, and it stays readable in greyscale and for colour-blind readers.
+_VIRIDIS_STOPS = (
+    (68, 1, 84), (72, 36, 117), (65, 68, 135), (53, 95, 141), (42, 120, 142),
+    (33, 145, 140), (34, 168, 132), (68, 191, 112), (122, 209, 81), (189, 223, 38),
+    (253, 231, 37),
+)
+
+# White -> yellow -> orange -> red -> dark red (close to ColorBrewer YlOrRd): zero error
+# vanishes into the white background, luminance falls monotonically with the error.
+_ERROR_STOPS = (
+    (255, 255, 255), (255, 237, 160), (254, 178, 76), (240, 59, 32), (128, 0, 38),
+)
+
+
+def _lut_from_stops(stops: Sequence[tuple[int, int, int]], n: int = 256) -> np.ndarray:
+    """Piecewise-linear ``(n, 3)`` uint8 lookup table through equally spaced RGB stops."""
+    stops_arr = np.asarray(stops, dtype=np.float64)
+    at = np.linspace(0.0, 1.0, len(stops_arr))
+    t = np.linspace(0.0, 1.0, n)
+    lut = np.stack([np.interp(t, at, stops_arr[:, c]) for c in range(3)], axis=-1)
+    return np.round(lut).astype(np.uint8)
+
+
+_DISPARITY_LUT = _lut_from_stops(_VIRIDIS_STOPS)
+_ERROR_LUT = _lut_from_stops(_ERROR_STOPS)
+
+
+# --------------------------------------------------------------------------- flow
+
+
+def make_color_wheel() -> np.ndarray:
+    """The 55-colour Middlebury flow colour wheel [1]_.
+
+    Returns
+    -------
+    wheel : ndarray of uint8, shape (55, 3)
+        RGB colours in hue order: index 0 is red ``(255, 0, 0)``, then yellow (15), green
+        (21), cyan (25), blue (36), magenta (49), back towards red (54 is
+        ``(255, 0, 43)``). Within a segment one channel ramps by ``floor(255 i / n)``,
+        exactly as in the reference code.
+    """
+    rows = []
+    for n, start, end in _WHEEL_SEGMENTS:
+        ramp = np.floor(255.0 * np.arange(n) / n)
+        step = np.sign(np.subtract(end, start))
+        rows.append(np.asarray(start, dtype=np.float64) + ramp[:, None] * step)
+    return np.concatenate(rows).astype(np.uint8)
+
+
+_WHEEL = make_color_wheel()
+
+
+def _check_flow(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    u = np.asarray(u)
+    v = np.asarray(v)
+    if u.ndim != 2 or u.shape != v.shape:
+        raise ValueError(
+            f"expected u and v as 2-D arrays of one shape (H, W), got {u.shape} and {v.shape}"
+        )
+    return u.astype(np.float64), v.astype(np.float64)
+
+
+def _flow_valid(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return (
+        np.isfinite(u)
+        & np.isfinite(v)
+        & (np.abs(u) <= _UNKNOWN_FLOW_THRESH)
+        & (np.abs(v) <= _UNKNOWN_FLOW_THRESH)
+    )
+
+
+def _max_magnitude(u: np.ndarray, v: np.ndarray, mask: np.ndarray | None = None) -> float:
+    """Largest ``|(u, v)|`` over valid pixels (and ``mask``), 0 where there is none."""
+    valid = _flow_valid(u, v)
+    if mask is not None:
+        valid &= mask
+    if not valid.any():
+        return 0.0
+    return float(np.hypot(u[valid], v[valid]).max())
+
+
+def flow_to_color(u, v, max_flow: float | None = None) -> np.ndarray:
+    """Colour-code a flow field with the Middlebury colour wheel [1]_.
+
+    Parameters
+    ----------
+    u, v : array_like, shape (H, W)
+        Horizontal (to the right) and vertical (downwards) flow in pixels.
+    max_flow : float, optional
+        Magnitude drawn at full saturation. Default: the largest valid magnitude in this
+        field. Pass a fixed value to give several fields one scale; vectors longer than
+        ``max_flow`` are then drawn darkened (colour × 0.75), as in the reference code.
+
+    Returns
+    -------
+    rgb : ndarray of uint8, shape (H, W, 3)
+        Hue encodes direction, saturation magnitude: zero flow is white. Pixels where
+        ``u`` or ``v`` is not finite (or above 1e9, the ``.flo`` "unknown" marker) are
+        black.
+
+    Notes
+    -----
+    Direction follows the reference ``computeColor``: the wheel position is
+    ``fk = (atan2(-v, -u) / π + 1) / 2 · 54``, interpolated linearly between wheel colours
+    ``floor(fk)`` and ``floor(fk) + 1``, then ``colour = 1 − r (1 − colour)`` for
+    normalised magnitude ``r ≤ 1`` and the result floored to ``0…255``. Hence:
+
+    * right (``u > 0, v = 0``): ``atan2(−0, −u) = −π`` → ``fk = 0`` → red ``(255, 0, 0)``;
+    * down (``v > 0``): ``fk = 13.5`` → orange-yellow ``(255, 229, 0)``;
+    * left (``u < 0, v = 0``): ``fk = 27`` → wheel colour 27, ``(0, 209, 255)``;
+    * up (``v < 0``): ``fk = 40.5`` → violet ``(88, 0, 255)``.
+
+    Right-pointing flow relies on ``-v`` being ``−0.0``; a ``v`` of ``−0.0`` would land on
+    the other side of the wheel's seam (``fk = 54``, ``(255, 0, 43)``), so signed zeros in
+    ``v`` are made ``+0.0`` first and every exactly rightward vector is red.
+    """
+    u, v = _check_flow(u, v)
+    if max_flow is not None and not (math.isfinite(max_flow) and max_flow > 0):
+        raise ValueError(f"expected max_flow as a finite number > 0, got {max_flow!r}")
+    valid = _flow_valid(u, v)
+    u = np.where(valid, u, 0.0)
+    v = np.where(valid, v, 0.0) + 0.0  # -0.0 -> +0.0, see Notes
+    scale = _max_magnitude(u, v, valid) if max_flow is None else float(max_flow)
+    rgb = np.full(u.shape + (3,), 255, dtype=np.uint8)
+    if scale == 0.0:  # every valid vector is zero: all white
+        rgb[~valid] = 0
+        return rgb
+
+    rad = np.hypot(u, v) / scale
+    ncols = len(_WHEEL)
+    fk = (np.arctan2(-v, -u) / np.pi + 1.0) / 2.0 * (ncols - 1)
+    k0 = np.floor(fk).astype(np.intp)
+    k1 = (k0 + 1) % ncols
+    f = (fk - k0)[..., None]
+    wheel = _WHEEL.astype(np.float64) / 255.0
+    col = (1.0 - f) * wheel[k0] + f * wheel[k1]
+    inside = (rad <= 1.0)[..., None]
+    col = np.where(inside, 1.0 - rad[..., None] * (1.0 - col), col * 0.75)
+    rgb = np.floor(255.0 * col).astype(np.uint8)
+    rgb[~valid] = 0
+    return rgb
+
+
+def flow_wheel_legend(size: int = 128) -> np.ndarray:
+    """The flow colour wheel itself, as a key for figures.
+
+    Parameters
+    ----------
+    size : int
+        Side of the square image in pixels (≥ 1).
+
+    Returns
+    -------
+    rgb : ndarray of uint8, shape (size, size, 3)
+        Pixel ``(x, y)`` shows the colour :func:`flow_to_color` gives the vector from the
+        image centre to that pixel, with the inscribed disc's radius as ``max_flow`` (so
+        the rim is fully saturated and the centre white). Outside the disc: white.
+    """
+    size = int(size)
+    if size < 1:
+        raise ValueError(f"expected size >= 1, got {size}")
+    half = (size - 1) / 2.0
+    coords = (np.arange(size) - half) / max(half, 1.0)
+    x, y = np.meshgrid(coords, coords)
+    rgb = flow_to_color(x, y, max_flow=1.0)
+    rgb[np.hypot(x, y) > 1.0] = 255
+    return rgb
+
+
+# --------------------------------------------------------------------------- scalar maps
+
+
+def _robust_range(values: np.ndarray) -> tuple[float, float]:
+    """1st / 99th percentile of the finite values; a degenerate range is widened."""
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return 0.0, 1.0
+    lo, hi = (float(x) for x in np.percentile(finite, [1.0, 99.0]))
+    if hi <= lo:
+        pad = max(abs(lo) * 1e-3, 1e-6)
+        lo, hi = lo - pad, hi + pad
+    return lo, hi
+
+
+def _apply_lut(values: np.ndarray, lo: float, hi: float, lut: np.ndarray,
+               invalid_color: Sequence[int]) -> np.ndarray:
+    finite = np.isfinite(values)
+    t = np.clip((np.where(finite, values, lo) - lo) / (hi - lo), 0.0, 1.0)
+    rgb = lut[np.round(t * (len(lut) - 1)).astype(np.intp)]
+    rgb[~finite] = np.asarray(invalid_color, dtype=np.uint8)
+    return rgb
+
+
+def _check_color(color: Sequence[int]) -> tuple[int, int, int]:
+    c = tuple(int(x) for x in color)
+    if len(c) != 3 or not all(0 <= x <= 255 for x in c):
+        raise ValueError(f"expected an RGB colour of three ints in 0..255, got {color!r}")
+    return c
+
+
+def _check_map(name: str, a) -> np.ndarray:
+    a = np.asarray(a)
+    if a.ndim != 2:
+        raise ValueError(f"expected {name} as a 2-D array (H, W), got shape {a.shape}")
+    return a.astype(np.float64)
+
+
+def disparity_to_color(disp, vmin: float | None = None, vmax: float | None = None,
+                       invalid_color: Sequence[int] = (0, 0, 0)) -> np.ndarray:
+    """Colour-code a disparity map with a viridis-like colormap.
+
+    Parameters
+    ----------
+    disp : array_like, shape (H, W)
+        Disparity δ in pixels per view step.
+    vmin, vmax : float, optional
+        Values drawn at the dark (purple) and bright (yellow) ends; values beyond are
+        clipped. Default: the 1st and 99th percentiles of the finite values.
+    invalid_color : tuple of 3 ints
+        RGB colour of NaN / infinite pixels.
+
+    Returns
+    -------
+    rgb : ndarray of uint8, shape (H, W, 3)
+        Luminance rises monotonically from ``vmin`` to ``vmax`` (a 256-entry table
+        interpolated from 11 viridis stops).
+    """
+    disp = _check_map("disp", disp)
+    invalid_color = _check_color(invalid_color)
+    lo, hi = _robust_range(disp)
+    lo = lo if vmin is None else float(vmin)
+    hi = hi if vmax is None else float(vmax)
+    if not hi > lo:
+        raise ValueError(f"expected vmin < vmax, got vmin={lo!r}, vmax={hi!r}")
+    return _apply_lut(disp, lo, hi, _DISPARITY_LUT, invalid_color)
+
+
+def error_to_color(err, vmax: float | None = None,
+                   invalid_color: Sequence[int] = (0, 0, 0)) -> np.ndarray:
+    """Colour-code an absolute-error map, white (no error) to dark red (``≥ vmax``).
+
+    Parameters
+    ----------
+    err : array_like, shape (H, W)
+        Non-negative error (negative values are drawn as 0).
+    vmax : float, optional
+        Error drawn at the dark-red end; larger errors are clipped. Default: the 99th
+        percentile of the finite values (1 if there are none or all are 0).
+    invalid_color : tuple of 3 ints
+        RGB colour of NaN / infinite pixels (e.g. outside the ground truth's valid mask).
+
+    Returns
+    -------
+    rgb : ndarray of uint8, shape (H, W, 3)
+        Luminance falls monotonically with the error.
+    """
+    err = _check_map("err", err)
+    invalid_color = _check_color(invalid_color)
+    if vmax is None:
+        vmax = _error_scale(err)
+    if not (math.isfinite(vmax) and vmax > 0):
+        raise ValueError(f"expected vmax as a finite number > 0, got {vmax!r}")
+    return _apply_lut(err, 0.0, float(vmax), _ERROR_LUT, invalid_color)
+
+
+def _error_scale(*errors: np.ndarray) -> float:
+    """Shared error scale: the 99th percentile of all finite values (else their max,
+    else 1)."""
+    finite = np.concatenate([e[np.isfinite(e)].ravel() for e in errors])
+    if finite.size == 0:
+        return 1.0
+    for candidate in (np.percentile(finite, 99.0), finite.max()):
+        if candidate > 0:
+            return float(candidate)
+    return 1.0
+
+
+# --------------------------------------------------------------------------- PNG output
+
+
+def _to_uint8_image(img) -> np.ndarray:
+    img = np.asarray(img)
+    if not (img.ndim == 2 or (img.ndim == 3 and img.shape[2] == 3)):
+        raise ValueError(f"expected an image of shape (H, W) or (H, W, 3), got {img.shape}")
+    if img.dtype == np.uint8:
+        return img
+    if np.issubdtype(img.dtype, np.floating):
+        scaled = np.round(np.clip(np.nan_to_num(img, nan=0.0), 0.0, 1.0) * 255.0)
+        return scaled.astype(np.uint8)
+    raise ValueError(f"expected a uint8 image or a float image in [0, 1], got dtype {img.dtype}")
+
+
+def save_png(path: str | os.PathLike, img) -> None:
+    """Write an image as PNG, atomically (the target appears only once complete).
+
+    Parameters
+    ----------
+    path : str or path-like
+        Target file; missing parent folders are created.
+    img : array_like, shape (H, W) or (H, W, 3)
+        ``uint8``, or float in [0, 1] (clipped; NaN written as 0).
+    """
+    img = _to_uint8_image(img)
+    with atomic_path(path, suffix=".png") as tmp:
+        iio.imwrite(tmp, img, extension=".png")
+
+
+# --------------------------------------------------------------------------- overview
+
+_MIN_PANEL_WIDTH = 240  # small inputs are upscaled (nearest) to at least this width
+_FONT_SIZE = 13
+_PAD = 4
+_GAP = 8
+_MARGIN = 8
+_BACKGROUND_RGB = (255, 255, 255)
+_HEADER_RGB = (222, 226, 232)
+_TEXT_RGB = (0, 0, 0)
+
+
+@dataclass(frozen=True)
+class _ColorBar:
+    """Footer: the colormap ``lut`` from ``lo`` to ``hi``, with the numbers beside it."""
+
+    lut: np.ndarray
+    lo: float
+    hi: float
+
+
+@dataclass(frozen=True)
+class _WheelKey:
+    """Footer: the flow colour wheel and the magnitude drawn at full saturation."""
+
+    max_flow: float
+
+
+@dataclass(frozen=True)
+class _Panel:
+    label: str
+    image: np.ndarray  # (H, W, 3) uint8 at the input's resolution
+    footer: _ColorBar | _WheelKey | None = None
+
+
+def _font() -> ImageFont.ImageFont | ImageFont.FreeTypeFont:
+    try:
+        return ImageFont.load_default(size=_FONT_SIZE)
+    except TypeError:  # Pillow < 10.1: only the fixed-size bitmap font
+        return ImageFont.load_default()
+
+
+def _view_to_rgb(name: str, view, shape: tuple[int, int]) -> np.ndarray:
+    view = np.asarray(view)
+    if view.shape[:2] != shape or view.ndim not in (2, 3) or (
+        view.ndim == 3 and view.shape[2] != 3
+    ):
+        raise ValueError(
+            f"expected {name} of shape {shape} or {shape + (3,)}, got {view.shape}"
+        )
+    rgb = _to_uint8_image(view)
+    return np.repeat(rgb[..., None], 3, axis=2) if rgb.ndim == 2 else rgb
+
+
+def _check_map_shape(name: str, a, shape: tuple[int, ...]) -> np.ndarray:
+    a = _check_map(name, a)
+    if a.shape != shape:
+        raise ValueError(f"expected {name} of shape {shape} (the centre view's), got {a.shape}")
+    return a
+
+
+def _fmt(x: float) -> str:
+    return f"{x:.3g}"
+
+
+def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow) -> list[list[_Panel]]:
+    """The overview's panels, row by row (see :func:`overview_figure`)."""
+    shape = _check_map("disp1", disp1).shape
+    est = {k: _check_map_shape(k, a, shape)
+           for k, a in (("disp1", disp1), ("disp2", disp2), ("u", u), ("v", v))}
+    rows = [[
+        _Panel("centre view t1", _view_to_rgb("centre1", centre1, shape)),
+        _Panel("centre view t2", _view_to_rgb("centre2", centre2, shape)),
+    ]]
+    if max_flow is not None and not (math.isfinite(max_flow) and max_flow > 0):
+        raise ValueError(f"expected max_flow as a finite number > 0, got {max_flow!r}")
+
+    truth: dict[str, np.ndarray] = {}
+    valid = np.ones(shape, dtype=bool)
+    if gt is not None:
+        missing = [k for k in ("disp1", "disp2", "u", "v") if k not in gt]
+        if missing:
+            raise ValueError(f"expected gt with keys disp1, disp2, u, v; missing {missing}")
+        truth = {k: _check_map_shape(f"gt[{k!r}]", gt[k], shape)
+                 for k in ("disp1", "disp2", "u", "v")}
+        if gt.get("valid") is not None:
+            mask = np.asarray(gt["valid"])
+            if mask.shape != shape or mask.dtype != bool:
+                raise ValueError(
+                    f"expected gt['valid'] as a bool array of shape {shape}, "
+                    f"got {mask.dtype} {mask.shape}"
+                )
+            valid = mask.copy()
+        # outside the mask the ground truth means nothing: draw it as invalid too
+        truth = {k: np.where(valid, a, np.nan) for k, a in truth.items()}
+
+    ranges = {
+        k: _robust_range(np.concatenate([est[k].ravel()] + ([truth[k].ravel()] if truth else [])))
+        for k in ("disp1", "disp2")
+    }
+    if max_flow is None:
+        max_flow = _max_magnitude(est["u"], est["v"])
+        if truth:
+            max_flow = max(max_flow, _max_magnitude(truth["u"], truth["v"]))
+    scale = max_flow if max_flow > 0 else None  # all-zero flow: flow_to_color draws white
+
+    def disparity_row(maps: Mapping[str, np.ndarray], tag: str) -> list[_Panel]:
+        row = []
+        for k in ("disp1", "disp2"):
+            lo, hi = ranges[k]
+            row.append(_Panel(f"{k} {tag}", disparity_to_color(maps[k], lo, hi),
+                              _ColorBar(_DISPARITY_LUT, lo, hi)))
+        row.append(_Panel(f"flow {tag}", flow_to_color(maps["u"], maps["v"], scale),
+                          _WheelKey(max_flow)))
+        return row
+
+    rows.append(disparity_row(est, "estimate"))
+    if not truth:
+        return rows
+    rows.append(disparity_row(truth, "ground truth"))
+
+    errors = {
+        "disp1": np.abs(est["disp1"] - truth["disp1"]),
+        "disp2": np.abs(est["disp2"] - truth["disp2"]),
+        "flow": np.hypot(est["u"] - truth["u"], est["v"] - truth["v"]),
+    }
+    errors = {k: np.where(np.isfinite(e), e, np.nan) for k, e in errors.items()}
+    disp_scale = _error_scale(errors["disp1"], errors["disp2"])
+    flow_scale = _error_scale(errors["flow"])
+    error_row = []
+    for k, title in (("disp1", "|disp1 - GT|"), ("disp2", "|disp2 - GT|"), ("flow", "flow EPE")):
+        e = errors[k]
+        finite = np.isfinite(e)
+        mean = f"{float(e[finite].mean()):.4g}" if finite.any() else "n/a"
+        vmax = flow_scale if k == "flow" else disp_scale
+        error_row.append(_Panel(f"{title}  mean {mean}", error_to_color(e, vmax),
+                                _ColorBar(_ERROR_LUT, 0.0, vmax)))
+    rows.append(error_row)
+    return rows
+
+
+def _fit_text(draw: ImageDraw.ImageDraw, text: str, font, width: int) -> str:
+    """``text``, shortened with '..' until it fits in ``width`` pixels."""
+    if draw.textlength(text, font=font) <= width:
+        return text
+    while text and draw.textlength(text + "..", font=font) > width:
+        text = text[:-1]
+    return text + ".."
+
+
+def _compose(rows: list[list[_Panel]], title: str | None) -> np.ndarray:
+    """Lay the panels out on a grid: header label, upscaled image, footer key."""
+    h, w = rows[0][0].image.shape[:2]
+    s = max(1, math.ceil(_MIN_PANEL_WIDTH / w))
+    pw, ph = w * s, h * s
+    font = _font()
+    probe = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+    top, bottom = probe.textbbox((0, 0), "Ag|0.9", font=font)[1::2]
+    line_h = bottom - top
+    header_h = line_h + 2 * _PAD
+    footer_h = max(line_h, 16) + 2 * _PAD
+    cell_h = header_h + ph + footer_h
+    ncols = max(len(r) for r in rows)
+    title_h = header_h if title else 0
+    width = 2 * _MARGIN + ncols * pw + (ncols - 1) * _GAP
+    height = 2 * _MARGIN + title_h + len(rows) * cell_h + (len(rows) - 1) * _GAP
+
+    canvas = Image.new("RGB", (width, height), _BACKGROUND_RGB)
+    draw = ImageDraw.Draw(canvas)
+
+    def text_at(x: int, y: int, text: str) -> None:
+        # (x, y) is the top left of the line box; textbbox's top offset is removed so
+        # every line sits _PAD below its strip's top edge
+        draw.text((x, y - top), text, fill=_TEXT_RGB, font=font)
+
+    if title:
+        text_at(_MARGIN, _MARGIN + _PAD, _fit_text(draw, title, font, width - 2 * _MARGIN))
+    for r, row in enumerate(rows):
+        y0 = _MARGIN + title_h + r * (cell_h + _GAP)
+        for c, panel in enumerate(row):
+            x0 = _MARGIN + c * (pw + _GAP)
+            draw.rectangle([x0, y0, x0 + pw - 1, y0 + header_h - 1], fill=_HEADER_RGB)
+            text_at(x0 + _PAD, y0 + _PAD, _fit_text(draw, panel.label, font, pw - 2 * _PAD))
+            big = np.repeat(np.repeat(panel.image, s, axis=0), s, axis=1)
+            canvas.paste(Image.fromarray(big), (x0, y0 + header_h))
+            _draw_footer(canvas, draw, panel.footer, x0, y0 + header_h + ph, pw, footer_h,
+                         font, text_at)
+    return np.asarray(canvas, dtype=np.uint8).copy()
+
+
+def _draw_footer(canvas, draw, footer, x0, y0, pw, footer_h, font, text_at) -> None:
+    inner = footer_h - 2 * _PAD
+    if isinstance(footer, _WheelKey):
+        key = flow_wheel_legend(inner)
+        canvas.paste(Image.fromarray(key), (x0 + _PAD, y0 + _PAD))
+        label = f"full colour at |(u,v)| = {_fmt(footer.max_flow)} px"
+        label = _fit_text(draw, label, font, pw - 3 * _PAD - inner)
+        text_at(x0 + 2 * _PAD + inner, y0 + _PAD, label)
+    elif isinstance(footer, _ColorBar):
+        lo, hi = _fmt(footer.lo), _fmt(footer.hi)
+        lo_w = math.ceil(draw.textlength(lo, font=font))
+        hi_w = math.ceil(draw.textlength(hi, font=font))
+        bar_x0 = x0 + 2 * _PAD + lo_w
+        bar_w = pw - 4 * _PAD - lo_w - hi_w
+        text_at(x0 + _PAD, y0 + _PAD, lo)
+        text_at(bar_x0 + max(bar_w, 0) + _PAD, y0 + _PAD, hi)
+        if bar_w > 0:
+            idx = np.round(np.linspace(0, len(footer.lut) - 1, bar_w)).astype(np.intp)
+            bar = np.repeat(footer.lut[idx][None], inner, axis=0)
+            canvas.paste(Image.fromarray(bar), (bar_x0, y0 + _PAD))
+
+
+def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = None,
+                    path: str | os.PathLike | None = None, title: str | None = None,
+                    max_flow: float | None = None) -> np.ndarray:
+    """A labelled grid of panels showing a scene-flow result, optionally against truth.
+
+    Rows: (1) centre views at t1 and t2; (2) estimated δ1, δ2 and flow; with ``gt`` also
+    (3) the ground truth on the same colour scales and (4) the errors ``|δ1 − δ1*|``,
+    ``|δ2 − δ2*|`` and the flow end-point error, their means over the valid pixels in
+    the labels. Each panel has a header strip with its label and a footer with its key:
+    a colour bar with its end values under disparity and error maps, the colour wheel
+    and the full-saturation magnitude under flow.
+
+    Parameters
+    ----------
+    centre1, centre2 : array_like, shape (H, W) or (H, W, 3)
+        Centre views at t1 and t2, float in [0, 1] or uint8.
+    disp1, disp2 : array_like, shape (H, W)
+        Estimated disparities δ1 and δ2 (MODEL.md §1: δ2 is the t2 disparity of the
+        point seen at ``p`` at t1). NaN is drawn as invalid (black).
+    u, v : array_like, shape (H, W)
+        Estimated flow of the centre view, pixels.
+    gt : mapping, optional
+        Ground truth with keys ``disp1``, ``disp2``, ``u``, ``v`` (same conventions and
+        shape), and optionally ``valid``, a bool (H, W) mask; pixels outside it are
+        drawn as invalid in the ground-truth and error panels and left out of the means.
+    path : str or path-like, optional
+        Where to write the figure as PNG (atomically).
+    title : str, optional
+        A line of text above the grid.
+    max_flow : float, optional
+        Flow magnitude at full saturation for both estimate and ground truth. Default:
+        the largest valid magnitude over both.
+
+    Returns
+    -------
+    figure : ndarray of uint8, shape (Hf, Wf, 3)
+        The figure. Panels keep the input's aspect ratio; inputs narrower than 240 px
+        are upscaled by an integer factor (nearest neighbour) so labels stay readable.
+
+    Notes
+    -----
+    Disparity panels share one range per variable between estimate and ground truth:
+    the 1st/99th percentiles of both maps' finite values together. Error maps of δ1 and
+    δ2 share one scale (99th percentile of both), the end-point error has its own.
+    """
+    rows = _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow)
+    figure = _compose(rows, title)
+    if path is not None:
+        save_png(path, figure)
+    return figure

@@ -1,0 +1,34 @@
+"""Shared test fixtures: the devices to run kernels on and the real data sets."""
+
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data"
+
+
+def _devices():
+    from lfsf.device import available_devices
+
+    devs = ["cpu"]
+    if "cuda:0" in available_devices():
+        devs.append("cuda:0")
+    return devs
+
+
+DEVICES = _devices()
+
+
+@pytest.fixture(params=DEVICES)
+def device(request):
+    """Every kernel test runs on the CPU, and on cuda:0 too when present."""
+    return request.param
+
+
+def data_path(*parts) -> Path:
+    """A path under ../shared/data; skips the test when it is absent."""
+    path = DATA.joinpath(*parts)
+    if not path.exists():
+        pytest.skip(f"{path} not present")
+    return path

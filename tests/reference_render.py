@@ -1,0 +1,169 @@
+"""NumPy reference of the renderer kernels (kernels/render.py), for tiny inputs.
+
+Written from the formulas, not from the kernel code paths: vectorised over rays, float64.
+"""
+
+import numpy as np
+
+from lfsf import synth
+
+KINDS = {"plane": 0, "sphere": 1, "box": 2}
+NO_HIT = 1.0e30
+OCTAVE_ROTATION = np.array([[0.36, 0.48, -0.8], [-0.8, 0.6, 0.0], [0.48, 0.64, 0.6]])
+
+
+def hash01(x, y, z, seed):
+    u = lambda a: np.asarray(a, dtype=np.int64).astype(np.uint32)  # two's-complement wrap
+    with np.errstate(over="ignore"):
+        h = u(x) * np.uint32(0x27D4EB2F) + u(y) * np.uint32(0x165667B1)
+        h = h + u(z) * np.uint32(0x5BD1E995) + u(seed) * np.uint32(0x68E31DA4)
+        h = (h ^ (h >> np.uint32(15))) * np.uint32(0x2C1B3C6D)
+        h = (h ^ (h >> np.uint32(12))) * np.uint32(0x297A2D39)
+        h = h ^ (h >> np.uint32(15))
+    return h.astype(np.float64) / 4294967295.0
+
+
+def value_noise(p, seed):
+    f = np.floor(p)
+    i = f.astype(np.int64)
+    t = p - f
+    t = t * t * t * (t * (t * 6 - 15) + 10)
+    out = 0.0
+    for dx in (0, 1):
+        for dy in (0, 1):
+            for dz in (0, 1):
+                w = (t[..., 0] if dx else 1 - t[..., 0]) * (t[..., 1] if dy else 1 - t[..., 1]) * (
+                    t[..., 2] if dz else 1 - t[..., 2])
+                out = out + w * hash01(i[..., 0] + dx, i[..., 1] + dy, i[..., 2] + dz, seed)
+    return 2.0 * out - 1.0
+
+
+def smoothstep(e0, e1, x):
+    t = np.clip((x - e0) / (e1 - e0), 0.0, 1.0)
+    return t * t * (3 - 2 * t)
+
+
+def texture(obj, local):
+    p = local * obj["freq"]
+    s = obj["seed"]
+    n = 0.55 * value_noise(p, s)
+    p = p @ OCTAVE_ROTATION.T
+    n = n + 0.3 * value_noise(p * 2.03, s + 17)
+    p = p @ OCTAVE_ROTATION.T
+    n = n + 0.15 * value_noise(p * 4.01, s + 31)
+    p = p @ OCTAVE_ROTATION.T
+    blob = smoothstep(-0.08, 0.08, value_noise(p * 0.61, s + 53)) - 0.5
+    return np.clip(obj["mean"] + obj["contrast"] * (n + 0.8 * blob), 0.0, 1.0)
+
+
+def intersect(obj, origin, direction):
+    """Ray parameter of the first hit (NO_HIT if none) and the local hit point, per ray."""
+    o = (origin - obj["pos"]) @ obj["rot"]  # rotᵀ·(origin − pos), row vectors
+    d = direction @ obj["rot"]
+    size = obj["size"]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if obj["kind"] == 0:
+            t = -o[..., 2] / d[..., 2]
+            h = o + t[..., None] * d
+            hit = (t > 1e-6) & (np.abs(h[..., 0]) <= size[0]) & (np.abs(h[..., 1]) <= size[1])
+        elif obj["kind"] == 1:
+            a = np.sum(d * d, -1)
+            b = np.sum(o * d, -1)
+            c = np.sum(o * o, -1) - size[0] ** 2
+            disc = b * b - a * c
+            sq = np.sqrt(np.maximum(disc, 0))
+            t0, t1 = (-b - sq) / a, (-b + sq) / a
+            t = np.where(t0 > 1e-6, t0, t1)
+            hit = (disc >= 0) & (t > 1e-6)
+        else:
+            ta = (-size - o) / d
+            tb = (size - o) / d
+            tnear = np.max(np.minimum(ta, tb), -1)
+            tfar = np.min(np.maximum(ta, tb), -1)
+            t = np.where(tnear > 1e-6, tnear, tfar)
+            hit = (tnear <= tfar) & (t > 1e-6)
+    t = np.where(hit, t, NO_HIT)
+    return t, o + np.where(hit, t, 0.0)[..., None] * d
+
+
+def trace(objects, origin, direction):
+    best = np.full(direction.shape[:-1], -1)
+    best_t = np.full(direction.shape[:-1], NO_HIT)
+    best_local = np.zeros(direction.shape)
+    for k, obj in enumerate(objects):
+        t, local = intersect(obj, origin, direction)
+        closer = t < best_t
+        best = np.where(closer, k, best)
+        best_t = np.where(closer, t, best_t)
+        best_local = np.where(closer[..., None], local, best_local)
+    return best, best_t, best_local
+
+
+def scene_objects(scene, cam):
+    """Per time, a list of dicts describing each primitive (from synth's own geometry)."""
+    times = ([], [])
+    for prim in synth.get_scene(scene).objects:
+        p1, p2, size, freq = synth._object_poses(prim, cam)
+        for (rot, pos), out in zip((p1, p2), times):
+            out.append(dict(kind=KINDS[prim.kind], rot=rot, pos=pos, size=size, freq=freq,
+                            seed=prim.texture.seed, mean=prim.texture.mean,
+                            contrast=prim.texture.contrast, colour=np.asarray(prim.texture.colour)))
+    return times
+
+
+def rays(cam, xi, eta, x, y):
+    origin = np.array([xi * cam.baseline, eta * cam.baseline, 0.0])
+    d = np.stack([(x - cam.cx - xi * cam.shift) / cam.focal, (y - cam.cy - eta * cam.shift) / cam.focal,
+                  np.ones_like(x)], -1)
+    return np.broadcast_to(origin, d.shape), d
+
+
+def render(scene, size, grid, supersample):
+    """Grey views [t][a, b, y, x] of both times."""
+    width, height = size
+    cam = synth.CameraArray.for_size(width, height)
+    out = []
+    for objects in scene_objects(scene, cam):
+        views = np.zeros((grid, grid, height, width))
+        for a in range(grid):
+            for b in range(grid):
+                xi, eta = b - (grid - 1) / 2, a - (grid - 1) / 2
+                acc = np.zeros((height, width, 3))
+                for sy in range(supersample):
+                    for sx in range(supersample):
+                        y, x = np.mgrid[0:height, 0:width].astype(np.float64)
+                        x = x + (sx + 0.5) / supersample - 0.5
+                        y = y + (sy + 0.5) / supersample - 0.5
+                        k, t, local = trace(objects, *rays(cam, xi, eta, x, y))
+                        for idx, obj in enumerate(objects):
+                            m = k == idx
+                            acc[m] += texture(obj, local[m])[:, None] * obj["colour"]
+                        acc[k < 0] += 0.5
+                rgb = acc / supersample**2
+                views[a, b] = rgb @ np.array([0.299, 0.587, 0.114])
+        out.append(views)
+    return out
+
+
+def ground_truth(scene, size):
+    width, height = size
+    cam = synth.CameraArray.for_size(width, height)
+    obj1, obj2 = scene_objects(scene, cam)
+    y, x = np.mgrid[0:height, 0:width].astype(np.float64)
+    k, t, local = trace(obj1, *rays(cam, 0.0, 0.0, x, y))
+    same = np.ones_like(k, dtype=bool)
+    for ox in (-0.5, 0.5):
+        for oy in (-0.5, 0.5):
+            same &= trace(obj1, *rays(cam, 0.0, 0.0, x + ox, y + oy))[0] == k
+    world2 = np.zeros(local.shape)
+    for idx, obj in enumerate(obj2):
+        m = k == idx
+        world2[m] = local[m] @ obj["rot"].T + obj["pos"]
+    z2 = world2[..., 2]
+    x2 = cam.focal * world2[..., 0] / z2 + cam.cx
+    y2 = cam.focal * world2[..., 1] / z2 + cam.cy
+    k3, t3, _ = trace(obj2, *rays(cam, 0.0, 0.0, x2, y2))
+    outside = (x2 < -0.5) | (y2 < -0.5) | (x2 > width - 0.5) | (y2 > height - 0.5)
+    occluded = outside | (k3 != k) | (np.abs(t3 - z2) > 1e-4 * z2)
+    return dict(disp1=cam.disparity(t), disp2=cam.disparity(z2), u=x2 - x, v=y2 - y, valid=same,
+                occluded=occluded)

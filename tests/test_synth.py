@@ -1,0 +1,170 @@
+"""The renderer against its NumPy reference, and the ground truth against the images."""
+
+import numpy as np
+import pytest
+
+from lfsf import synth
+
+import reference_render as ref
+
+SCENES = list(synth.list_scenes())
+
+
+def bilinear(img, x, y):
+    """Sample img at (x, y) (x = column), clamped at the borders."""
+    h, w = img.shape
+    x = np.clip(x, 0, w - 1)
+    y = np.clip(y, 0, h - 1)
+    x0 = np.minimum(np.floor(x).astype(int), w - 2)
+    y0 = np.minimum(np.floor(y).astype(int), h - 2)
+    fx, fy = x - x0, y - y0
+    return ((1 - fy) * ((1 - fx) * img[y0, x0] + fx * img[y0, x0 + 1])
+            + fy * ((1 - fx) * img[y0 + 1, x0] + fx * img[y0 + 1, x0 + 1]))
+
+
+@pytest.mark.parametrize("scene", SCENES)
+def test_render_matches_numpy_reference(scene, device):
+    size, grid = (20, 15), 3
+    lf1, lf2, gt = synth.render_scene(scene, size=size, grid=grid, supersample=2, device=device)
+    want1, want2 = ref.render(scene, size, grid, 2)
+    for got, want in ((lf1.views, want1), (lf2.views, want2)):
+        diff = np.abs(got - want)
+        # float32 kernel against float64 reference: a ray grazing an edge may flip
+        assert np.mean(diff < 1e-3) > 0.99, np.sort(diff.ravel())[-10:]
+        assert np.median(diff) < 1e-5
+
+
+@pytest.mark.parametrize("scene", SCENES)
+def test_ground_truth_matches_numpy_reference(scene, device):
+    size = (40, 30)
+    _, _, gt = synth.render_scene(scene, size=size, grid=1, supersample=1, device=device)
+    want = ref.ground_truth(scene, size)
+    for key in ("valid", "occluded"):
+        assert np.mean(gt[key] == want[key]) > 0.99, key
+    m = gt["valid"] & want["valid"]
+    for key in ("disp1", "disp2", "u", "v"):
+        np.testing.assert_allclose(gt[key][m], want[key][m], atol=2e-3, rtol=1e-4, err_msg=key)
+
+
+def _median_abs(a, b, mask):
+    # the median: pixels hidden in a side view (not flagged: `occluded` is about t2) are
+    # outliers that a mean would count
+    return float(np.median(np.abs(a - b)[mask]))
+
+
+def _smoothed(scene, factor=4.0):
+    """The same scene with textures `factor` times coarser: bilinear interpolation is then
+    nearly exact, so what remains of the residual is any error in the ground truth."""
+    from dataclasses import replace
+
+    sc = synth.get_scene(scene)
+    objs = tuple(replace(o, texture=replace(o.texture, period=o.texture.period * factor)) for o in sc.objects)
+    return replace(sc, objects=objs)
+
+
+def _warp_residuals(scene, size=(128, 96), grid=5):
+    """Median |warped − t1 centre| and |unwarped − t1 centre| for a few views, warping the
+    side views at t1 by δ1 and every view at t2 by (u, δ2), on valid, non-occluded pixels."""
+    lf1, lf2, gt = synth.render_scene(scene, size=size, grid=grid)
+    c = (grid - 1) // 2
+    centre = lf1.views[c, c]
+    h, w = centre.shape
+    y, x = np.mgrid[0:h, 0:w].astype(np.float64)
+    d1, d2, u, v = gt["disp1"], gt["disp2"], gt["u"], gt["v"]
+    b = 6  # samples that fall outside the image are clamped: leave the border out
+    keep = gt["valid"] & ~gt["occluded"]
+    keep[:b], keep[-b:], keep[:, :b], keep[:, -b:] = False, False, False, False
+    out = []
+    for a, bb in ((0, 0), (0, grid - 1), (grid - 1, c), (c, 0), (c, c)):
+        xi, eta = bb - c, a - c
+        if (a, bb) != (c, c):  # stereo at t1: L(p − δ1 φ, φ, t1) = L(p, 0, t1)
+            out.append((f"t1 view {a},{bb}", lf1.views[a, bb], x - d1 * xi, y - d1 * eta))
+        # flow and stereo at t2: L(p + u − δ2 φ, φ, t2) = L(p, 0, t1)
+        out.append((f"t2 view {a},{bb}", lf2.views[a, bb], x + u - d2 * xi, y + v - d2 * eta))
+    rows = []
+    for name, img, sx, sy in out:
+        inside = keep & (sx >= 0) & (sx <= w - 1) & (sy >= 0) & (sy <= h - 1)
+        assert inside.mean() > 0.5
+        rows.append((name, _median_abs(bilinear(img, sx, sy), centre, inside), _median_abs(img, centre, inside)))
+    return rows
+
+
+@pytest.mark.parametrize("scene", SCENES)
+def test_ground_truth_explains_the_light_fields(scene):
+    """Warping side views and the t2 views by the ground truth reproduces the t1 centre view
+    on non-occluded pixels, with a residual far below the unwarped one."""
+    sharp = _warp_residuals(scene)
+    for name, res, base in sharp:
+        assert res < 0.15 * base, (name, res, base)
+    # With coarser textures bilinear interpolation errs less, and so must the residual:
+    # what is left is interpolation, not the ground truth (an error of 0.1 px in δ1 alone
+    # would raise it several times).
+    smooth = _warp_residuals(_smoothed(scene))
+    for (name, res, base), (_, res_sharp, _) in zip(smooth, sharp):
+        assert res < 0.08 * base, (name, res, base)
+        assert res <= 0.7 * res_sharp + 1e-4, (name, res, res_sharp)
+
+
+def test_scene_catalogue():
+    names = synth.list_scenes()
+    assert len(names) >= 4
+    assert {"paper", "slanted", "large_motion", "weak_texture"} <= set(names)
+    with pytest.raises(ValueError, match="unknown scene"):
+        synth.render_scene("nope", size=(16, 16), grid=1)
+
+
+def test_paper_scene_has_independent_motions_and_both_disparity_signs():
+    _, _, gt = synth.render_scene("paper", size=(160, 120), grid=1)
+    d = gt["disp1"][gt["valid"]]
+    assert d.min() < -1.0 and d.max() > 1.0
+    flows = {(round(float(a), 1), round(float(b), 1)) for a, b in zip(gt["u"][::8, ::8].ravel(), gt["v"][::8, ::8].ravel())}
+    assert len(flows) > 20
+    assert not np.allclose(gt["disp1"], gt["disp2"])  # motion in depth
+
+
+def test_large_motion_scene_moves_more_than_10_px():
+    for size in ((160, 120), (640, 480)):
+        _, _, gt = synth.render_scene("large_motion", size=size, grid=1, supersample=1)
+        mag = np.hypot(gt["u"], gt["v"])[gt["valid"]]
+        assert np.mean(mag > 10.0) > 0.08, size  # the moving objects, not a few pixels
+        assert mag.max() > 15.0, size
+
+
+def test_slanted_scene_has_piecewise_linear_disparity():
+    # δ = f·B/Z − s is affine in the image for a plane: its second differences vanish
+    # away from the depth edges.
+    _, _, gt = synth.render_scene("slanted", size=(160, 120), grid=1, supersample=1)
+    d, valid = gt["disp1"].astype(np.float64), gt["valid"]
+    dxx = d[:, 2:] - 2 * d[:, 1:-1] + d[:, :-2]
+    inner = valid[:, 2:] & valid[:, 1:-1] & valid[:, :-2]
+    assert np.median(np.abs(dxx[inner])) < 1e-4
+    assert np.ptp(d[valid]) > 1.0  # and it does vary
+
+
+def test_weak_texture_scene_has_low_contrast():
+    lf_weak, _, _ = synth.render_scene("weak_texture", size=(80, 60), grid=1)
+    lf_paper, _, _ = synth.render_scene("paper", size=(80, 60), grid=1)
+    assert lf_weak.views.std() < 0.3 * lf_paper.views.std()
+
+
+def test_size_keeps_disparity_and_translation_in_pixels():
+    _, _, small = synth.render_scene("large_motion", size=(80, 60), grid=1, supersample=1)
+    _, _, big = synth.render_scene("large_motion", size=(320, 240), grid=1, supersample=1)
+    # the backdrop's disparity range and the scene's largest motions match across sizes
+    for key in ("disp1",):
+        assert abs(np.nanmax(small[key]) - np.nanmax(big[key])) < 0.1
+    assert abs(np.nanmax(np.abs(small["u"])) - np.nanmax(np.abs(big["u"]))) < 2.5
+
+
+def test_colour_render_has_three_channels_and_grey_is_its_luma():
+    lfc, _, _ = synth.render_scene("paper", size=(24, 18), grid=3, colour=True)
+    lfg, _, _ = synth.render_scene("paper", size=(24, 18), grid=3)
+    assert lfc.views.shape == (3, 3, 18, 24, 3)
+    luma = lfc.views @ np.array([0.299, 0.587, 0.114], dtype=np.float32)
+    np.testing.assert_allclose(luma, lfg.views, atol=1e-5)
+
+
+def test_even_grid_is_centred_between_views():
+    lf, _, gt = synth.render_scene("paper", size=(40, 30), grid=(2, 4), supersample=1)
+    assert lf.views.shape == (2, 4, 30, 40)
+    assert lf.grid == (2, 4)

@@ -1,0 +1,286 @@
+"""Tests of lfsf.viz: flow colour wheel, scalar colormaps, the overview figure, PNG output.
+
+Expected wheel colours are derived by hand from the Middlebury reference code
+(``colorcode.cpp`` / ``computeColor.m``, Baker et al. 2011):
+
+* wheel: segments RY=15, YG=6, GC=4, CB=11, BM=13, MR=6; in a segment one channel ramps
+  by ``floor(255 i / n)``. So colour 0 = (255, 0, 0), 15 = (255, 255, 0), 21 = (0, 255, 0),
+  25 = (0, 255, 255), 27 = (0, 255 - floor(510/11), 255) = (0, 209, 255),
+  36 = (0, 0, 255), 49 = (255, 0, 255), 54 = (255, 0, 255 - floor(1275/6)) = (255, 0, 43).
+* position ``fk = (atan2(-v, -u)/π + 1)/2 · 54``:
+  right (u>0, v=0): atan2(-0.0, -u) = -π -> fk = 0 -> red (255, 0, 0);
+  left (u<0, v=0): atan2(0, |u|) = 0 -> fk = 27 -> (0, 209, 255);
+  down (v>0): fk = 13.5 -> halfway between 13 = (255, 221, 0) and 14 = (255, 238, 0)
+  -> G = floor(229.5) = 229 -> (255, 229, 0).
+  (So the brief's "index 0 is red for u<0" is the other way round: index 0 is u>0.)
+* saturation: ``1 - r (1 - c)`` for r <= 1, ``0.75 c`` beyond; then floor(255 ·).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import imageio.v3 as iio
+
+from lfsf import viz
+
+
+def _luminance(rgb: np.ndarray) -> np.ndarray:
+    return rgb.astype(np.float64) @ np.array([0.2126, 0.7152, 0.0722])
+
+
+# --------------------------------------------------------------------------- flow wheel
+
+
+def test_color_wheel_table_matches_reference():
+    wheel = viz.make_color_wheel()
+    assert wheel.shape == (55, 3) and wheel.dtype == np.uint8
+    expected = {
+        0: (255, 0, 0), 1: (255, 17, 0), 15: (255, 255, 0), 21: (0, 255, 0),
+        25: (0, 255, 255), 27: (0, 209, 255), 36: (0, 0, 255), 49: (255, 0, 255),
+        54: (255, 0, 43),
+    }
+    for k, rgb in expected.items():
+        assert tuple(wheel[k]) == rgb, k
+
+
+def test_zero_flow_is_white():
+    u = np.array([[0.0, 3.0], [0.0, -1.0]])
+    v = np.array([[0.0, 4.0], [0.0, 0.5]])
+    rgb = viz.flow_to_color(u, v)
+    assert rgb.shape == (2, 2, 3) and rgb.dtype == np.uint8
+    assert tuple(rgb[0, 0]) == (255, 255, 255)
+    assert tuple(rgb[1, 0]) == (255, 255, 255)
+    # an all-zero field has no scale at all: still white, no division by zero
+    assert (viz.flow_to_color(np.zeros((3, 4)), np.zeros((3, 4))) == 255).all()
+
+
+@pytest.mark.parametrize(
+    "uv, expected",
+    [
+        ((2.0, 0.0), (255, 0, 0)),      # right: wheel colour 0
+        ((-2.0, 0.0), (0, 209, 255)),   # left: wheel colour 27
+        ((0.0, 2.0), (255, 229, 0)),    # down: between wheel colours 13 and 14
+        ((1.0, 0.0), (255, 127, 127)),  # right at half the maximum: half saturated
+    ],
+)
+def test_direction_colours_at_known_magnitudes(uv, expected):
+    # pixel 0 sets the scale (|(u, v)| = 2), pixel 1 is the vector under test
+    u = np.array([[2.0, uv[0]]])
+    v = np.array([[0.0, uv[1]]])
+    assert tuple(viz.flow_to_color(u, v)[0, 1]) == expected
+
+
+def test_rightward_flow_with_negative_zero_v_is_still_red():
+    rgb = viz.flow_to_color(np.array([[1.0]]), np.array([[-0.0]]))
+    assert tuple(rgb[0, 0]) == (255, 0, 0)
+
+
+def test_invalid_flow_is_black():
+    u = np.array([[1.0, np.nan, 1.0, np.inf, 1e10]])
+    v = np.array([[0.5, 0.0, np.nan, 0.0, 0.0]])
+    rgb = viz.flow_to_color(u, v)
+    assert (rgb[0, 1:] == 0).all()
+    assert tuple(rgb[0, 0]) != (0, 0, 0)
+
+
+def test_fixed_max_flow_shares_the_scale_between_images():
+    a_u = np.array([[1.0, 2.0]]); a_v = np.array([[1.0, 0.0]])   # max |u| = 2
+    b_u = np.array([[1.0, 5.0]]); b_v = np.array([[1.0, 0.0]])   # max |u| = 5
+    auto_a, auto_b = viz.flow_to_color(a_u, a_v), viz.flow_to_color(b_u, b_v)
+    assert tuple(auto_a[0, 0]) != tuple(auto_b[0, 0])
+    fixed_a = viz.flow_to_color(a_u, a_v, max_flow=5.0)
+    fixed_b = viz.flow_to_color(b_u, b_v, max_flow=5.0)
+    assert tuple(fixed_a[0, 0]) == tuple(fixed_b[0, 0])
+
+
+def test_flow_beyond_max_flow_is_darkened():
+    rgb = viz.flow_to_color(np.array([[10.0]]), np.array([[0.0]]), max_flow=5.0)
+    assert tuple(rgb[0, 0]) == (191, 0, 0)  # floor(255 * 0.75)
+
+
+def test_flow_to_color_rejects_bad_inputs():
+    with pytest.raises(ValueError, match="shape"):
+        viz.flow_to_color(np.zeros((2, 3)), np.zeros((3, 2)))
+    with pytest.raises(ValueError, match="max_flow"):
+        viz.flow_to_color(np.zeros((2, 2)), np.zeros((2, 2)), max_flow=0.0)
+
+
+def test_wheel_legend_size_and_layout():
+    legend = viz.flow_wheel_legend(65)
+    assert legend.shape == (65, 65, 3) and legend.dtype == np.uint8
+    assert tuple(legend[32, 32]) == (255, 255, 255)   # centre: zero flow
+    assert tuple(legend[32, 64]) == (255, 0, 0)       # right rim: full red
+    assert tuple(legend[0, 0]) == (255, 255, 255)     # corner: outside the disc
+    assert viz.flow_wheel_legend(10).shape == (10, 10, 3)
+
+
+# --------------------------------------------------------------------------- scalar maps
+
+
+def test_disparity_colormap_is_monotone_in_luminance():
+    ramp = np.linspace(-2.0, 3.0, 256)[None, :]
+    rgb = viz.disparity_to_color(ramp, vmin=-2.0, vmax=3.0)
+    lum = _luminance(rgb[0])
+    assert np.all(np.diff(lum) >= -1e-9)
+    assert lum[-1] - lum[0] > 150
+    # clipped beyond the range: ends equal the end colours
+    clipped = viz.disparity_to_color(np.array([[-10.0, 10.0]]), vmin=-2.0, vmax=3.0)
+    assert tuple(clipped[0, 0]) == tuple(rgb[0, 0])
+    assert tuple(clipped[0, 1]) == tuple(rgb[0, -1])
+
+
+def test_disparity_default_range_uses_robust_percentiles():
+    disp = np.linspace(0.0, 1.0, 1000).reshape(20, 50)
+    disp[0, 0] = 1e6  # one wild outlier must not wash out the rest
+    rgb = viz.disparity_to_color(disp)
+    lum = _luminance(rgb.reshape(-1, 3))
+    assert lum[1:].max() - lum[1:].min() > 150
+
+
+def test_disparity_nan_is_invalid_colour():
+    disp = np.array([[0.0, np.nan], [1.0, np.inf]])
+    rgb = viz.disparity_to_color(disp, invalid_color=(255, 0, 255))
+    assert tuple(rgb[0, 1]) == (255, 0, 255) and tuple(rgb[1, 1]) == (255, 0, 255)
+    assert tuple(viz.disparity_to_color(disp)[0, 1]) == (0, 0, 0)
+    # constant maps and all-NaN maps do not crash
+    assert viz.disparity_to_color(np.full((2, 2), 0.5)).shape == (2, 2, 3)
+    assert (viz.disparity_to_color(np.full((2, 2), np.nan)) == 0).all()
+    with pytest.raises(ValueError, match="vmin < vmax"):
+        viz.disparity_to_color(disp, vmin=1.0, vmax=1.0)
+
+
+def test_error_colormap_white_at_zero_darker_with_error_nan_invalid():
+    err = np.array([[0.0, 0.5, 1.0, 2.0, np.nan]])
+    rgb = viz.error_to_color(err, 1.0)
+    assert tuple(rgb[0, 0]) == (255, 255, 255)
+    lum = _luminance(rgb[0, :4])
+    assert lum[0] > lum[1] > lum[2] and lum[2] == lum[3]  # clipped at vmax
+    assert tuple(rgb[0, 4]) == (0, 0, 0)
+    with pytest.raises(ValueError, match="vmax"):
+        viz.error_to_color(err, -1.0)
+
+
+# --------------------------------------------------------------------------- overview
+
+
+def _scene(h=48, w=64, seed=0):
+    """A made-up scene: a disparity ramp and a rotating flow field, noisy estimates."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:h, 0:w].astype(np.float64)
+    centre1 = 0.4 + 0.3 * np.sin(x / 4.0) * np.cos(y / 5.0)  # stays below header grey
+    centre2 = np.roll(centre1, 2, axis=1)
+    gt = {
+        "disp1": -1.0 + 2.0 * x / (w - 1),
+        "disp2": -0.9 + 2.0 * x / (w - 1),
+        "u": -(y - h / 2) * 0.1,
+        "v": (x - w / 2) * 0.1,
+    }
+    est = {k: a + rng.normal(0.0, 0.05, a.shape) for k, a in gt.items()}
+    return centre1, centre2, est, gt
+
+
+def _count_panels(fig: np.ndarray) -> int:
+    """Number of header strips: runs of header colour on each strip's top pixel row."""
+    mask = (fig == np.array(viz._HEADER_RGB, dtype=np.uint8)).all(axis=-1)
+    has = mask.any(axis=1)
+    tops = np.flatnonzero(has & ~np.concatenate([[False], has[:-1]]))
+    count = 0
+    for y in tops:
+        row = np.concatenate([[False], mask[y], [False]]).astype(np.int8)
+        starts = np.flatnonzero(np.diff(row) == 1)
+        ends = np.flatnonzero(np.diff(row) == -1)
+        count += int(np.sum(ends - starts >= 32))
+    return count
+
+
+def test_overview_panel_count_grows_with_ground_truth(tmp_path):
+    c1, c2, est, gt = _scene()
+    plain = viz.overview_figure(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"])
+    full = viz.overview_figure(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], gt=gt)
+    assert plain.dtype == np.uint8 and plain.ndim == 3 and plain.shape[2] == 3
+    assert _count_panels(plain) == 5    # 2 centre views + disp1, disp2, flow
+    assert _count_panels(full) == 11    # + 3 ground truth + 3 errors
+    assert full.shape[1] == plain.shape[1]
+    # two more rows of equal height: the figure grows by twice the pitch of one row
+    row_pitch = (full.shape[0] - plain.shape[0]) // 2
+    assert row_pitch > 48 and full.shape[0] - plain.shape[0] == 2 * row_pitch
+    # a 64-pixel-wide input is upscaled by an integer factor: panels are wider than it
+    assert plain.shape[1] > 3 * 4 * 64
+
+
+def test_overview_is_written_as_readable_png_without_leftovers(tmp_path):
+    c1, c2, est, gt = _scene()
+    target = tmp_path / "figs" / "overview.png"
+    fig = viz.overview_figure(c1, np.stack([c2] * 3, axis=-1), est["disp1"], est["disp2"],
+                              est["u"], est["v"], gt=gt, path=target, title="test scene")
+    assert sorted(p.name for p in target.parent.iterdir()) == ["overview.png"]
+    np.testing.assert_array_equal(iio.imread(target), fig)
+
+
+def test_overview_error_panels_mean_and_valid_mask():
+    c1, c2, est, gt = _scene()
+    valid = np.ones_like(gt["disp1"], dtype=bool)
+    valid[:, :5] = False
+    est["disp1"][:, :5] += 100.0  # huge errors, but outside the mask
+    rows = viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"],
+                                dict(gt, valid=valid), None)
+    assert [len(r) for r in rows] == [2, 3, 3, 3]
+    err1 = rows[3][0]
+    expected = np.abs(est["disp1"] - gt["disp1"])[valid].mean()
+    assert f"mean {expected:.4g}" in err1.label
+    epe = np.hypot(est["u"] - gt["u"], est["v"] - gt["v"])[valid].mean()
+    assert f"mean {epe:.4g}" in rows[3][2].label
+    for panel in rows[3] + rows[2]:  # error and ground-truth panels: invalid is black
+        assert (panel.image[:, :5] == 0).all()
+        assert (panel.image[:, 5:].reshape(-1, 3) != 0).any(axis=1).all()
+    # estimate and ground truth share each disparity scale and the flow scale
+    assert rows[1][0].footer == rows[2][0].footer
+    assert rows[1][1].footer == rows[2][1].footer
+    assert rows[1][2].footer == rows[2][2].footer
+
+
+def test_overview_rejects_mismatched_shapes():
+    c1, c2, est, gt = _scene()
+    with pytest.raises(ValueError, match="shape"):
+        viz.overview_figure(c1, c2, est["disp1"], est["disp2"][:-1], est["u"], est["v"])
+    with pytest.raises(ValueError, match="missing"):
+        viz.overview_figure(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"],
+                            gt={"disp1": gt["disp1"]})
+
+
+# --------------------------------------------------------------------------- save_png
+
+
+def test_save_png_converts_float_and_grey(tmp_path):
+    grey = np.array([[0.0, 0.5], [1.0, 2.0]])
+    viz.save_png(tmp_path / "g.png", grey)
+    np.testing.assert_array_equal(iio.imread(tmp_path / "g.png"), [[0, 128], [255, 255]])
+    rgb = np.zeros((3, 4, 3), dtype=np.uint8)
+    rgb[..., 1] = 200
+    viz.save_png(tmp_path / "c.png", rgb)
+    np.testing.assert_array_equal(iio.imread(tmp_path / "c.png"), rgb)
+    with pytest.raises(ValueError, match="shape"):
+        viz.save_png(tmp_path / "bad.png", np.zeros((2, 2, 2), dtype=np.uint8))
+    with pytest.raises(ValueError, match="dtype"):
+        viz.save_png(tmp_path / "bad.png", np.zeros((2, 2), dtype=np.int32))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.png", "g.png"]
+
+
+def test_failing_write_leaves_no_partial_file(tmp_path, monkeypatch):
+    target = tmp_path / "out.png"
+    target.write_bytes(b"previous")
+
+    def broken_imwrite(uri, image, **kwargs):
+        with open(uri, "wb") as f:
+            f.write(b"\x89PNG half")  # a partial file, then the disk "fails"
+        raise OSError("disk full")
+
+    monkeypatch.setattr(viz.iio, "imwrite", broken_imwrite)
+    with pytest.raises(OSError, match="disk full"):
+        viz.save_png(target, np.zeros((4, 4), dtype=np.uint8))
+    with pytest.raises(OSError, match="disk full"):
+        viz.save_png(tmp_path / "new.png", np.zeros((4, 4), dtype=np.uint8))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.png"]
+    assert target.read_bytes() == b"previous"
