@@ -74,7 +74,8 @@ def cmd_synth(args) -> int:
         c1 = read_lightfield(paths["lf1"]).centre
         c2 = read_lightfield(paths["lf2"]).centre
         overview_figure(c1, c2, gt["disp1"], gt["disp2"], gt["u"], gt["v"],
-                        path=Path(args.out) / "preview.png", title=f"{args.scene}: ground truth")
+                        path=Path(args.out) / "preview.png", title=f"{args.scene}: ground truth",
+                        label="ground truth")
         _log(args, f"wrote {Path(args.out) / 'preview.png'}")
     return 0
 
@@ -99,11 +100,26 @@ def cmd_eval(args) -> int:
 
 # --- commands that need the estimator --------------------------------------------------------
 
-def cmd_not_yet(args) -> int:
-    raise NotImplementedError(
-        f"'lfsf {args.command}' needs the scene-flow estimator, which is not implemented yet "
+def _not_yet(command: str) -> NotImplementedError:
+    return NotImplementedError(
+        f"'lfsf {command}' needs the scene-flow estimator, which is not implemented yet "
         "(issue 3); 'lfsf synth' and 'lfsf eval' work"
     )
+
+
+def cmd_run(args) -> int:
+    from lfsf.device import resolve_device
+    from lfsf.io import check_pair, read_lightfield
+
+    resolve_device(args.device)
+    lf1 = read_lightfield(args.lf1)
+    lf2 = read_lightfield(args.lf2)
+    check_pair(lf1, lf2)
+    raise _not_yet("run")
+
+
+def cmd_demo(args) -> int:
+    raise _not_yet("demo")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -138,11 +154,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", type=Path, help="also write the figures to this JSON file")
     p.set_defaults(func=cmd_eval)
 
-    for name, text in (("run", "estimate scene flow from two light fields"),
-                       ("demo", "render a built-in scene, estimate it, print its errors")):
-        p = sub.add_parser(name, help=f"{text} (not implemented yet)")
-        p.add_argument("rest", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
-        p.set_defaults(func=cmd_not_yet)
+    p = sub.add_parser("run", help="estimate scene flow from two light fields (estimator: not implemented yet)",
+                       description="Estimate δ1, δ2 and the flow of the centre view from light fields "
+                                   "at t1 and t2 (inputs are read and checked; the estimator is issue 3).")
+    p.add_argument("lf1", type=Path, help="light field at t1 (folder of views or .npz)")
+    p.add_argument("lf2", type=Path, help="light field at t2")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--preset", choices=("paper", "fast"), default="paper")
+    p.add_argument("--config", type=Path, help="TOML file of parameters")
+    p.add_argument("--device", help="cpu or cuda:N (default: $LFSF_DEVICE, else cuda:0 if present, else cpu)")
+    p.add_argument("--quiet", action="store_true", help="no progress messages")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("demo", help="render a built-in scene, estimate it, print its errors (not implemented yet)")
+    p.set_defaults(func=cmd_demo)
     return parser
 
 

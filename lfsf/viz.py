@@ -431,7 +431,7 @@ def _fmt(x: float) -> str:
     return f"{x:.3g}"
 
 
-def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow) -> list[list[_Panel]]:
+def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="estimate") -> list[list[_Panel]]:
     """The overview's panels, row by row (see :func:`overview_figure`)."""
     shape = _check_map("disp1", disp1).shape
     est = {k: _check_map_shape(k, a, shape)
@@ -482,7 +482,7 @@ def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow) -> list
                           _WheelKey(max_flow)))
         return row
 
-    rows.append(disparity_row(est, "estimate"))
+    rows.append(disparity_row(est, label))
     if not truth:
         return rows
     rows.append(disparity_row(truth, "ground truth"))
@@ -580,7 +580,7 @@ def _draw_footer(canvas, draw, footer, x0, y0, pw, footer_h, font, text_at) -> N
 
 def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = None,
                     path: str | os.PathLike | None = None, title: str | None = None,
-                    max_flow: float | None = None) -> np.ndarray:
+                    max_flow: float | None = None, label: str = "estimate") -> np.ndarray:
     """A labelled grid of panels showing a scene-flow result, optionally against truth.
 
     Rows: (1) centre views at t1 and t2; (2) estimated δ1, δ2 and flow; with ``gt`` also
@@ -610,6 +610,9 @@ def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = N
     max_flow : float, optional
         Flow magnitude at full saturation for both estimate and ground truth. Default:
         the largest valid magnitude over both.
+    label : str, optional
+        What the maps of row 2 are, in their panel labels (``"ground truth"`` when the
+        figure shows a synthetic scene's truth alone).
 
     Returns
     -------
@@ -623,7 +626,7 @@ def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = N
     the 1st/99th percentiles of both maps' finite values together. Error maps of δ1 and
     δ2 share one scale (99th percentile of both), the end-point error has its own.
     """
-    rows = _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow)
+    rows = _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label)
     figure = _compose(rows, title)
     if path is not None:
         save_png(path, figure)

@@ -1,0 +1,1237 @@
+"""Reading and writing light fields and the formats results are exchanged in.
+
+Light fields
+    :class:`LightField` holds the sub-aperture views ``views[a, b, y, x]`` (grey) or
+    ``views[a, b, y, x, c]`` (RGB) as float32 in [0, 1] (MODEL.md §1).
+    :func:`read_lightfield` reads a folder in the HCI 4D benchmark layout, a folder of
+    ``<name>_RR_CC.png`` views, or a ``.npz`` with key ``views``; :func:`write_lightfield`
+    writes a ``.npz`` or a folder of 16-bit (or 8-bit) PNGs.
+
+Lenslet images
+    :func:`views_to_lenslet` and :func:`lenslet_to_views` convert between views and the
+    rectangular synthetic raw image of the paper, one ``A×B`` block per micro-lens.
+
+Result formats
+    PFM (:func:`read_pfm`, :func:`write_pfm`; HCI disparity), Middlebury ``.flo``
+    (:func:`read_flo`, :func:`write_flo`) and KITTI 16-bit PNG flow and disparity
+    (:func:`read_kitti_flow`, :func:`write_kitti_flow`, :func:`read_kitti_disparity`,
+    :func:`write_kitti_disparity`).
+
+Images
+    :func:`read_image` and :func:`write_png`. Pillow (under imageio) reads 16-bit RGB and
+    RGBA PNGs as 8-bit, silently dropping the low byte, and cannot write them at all, so
+    this module carries its own small PNG codec (:func:`decode_png`, :func:`encode_png`):
+    every PNG is written by it, and 16-bit colour PNGs are read by it.
+
+Every writer goes through :mod:`lfsf._files`: a failed or interrupted write leaves the
+previous file, if any, untouched and no partial file behind. Every reader reports bad
+input as a ``ValueError`` (a missing file as ``FileNotFoundError``) whose message starts
+with the file's name.
+"""
+
+from __future__ import annotations
+
+import configparser
+import math
+import os
+import re
+import struct
+import warnings
+import zipfile
+import zlib
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+
+from lfsf._files import savez_atomic, write_bytes_atomic
+
+__all__ = [
+    "BT601_LUMA",
+    "LightField",
+    "check_pair",
+    "read_lightfield",
+    "write_lightfield",
+    "views_to_lenslet",
+    "lenslet_to_views",
+    "read_pfm",
+    "write_pfm",
+    "read_flo",
+    "write_flo",
+    "read_kitti_flow",
+    "write_kitti_flow",
+    "read_kitti_disparity",
+    "write_kitti_disparity",
+    "read_image",
+    "write_png",
+    "decode_png",
+    "encode_png",
+]
+
+#: ITU-R BT.601 luma weights for (R, G, B).
+BT601_LUMA = (0.299, 0.587, 0.114)
+
+# Suffixes of single images: given to read_lightfield they can only be a raw lenslet image.
+_IMAGE_SUFFIXES = {
+    ".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".dng", ".raw", ".lfr", ".lfp",
+}
+_HCI_NAME = re.compile(r"input_Cam(\d+)\.png", re.IGNORECASE)
+_ROWCOL_NAME = re.compile(r"(.+)_(\d+)_(\d+)\.png", re.IGNORECASE)
+_LAYOUTS_LOOKED_FOR = (
+    "the HCI layout (input_Cam000.png, input_Cam001.png, … in row-major order), "
+    "views named <name>_RR_CC.png (1-based row and column, e.g. scene_01_01.png) "
+    "and views.npz"
+)
+_MAX_NAMES_LISTED = 8
+
+
+# --------------------------------------------------------------------------------------
+# LightField
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(eq=False, repr=False)
+class LightField:
+    """A 4-D light field: a grid of sub-aperture views.
+
+    Parameters
+    ----------
+    views : array_like, shape (A, B, H, W) or (A, B, H, W, C)
+        ``views[a, b, y, x]`` (grey) or ``views[a, b, y, x, c]`` with C = 3 (RGB); ``a`` is
+        the view row (η = a − a_c), ``b`` the view column (ξ = b − b_c), MODEL.md §1.
+        Stored as C-contiguous float32 with values meant to lie in [0, 1]: float input is
+        converted (not copied when already float32 and C-contiguous), integer input is
+        scaled by its dtype's maximum, a trailing channel axis of size 1 is dropped.
+    source : str
+        Where the views came from (a path); starts every error message.
+    meta : dict
+        Anything known about the light field, e.g. ``meta["layout"]`` (``"hci"``,
+        ``"rowcol"``, ``"npz"``) and, for the HCI layout, ``meta["parameters"]``:
+        ``parameters.cfg`` as ``{section: {key: value}}``.
+
+    Raises
+    ------
+    ValueError
+        If the array is not 4-D or 5-D, has a channel count other than 1 or 3 (RGBA must
+        have its alpha dropped first), is empty, is not real-valued, or holds NaN or
+        infinite values (the message says how many pixels and the first view hit).
+    """
+
+    views: np.ndarray
+    source: str = "<array>"
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.source = str(self.source)
+        self.views = _validated_views(self.views, self.source)
+        self.meta = dict(self.meta)
+
+    def __repr__(self) -> str:
+        rows, cols = self.grid
+        kind = "RGB" if self.is_colour else "grey"
+        return (f"LightField(grid={rows}×{cols}, size={self.width}×{self.height}, {kind}, "
+                f"source={self.source!r})")
+
+    @property
+    def grid(self) -> tuple[int, int]:
+        """(rows, cols) of the view grid."""
+        return self.views.shape[0], self.views.shape[1]
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        """``views.shape``."""
+        return self.views.shape
+
+    @property
+    def height(self) -> int:
+        """Height of every view in pixels."""
+        return self.views.shape[2]
+
+    @property
+    def width(self) -> int:
+        """Width of every view in pixels."""
+        return self.views.shape[3]
+
+    @property
+    def is_colour(self) -> bool:
+        """True for RGB views (``views`` is 5-D)."""
+        return self.views.ndim == 5
+
+    @property
+    def centre_index(self) -> tuple[float, float]:
+        """Angular centre ``(a_c, b_c) = ((rows − 1)/2, (cols − 1)/2)``; half-integer for
+        even grid sizes, where the centre lies between views."""
+        rows, cols = self.grid
+        return (rows - 1) / 2, (cols - 1) / 2
+
+    @property
+    def centre(self) -> np.ndarray:
+        """The centre view ``I(p) = L(p, 0)``, shape (H, W) or (H, W, 3).
+
+        For odd grid sizes this is the middle view itself (not a copy). Along an even grid
+        size the centre lies half-way between the two middle views, and bilinear
+        interpolation there is their mean: the result is the mean of 2 or 4 views.
+        """
+        rows, cols = self.grid
+        a_lo, a_hi = (rows - 1) // 2, rows // 2
+        b_lo, b_hi = (cols - 1) // 2, cols // 2
+        if a_lo == a_hi and b_lo == b_hi:
+            return self.views[a_lo, b_lo]
+        middle = self.views[a_lo:a_hi + 1, b_lo:b_hi + 1]
+        count = middle.shape[0] * middle.shape[1]
+        return middle.sum(axis=(0, 1), dtype=np.float32) / np.float32(count)
+
+    def grey(self) -> "LightField":
+        """The luma light field, ITU-R BT.601 weights (0.299, 0.587, 0.114).
+
+        Returns
+        -------
+        LightField
+            4-D views with the same ``source`` and ``meta``; ``self`` if already grey.
+        """
+        if not self.is_colour:
+            return self
+        luma = self.views @ np.asarray(BT601_LUMA, dtype=np.float32)
+        return LightField(luma, source=self.source, meta=self.meta)
+
+    def view(self, a: int, b: int) -> np.ndarray:
+        """The view in grid row ``a``, column ``b`` (0-based; not a copy).
+
+        Raises
+        ------
+        IndexError
+            If ``(a, b)`` is outside the grid.
+        """
+        rows, cols = self.grid
+        if not (0 <= a < rows and 0 <= b < cols):
+            raise IndexError(f"{self.source}: view ({a}, {b}) is outside the {rows}×{cols} grid")
+        return self.views[a, b]
+
+
+def check_pair(lf1: LightField, lf2: LightField) -> None:
+    """Check that two light fields (times t1 and t2) can be matched against each other.
+
+    Their view grids and view sizes must agree. Colour is not compared: matching uses
+    the luma of each (:meth:`LightField.grey`).
+
+    Raises
+    ------
+    ValueError
+        Naming both sources, if the grids or the view sizes differ.
+    """
+    def describe(lf: LightField) -> str:
+        rows, cols = lf.grid
+        return f"a {rows}×{cols} grid of {lf.width}×{lf.height} views"
+
+    if lf1.grid != lf2.grid or lf1.views.shape[2:4] != lf2.views.shape[2:4]:
+        raise ValueError(f"{lf2.source}: expected the grid and view size of {lf1.source} "
+                         f"({describe(lf1)}), got {describe(lf2)}")
+
+
+def _to_unit_float32(array: np.ndarray) -> np.ndarray:
+    """Float arrays as float32; integer arrays scaled by their dtype's maximum."""
+    if array.dtype.kind in "iu":
+        scaled = array.astype(np.float32)
+        scaled /= np.float32(np.iinfo(array.dtype).max)
+        return scaled
+    return array.astype(np.float32, copy=False)
+
+
+def _validated_views(views, source: str) -> np.ndarray:
+    array = np.asarray(views)
+    if array.dtype.kind not in "biuf":
+        raise ValueError(f"{source}: expected real-valued views, got dtype {array.dtype}")
+    if array.ndim not in (4, 5):
+        raise ValueError(f"{source}: expected views of shape [a, b, y, x] or [a, b, y, x, c], "
+                         f"got an array of {array.ndim} dimensions, shape {array.shape}")
+    if array.ndim == 5:
+        channels = array.shape[4]
+        if channels not in (1, 3):
+            raise ValueError(f"{source}: expected 1 or 3 colour channels (grey or RGB; drop "
+                             f"alpha first), got {channels} in shape {array.shape}")
+        if channels == 1:
+            array = array[..., 0]
+    if array.size == 0:
+        raise ValueError(f"{source}: expected a non-empty light field, got shape {array.shape}")
+    array = np.ascontiguousarray(_to_unit_float32(array))
+    # A float64 sum of float32 values cannot overflow, so it is finite exactly when every
+    # value is: one cheap pass instead of a full boolean mask in the common case.
+    if not np.isfinite(array.sum(dtype=np.float64)):
+        bad = ~np.isfinite(array)
+        if bad.ndim == 5:
+            bad = bad.any(axis=4)
+        per_view = bad.sum(axis=(2, 3))
+        bad_views = np.argwhere(per_view)
+        first = tuple(int(i) for i in bad_views[0])
+        raise ValueError(f"{source}: expected finite pixel values, got {int(per_view.sum())} "
+                         f"NaN or infinite pixel(s) in {len(bad_views)} view(s), the first "
+                         f"in view (a, b) = {first}")
+    return array
+
+
+# --------------------------------------------------------------------------------------
+# Reading and writing light fields
+# --------------------------------------------------------------------------------------
+
+
+def read_lightfield(path: str | os.PathLike) -> LightField:
+    """Read a light field from a folder of views or a ``.npz``.
+
+    Parameters
+    ----------
+    path : str or path-like
+        One of
+
+        * a folder in the HCI 4D benchmark layout, ``input_Cam000.png … input_CamNNN.png``
+          in row-major view order; the grid is square, its size inferred from the count;
+          an optional ``parameters.cfg`` is parsed into ``meta["parameters"]``;
+        * a folder of views ``<name>_RR_CC.png`` (1-based row and column, e.g.
+          ``2067_01_01.png``); the grid must be complete;
+        * a folder holding neither but a ``views.npz`` (as ``lfsf decode`` writes);
+        * a ``.npz`` with key ``views``, ``[a, b, y, x]`` or ``[a, b, y, x, c]``; float
+          arrays are used as they are, integer arrays scaled by their dtype's maximum.
+
+        8-bit and 16-bit PNGs are scaled by 255 and 65535; alpha is dropped; grey PNGs
+        give grey (4-D) views.
+
+    Returns
+    -------
+    LightField
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` does not exist.
+    ValueError
+        If the folder holds no recognisable views, the grid is incomplete or (HCI) not
+        square, views differ in size, a file is corrupt, or ``path`` is a single image:
+        a raw lenslet image must first be decoded with ``lfsf decode``.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such light field (file or folder)")
+    if path.is_dir():
+        return _read_folder(path)
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        return _read_npz(path)
+    if suffix in _IMAGE_SUFFIXES:
+        raise ValueError(f"{path}: a single image is a raw lenslet image, which must be "
+                         f"decoded first: run `lfsf decode {path} --white WHITE --out DIR` "
+                         f"and read DIR")
+    raise ValueError(f"{path}: unknown light-field format {suffix!r}; expected a folder of "
+                     f"views ({_LAYOUTS_LOOKED_FOR}) or a .npz with key 'views'")
+
+
+def _read_npz(path: Path) -> LightField:
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            keys = list(data.files)
+            views = data["views"] if "views" in keys else None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
+        raise ValueError(f"{path}: cannot read as .npz ({err})") from err
+    if views is None:
+        raise ValueError(f"{path}: expected an array under key 'views', found keys {keys}")
+    return LightField(views, source=str(path), meta={"layout": "npz"})
+
+
+def _read_folder(folder: Path) -> LightField:
+    names = sorted(p.name for p in folder.iterdir() if p.is_file())
+    hci = [(m, name) for name in names if (m := _HCI_NAME.fullmatch(name))]
+    rowcol = [(m, name) for name in names if (m := _ROWCOL_NAME.fullmatch(name))]
+    if hci:
+        files = _hci_grid(folder, hci)
+        meta = {"layout": "hci"}
+        cfg = folder / "parameters.cfg"
+        if cfg.is_file():
+            meta["parameters"] = _read_hci_parameters(cfg)
+    elif rowcol:
+        files, prefix = _rowcol_grid(folder, rowcol)
+        meta = {"layout": "rowcol", "prefix": prefix}
+    elif (folder / "views.npz").is_file():
+        return _read_npz(folder / "views.npz")
+    else:
+        raise ValueError(f"{folder}: found no light-field views; looked for {_LAYOUTS_LOOKED_FOR}")
+    return LightField(_read_view_grid(files), source=str(folder), meta=meta)
+
+
+def _listed(items: list) -> str:
+    shown = ", ".join(str(i) for i in items[:_MAX_NAMES_LISTED])
+    more = len(items) - _MAX_NAMES_LISTED
+    return shown + (f" and {more} more" if more > 0 else "")
+
+
+def _hci_grid(folder: Path, matches: list) -> list[list[Path]]:
+    by_index: dict[int, str] = {}
+    for m, name in matches:
+        index = int(m.group(1))
+        if index in by_index:
+            raise ValueError(f"{folder}: two files for view {index}: {by_index[index]} and {name}")
+        by_index[index] = name
+    count = max(by_index) + 1
+    missing = [f"input_Cam{i:03d}.png" for i in range(count) if i not in by_index]
+    if missing:
+        raise ValueError(f"{folder}: the HCI views input_Cam000 … input_Cam{count - 1:03d} "
+                         f"are incomplete, {len(missing)} missing: {_listed(missing)}")
+    side = math.isqrt(count)
+    if side * side != count:
+        raise ValueError(f"{folder}: expected a square number of HCI views (e.g. {side}×{side} "
+                         f"= {side * side} or {side + 1}×{side + 1} = {(side + 1) ** 2}), got "
+                         f"{count} (input_Cam000 … input_Cam{count - 1:03d})")
+    return [[folder / by_index[r * side + c] for c in range(side)] for r in range(side)]
+
+
+def _rowcol_grid(folder: Path, matches: list) -> tuple[list[list[Path]], str]:
+    prefixes = sorted({m.group(1) for m, _ in matches})
+    if len(prefixes) > 1:
+        raise ValueError(f"{folder}: expected the views of one light field, got several name "
+                         f"prefixes: {_listed(prefixes)}")
+    prefix = prefixes[0]
+    by_position: dict[tuple[int, int], str] = {}
+    for m, name in matches:
+        position = int(m.group(2)), int(m.group(3))
+        if min(position) < 1:
+            raise ValueError(f"{folder / name}: expected 1-based view row and column "
+                             f"(<name>_RR_CC.png), got {position}")
+        if position in by_position:
+            raise ValueError(f"{folder}: two files for view (row, col) = {position}: "
+                             f"{by_position[position]} and {name}")
+        by_position[position] = name
+    rows = max(r for r, _ in by_position)
+    cols = max(c for _, c in by_position)
+    width_r, width_c = len(matches[0][0].group(2)), len(matches[0][0].group(3))
+    missing = [f"{prefix}_{r:0{width_r}d}_{c:0{width_c}d}.png"
+               for r in range(1, rows + 1) for c in range(1, cols + 1)
+               if (r, c) not in by_position]
+    if missing:
+        raise ValueError(f"{folder}: the {rows}×{cols} grid of views is incomplete, "
+                         f"{len(missing)} missing: {_listed(missing)}")
+    files = [[folder / by_position[r, c] for c in range(1, cols + 1)] for r in range(1, rows + 1)]
+    return files, prefix
+
+
+def _parse_cfg_value(text: str):
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def _read_hci_parameters(path: Path) -> dict:
+    """``parameters.cfg`` as ``{section: {key: int | float | str}}``; a malformed file is
+    only metadata, so it is skipped with a warning rather than failing the read."""
+    parser = configparser.ConfigParser(interpolation=None)
+    parser.optionxform = str
+    try:
+        parser.read_string(path.read_text(encoding="utf-8", errors="replace"), source=str(path))
+    except configparser.Error as err:
+        warnings.warn(f"{path}: ignored, not an INI file ({err})", stacklevel=3)
+        return {}
+    return {section: {key: _parse_cfg_value(value) for key, value in parser[section].items()}
+            for section in parser.sections()}
+
+
+def _describe_image(shape: tuple) -> str:
+    kind = "RGB" if len(shape) == 3 else "grey"
+    return f"{shape[1]}×{shape[0]} {kind}"
+
+
+def _read_view(path: Path) -> np.ndarray:
+    """One view as float32 (H, W) or (H, W, 3) in [0, 1]; alpha dropped."""
+    image = read_image(path)
+    if image.ndim == 3:
+        channels = image.shape[2]
+        if channels in (1, 2):      # grey, grey + alpha
+            image = image[..., 0]
+        elif channels == 4:         # RGBA
+            image = image[..., :3]
+        elif channels != 3:
+            raise ValueError(f"{path}: expected a grey, RGB or RGBA image, got {channels} channels")
+    elif image.ndim != 2:
+        raise ValueError(f"{path}: expected a 2-D image, got shape {image.shape}")
+    if image.dtype.kind not in "biuf":
+        raise ValueError(f"{path}: expected integer or float pixels, got {image.dtype}")
+    return _to_unit_float32(image)
+
+
+def _read_view_grid(files: list[list[Path]]) -> np.ndarray:
+    rows, cols = len(files), len(files[0])
+    flat = [p for row in files for p in row]
+    first = _read_view(flat[0])
+    views = np.empty((rows, cols) + first.shape, dtype=np.float32)
+    views[0, 0] = first
+
+    def load(k: int) -> None:
+        image = _read_view(flat[k])
+        if image.shape != first.shape:
+            raise ValueError(f"{flat[k]}: expected the size of {flat[0].name} "
+                             f"({_describe_image(first.shape)}), got {_describe_image(image.shape)}")
+        views[k // cols, k % cols] = image
+
+    # PNG decoding (zlib inside Pillow) releases the GIL, so threads overlap the views.
+    with ThreadPoolExecutor(max_workers=min(8, os.cpu_count() or 1)) as pool:
+        futures = [pool.submit(load, k) for k in range(1, len(flat))]
+        try:
+            for future in futures:      # in view order: the first bad view is reported
+                future.result()
+        except BaseException:
+            for future in futures:
+                future.cancel()
+            raise
+    return views
+
+
+def _view_names(layout: str, rows: int, cols: int) -> list[str]:
+    """Row-major file names of a grid in the given layout."""
+    if layout == "hci":
+        digits = max(3, len(str(rows * cols - 1)))
+        return [f"input_Cam{k:0{digits}d}.png" for k in range(rows * cols)]
+    digits = max(2, len(str(max(rows, cols))))
+    return [f"view_{r:0{digits}d}_{c:0{digits}d}.png"
+            for r in range(1, rows + 1) for c in range(1, cols + 1)]
+
+
+def write_lightfield(lf_or_views, path: str | os.PathLike, *, bit_depth: int = 16,
+                     layout: str = "hci") -> Path:
+    """Write a light field to a ``.npz`` or to a folder of PNG views.
+
+    Parameters
+    ----------
+    lf_or_views : LightField or array_like
+        The light field, or views as :class:`LightField` accepts them.
+    path : str or path-like
+        Ending in ``.npz``: one file with key ``views`` (float32, exact). Otherwise a
+        folder (created if needed) of PNG views that :func:`read_lightfield` reads back.
+    bit_depth : {16, 8}
+        PNG sample depth; values are clipped to [0, 1] and rounded to the nearest level.
+    layout : {"hci", "rowcol"}
+        ``"hci"``: ``input_Cam000.png …`` row-major (square grids only); ``"rowcol"``:
+        ``view_RR_CC.png``, 1-based, for any grid.
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    ValueError
+        For an invalid light field or option, a non-square grid in the HCI layout, a
+        single-image path, or a folder already holding views of another light field
+        that would be mixed with these (delete them first).
+
+    Notes
+    -----
+    ``meta`` is not written. Each file is written atomically; a failure part-way through
+    a folder leaves complete files only.
+    """
+    path = Path(path)
+    lf = (lf_or_views if isinstance(lf_or_views, LightField)
+          else LightField(lf_or_views, source=f"views for {path}"))
+    if path.suffix.lower() == ".npz":
+        savez_atomic(path, views=lf.views)
+        return path
+    if path.suffix.lower() in _IMAGE_SUFFIXES:
+        raise ValueError(f"{path}: a light field is written to a folder or a .npz, not to a "
+                         f"single image")
+    if bit_depth not in (8, 16):
+        raise ValueError(f"{path}: expected bit_depth 8 or 16, got {bit_depth!r}")
+    if layout not in ("hci", "rowcol"):
+        raise ValueError(f"{path}: expected layout 'hci' or 'rowcol', got {layout!r}")
+    rows, cols = lf.grid
+    if layout == "hci" and rows != cols:
+        raise ValueError(f"{path}: the HCI layout needs a square grid, got {rows}×{cols}; "
+                         f"use layout='rowcol' or a .npz")
+    names = _view_names(layout, rows, cols)
+    if path.is_dir():
+        pattern = _HCI_NAME if layout == "hci" else _ROWCOL_NAME
+        ours = set(names)
+        stale = sorted(p.name for p in path.iterdir()
+                       if pattern.fullmatch(p.name) and p.name not in ours)
+        if stale:
+            raise ValueError(f"{path}: already holds views that these would mix with "
+                             f"({_listed(stale)}); write to an empty folder")
+    path.mkdir(parents=True, exist_ok=True)
+    dtype = np.uint16 if bit_depth == 16 else np.uint8
+    levels = np.float32(np.iinfo(dtype).max)
+
+    def save(k: int) -> None:
+        view = lf.views[k // cols, k % cols]
+        quantised = np.rint(np.clip(view, 0.0, 1.0) * levels).astype(dtype)
+        write_png(path / names[k], quantised)
+
+    with ThreadPoolExecutor(max_workers=min(8, os.cpu_count() or 1)) as pool:
+        for _ in pool.map(save, range(rows * cols)):
+            pass
+    return path
+
+
+# --------------------------------------------------------------------------------------
+# Lenslet images
+# --------------------------------------------------------------------------------------
+
+
+def views_to_lenslet(views) -> np.ndarray:
+    """Interleave views into a rectangular lenslet image (the paper's synthetic raw).
+
+    Each micro-lens is an ``A×B`` block holding one pixel of every view, without the
+    inversion a real camera adds: ``raw[y*A + a, x*B + b] = views[a, b, y, x]``.
+
+    Parameters
+    ----------
+    views : LightField or array_like, shape (A, B, H, W) or (A, B, H, W, C)
+
+    Returns
+    -------
+    numpy.ndarray, shape (H*A, W*B) or (H*A, W*B, C)
+        Same dtype as ``views``; the channel axis stays last.
+    """
+    array = views.views if isinstance(views, LightField) else np.asarray(views)
+    if array.ndim not in (4, 5):
+        raise ValueError(f"views_to_lenslet: expected views [a, b, y, x] or [a, b, y, x, c], "
+                         f"got shape {array.shape}")
+    rows, cols, height, width = array.shape[:4]
+    order = (2, 0, 3, 1) + tuple(range(4, array.ndim))
+    return array.transpose(order).reshape((height * rows, width * cols) + array.shape[4:])
+
+
+def lenslet_to_views(raw, grid: tuple[int, int]) -> np.ndarray:
+    """Split a rectangular lenslet image into views; the inverse of :func:`views_to_lenslet`.
+
+    Parameters
+    ----------
+    raw : array_like, shape (H*A, W*B) or (H*A, W*B, C)
+    grid : (int, int)
+        ``(A, B)``: view rows and columns, i.e. the micro-lens block size.
+
+    Returns
+    -------
+    numpy.ndarray, shape (A, B, H, W) or (A, B, H, W, C)
+        C-contiguous, same dtype as ``raw``.
+
+    Raises
+    ------
+    ValueError
+        If ``raw`` is not 2-D or 3-D or its size is not a multiple of the grid.
+    """
+    rows, cols = (int(n) for n in grid)
+    if rows < 1 or cols < 1:
+        raise ValueError(f"lenslet_to_views: expected a grid of positive sizes, got {grid}")
+    raw = np.asarray(raw)
+    if raw.ndim not in (2, 3):
+        raise ValueError(f"lenslet_to_views: expected a raw image (H, W) or (H, W, C), "
+                         f"got shape {raw.shape}")
+    height, width = raw.shape[:2]
+    if height % rows or width % cols:
+        raise ValueError(f"lenslet_to_views: expected a raw image whose size is a multiple of "
+                         f"the {rows}×{cols} grid, got {width}×{height} (width×height)")
+    blocks = raw.reshape((height // rows, rows, width // cols, cols) + raw.shape[2:])
+    order = (1, 3, 0, 2) + tuple(range(4, raw.ndim + 2))
+    return np.ascontiguousarray(blocks.transpose(order))
+
+
+# --------------------------------------------------------------------------------------
+# PFM
+# --------------------------------------------------------------------------------------
+
+# Magic, width, height and scale separated by any whitespace; the header ends with the
+# line break after the scale (trailing blanks allowed) or, failing that, one whitespace byte.
+_PFM_HEADER = re.compile(rb"(\S+)\s+(\S+)\s+(\S+)\s+(\S+)(?:[ \t\r]*\n|\s)")
+
+
+def _read_bytes(path: str | os.PathLike) -> bytes:
+    path = Path(path)
+    try:
+        return path.read_bytes()
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise ValueError(f"{path}: expected a file, got a folder") from None
+
+
+def read_pfm(path: str | os.PathLike) -> np.ndarray:
+    """Read a PFM image (e.g. HCI ``gt_disp_lowres.pfm``).
+
+    Parameters
+    ----------
+    path : str or path-like
+
+    Returns
+    -------
+    numpy.ndarray, float32, shape (H, W) for ``Pf`` or (H, W, 3) for ``PF``
+        Rows top to bottom (the file stores them bottom to top). Values as stored; the
+        magnitude of the scale is not applied (it is 1 in practice).
+
+    Raises
+    ------
+    FileNotFoundError
+        If the file does not exist.
+    ValueError
+        For a bad magic, dimensions or scale, or truncated data. A negative scale means
+        little-endian data, a positive one big-endian.
+    """
+    data = _read_bytes(path)
+    if data[:2] not in (b"PF", b"Pf"):
+        raise ValueError(f"{path}: not a PFM file: expected magic 'PF' or 'Pf', got {data[:2]!r}")
+    header = _PFM_HEADER.match(data)
+    if header is None or header.group(1) not in (b"PF", b"Pf"):
+        raise ValueError(f"{path}: malformed PFM header {data[:40]!r}: expected "
+                         f"'PF' or 'Pf', width, height and scale separated by whitespace")
+    magic, width_text, height_text, scale_text = header.groups()
+    try:
+        width, height = int(width_text), int(height_text)
+    except ValueError:
+        width = height = 0
+    if width < 1 or height < 1:
+        raise ValueError(f"{path}: bad PFM dimensions: expected positive integers width "
+                         f"height, got {width_text!r} {height_text!r}")
+    try:
+        scale = float(scale_text)
+    except ValueError:
+        scale = math.nan
+    if scale == 0 or not math.isfinite(scale):
+        raise ValueError(f"{path}: bad PFM scale: expected a non-zero number (negative for "
+                         f"little-endian), got {scale_text!r}")
+    channels = 3 if magic == b"PF" else 1
+    count = width * height * channels
+    available = len(data) - header.end()
+    if available < 4 * count:
+        raise ValueError(f"{path}: truncated PFM data: expected {4 * count} bytes for "
+                         f"{width}×{height}×{channels} float32, got {available}")
+    dtype = "<f4" if scale < 0 else ">f4"
+    image = np.frombuffer(data, dtype=dtype, count=count, offset=header.end())
+    image = image.reshape((height, width, 3) if channels == 3 else (height, width))
+    return np.ascontiguousarray(image[::-1], dtype=np.float32)
+
+
+def write_pfm(path: str | os.PathLike, array, little_endian: bool = True) -> None:
+    """Write a PFM image atomically.
+
+    Parameters
+    ----------
+    path : str or path-like
+    array : array_like, shape (H, W), (H, W, 1) or (H, W, 3)
+        Written as float32 (``Pf`` grey or ``PF`` colour), rows bottom to top as the
+        format wants; NaN and infinities are stored as they are.
+    little_endian : bool
+        Byte order; the scale is written as ``-1`` (little) or ``1`` (big).
+
+    Notes
+    -----
+    The header is ``b"Pf\\n{W} {H}\\n-1\\n"``, as in the HCI benchmark's files.
+    """
+    image = np.asarray(array)
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[..., 0]
+    if image.ndim == 2:
+        magic = b"Pf"
+    elif image.ndim == 3 and image.shape[2] == 3:
+        magic = b"PF"
+    else:
+        raise ValueError(f"{path}: expected an array of shape (H, W) or (H, W, 3) for PFM, "
+                         f"got {image.shape}")
+    if image.dtype.kind not in "biuf":
+        raise ValueError(f"{path}: expected real values for PFM, got dtype {image.dtype}")
+    height, width = image.shape[:2]
+    if height == 0 or width == 0:
+        raise ValueError(f"{path}: expected a non-empty image for PFM, got shape {image.shape}")
+    header = b"%s\n%d %d\n%s\n" % (magic, width, height, b"-1" if little_endian else b"1")
+    body = np.ascontiguousarray(image[::-1], dtype="<f4" if little_endian else ">f4")
+    write_bytes_atomic(path, header + body.tobytes())
+
+
+# --------------------------------------------------------------------------------------
+# Middlebury .flo
+# --------------------------------------------------------------------------------------
+
+_FLO_MAGIC = b"PIEH"               # 202021.25 as a little-endian float32
+_FLO_UNKNOWN_ABOVE = 1e9           # |value| above this means "unknown" (Middlebury)
+_FLO_UNKNOWN_WRITTEN = 1e10
+_FLO_MAX_SIDE = 99_999             # the Middlebury reference reader's sanity limit
+
+
+def read_flo(path: str | os.PathLike) -> np.ndarray:
+    """Read a Middlebury ``.flo`` optical flow file.
+
+    Parameters
+    ----------
+    path : str or path-like
+
+    Returns
+    -------
+    numpy.ndarray, float32, shape (H, W, 2)
+        ``(u, v)`` per pixel. Pixels marked unknown (either component NaN or above 1e9 in
+        magnitude) are NaN in both components.
+
+    Raises
+    ------
+    FileNotFoundError
+        If the file does not exist.
+    ValueError
+        For a bad magic (expected 202021.25, bytes ``PIEH``), an absurd size (either side
+        outside 1 … 99999) or truncated data.
+    """
+    data = _read_bytes(path)
+    if len(data) < 12:
+        raise ValueError(f"{path}: truncated FLO header: expected 12 bytes, got {len(data)}")
+    if data[:4] != _FLO_MAGIC:
+        raise ValueError(f"{path}: not a Middlebury .flo file: expected magic {_FLO_MAGIC!r} "
+                         f"(202021.25), got {data[:4]!r}")
+    width, height = struct.unpack("<ii", data[4:12])
+    if not (1 <= width <= _FLO_MAX_SIDE and 1 <= height <= _FLO_MAX_SIDE):
+        raise ValueError(f"{path}: implausible FLO size {width}×{height}: expected each side "
+                         f"in 1 … {_FLO_MAX_SIDE}")
+    count = width * height * 2
+    if len(data) - 12 < 4 * count:
+        raise ValueError(f"{path}: truncated FLO data: expected {4 * count} bytes for "
+                         f"{width}×{height}×2 float32, got {len(data) - 12}")
+    flow = np.frombuffer(data, dtype="<f4", count=count, offset=12).reshape(height, width, 2)
+    flow = flow.astype(np.float32)
+    with np.errstate(invalid="ignore"):
+        unknown = ~(np.abs(flow) <= _FLO_UNKNOWN_ABOVE).all(axis=2)
+    flow[unknown] = np.nan
+    return flow
+
+
+def write_flo(path: str | os.PathLike, flow) -> None:
+    """Write a Middlebury ``.flo`` file atomically.
+
+    Parameters
+    ----------
+    path : str or path-like
+    flow : array_like, shape (H, W, 2)
+        ``(u, v)`` per pixel; a pixel with a non-finite component is written as unknown
+        (1e10 in both components).
+    """
+    flow = np.asarray(flow)
+    if flow.ndim != 3 or flow.shape[2] != 2 or flow.dtype.kind not in "biuf":
+        raise ValueError(f"{path}: expected a real (H, W, 2) flow array, got shape "
+                         f"{flow.shape} dtype {flow.dtype}")
+    height, width = flow.shape[:2]
+    if not (1 <= width <= _FLO_MAX_SIDE and 1 <= height <= _FLO_MAX_SIDE):
+        raise ValueError(f"{path}: expected each side of the flow in 1 … {_FLO_MAX_SIDE}, "
+                         f"got {width}×{height}")
+    body = flow.astype("<f4")       # always a copy, safe to mark unknown pixels in
+    body[~np.isfinite(body).all(axis=2)] = _FLO_UNKNOWN_WRITTEN
+    write_bytes_atomic(path, _FLO_MAGIC + struct.pack("<ii", width, height) + body.tobytes())
+
+
+# --------------------------------------------------------------------------------------
+# KITTI 16-bit PNG flow and disparity
+# --------------------------------------------------------------------------------------
+
+_KITTI_FLOW_OFFSET = 2 ** 15
+_KITTI_FLOW_SCALE = 64.0
+_KITTI_DISP_SCALE = 256.0
+
+
+def read_kitti_flow(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """Read KITTI optical flow: a 16-bit RGB PNG.
+
+    ``u = (R − 2¹⁵)/64``, ``v = (G − 2¹⁵)/64``, valid where ``B > 0``.
+
+    Returns
+    -------
+    flow : numpy.ndarray, float32, shape (H, W, 2)
+        ``(u, v)``; NaN at invalid pixels, so that they cannot be used by mistake.
+    valid : numpy.ndarray, bool, shape (H, W)
+    """
+    image = read_image(path)
+    if image.dtype != np.uint16 or image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(f"{path}: expected a 16-bit RGB PNG (KITTI flow), got "
+                         f"{image.dtype} of shape {image.shape}")
+    valid = image[..., 2] > 0
+    flow = (image[..., :2].astype(np.float32) - np.float32(_KITTI_FLOW_OFFSET))
+    flow /= np.float32(_KITTI_FLOW_SCALE)
+    flow[~valid] = np.nan
+    return flow, valid
+
+
+def write_kitti_flow(path: str | os.PathLike, flow, valid=None) -> None:
+    """Write KITTI optical flow (16-bit RGB PNG) atomically.
+
+    Parameters
+    ----------
+    path : str or path-like
+    flow : array_like, shape (H, W, 2)
+        ``(u, v)``, rounded to the nearest 1/64 px.
+    valid : array_like of bool, shape (H, W), optional
+        Pixels to mark valid; default: those with finite flow. Invalid pixels are written
+        as (0, 0, 0), as the KITTI devkit does.
+
+    Raises
+    ------
+    ValueError
+        If a valid pixel has non-finite flow or flow outside the format's range
+        [−512, 511.98] px (rather than clipping it silently).
+    """
+    flow = np.asarray(flow, dtype=np.float64)
+    if flow.ndim != 3 or flow.shape[2] != 2:
+        raise ValueError(f"{path}: expected flow of shape (H, W, 2), got {flow.shape}")
+    finite = np.isfinite(flow).all(axis=2)
+    valid = finite if valid is None else _valid_mask(path, valid, flow.shape[:2], finite)
+    encoded = np.rint(flow[valid] * _KITTI_FLOW_SCALE + _KITTI_FLOW_OFFSET)
+    if encoded.size and (encoded.min() < 0 or encoded.max() > 65535):
+        raise ValueError(f"{path}: expected flow within the KITTI range [-512, 511.98] px, "
+                         f"got {flow[valid].min():.6g} … {flow[valid].max():.6g}")
+    image = np.zeros(flow.shape[:2] + (3,), dtype=np.uint16)
+    image[valid, :2] = encoded.astype(np.uint16)
+    image[valid, 2] = 1
+    write_png(path, image)
+
+
+def read_kitti_disparity(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """Read a KITTI disparity map: a 16-bit grey PNG, ``disp = value/256``, 0 = invalid.
+
+    Returns
+    -------
+    disparity : numpy.ndarray, float32, shape (H, W)
+        NaN at invalid pixels.
+    valid : numpy.ndarray, bool, shape (H, W)
+    """
+    image = read_image(path)
+    if image.dtype != np.uint16 or image.ndim != 2:
+        raise ValueError(f"{path}: expected a 16-bit grey PNG (KITTI disparity), got "
+                         f"{image.dtype} of shape {image.shape}")
+    valid = image > 0
+    disparity = image.astype(np.float32) / np.float32(_KITTI_DISP_SCALE)
+    disparity[~valid] = np.nan
+    return disparity, valid
+
+
+def write_kitti_disparity(path: str | os.PathLike, disparity, valid=None) -> None:
+    """Write a KITTI disparity map (16-bit grey PNG) atomically.
+
+    Parameters
+    ----------
+    path : str or path-like
+    disparity : array_like, shape (H, W)
+        Rounded to the nearest 1/256. A valid disparity that rounds to 0 is stored as
+        1/256, since 0 means invalid in this format.
+    valid : array_like of bool, shape (H, W), optional
+        Default: the pixels with finite disparity. Invalid pixels are written as 0.
+
+    Raises
+    ------
+    ValueError
+        If a valid pixel is non-finite or outside [0, 255.996]: the format cannot hold
+        negative disparities (light-field disparities often are; use PFM for those).
+    """
+    disparity = np.asarray(disparity, dtype=np.float64)
+    if disparity.ndim != 2:
+        raise ValueError(f"{path}: expected a disparity map of shape (H, W), got {disparity.shape}")
+    finite = np.isfinite(disparity)
+    valid = finite if valid is None else _valid_mask(path, valid, disparity.shape, finite)
+    encoded = np.rint(disparity[valid] * _KITTI_DISP_SCALE)
+    if encoded.size and (encoded.min() < 0 or encoded.max() > 65535):
+        raise ValueError(f"{path}: expected disparities within the KITTI range [0, 255.996], "
+                         f"got {disparity[valid].min():.6g} … {disparity[valid].max():.6g}")
+    image = np.zeros(disparity.shape, dtype=np.uint16)
+    image[valid] = np.maximum(encoded, 1).astype(np.uint16)
+    write_png(path, image)
+
+
+def _valid_mask(path, valid, shape: tuple, finite: np.ndarray) -> np.ndarray:
+    valid = np.asarray(valid, dtype=bool)
+    if valid.shape != tuple(shape):
+        raise ValueError(f"{path}: expected a valid mask of shape {tuple(shape)}, got {valid.shape}")
+    if (valid & ~finite).any():
+        y, x = np.argwhere(valid & ~finite)[0]
+        raise ValueError(f"{path}: pixel (y, x) = ({y}, {x}) is marked valid but is not finite")
+    return valid
+
+
+# --------------------------------------------------------------------------------------
+# Images and the PNG codec
+# --------------------------------------------------------------------------------------
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_CHANNELS = {0: 1, 2: 3, 4: 2, 6: 4}        # colour type -> samples per pixel
+_PNG_COLOUR_TYPE = {1: 0, 2: 4, 3: 2, 4: 6}     # samples per pixel -> colour type
+# Adam7 passes: (x0, y0, dx, dy)
+_ADAM7 = ((0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4),
+          (0, 2, 2, 4), (1, 0, 2, 2), (0, 1, 1, 2))
+# The wavefront unfilter works on bands of rows holding about this many bytes at a time.
+_WAVEFRONT_BAND_BYTES = 1 << 25
+
+
+def read_image(path: str | os.PathLike) -> np.ndarray:
+    """Read an image file as stored: (H, W) or (H, W, C), usually uint8 or uint16.
+
+    16-bit colour PNGs (RGB, RGBA, grey + alpha) are decoded by :func:`decode_png`, since
+    Pillow would truncate them to 8 bits; everything else goes through imageio.
+
+    Raises
+    ------
+    FileNotFoundError
+        If the file does not exist.
+    ValueError
+        If the file cannot be decoded.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such image file")
+    if not path.is_file():
+        raise ValueError(f"{path}: expected an image file, got a folder")
+    with open(path, "rb") as f:
+        head = f.read(26)
+    if (len(head) == 26 and head.startswith(_PNG_SIGNATURE) and head[12:16] == b"IHDR"
+            and head[24] == 16 and head[25] in (2, 4, 6)):
+        return decode_png(path.read_bytes(), source=str(path))
+    try:
+        return np.asarray(iio.imread(path))
+    except Exception as err:        # imageio/Pillow raise many kinds for a corrupt file
+        raise ValueError(f"{path}: cannot read image ({type(err).__name__}: {err})") from err
+
+
+def write_png(path: str | os.PathLike, array) -> None:
+    """Write an image as PNG atomically.
+
+    Parameters
+    ----------
+    path : str or path-like
+    array : array_like, shape (H, W) or (H, W, C), C = 1 (grey), 2 (grey + alpha),
+        3 (RGB) or 4 (RGBA)
+        uint8 and uint16 are written as 8-bit and 16-bit PNG; bool as 0/255; float
+        values in [0, 1] as 8-bit (clipped, rounded).
+
+    Raises
+    ------
+    ValueError
+        For another dtype, a non-finite float value, or an unsupported shape.
+    """
+    image = np.asarray(array)
+    if image.dtype == bool:
+        image = image.astype(np.uint8) * np.uint8(255)
+    elif image.dtype.kind == "f":
+        if not np.isfinite(image).all():
+            raise ValueError(f"{path}: expected finite values to write as PNG, got NaN or infinity")
+        image = np.rint(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
+    elif image.dtype not in (np.uint8, np.uint16):
+        raise ValueError(f"{path}: expected a uint8, uint16, bool or float image, got {image.dtype}")
+    write_bytes_atomic(path, encode_png(image, source=str(path)))
+
+
+def _png_chunk(kind: bytes, body: bytes) -> bytes:
+    return (struct.pack(">I", len(body)) + kind + body
+            + struct.pack(">I", zlib.crc32(kind + body) & 0xFFFFFFFF))
+
+
+def encode_png(image, *, compress_level: int = 6, source: str = "encode_png") -> bytes:
+    """Encode an image as PNG bytes (non-interlaced).
+
+    Parameters
+    ----------
+    image : array_like, uint8 or uint16, shape (H, W) or (H, W, C) with C in 1 … 4
+        Grey, grey + alpha, RGB or RGBA; the dtype gives the bit depth (8 or 16).
+    compress_level : int
+        zlib level, 0 … 9.
+    source : str
+        Name for error messages.
+
+    Notes
+    -----
+    Every row uses the "Up" filter: cheap to compute and good on smooth images.
+    """
+    image = np.asarray(image)
+    if image.dtype not in (np.uint8, np.uint16):
+        raise ValueError(f"{source}: expected a uint8 or uint16 image, got {image.dtype}")
+    if image.ndim == 2:
+        image = image[..., None]
+    if image.ndim != 3 or image.shape[2] not in _PNG_COLOUR_TYPE:
+        raise ValueError(f"{source}: expected an image of shape (H, W) or (H, W, C) with C in "
+                         f"1 … 4, got {image.shape}")
+    height, width, channels = image.shape
+    if not (1 <= height < 2 ** 31 and 1 <= width < 2 ** 31):
+        raise ValueError(f"{source}: expected a non-empty image, got shape {image.shape}")
+    depth = 8 * image.dtype.itemsize
+    rows = np.ascontiguousarray(image, dtype=">u2" if depth == 16 else np.uint8)
+    rows = rows.view(np.uint8).reshape(height, -1)
+    scanlines = np.empty((height, rows.shape[1] + 1), dtype=np.uint8)
+    scanlines[:, 0] = 2                                  # filter type "Up"
+    scanlines[0, 1:] = rows[0]                           # the row above the first is zero
+    np.subtract(rows[1:], rows[:-1], out=scanlines[1:, 1:])
+    compressed = zlib.compress(scanlines.tobytes(), compress_level)
+    ihdr = struct.pack(">IIBBBBB", width, height, depth, _PNG_COLOUR_TYPE[channels], 0, 0, 0)
+    step = 1 << 30                                       # chunks hold at most 2³¹ − 1 bytes
+    idat = b"".join(_png_chunk(b"IDAT", compressed[i:i + step])
+                    for i in range(0, len(compressed), step))
+    return _PNG_SIGNATURE + _png_chunk(b"IHDR", ihdr) + idat + _png_chunk(b"IEND", b"")
+
+
+def decode_png(data: bytes, source: str = "<bytes>") -> np.ndarray:
+    """Decode PNG bytes: 8- or 16-bit grey, grey + alpha, RGB or RGBA, Adam7 or not.
+
+    Parameters
+    ----------
+    data : bytes
+        The whole file.
+    source : str
+        Name for error messages.
+
+    Returns
+    -------
+    numpy.ndarray, uint8 or uint16, shape (H, W) or (H, W, C)
+        Samples as stored; ancillary chunks (gamma, transparency, …) are ignored.
+
+    Raises
+    ------
+    ValueError
+        For a bad signature or CRC, missing or truncated chunks or image data, or a
+        palette or sub-byte format (those are left to Pillow).
+    """
+    if not data.startswith(_PNG_SIGNATURE):
+        raise ValueError(f"{source}: not a PNG file (bad signature {data[:8]!r})")
+    header = None
+    idat = []
+    pos = len(_PNG_SIGNATURE)
+    while True:
+        if pos + 8 > len(data):
+            raise ValueError(f"{source}: truncated PNG: ends at byte {len(data)} without an "
+                             f"IEND chunk")
+        length, kind = struct.unpack(">I4s", data[pos:pos + 8])
+        end = pos + 12 + length
+        if end > len(data):
+            raise ValueError(f"{source}: truncated PNG: chunk {kind!r} at byte {pos} needs "
+                             f"{12 + length} bytes, {len(data) - pos} left")
+        body = data[pos + 8:end - 4]
+        (crc,) = struct.unpack(">I", data[end - 4:end])
+        if zlib.crc32(kind + body) & 0xFFFFFFFF != crc:
+            raise ValueError(f"{source}: corrupt PNG: CRC mismatch in chunk {kind!r} at byte {pos}")
+        if kind == b"IHDR":
+            if length != 13:
+                raise ValueError(f"{source}: corrupt PNG: IHDR of {length} bytes, expected 13")
+            header = struct.unpack(">IIBBBBB", body)
+        elif kind == b"IDAT":
+            idat.append(body)
+        elif kind == b"IEND":
+            break
+        pos = end
+    if header is None or not idat:
+        raise ValueError(f"{source}: corrupt PNG: missing {'IHDR' if header is None else 'IDAT'}")
+    width, height, depth, colour_type, compression, filtering, interlace = header
+    if colour_type not in _PNG_CHANNELS or depth not in (8, 16):
+        raise ValueError(f"{source}: unsupported PNG: bit depth {depth}, colour type "
+                         f"{colour_type} (this decoder reads 8- and 16-bit grey, grey + alpha, "
+                         f"RGB and RGBA)")
+    if compression != 0 or filtering != 0 or interlace not in (0, 1) or width < 1 or height < 1:
+        raise ValueError(f"{source}: corrupt PNG header: size {width}×{height}, compression "
+                         f"{compression}, filter method {filtering}, interlace {interlace}")
+    try:
+        raw = zlib.decompress(b"".join(idat))
+    except zlib.error as err:
+        raise ValueError(f"{source}: corrupt PNG image data ({err})") from err
+    channels = _PNG_CHANNELS[colour_type]
+    bpp = channels * depth // 8                          # bytes per pixel
+    if interlace == 0:
+        pixels, _ = _unfilter_pass(raw, 0, width, height, bpp, source)
+        pixels = pixels.reshape(height, width, bpp)
+    else:
+        pixels = np.empty((height, width, bpp), dtype=np.uint8)
+        offset = 0
+        for x0, y0, dx, dy in _ADAM7:
+            pass_width = -(-(width - x0) // dx) if width > x0 else 0
+            pass_height = -(-(height - y0) // dy) if height > y0 else 0
+            if pass_width == 0 or pass_height == 0:
+                continue                                 # an empty pass has no bytes at all
+            block, offset = _unfilter_pass(raw, offset, pass_width, pass_height, bpp, source)
+            pixels[y0::dy, x0::dx] = block.reshape(pass_height, pass_width, bpp)
+    if depth == 16:
+        samples = pixels.view(">u2").astype(np.uint16)
+    else:
+        samples = pixels
+    samples = samples.reshape(height, width, channels)
+    return samples[..., 0] if channels == 1 else samples
+
+
+def _unfilter_pass(raw: bytes, offset: int, width: int, height: int, bpp: int,
+                   source: str) -> tuple[np.ndarray, int]:
+    """Reconstruct one (sub-)image's scanlines starting at ``raw[offset]``; returns the
+    (height, width·bpp) bytes and the offset after them."""
+    stride = width * bpp
+    needed = height * (stride + 1)
+    if len(raw) - offset < needed:
+        raise ValueError(f"{source}: truncated PNG image data: expected {needed} bytes for "
+                         f"{width}×{height} pixels, got {len(raw) - offset}")
+    block = np.frombuffer(raw, dtype=np.uint8, count=needed, offset=offset)
+    block = block.reshape(height, stride + 1)
+    filters, filtered = block[:, 0], block[:, 1:]
+    if filters.max() > 4:
+        row = int(np.argmax(filters > 4))
+        raise ValueError(f"{source}: corrupt PNG: unknown filter type {filters[row]} in row {row}")
+    return _unfilter(filtered, filters, bpp), offset + needed
+
+
+def _unfilter(filtered: np.ndarray, filters: np.ndarray, bpp: int) -> np.ndarray:
+    """Undo the PNG row filters (None, Sub, Up, Average, Paeth) of an image.
+
+    None, Sub and Up vectorise along a row, so images using only those are done row by
+    row. Average and Paeth depend on the reconstructed left neighbour, which makes each row
+    sequential; those images are swept along anti-diagonals instead (a wavefront), where
+    every pixel's left, upper and upper-left neighbours are already known.
+    """
+    height, stride = filtered.shape
+    if filters.max() <= 2:
+        out = np.empty_like(filtered)
+        previous = np.zeros(stride, dtype=np.uint8)
+        for r in range(height):
+            kind = filters[r]
+            if kind == 0:
+                out[r] = filtered[r]
+            elif kind == 1:     # uint8 arithmetic wraps modulo 256, as the format wants
+                out[r] = np.cumsum(filtered[r].reshape(-1, bpp), axis=0, dtype=np.uint8).ravel()
+            else:
+                np.add(filtered[r], previous, out=out[r])
+            previous = out[r]
+        return out
+    width = stride // bpp
+    # A band of h rows takes about 4·bpp·h·(h + width) bytes of int16 work arrays.
+    per_row = _WAVEFRONT_BAND_BYTES / (4 * bpp)
+    band = max(1, min(height, int((math.sqrt(width * width + 4 * per_row) - width) / 2)))
+    out = np.empty_like(filtered)
+    previous = np.zeros(stride, dtype=np.uint8)
+    for r0 in range(0, height, band):
+        r1 = min(height, r0 + band)
+        out[r0:r1] = _unfilter_wavefront(filtered[r0:r1], filters[r0:r1], previous, bpp)
+        previous = out[r1 - 1]
+    return out
+
+
+def _unfilter_wavefront(filtered: np.ndarray, filters: np.ndarray, previous: np.ndarray,
+                        bpp: int) -> np.ndarray:
+    """Unfilter a band of rows, any filter types, given the reconstructed row above it.
+
+    Pixels are stored skewed, pixel (r, i) at column d = r + i, so that anti-diagonal d is
+    one column: ``recon[r + 1, d + 2]`` holds pixel (r, i), with a zero row and columns of
+    padding for the neighbours outside the image, and row 0 holding ``previous``.
+    """
+    height, stride = filtered.shape
+    width = stride // bpp
+    diagonals = height + width - 1
+    r = np.arange(height)[:, None]
+    i = np.arange(width)[None, :]
+    skewed = np.zeros((height, diagonals, bpp), dtype=np.int16)
+    skewed[r, r + i] = filtered.reshape(height, width, bpp)
+    recon = np.zeros((height + 1, diagonals + 2, bpp), dtype=np.int16)
+    recon[0, 1:width + 1] = previous.reshape(width, bpp)
+    kinds = filters.astype(np.intp)[:, None, None]
+    zero = np.zeros((1, 1), dtype=np.int16)
+    for d in range(diagonals):
+        lo, hi = max(0, d - width + 1), min(height, d + 1)         # rows on this diagonal
+        left = recon[lo + 1:hi + 1, d + 1]
+        up = recon[lo:hi, d + 1]
+        up_left = recon[lo:hi, d]
+        estimate = left + up - up_left
+        dist_left = np.abs(estimate - left)
+        dist_up = np.abs(estimate - up)
+        dist_up_left = np.abs(estimate - up_left)
+        paeth = np.where((dist_left <= dist_up) & (dist_left <= dist_up_left), left,
+                         np.where(dist_up <= dist_up_left, up, up_left))
+        average = (left + up) >> 1
+        predictor = np.choose(kinds[lo:hi, 0], (zero, left, up, average, paeth))
+        recon[lo + 1:hi + 1, d + 2] = (skewed[lo:hi, d] + predictor) & 0xFF
+    return recon[r + 1, r + i + 2].astype(np.uint8).reshape(height, stride)

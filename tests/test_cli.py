@@ -1,0 +1,115 @@
+"""The command line: outputs, and bad input ending in one clear line with exit status 2."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from lfsf import io
+from lfsf.cli import main
+
+
+def lfsf(*args, cwd=None):
+    """Run the real command in a subprocess (status, stdout, stderr)."""
+    proc = subprocess.run([sys.executable, "-m", "lfsf", *map(str, args)], capture_output=True, text=True,
+                          cwd=cwd, env={**os.environ, "LFSF_DEVICE": ""})
+    return proc.returncode, proc.stdout, proc.stderr
+
+
+def assert_clean_error(status, err, *needles):
+    assert status == 2, err
+    assert "Traceback" not in err
+    lines = [ln for ln in err.strip().splitlines() if ln.strip()]
+    assert lines and "error:" in lines[-1], err
+    for needle in needles:
+        assert needle in err, (needle, err)
+
+
+def test_synth_list():
+    status, out, err = lfsf("synth", "--list")
+    assert status == 0, err
+    for name in ("paper", "slanted", "large_motion", "weak_texture"):
+        assert name in out
+
+
+def test_synth_writes_pair_and_ground_truth(tmp_path):
+    status, _, err = lfsf("synth", "slanted", "--out", tmp_path / "s", "--size", 40, 30, "--grid", 3)
+    assert status == 0, err
+    assert sorted(p.name for p in (tmp_path / "s").iterdir()) == ["gt.npz", "lf1.npz", "lf2.npz"]
+    lf1 = io.read_lightfield(tmp_path / "s" / "lf1.npz")
+    assert lf1.views.shape == (3, 3, 30, 40) and lf1.views.dtype == np.float32
+    with np.load(tmp_path / "s" / "gt.npz") as gt:
+        for key in ("disp1", "disp2", "u", "v"):
+            assert gt[key].shape == (30, 40) and gt[key].dtype == np.float32
+        assert gt["valid"].dtype == bool and gt["occluded"].dtype == bool
+
+
+def test_eval_of_ground_truth_against_itself_is_zero(tmp_path):
+    assert main(["synth", "paper", "--out", str(tmp_path), "--size", "48", "36", "--grid", "1", "--quiet"]) == 0
+    status, out, err = lfsf("eval", tmp_path / "gt.npz", tmp_path / "gt.npz", "--json", tmp_path / "e.json")
+    assert status == 0, err
+    report = json.loads((tmp_path / "e.json").read_text())
+    assert report["errors"]["disp1"]["mse"] == 0.0
+    assert report["errors"]["flow"]["epe"] == 0.0
+    assert "flow" in out and "disp2" in out
+
+
+@pytest.mark.parametrize(
+    "args,needles",
+    [
+        (["synth", "nowhere", "--out", "{tmp}/x"], ["unknown scene 'nowhere'"]),
+        (["synth", "paper", "--out", "{tmp}/x", "--device", "cuda:9"], ["unknown device 'cuda:9'"]),
+        (["synth", "paper", "--out", "{tmp}/x", "--size", "4", "4"], ["at least 8"]),
+        (["eval", "{tmp}/missing", "{tmp}/gt.npz"], ["missing"]),
+        (["run", "{tmp}/missing1", "{tmp}/missing2", "--out", "{tmp}/r"], ["missing1"]),
+        (["run", "{tmp}/a.npz", "{tmp}/a.npz", "--out", "{tmp}/r", "--device", "quantum"], ["unknown device"]),
+        (["frobnicate"], ["invalid choice"]),
+    ],
+)
+def test_bad_input_is_one_clear_line_and_status_2(tmp_path, args, needles):
+    status, _, err = lfsf(*[a.format(tmp=tmp_path) for a in args])
+    assert_clean_error(status, err, *needles)
+    assert not (tmp_path / "x").exists() and not (tmp_path / "r").exists()
+
+
+def test_nan_pixels_are_rejected_with_the_file_name(tmp_path):
+    views = np.full((3, 3, 10, 12), 0.5, np.float32)
+    views[1, 2, 4, 4] = np.nan
+    np.savez(tmp_path / "bad.npz", views=views)
+    np.savez(tmp_path / "good.npz", views=np.full((3, 3, 10, 12), 0.5, np.float32))
+    status, _, err = lfsf("run", tmp_path / "good.npz", tmp_path / "bad.npz", "--out", tmp_path / "r")
+    assert_clean_error(status, err, "bad.npz", "NaN")
+    assert not (tmp_path / "r").exists()
+
+
+def test_light_fields_of_different_shapes_are_rejected(tmp_path):
+    np.savez(tmp_path / "a.npz", views=np.full((3, 3, 10, 12), 0.5, np.float32))
+    np.savez(tmp_path / "b.npz", views=np.full((3, 3, 10, 14), 0.5, np.float32))
+    np.savez(tmp_path / "c.npz", views=np.full((5, 5, 10, 12), 0.5, np.float32))
+    status, _, err = lfsf("run", tmp_path / "a.npz", tmp_path / "b.npz", "--out", tmp_path / "r")
+    assert_clean_error(status, err, "a.npz", "b.npz", "12", "14")
+    status, _, err = lfsf("run", tmp_path / "a.npz", tmp_path / "c.npz", "--out", tmp_path / "r")
+    assert_clean_error(status, err, "3×3", "5×5")
+
+
+def test_run_without_estimator_says_so(tmp_path):
+    np.savez(tmp_path / "a.npz", views=np.full((3, 3, 10, 12), 0.5, np.float32))
+    status, _, err = lfsf("run", tmp_path / "a.npz", tmp_path / "a.npz", "--out", tmp_path / "r")
+    assert_clean_error(status, err, "not implemented yet")
+    assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("name,content", [("bad.pfm", b"P7\n3 3\n-1\n" + b"\0" * 36),
+                                          ("short.pfm", b"Pf\n3 3\n-1\n" + b"\0" * 20),
+                                          ("bad.flo", b"ABCD" + b"\0" * 40),
+                                          ("short.flo", np.array([202021.25], "<f4").tobytes()
+                                           + np.array([4, 4], "<i4").tobytes() + b"\0" * 16)])
+def test_corrupt_pfm_and_flo_are_rejected_with_the_file_name(tmp_path, name, content):
+    (tmp_path / name).write_bytes(content)
+    assert main(["synth", "paper", "--out", str(tmp_path / "g"), "--size", "8", "8", "--grid", "1", "--quiet"]) == 0
+    status, _, err = lfsf("eval", tmp_path / name, tmp_path / "g" / "gt.npz", "--json", tmp_path / "e.json")
+    assert_clean_error(status, err, name)
+    assert not (tmp_path / "e.json").exists()

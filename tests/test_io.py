@@ -1,0 +1,950 @@
+"""Tests of lfsf.io: light-field containers and readers, lenslet images, PFM, FLO, KITTI
+PNG and the PNG codec.
+
+Byte-level expectations are built here by hand (struct, zlib, a per-byte reference PNG
+filter) rather than with the code under test, so a format bug cannot cancel out in a
+round trip. Tests on the real data sets in ../shared/data skip when it is absent.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import signal
+import struct
+import zlib
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+
+from lfsf import io as lio
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+LUMA = np.array([0.299, 0.587, 0.114])
+
+
+# --------------------------------------------------------------------------------------
+# helpers
+# --------------------------------------------------------------------------------------
+
+
+def _chunk(kind: bytes, body: bytes) -> bytes:
+    return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+
+def _paeth(a: int, b: int, c: int) -> int:
+    p = a + b - c
+    pa, pb, pc = abs(p - a), abs(p - b), abs(p - c)
+    if pa <= pb and pa <= pc:
+        return a
+    return b if pb <= pc else c
+
+
+def _predict(kind: int, a: int, b: int, c: int) -> int:
+    return (0, a, b, (a + b) // 2, _paeth(a, b, c))[kind]
+
+
+def _filter_rows(rows: list[bytes], kinds: list[int], bpp: int) -> bytes:
+    """Textbook per-byte PNG filtering of scanlines (PNG spec §9.2)."""
+    out = bytearray()
+    prior = bytes(len(rows[0]))
+    for row, kind in zip(rows, kinds):
+        out.append(kind)
+        for i, x in enumerate(row):
+            a = row[i - bpp] if i >= bpp else 0
+            c = prior[i - bpp] if i >= bpp else 0
+            out.append((x - _predict(kind, a, prior[i], c)) % 256)
+        prior = row
+    return bytes(out)
+
+
+def _unfilter_rows(data: bytes, height: int, stride: int, bpp: int) -> bytes:
+    """Textbook per-byte reconstruction, the inverse of _filter_rows."""
+    out = bytearray()
+    prior = bytearray(stride)
+    for r in range(height):
+        kind, line = data[r * (stride + 1)], data[r * (stride + 1) + 1:(r + 1) * (stride + 1)]
+        row = bytearray(stride)
+        for i, x in enumerate(line):
+            a = row[i - bpp] if i >= bpp else 0
+            c = prior[i - bpp] if i >= bpp else 0
+            row[i] = (x + _predict(kind, a, prior[i], c)) % 256
+        out += row
+        prior = row
+    return bytes(out)
+
+
+def _image_rows(image: np.ndarray) -> list[bytes]:
+    big = image.astype(">u2") if image.dtype == np.uint16 else image
+    return [big[r].tobytes() for r in range(image.shape[0])]
+
+
+def _png_by_hand(image: np.ndarray, kinds, interlace: bool = False) -> bytes:
+    """PNG bytes of an (H, W, C) uint8/uint16 image; row r uses filter kinds[r % len]."""
+    height, width, channels = image.shape
+    depth = 8 * image.dtype.itemsize
+    bpp = channels * image.dtype.itemsize
+    colour_type = {1: 0, 2: 4, 3: 2, 4: 6}[channels]
+    if interlace:
+        passes = [image[y0::dy, x0::dx] for x0, y0, dx, dy in
+                  ((0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4),
+                   (0, 2, 2, 4), (1, 0, 2, 2), (0, 1, 1, 2))]
+    else:
+        passes = [image]
+    scanlines = b""
+    for sub in passes:
+        if sub.size:
+            rows = _image_rows(sub)
+            scanlines += _filter_rows(rows, [kinds[r % len(kinds)] for r in range(len(rows))], bpp)
+    ihdr = struct.pack(">IIBBBBB", width, height, depth, colour_type, 0, 0, int(interlace))
+    return (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", ihdr)
+            + _chunk(b"IDAT", zlib.compress(scanlines)) + _chunk(b"IEND", b""))
+
+
+def _random_image(rng, shape, dtype):
+    return rng.integers(0, np.iinfo(dtype).max + 1, size=shape).astype(dtype)
+
+
+def _bilinear(image: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    h, w = image.shape
+    xs = np.clip(xs, 0, w - 1)
+    ys = np.clip(ys, 0, h - 1)
+    x0 = np.minimum(np.floor(xs).astype(int), w - 2)
+    y0 = np.minimum(np.floor(ys).astype(int), h - 2)
+    fx, fy = xs - x0, ys - y0
+    top = image[y0, x0] * (1 - fx) + image[y0, x0 + 1] * fx
+    bottom = image[y0 + 1, x0] * (1 - fx) + image[y0 + 1, x0 + 1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+@pytest.fixture
+def file_size_limit():
+    """Context manager making every file write past ``nbytes`` fail (EFBIG), like a full
+    disk part-way through a write."""
+    resource = pytest.importorskip("resource")
+    if not hasattr(signal, "SIGXFSZ"):
+        pytest.skip("no SIGXFSZ on this platform")
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+
+    @contextlib.contextmanager
+    def limit(nbytes: int):
+        if hard != resource.RLIM_INFINITY and hard < nbytes:
+            pytest.skip("hard file-size limit too low")
+        handler = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (nbytes, hard))
+        try:
+            yield
+        finally:
+            resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+            signal.signal(signal.SIGXFSZ, handler)
+
+    return limit
+
+
+# --------------------------------------------------------------------------------------
+# LightField
+# --------------------------------------------------------------------------------------
+
+
+def test_lightfield_properties():
+    views = np.zeros((3, 5, 4, 6, 3), dtype=np.float32)
+    lf = lio.LightField(views, source="scene")
+    assert lf.grid == (3, 5)
+    assert lf.shape == (3, 5, 4, 6, 3)
+    assert (lf.height, lf.width) == (4, 6)
+    assert lf.is_colour
+    assert lf.centre_index == (1.0, 2.0)
+    assert not lio.LightField(views[..., 0]).is_colour
+    assert lio.LightField(np.zeros((2, 4, 1, 1))).centre_index == (0.5, 1.5)
+    assert "3×5" in repr(lf) and "scene" in repr(lf)
+
+
+def test_lightfield_converts_to_float32():
+    lf = lio.LightField(np.full((1, 1, 2, 2), 255, dtype=np.uint8))
+    assert lf.views.dtype == np.float32
+    np.testing.assert_array_equal(lf.views, 1.0)
+    lf16 = lio.LightField(np.full((1, 1, 2, 2), 65535 // 5, dtype=np.uint16))
+    np.testing.assert_allclose(lf16.views, 0.2, rtol=1e-6)
+    lf64 = lio.LightField(np.full((1, 1, 2, 2, 1), 0.25))        # float64, one channel
+    assert lf64.views.dtype == np.float32 and lf64.shape == (1, 1, 2, 2)
+    assert lf64.views.flags.c_contiguous
+
+
+def test_centre_of_odd_grid_is_the_middle_view():
+    views = np.random.default_rng(0).random((3, 5, 4, 4)).astype(np.float32)
+    lf = lio.LightField(views)
+    np.testing.assert_array_equal(lf.centre, views[1, 2])
+
+
+@pytest.mark.parametrize("grid, expected", [
+    ((4, 4), (11 + 12 + 21 + 22) / 4),     # rows 1, 2 and columns 1, 2
+    ((3, 2), (10 + 11) / 2),               # row 1, columns 0, 1
+    ((2, 3), (1 + 11) / 2),                # rows 0, 1, column 1
+])
+def test_centre_of_even_grid_is_the_bilinear_mean(grid, expected):
+    a, b = np.meshgrid(np.arange(grid[0]), np.arange(grid[1]), indexing="ij")
+    views = np.broadcast_to((10 * a + b)[:, :, None, None] / 100, grid + (2, 3)).copy()
+    centre = lio.LightField(views).centre
+    assert centre.shape == (2, 3)
+    np.testing.assert_allclose(centre, expected / 100, rtol=1e-6)
+
+
+def test_grey_uses_bt601_luma():
+    pixels = np.array([[0.2, 0.4, 0.6], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]])
+    views = pixels.reshape(1, 1, 1, 5, 3)
+    grey = lio.LightField(views, source="s", meta={"k": 1}).grey()
+    assert isinstance(grey, lio.LightField) and grey.shape == (1, 1, 1, 5)
+    np.testing.assert_allclose(grey.views[0, 0, 0],
+                               [0.299 * 0.2 + 0.587 * 0.4 + 0.114 * 0.6, 0.299, 0.587, 0.114, 1.0],
+                               rtol=1e-6)
+    assert grey.source == "s" and grey.meta == {"k": 1}
+    assert grey.grey() is grey
+
+
+def test_view_access_and_bounds():
+    views = np.random.default_rng(1).random((2, 3, 4, 5)).astype(np.float32)
+    lf = lio.LightField(views, source="here")
+    np.testing.assert_array_equal(lf.view(1, 2), views[1, 2])
+    with pytest.raises(IndexError, match="here"):
+        lf.view(2, 0)
+
+
+@pytest.mark.parametrize("views, message", [
+    (np.zeros((4, 4, 8)), "got an array of 3 dimensions"),
+    (np.zeros((1, 1, 2, 2, 3, 1)), "got an array of 6 dimensions"),
+    (np.zeros((1, 1, 2, 2, 4)), "got 4"),
+    (np.zeros((1, 1, 2, 2, 2)), "got 2"),
+    (np.zeros((0, 1, 2, 2)), "non-empty"),
+    (np.zeros((1, 1, 2, 2), dtype=complex), "real-valued"),
+    (np.array([[[["a"]]]]), "real-valued"),
+])
+def test_lightfield_rejects_bad_arrays(views, message):
+    with pytest.raises(ValueError, match=message) as info:
+        lio.LightField(views, source="my/scene")
+    assert str(info.value).startswith("my/scene: expected")
+
+
+def test_lightfield_rejects_non_finite_and_says_where():
+    views = np.zeros((3, 2, 4, 4, 3), dtype=np.float32)
+    views[1, 0, 2, 2, 1] = np.nan
+    views[1, 0, 2, 2, 2] = np.inf        # same pixel: counted once
+    views[2, 1, 0, 0, 0] = -np.inf
+    with pytest.raises(ValueError) as info:
+        lio.LightField(views, source="lf.npz")
+    message = str(info.value)
+    assert message.startswith("lf.npz:")
+    assert "2 NaN or infinite pixel(s) in 2 view(s)" in message
+    assert "(1, 0)" in message
+
+
+def test_check_pair():
+    lf = lio.LightField(np.zeros((3, 3, 4, 5, 3)), source="t1")
+    lio.check_pair(lf, lio.LightField(np.ones((3, 3, 4, 5)), source="t2"))   # grey vs RGB: fine
+    for shape in [(3, 5, 4, 5), (3, 3, 4, 6), (3, 3, 5, 5)]:
+        with pytest.raises(ValueError, match="^t2: expected .*t1") as info:
+            lio.check_pair(lf, lio.LightField(np.zeros(shape), source="t2"))
+        assert "3×3 grid of 5×4 views" in str(info.value)
+
+
+# --------------------------------------------------------------------------------------
+# Lenslet images
+# --------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("shape", [(2, 3, 4, 5), (3, 2, 5, 4, 3)])
+def test_lenslet_layout_and_round_trip(shape):
+    views = np.arange(np.prod(shape)).reshape(shape)
+    raw = lio.views_to_lenslet(views)
+    A, B, Y, X = shape[:4]
+    assert raw.shape == (Y * A, X * B) + shape[4:]
+    for a in range(A):
+        for b in range(B):
+            for y in range(Y):
+                for x in range(X):
+                    np.testing.assert_array_equal(raw[y * A + a, x * B + b], views[a, b, y, x])
+    back = lio.lenslet_to_views(raw, (A, B))
+    np.testing.assert_array_equal(back, views)
+    assert back.flags.c_contiguous
+
+
+def test_lenslet_hand_checked_element():
+    views = np.zeros((2, 3, 4, 5), dtype=np.float32)
+    views[1, 2, 3, 4] = 7
+    raw = lio.views_to_lenslet(lio.LightField(views))
+    assert raw[3 * 2 + 1, 4 * 3 + 2] == 7 and raw.sum() == 7
+    raw2 = np.zeros((6, 9))
+    raw2[5, 8] = 1                       # y = 2, a = 1, x = 2, b = 2
+    assert lio.lenslet_to_views(raw2, grid=(2, 3))[1, 2, 2, 2] == 1
+
+
+def test_lenslet_rejects_indivisible_size():
+    with pytest.raises(ValueError, match="multiple of the 2×3 grid"):
+        lio.lenslet_to_views(np.zeros((7, 9)), (2, 3))
+    with pytest.raises(ValueError):
+        lio.views_to_lenslet(np.zeros((2, 2, 2)))
+
+
+# --------------------------------------------------------------------------------------
+# PNG codec and image helpers
+# --------------------------------------------------------------------------------------
+
+PNG_FORMATS = [(np.uint16, 3), (np.uint16, 4), (np.uint16, 2), (np.uint16, 1),
+               (np.uint8, 3), (np.uint8, 1)]
+
+
+@pytest.mark.parametrize("kinds", [(0, 1, 2, 3, 4), (0, 1, 2), (3,), (4,)])
+@pytest.mark.parametrize("dtype, channels", PNG_FORMATS)
+def test_decode_png_hand_made_bytes(kinds, dtype, channels):
+    rng = np.random.default_rng(len(kinds) * 10 + channels)
+    # a gradient plus noise, so that predictions matter and differences wrap
+    image = (_random_image(rng, (7, 6, channels), dtype) // 4
+             + np.arange(6, dtype=dtype)[None, :, None] * (np.iinfo(dtype).max // 8))
+    decoded = lio.decode_png(_png_by_hand(image, kinds))
+    np.testing.assert_array_equal(decoded, image[..., 0] if channels == 1 else image)
+    assert decoded.dtype == dtype
+
+
+def test_decode_png_exact_small_file():
+    # one 16-bit RGB pixel row, filter None, values chosen so the low byte matters
+    scanlines = b"\x00" + struct.pack(">6H", 1, 258, 65535, 0, 4660, 43981)
+    data = (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", struct.pack(">IIBBBBB", 2, 1, 16, 2, 0, 0, 0))
+            + _chunk(b"IDAT", zlib.compress(scanlines)) + _chunk(b"IEND", b""))
+    np.testing.assert_array_equal(lio.decode_png(data),
+                                  [[[1, 258, 65535], [0, 4660, 43981]]])
+
+
+def test_decode_png_in_bands(monkeypatch):
+    """The wavefront unfilter carries the reconstructed row across band seams."""
+    monkeypatch.setattr(lio, "_WAVEFRONT_BAND_BYTES", 2000)
+    image = _random_image(np.random.default_rng(5), (40, 30, 3), np.uint16)
+    np.testing.assert_array_equal(lio.decode_png(_png_by_hand(image, (4, 3, 1, 0, 2))), image)
+
+
+@pytest.mark.parametrize("size", [(9, 11), (1, 1), (2, 3), (8, 8), (17, 5)])
+def test_decode_png_interlaced(size):
+    image = _random_image(np.random.default_rng(size[0]), size + (3,), np.uint16)
+    np.testing.assert_array_equal(lio.decode_png(_png_by_hand(image, (4, 1, 3), True)), image)
+
+
+@pytest.mark.parametrize("dtype, channels", PNG_FORMATS)
+def test_encode_png_structure(dtype, channels):
+    image = _random_image(np.random.default_rng(2), (5, 4, channels), dtype)
+    data = lio.encode_png(image)
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    chunks, pos = [], 8
+    while pos < len(data):
+        (length,) = struct.unpack(">I", data[pos:pos + 4])
+        kind, body = data[pos + 4:pos + 8], data[pos + 8:pos + 8 + length]
+        assert struct.unpack(">I", data[pos + 8 + length:pos + 12 + length])[0] == zlib.crc32(kind + body)
+        chunks.append((kind, body))
+        pos += 12 + length
+    assert pos == len(data)
+    assert [k for k, _ in chunks] == [b"IHDR", b"IDAT", b"IEND"] and chunks[2][1] == b""
+    depth = 8 * np.dtype(dtype).itemsize
+    colour_type = {1: 0, 2: 4, 3: 2, 4: 6}[channels]
+    assert chunks[0][1] == struct.pack(">IIBBBBB", 4, 5, depth, colour_type, 0, 0, 0)
+    bpp = channels * depth // 8
+    pixels = _unfilter_rows(zlib.decompress(chunks[1][1]), 5, 4 * bpp, bpp)
+    assert pixels == b"".join(_image_rows(image))
+
+
+@pytest.mark.parametrize("dtype, channels", PNG_FORMATS)
+def test_png_round_trip(tmp_path, dtype, channels):
+    image = _random_image(np.random.default_rng(3), (13, 17, channels), dtype)
+    if channels == 1:
+        image = image[..., 0]
+    lio.write_png(tmp_path / "a.png", image)
+    back = lio.read_image(tmp_path / "a.png")
+    assert back.dtype == dtype
+    np.testing.assert_array_equal(back, image)
+
+
+def test_pillow_reads_what_we_write(tmp_path):
+    """An independent decoder agrees with our encoder (Pillow keeps only the high byte of
+    16-bit colour; accept a full read too, should a later Pillow manage it)."""
+    rng = np.random.default_rng(4)
+    for image in (_random_image(rng, (6, 7, 3), np.uint8), _random_image(rng, (6, 7), np.uint16)):
+        lio.write_png(tmp_path / "x.png", image)
+        np.testing.assert_array_equal(iio.imread(tmp_path / "x.png"), image)
+    rgb16 = _random_image(rng, (6, 7, 3), np.uint16)
+    lio.write_png(tmp_path / "y.png", rgb16)
+    pillow = iio.imread(tmp_path / "y.png")
+    expected = rgb16 if pillow.dtype == np.uint16 else (rgb16 >> 8).astype(np.uint8)
+    np.testing.assert_array_equal(pillow, expected)
+
+
+def test_decoder_matches_pillow_on_its_adaptive_filters():
+    rng = np.random.default_rng(6)
+    image = (rng.integers(0, 60, (30, 40, 3)) + np.arange(40)[None, :, None] * 5).astype(np.uint8)
+    buffer = io.BytesIO()
+    iio.imwrite(buffer, image, extension=".png")
+    np.testing.assert_array_equal(lio.decode_png(buffer.getvalue()), image)
+
+
+def test_read_image_keeps_16_bit_colour(tmp_path):
+    image = np.array([[[1, 258, 65535], [32767, 4660, 0]]], dtype=np.uint16)
+    (tmp_path / "c.png").write_bytes(_png_by_hand(image, (4,)))
+    np.testing.assert_array_equal(lio.read_image(tmp_path / "c.png"), image)
+
+
+def test_write_png_converts_float_and_bool(tmp_path):
+    lio.write_png(tmp_path / "f.png", np.array([[0.0, 0.5, 1.0, 2.0, -1.0]]))
+    np.testing.assert_array_equal(lio.read_image(tmp_path / "f.png"), [[0, 128, 255, 255, 0]])
+    lio.write_png(tmp_path / "b.png", np.array([[True, False]]))
+    np.testing.assert_array_equal(lio.read_image(tmp_path / "b.png"), [[255, 0]])
+    with pytest.raises(ValueError, match="NaN"):
+        lio.write_png(tmp_path / "n.png", np.array([[np.nan]]))
+    with pytest.raises(ValueError, match="int32"):
+        lio.write_png(tmp_path / "i.png", np.zeros((2, 2), dtype=np.int32))
+    assert not (tmp_path / "n.png").exists() and not (tmp_path / "i.png").exists()
+
+
+def test_corrupt_png_names_the_file(tmp_path):
+    image = _random_image(np.random.default_rng(7), (8, 8, 3), np.uint16)
+    good = _png_by_hand(image, (1,))
+    bad_crc = bytearray(good)
+    bad_crc[40] ^= 0xFF                                          # inside IDAT
+    cases = {"crc.png": (bytes(bad_crc), "CRC"), "short.png": (good[:60], "truncated"),
+             "junk.png": (b"not a png at all", "cannot read")}
+    for name, (data, problem) in cases.items():
+        (tmp_path / name).write_bytes(data)
+        with pytest.raises(ValueError, match=f"{name}: .*{problem}"):
+            lio.read_image(tmp_path / name)
+    with pytest.raises(FileNotFoundError, match="nothere.png"):
+        lio.read_image(tmp_path / "nothere.png")
+
+
+def test_decode_png_rejects_truncated_image_data():
+    image = np.zeros((4, 4, 3), dtype=np.uint16)
+    scanlines = b"\x00" + bytes(4 * 6)                            # one row of four
+    data = (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", struct.pack(">IIBBBBB", 4, 4, 16, 2, 0, 0, 0))
+            + _chunk(b"IDAT", zlib.compress(scanlines)) + _chunk(b"IEND", b""))
+    with pytest.raises(ValueError, match="src.png: truncated PNG image data"):
+        lio.decode_png(data, source="src.png")
+    assert lio.decode_png(_png_by_hand(image, (0,))).shape == (4, 4, 3)
+
+
+# --------------------------------------------------------------------------------------
+# PFM
+# --------------------------------------------------------------------------------------
+
+
+def test_pfm_hand_made_little_endian(tmp_path):
+    # 3 wide, 2 high; the file stores the bottom row first
+    top, bottom = [1.5, -2.0, 0.25], [3.0, np.inf, -0.125]
+    data = b"Pf\n3 2\n-1\n" + struct.pack("<6f", *bottom, *top)
+    (tmp_path / "hand.pfm").write_bytes(data)
+    image = lio.read_pfm(tmp_path / "hand.pfm")
+    assert image.dtype == np.float32 and image.shape == (2, 3)
+    np.testing.assert_array_equal(image, [top, bottom])
+    lio.write_pfm(tmp_path / "ours.pfm", image)
+    assert (tmp_path / "ours.pfm").read_bytes() == data
+
+
+def test_pfm_hand_made_big_endian_colour_with_odd_whitespace(tmp_path):
+    pixels = np.arange(12, dtype=np.float32).reshape(2, 2, 3) - 5.5       # rows top to bottom
+    body = struct.pack(">12f", *pixels[::-1].ravel())
+    for header in (b"PF\n2 2\n1\n", b"PF \n\n 2\t2 \n  1.0  \r\n", b"PF 2 2 1.0 "):
+        (tmp_path / "c.pfm").write_bytes(header + body)
+        np.testing.assert_array_equal(lio.read_pfm(tmp_path / "c.pfm"), pixels)
+    lio.write_pfm(tmp_path / "ours.pfm", pixels, little_endian=False)
+    assert (tmp_path / "ours.pfm").read_bytes() == b"PF\n2 2\n1\n" + body
+
+
+@pytest.mark.parametrize("shape", [(5, 7), (5, 7, 3), (1, 1)])
+@pytest.mark.parametrize("little_endian", [True, False])
+def test_pfm_round_trip(tmp_path, shape, little_endian):
+    image = np.random.default_rng(8).normal(size=shape).astype(np.float32)
+    image.flat[0] = np.nan
+    lio.write_pfm(tmp_path / "r.pfm", image, little_endian=little_endian)
+    np.testing.assert_array_equal(lio.read_pfm(tmp_path / "r.pfm"), image)
+
+
+def test_pfm_accepts_single_channel_3d_and_rejects_bad_shapes(tmp_path):
+    lio.write_pfm(tmp_path / "one.pfm", np.ones((2, 3, 1)))
+    assert lio.read_pfm(tmp_path / "one.pfm").shape == (2, 3)
+    with pytest.raises(ValueError, match="bad.pfm"):
+        lio.write_pfm(tmp_path / "bad.pfm", np.ones((2, 3, 2)))
+    assert not (tmp_path / "bad.pfm").exists()
+
+
+@pytest.mark.parametrize("content, problem", [
+    (b"P6\n2 2\n255\n" + bytes(12), "magic"),
+    (b"Pg\n2 2\n-1\n" + bytes(16), "magic"),
+    (b"Pf\n0 2\n-1\n", "dimensions"),
+    (b"Pf\n-2 2\n-1\n" + bytes(16), "dimensions"),
+    (b"Pf\n2 x\n-1\n" + bytes(16), "dimensions"),
+    (b"Pf\n2 2\n0\n" + bytes(16), "scale"),
+    (b"Pf\n2 2\nnan\n" + bytes(16), "scale"),
+    (b"Pf\n2 2\nabc\n" + bytes(16), "scale"),
+    (b"Pf\n2 2\n-1\n" + bytes(15), "truncated"),
+    (b"PF\n2 2\n-1\n" + bytes(16), "truncated"),
+    (b"Pf\n100000 100000\n-1\n" + bytes(16), "truncated"),
+    (b"Pf\n2", "header"),
+])
+def test_corrupt_pfm_names_the_file(tmp_path, content, problem):
+    (tmp_path / "broken.pfm").write_bytes(content)
+    with pytest.raises(ValueError, match=problem) as info:
+        lio.read_pfm(tmp_path / "broken.pfm")
+    assert "broken.pfm" in str(info.value)
+
+
+def test_missing_files_raise_file_not_found(tmp_path):
+    for reader in (lio.read_pfm, lio.read_flo, lio.read_kitti_flow, lio.read_lightfield):
+        with pytest.raises(FileNotFoundError, match="absent"):
+            reader(tmp_path / "absent")
+
+
+# --------------------------------------------------------------------------------------
+# Middlebury .flo
+# --------------------------------------------------------------------------------------
+
+
+def test_flo_hand_made_bytes(tmp_path):
+    # 3 wide, 2 high, (u, v) interleaved, row-major; pixel (1, 2) unknown
+    values = [0.5, -1.0, 2.0, 3.5, -0.25, 0.0,
+              1.0, 1.0, 4.0, -4.0, 1e10, 1e10]
+    data = b"PIEH" + struct.pack("<ii", 3, 2) + struct.pack("<12f", *values)
+    assert data[:4] == struct.pack("<f", 202021.25)
+    (tmp_path / "hand.flo").write_bytes(data)
+    flow = lio.read_flo(tmp_path / "hand.flo")
+    assert flow.dtype == np.float32 and flow.shape == (2, 3, 2)
+    np.testing.assert_array_equal(flow[0], [[0.5, -1.0], [2.0, 3.5], [-0.25, 0.0]])
+    np.testing.assert_array_equal(flow[1, :2], [[1.0, 1.0], [4.0, -4.0]])
+    assert np.isnan(flow[1, 2]).all()
+    lio.write_flo(tmp_path / "ours.flo", flow)
+    assert (tmp_path / "ours.flo").read_bytes() == data
+
+
+def test_flo_round_trip_with_unknown_pixels(tmp_path):
+    flow = np.random.default_rng(9).normal(scale=5, size=(6, 8, 2)).astype(np.float32)
+    flow[2, 3] = np.nan
+    flow[4, 1, 0] = np.inf               # one bad component makes the pixel unknown
+    flow[5, 5, 1] = 2e9                  # beyond Middlebury's 1e9 threshold
+    lio.write_flo(tmp_path / "f.flo", flow)
+    back = lio.read_flo(tmp_path / "f.flo")
+    unknown = np.zeros((6, 8), dtype=bool)
+    unknown[2, 3] = unknown[4, 1] = unknown[5, 5] = True
+    assert np.array_equal(np.isnan(back).all(axis=2), unknown)
+    assert not np.isnan(back[~unknown]).any()
+    np.testing.assert_array_equal(back[~unknown], flow[~unknown])
+
+
+@pytest.mark.parametrize("content, problem", [
+    (b"PIEX" + struct.pack("<ii", 1, 1) + bytes(8), "magic"),
+    (b"PIEH" + struct.pack("<ii", 0, 5) + bytes(8), "size"),
+    (b"PIEH" + struct.pack("<ii", 1_000_000, 1) + bytes(8), "size"),
+    (b"PIEH" + struct.pack("<ii", 2, -3) + bytes(8), "size"),
+    (b"PIEH" + struct.pack("<ii", 2, 2) + bytes(31), "truncated"),
+    (b"PIEH\x01\x00", "truncated"),
+])
+def test_corrupt_flo_names_the_file(tmp_path, content, problem):
+    (tmp_path / "broken.flo").write_bytes(content)
+    with pytest.raises(ValueError, match=problem) as info:
+        lio.read_flo(tmp_path / "broken.flo")
+    assert "broken.flo" in str(info.value)
+
+
+# --------------------------------------------------------------------------------------
+# KITTI
+# --------------------------------------------------------------------------------------
+
+
+def test_kitti_flow_hand_made(tmp_path):
+    raw = np.array([[[32768 + 96, 32768 - 128, 1], [65535, 0, 0]],
+                    [[0, 65535, 7], [32768, 32768, 1]]], dtype=np.uint16)
+    (tmp_path / "k.png").write_bytes(_png_by_hand(raw, (0,)))
+    flow, valid = lio.read_kitti_flow(tmp_path / "k.png")
+    np.testing.assert_array_equal(valid, [[True, False], [True, True]])
+    np.testing.assert_array_equal(flow[0, 0], [1.5, -2.0])
+    np.testing.assert_array_equal(flow[1, 0], [-512.0, 65535 / 64 - 512])
+    np.testing.assert_array_equal(flow[1, 1], [0.0, 0.0])
+    assert np.isnan(flow[0, 1]).all()
+
+
+def test_kitti_flow_round_trip_with_invalid_pixels(tmp_path):
+    rng = np.random.default_rng(10)
+    flow = np.round(rng.normal(scale=50, size=(5, 6, 2)) * 64) / 64
+    flow[1, 2] = np.nan
+    lio.write_kitti_flow(tmp_path / "a.png", flow)
+    back, valid = lio.read_kitti_flow(tmp_path / "a.png")
+    assert valid.sum() == 29 and not valid[1, 2]
+    np.testing.assert_array_equal(back[valid], flow[valid])
+    assert np.isnan(back[~valid]).all()
+    np.testing.assert_array_equal(lio.read_image(tmp_path / "a.png")[1, 2], [0, 0, 0])
+
+    mask = np.ones((5, 6), dtype=bool)
+    mask[0, 0] = mask[1, 2] = False
+    lio.write_kitti_flow(tmp_path / "b.png", flow, valid=mask)
+    assert np.array_equal(lio.read_kitti_flow(tmp_path / "b.png")[1], mask)
+    nearly = flow + rng.uniform(-0.007, 0.007, flow.shape)     # rounds to the nearest 1/64
+    lio.write_kitti_flow(tmp_path / "c.png", nearly)
+    np.testing.assert_array_equal(lio.read_kitti_flow(tmp_path / "c.png")[0][valid], flow[valid])
+
+
+def test_kitti_flow_refuses_unrepresentable_flow(tmp_path):
+    with pytest.raises(ValueError, match="KITTI range"):
+        lio.write_kitti_flow(tmp_path / "x.png", np.full((2, 2, 2), 600.0))
+    nan_flow = np.zeros((2, 2, 2))
+    nan_flow[0, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="marked valid"):
+        lio.write_kitti_flow(tmp_path / "x.png", nan_flow, valid=np.ones((2, 2), dtype=bool))
+    lio.write_png(tmp_path / "rgb8.png", np.zeros((2, 2, 3), dtype=np.uint8))
+    with pytest.raises(ValueError, match="rgb8.png: expected a 16-bit RGB PNG"):
+        lio.read_kitti_flow(tmp_path / "rgb8.png")
+    assert not (tmp_path / "x.png").exists()
+
+
+def test_kitti_disparity(tmp_path):
+    raw = np.array([[896, 0], [1, 65535]], dtype=np.uint16)
+    lio.write_png(tmp_path / "hand.png", raw)
+    disp, valid = lio.read_kitti_disparity(tmp_path / "hand.png")
+    np.testing.assert_array_equal(valid, [[True, False], [True, True]])
+    np.testing.assert_array_equal(disp[valid], [3.5, 1 / 256, 65535 / 256])
+    assert np.isnan(disp[0, 1])
+
+    values = np.array([[0.0, 3.5, np.nan], [10.25, 0.001, 200.0]])
+    lio.write_kitti_disparity(tmp_path / "d.png", values)
+    back, valid = lio.read_kitti_disparity(tmp_path / "d.png")
+    np.testing.assert_array_equal(valid, [[True, True, False], [True, True, True]])
+    np.testing.assert_array_equal(back[valid], [1 / 256, 3.5, 10.25, 1 / 256, 200.0])
+    with pytest.raises(ValueError, match="negative|range"):
+        lio.write_kitti_disparity(tmp_path / "neg.png", np.array([[-1.0]]))
+    assert not (tmp_path / "neg.png").exists()
+
+
+# --------------------------------------------------------------------------------------
+# Atomic writes
+# --------------------------------------------------------------------------------------
+
+_BIG = np.random.default_rng(11).random((64, 64, 3)).astype(np.float32)
+WRITERS = {
+    "pfm": ("out.pfm", lambda p, a: lio.write_pfm(p, a)),
+    "flo": ("out.flo", lambda p, a: lio.write_flo(p, a[..., :2])),
+    "png": ("out.png", lambda p, a: lio.write_png(p, (a * 65535).astype(np.uint16))),
+    "kitti": ("out.png", lambda p, a: lio.write_kitti_flow(p, a[..., :2] * 100)),
+    "npz": ("out.npz", lambda p, a: lio.write_lightfield(a[None, None], p)),
+    "folder": ("lf/input_Cam000.png", lambda p, a: lio.write_lightfield(a[None, None], p.parent)),
+}
+
+
+@pytest.mark.parametrize("writer", sorted(WRITERS))
+def test_failed_write_leaves_old_file_and_no_debris(tmp_path, file_size_limit, writer):
+    name, write = WRITERS[writer]
+    target = tmp_path / name
+    write(target, _BIG[:2, :2])                  # a small, complete earlier file
+    before = target.read_bytes()
+    listing = sorted(p.name for p in target.parent.iterdir())
+    with file_size_limit(1000):
+        with pytest.raises(OSError):
+            write(target, _BIG)                  # needs far more than 1000 bytes
+    assert sorted(p.name for p in target.parent.iterdir()) == listing
+    assert target.read_bytes() == before
+
+
+# --------------------------------------------------------------------------------------
+# Light fields on disk
+# --------------------------------------------------------------------------------------
+
+
+def _hci_folder(folder: Path, side: int, size=(4, 5), drop=(), channels=3) -> np.ndarray:
+    """Write an HCI-layout folder of 8-bit views with imageio; view k = r·side + c."""
+    folder.mkdir()
+    shape = size + ((channels,) if channels > 1 else ())
+    views = np.random.default_rng(side).integers(0, 256, (side, side) + shape).astype(np.uint8)
+    for k in range(side * side):
+        if k not in drop:
+            iio.imwrite(folder / f"input_Cam{k:03d}.png", views[k // side, k % side])
+    return views
+
+
+def test_read_hci_folder(tmp_path):
+    views = _hci_folder(tmp_path / "hci", 3)
+    (tmp_path / "hci" / "parameters.cfg").write_text(
+        "[intrinsics]\nfocal_length_mm = 100\nsensor_size_mm = 35.5\n\n"
+        "[extrinsics]\nnum_cams_x = 3\nnum_cams_y = 3\n\n[meta]\nkind = synthetic\n")
+    lf = lio.read_lightfield(tmp_path / "hci")
+    assert lf.shape == (3, 3, 4, 5, 3) and lf.views.dtype == np.float32
+    np.testing.assert_array_equal(lf.views, views / np.float32(255))
+    assert lf.source == str(tmp_path / "hci")
+    params = lf.meta["parameters"]
+    assert params["intrinsics"] == {"focal_length_mm": 100, "sensor_size_mm": 35.5}
+    assert params["extrinsics"]["num_cams_x"] == 3 and params["meta"]["kind"] == "synthetic"
+    assert lf.meta["layout"] == "hci"
+
+
+def test_read_hci_folder_with_bad_parameters_warns(tmp_path):
+    _hci_folder(tmp_path / "hci", 2)
+    (tmp_path / "hci" / "parameters.cfg").write_text("no section header here\n")
+    with pytest.warns(UserWarning, match="parameters.cfg"):
+        lf = lio.read_lightfield(tmp_path / "hci")
+    assert lf.grid == (2, 2) and lf.meta["parameters"] == {}
+
+
+def test_hci_missing_view_is_named(tmp_path):
+    _hci_folder(tmp_path / "hci", 3, drop=(4,))
+    with pytest.raises(ValueError, match="input_Cam004.png") as info:
+        lio.read_lightfield(tmp_path / "hci")
+    assert str(info.value).startswith(str(tmp_path / "hci"))
+
+
+def test_hci_non_square_count(tmp_path):
+    _hci_folder(tmp_path / "hci", 3, drop=(8,))           # input_Cam000 … 007: 8 views
+    with pytest.raises(ValueError, match="square") as info:
+        lio.read_lightfield(tmp_path / "hci")
+    assert "got 8" in str(info.value)
+
+
+def test_view_size_mismatch_names_the_file(tmp_path):
+    _hci_folder(tmp_path / "hci", 2)
+    iio.imwrite(tmp_path / "hci" / "input_Cam002.png", np.zeros((4, 6, 3), dtype=np.uint8))
+    with pytest.raises(ValueError, match="input_Cam002.png") as info:
+        lio.read_lightfield(tmp_path / "hci")
+    assert "5×4 RGB" in str(info.value) and "6×4 RGB" in str(info.value)
+    iio.imwrite(tmp_path / "hci" / "input_Cam002.png", np.zeros((4, 5), dtype=np.uint8))
+    with pytest.raises(ValueError, match="input_Cam002.png.*grey"):
+        lio.read_lightfield(tmp_path / "hci")
+
+
+def test_read_rowcol_folder_16_bit_grey(tmp_path):
+    folder = tmp_path / "rc"
+    folder.mkdir()
+    views = np.random.default_rng(12).integers(0, 65536, (2, 3, 4, 5)).astype(np.uint16)
+    for r in range(2):
+        for c in range(3):
+            iio.imwrite(folder / f"2067_{r + 1:02d}_{c + 1:02d}.png", views[r, c])
+    (folder / "notes.txt").write_text("not a view")
+    lf = lio.read_lightfield(folder)
+    assert lf.shape == (2, 3, 4, 5) and not lf.is_colour
+    np.testing.assert_allclose(lf.views, views / 65535.0, rtol=1e-6)
+    assert lf.meta == {"layout": "rowcol", "prefix": "2067"}
+
+
+def test_read_rowcol_folder_rgba_drops_alpha(tmp_path):
+    folder = tmp_path / "rc"
+    folder.mkdir()
+    views = np.random.default_rng(13).integers(0, 256, (1, 2, 3, 3, 4)).astype(np.uint8)
+    for c in range(2):
+        iio.imwrite(folder / f"s_1_{c + 1}.png", views[0, c])
+    lf = lio.read_lightfield(folder)
+    assert lf.shape == (1, 2, 3, 3, 3)
+    np.testing.assert_array_equal(lf.views, views[..., :3] / np.float32(255))
+
+
+def test_grey_alpha_views_stay_grey(tmp_path):
+    folder = tmp_path / "la"
+    folder.mkdir()
+    views = np.random.default_rng(18).integers(0, 256, (1, 1, 3, 4, 2)).astype(np.uint8)
+    iio.imwrite(folder / "input_Cam000.png", views[0, 0])
+    lf = lio.read_lightfield(folder)
+    assert lf.shape == (1, 1, 3, 4)
+    np.testing.assert_array_equal(lf.views, views[..., 0] / np.float32(255))
+
+
+def test_rowcol_incomplete_grid_names_missing_views(tmp_path):
+    folder = tmp_path / "rc"
+    folder.mkdir()
+    for r, c in [(1, 1), (1, 2), (2, 1)]:
+        iio.imwrite(folder / f"scene_{r:02d}_{c:02d}.png", np.zeros((2, 2), dtype=np.uint8))
+    with pytest.raises(ValueError, match="scene_02_02.png"):
+        lio.read_lightfield(folder)
+    iio.imwrite(folder / "other_01_01.png", np.zeros((2, 2), dtype=np.uint8))
+    with pytest.raises(ValueError, match="several"):
+        lio.read_lightfield(folder)
+
+
+def test_rowcol_indices_are_one_based(tmp_path):
+    folder = tmp_path / "rc"
+    folder.mkdir()
+    iio.imwrite(folder / "s_00_01.png", np.zeros((2, 2), dtype=np.uint8))
+    with pytest.raises(ValueError, match="1-based"):
+        lio.read_lightfield(folder)
+
+
+def test_folder_without_views_says_what_was_looked_for(tmp_path):
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "empty" / "readme.txt").write_text("hello")
+    with pytest.raises(ValueError) as info:
+        lio.read_lightfield(tmp_path / "empty")
+    message = str(info.value)
+    assert "input_Cam000.png" in message and "_RR_CC.png" in message and "views.npz" in message
+
+
+def test_single_image_is_a_raw_lenslet_image(tmp_path):
+    lio.write_png(tmp_path / "raw.png", np.zeros((4, 4), dtype=np.uint16))
+    with pytest.raises(ValueError, match="lfsf decode"):
+        lio.read_lightfield(tmp_path / "raw.png")
+    (tmp_path / "x.weird").write_bytes(b"")
+    with pytest.raises(ValueError, match="unknown light-field format"):
+        lio.read_lightfield(tmp_path / "x.weird")
+
+
+def test_read_npz(tmp_path):
+    floats = np.random.default_rng(14).random((2, 2, 3, 4, 3)).astype(np.float32) * 1.5
+    np.savez(tmp_path / "f.npz", views=floats)
+    np.testing.assert_array_equal(lio.read_lightfield(tmp_path / "f.npz").views, floats)
+    np.savez(tmp_path / "u8.npz", views=np.full((1, 2, 2, 2), 51, dtype=np.uint8))
+    np.testing.assert_allclose(lio.read_lightfield(tmp_path / "u8.npz").views, 0.2, rtol=1e-6)
+    np.savez(tmp_path / "u16.npz", views=np.full((1, 2, 2, 2), 13107, dtype=np.uint16))
+    np.testing.assert_allclose(lio.read_lightfield(tmp_path / "u16.npz").views, 0.2, rtol=1e-6)
+    np.savez(tmp_path / "nokey.npz", other=floats)
+    with pytest.raises(ValueError, match="nokey.npz.*'views'"):
+        lio.read_lightfield(tmp_path / "nokey.npz")
+    (tmp_path / "corrupt.npz").write_bytes(b"PK\x03\x04 truncated")
+    with pytest.raises(ValueError, match="corrupt.npz"):
+        lio.read_lightfield(tmp_path / "corrupt.npz")
+    bad = floats.copy()
+    bad[1, 1, 0, 0, 0] = np.nan
+    np.savez(tmp_path / "nan.npz", views=bad)
+    with pytest.raises(ValueError, match=r"nan.npz: .*\(1, 1\)"):
+        lio.read_lightfield(tmp_path / "nan.npz")
+
+
+def test_folder_with_only_views_npz(tmp_path):
+    (tmp_path / "dec").mkdir()
+    views = np.random.default_rng(15).random((3, 3, 2, 2)).astype(np.float32)
+    np.savez(tmp_path / "dec" / "views.npz", views=views)
+    np.testing.assert_array_equal(lio.read_lightfield(tmp_path / "dec").views, views)
+
+
+@pytest.mark.parametrize("colour", [True, False])
+def test_write_lightfield_round_trips(tmp_path, colour):
+    shape = (3, 3, 5, 6) + ((3,) if colour else ())
+    views = np.random.default_rng(16).random(shape).astype(np.float32)
+    lf = lio.LightField(views)
+    lio.write_lightfield(lf, tmp_path / "lf.npz")
+    with np.load(tmp_path / "lf.npz") as data:
+        assert data["views"].dtype == np.float32
+    np.testing.assert_array_equal(lio.read_lightfield(tmp_path / "lf.npz").views, views)
+    for bit_depth in (16, 8):
+        folder = tmp_path / f"hci{bit_depth}"
+        lio.write_lightfield(views, folder, bit_depth=bit_depth)
+        assert (folder / "input_Cam008.png").is_file()
+        assert lio.read_image(folder / "input_Cam000.png").dtype == f"uint{bit_depth}"
+        back = lio.read_lightfield(folder)
+        assert back.shape == views.shape and back.meta["layout"] == "hci"
+        step = 1 / (2 ** bit_depth - 1)
+        assert np.abs(back.views - views).max() <= 0.5 * step + 1e-7
+
+
+def test_write_lightfield_non_square_grid(tmp_path):
+    views = np.random.default_rng(17).random((2, 3, 4, 4)).astype(np.float32)
+    with pytest.raises(ValueError, match="square"):
+        lio.write_lightfield(views, tmp_path / "hci")
+    lio.write_lightfield(views, tmp_path / "rc", layout="rowcol")
+    back = lio.read_lightfield(tmp_path / "rc")
+    assert back.grid == (2, 3)
+    np.testing.assert_allclose(back.views, views, atol=0.5 / 65535 + 1e-7)
+
+
+def test_write_lightfield_refuses_to_mix_with_other_views(tmp_path):
+    lio.write_lightfield(np.zeros((3, 3, 2, 2)), tmp_path / "hci")
+    with pytest.raises(ValueError, match="input_Cam004.png"):
+        lio.write_lightfield(np.ones((2, 2, 2, 2)), tmp_path / "hci")
+    lio.write_lightfield(np.ones((3, 3, 2, 2)), tmp_path / "hci")          # same grid: fine
+    np.testing.assert_array_equal(lio.read_lightfield(tmp_path / "hci").views, 1.0)
+    with pytest.raises(ValueError, match="nan"):
+        lio.write_lightfield(np.full((1, 1, 2, 2), np.nan), tmp_path / "nan")
+
+
+# --------------------------------------------------------------------------------------
+# Real data (../shared/data)
+# --------------------------------------------------------------------------------------
+
+
+def _data(name: str) -> Path:
+    folder = DATA / name
+    if not folder.is_dir():
+        pytest.skip(f"{folder} not present")
+    return folder
+
+
+@pytest.fixture(scope="module")
+def antinous():
+    return lio.read_lightfield(_data("hci-antinous"))
+
+
+@pytest.fixture(scope="module")
+def lytro():
+    return lio.read_lightfield(_data("lytro-illum-2067"))
+
+
+def _hand_parsed_pfm(path: Path) -> np.ndarray:
+    magic, size, scale, body = path.read_bytes().split(b"\n", 3)
+    assert magic == b"Pf" and scale == b"-1"
+    width, height = (int(n) for n in size.split())
+    return np.frombuffer(body, dtype="<f4").reshape(height, width)[::-1]
+
+
+def test_real_hci_light_field(antinous):
+    assert antinous.shape == (9, 9, 512, 512, 3)
+    assert antinous.views.dtype == np.float32
+    folder = _data("hci-antinous")
+    np.testing.assert_array_equal(antinous.centre,
+                                  iio.imread(folder / "input_Cam040.png") / np.float32(255))
+    np.testing.assert_array_equal(antinous.view(2, 7),
+                                  iio.imread(folder / "input_Cam025.png") / np.float32(255))
+
+
+def test_real_lytro_light_field(lytro):
+    assert lytro.shape == (9, 9, 383, 552, 3)
+    folder = _data("lytro-illum-2067")
+    np.testing.assert_array_equal(lytro.view(0, 1),
+                                  iio.imread(folder / "2067_01_02.png") / np.float32(255))
+
+
+@pytest.mark.parametrize("name, shape", [
+    ("hci-antinous/gt_disp_lowres.pfm", (512, 512)),
+    ("lytro-illum-2067/epinet_disparity_estimate.pfm", (361, 530)),
+])
+def test_real_pfm_matches_hand_parse(tmp_path, name, shape):
+    path = _data(name.split("/")[0]) / name.split("/")[1]
+    disparity = lio.read_pfm(path)
+    assert disparity.shape == shape and disparity.dtype == np.float32
+    np.testing.assert_array_equal(disparity, _hand_parsed_pfm(path))
+    lio.write_pfm(tmp_path / "copy.pfm", disparity)
+    assert (tmp_path / "copy.pfm").read_bytes() == path.read_bytes()
+
+
+def test_real_hci_disparity_range():
+    disparity = lio.read_pfm(_data("hci-antinous") / "gt_disp_lowres.pfm")
+    assert -3.2 < disparity.min() < -3.0 and 2.6 < disparity.max() < 2.8
+
+
+def test_our_png_decoder_on_a_real_file():
+    path = _data("hci-antinous") / "input_Cam040.png"
+    np.testing.assert_array_equal(lio.decode_png(path.read_bytes()), iio.imread(path))
+
+
+def _warp_errors(lf, disparity, crop, view):
+    """Mean |grey difference| to the centre of view (a, b) warped by ±disparity and not
+    warped; MODEL.md §1: a centre pixel p is seen in view φ at p − d·φ."""
+    a, b = view
+    phi_x, phi_y = b - lf.centre_index[1], a - lf.centre_index[0]
+    h, w = disparity.shape
+    y, x = np.mgrid[crop:crop + h, crop:crop + w].astype(np.float64)
+    side = lf.view(a, b) @ LUMA
+    centre = (lf.centre @ LUMA)[crop:crop + h, crop:crop + w]
+    border = (slice(15, -15), slice(15, -15))
+    errors = []
+    for sign in (1, -1, 0):
+        warped = _bilinear(side, x - sign * disparity * phi_x, y - sign * disparity * phi_y)
+        errors.append(np.abs(warped - centre)[border].mean())
+    return errors
+
+
+@pytest.mark.parametrize("view", [(4, 8), (8, 4), (0, 0)])
+def test_hci_disparity_sign_convention(antinous, view):
+    disparity = lio.read_pfm(_data("hci-antinous") / "gt_disp_lowres.pfm")
+    right, wrong, unwarped = _warp_errors(antinous, disparity, 0, view)
+    assert right < 0.015
+    assert right < 0.5 * wrong and right < 0.5 * unwarped
+
+
+@pytest.mark.parametrize("view", [(4, 8), (8, 4)])
+def test_lytro_views_follow_the_convention(lytro, view):
+    disparity = lio.read_pfm(_data("lytro-illum-2067") / "epinet_disparity_estimate.pfm")
+    right, wrong, unwarped = _warp_errors(lytro, disparity, 11, view)
+    assert right < 0.6 * wrong and right < 0.6 * unwarped
