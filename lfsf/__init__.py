@@ -20,6 +20,9 @@ _LAZY = {
     "read_lightfield": "lfsf.io",
     "write_lightfield": "lfsf.io",
     "resolve_device": "lfsf.device",
+    "Params": "lfsf.params",
+    "estimate_scene_flow": "lfsf.estimate",
+    "SceneFlow": "lfsf.estimate",
     "render_scene": "lfsf.synth",
     "list_scenes": "lfsf.synth",
 }

@@ -1,0 +1,63 @@
+"""``@wp.func`` helpers every kernel needs: clamped lookup, bilinear sampling and image
+gradients with Neumann boundaries. Pixel (row i, column j) has its centre at image
+coordinates (x, y) = (j, i)."""
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+
+@wp.func
+def pixel(img: wp.array2d(dtype=float), i: int, j: int):
+    """img[i, j] with indices clamped to the image (replicated border)."""
+    h = img.shape[0]
+    w = img.shape[1]
+    return img[wp.clamp(i, 0, h - 1), wp.clamp(j, 0, w - 1)]
+
+
+@wp.func
+def bilinear(img: wp.array2d(dtype=float), x: float, y: float):
+    """Bilinear interpolation of img at (x, y) (x = column), clamped at the borders."""
+    h = img.shape[0]
+    w = img.shape[1]
+    xc = wp.clamp(x, 0.0, float(w - 1))
+    yc = wp.clamp(y, 0.0, float(h - 1))
+    j0 = wp.min(int(xc), wp.max(w - 2, 0))
+    i0 = wp.min(int(yc), wp.max(h - 2, 0))
+    j1 = wp.min(j0 + 1, w - 1)
+    i1 = wp.min(i0 + 1, h - 1)
+    fx = xc - float(j0)
+    fy = yc - float(i0)
+    top = (1.0 - fx) * img[i0, j0] + fx * img[i0, j1]
+    bottom = (1.0 - fx) * img[i1, j0] + fx * img[i1, j1]
+    return (1.0 - fy) * top + fy * bottom
+
+
+@wp.func
+def bilinear_gradient(img: wp.array2d(dtype=float), x: float, y: float):
+    """Image gradient (∂x, ∂y) at (x, y): central differences of bilinear samples one
+    pixel apart (the interpolated central-difference gradient image)."""
+    gx = 0.5 * (bilinear(img, x + 1.0, y) - bilinear(img, x - 1.0, y))
+    gy = 0.5 * (bilinear(img, x, y + 1.0) - bilinear(img, x, y - 1.0))
+    return wp.vec2(gx, gy)
+
+
+@wp.func
+def inside(img: wp.array2d(dtype=float), x: float, y: float):
+    """True when (x, y) lies within the image's pixel centres."""
+    return x >= 0.0 and y >= 0.0 and x <= float(img.shape[1] - 1) and y <= float(img.shape[0] - 1)
+
+
+@wp.func
+def forward_gradient(img: wp.array2d(dtype=float), i: int, j: int):
+    """Forward differences (∂x, ∂y) with Neumann boundary: zero at the last column/row."""
+    h = img.shape[0]
+    w = img.shape[1]
+    v = img[i, j]
+    gx = float(0.0)
+    gy = float(0.0)
+    if j < w - 1:
+        gx = img[i, j + 1] - v
+    if i < h - 1:
+        gy = img[i + 1, j] - v
+    return wp.vec2(gx, gy)

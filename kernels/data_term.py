@@ -1,0 +1,162 @@
+"""The linearised L1 data term of the light-field scene-flow model (MODEL.md §3, §5).
+
+For every sample φ_s of the light field and every pixel p, with the warped samples
+W1 = L(p − δ̂1 φ, φ, t1), W2 = L(p + û − δ̂2 φ, φ, t2) and J2 = L(p + û, 0, t2):
+
+    ρ1 ≈ A2 − A1 Δδ1                              (stereo at t1, weight λ1)
+    ρ2 ≈ A4 − A3 Δδ2 + A8 Δu + A9 Δv              (stereo at t2, weight λ2)
+    ρ3 ≈ A7 + A1 Δδ1 − A3 Δδ2 − A5 Δu − A6 Δv     (flow, weight λ3)
+
+with Δx = x − x̂. The unknowns are packed per pixel as vec4 (δ1, δ2, u, v). Each sample's
+coefficients are stored as ``vec12`` = (A1 … A9, w1, w2, w3), where w_k is the row's
+weight λ_k (divided by the sample count) or 0 where a warped position leaves the image.
+"""
+
+import warp as wp
+
+from .common import bilinear, bilinear_gradient, inside
+
+wp.set_module_options({"enable_backward": False})
+
+vec12 = wp.types.vector(length=12, dtype=wp.float32)
+
+
+@wp.kernel
+def data_coefficients(
+    row0: int,
+    samples1: wp.array3d(dtype=float),
+    samples2: wp.array3d(dtype=float),
+    phis: wp.array(dtype=wp.vec2),
+    weights: wp.array(dtype=wp.vec3),
+    x_hat: wp.array2d(dtype=wp.vec4),
+    # outputs
+    coef: wp.array3d(dtype=vec12),
+    data_colsum: wp.array2d(dtype=wp.vec4),
+):
+    """Coefficients A1…A9 of every sample at the linearisation point x̂, and the column
+    sums Σ|K| of the data rows for each unknown (the data part of the preconditioner τ).
+
+    ``samples1[s]``, ``samples2[s]``: (texture part of) the sub-aperture image at φ_s at
+    t1 and t2; sample 0 must be the centre view (φ = 0). ``weights[s]`` = (λ1, λ2, λ3)
+    for that sample. Launch over (rows, columns).
+    """
+    i, j = wp.tid()
+    i = i + row0
+    xh = x_hat[i, j]
+    px = float(j)
+    py = float(i)
+    centre1 = samples1[0]
+    centre2 = samples2[0]
+    i1 = centre1[i, j]
+    xj = px + xh[2]
+    yj = py + xh[3]
+    j2 = bilinear(centre2, xj, yj)
+    gj = bilinear_gradient(centre2, xj, yj)
+    in_j = inside(centre2, xj, yj)
+    colsum = wp.vec4(0.0)
+    for s in range(phis.shape[0]):
+        phi = phis[s]
+        view1 = samples1[s]
+        view2 = samples2[s]
+        x1 = px - xh[0] * phi[0]
+        y1 = py - xh[0] * phi[1]
+        x2 = xj - xh[1] * phi[0]
+        y2 = yj - xh[1] * phi[1]
+        w1v = bilinear(view1, x1, y1)
+        g1 = bilinear_gradient(view1, x1, y1)
+        w2v = bilinear(view2, x2, y2)
+        g2 = bilinear_gradient(view2, x2, y2)
+        in_1 = inside(view1, x1, y1)
+        in_2 = inside(view2, x2, y2)
+        a1 = -wp.dot(phi, g1)
+        a2 = i1 - w1v
+        a3 = -wp.dot(phi, g2)
+        a4 = j2 - w2v
+        a5 = g2[0]
+        a6 = g2[1]
+        a7 = w1v - w2v
+        a8 = gj[0] - a5
+        a9 = gj[1] - a6
+        lam = weights[s]
+        wt1 = float(0.0)
+        wt2 = float(0.0)
+        wt3 = float(0.0)
+        if in_1:
+            wt1 = lam[0]
+        if in_2 and in_j:
+            wt2 = lam[1]
+        if in_1 and in_2:
+            wt3 = lam[2]
+        c = vec12()
+        c[0] = a1
+        c[1] = a2
+        c[2] = a3
+        c[3] = a4
+        c[4] = a5
+        c[5] = a6
+        c[6] = a7
+        c[7] = a8
+        c[8] = a9
+        c[9] = wt1
+        c[10] = wt2
+        c[11] = wt3
+        coef[s, i, j] = c
+        colsum += wp.vec4(
+            (wt1 + wt3) * wp.abs(a1),
+            (wt2 + wt3) * wp.abs(a3),
+            wt2 * wp.abs(a8) + wt3 * wp.abs(a5),
+            wt2 * wp.abs(a9) + wt3 * wp.abs(a6),
+        )
+    data_colsum[i, j] = colsum
+
+
+@wp.kernel
+def dual_data_step(
+    row0: int,
+    coef: wp.array3d(dtype=vec12),
+    x_bar: wp.array2d(dtype=wp.vec4),
+    x_hat: wp.array2d(dtype=wp.vec4),
+    eps: float,
+    # outputs
+    q: wp.array3d(dtype=wp.vec3),
+    data_grad: wp.array2d(dtype=wp.vec4),
+):
+    """Dual ascent on the data rows, fused with the primal gradient Kᵀq of the data term.
+
+    q_k ← clip(q_k + σ_k w_k ρ_k(x̄), −1, 1) with the diagonal preconditioner
+    σ_k = 1 / (w_k Σ|row k| + ε); then ``data_grad`` = Σ_s Kᵀ q for (δ1, δ2, u, v).
+    Launch over (rows, columns).
+    """
+    i, j = wp.tid()
+    i = i + row0
+    d = x_bar[i, j] - x_hat[i, j]
+    g = wp.vec4(0.0)
+    for s in range(coef.shape[0]):
+        c = coef[s, i, j]
+        a1 = c[0]
+        a3 = c[2]
+        a5 = c[4]
+        a6 = c[5]
+        a8 = c[7]
+        a9 = c[8]
+        wt1 = c[9]
+        wt2 = c[10]
+        wt3 = c[11]
+        rho1 = c[1] - a1 * d[0]
+        rho2 = c[3] - a3 * d[1] + a8 * d[2] + a9 * d[3]
+        rho3 = c[6] + a1 * d[0] - a3 * d[1] - a5 * d[2] - a6 * d[3]
+        qs = q[s, i, j]
+        s1 = wt1 / (wt1 * wp.abs(a1) + eps)
+        s2 = wt2 / (wt2 * (wp.abs(a3) + wp.abs(a8) + wp.abs(a9)) + eps)
+        s3 = wt3 / (wt3 * (wp.abs(a1) + wp.abs(a3) + wp.abs(a5) + wp.abs(a6)) + eps)
+        q1 = wp.clamp(qs[0] + s1 * rho1, -1.0, 1.0)
+        q2 = wp.clamp(qs[1] + s2 * rho2, -1.0, 1.0)
+        q3 = wp.clamp(qs[2] + s3 * rho3, -1.0, 1.0)
+        q[s, i, j] = wp.vec3(q1, q2, q3)
+        g += wp.vec4(
+            (wt3 * q3 - wt1 * q1) * a1,
+            -(wt2 * q2 + wt3 * q3) * a3,
+            wt2 * q2 * a8 - wt3 * q3 * a5,
+            wt2 * q2 * a9 - wt3 * q3 * a6,
+        )
+    data_grad[i, j] = g

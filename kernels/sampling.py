@@ -1,0 +1,40 @@
+"""Sub-aperture sampling: the view at any angular offset φ = (ξ, η), interpolated
+bilinearly between the four nearest views (MODEL.md §2). Together with the bilinear
+spatial lookups of the data term this is the quadrilinear interpolation of the light
+field."""
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+
+@wp.kernel
+def sample_subaperture(
+    row0: int,
+    views: wp.array3d(dtype=float),
+    grid_rows: int,
+    grid_cols: int,
+    phis: wp.array(dtype=wp.vec2),
+    # outputs
+    samples: wp.array3d(dtype=float),
+):
+    """samples[s] = L(·, φ_s): views is [a·cols + b, y, x]; φ_s = (ξ, η) in view steps
+    from the grid centre ((rows−1)/2, (cols−1)/2). Angular positions outside the grid are
+    clamped to it. Launch over (samples × rows, columns)."""
+    r, x = wp.tid()
+    r = r + row0
+    height = samples.shape[1]
+    s = r // height
+    y = r - s * height
+    phi = phis[s]
+    a = wp.clamp(0.5 * float(grid_rows - 1) + phi[1], 0.0, float(grid_rows - 1))
+    b = wp.clamp(0.5 * float(grid_cols - 1) + phi[0], 0.0, float(grid_cols - 1))
+    a0 = wp.min(int(a), wp.max(grid_rows - 2, 0))
+    b0 = wp.min(int(b), wp.max(grid_cols - 2, 0))
+    a1 = wp.min(a0 + 1, grid_rows - 1)
+    b1 = wp.min(b0 + 1, grid_cols - 1)
+    fa = a - float(a0)
+    fb = b - float(b0)
+    top = (1.0 - fb) * views[a0 * grid_cols + b0, y, x] + fb * views[a0 * grid_cols + b1, y, x]
+    bottom = (1.0 - fb) * views[a1 * grid_cols + b0, y, x] + fb * views[a1 * grid_cols + b1, y, x]
+    samples[s, y, x] = (1.0 - fa) * top + fa * bottom

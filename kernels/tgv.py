@@ -1,0 +1,262 @@
+"""Image-driven second-order TGV (MODEL.md §4) and its preconditioned primal–dual steps.
+
+For each unknown x ∈ (δ1, δ2, u, v), packed per pixel as vec4:
+
+    Φ(x) = min_w α1 Σ|Γ(∇x − w)| + α0 Σ|∇w|,   Γ = exp(−γ|∇I|^β) n nᵀ + n⊥ n⊥ᵀ
+
+with Γ of the centre view at t1 for δ1, u, v and at t2 for δ2. w = (w0, w1) is stored as
+two vec4 (its x and y components for the four unknowns); the duals are y = (y0, y1) for
+α1Γ(∇x − w) (|y| ≤ 1) and z = (z00, z01, z10, z11) for α0∇w (Frobenius norm ≤ 1).
+Gradients are forward differences with Neumann boundary (zero at the last column/row);
+divergences are their exact negative adjoints.
+"""
+
+import warp as wp
+
+from .common import pixel
+
+wp.set_module_options({"enable_backward": False})
+
+
+@wp.func
+def tensor_per_unknown(g1: wp.vec3, g2: wp.vec3):
+    """(Γ00, Γ01, Γ11) as vec4 over the unknowns (δ1, δ2, u, v): Γ_t2 for δ2, Γ_t1 else."""
+    return (
+        wp.vec4(g1[0], g2[0], g1[0], g1[0]),
+        wp.vec4(g1[1], g2[1], g1[1], g1[1]),
+        wp.vec4(g1[2], g2[2], g1[2], g1[2]),
+    )
+
+
+@wp.func
+def vabs(v: wp.vec4):
+    return wp.vec4(wp.abs(v[0]), wp.abs(v[1]), wp.abs(v[2]), wp.abs(v[3]))
+
+
+@wp.func
+def reciprocal(v: wp.vec4, eps: float):
+    return wp.vec4(1.0 / (v[0] + eps), 1.0 / (v[1] + eps), 1.0 / (v[2] + eps), 1.0 / (v[3] + eps))
+
+
+@wp.kernel
+def diffusion_tensor(
+    row0: int,
+    image: wp.array2d(dtype=float),
+    gamma: float,
+    beta: float,
+    # outputs
+    tensor: wp.array2d(dtype=wp.vec3),
+):
+    """Γ = exp(−γ|∇I|^β) n nᵀ + n⊥ n⊥ᵀ as (Γ00, Γ01, Γ11), n = ∇I/|∇I| from central
+    differences; Γ = identity where ∇I vanishes. Launch over (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    gx = 0.5 * (pixel(image, i, j + 1) - pixel(image, i, j - 1))
+    gy = 0.5 * (pixel(image, i + 1, j) - pixel(image, i - 1, j))
+    mag = wp.sqrt(gx * gx + gy * gy)
+    t = wp.vec3(1.0, 0.0, 1.0)
+    if mag > 1.0e-12:
+        e = wp.exp(-gamma * wp.pow(mag, beta))
+        nx = gx / mag
+        ny = gy / mag
+        t = wp.vec3(e * nx * nx + ny * ny, (e - 1.0) * nx * ny, e * ny * ny + nx * nx)
+    tensor[i, j] = t
+
+
+@wp.kernel
+def tgv_preconditioner(
+    row0: int,
+    data_colsum: wp.array2d(dtype=wp.vec4),
+    tensor1: wp.array2d(dtype=wp.vec3),
+    tensor2: wp.array2d(dtype=wp.vec3),
+    alpha0: float,
+    alpha1: float,
+    eps: float,
+    # outputs
+    tau_x: wp.array2d(dtype=wp.vec4),
+    tau_w0: wp.array2d(dtype=wp.vec4),
+    tau_w1: wp.array2d(dtype=wp.vec4),
+    sigma_y0: wp.array2d(dtype=wp.vec4),
+    sigma_y1: wp.array2d(dtype=wp.vec4),
+):
+    """Diagonal preconditioners of Pock & Chambolle (2011), α = 1: τ = 1/Σ_row|K| per
+    primal column (data part given), σ = 1/Σ_col|K| per TGV dual row (σ_z = 1/(2α0) is a
+    constant). Launch over (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    h = tensor1.shape[0]
+    w = tensor1.shape[1]
+    a = float(0.0)
+    b = float(0.0)
+    if j < w - 1:
+        a = 1.0
+    if i < h - 1:
+        b = 1.0
+    g00, g01, g11 = tensor_per_unknown(tensor1[i, j], tensor2[i, j])
+    # x(p) in the rows y(p) (−Γ(a, b)ᵀ), y(p − e_x) (Γ col 0) and y(p − e_y) (Γ col 1)
+    col = vabs(a * g00 + b * g01) + vabs(a * g01 + b * g11)
+    count = a + b
+    if j > 0:
+        h00, h01, h11 = tensor_per_unknown(tensor1[i, j - 1], tensor2[i, j - 1])
+        col += vabs(h00) + vabs(h01)
+        count += 1.0
+    if i > 0:
+        k00, k01, k11 = tensor_per_unknown(tensor1[i - 1, j], tensor2[i - 1, j])
+        col += vabs(k01) + vabs(k11)
+        count += 1.0
+    tau_x[i, j] = reciprocal(data_colsum[i, j] + alpha1 * col, eps)
+    ones = wp.vec4(1.0)
+    tau_w0[i, j] = reciprocal(alpha1 * (vabs(g00) + vabs(g01)) + alpha0 * count * ones, eps)
+    tau_w1[i, j] = reciprocal(alpha1 * (vabs(g01) + vabs(g11)) + alpha0 * count * ones, eps)
+    row0_sum = a * vabs(g00) + b * vabs(g01) + vabs(a * g00 + b * g01) + vabs(g00) + vabs(g01)
+    row1_sum = a * vabs(g01) + b * vabs(g11) + vabs(a * g01 + b * g11) + vabs(g01) + vabs(g11)
+    sigma_y0[i, j] = reciprocal(alpha1 * row0_sum, eps)
+    sigma_y1[i, j] = reciprocal(alpha1 * row1_sum, eps)
+
+
+@wp.kernel
+def tgv_dual_step(
+    row0: int,
+    x_bar: wp.array2d(dtype=wp.vec4),
+    w0_bar: wp.array2d(dtype=wp.vec4),
+    w1_bar: wp.array2d(dtype=wp.vec4),
+    tensor1: wp.array2d(dtype=wp.vec3),
+    tensor2: wp.array2d(dtype=wp.vec3),
+    sigma_y0: wp.array2d(dtype=wp.vec4),
+    sigma_y1: wp.array2d(dtype=wp.vec4),
+    sigma_z: float,
+    alpha0: float,
+    alpha1: float,
+    # outputs
+    y0: wp.array2d(dtype=wp.vec4),
+    y1: wp.array2d(dtype=wp.vec4),
+    z00: wp.array2d(dtype=wp.vec4),
+    z01: wp.array2d(dtype=wp.vec4),
+    z10: wp.array2d(dtype=wp.vec4),
+    z11: wp.array2d(dtype=wp.vec4),
+):
+    """y ← proj(y + σ_y α1 Γ(∇x̄ − w̄)),  z ← proj(z + σ_z α0 ∇w̄). Launch over (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    h = x_bar.shape[0]
+    w = x_bar.shape[1]
+    xb = x_bar[i, j]
+    wb0 = w0_bar[i, j]
+    wb1 = w1_bar[i, j]
+    gx = wp.vec4(0.0)
+    gy = wp.vec4(0.0)
+    dx0 = wp.vec4(0.0)
+    dy0 = wp.vec4(0.0)
+    dx1 = wp.vec4(0.0)
+    dy1 = wp.vec4(0.0)
+    if j < w - 1:
+        gx = x_bar[i, j + 1] - xb
+        dx0 = w0_bar[i, j + 1] - wb0
+        dx1 = w1_bar[i, j + 1] - wb1
+    if i < h - 1:
+        gy = x_bar[i + 1, j] - xb
+        dy0 = w0_bar[i + 1, j] - wb0
+        dy1 = w1_bar[i + 1, j] - wb1
+    r0 = gx - wb0
+    r1 = gy - wb1
+    g00, g01, g11 = tensor_per_unknown(tensor1[i, j], tensor2[i, j])
+    n0 = y0[i, j] + alpha1 * wp.cw_mul(sigma_y0[i, j], wp.cw_mul(g00, r0) + wp.cw_mul(g01, r1))
+    n1 = y1[i, j] + alpha1 * wp.cw_mul(sigma_y1[i, j], wp.cw_mul(g01, r0) + wp.cw_mul(g11, r1))
+    m00 = z00[i, j] + (sigma_z * alpha0) * dx0
+    m01 = z01[i, j] + (sigma_z * alpha0) * dy0
+    m10 = z10[i, j] + (sigma_z * alpha0) * dx1
+    m11 = z11[i, j] + (sigma_z * alpha0) * dy1
+    sy = wp.vec4(0.0)
+    sz = wp.vec4(0.0)
+    for k in range(4):
+        sy[k] = 1.0 / wp.max(1.0, wp.sqrt(n0[k] * n0[k] + n1[k] * n1[k]))
+        sz[k] = 1.0 / wp.max(1.0, wp.sqrt(m00[k] * m00[k] + m01[k] * m01[k] + m10[k] * m10[k] + m11[k] * m11[k]))
+    y0[i, j] = wp.cw_mul(n0, sy)
+    y1[i, j] = wp.cw_mul(n1, sy)
+    z00[i, j] = wp.cw_mul(m00, sz)
+    z01[i, j] = wp.cw_mul(m01, sz)
+    z10[i, j] = wp.cw_mul(m10, sz)
+    z11[i, j] = wp.cw_mul(m11, sz)
+
+
+@wp.func
+def gamma_y(
+    tensor1: wp.array2d(dtype=wp.vec3),
+    tensor2: wp.array2d(dtype=wp.vec3),
+    y0: wp.array2d(dtype=wp.vec4),
+    y1: wp.array2d(dtype=wp.vec4),
+    i: int,
+    j: int,
+):
+    """Γ·y at a pixel, per unknown: (Γ00 y0 + Γ01 y1, Γ01 y0 + Γ11 y1)."""
+    g00, g01, g11 = tensor_per_unknown(tensor1[i, j], tensor2[i, j])
+    a = y0[i, j]
+    b = y1[i, j]
+    return wp.cw_mul(g00, a) + wp.cw_mul(g01, b), wp.cw_mul(g01, a) + wp.cw_mul(g11, b)
+
+
+@wp.kernel
+def tgv_primal_step(
+    row0: int,
+    data_grad: wp.array2d(dtype=wp.vec4),
+    y0: wp.array2d(dtype=wp.vec4),
+    y1: wp.array2d(dtype=wp.vec4),
+    z00: wp.array2d(dtype=wp.vec4),
+    z01: wp.array2d(dtype=wp.vec4),
+    z10: wp.array2d(dtype=wp.vec4),
+    z11: wp.array2d(dtype=wp.vec4),
+    tensor1: wp.array2d(dtype=wp.vec3),
+    tensor2: wp.array2d(dtype=wp.vec3),
+    tau_x: wp.array2d(dtype=wp.vec4),
+    tau_w0: wp.array2d(dtype=wp.vec4),
+    tau_w1: wp.array2d(dtype=wp.vec4),
+    alpha0: float,
+    alpha1: float,
+    # outputs
+    x: wp.array2d(dtype=wp.vec4),
+    w0: wp.array2d(dtype=wp.vec4),
+    w1: wp.array2d(dtype=wp.vec4),
+    x_bar: wp.array2d(dtype=wp.vec4),
+    w0_bar: wp.array2d(dtype=wp.vec4),
+    w1_bar: wp.array2d(dtype=wp.vec4),
+):
+    """x ← x − τ_x (Kᵀq − α1 div(Γy)),  w ← w − τ_w (−α1 Γy − α0 div z), then the
+    over-relaxation x̄ = 2x_new − x_old (likewise w̄). Launch over (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    h = x.shape[0]
+    w = x.shape[1]
+    h0, h1 = gamma_y(tensor1, tensor2, y0, y1, i, j)
+    div_h = wp.vec4(0.0)
+    div_z0 = wp.vec4(0.0)
+    div_z1 = wp.vec4(0.0)
+    if j < w - 1:
+        div_h += h0
+        div_z0 += z00[i, j]
+        div_z1 += z10[i, j]
+    if j > 0:
+        l0, l1 = gamma_y(tensor1, tensor2, y0, y1, i, j - 1)
+        div_h -= l0
+        div_z0 -= z00[i, j - 1]
+        div_z1 -= z10[i, j - 1]
+    if i < h - 1:
+        div_h += h1
+        div_z0 += z01[i, j]
+        div_z1 += z11[i, j]
+    if i > 0:
+        u0, u1 = gamma_y(tensor1, tensor2, y0, y1, i - 1, j)
+        div_h -= u1
+        div_z0 -= z01[i - 1, j]
+        div_z1 -= z11[i - 1, j]
+    x_old = x[i, j]
+    w0_old = w0[i, j]
+    w1_old = w1[i, j]
+    x_new = x_old - wp.cw_mul(tau_x[i, j], data_grad[i, j] - alpha1 * div_h)
+    w0_new = w0_old + wp.cw_mul(tau_w0[i, j], alpha1 * h0 + alpha0 * div_z0)
+    w1_new = w1_old + wp.cw_mul(tau_w1[i, j], alpha1 * h1 + alpha0 * div_z1)
+    x[i, j] = x_new
+    w0[i, j] = w0_new
+    w1[i, j] = w1_new
+    x_bar[i, j] = 2.0 * x_new - x_old
+    w0_bar[i, j] = 2.0 * w0_new - w0_old
+    w1_bar[i, j] = 2.0 * w1_new - w1_old

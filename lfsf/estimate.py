@@ -1,0 +1,308 @@
+"""Scene flow from two light fields: sampling, structure–texture split, pyramid and
+coarse-to-fine warping around :class:`lfsf.solver.LevelSolver` (MODEL.md §2–§7)."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from lfsf import device as _device
+from lfsf.io import LightField, check_pair
+from lfsf.params import Params
+
+
+@dataclass
+class SceneFlow:
+    """The estimate for the centre view at t1 (MODEL.md §1 conventions).
+
+    Attributes
+    ----------
+    disp1, disp2 : float32 (H, W)
+        δ1, and δ2 = the t2 disparity of the point seen at p at t1 (px per view step).
+    u, v : float32 (H, W)
+        Flow to the centre view at t2 (px).
+    params : Params
+        The settings used.
+    radius : float
+        The sampling radius R used (limited to the view grid).
+    timings : dict
+        Seconds per stage.
+    """
+
+    disp1: np.ndarray
+    disp2: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    params: Params
+    radius: float
+    device: str
+    timings: dict = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, np.ndarray]:
+        return {"disp1": self.disp1, "disp2": self.disp2, "u": self.u, "v": self.v}
+
+    def save(self, out: str | Path, centre1=None, centre2=None) -> list[Path]:
+        """Write ``disp1.pfm``, ``disp2.pfm``, ``flow.flo``, ``sceneflow.npz`` and the
+        pictures ``disp1.png``, ``disp2.png``, ``flow.png`` (and ``overview.png`` when the
+        centre views are given) into ``out``, each atomically."""
+        import json
+
+        from lfsf import io, viz
+        from lfsf._files import savez_atomic
+
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        paths = []
+        for name in ("disp1", "disp2"):
+            io.write_pfm(out / f"{name}.pfm", getattr(self, name))
+            paths.append(out / f"{name}.pfm")
+        io.write_flo(out / "flow.flo", np.stack([self.u, self.v], -1))
+        paths.append(out / "flow.flo")
+        meta = {"params": self.params.as_dict(), "radius_used": self.radius, "device": self.device,
+                "timings": self.timings}
+        savez_atomic(out / "sceneflow.npz", compressed=True, **self.as_dict(), params=np.str_(json.dumps(meta)))
+        paths.append(out / "sceneflow.npz")
+        lo = float(np.nanmin([np.nanpercentile(self.disp1, 1), np.nanpercentile(self.disp2, 1)]))
+        hi = float(np.nanmax([np.nanpercentile(self.disp1, 99), np.nanpercentile(self.disp2, 99)]))
+        if hi <= lo:
+            hi = lo + 1e-3
+        for name in ("disp1", "disp2"):
+            viz.save_png(out / f"{name}.png", viz.disparity_to_color(getattr(self, name), lo, hi))
+            paths.append(out / f"{name}.png")
+        viz.save_png(out / "flow.png", viz.flow_to_color(self.u, self.v))
+        paths.append(out / "flow.png")
+        if centre1 is not None and centre2 is not None:
+            viz.overview_figure(centre1, centre2, self.disp1, self.disp2, self.u, self.v, path=out / "overview.png")
+            paths.append(out / "overview.png")
+        return paths
+
+
+ProgressFn = Callable[[str], None]
+
+
+def _as_lightfield(lf, name: str) -> LightField:
+    if isinstance(lf, LightField):
+        return lf
+    return LightField(np.asarray(lf), source=name)
+
+
+def pyramid_sizes(height: int, width: int, params: Params) -> list[tuple[int, int]]:
+    """Level sizes (h, w), finest first: scaled by η_s while the shorter side stays at
+    least ``min_size`` (and at most ``max_levels`` levels)."""
+    sizes = [(height, width)]
+    while True:
+        h, w = sizes[-1]
+        nh = int(round(height * params.pyramid_scale ** len(sizes)))
+        nw = int(round(width * params.pyramid_scale ** len(sizes)))
+        if min(nh, nw) < params.min_size or (nh, nw) == (h, w):
+            break
+        if params.max_levels and len(sizes) >= params.max_levels:
+            break
+        sizes.append((nh, nw))
+    return sizes
+
+
+def _structure_texture(stack, params: Params, device: str):
+    """Texture part T = f − θ·ROF(f) of every image of a (n, h, w) stack (MODEL.md §3)."""
+    from lfsf.kernels import rof
+
+    wp = _device.warp()
+    if params.texture_theta <= 0 or params.rof_iterations <= 0:
+        return stack
+    n, h, w = stack.shape
+    dim = (n * h, w)
+    u = wp.clone(stack)
+    u_bar = wp.clone(stack)
+    p = wp.zeros((n, h, w), dtype=wp.vec2, device=device)
+    tau = sigma = 1.0 / math.sqrt(8.0)
+    for _ in range(params.rof_iterations):
+        _device.launch_rows(rof.rof_dual_step, dim=dim, inputs=[u_bar, sigma], outputs=[p], device=device)
+        _device.launch_rows(rof.rof_primal_step, dim=dim, inputs=[stack, p, tau, params.rof_weight],
+                            outputs=[u, u_bar], device=device)
+    texture = wp.empty_like(stack)
+    _device.launch_rows(rof.texture_part, dim=dim, inputs=[stack, u, params.texture_theta], outputs=[texture],
+                        device=device)
+    return texture
+
+
+def _downsample(stack, size, device: str):
+    from lfsf.kernels import pyramid
+
+    wp = _device.warp()
+    n, h, w = stack.shape
+    ratio = max(h / size[0], w / size[1])
+    sigma = max(ratio / 3.0, 0.5)
+    radius = int(math.ceil(3.0 * sigma))
+    out = wp.empty((n, size[0], size[1]), dtype=float, device=device)
+    _device.launch_rows(pyramid.downsample, dim=(n * size[0], size[1]), inputs=[stack, sigma, radius],
+                        outputs=[out], device=device)
+    return out
+
+
+def _upsample_state(arrays: list[np.ndarray], size, scales, device: str) -> list[np.ndarray]:
+    """Bilinearly upsample (h, w, 4) fields to ``size``, multiplying component k by scales[k]."""
+    from lfsf.kernels import pyramid
+
+    wp = _device.warp()
+    out = []
+    for arr in arrays:
+        h, w, _ = arr.shape
+        coarse = wp.array(np.ascontiguousarray(np.moveaxis(arr, -1, 0)), dtype=float, device=device)
+        fine = wp.empty((4, size[0], size[1]), dtype=float, device=device)
+        _device.launch_rows(pyramid.upsample, dim=(4 * size[0], size[1]), inputs=[coarse, 1.0], outputs=[fine],
+                            device=device)
+        out.append(np.moveaxis(fine.numpy(), 0, -1) * np.asarray(scales, np.float32))
+    return out
+
+
+def estimate_scene_flow(
+    lf1,
+    lf2,
+    params: Params | None = None,
+    *,
+    device: str | None = None,
+    progress: ProgressFn | None = None,
+) -> SceneFlow:
+    """Estimate scene flow between two light fields (Heber & Pock, GCPR 2014).
+
+    Parameters
+    ----------
+    lf1, lf2 : LightField or array [a, b, y, x] / [a, b, y, x, c]
+        Light fields at t1 and t2, same view grid and size; colour is matched as luma.
+    params : Params, optional
+        Settings (default: ``Params.preset("paper")``).
+    device : str, optional
+        ``cpu`` or ``cuda:N`` (default: :func:`lfsf.device.resolve_device`).
+    progress : callable, optional
+        Called with a line of text at each level and warp.
+
+    Returns
+    -------
+    SceneFlow
+        δ1, δ2, u, v of the centre view at t1 (MODEL.md §1).
+
+    Notes
+    -----
+    Special cases come from the same code: ``estimate_scene_flow(lf, lf)`` is stereo
+    (the flow comes out zero), ``circles=1`` is optical flow of the centre views alone,
+    ``circles=2, samples=(1, 1)`` is two-view stereo plus flow.
+
+    References
+    ----------
+    S. Heber and T. Pock, "Scene Flow Estimation from Light Fields via the
+    Preconditioned Primal-Dual Algorithm", GCPR 2014.
+    """
+    from lfsf.kernels import sampling
+    from lfsf.solver import LevelSolver
+
+    wp = _device.warp()
+    timings: dict[str, float] = {}
+    clock = time.perf_counter()
+
+    def lap(name):
+        nonlocal clock
+        if _device_is_cuda(dev):
+            wp.synchronize_device(dev)
+        now = time.perf_counter()
+        timings[name] = timings.get(name, 0.0) + now - clock
+        clock = now
+
+    say = progress or (lambda _msg: None)
+    params = Params.preset("paper") if params is None else params
+    if not isinstance(params, Params):
+        raise ValueError(f"params must be an lfsf.Params, got {type(params).__name__}")
+    lf1 = _as_lightfield(lf1, "light field 1")
+    lf2 = _as_lightfield(lf2, "light field 2")
+    check_pair(lf1, lf2)
+    dev = _device.resolve_device(device)
+    rows, cols = lf1.grid
+    height, width = lf1.height, lf1.width
+    if min(height, width) < 8:
+        raise ValueError(f"{lf1.source}: views of {width}×{height} pixels are too small (at least 8×8)")
+
+    phis, radius = params.sample_offsets((rows, cols))
+    n_samples = len(phis)
+    weights = np.tile(np.array([params.lambda1, params.lambda2, params.lambda3], np.float32) / n_samples,
+                      (n_samples, 1))
+    weights[0, :2] = 0.0  # φ = 0: both stereo residuals vanish identically
+    wp_phis = wp.array(phis, dtype=wp.vec2, device=dev)
+    wp_weights = wp.array(weights, dtype=wp.vec3, device=dev)
+
+    # sub-aperture images at the sample offsets, both times: (S, H, W) each
+    stacks = []
+    for lf in (lf1, lf2):
+        grey = lf.grey().views.reshape(rows * cols, height, width)
+        views = wp.array(np.ascontiguousarray(grey, dtype=np.float32), dtype=float, device=dev)
+        out = wp.empty((n_samples, height, width), dtype=float, device=dev)
+        _device.launch_rows(sampling.sample_subaperture, dim=(n_samples * height, width),
+                            inputs=[views, rows, cols, wp_phis], outputs=[out], device=dev)
+        stacks.append(out)
+        del views
+    lap("sampling")
+    centres = [wp.clone(s[0]) for s in stacks]
+    both = wp.empty((2 * n_samples, height, width), dtype=float, device=dev)
+    wp.copy(both, stacks[0], dest_offset=0, count=n_samples * height * width)
+    wp.copy(both, stacks[1], dest_offset=n_samples * height * width, count=n_samples * height * width)
+    del stacks
+    texture = _structure_texture(both, params, dev)
+    lap("texture")
+
+    sizes = pyramid_sizes(height, width, params)
+    levels = [(texture, _stack2(centres, dev))]
+    for size in sizes[1:]:
+        tex, cen = levels[-1]
+        levels.append((_downsample(tex, size, dev), _downsample(cen, size, dev)))
+    lap("pyramid")
+    say(f"{width}×{height}, {rows}×{cols} views, {n_samples} samples (R = {radius:g}), "
+        f"{len(sizes)} levels on {dev}")
+
+    x = w0 = w1 = None
+    for level in range(len(sizes) - 1, -1, -1):
+        h, w = sizes[level]
+        tex, cen = levels[level]
+        s1 = wp.clone(tex[:n_samples])
+        s2 = wp.clone(tex[n_samples:])
+        solver = LevelSolver(s1, s2, wp.clone(cen[0]), wp.clone(cen[1]), wp_phis, wp_weights, params, dev)
+        if x is None:
+            x = np.zeros((h, w, 4), np.float32)
+        solver.set_state(x, w0, w1)
+        lap("setup")
+        for k in range(params.warps):
+            solver.linearise()
+            lap("linearise")
+            solver.iterate(params.iterations)
+            lap("iterate")
+            solver.median()
+            lap("median")
+            say(f"level {len(sizes) - level}/{len(sizes)} ({w}×{h}), warp {k + 1}/{params.warps}")
+        x, w0, w1 = solver.state()
+        if level > 0:
+            fh, fw = sizes[level - 1]
+            sx, sy = fw / w, fh / h
+            sd = 0.5 * (sx + sy)
+            x, = _upsample_state([x], (fh, fw), (sd, sd, sx, sy), dev)
+            w0, w1 = _upsample_state([w0, w1], (fh, fw), (1.0, 1.0, 1.0, 1.0), dev)
+        lap("upsample")
+
+    return SceneFlow(
+        disp1=x[..., 0].copy(), disp2=x[..., 1].copy(), u=x[..., 2].copy(), v=x[..., 3].copy(),
+        params=params, radius=float(radius), device=dev, timings=timings,
+    )
+
+
+def _stack2(images, device):
+    wp = _device.warp()
+    h, w = images[0].shape
+    out = wp.empty((2, h, w), dtype=float, device=device)
+    for k, img in enumerate(images):
+        wp.copy(out, img, dest_offset=k * h * w, count=h * w)
+    return out
+
+
+def _device_is_cuda(name: str) -> bool:
+    return name.startswith("cuda")

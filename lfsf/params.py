@@ -1,0 +1,162 @@
+"""Parameters of the light-field scene-flow model, named by the paper's symbols."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Params:
+    """Every setting of the estimator (Heber & Pock, GCPR 2014; MODEL.md).
+
+    Sampling of the light field (MODEL.md §2)
+        circles : M, the number of sampling circles (radii r_i = R·i/(M−1)); M = 1 uses
+            the centre view alone (optical flow only).
+        samples : N_i, positions on each circle; N_0 must be 1 (the centre view).
+        radius : R, the largest sampling radius in view steps; limited to the view grid.
+    Data term (§3)
+        lambda1, lambda2, lambda3 : λ1 (stereo at t1), λ2 (stereo at t2), λ3 (flow).
+            Each is divided by the number of samples, so the weights mean the same
+            whatever the sampling.
+        texture_theta : θ of the structure–texture split T = I − θ·ROF(I); 0 disables it.
+        rof_weight : μ, the ROF fidelity weight (min Σ|∇u| + 1/(2μ) Σ(u − f)²).
+        rof_iterations : primal–dual iterations of the ROF solve.
+    Regulariser: image-driven TGV² (§4)
+        alpha0, alpha1 : α0 (on ∇w) and α1 (on Γ(∇x − w)).
+        gamma, beta : γ, β of Γ = exp(−γ|∇I|^β) n nᵀ + n⊥ n⊥ᵀ.
+    Optimisation (§5, §6)
+        pyramid_scale : η_s, the size ratio between pyramid levels.
+        min_size : the coarsest level's shorter side is at least this many pixels.
+        max_levels : an upper bound on the number of levels (0: no bound).
+        warps : re-linearisations per level.
+        iterations : primal–dual iterations per warp.
+        median_radius : radius of the median filter on the flow after each warp (0: off).
+        eps : ε added to the preconditioners' denominators.
+    """
+
+    circles: int = 3
+    samples: tuple[int, ...] = (1, 8, 8)
+    radius: float = 4.0
+    lambda1: float = 1.0
+    lambda2: float = 1.0
+    lambda3: float = 1.0
+    texture_theta: float = 0.95
+    rof_weight: float = 0.125
+    rof_iterations: int = 60
+    alpha0: float = 2.0
+    alpha1: float = 0.5
+    gamma: float = 5.0
+    beta: float = 0.7
+    pyramid_scale: float = 0.5
+    min_size: int = 24
+    max_levels: int = 0
+    warps: int = 5
+    iterations: int = 50
+    median_radius: int = 2
+    eps: float = 1e-6
+
+    def __post_init__(self):
+        object.__setattr__(self, "samples", tuple(int(n) for n in self.samples))
+        self.validate()
+
+    # --- construction ----------------------------------------------------------------------
+
+    @classmethod
+    def preset(cls, name: str) -> "Params":
+        """``paper``: the paper's synthetic setting (M = 3, N = (1, 8, 8), R = 4: 17 views);
+        ``fast``: fewer views and iterations; ``lytro``: the paper's Lytro setting
+        (M = 2, N = (1, 16))."""
+        try:
+            return cls(**PRESETS[name])
+        except KeyError:
+            raise ValueError(f"unknown preset {name!r}: the presets are {', '.join(PRESETS)}") from None
+
+    def replace(self, **changes) -> "Params":
+        """A copy with some settings changed (validated)."""
+        unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
+        if unknown:
+            raise ValueError(f"unknown parameter(s) {', '.join(sorted(unknown))}; "
+                             f"known: {', '.join(f.name for f in dataclasses.fields(self))}")
+        return dataclasses.replace(self, **changes)
+
+    @classmethod
+    def from_toml(cls, path: str | Path, base: "Params | None" = None) -> "Params":
+        """Settings from a TOML file (top-level keys, or a ``[params]`` table; a
+        ``preset = "name"`` key picks the base), over ``base`` (default: the preset)."""
+        try:
+            import tomllib
+        except ModuleNotFoundError:  # Python 3.10
+            import tomli as tomllib
+        path = Path(path)
+        if not path.exists():
+            raise FileNotFoundError(f"{path}: no such file")
+        try:
+            data = tomllib.loads(path.read_text())
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise ValueError(f"{path}: not valid TOML ({exc})") from None
+        data = dict(data.get("params", data))
+        preset = data.pop("preset", None)
+        params = cls.preset(preset) if preset else (base or cls())
+        try:
+            return params.replace(**data)
+        except (ValueError, TypeError) as exc:
+            raise ValueError(f"{path}: {exc}") from None
+
+    # --- derived ---------------------------------------------------------------------------
+
+    def validate(self) -> None:
+        def need(ok, message):
+            if not ok:
+                raise ValueError(f"bad parameter: {message}")
+
+        need(self.circles >= 1, f"circles (M) must be at least 1, got {self.circles}")
+        need(len(self.samples) == self.circles,
+             f"samples (N_i) must give one count per circle: M = {self.circles}, N = {self.samples}")
+        need(self.samples[0] == 1, f"the first circle is the centre view: N_0 must be 1, got {self.samples[0]}")
+        need(all(n >= 1 for n in self.samples), f"every N_i must be at least 1, got {self.samples}")
+        need(self.radius > 0 or self.circles == 1, f"radius R must be positive, got {self.radius}")
+        for name in ("lambda1", "lambda2", "lambda3", "alpha0", "alpha1", "gamma", "beta", "rof_weight", "eps"):
+            value = getattr(self, name)
+            need(math.isfinite(value) and value >= 0, f"{name} must be a finite number ≥ 0, got {value}")
+        need(self.alpha0 > 0 and self.alpha1 > 0, "alpha0 and alpha1 must be positive")
+        need(0 <= self.texture_theta <= 1, f"texture_theta (θ) must be in [0, 1], got {self.texture_theta}")
+        need(0 < self.pyramid_scale < 1, f"pyramid_scale (η_s) must be in (0, 1), got {self.pyramid_scale}")
+        need(self.min_size >= 4, f"min_size must be at least 4, got {self.min_size}")
+        for name in ("warps", "iterations"):
+            need(getattr(self, name) >= 1, f"{name} must be at least 1, got {getattr(self, name)}")
+        need(self.max_levels >= 0 and self.rof_iterations >= 0 and self.median_radius >= 0,
+             "max_levels, rof_iterations and median_radius must be ≥ 0")
+        need(self.median_radius <= 3, f"median_radius must be at most 3, got {self.median_radius}")
+
+    def sample_offsets(self, grid: tuple[int, int]) -> tuple[np.ndarray, float]:
+        """The angular offsets φ_ij = r_i (cos s_ij, sin s_ij) in view steps, centre first,
+        and the radius R actually used (at most the grid's half extent)."""
+        rows, cols = grid
+        limit = min(rows - 1, cols - 1) / 2.0
+        radius = min(self.radius, limit)
+        phis = [(0.0, 0.0)]
+        if self.circles > 1 and radius > 0:
+            for i in range(1, self.circles):
+                r = radius * i / (self.circles - 1)
+                n = self.samples[i]
+                for j in range(n):
+                    s = 2.0 * math.pi * j / n
+                    phis.append((r * math.cos(s), r * math.sin(s)))
+        out = np.asarray(phis, dtype=np.float32)
+        out[np.abs(out) < 1e-6] = 0.0
+        return out, radius
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+PRESETS: dict[str, dict] = {
+    "paper": {},
+    "fast": {"circles": 2, "samples": (1, 8), "warps": 3, "iterations": 30, "rof_iterations": 30},
+    "lytro": {"circles": 2, "samples": (1, 16)},
+}

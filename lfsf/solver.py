@@ -1,0 +1,180 @@
+"""The per-level solver: buffers of one pyramid level and the preconditioned primal–dual
+iterations on the linearised model (MODEL.md §3–§5).
+
+The solver does not know about pyramids: it is given the sampled (texture) images of one
+level and a starting point, and it re-linearises (``linearise``), iterates (``iterate``)
+and filters (``median``) on request. :mod:`lfsf.estimate` drives it coarse to fine.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lfsf import device as _device
+
+
+class LevelSolver:
+    """Preconditioned primal–dual solver of the linearised scene-flow model on one level.
+
+    Parameters
+    ----------
+    samples1, samples2 : wp.array3d of float, shape (S, h, w)
+        Texture parts of the sub-aperture images L(·, φ_s, t1) and L(·, φ_s, t2); s = 0 is
+        the centre view.
+    centre1, centre2 : wp.array2d of float, shape (h, w)
+        Centre views (intensities) at t1 and t2, for the diffusion tensors Γ_t1, Γ_t2.
+    phis : wp.array of vec2, shape (S,)
+        Angular offsets φ_s (view steps).
+    weights : wp.array of vec3, shape (S,)
+        (λ1, λ2, λ3) per sample, already divided by the sample count.
+    params : lfsf.Params
+    device : str
+    """
+
+    def __init__(self, samples1, samples2, centre1, centre2, phis, weights, params, device: str):
+        from lfsf.kernels import data_term, tgv
+
+        wp = _device.warp()
+        self.params = params
+        self.device = device
+        self.samples1, self.samples2 = samples1, samples2
+        self.phis, self.weights = phis, weights
+        n, h, w = samples1.shape
+        self.shape = (h, w)
+        vec4 = wp.vec4
+
+        def zeros4():
+            return wp.zeros((h, w), dtype=vec4, device=device)
+
+        # diffusion tensors Γ_t1, Γ_t2: fixed for the level
+        self.tensor1 = wp.empty((h, w), dtype=wp.vec3, device=device)
+        self.tensor2 = wp.empty((h, w), dtype=wp.vec3, device=device)
+        for image, tensor in ((centre1, self.tensor1), (centre2, self.tensor2)):
+            self._launch(tgv.diffusion_tensor, inputs=[image, params.gamma, params.beta], outputs=[tensor])
+
+        # data term: coefficients per sample, its duals q, and Kᵀq
+        self.coef = wp.zeros((n, h, w), dtype=data_term.vec12, device=device)
+        self.q = wp.zeros((n, h, w), dtype=wp.vec3, device=device)
+        self.data_colsum = zeros4()
+        self.data_grad = zeros4()
+        # primal: x = (δ1, δ2, u, v), w = (w0, w1), their over-relaxed copies, x̂
+        self.x, self.x_bar, self.x_hat = zeros4(), zeros4(), zeros4()
+        self.w0, self.w1, self.w0_bar, self.w1_bar = zeros4(), zeros4(), zeros4(), zeros4()
+        # TGV duals
+        self.y0, self.y1 = zeros4(), zeros4()
+        self.z00, self.z01, self.z10, self.z11 = zeros4(), zeros4(), zeros4(), zeros4()
+        # preconditioners
+        self.tau_x, self.tau_w0, self.tau_w1 = zeros4(), zeros4(), zeros4()
+        self.sigma_y0, self.sigma_y1 = zeros4(), zeros4()
+        self.scratch = zeros4()
+
+    def _launch(self, kernel, inputs, outputs):
+        _device.launch_rows(kernel, dim=self.shape, inputs=inputs, outputs=outputs, device=self.device)
+
+    # --- state ---------------------------------------------------------------------------
+
+    def set_state(self, x: np.ndarray, w0: np.ndarray | None = None, w1: np.ndarray | None = None) -> None:
+        """Start from x (h, w, 4) = (δ1, δ2, u, v) and w (each (h, w, 4), default 0);
+        duals are reset."""
+        wp = _device.warp()
+        h, w = self.shape
+        for name, value in (("x", x), ("w0", w0), ("w1", w1)):
+            arr = np.zeros((h, w, 4), np.float32) if value is None else np.ascontiguousarray(value, np.float32)
+            if arr.shape != (h, w, 4):
+                raise ValueError(f"{name} must have shape {(h, w, 4)}, got {arr.shape}")
+            src = wp.array(arr, dtype=wp.vec4, device=self.device)
+            wp.copy(getattr(self, name), src)
+            wp.copy(getattr(self, name + "_bar"), src)
+        for dual in (self.q, self.y0, self.y1, self.z00, self.z01, self.z10, self.z11):
+            dual.zero_()
+
+    def state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(x, w0, w1) as numpy arrays of shape (h, w, 4)."""
+        return self.x.numpy(), self.w0.numpy(), self.w1.numpy()
+
+    # --- one warp ------------------------------------------------------------------------
+
+    def linearise(self) -> None:
+        """Linearise the data term at the current x (x̂ ← x): coefficients A1…A9 of every
+        sample, then the diagonal preconditioners τ, σ."""
+        from lfsf.kernels import data_term, tgv
+
+        wp = _device.warp()
+        p = self.params
+        wp.copy(self.x_hat, self.x)
+        wp.copy(self.x_bar, self.x)
+        wp.copy(self.w0_bar, self.w0)
+        wp.copy(self.w1_bar, self.w1)
+        self._launch(data_term.data_coefficients,
+                     inputs=[self.samples1, self.samples2, self.phis, self.weights, self.x_hat],
+                     outputs=[self.coef, self.data_colsum])
+        self._launch(tgv.tgv_preconditioner,
+                     inputs=[self.data_colsum, self.tensor1, self.tensor2, p.alpha0, p.alpha1, p.eps],
+                     outputs=[self.tau_x, self.tau_w0, self.tau_w1, self.sigma_y0, self.sigma_y1])
+
+    def iterate(self, n: int) -> None:
+        """n preconditioned primal–dual iterations (Chambolle & Pock 2011)."""
+        from lfsf.kernels import data_term, tgv
+
+        p = self.params
+        sigma_z = 1.0 / (2.0 * p.alpha0)
+        for _ in range(n):
+            self._launch(data_term.dual_data_step,
+                         inputs=[self.coef, self.x_bar, self.x_hat, p.eps],
+                         outputs=[self.q, self.data_grad])
+            self._launch(tgv.tgv_dual_step,
+                         inputs=[self.x_bar, self.w0_bar, self.w1_bar, self.tensor1, self.tensor2,
+                                 self.sigma_y0, self.sigma_y1, sigma_z, p.alpha0, p.alpha1],
+                         outputs=[self.y0, self.y1, self.z00, self.z01, self.z10, self.z11])
+            self._launch(tgv.tgv_primal_step,
+                         inputs=[self.data_grad, self.y0, self.y1, self.z00, self.z01, self.z10, self.z11,
+                                 self.tensor1, self.tensor2, self.tau_x, self.tau_w0, self.tau_w1,
+                                 p.alpha0, p.alpha1],
+                         outputs=[self.x, self.w0, self.w1, self.x_bar, self.w0_bar, self.w1_bar])
+
+    def median(self) -> None:
+        """Median-filter the flow (u, v) of x over a (2r+1)² window (r = median_radius)."""
+        from lfsf.kernels import median
+
+        wp = _device.warp()
+        if self.params.median_radius <= 0:
+            return
+        self._launch(median.median_flow, inputs=[self.x, self.params.median_radius], outputs=[self.scratch])
+        wp.copy(self.x, self.scratch)
+        wp.copy(self.x_bar, self.scratch)
+
+    # --- diagnostics ---------------------------------------------------------------------
+
+    def energy(self) -> float:
+        """Energy of the linearised model at the current (x, w): Σ_s Σ_k w_k|ρ_k| +
+        α1 Σ|Γ(∇x − w)| + α0 Σ|∇w| (NumPy; for tests and diagnostics, not the hot path)."""
+        p = self.params
+        x, w0, w1 = self.state()
+        d = x - self.x_hat.numpy()
+        c = self.coef.numpy()  # (S, h, w, 12)
+        a = [c[..., k] for k in range(9)]
+        wt1, wt2, wt3 = c[..., 9], c[..., 10], c[..., 11]
+        rho1 = a[1] - a[0] * d[..., 0]
+        rho2 = a[3] - a[2] * d[..., 1] + a[7] * d[..., 2] + a[8] * d[..., 3]
+        rho3 = a[6] + a[0] * d[..., 0] - a[2] * d[..., 1] - a[4] * d[..., 2] - a[5] * d[..., 3]
+        data = float(np.sum(wt1 * np.abs(rho1) + wt2 * np.abs(rho2) + wt3 * np.abs(rho3)))
+        g1, g2 = self.tensor1.numpy(), self.tensor2.numpy()
+        tens = [np.stack([g1[..., k], g2[..., k], g1[..., k], g1[..., k]], -1) for k in range(3)]
+        gx, gy = forward_gradient(x)
+        r0, r1 = gx - w0, gy - w1
+        t0 = tens[0] * r0 + tens[1] * r1
+        t1 = tens[1] * r0 + tens[2] * r1
+        first = float(np.sum(np.sqrt(t0**2 + t1**2)))
+        dx0, dy0 = forward_gradient(w0)
+        dx1, dy1 = forward_gradient(w1)
+        second = float(np.sum(np.sqrt(dx0**2 + dy0**2 + dx1**2 + dy1**2)))
+        return data + p.alpha1 * first + p.alpha0 * second
+
+
+def forward_gradient(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Forward differences along x (axis 1) and y (axis 0), zero at the last column/row."""
+    gx = np.zeros_like(a)
+    gy = np.zeros_like(a)
+    gx[:, :-1] = a[:, 1:] - a[:, :-1]
+    gy[:-1, :] = a[1:, :] - a[:-1, :]
+    return gx, gy

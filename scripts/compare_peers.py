@@ -1,0 +1,486 @@
+#!/usr/bin/env python
+"""Compare lfsf with the peer methods named in the acceptance targets.
+
+Peers (wrapped in ``scripts/peers.py``, all returning lfsf's conventions, MODEL.md §1):
+
+* flow: OpenCV ``cv2.optflow.DualTVL1OpticalFlow_create()`` (defaults, 8-bit grey input)
+  and scikit-image ``skimage.registration.optical_flow_tvl1`` (defaults), on the two
+  centre views;
+* disparity: plenpy's ``LightField.get_disparity(method="structure_tensor",
+  fusion_method="tv_l1")`` on the grey views; at t1 for δ1, at t2 for δ2.
+
+δ2 is indexed by the t1 pixel (MODEL.md §1), while plenpy's t2 map is indexed by the t2
+pixel. The bar for δ2 samples plenpy's t2 map at ``p + u_gt(p)`` (ground-truth flow,
+bilinear): plenpy is handed the exact correspondence, the most favourable reading for the
+peer and so the hardest bar for lfsf. A second, informational row samples it at the
+OpenCV flow instead (a pipeline of peers, no oracle).
+
+Targets, per synthetic scene, for every lfsf run that returns the variable:
+
+* flow EPE(lfsf) ≤ ½ · min(EPE OpenCV, EPE scikit-image);
+* MSE(δ1 lfsf) ≤ ½ · MSE(δ1 plenpy);  MSE(δ2 lfsf) ≤ ½ · MSE(δ2 plenpy @ p + u_gt).
+
+Errors by ``lfsf.evaluate`` over ``gt["valid"]`` without an 8-px border (synthetic), and on
+HCI antinous without a 15-px border (MSE×100, BadPix(0.07)); on the Lytro scene, the median
+absolute difference to EPINET's estimate (views cropped by 11 px per side).
+
+Usage (from the repository root)::
+
+    python scripts/compare_peers.py                        # 4 scenes, 160×120, 9×9
+    python scripts/compare_peers.py --size 320 240 --json peers.json
+    python scripts/compare_peers.py --real                 # + HCI antinous and Lytro
+    python scripts/compare_peers.py --real --no-synth --methods peers
+    python scripts/compare_peers.py --methods all --check  # exit 1 if a target fails
+
+``--methods``: ``peers`` (peers only), ``lfsf`` (lfsf only; no bars), ``all`` (default:
+peers, and lfsf when ``lfsf.estimate_scene_flow`` exists, else a note). Exit status 1 if a
+method raised (its row says why), or with ``--check`` if a target fails or cannot be
+checked; 2 for bad arguments.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+import traceback
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+DEFAULT_DATA = ROOT.parent / "shared" / "data"
+
+sys.path.insert(0, str(HERE))
+import peers  # noqa: E402  (scripts/peers.py)
+
+SYNTH_BORDER = 8
+HCI_BORDER = 15
+LYTRO_CROP = 11  # EPINET's estimate = the views without 11 px on every side
+
+
+# =====================================================================================
+# HOOK (lead): the lfsf runs compared with the peers. Wire the exact calls here; nothing
+# else in this file needs to change. Each run takes (lf1, lf2, device) and returns a dict
+# with any of "disp1", "disp2", "u", "v" (float32 H×W, MODEL.md §1). Targets are checked
+# for every run and every variable it returns.
+# =====================================================================================
+
+def _lfsf():
+    import lfsf
+
+    return lfsf
+
+
+def lfsf_joint(lf1, lf2, device):
+    """The method itself: joint δ1, δ2, u, v from both light fields."""
+    r = _lfsf().estimate_scene_flow(lf1, lf2, params=None, device=device)
+    return {"disp1": r.disp1, "disp2": r.disp2, "u": r.u, "v": r.v}
+
+
+def lfsf_stereo(lf1, lf2, device):
+    """Stereo only: the t1 light field twice (no motion); its δ1 is a pure light-field
+    disparity, comparable with plenpy's."""
+    r = _lfsf().estimate_scene_flow(lf1, lf1, params=None, device=device)
+    return {"disp1": r.disp1}
+
+
+def lfsf_flow(lf1, lf2, device):
+    """Flow only: a single sample (the centre view), i.e. two-frame flow, comparable
+    with the TV-L1 peers. TODO(lead): confirm the preset / field name."""
+    lfsf = _lfsf()
+    params = lfsf.Params.preset("paper").replace(M=1)
+    r = lfsf.estimate_scene_flow(lf1, lf2, params=params, device=device)
+    return {"u": r.u, "v": r.v}
+
+
+LFSF_RUNS = {"lfsf": lfsf_joint, "lfsf-stereo": lfsf_stereo, "lfsf-flow": lfsf_flow}
+#: Runs on the real data (one light field, disparity only).
+LFSF_REAL_RUNS = {"lfsf-stereo": lfsf_stereo}
+
+# =====================================================================================
+
+
+def lfsf_available() -> tuple[bool, str]:
+    """Whether ``lfsf.estimate_scene_flow`` exists (and why not)."""
+    try:
+        lfsf = _lfsf()
+        getattr(lfsf, "estimate_scene_flow")
+        return True, ""
+    except AttributeError:
+        return False, "lfsf.estimate_scene_flow does not exist yet"
+    except Exception as exc:  # an import error inside the estimator
+        return False, f"lfsf.estimate_scene_flow cannot be imported: {type(exc).__name__}: {exc}"
+
+
+# ------------------------------------------------------------------------------ helpers
+
+def _f(x) -> float | None:
+    return None if x is None or (isinstance(x, float) and math.isnan(x)) else float(x)
+
+
+def _fmt(x, digits=4) -> str:
+    if x is None:
+        return "–"
+    if not math.isfinite(x):
+        return str(x)
+    return f"{x:.{digits}g}"
+
+
+def _row(section, scene, method, *, disp1=None, disp2=None, flow=None, seconds=None,
+         error=None, **detail):
+    return {"section": section, "scene": scene, "method": method,
+            "disp1_mse": _f(disp1["mse"]) if disp1 else None,
+            "disp2_mse": _f(disp2["mse"]) if disp2 else None,
+            "flow_epe": _f(flow["epe"]) if flow else None,
+            "seconds": seconds, "error": error,
+            "detail": {k: v for k, v in dict(disp1=disp1, disp2=disp2, flow=flow, **detail).items()
+                       if v is not None}}
+
+
+def _error_text(exc: BaseException) -> str:
+    return f"{type(exc).__name__}: {exc}".splitlines()[0][:200]
+
+
+def _nonfinite(*arrays) -> int:
+    return int(sum(np.count_nonzero(~np.isfinite(a)) for a in arrays))
+
+
+# ------------------------------------------------------------------------------ synthetic
+
+def run_scene(name, args, use_peers, lfsf_runs, warm):
+    """Rows of one synthetic scene."""
+    from lfsf import evaluate, synth
+
+    lf1, lf2, gt = synth.render_scene(name, size=tuple(args.size), grid=args.grid,
+                                      device=args.device)
+    valid = gt["valid"]
+    occl = gt["occluded"]
+    nonocc = valid & ~occl
+    b = SYNTH_BORDER
+
+    def d_err(est, key, mask=valid):
+        return evaluate.disparity_errors(est, gt[key], mask, b)
+
+    def f_err(u, v, mask=valid):
+        return evaluate.flow_errors(u, v, gt["u"], gt["v"], mask, b)
+
+    rows = []
+    if use_peers:
+        c1, c2 = lf1.centre, lf2.centre
+        flows = {}
+        for method, fn in (("opencv-tvl1", peers.opencv_tvl1), ("skimage-tvl1", peers.skimage_tvl1)):
+            try:
+                (u, v), s = peers.timed(fn, c1, c2)
+                flows[method] = (u, v)
+                rows.append(_row("synthetic", name, method, flow=f_err(u, v), seconds=s,
+                                 flow_nonoccluded=f_err(u, v, nonocc), nonfinite=_nonfinite(u, v)))
+            except Exception as exc:
+                rows.append(_row("synthetic", name, method, error=_error_text(exc)))
+        try:
+            d1, s1 = peers.timed(peers.plenpy_disparity, lf1.views)
+            d2map, s2 = peers.timed(peers.plenpy_disparity, lf2.views)
+            d2 = peers.disparity_at_t1_pixels(d2map, gt["u"], gt["v"])
+            rows.append(_row("synthetic", name, "plenpy", disp1=d_err(d1, "disp1"),
+                             disp2=d_err(d2, "disp2"), seconds=s1 + s2,
+                             seconds_t1=s1, seconds_t2=s2,
+                             disp2_rule="plenpy(t2 views) sampled at p + u_gt (bilinear)",
+                             disp1_nonoccluded=d_err(d1, "disp1", nonocc),
+                             disp2_nonoccluded=d_err(d2, "disp2", nonocc),
+                             nonfinite=_nonfinite(d1, d2map)))
+            if "opencv-tvl1" in flows:
+                u, v = flows["opencv-tvl1"]
+                d2p = peers.disparity_at_t1_pixels(d2map, u, v)
+                cv_s = next(r["seconds"] for r in rows if r["method"] == "opencv-tvl1")
+                rows.append(_row("synthetic", name, "plenpy δ2 @ p+u_opencv", disp2=d_err(d2p, "disp2"),
+                                 seconds=s2 + cv_s, informational=True,
+                                 disp2_rule="plenpy(t2 views) sampled at p + u_opencv (bilinear)"))
+        except Exception as exc:
+            rows.append(_row("synthetic", name, "plenpy", error=_error_text(exc)))
+
+    for method, fn in lfsf_runs.items():
+        try:
+            if method not in warm:  # compile kernels etc. outside the timing
+                w1, w2, _ = synth.render_scene(name, size=(48, 32), grid=args.grid, device=args.device)
+                fn(w1, w2, args.device)
+                warm.add(method)
+            out, s = peers.timed(fn, lf1, lf2, args.device)
+            out = {k: np.asarray(v, dtype=np.float32) for k, v in out.items()}
+            rows.append(_row(
+                "synthetic", name, method, seconds=s,
+                disp1=d_err(out["disp1"], "disp1") if "disp1" in out else None,
+                disp2=d_err(out["disp2"], "disp2") if "disp2" in out else None,
+                flow=f_err(out["u"], out["v"]) if "u" in out and "v" in out else None,
+                nonfinite=_nonfinite(*out.values())))
+        except Exception as exc:
+            if args.verbose:
+                traceback.print_exc()
+            rows.append(_row("synthetic", name, method, error=_error_text(exc)))
+    return rows
+
+
+def bars_and_targets(rows):
+    """Per scene: the bars (½ of the best peer) and each lfsf run's pass/fail."""
+    bars, targets = [], []
+    for scene in dict.fromkeys(r["scene"] for r in rows if r["section"] == "synthetic"):
+        by = {r["method"]: r for r in rows if r["scene"] == scene and not r["error"]}
+        epes = [by[m]["flow_epe"] for m in ("opencv-tvl1", "skimage-tvl1")
+                if m in by and by[m]["flow_epe"] is not None]
+        best_flow = min(epes) if epes else None
+        pl = by.get("plenpy", {})
+        scene_bars = {
+            "flow_epe": (0.5 * best_flow if best_flow is not None else None,
+                         "½ · min(EPE opencv-tvl1, EPE skimage-tvl1)"),
+            "disp1_mse": (0.5 * pl["disp1_mse"] if pl.get("disp1_mse") is not None else None,
+                          "½ · MSE plenpy δ1"),
+            "disp2_mse": (0.5 * pl["disp2_mse"] if pl.get("disp2_mse") is not None else None,
+                          "½ · MSE plenpy δ2 (t2 map @ p + u_gt)"),
+        }
+        for key, (bar, rule) in scene_bars.items():
+            bars.append({"scene": scene, "metric": key, "bar": bar, "rule": rule})
+        for r in rows:
+            if r["scene"] != scene or not r["method"].startswith("lfsf"):
+                continue
+            for key, (bar, rule) in scene_bars.items():
+                value = r[key]
+                if r["error"]:
+                    status = "error"
+                elif value is None:
+                    continue  # this run does not return that variable
+                elif bar is None:
+                    status = "no bar"
+                else:
+                    status = "pass" if value <= bar else "FAIL"
+                targets.append({"scene": scene, "method": r["method"], "metric": key,
+                                "value": value, "bar": bar, "rule": rule, "status": status})
+    return bars, targets
+
+
+# ------------------------------------------------------------------------------ real data
+
+def run_real(args, use_peers, lfsf_runs):
+    import lfsf
+    from lfsf import evaluate, io
+
+    rows = []
+    data = Path(args.data)
+    hci = data / "hci-antinous"
+    if (hci / "gt_disp_lowres.pfm").exists():
+        lf = lfsf.read_lightfield(hci)
+        gt = io.read_pfm(hci / "gt_disp_lowres.pfm")
+        methods = ({"plenpy": lambda: peers.plenpy_disparity(lf.views)} if use_peers else {})
+        methods.update({m: (lambda fn=fn: fn(lf, lf, args.device)["disp1"]) for m, fn in lfsf_runs.items()})
+        for method, fn in methods.items():
+            try:
+                d, s = peers.timed(fn)
+                d = np.asarray(d, dtype=np.float32)
+                e = evaluate.disparity_errors(d, gt, None, HCI_BORDER)
+                # sign check against the truth: slope of est vs gt (least squares, inner)
+                inner = (slice(HCI_BORDER, -HCI_BORDER),) * 2
+                g, x = gt[inner].ravel().astype(np.float64), d[inner].ravel().astype(np.float64)
+                ok = np.isfinite(g) & np.isfinite(x)
+                slope = float(np.polyfit(g[ok], x[ok], 1)[0])
+                rows.append({"section": "real", "scene": "hci-antinous", "method": method,
+                             "mse_x100": e["mse_x100"], "badpix_0.07": e["badpix_0.07"],
+                             "median_abs_diff_epinet": None, "seconds": s, "error": None,
+                             "detail": {"errors": e, "slope_est_vs_gt": slope,
+                                        "clipped_at_3": int(np.count_nonzero(np.abs(d) >= 3.0)),
+                                        "nonfinite": _nonfinite(d), "size": list(d.shape[::-1])}})
+            except Exception as exc:
+                if args.verbose:
+                    traceback.print_exc()
+                rows.append({"section": "real", "scene": "hci-antinous", "method": method,
+                             "error": _error_text(exc)})
+    else:
+        print(f"note: {hci} not present; HCI antinous skipped", file=sys.stderr)
+
+    lytro = data / "lytro-illum-2067"
+    if (lytro / "epinet_disparity_estimate.pfm").exists():
+        lf = lfsf.read_lightfield(lytro)
+        ref = io.read_pfm(lytro / "epinet_disparity_estimate.pfm")
+        c = LYTRO_CROP
+        methods = ({"plenpy": lambda: peers.plenpy_disparity(lf.views)} if use_peers else {})
+        methods.update({m: (lambda fn=fn: fn(lf, lf, args.device)["disp1"]) for m, fn in lfsf_runs.items()})
+        for method, fn in methods.items():
+            try:
+                d, s = peers.timed(fn)
+                d = np.asarray(d, dtype=np.float32)[c:-c, c:-c]
+                if d.shape != ref.shape:
+                    raise ValueError(f"cropped estimate {d.shape} vs EPINET {ref.shape}")
+                diff = np.abs(d.astype(np.float64) - ref)
+                diff = diff[np.isfinite(diff)]
+                rows.append({"section": "real", "scene": "lytro-illum-2067", "method": method,
+                             "mse_x100": None, "badpix_0.07": None,
+                             "median_abs_diff_epinet": float(np.median(diff)), "seconds": s,
+                             "error": None,
+                             "detail": {"mean_abs_diff_epinet": float(np.mean(diff)),
+                                        "share_within_0.07": float(np.mean(diff <= 0.07)),
+                                        "est_range_p1_p99": [float(np.percentile(d, 1)),
+                                                             float(np.percentile(d, 99))],
+                                        "epinet_range_p1_p99": [float(np.percentile(ref, 1)),
+                                                                float(np.percentile(ref, 99))],
+                                        "nonfinite": _nonfinite(d), "size": list(lf.centre.shape[1::-1])}})
+            except Exception as exc:
+                if args.verbose:
+                    traceback.print_exc()
+                rows.append({"section": "real", "scene": "lytro-illum-2067", "method": method,
+                             "error": _error_text(exc)})
+    else:
+        print(f"note: {lytro} not present; Lytro scene skipped", file=sys.stderr)
+    return rows
+
+
+# ------------------------------------------------------------------------------ output
+
+def synth_table(rows) -> str:
+    out = ["| scene | method | disp1 MSE | disp2 MSE | flow EPE | seconds |",
+           "|---|---|---:|---:|---:|---:|"]
+    for r in rows:
+        if r["section"] != "synthetic":
+            continue
+        if r["error"]:
+            out.append(f"| {r['scene']} | {r['method']} | error: {r['error']} | | | |")
+            continue
+        out.append(f"| {r['scene']} | {r['method']} | {_fmt(r['disp1_mse'])} | {_fmt(r['disp2_mse'])} "
+                   f"| {_fmt(r['flow_epe'])} | {_fmt(r['seconds'], 3)} |")
+    return "\n".join(out)
+
+
+def bars_table(bars) -> str:
+    scenes = list(dict.fromkeys(b["scene"] for b in bars))
+    get = {(b["scene"], b["metric"]): b["bar"] for b in bars}
+    out = ["| scene | disp1 MSE ≤ | disp2 MSE ≤ | flow EPE ≤ |", "|---|---:|---:|---:|"]
+    for s in scenes:
+        out.append(f"| {s} | {_fmt(get[(s, 'disp1_mse')])} | {_fmt(get[(s, 'disp2_mse')])} "
+                   f"| {_fmt(get[(s, 'flow_epe')])} |")
+    return "\n".join(out)
+
+
+def targets_table(targets) -> str:
+    out = ["| scene | method | metric | lfsf | bar | status |", "|---|---|---|---:|---:|---|"]
+    for t in targets:
+        out.append(f"| {t['scene']} | {t['method']} | {t['metric']} | {_fmt(t['value'])} "
+                   f"| {_fmt(t['bar'])} | {t['status']} |")
+    return "\n".join(out)
+
+
+def real_table(rows) -> str:
+    out = ["| scene | method | MSE×100 | BadPix(0.07) % | median abs diff to EPINET | seconds |",
+           "|---|---|---:|---:|---:|---:|"]
+    for r in rows:
+        if r["section"] != "real":
+            continue
+        if r.get("error"):
+            out.append(f"| {r['scene']} | {r['method']} | error: {r['error']} | | | |")
+            continue
+        out.append(f"| {r['scene']} | {r['method']} | {_fmt(r['mse_x100'])} | {_fmt(r['badpix_0.07'])} "
+                   f"| {_fmt(r['median_abs_diff_epinet'])} | {_fmt(r['seconds'], 3)} |")
+    return "\n".join(out)
+
+
+# ------------------------------------------------------------------------------ main
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--size", nargs=2, type=int, default=[160, 120], metavar=("W", "H"),
+                   help="size of the synthetic views (default 160 120)")
+    p.add_argument("--grid", type=int, default=9, help="views per side (default 9)")
+    p.add_argument("--scenes", nargs="+", default=None, help="synthetic scenes (default: all)")
+    p.add_argument("--methods", choices=("all", "peers", "lfsf"), default="all",
+                   help="peers, lfsf, or both (default; lfsf only when it exists)")
+    p.add_argument("--real", action="store_true",
+                   help="also HCI antinous (MSE×100, BadPix) and the Lytro scene (vs EPINET)")
+    p.add_argument("--no-synth", action="store_true", help="skip the synthetic scenes")
+    p.add_argument("--data", default=str(DEFAULT_DATA), help="real data folder (default ../shared/data)")
+    p.add_argument("--device", default=None, help="Warp device for rendering and lfsf (default: lfsf's)")
+    p.add_argument("--json", metavar="FILE", help="write the rows, bars and targets to FILE")
+    p.add_argument("--check", action="store_true",
+                   help="exit 1 unless every lfsf target is checked and passes")
+    p.add_argument("--verbose", action="store_true", help="print tracebacks of failing methods")
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    if min(args.size) < 32:
+        print("error: --size must be at least 32 32", file=sys.stderr)
+        return 2
+    from lfsf import synth
+
+    scenes = args.scenes or list(synth.list_scenes())
+    unknown = [s for s in scenes if s not in synth.list_scenes()]
+    if unknown:
+        print(f"error: unknown scene(s) {unknown}; known: {list(synth.list_scenes())}", file=sys.stderr)
+        return 2
+
+    use_peers = args.methods in ("all", "peers")
+    notes = []
+    lfsf_runs = {}
+    if args.methods in ("all", "lfsf"):
+        ok, why = lfsf_available()
+        if ok:
+            lfsf_runs = dict(LFSF_RUNS)
+        else:
+            notes.append(f"lfsf not run: {why}")
+            if args.methods == "lfsf":
+                print(f"error: {why}", file=sys.stderr)
+                return 2
+    if use_peers:  # import the peers once, outside the timings
+        import cv2  # noqa: F401
+        import skimage.registration  # noqa: F401
+
+        peers.import_plenpy_lightfield()
+
+    rows = []
+    if not args.no_synth:
+        warm: set = set()
+        for name in scenes:
+            t0 = time.perf_counter()
+            rows += run_scene(name, args, use_peers, lfsf_runs, warm)
+            print(f"[{name}: {time.perf_counter() - t0:.1f} s]", file=sys.stderr, flush=True)
+    if args.real:
+        real_runs = {m: fn for m, fn in LFSF_REAL_RUNS.items() if m in lfsf_runs}
+        rows += run_real(args, use_peers, real_runs)
+
+    bars, targets = bars_and_targets(rows)
+    w, h = args.size
+    if not args.no_synth:
+        print(f"## Synthetic scenes, {w}×{h}, {args.grid}×{args.grid} views "
+              f"(valid pixels, {SYNTH_BORDER}-px border)\n")
+        print(synth_table(rows))
+        if use_peers:
+            print("\n### Bars lfsf must meet (½ of the best peer)\n")
+            print(bars_table(bars))
+        if targets:
+            print("\n### Targets\n")
+            print(targets_table(targets))
+    if args.real:
+        print(f"\n## Real data (HCI: {HCI_BORDER}-px border; Lytro: views cropped by {LYTRO_CROP} px "
+              "to EPINET's frame)\n")
+        print(real_table(rows))
+    for n in notes:
+        print(f"\nnote: {n}")
+    print("\nversions: " + ", ".join(f"{k} {v}" for k, v in peers.versions().items()))
+
+    if args.json:
+        doc = {"args": {k: v for k, v in vars(args).items()}, "versions": peers.versions(),
+               "opencv_tvl1_parameters": peers.opencv_tvl1_parameters() if use_peers else None,
+               "notes": notes, "rows": rows, "bars": bars, "targets": targets}
+        Path(args.json).write_text(json.dumps(doc, indent=1, default=float))
+        print(f"wrote {args.json}", file=sys.stderr)
+
+    failed = [r for r in rows if r.get("error")]
+    if failed:
+        return 1
+    if args.check:
+        if not targets or any(t["status"] != "pass" for t in targets):
+            return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

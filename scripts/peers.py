@@ -1,0 +1,338 @@
+"""Peer methods, wrapped so that their outputs are in lfsf's conventions (MODEL.md §1).
+
+Used by ``scripts/compare_peers.py`` (the acceptance comparison) and checked by
+``tests/test_peers.py``. Needs the ``peers`` extra (``pip install -e '.[peers]'``):
+OpenCV contrib, scikit-image and plenpy. Each peer is imported only when its wrapper is
+first called, so this module imports without them.
+
+Conventions (MODEL.md §1), which every wrapper returns:
+
+* flow ``(u, v)``, float32 H×W: the point seen at pixel ``p`` of the first image is seen
+  at ``p + (u, v)`` in the second image (x to the right, y down), i.e.
+  ``c1(p) ≈ c2(p + u)``;
+* disparity ``δ``, float32 H×W, pixels per view step: the point seen at centre pixel
+  ``p`` appears in the view at angular offset ``φ = (ξ, η) = (col − c, row − c)`` at
+  ``p − δ·φ``.
+
+How each peer's own convention was established is written in its wrapper's docstring;
+``python scripts/peers.py`` re-runs those checks and prints the numbers.
+
+Timing: :func:`timed` returns ``(result, seconds)`` of any call (wall clock,
+``time.perf_counter``); the comparison script times every peer call with it.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+import warnings
+
+import numpy as np
+
+#: ITU-R BT.601 luma weights, as ``lfsf.io.LightField.grey`` uses.
+_LUMA = np.asarray((0.299, 0.587, 0.114), dtype=np.float32)
+
+
+def timed(fn, *args, **kwargs):
+    """Call ``fn(*args, **kwargs)``; return ``(result, wall-clock seconds)``."""
+    t0 = time.perf_counter()
+    out = fn(*args, **kwargs)
+    return out, time.perf_counter() - t0
+
+
+def _grey_image(img, name: str) -> np.ndarray:
+    """H×W float32 grey image; an H×W×3 colour image is turned into BT.601 luma."""
+    a = np.asarray(img, dtype=np.float32)
+    if a.ndim == 3 and a.shape[2] == 3:
+        a = a @ _LUMA
+    if a.ndim != 2:
+        raise ValueError(f"{name}: expected an H×W grey (or H×W×3) image, got shape {a.shape}")
+    return a
+
+
+def _grey_views(views) -> np.ndarray:
+    """[a, b, y, x] float32 grey views; [a, b, y, x, 3] colour views become BT.601 luma."""
+    v = np.asarray(getattr(views, "views", views), dtype=np.float32)
+    if v.ndim == 5 and v.shape[4] == 3:
+        v = v @ _LUMA
+    if v.ndim == 5 and v.shape[4] == 1:
+        v = v[..., 0]
+    if v.ndim != 4:
+        raise ValueError(f"expected views [a, b, y, x] (grey) or [a, b, y, x, 3], got shape {v.shape}")
+    return v
+
+
+def _check_pair(c1, c2):
+    c1 = _grey_image(c1, "c1")
+    c2 = _grey_image(c2, "c2")
+    if c1.shape != c2.shape:
+        raise ValueError(f"the two images differ in shape: {c1.shape} and {c2.shape}")
+    return c1, c2
+
+
+# --------------------------------------------------------------------------- optical flow
+
+#: The defaults of cv2.optflow.DualTVL1OpticalFlow_create(), recorded by the comparison.
+OPENCV_TVL1_DEFAULTS = ("tau", "lambda", "theta", "nscales", "warps", "epsilon",
+                        "innerIterations", "outerIterations", "scaleStep", "gamma",
+                        "medianFiltering", "useInitialFlow")
+
+
+def opencv_tvl1_parameters() -> dict:
+    """The parameters of a default ``cv2.optflow.DualTVL1OpticalFlow_create()``."""
+    import cv2
+
+    tv = cv2.optflow.DualTVL1OpticalFlow_create()
+    out = {}
+    for name in OPENCV_TVL1_DEFAULTS:
+        getter = getattr(tv, "get" + name[0].upper() + name[1:], None)
+        if getter is not None:
+            value = getter()
+            out[name] = value if isinstance(value, (bool, int, float)) else float(value)
+    return out
+
+
+def opencv_tvl1(c1, c2) -> tuple[np.ndarray, np.ndarray]:
+    """Optical flow by OpenCV's Dual TV-L1 (Zach, Pock & Bischof 2007; Wedel et al. 2009),
+    ``cv2.optflow.DualTVL1OpticalFlow_create()`` with its defaults.
+
+    Input: two H×W grey images in [0, 1] (H×W×3 colour is turned into BT.601 luma). They
+    are quantised to 8 bits, ``(img*255).round().astype(np.uint8)`` (clipped to [0, 1]
+    first), as the comparison prescribes.
+
+    Output: ``(u, v)``, float32 H×W, in lfsf's convention ``c1(p) ≈ c2(p + (u, v))``.
+    OpenCV returns an H×W×2 array ``flow[..., 0] = u`` (x), ``flow[..., 1] = v`` (y) that
+    is already in this convention: no sign change, no swap.
+
+    Check: ``c2(q) = c1(q − (1.3, −0.7))`` (a textured image shifted by u = +1.3,
+    v = −0.7, cubic interpolation) gives a mean flow of (+1.27, −0.73) inside a 10-px
+    border (``python scripts/peers.py``; ``tests/test_peers.py`` repeats it).
+
+    OpenCV runs this on all cores (its own thread pool).
+    """
+    import cv2
+
+    c1, c2 = _check_pair(c1, c2)
+    q1 = (np.clip(c1, 0.0, 1.0) * 255).round().astype(np.uint8)
+    q2 = (np.clip(c2, 0.0, 1.0) * 255).round().astype(np.uint8)
+    tv = cv2.optflow.DualTVL1OpticalFlow_create()
+    flow = tv.calc(q1, q2, None)
+    return (np.ascontiguousarray(flow[..., 0], dtype=np.float32),
+            np.ascontiguousarray(flow[..., 1], dtype=np.float32))
+
+
+def skimage_tvl1(c1, c2) -> tuple[np.ndarray, np.ndarray]:
+    """Optical flow by scikit-image's TV-L1,
+    ``skimage.registration.optical_flow_tvl1(c1, c2)`` with its defaults.
+
+    Input: two H×W grey float images in [0, 1] (H×W×3 colour is turned into BT.601 luma),
+    passed as float32 without quantisation.
+
+    Output: ``(u, v)``, float32 H×W, in lfsf's convention ``c1(p) ≈ c2(p + (u, v))``.
+    scikit-image returns a (2, H, W) array ordered **(row, col) = (v, u)**; its sign is
+    already lfsf's: the flow is such that ``moving_image`` (c2) warped by it — sampled at
+    ``p + flow`` — matches ``reference_image`` (c1). So the wrapper only swaps the order.
+
+    Check: ``c2(q) = c1(q − (1.3, −0.7))`` gives ``flow[0]`` ≈ −0.70 (v) and ``flow[1]``
+    ≈ +1.31 (u) in the mean inside a 10-px border (``python scripts/peers.py``;
+    ``tests/test_peers.py`` repeats it).
+
+    Single-threaded NumPy/SciPy.
+    """
+    from skimage.registration import optical_flow_tvl1
+
+    c1, c2 = _check_pair(c1, c2)
+    flow = optical_flow_tvl1(c1, c2)
+    return (np.ascontiguousarray(flow[1], dtype=np.float32),
+            np.ascontiguousarray(flow[0], dtype=np.float32))
+
+
+# --------------------------------------------------------------------------- disparity
+
+def import_plenpy_lightfield():
+    """``plenpy.lightfields.LightField``, imported quietly.
+
+    plenpy 0.9.2 (the latest release) imports and runs with Python 3.11, NumPy 2.4,
+    SciPy 1.17 and imageio 2.38, but it uses deprecated names: ``numpy.core.multiarray``
+    (a NumPy 2 alias that warns), ``scipy.ndimage.filters`` (SciPy says it goes in SciPy
+    2.0), ``imageio.formats.sort`` (goes in imageio v3), and ``np.int`` in
+    ``_get_disparity_brute_force_4d`` only (NumPy ≥ 1.24 removed it; not used here). The
+    import silences those DeprecationWarnings, and if ``scipy.ndimage.filters`` is ever
+    gone it aliases it to ``scipy.ndimage`` (the only names plenpy takes from it,
+    ``gaussian_filter`` and ``convolve``, live there). plenpy also logs every step at
+    INFO on the root logger's handler; its logger is set to WARNING here.
+    """
+    try:
+        import scipy.ndimage.filters  # noqa: F401
+    except ImportError:  # SciPy >= 2.0: give plenpy back the old module name
+        import scipy.ndimage
+
+        sys.modules["scipy.ndimage.filters"] = scipy.ndimage
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        import plenpy.logg  # sets the "plenpy" logger to INFO; quieten it before the rest
+
+        logging.getLogger("plenpy").setLevel(logging.WARNING)
+        from plenpy.lightfields import LightField
+    return LightField
+
+
+def plenpy_disparity(views) -> np.ndarray:
+    """Disparity of the centre view by plenpy's structure-tensor EPI method fused by TV-L1:
+    ``plenpy.lightfields.LightField(views[..., None]).get_disparity(
+    method="structure_tensor", fusion_method="tv_l1")``, defaults otherwise.
+
+    Input: ``views[a, b, y, x]`` grey float in [0, 1] (a = view row, b = view column, as
+    MODEL.md §1), or colour ``[a, b, y, x, 3]`` (turned into BT.601 luma first), or an
+    ``lfsf.io.LightField``. plenpy's axes ``(u, v, s, t, ch)`` are then exactly ours
+    ``(a, b, y, x, 1)``: its horizontal EPIs are ``L[u_c, :, s, :]`` (view column × x),
+    its vertical ones ``L[:, v_c, :, t]`` (view row × y).
+
+    Output: float32 H×W in lfsf's convention (px per view step, MODEL.md §1 sign).
+    **Conversion rule: identity.** plenpy's output is already in our sign and unit:
+
+    * source (``plenpy/lightfields.py``, ``_estimate_orientation_structure_tensor`` and
+      ``_get_disparity_structure_tensor``): the slope of the EPI lines is measured in
+      EPI index units, i.e. pixels per view index, along the centre row and centre
+      column of views, and returned negated; nothing scales it by the grid size or by an
+      angular spacing, so the unit is px per view step;
+    * synthetic check (``python scripts/peers.py``): a 9×9 light field made by sampling
+      one textured image at ``p + δ·φ`` (so the point of centre pixel p is at p − δφ),
+      for δ = ±0.1 … ±2.5, gives medians of 0.92δ … 0.97δ, same sign, both EPI
+      directions agreeing; the HCI antinous scene (whose ground truth is in our
+      convention) gives a positive slope against its truth in ``compare_peers.py --real``.
+
+    The 3–8 % shortfall on a 9×9 grid (29 % on 5×5) is plenpy's own bias, not a unit: its
+    EPIs are Gaussian-smoothed (σ 0.75, then σ 2 for the structure tensor) across only
+    9 views with mirror boundaries, which flattens the lines; it depends on δ and on the
+    texture. It is left in (no per-scene or per-grid rescaling).
+
+    plenpy clips its output to [vmin, vmax] = [−3, 3] (its defaults, kept). It uses only
+    the centre row and column of views (2 × grid − 1 of them). Single-threaded; about
+    0.05 s at 80×64 and ~2–4 s at 512×512 (9×9) on this machine's CPU.
+    """
+    LightField = import_plenpy_lightfield()
+    v = _grey_views(views)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        warnings.simplefilter("ignore", RuntimeWarning)  # 0/0 in its structure tensor
+        disp, _conf = LightField(v[..., None]).get_disparity(method="structure_tensor",
+                                                             fusion_method="tv_l1")
+    return np.ascontiguousarray(disp, dtype=np.float32)
+
+
+def sample_bilinear(img, x, y) -> np.ndarray:
+    """``img`` sampled at real positions ``(x, y)`` (same shape arrays), bilinear,
+    clamped at the border. Used to bring a t2 disparity map to lfsf's δ2 convention:
+    ``δ2(p) = D2(p + u(p))``."""
+    from scipy.ndimage import map_coordinates
+
+    img = np.asarray(img, dtype=np.float64)
+    out = map_coordinates(img, [np.asarray(y, np.float64), np.asarray(x, np.float64)],
+                          order=1, mode="nearest")
+    return out.astype(np.float32)
+
+
+def disparity_at_t1_pixels(disp_t2_map, u, v) -> np.ndarray:
+    """lfsf's δ2 from a disparity map of the t2 centre view: ``δ2(p) = D2(p + (u, v))``,
+    bilinear, clamped. ``(u, v)`` is a flow in lfsf's convention (ground truth for the
+    oracle comparison, or a peer's flow)."""
+    h, w = np.shape(disp_t2_map)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    return sample_bilinear(disp_t2_map, xx + np.asarray(u), yy + np.asarray(v))
+
+
+# --------------------------------------------------------------------------- versions
+
+def versions() -> dict:
+    """Versions of the peers (and of NumPy/SciPy) that are importable."""
+    from importlib import metadata
+
+    out = {"python": sys.version.split()[0]}
+    for dist in ("numpy", "scipy", "opencv-contrib-python-headless", "scikit-image", "plenpy"):
+        try:
+            out[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            out[dist] = None
+    return out
+
+
+# --------------------------------------------------------------------------- synthetic checks
+
+def texture(height: int, width: int, *, seed: int = 0, sigma: float = 1.5, pad: int = 32):
+    """A smooth random texture in [0, 1] of ``(height + 2 pad) × (width + 2 pad)``."""
+    from scipy.ndimage import gaussian_filter
+
+    rng = np.random.default_rng(seed)
+    t = gaussian_filter(rng.random((height + 2 * pad, width + 2 * pad)), sigma)
+    return (t - t.min()) / (t.max() - t.min())
+
+
+def _sample(tex, x, y, pad):
+    from scipy.ndimage import map_coordinates
+
+    return map_coordinates(tex, [y + pad, x + pad], order=3, mode="reflect")
+
+
+def shifted_pair(u: float, v: float, size=(64, 48), *, seed: int = 0, pad: int = 32):
+    """Two float32 images ``c1, c2`` (H×W, size = (W, H)) with ``c2(q) = c1(q − (u, v))``:
+    every point moves by ``(u, v)``, i.e. lfsf flow ``(u, v)`` everywhere."""
+    w, h = size
+    tex = texture(h, w, seed=seed, pad=pad)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    c1 = _sample(tex, xx, yy, pad)
+    c2 = _sample(tex, xx - u, yy - v, pad)
+    return (np.clip(c1, 0, 1).astype(np.float32), np.clip(c2, 0, 1).astype(np.float32))
+
+
+def constant_disparity_views(delta: float, grid: int = 9, size=(64, 48), *, seed: int = 0,
+                             pad: int = 32, sigma: float = 1.5):
+    """Grey views [a, b, y, x] (float32) of a fronto-parallel textured plane with constant
+    disparity ``delta`` in lfsf's convention: ``view(φ)(q) = T(q + δφ)``, so the point of
+    centre pixel p (``T(p)``) is seen in view φ at ``p − δφ``."""
+    w, h = size
+    tex = texture(h, w, seed=seed, pad=pad, sigma=sigma)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    c = (grid - 1) / 2
+    views = np.empty((grid, grid, h, w), np.float32)
+    for a in range(grid):
+        for b in range(grid):
+            views[a, b] = _sample(tex, xx + delta * (b - c), yy + delta * (a - c), pad)
+    return np.clip(views, 0, 1)
+
+
+def _selfcheck() -> None:
+    """Print the convention checks quoted in the docstrings."""
+    import_plenpy_lightfield()  # import once, outside the timings
+    inner = (slice(10, -10), slice(10, -10))
+    print("versions:", versions())
+    c1, c2 = shifted_pair(1.3, -0.7, size=(80, 64))
+    for name, fn in (("opencv_tvl1", opencv_tvl1), ("skimage_tvl1", skimage_tvl1)):
+        (u, v), s = timed(fn, c1, c2)
+        print(f"{name}: true (u, v) = (+1.30, -0.70); mean in 10-px border "
+              f"({u[inner].mean():+.3f}, {v[inner].mean():+.3f}); {s:.3f} s")
+    from skimage.registration import optical_flow_tvl1
+
+    raw = optical_flow_tvl1(c1, c2)
+    print(f"  raw skimage output: flow[0] mean {raw[0][inner].mean():+.3f}, "
+          f"flow[1] mean {raw[1][inner].mean():+.3f}  (so flow = (v, u), lfsf sign)")
+    for grid in (9, 5):
+        for delta in (0.1, 0.5, 1.0, 2.0, -2.0, 2.5):
+            views = constant_disparity_views(delta, grid, size=(80, 64))
+            d, s = timed(plenpy_disparity, views)
+            med = float(np.median(d[inner]))
+            print(f"plenpy_disparity grid {grid}x{grid}: true δ {delta:+.2f}, median {med:+.4f} "
+                  f"(ratio {med / delta:.3f}), std {d[inner].std():.4f}; {s:.3f} s")
+    # Axes: with only the image axes transposed (y <-> x, not a <-> b), points move along
+    # x with the view row: not a light field, and plenpy must then see flat EPIs (≈ 0).
+    # That it finds δ for the proper layout and ≈ 0 for this one shows that its
+    # (u, v, s, t) is our (a, b, y, x).
+    views = constant_disparity_views(1.0, 9, size=(64, 64))
+    good = np.median(plenpy_disparity(views)[inner])
+    bad = np.median(plenpy_disparity(views.transpose(0, 1, 3, 2))[inner])
+    print(f"plenpy axes check (δ = 1): proper layout {good:+.4f}, image axes swapped {bad:+.4f}")
+
+
+if __name__ == "__main__":
+    _selfcheck()
