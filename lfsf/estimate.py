@@ -160,6 +160,101 @@ def _upsample_state(arrays: list[np.ndarray], size, scales, device: str) -> list
     return out
 
 
+def _sweep(samples, phis, radius_used: float, disparity_range: float, search_radius: int, device: str):
+    """Plane-sweep disparity of a (S, h, w) sample stack (the t1 or t2 light field in its
+    own frame): winner-take-all over windowed costs, candidates spaced so that the outer
+    samples move by half a pixel from one to the next."""
+    from lfsf.kernels import search
+
+    wp = _device.warp()
+    n, h, w = samples.shape
+    step = 0.5 / max(radius_used, 1e-6)
+    count = int(math.ceil(disparity_range / step))
+    cands = np.arange(-count, count + 1, dtype=np.float32) * np.float32(step)
+    candidates = wp.array(cands, dtype=float, device=device)
+    zero = wp.zeros((h, w), dtype=float, device=device)
+    no_offset = wp.zeros((h, w), dtype=wp.vec4, device=device)
+    cost = wp.empty((len(cands), h, w), dtype=float, device=device)
+    _device.launch_rows(search.disparity_cost, dim=(len(cands) * h, w),
+                        inputs=[samples, phis, candidates, zero, no_offset], outputs=[cost], device=device)
+    smooth = wp.empty_like(cost)
+    _device.launch_rows(search.box_sum, dim=(len(cands) * h, w), inputs=[cost, search_radius], outputs=[smooth],
+                        device=device)
+    best = wp.empty((h, w), dtype=float, device=device)
+    best_cost = wp.empty((h, w), dtype=float, device=device)
+    _device.launch_rows(search.select_disparity, dim=(h, w), inputs=[smooth, candidates], outputs=[best, best_cost],
+                        device=device)
+    return best.numpy()
+
+
+def _window_cost(samples, phis, disparity: np.ndarray, offset: np.ndarray, search_radius: int, device: str):
+    """Windowed matching cost of a per-pixel disparity field (at p + offset's flow)."""
+    from lfsf.kernels import search
+
+    wp = _device.warp()
+    n, h, w = samples.shape
+    zero = wp.zeros(1, dtype=float, device=device)
+    base = wp.array(np.ascontiguousarray(disparity, np.float32), dtype=float, device=device)
+    off = wp.array(np.ascontiguousarray(offset, np.float32), dtype=wp.vec4, device=device)
+    cost = wp.empty((1, h, w), dtype=float, device=device)
+    _device.launch_rows(search.disparity_cost, dim=(h, w), inputs=[samples, phis, zero, base, off], outputs=[cost],
+                        device=device)
+    smooth = wp.empty_like(cost)
+    _device.launch_rows(search.box_sum, dim=(h, w), inputs=[cost, search_radius], outputs=[smooth], device=device)
+    return smooth.numpy()[0]
+
+
+def _resize_map(image: np.ndarray, size, scale: float, device: str) -> np.ndarray:
+    """Resample a (h, w) map to ``size`` (Gaussian-prefiltered when shrinking, bilinear
+    when growing) and multiply it by ``scale``."""
+    from lfsf.kernels import pyramid
+
+    wp = _device.warp()
+    h, w = image.shape
+    if (h, w) == tuple(size):
+        return image * np.float32(scale)
+    src = wp.array(np.ascontiguousarray(image[None], np.float32), dtype=float, device=device)
+    if size[0] < h:
+        out = _downsample(src, size, device).numpy()[0]
+    else:
+        dst = wp.empty((1, size[0], size[1]), dtype=float, device=device)
+        _device.launch_rows(pyramid.upsample, dim=(size[0], size[1]), inputs=[src, 1.0], outputs=[dst], device=device)
+        out = dst.numpy()[0]
+    return out * np.float32(scale)
+
+
+def _sample_at_flow(image: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """image(p + (u, v)) by bilinear interpolation, clamped (NumPy; once per level)."""
+    h, w = image.shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    px = np.clip(xx + x[..., 2], 0, w - 1)
+    py = np.clip(yy + x[..., 3], 0, h - 1)
+    x0 = np.minimum(px.astype(np.int64), max(w - 2, 0))
+    y0 = np.minimum(py.astype(np.int64), max(h - 2, 0))
+    x1 = np.minimum(x0 + 1, w - 1)
+    y1 = np.minimum(y0 + 1, h - 1)
+    fx, fy = px - x0, py - y0
+    top = (1 - fx) * image[y0, x0] + fx * image[y0, x1]
+    bottom = (1 - fx) * image[y1, x0] + fx * image[y1, x1]
+    return ((1 - fy) * top + fy * bottom).astype(np.float32)
+
+
+def _fuse_disparities(x: np.ndarray, s1, s2, phis, found1: np.ndarray, found2: np.ndarray, params: Params,
+                      device: str) -> np.ndarray:
+    """Per pixel, keep δ1 (δ2) or take the searched one, whichever matches better."""
+    x = x.copy()
+    no_flow = np.zeros_like(x)
+    r = params.search_radius
+    cur1 = _window_cost(s1, phis, x[..., 0], no_flow, r, device)
+    new1 = _window_cost(s1, phis, found1, no_flow, r, device)
+    x[..., 0] = np.where(new1 < cur1, found1, x[..., 0])
+    cand2 = _sample_at_flow(found2, x)
+    cur2 = _window_cost(s2, phis, x[..., 1], x, r, device)
+    new2 = _window_cost(s2, phis, cand2, x, r, device)
+    x[..., 1] = np.where(new2 < cur2, cand2, x[..., 1])
+    return x
+
+
 def estimate_scene_flow(
     lf1,
     lf2,
@@ -258,6 +353,16 @@ def estimate_scene_flow(
         tex, cen = levels[-1]
         levels.append((_downsample(tex, size, dev), _downsample(cen, size, dev)))
     lap("pyramid")
+    search = params.disparity_search and n_samples > 1
+    if search:
+        # the sweep runs once, at half resolution where there is one
+        k = min(1, len(sizes) - 1)
+        tex = levels[k][0]
+        level_scale = sizes[k][1] / width
+        found = [_sweep(wp.clone(tex[t * n_samples:(t + 1) * n_samples]), wp_phis, radius,
+                        params.disparity_range * level_scale, params.search_radius, dev) / level_scale
+                 for t in (0, 1)]
+        lap("search")
     say(f"{width}×{height}, {rows}×{cols} views, {n_samples} samples (R = {radius:g}), "
         f"{len(sizes)} levels on {dev}")
 
@@ -270,6 +375,11 @@ def estimate_scene_flow(
         solver = LevelSolver(s1, s2, wp.clone(cen[0]), wp.clone(cen[1]), wp_phis, wp_weights, params, dev)
         if x is None:
             x = np.zeros((h, w, 4), np.float32)
+        if search:
+            scale = w / width
+            x = _fuse_disparities(x, s1, s2, wp_phis, _resize_map(found[0], (h, w), scale, dev),
+                                  _resize_map(found[1], (h, w), scale, dev), params, dev)
+            lap("search")
         solver.set_state(x, w0, w1)
         lap("setup")
         for k in range(params.warps):

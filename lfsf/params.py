@@ -37,14 +37,19 @@ class Params:
         iterations : primal–dual iterations per warp.
         median_radius : radius of the median filter on the flow after each warp (0: off).
         eps : ε added to the preconditioners' denominators.
+    Disparity search (an addition to the paper: see :mod:`lfsf.kernels.search`)
+        disparity_search : start each level's disparities from whichever is better, per
+            pixel, of the warped estimate and a plane sweep over the samples.
+        disparity_range : the sweep covers ±this many px per view step (full resolution).
+        search_radius : the sweep's matching costs are averaged over (2r+1)² windows.
     """
 
     circles: int = 3
     samples: tuple[int, ...] = (1, 8, 8)
     radius: float = 4.0
-    lambda1: float = 1.0
-    lambda2: float = 1.0
-    lambda3: float = 1.0
+    lambda1: float = 10.0
+    lambda2: float = 10.0
+    lambda3: float = 10.0
     texture_theta: float = 0.95
     rof_weight: float = 0.125
     rof_iterations: int = 60
@@ -59,6 +64,9 @@ class Params:
     iterations: int = 50
     median_radius: int = 2
     eps: float = 1e-6
+    disparity_search: bool = True
+    disparity_range: float = 4.0
+    search_radius: int = 2
 
     def __post_init__(self):
         object.__setattr__(self, "samples", tuple(int(n) for n in self.samples))
@@ -132,6 +140,9 @@ class Params:
         need(self.max_levels >= 0 and self.rof_iterations >= 0 and self.median_radius >= 0,
              "max_levels, rof_iterations and median_radius must be ≥ 0")
         need(self.median_radius <= 3, f"median_radius must be at most 3, got {self.median_radius}")
+        need(math.isfinite(self.disparity_range) and self.disparity_range > 0,
+             f"disparity_range must be positive, got {self.disparity_range}")
+        need(0 <= self.search_radius <= 5, f"search_radius must be in 0…5, got {self.search_radius}")
 
     def sample_offsets(self, grid: tuple[int, int]) -> tuple[np.ndarray, float]:
         """The angular offsets φ_ij = r_i (cos s_ij, sin s_ij) in view steps, centre first,

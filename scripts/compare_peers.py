@@ -89,10 +89,10 @@ def lfsf_stereo(lf1, lf2, device):
 
 
 def lfsf_flow(lf1, lf2, device):
-    """Flow only: a single sample (the centre view), i.e. two-frame flow, comparable
-    with the TV-L1 peers. TODO(lead): confirm the preset / field name."""
+    """Flow only: M = 1 circle, the centre view alone, i.e. two-frame flow, comparable
+    with the TV-L1 peers. TODO(lead): confirm the preset."""
     lfsf = _lfsf()
-    params = lfsf.Params.preset("paper").replace(M=1)
+    params = lfsf.Params.preset("paper").replace(circles=1, samples=(1,))
     r = lfsf.estimate_scene_flow(lf1, lf2, params=params, device=device)
     return {"u": r.u, "v": r.v}
 
@@ -244,11 +244,13 @@ def bars_and_targets(rows):
         for r in rows:
             if r["scene"] != scene or not r["method"].startswith("lfsf"):
                 continue
+            if r["error"]:
+                targets.append({"scene": scene, "method": r["method"], "metric": "all",
+                                "value": None, "bar": None, "rule": r["error"], "status": "error"})
+                continue
             for key, (bar, rule) in scene_bars.items():
                 value = r[key]
-                if r["error"]:
-                    status = "error"
-                elif value is None:
+                if value is None:
                     continue  # this run does not return that variable
                 elif bar is None:
                     status = "no bar"
@@ -311,18 +313,19 @@ def run_real(args, use_peers, lfsf_runs):
                 if d.shape != ref.shape:
                     raise ValueError(f"cropped estimate {d.shape} vs EPINET {ref.shape}")
                 diff = np.abs(d.astype(np.float64) - ref)
-                diff = diff[np.isfinite(diff)]
+                nonfinite = int(np.count_nonzero(~np.isfinite(diff)))
+                diff = np.where(np.isfinite(diff), diff, np.inf)  # non-finite counts as wrong
                 rows.append({"section": "real", "scene": "lytro-illum-2067", "method": method,
                              "mse_x100": None, "badpix_0.07": None,
                              "median_abs_diff_epinet": float(np.median(diff)), "seconds": s,
                              "error": None,
-                             "detail": {"mean_abs_diff_epinet": float(np.mean(diff)),
+                             "detail": {"mean_abs_diff_epinet": float(np.mean(diff[np.isfinite(diff)])),
                                         "share_within_0.07": float(np.mean(diff <= 0.07)),
-                                        "est_range_p1_p99": [float(np.percentile(d, 1)),
-                                                             float(np.percentile(d, 99))],
+                                        "est_range_p1_p99": [float(np.nanpercentile(d, 1)),
+                                                             float(np.nanpercentile(d, 99))],
                                         "epinet_range_p1_p99": [float(np.percentile(ref, 1)),
                                                                 float(np.percentile(ref, 99))],
-                                        "nonfinite": _nonfinite(d), "size": list(lf.centre.shape[1::-1])}})
+                                        "nonfinite": nonfinite, "size": list(lf.centre.shape[1::-1])}})
             except Exception as exc:
                 if args.verbose:
                     traceback.print_exc()

@@ -178,7 +178,7 @@ def import_plenpy_lightfield():
     return LightField
 
 
-def plenpy_disparity(views) -> np.ndarray:
+def plenpy_disparity(views, *, nan_guard: bool = True) -> np.ndarray:
     """Disparity of the centre view by plenpy's structure-tensor EPI method fused by TV-L1:
     ``plenpy.lightfields.LightField(views[..., None]).get_disparity(
     method="structure_tensor", fusion_method="tv_l1")``, defaults otherwise.
@@ -187,7 +187,8 @@ def plenpy_disparity(views) -> np.ndarray:
     MODEL.md §1), or colour ``[a, b, y, x, 3]`` (turned into BT.601 luma first), or an
     ``lfsf.io.LightField``. plenpy's axes ``(u, v, s, t, ch)`` are then exactly ours
     ``(a, b, y, x, 1)``: its horizontal EPIs are ``L[u_c, :, s, :]`` (view column × x),
-    its vertical ones ``L[:, v_c, :, t]`` (view row × y).
+    its vertical ones ``L[:, v_c, :, t]`` (view row × y). Check: a plane with δ = 1 gives
+    0.94 in this layout and −0.18 with only the image axes swapped.
 
     Output: float32 H×W in lfsf's convention (px per view step, MODEL.md §1 sign).
     **Conversion rule: identity.** plenpy's output is already in our sign and unit:
@@ -199,26 +200,66 @@ def plenpy_disparity(views) -> np.ndarray:
       angular spacing, so the unit is px per view step;
     * synthetic check (``python scripts/peers.py``): a 9×9 light field made by sampling
       one textured image at ``p + δ·φ`` (so the point of centre pixel p is at p − δφ),
-      for δ = ±0.1 … ±2.5, gives medians of 0.92δ … 0.97δ, same sign, both EPI
-      directions agreeing; the HCI antinous scene (whose ground truth is in our
-      convention) gives a positive slope against its truth in ``compare_peers.py --real``.
+      for δ = ±0.1 … ±2.5, gives medians of 0.93δ … 0.97δ, same sign, both EPI
+      directions agreeing; on HCI antinous (ground truth in our convention) the
+      least-squares slope of plenpy against the truth is +0.94.
 
-    The 3–8 % shortfall on a 9×9 grid (29 % on 5×5) is plenpy's own bias, not a unit: its
-    EPIs are Gaussian-smoothed (σ 0.75, then σ 2 for the structure tensor) across only
-    9 views with mirror boundaries, which flattens the lines; it depends on δ and on the
-    texture. It is left in (no per-scene or per-grid rescaling).
+    The 3–7 % shortfall on a 9×9 grid (22–30 % on 5×5) is plenpy's own bias, not a unit:
+    its EPIs are Gaussian-smoothed (σ 0.75, then σ 2 for the structure tensor) across
+    only 9 views with mirror boundaries, which flattens the lines; it depends on δ and
+    on the texture. It is left in (no per-scene or per-grid rescaling).
+
+    ``nan_guard`` (default on): plenpy's structure tensor divides 0 by 0 on EPIs that are
+    exactly flat (e.g. the black, 8-bit-clipped areas of the Lytro views): on the Lytro
+    scene 1794 of the 2 × 211 416 EPI estimates are NaN (one is infinite), both at 419
+    pixels; its TV-L1 fusion starts from ``nanmean`` of the two, which is NaN there, and
+    the NaN spreads by a pixel per iteration (100 iterations): 29 751 of the 211 416
+    output pixels come out NaN. With the guard
+    on, the same computation is done in two steps — ``get_disparity(...,
+    fusion_method="no_fusion", vmin=-inf, vmax=inf)``, then plenpy's own fusion
+    ``denoise_multi_images_tvl1(disp, n_iter=100, w_lambdas=normalised confidence)`` and
+    the clip to [−3, 3], exactly as ``get_disparity`` does — except that at pixels where
+    *every* estimate is non-finite the estimates are set to 0 with confidence 0 (so the
+    TV term fills them in, as the fusion intends for zero-confidence data), and an
+    infinite estimate (non-zero / 0 in the same formula) is treated as NaN with
+    confidence 0 (plenpy's fusion already skips NaN data through ``nansum``; an infinite
+    one would make its start ``nanmean`` infinite and spread NaN the same way). Where no such
+    pixel exists the result is bit-identical to the one-call version (checked on the
+    four synthetic scenes); on Lytro it differs only where the one-call version is NaN.
+    ``nan_guard=False`` is the literal one-call version.
 
     plenpy clips its output to [vmin, vmax] = [−3, 3] (its defaults, kept). It uses only
-    the centre row and column of views (2 × grid − 1 of them). Single-threaded; about
-    0.05 s at 80×64 and ~2–4 s at 512×512 (9×9) on this machine's CPU.
+    the centre row and column of views (2 × grid − 1 of them). Single-threaded NumPy:
+    ~0.06 s at 80×64, ~0.13 s at 160×120, ~2.5 s at 512×512 (9×9 views) on this
+    project's 2-core CPU.
     """
     LightField = import_plenpy_lightfield()
     v = _grey_views(views)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         warnings.simplefilter("ignore", RuntimeWarning)  # 0/0 in its structure tensor
-        disp, _conf = LightField(v[..., None]).get_disparity(method="structure_tensor",
-                                                             fusion_method="tv_l1")
+        lf = LightField(v[..., None])
+        if not nan_guard:
+            disp, _conf = lf.get_disparity(method="structure_tensor", fusion_method="tv_l1")
+            return np.ascontiguousarray(disp, dtype=np.float32)
+        from plenpy.utilities import denoise
+
+        disp_all, conf_all = lf.get_disparity(method="structure_tensor", fusion_method="no_fusion",
+                                              vmin=-np.inf, vmax=np.inf)
+        disp_all = np.asarray(disp_all, dtype=np.float64)
+        conf_all = np.asarray(conf_all, dtype=np.float64)
+        bad = ~np.isfinite(disp_all)
+        if bad.any():
+            disp_all = disp_all.copy()
+            conf_all = conf_all.copy()
+            disp_all[bad] = np.nan  # ±inf (0 denominator): no measurement, like NaN
+            conf_all[bad] = 0.0
+            hopeless = bad.all(axis=-1)
+            disp_all[hopeless] = 0.0
+        # below: get_disparity's "tv_l1" branch and final clip, verbatim (plenpy 0.9.2)
+        confidence_norm = (conf_all - conf_all.min()) / (conf_all.max() - conf_all.min())
+        disp = denoise.denoise_multi_images_tvl1(disp_all, n_iter=100, w_lambdas=confidence_norm)
+        disp = np.clip(disp, -3, 3)
     return np.ascontiguousarray(disp, dtype=np.float32)
 
 

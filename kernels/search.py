@@ -1,0 +1,112 @@
+"""Discrete disparity search (a plane sweep over the light field's samples), used to
+start and to rescue the variational disparities where coarse-to-fine warping cannot
+reach them: small objects vanish at coarse levels, and a disparity error e moves the
+outer samples by R·e pixels, far outside the range of the linearisation.
+
+For a disparity candidate δ the per-pixel matching cost of the samples s ≥ 1 is the mean
+absolute difference of the warped samples to the centre view (the stereo residual ρ1,
+or ρ2 at p + û); costs are then summed over a small window before the choice.
+"""
+
+import warp as wp
+
+from .common import bilinear, inside
+
+wp.set_module_options({"enable_backward": False})
+
+
+@wp.kernel
+def disparity_cost(
+    row0: int,
+    samples: wp.array3d(dtype=float),
+    phis: wp.array(dtype=wp.vec2),
+    candidates: wp.array(dtype=float),
+    base: wp.array2d(dtype=float),
+    offset: wp.array2d(dtype=wp.vec4),
+    # outputs
+    cost: wp.array3d(dtype=float),
+):
+    """cost[k, p] = mean_{s≥1} |L(q − δ_k φ_s, φ_s) − L(q, 0)| with q = p + (u, v) of
+    ``offset`` (components 2, 3) and δ_k = candidates[k] + base[p]. Samples whose warped
+    position leaves the image are left out (cost 1 where none remain). Launch over
+    (candidates × rows, columns)."""
+    r, j = wp.tid()
+    r = r + row0
+    h = cost.shape[1]
+    k = r // h
+    i = r - k * h
+    o = offset[i, j]
+    qx = float(j) + o[2]
+    qy = float(i) + o[3]
+    d = candidates[k] + base[i, j]
+    centre = bilinear(samples[0], qx, qy)
+    acc = float(0.0)
+    n = float(0.0)
+    for s in range(1, phis.shape[0]):
+        phi = phis[s]
+        x = qx - d * phi[0]
+        y = qy - d * phi[1]
+        if inside(samples[s], x, y):
+            acc += wp.abs(bilinear(samples[s], x, y) - centre)
+            n += 1.0
+    c = float(1.0)
+    if n > 0.0:
+        c = acc / n
+    cost[k, i, j] = c
+
+
+@wp.kernel
+def box_sum(
+    row0: int,
+    values: wp.array3d(dtype=float),
+    radius: int,
+    # outputs
+    out: wp.array3d(dtype=float),
+):
+    """Mean of each slice over a (2r+1)² window, clamped at the borders. Launch over
+    (slices × rows, columns)."""
+    r, j = wp.tid()
+    r = r + row0
+    h = values.shape[1]
+    w = values.shape[2]
+    k = r // h
+    i = r - k * h
+    acc = float(0.0)
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            acc += values[k, wp.clamp(i + dy, 0, h - 1), wp.clamp(j + dx, 0, w - 1)]
+    side = float(2 * radius + 1)
+    out[k, i, j] = acc / (side * side)
+
+
+@wp.kernel
+def select_disparity(
+    row0: int,
+    cost: wp.array3d(dtype=float),
+    candidates: wp.array(dtype=float),
+    # outputs
+    best: wp.array2d(dtype=float),
+    best_cost: wp.array2d(dtype=float),
+):
+    """Winner-take-all over the candidates, refined by a parabola through the minimum
+    and its neighbours (candidates evenly spaced). Launch over (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    n = cost.shape[0]
+    kmin = int(0)
+    cmin = cost[0, i, j]
+    for k in range(1, n):
+        c = cost[k, i, j]
+        if c < cmin:
+            cmin = c
+            kmin = k
+    d = candidates[kmin]
+    if kmin > 0 and kmin < n - 1:
+        cl = cost[kmin - 1, i, j]
+        cr = cost[kmin + 1, i, j]
+        curv = cl - 2.0 * cmin + cr
+        if curv > 1.0e-12:
+            step = candidates[kmin + 1] - candidates[kmin]
+            d = d + 0.5 * (cl - cr) / curv * step
+    best[i, j] = d
+    best_cost[i, j] = cmin

@@ -1,0 +1,430 @@
+"""NumPy references of the Warp kernels in :mod:`lfsf.kernels`, written from the formulas
+of MODEL.md and the kernels' docstrings (not from the kernel code): vectorised over
+pixels, float64. Used by ``tests/test_kernels.py``.
+
+Conventions: images are (h, w) arrays, pixel (i, j) has its centre at (x, y) = (j, i).
+Per-pixel vec4 fields are (h, w, 4) arrays ordered (δ1, δ2, u, v).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+# --- interpolation ------------------------------------------------------------------------
+
+
+def hat_weights(pos: np.ndarray, n: int) -> np.ndarray:
+    """Linear-interpolation weights of the n grid nodes 0…n−1 at the positions ``pos``,
+    clamped to [0, n−1]: the tent max(0, 1 − |pos − k|). Shape pos.shape + (n,)."""
+    p = np.clip(np.asarray(pos, np.float64), 0.0, n - 1)
+    return np.maximum(0.0, 1.0 - np.abs(p[..., None] - np.arange(n)))
+
+
+def bilinear(img: np.ndarray, x, y) -> np.ndarray:
+    """Bilinear interpolation of img at (x, y) (x = column), positions clamped to the image."""
+    img = np.asarray(img, np.float64)
+    h, w = img.shape
+    x, y = np.broadcast_arrays(np.asarray(x, np.float64), np.asarray(y, np.float64))
+    wx = hat_weights(x, w)
+    wy = hat_weights(y, h)
+    return np.einsum("...i,ij,...j->...", wy, img, wx)
+
+
+def bilinear_gradient(img: np.ndarray, x, y) -> tuple[np.ndarray, np.ndarray]:
+    """(∂x, ∂y) at (x, y): central differences of bilinear samples one pixel apart."""
+    x = np.asarray(x, np.float64)
+    y = np.asarray(y, np.float64)
+    gx = 0.5 * (bilinear(img, x + 1.0, y) - bilinear(img, x - 1.0, y))
+    gy = 0.5 * (bilinear(img, x, y + 1.0) - bilinear(img, x, y - 1.0))
+    return gx, gy
+
+
+def inside(shape: tuple[int, int], x, y) -> np.ndarray:
+    """True where (x, y) lies within the pixel centres of an image of ``shape`` (h, w)."""
+    h, w = shape
+    return (x >= 0) & (y >= 0) & (x <= w - 1) & (y <= h - 1)
+
+
+# --- finite differences (MODEL.md §4) -------------------------------------------------------
+
+
+def grad(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Forward differences along x (axis 1) and y (axis 0) of a (h, w, ...) array, zero at
+    the last column/row (Neumann)."""
+    a = np.asarray(a, np.float64)
+    gx = np.zeros_like(a)
+    gy = np.zeros_like(a)
+    gx[:, :-1] = a[:, 1:] - a[:, :-1]
+    gy[:-1] = a[1:] - a[:-1]
+    return gx, gy
+
+
+def div(px: np.ndarray, py: np.ndarray) -> np.ndarray:
+    """Divergence, the negative adjoint of :func:`grad`: ⟨grad a, p⟩ = −⟨a, div p⟩."""
+    px = np.asarray(px, np.float64)
+    py = np.asarray(py, np.float64)
+    out = np.zeros_like(px)
+    out[:, :-1] += px[:, :-1]
+    out[:, 1:] -= px[:, :-1]
+    out[:-1] += py[:-1]
+    out[1:] -= py[:-1]
+    return out
+
+
+def gradient_matrix(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """Dense matrices Dx, Dy (hw × hw) of the forward differences of :func:`grad` acting on
+    a row-major flattened (h, w) image."""
+    n = h * w
+    dx = np.zeros((n, n))
+    dy = np.zeros((n, n))
+    for i in range(h):
+        for j in range(w):
+            k = i * w + j
+            if j < w - 1:
+                dx[k, k] = -1.0
+                dx[k, k + 1] = 1.0
+            if i < h - 1:
+                dy[k, k] = -1.0
+                dy[k, k + w] = 1.0
+    return dx, dy
+
+
+# --- sampling (MODEL.md §2) ----------------------------------------------------------------
+
+
+def sample_subaperture(views: np.ndarray, phis: np.ndarray) -> np.ndarray:
+    """L(·, φ_s) for views [a, b, y, x]: bilinear over the four nearest views, φ = (ξ, η)
+    from the grid centre ((rows−1)/2, (cols−1)/2), angular position clamped to the grid."""
+    views = np.asarray(views, np.float64)
+    rows, cols = views.shape[:2]
+    phis = np.asarray(phis, np.float64)
+    wa = hat_weights(0.5 * (rows - 1) + phis[:, 1], rows)  # (S, rows)
+    wb = hat_weights(0.5 * (cols - 1) + phis[:, 0], cols)  # (S, cols)
+    return np.einsum("sa,sb,abyx->syx", wa, wb, views)
+
+
+# --- ROF / structure–texture (MODEL.md §3) -------------------------------------------------
+
+
+def rof_dual_step(u_bar: np.ndarray, p: np.ndarray, sigma: float) -> np.ndarray:
+    """p ← proj_{|p|≤1}(p + σ∇ū) for stacks u_bar (n, h, w), p (n, h, w, 2)."""
+    gx, gy = grad(np.moveaxis(u_bar, 0, -1))
+    g = np.stack([np.moveaxis(gx, -1, 0), np.moveaxis(gy, -1, 0)], -1)
+    q = p + sigma * g
+    return q / np.maximum(1.0, np.linalg.norm(q, axis=-1, keepdims=True))
+
+
+def stack_div(p: np.ndarray) -> np.ndarray:
+    """div of a stack of vector fields p (n, h, w, 2) → (n, h, w)."""
+    d = div(np.moveaxis(p[..., 0], 0, -1), np.moveaxis(p[..., 1], 0, -1))
+    return np.moveaxis(d, -1, 0)
+
+
+def rof_primal_step(f, p, u, tau, mu):
+    """u_new = prox of τ/(2μ)‖· − f‖² at u + τ div p; returns (u_new, 2u_new − u)."""
+    v = u + tau * stack_div(p)
+    new = (v + (tau / mu) * f) / (1.0 + tau / mu)
+    return new, 2.0 * new - u
+
+
+def rof_solve(f: np.ndarray, mu: float, iterations: int, tau: float, sigma: float):
+    """Primal–dual ROF: (u, p) after ``iterations`` steps from u = ū = f, p = 0."""
+    f = np.asarray(f, np.float64)
+    u = f.copy()
+    u_bar = f.copy()
+    p = np.zeros(f.shape + (2,))
+    for _ in range(iterations):
+        p = rof_dual_step(u_bar, p, sigma)
+        u, u_bar = rof_primal_step(f, p, u, tau, mu)
+    return u, p
+
+
+def rof_energy(u: np.ndarray, f: np.ndarray, mu: float) -> float:
+    """Σ|∇u| + 1/(2μ) Σ(u − f)² of a stack (n, h, w) (isotropic TV, forward differences)."""
+    gx, gy = grad(np.moveaxis(u, 0, -1))
+    return float(np.sum(np.hypot(gx, gy)) + np.sum((u - f) ** 2) / (2.0 * mu))
+
+
+# --- pyramid (MODEL.md §6) -----------------------------------------------------------------
+
+
+def coarse_centre(k, n_from: int, n_to: int):
+    """Centre of pixel k of a grid of n_from pixels, in pixel coordinates of a grid of
+    n_to pixels covering the same extent: (k + 0.5)·n_to/n_from − 0.5."""
+    return (np.asarray(k, np.float64) + 0.5) * n_to / n_from - 0.5
+
+
+def downsample(fine: np.ndarray, size: tuple[int, int], sigma: float, radius: int) -> np.ndarray:
+    """Gaussian-weighted average of the fine pixels within ``radius`` of the fine pixel
+    nearest each coarse centre, weights exp(−d²/2σ²) from the mapped coarse centre and
+    renormalised over the pixels inside the image. fine (n, h, w) → (n, hc, wc)."""
+    fine = np.asarray(fine, np.float64)
+    _, h, w = fine.shape
+    hc, wc = size
+
+    def axis_weights(n_c, n_f):
+        c = coarse_centre(np.arange(n_c), n_c, n_f)  # coarse centre in fine coordinates
+        nearest = np.floor(c + 0.5)
+        k = np.arange(n_f)
+        d = k[None, :] - c[:, None]
+        window = np.abs(k[None, :] - nearest[:, None]) <= radius
+        return np.where(window, np.exp(-d * d / (2.0 * sigma * sigma)), 0.0)
+
+    wy = axis_weights(hc, h)  # (hc, h)
+    wx = axis_weights(wc, w)  # (wc, w)
+    num = np.einsum("ai,nij,bj->nab", wy, fine, wx)
+    den = np.einsum("ai,bj->ab", wy, wx)
+    return num / den
+
+
+def upsample(coarse: np.ndarray, size: tuple[int, int], scale: float) -> np.ndarray:
+    """scale · bilinear(coarse) at the fine pixel centres mapped to coarse coordinates
+    (clamped). coarse (n, hc, wc) → (n, h, w)."""
+    coarse = np.asarray(coarse, np.float64)
+    _, hc, wc = coarse.shape
+    h, w = size
+    wy = hat_weights(coarse_centre(np.arange(h), h, hc), hc)  # (h, hc)
+    wx = hat_weights(coarse_centre(np.arange(w), w, wc), wc)  # (w, wc)
+    return scale * np.einsum("ia,nab,jb->nij", wy, coarse, wx)
+
+
+# --- data term (MODEL.md §3, §5) -------------------------------------------------------------
+
+
+def data_coefficients(samples1, samples2, phis, weights, x_hat):
+    """A1…A9 (9, S, h, w), row weights (3, S, h, w) and data column sums (h, w, 4).
+
+    W1 = L(p − δ̂1 φ, φ, t1), W2 = L(p + û − δ̂2 φ, φ, t2), J2 = L(p + û, 0, t2); sample 0 is
+    the centre view; w_k = λ_k, or 0 where a warped position of row k leaves the image.
+    """
+    samples1 = np.asarray(samples1, np.float64)
+    samples2 = np.asarray(samples2, np.float64)
+    x_hat = np.asarray(x_hat, np.float64)
+    n, h, w = samples1.shape
+    py, px = np.mgrid[0:h, 0:w].astype(np.float64)
+    d1, d2, u, v = (x_hat[..., k] for k in range(4))
+    xj, yj = px + u, py + v
+    i1 = samples1[0]
+    j2 = bilinear(samples2[0], xj, yj)
+    gjx, gjy = bilinear_gradient(samples2[0], xj, yj)
+    in_j = inside((h, w), xj, yj)
+    A = np.zeros((9, n, h, w))
+    W = np.zeros((3, n, h, w))
+    for s in range(n):
+        xi, eta = (float(c) for c in phis[s])
+        lam = weights[s]
+        x1, y1 = px - d1 * xi, py - d1 * eta
+        x2, y2 = xj - d2 * xi, yj - d2 * eta
+        w1 = bilinear(samples1[s], x1, y1)
+        g1x, g1y = bilinear_gradient(samples1[s], x1, y1)
+        w2 = bilinear(samples2[s], x2, y2)
+        g2x, g2y = bilinear_gradient(samples2[s], x2, y2)
+        A[0, s] = -(xi * g1x + eta * g1y)
+        A[1, s] = i1 - w1
+        A[2, s] = -(xi * g2x + eta * g2y)
+        A[3, s] = j2 - w2
+        A[4, s] = g2x
+        A[5, s] = g2y
+        A[6, s] = w1 - w2
+        A[7, s] = gjx - g2x
+        A[8, s] = gjy - g2y
+        in1 = inside((h, w), x1, y1)
+        in2 = inside((h, w), x2, y2)
+        W[0, s] = np.where(in1, lam[0], 0.0)
+        W[1, s] = np.where(in2 & in_j, lam[1], 0.0)
+        W[2, s] = np.where(in1 & in2, lam[2], 0.0)
+    colsum = np.zeros((h, w, 4))
+    for coeff, (_, col) in data_jacobian(A, W).values():
+        colsum[..., col] += np.sum(np.abs(coeff), axis=0)
+    return A, W, colsum
+
+
+def data_jacobian(A, W) -> dict:
+    """The nonzero entries of the data rows of K, per sample and pixel:
+    {name: (coefficient (S, h, w), (row k, column of (δ1, δ2, u, v)))}; row k of sample s
+    at p is w_k·ρ_k, linear part only. Built from the linearised ρ_k of MODEL.md §3."""
+    w1, w2, w3 = W
+    return {
+        "q1_d1": (w1 * -A[0], (0, 0)),
+        "q2_d2": (w2 * -A[2], (1, 1)),
+        "q2_u": (w2 * A[7], (1, 2)),
+        "q2_v": (w2 * A[8], (1, 3)),
+        "q3_d1": (w3 * A[0], (2, 0)),
+        "q3_d2": (w3 * -A[2], (2, 1)),
+        "q3_u": (w3 * -A[4], (2, 2)),
+        "q3_v": (w3 * -A[5], (2, 3)),
+    }
+
+
+def data_residuals(A, delta):
+    """Linearised ρ1, ρ2, ρ3 (each (S, h, w)) for Δ = x − x̂ (h, w, 4)."""
+    dd1, dd2, du, dv = (delta[..., k] for k in range(4))
+    rho1 = A[1] - A[0] * dd1
+    rho2 = A[3] - A[2] * dd2 + A[7] * du + A[8] * dv
+    rho3 = A[6] + A[0] * dd1 - A[2] * dd2 - A[4] * du - A[5] * dv
+    return np.stack([rho1, rho2, rho3])
+
+
+def data_K_apply(A, W, delta):
+    """K Δ of the data rows (3, S, h, w): the linear part of w_k ρ_k."""
+    out = np.zeros((3,) + A.shape[1:])
+    for coeff, (row, col) in data_jacobian(A, W).values():
+        out[row] += coeff * delta[None, ..., col]
+    return out
+
+
+def data_K_transpose(A, W, q):
+    """Kᵀ q (h, w, 4) summed over the samples, for q (3, S, h, w)."""
+    out = np.zeros(A.shape[2:] + (4,))
+    for coeff, (row, col) in data_jacobian(A, W).values():
+        out[..., col] += np.sum(coeff * q[row], axis=0)
+    return out
+
+
+def dual_data_step(A, W, q, x_bar, x_hat, eps):
+    """q_k ← clip(q_k + σ_k w_k ρ_k(x̄), −1, 1), σ_k = 1/(Σ_col |K_row k| + ε) with
+    |K_row k| = w_k·|coefficients of ρ_k|; returns (q_new, Kᵀ q_new)."""
+    rho = data_residuals(A, np.asarray(x_bar, np.float64) - np.asarray(x_hat, np.float64))
+    rowsum = np.zeros_like(q)
+    for coeff, (row, col) in data_jacobian(A, W).values():
+        rowsum[row] += np.abs(coeff)
+    sigma = 1.0 / (rowsum + eps)
+    q_new = np.clip(q + sigma * W * rho, -1.0, 1.0)
+    return q_new, data_K_transpose(A, W, q_new)
+
+
+# --- TGV (MODEL.md §4, §5) -------------------------------------------------------------------
+
+
+def central_gradient(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Central differences with clamped (replicated) borders."""
+    p = np.pad(np.asarray(img, np.float64), 1, mode="edge")
+    return 0.5 * (p[1:-1, 2:] - p[1:-1, :-2]), 0.5 * (p[2:, 1:-1] - p[:-2, 1:-1])
+
+
+def diffusion_tensor(img: np.ndarray, gamma: float, beta: float) -> np.ndarray:
+    """Γ = exp(−γ|∇I|^β) n nᵀ + n⊥ n⊥ᵀ as a (h, w, 2, 2) array; identity where ∇I = 0."""
+    gx, gy = central_gradient(img)
+    mag = np.hypot(gx, gy)
+    flat = mag <= 1e-12
+    safe = np.where(flat, 1.0, mag)
+    n = np.stack([np.where(flat, 1.0, gx / safe), np.where(flat, 0.0, gy / safe)], -1)
+    nperp = np.stack([-n[..., 1], n[..., 0]], -1)
+    e = np.where(flat, 1.0, np.exp(-gamma * safe**beta))
+    return e[..., None, None] * n[..., :, None] * n[..., None, :] + nperp[..., :, None] * nperp[..., None, :]
+
+
+def tensor_components(t: np.ndarray) -> np.ndarray:
+    """(h, w, 2, 2) → (h, w, 3) = (Γ00, Γ01, Γ11), the layout of the kernels."""
+    return np.stack([t[..., 0, 0], t[..., 0, 1], t[..., 1, 1]], -1)
+
+
+def tgv_matrix(tensor: np.ndarray, alpha0: float, alpha1: float) -> np.ndarray:
+    """Dense K of the TGV part for one unknown on an (h, w) grid.
+
+    Columns: [x, w0, w1] (3·hw); rows: [y0, y1] = α1 Γ(∇x − w) (2·hw), then
+    [z00, z01, z10, z11] = α0 (∂x w0, ∂y w0, ∂x w1, ∂y w1) (4·hw). ``tensor`` is
+    (h, w, 3) = (Γ00, Γ01, Γ11) per pixel.
+    """
+    h, w = tensor.shape[:2]
+    n = h * w
+    dx, dy = gradient_matrix(h, w)
+    g00 = np.diag(tensor[..., 0].ravel())
+    g01 = np.diag(tensor[..., 1].ravel())
+    g11 = np.diag(tensor[..., 2].ravel())
+    eye = np.eye(n)
+    zero = np.zeros((n, n))
+    # ∇x − w as two blocks of rows
+    r0 = np.hstack([dx, -eye, zero])
+    r1 = np.hstack([dy, zero, -eye])
+    y0 = alpha1 * (g00 @ r0 + g01 @ r1)
+    y1 = alpha1 * (g01 @ r0 + g11 @ r1)
+    z00 = alpha0 * np.hstack([zero, dx, zero])
+    z01 = alpha0 * np.hstack([zero, dy, zero])
+    z10 = alpha0 * np.hstack([zero, zero, dx])
+    z11 = alpha0 * np.hstack([zero, zero, dy])
+    return np.vstack([y0, y1, z00, z01, z10, z11])
+
+
+def per_unknown(tensor1: np.ndarray, tensor2: np.ndarray, k: int) -> np.ndarray:
+    """Γ used for unknown k of (δ1, δ2, u, v): Γ_t2 for δ2, Γ_t1 for the others."""
+    return tensor2 if k == 1 else tensor1
+
+
+def tgv_preconditioner(data_colsum, tensor1, tensor2, alpha0, alpha1, eps):
+    """τ_x, τ_w0, τ_w1, σ_y0, σ_y1 (each (h, w, 4)) from the exact abs row/column sums of
+    :func:`tgv_matrix` (data column sums added to τ_x), and σ_z (one per z row, (4, h, w, 4))."""
+    h, w = tensor1.shape[:2]
+    n = h * w
+    out = {k: np.zeros((h, w, 4)) for k in ("tau_x", "tau_w0", "tau_w1", "sigma_y0", "sigma_y1")}
+    zrows = np.zeros((4, h, w, 4))
+    for k in range(4):
+        K = np.abs(tgv_matrix(per_unknown(tensor1, tensor2, k), alpha0, alpha1))
+        col = K.sum(axis=0).reshape(3, h, w)
+        row = K.sum(axis=1).reshape(6, h, w)
+        out["tau_x"][..., k] = 1.0 / (data_colsum[..., k] + col[0] + eps)
+        out["tau_w0"][..., k] = 1.0 / (col[1] + eps)
+        out["tau_w1"][..., k] = 1.0 / (col[2] + eps)
+        out["sigma_y0"][..., k] = 1.0 / (row[0] + eps)
+        out["sigma_y1"][..., k] = 1.0 / (row[1] + eps)
+        zrows[..., k] = row[2:]
+    assert n == h * w
+    return out, zrows
+
+
+def _pack(x, w0, w1, k):
+    """Column vector [x, w0, w1] of unknown k."""
+    return np.concatenate([x[..., k].ravel(), w0[..., k].ravel(), w1[..., k].ravel()])
+
+
+def tgv_dual_step(x_bar, w0_bar, w1_bar, tensor1, tensor2, sigma_y0, sigma_y1, sigma_z, alpha0, alpha1,
+                  y0, y1, z00, z01, z10, z11):
+    """D ← proj(D + Σ K P̄) per unknown with K = :func:`tgv_matrix`: y = (y0, y1) onto
+    |y| ≤ 1, z = (z00, z01, z10, z11) onto Frobenius norm ≤ 1. Returns the six new duals."""
+    h, w = x_bar.shape[:2]
+    duals = [np.array(a, np.float64) for a in (y0, y1, z00, z01, z10, z11)]
+    for k in range(4):
+        K = tgv_matrix(per_unknown(tensor1, tensor2, k), alpha0, alpha1)
+        kp = (K @ _pack(x_bar, w0_bar, w1_bar, k)).reshape(6, h, w)
+        steps = [sigma_y0[..., k], sigma_y1[..., k]] + [sigma_z] * 4
+        new = [duals[m][..., k] + steps[m] * kp[m] for m in range(6)]
+        ny = np.maximum(1.0, np.hypot(new[0], new[1]))
+        nz = np.maximum(1.0, np.sqrt(sum(a * a for a in new[2:])))
+        for m in range(6):
+            duals[m][..., k] = new[m] / (ny if m < 2 else nz)
+    return duals
+
+
+def tgv_primal_step(data_grad, y0, y1, z00, z01, z10, z11, tensor1, tensor2, tau_x, tau_w0, tau_w1,
+                    alpha0, alpha1, x, w0, w1):
+    """P_new = P − T (Kᵀ D + (data_grad, 0, 0)) per unknown with K = :func:`tgv_matrix`;
+    returns (x, w0, w1, x̄, w̄0, w̄1) with P̄ = 2 P_new − P."""
+    h, w = x.shape[:2]
+    outs = [np.array(a, np.float64) for a in (x, w0, w1)]
+    for k in range(4):
+        K = tgv_matrix(per_unknown(tensor1, tensor2, k), alpha0, alpha1)
+        d = np.concatenate([a[..., k].ravel() for a in (y0, y1, z00, z01, z10, z11)])
+        kt = (K.T @ d).reshape(3, h, w)
+        kt[0] += data_grad[..., k]
+        taus = (tau_x[..., k], tau_w0[..., k], tau_w1[..., k])
+        for m in range(3):
+            outs[m][..., k] = outs[m][..., k] - taus[m] * kt[m]
+    bars = [2.0 * new - np.asarray(old, np.float64) for new, old in zip(outs, (x, w0, w1))]
+    return (*outs, *bars)
+
+
+# --- median (Wedel et al. 2009) ------------------------------------------------------------
+
+
+def median_flow(x: np.ndarray, radius: int) -> np.ndarray:
+    """u, v (components 2, 3) median-filtered over (2r+1)² windows with replicated
+    borders; δ1, δ2 copied."""
+    x = np.asarray(x, np.float64)
+    out = x.copy()
+    side = 2 * radius + 1
+    for k in (2, 3):
+        padded = np.pad(x[..., k], radius, mode="edge")
+        windows = np.lib.stride_tricks.sliding_window_view(padded, (side, side))
+        out[..., k] = np.median(windows.reshape(*windows.shape[:2], -1), axis=-1)
+    return out

@@ -1,0 +1,93 @@
+"""The estimator end to end: identities, known shifts, special cases, accuracy."""
+
+import numpy as np
+import pytest
+
+import lfsf
+from lfsf import Params, estimate_scene_flow
+
+
+def smooth_texture(h, w, seed=0, cutoff=0.12):
+    """A periodic random texture with energy below `cutoff` cycles per pixel."""
+    rng = np.random.default_rng(seed)
+    spec = np.fft.fft2(rng.standard_normal((h, w)))
+    fy = np.fft.fftfreq(h)[:, None]
+    fx = np.fft.fftfreq(w)[None, :]
+    spec *= np.exp(-(fx**2 + fy**2) / (2 * (cutoff / 2.5) ** 2))
+    return spec
+
+
+def shifted(spec, sx, sy):
+    """Real image T(q + (sx, sy)) of the texture with spectrum `spec` (exact, periodic)."""
+    h, w = spec.shape
+    fy = np.fft.fftfreq(h)[:, None]
+    fx = np.fft.fftfreq(w)[None, :]
+    img = np.real(np.fft.ifft2(spec * np.exp(2j * np.pi * (fx * sx + fy * sy))))
+    return img
+
+
+def shift_lightfields(h=48, w=64, grid=5, disp1=0.6, disp2=0.4, flow=(1.5, -0.8), seed=0):
+    """Light fields of one fronto-parallel textured plane: at t1 with disparity δ1, at t2
+    moved by `flow` with disparity δ2 (MODEL.md §1 conventions)."""
+    spec = smooth_texture(h, w, seed)
+    c = (grid - 1) / 2
+    lfs = []
+    for d, (fu, fv) in ((disp1, (0.0, 0.0)), (disp2, flow)):
+        views = np.empty((grid, grid, h, w))
+        for a in range(grid):
+            for b in range(grid):
+                xi, eta = b - c, a - c
+                # the point seen at p at t1 is at p + u − δ·φ in view φ at t2
+                views[a, b] = shifted(spec, -fu + d * xi, -fv + d * eta)
+        lfs.append(views)
+    lo = min(v.min() for v in lfs)
+    hi = max(v.max() for v in lfs)
+    return [lfsf.LightField(((v - lo) / (hi - lo)).astype(np.float32), source="shifted plane") for v in lfs]
+
+
+QUICK = Params.preset("fast").replace(iterations=40, warps=4, median_radius=1)
+
+
+def interior(a, b=6):
+    return a[b:-b, b:-b]
+
+
+def test_known_shift_is_recovered():
+    lf1, lf2 = shift_lightfields()
+    sf = estimate_scene_flow(lf1, lf2, QUICK, device="cpu")
+    assert np.median(np.abs(interior(sf.disp1) - 0.6)) < 0.03
+    assert np.median(np.abs(interior(sf.disp2) - 0.4)) < 0.03
+    assert np.median(np.abs(interior(sf.u) - 1.5)) < 0.05
+    assert np.median(np.abs(interior(sf.v) + 0.8)) < 0.05
+
+
+def test_identical_light_fields_give_zero_flow_and_equal_disparities():
+    lf1, _ = shift_lightfields(disp1=-0.7)
+    sf = estimate_scene_flow(lf1, lf1, QUICK, device="cpu")
+    assert np.mean(np.abs(sf.u)) < 0.02 and np.mean(np.abs(sf.v)) < 0.02
+    assert np.mean(np.abs(sf.disp1 - sf.disp2)) < 0.02
+    assert np.median(np.abs(interior(sf.disp1) + 0.7)) < 0.03
+
+
+def test_flow_only_special_case_leaves_disparity_untouched():
+    lf1, lf2 = shift_lightfields()
+    sf = estimate_scene_flow(lf1, lf2, QUICK.replace(circles=1, samples=(1,)), device="cpu")
+    assert np.all(sf.disp1 == 0) and np.all(sf.disp2 == 0)
+    assert np.median(np.abs(interior(sf.u) - 1.5)) < 0.05
+
+
+def test_two_view_stereo_special_case():
+    lf1, lf2 = shift_lightfields()
+    sf = estimate_scene_flow(lf1, lf2, QUICK.replace(circles=2, samples=(1, 1)), device="cpu")
+    assert np.median(np.abs(interior(sf.disp1) - 0.6)) < 0.05
+
+
+def test_bad_inputs_raise():
+    lf1, lf2 = shift_lightfields(h=16, w=16, grid=3)
+    with pytest.raises(ValueError, match="unknown device"):
+        estimate_scene_flow(lf1, lf2, QUICK, device="cuda:42")
+    small = lfsf.LightField(np.zeros((3, 3, 16, 20), np.float32))
+    with pytest.raises(ValueError, match="grid and view size"):
+        estimate_scene_flow(lf1, small, QUICK)
+    with pytest.raises(ValueError, match="one count per circle"):
+        Params(circles=2, samples=(1,))

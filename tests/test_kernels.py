@@ -1,0 +1,629 @@
+"""Every estimator kernel against its NumPy reference (tests/reference_kernels.py) on tiny
+seeded inputs, plus the identities the model relies on: adjointness of gradient and
+divergence, the data term's linearisation and Kᵀ, the preconditioner as abs row/column
+sums of the actual K, and the solver's energy going down."""
+
+import math
+
+import numpy as np
+import pytest
+
+from lfsf import device as D
+
+import reference_kernels as ref
+
+wp = D.warp()
+
+RTOL = 1e-5
+ATOL = 1e-5
+
+
+def rng(seed=0):
+    return np.random.default_rng(seed)
+
+
+def arr(a, dtype, device):
+    """A Warp array of float32 data with the given Warp dtype."""
+    return wp.array(np.ascontiguousarray(a, np.float32), dtype=dtype, device=device)
+
+
+def launch(kernel, dim, inputs, outputs, device):
+    D.launch_rows(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device)
+
+
+def close(got, want, rtol=RTOL, atol=ATOL):
+    np.testing.assert_allclose(np.asarray(got, np.float64), want, rtol=rtol, atol=atol)
+
+
+# --- sampling ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("grid", [(5, 5), (4, 6), (3, 2)])
+def test_sample_subaperture_matches_reference(grid, device):
+    from lfsf.kernels import sampling
+
+    rows, cols = grid
+    h, w = 7, 9
+    views = rng(1).random((rows, cols, h, w)).astype(np.float32)
+    ac, bc = (rows - 1) / 2, (cols - 1) / 2
+    phis = np.array([
+        (0.0, 0.0),
+        (0.37, -0.81),            # between four views
+        (-1.2, 0.6),
+        (bc - math.floor(bc), ac - math.floor(ac)),   # onto view (ceil(a_c), ceil(b_c))
+        (-bc, -ac),               # the corner view (0, 0)
+        (bc, ac),                 # the last view
+        (10.0, -10.0),            # clamped: view (0, cols − 1)
+        (-3.3, 7.5),              # clamped: view (rows − 1, 0)
+    ], np.float32)
+    out = wp.empty((len(phis), h, w), dtype=float, device=device)
+    launch(sampling.sample_subaperture, (len(phis) * h, w),
+           [arr(views.reshape(rows * cols, h, w), float, device), rows, cols, arr(phis, wp.vec2, device)],
+           [out], device)
+    got = out.numpy()
+    close(got, ref.sample_subaperture(views, phis))
+    # angular positions on a view give that view exactly
+    exact = {
+        3: (math.ceil(ac), math.ceil(bc)), 4: (0, 0), 5: (rows - 1, cols - 1),
+        6: (0, cols - 1), 7: (rows - 1, 0),
+    }
+    for s, (a, b) in exact.items():
+        np.testing.assert_array_equal(got[s], views[a, b], err_msg=f"phi={phis[s]} should be view {(a, b)}")
+    if rows % 2 and cols % 2:
+        np.testing.assert_array_equal(got[0], views[rows // 2, cols // 2])
+
+
+def test_sample_subaperture_integer_offsets_are_views(device):
+    from lfsf.kernels import sampling
+
+    rows, cols, h, w = 5, 7, 4, 6
+    views = rng(2).random((rows, cols, h, w)).astype(np.float32)
+    ab = [(a, b) for a in range(rows) for b in range(cols)]
+    phis = np.array([(b - 3, a - 2) for a, b in ab], np.float32)
+    out = wp.empty((len(phis), h, w), dtype=float, device=device)
+    launch(sampling.sample_subaperture, (len(phis) * h, w),
+           [arr(views.reshape(rows * cols, h, w), float, device), rows, cols, arr(phis, wp.vec2, device)],
+           [out], device)
+    got = out.numpy()
+    for s, (a, b) in enumerate(ab):
+        np.testing.assert_array_equal(got[s], views[a, b])
+
+
+# --- ROF -----------------------------------------------------------------------------------
+
+
+def test_rof_dual_step_matches_reference(device):
+    from lfsf.kernels import rof
+
+    r = rng(3)
+    n, h, w = 2, 7, 9
+    u_bar = r.random((n, h, w)).astype(np.float32)
+    p = (r.standard_normal((n, h, w, 2)) * 0.6).astype(np.float32)
+    sigma = 0.9
+    p_wp = arr(p, wp.vec2, device)
+    launch(rof.rof_dual_step, (n * h, w), [arr(u_bar, float, device), sigma], [p_wp], device)
+    got = p_wp.numpy()
+    want = ref.rof_dual_step(u_bar, p, sigma)
+    close(got, want)
+    assert np.all(np.linalg.norm(got, axis=-1) <= 1 + 1e-6)
+    assert np.any(np.linalg.norm(p + 0.0, axis=-1) > 1)  # the projection was exercised
+
+
+def test_rof_primal_step_matches_reference(device):
+    from lfsf.kernels import rof
+
+    r = rng(4)
+    n, h, w = 2, 7, 9
+    f = r.random((n, h, w)).astype(np.float32)
+    u = r.random((n, h, w)).astype(np.float32)
+    p = (r.standard_normal((n, h, w, 2)) * 0.5).astype(np.float32)
+    tau, mu = 0.3, 0.125
+    u_wp = arr(u, float, device)
+    ub_wp = wp.zeros((n, h, w), dtype=float, device=device)
+    launch(rof.rof_primal_step, (n * h, w), [arr(f, float, device), arr(p, wp.vec2, device), tau, mu],
+           [u_wp, ub_wp], device)
+    want_u, want_ub = ref.rof_primal_step(f, p, u, tau, mu)
+    close(u_wp.numpy(), want_u)
+    close(ub_wp.numpy(), want_ub)
+
+
+def test_texture_part_matches_reference(device):
+    from lfsf.kernels import rof
+
+    r = rng(5)
+    n, h, w = 3, 7, 9
+    f = r.random((n, h, w)).astype(np.float32)
+    s = r.random((n, h, w)).astype(np.float32)
+    out = wp.empty((n, h, w), dtype=float, device=device)
+    launch(rof.texture_part, (n * h, w), [arr(f, float, device), arr(s, float, device), 0.95], [out], device)
+    close(out.numpy(), f.astype(np.float64) - 0.95 * s)
+
+
+def _rof_kernel_solve(f, mu, iterations, device):
+    from lfsf.kernels import rof
+
+    n, h, w = f.shape
+    f_wp = arr(f, float, device)
+    u = arr(f, float, device)
+    u_bar = arr(f, float, device)
+    p = wp.zeros((n, h, w), dtype=wp.vec2, device=device)
+    tau = sigma = 1.0 / math.sqrt(8.0)
+    for _ in range(iterations):
+        launch(rof.rof_dual_step, (n * h, w), [u_bar, sigma], [p], device)
+        launch(rof.rof_primal_step, (n * h, w), [f_wp, p, tau, mu], [u, u_bar], device)
+    return u.numpy().astype(np.float64), p.numpy().astype(np.float64)
+
+
+def test_rof_converges_to_the_rof_minimiser(device):
+    r = rng(6)
+    n, h, w = 2, 7, 9
+    f = r.random((n, h, w)).astype(np.float32)
+    f[1, :, :4] += 1.0  # an edge
+    mu = 0.125
+    tau = sigma = 1.0 / math.sqrt(8.0)
+    iters = 300
+    u, p = _rof_kernel_solve(f, mu, iters, device)
+    # same iterations in float64
+    want_u, want_p = ref.rof_solve(f, mu, iters, tau, sigma)
+    close(u, want_u, rtol=1e-4, atol=1e-4)
+    # optimality: u = f + μ div p with |p| ≤ 1 and p = ∇u/|∇u| where ∇u ≠ 0
+    residual = u - (f + mu * ref.stack_div(p))
+    assert np.max(np.abs(residual)) < 2e-3, np.max(np.abs(residual))
+    gx, gy = ref.grad(np.moveaxis(u, 0, -1))
+    g = np.stack([np.moveaxis(gx, -1, 0), np.moveaxis(gy, -1, 0)], -1)
+    tv = np.sum(np.linalg.norm(g, axis=-1))
+    assert abs(np.sum(p * g) - tv) < 1e-2 * max(tv, 1e-3)
+    # energy decreases, and ends within a hair of the reference minimiser's
+    e_f = ref.rof_energy(f.astype(np.float64), f, mu)
+    e_10 = ref.rof_energy(_rof_kernel_solve(f, mu, 10, device)[0], f, mu)
+    e_end = ref.rof_energy(u, f, mu)
+    long_u, _ = ref.rof_solve(f, mu, 3000, tau, sigma)
+    e_min = ref.rof_energy(long_u, f, mu)
+    assert e_end < e_10 < e_f
+    assert e_end - e_min < 1e-3 * e_min
+
+
+# --- pyramid -------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("fine,coarse,sigma", [((9, 11), (5, 6), 0.6), ((8, 8), (4, 4), 0.8), ((7, 9), (3, 4), 1.0)])
+def test_downsample_matches_reference(fine, coarse, sigma, device):
+    from lfsf.kernels import pyramid
+
+    radius = int(math.ceil(3 * sigma))
+    img = rng(7).random((2, *fine)).astype(np.float32)
+    out = wp.empty((2, *coarse), dtype=float, device=device)
+    launch(pyramid.downsample, (2 * coarse[0], coarse[1]), [arr(img, float, device), sigma, radius], [out], device)
+    close(out.numpy(), ref.downsample(img, coarse, sigma, radius))
+    # a constant stays constant (weights renormalised at the borders)
+    const = np.full((1, *fine), 0.3, np.float32)
+    out1 = wp.empty((1, *coarse), dtype=float, device=device)
+    launch(pyramid.downsample, (coarse[0], coarse[1]), [arr(const, float, device), sigma, radius], [out1], device)
+    close(out1.numpy(), 0.3)
+
+
+@pytest.mark.parametrize("coarse,fine,scale", [((4, 5), (9, 11), 2.25), ((3, 3), (6, 6), 2.0), ((5, 6), (7, 9), 1.0)])
+def test_upsample_matches_reference(coarse, fine, scale, device):
+    from lfsf.kernels import pyramid
+
+    img = rng(8).random((2, *coarse)).astype(np.float32)
+    out = wp.empty((2, *fine), dtype=float, device=device)
+    launch(pyramid.upsample, (2 * fine[0], fine[1]), [arr(img, float, device), scale], [out], device)
+    close(out.numpy(), ref.upsample(img, fine, scale))
+    # constant → scale·constant
+    const = np.full((1, *coarse), 0.7, np.float32)
+    out1 = wp.empty((1, *fine), dtype=float, device=device)
+    launch(pyramid.upsample, (fine[0], fine[1]), [arr(const, float, device), scale], [out1], device)
+    close(out1.numpy(), 0.7 * scale)
+
+
+def test_upsample_reproduces_a_linear_ramp_in_the_interior(device):
+    from lfsf.kernels import pyramid
+
+    hc, wc, h, w = 4, 5, 9, 11
+    yc, xc = np.mgrid[0:hc, 0:wc].astype(np.float64)
+    ramp = (0.3 * xc - 0.2 * yc + 0.1)[None].astype(np.float32)
+    out = wp.empty((1, h, w), dtype=float, device=device)
+    launch(pyramid.upsample, (h, w), [arr(ramp, float, device), 1.5], [out], device)
+    x = ref.coarse_centre(np.arange(w), w, wc)
+    y = ref.coarse_centre(np.arange(h), h, hc)
+    want = 1.5 * (0.3 * x[None, :] - 0.2 * y[:, None] + 0.1)
+    interior = ((y >= 0) & (y <= hc - 1))[:, None] & ((x >= 0) & (x <= wc - 1))[None, :]
+    assert interior.sum() > 20
+    close(out.numpy()[0][interior], want[interior])
+
+
+# --- data term -----------------------------------------------------------------------------
+
+
+def _data_inputs(seed, h=7, w=9):
+    r = rng(seed)
+    phis = np.array([(0.0, 0.0), (1.5, -0.7), (-2.0, 1.0)], np.float32)
+    s = len(phis)
+    samples1 = r.random((s, h, w)).astype(np.float32)
+    samples2 = r.random((s, h, w)).astype(np.float32)
+    weights = r.uniform(0.5, 2.0, (s, 3)).astype(np.float32)
+    weights[0, :2] = 0.0
+    x_hat = np.stack([
+        r.uniform(-1.0, 1.0, (h, w)),
+        r.uniform(-1.0, 1.0, (h, w)),
+        r.uniform(-2.0, 2.0, (h, w)),
+        r.uniform(-2.0, 2.0, (h, w)),
+    ], -1).astype(np.float32)
+    x_hat[0, 0] = (3.0, -4.0, 0.3, 0.2)  # warps that leave the image
+    x_hat[3, 4] = (0.1, 0.2, 20.0, 0.0)
+    return samples1, samples2, phis, weights, x_hat
+
+
+def _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device):
+    from lfsf.kernels import data_term
+
+    s, h, w = samples1.shape
+    coef = wp.zeros((s, h, w), dtype=data_term.vec12, device=device)
+    colsum = wp.zeros((h, w), dtype=wp.vec4, device=device)
+    launch(data_term.data_coefficients, (h, w),
+           [arr(samples1, float, device), arr(samples2, float, device), arr(phis, wp.vec2, device),
+            arr(weights, wp.vec3, device), arr(x_hat, wp.vec4, device)],
+           [coef, colsum], device)
+    return coef.numpy().astype(np.float64), colsum.numpy().astype(np.float64)
+
+
+def test_data_coefficients_match_reference(device):
+    samples1, samples2, phis, weights, x_hat = _data_inputs(9)
+    coef, colsum = _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device)
+    A, W, want_colsum = ref.data_coefficients(samples1, samples2, phis, weights, x_hat)
+    for k in range(9):
+        close(coef[..., k], A[k], atol=2e-5)
+    for k in range(3):
+        np.testing.assert_array_equal(coef[..., 9 + k], W[k].astype(np.float32), err_msg=f"w{k + 1}")
+    close(colsum, want_colsum, atol=5e-5)
+    # the rows whose warps leave the image are switched off
+    assert np.all(coef[1:, 0, 0, 9] == 0) and np.all(coef[1:, 0, 0, 11] == 0)
+    assert np.all(coef[:, 3, 4, 10] == 0)
+    assert 0.2 < np.mean(W[2, 1:] > 0) < 1.0
+    # φ = 0: the stereo residuals vanish identically, ρ3 = I1(p) − I2(p + u)
+    close(coef[0, ..., 1], 0.0)
+    close(coef[0, ..., 3], 0.0)
+    close(coef[0, ..., 0], 0.0)
+    close(coef[0, ..., 2], 0.0)
+
+
+def _smooth_view(s, t):
+    """A smooth analytic image per sample s and time t, L_s^t(x, y)."""
+    c = 0.9 * s + 1.7 * t
+
+    def f(x, y):
+        return (0.5 + 0.25 * np.sin(0.23 * x + 0.11 * y + c) * np.cos(0.19 * y - 0.07 * x + 2 * c)
+                + 0.15 * np.sin(0.17 * (x + y) + 3 * c))
+    return f
+
+
+def _exact_residuals(views1, views2, phis, x):
+    """ρ1, ρ2, ρ3 of MODEL.md §3 by actually warping the analytic views. (3, S, h, w)."""
+    h, w = x.shape[:2]
+    py, px = np.mgrid[0:h, 0:w].astype(np.float64)
+    d1, d2, u, v = (x[..., k].astype(np.float64) for k in range(4))
+    out = []
+    for s, (xi, eta) in enumerate(phis.astype(np.float64)):
+        i1 = views1[0](px, py)
+        w1 = views1[s](px - d1 * xi, py - d1 * eta)
+        j2 = views2[0](px + u, py + v)
+        w2 = views2[s](px + u - d2 * xi, py + v - d2 * eta)
+        out.append((i1 - w1, j2 - w2, w1 - w2))
+    return np.moveaxis(np.array(out), 1, 0)
+
+
+def test_data_linearisation_is_first_order_accurate(device):
+    """ρ_k(x̂ + Δ) − ρ_k(x̂), from warping the (smooth) images, ≈ the linear part of the
+    linearised ρ_k with the kernel's coefficients: checks every sign and coefficient."""
+    h, w = 24, 32
+    phis = np.array([(0.0, 0.0), (1.5, -0.7), (-2.0, 1.0), (0.6, 1.8)], np.float32)
+    s = len(phis)
+    views1 = [_smooth_view(k, 0) for k in range(s)]
+    views2 = [_smooth_view(k, 1) for k in range(s)]
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    samples1 = np.array([v(xx, yy) for v in views1], np.float32)
+    samples2 = np.array([v(xx, yy) for v in views2], np.float32)
+    weights = np.ones((s, 3), np.float32)
+    r = rng(10)
+    x_hat = np.stack([
+        0.6 + 0.2 * np.sin(0.3 * xx), -0.4 + 0.2 * np.cos(0.2 * yy),
+        1.1 + 0.3 * np.sin(0.2 * yy), -0.8 + 0.2 * np.cos(0.25 * xx),
+    ], -1).astype(np.float32)
+    coef, _ = _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device)
+    A = np.moveaxis(coef[..., :9], -1, 0)
+    base = _exact_residuals(views1, views2, phis, x_hat)
+    interior = np.zeros((h, w), bool)
+    interior[6:-6, 6:-6] = True  # all warped positions stay ≥ 2 px inside
+    names = ["δ1", "δ2", "u", "v"]
+    for k in range(4):
+        delta = np.zeros((h, w, 4))
+        delta[..., k] = r.uniform(-0.05, 0.05, (h, w))
+        exact = _exact_residuals(views1, views2, phis, x_hat + delta) - base
+        linear = ref.data_residuals(A, delta) - ref.data_residuals(A, np.zeros_like(delta))
+        for part in range(3):
+            e = exact[part][:, interior]
+            lin = linear[part][:, interior]
+            scale = np.linalg.norm(e)
+            err = np.linalg.norm(lin - e)
+            assert err <= 0.05 * scale + 1e-6, (
+                f"ρ{part + 1} w.r.t. {names[k]}: |linearised − exact| = {err:.3g}, |exact change| = {scale:.3g}")
+
+
+def test_dual_data_step_matches_reference(device):
+    from lfsf.kernels import data_term
+
+    r = rng(11)
+    s, h, w = 3, 7, 9
+    A = r.standard_normal((9, s, h, w))
+    W = r.uniform(0.2, 1.5, (3, s, h, w)) * (r.random((3, s, h, w)) > 0.2)
+    coef = np.concatenate([A, W]).transpose(1, 2, 3, 0).astype(np.float32)
+    A, W = coef[..., :9].transpose(3, 0, 1, 2).astype(np.float64), coef[..., 9:].transpose(3, 0, 1, 2).astype(np.float64)
+    x_bar = r.standard_normal((h, w, 4)).astype(np.float32)
+    x_hat = r.standard_normal((h, w, 4)).astype(np.float32)
+    q = r.uniform(-1, 1, (s, h, w, 3)).astype(np.float32)
+    eps = 1e-6
+    q_wp = arr(q, wp.vec3, device)
+    grad_wp = wp.zeros((h, w), dtype=wp.vec4, device=device)
+    launch(data_term.dual_data_step, (h, w),
+           [arr(coef, data_term.vec12, device), arr(x_bar, wp.vec4, device), arr(x_hat, wp.vec4, device), eps],
+           [q_wp, grad_wp], device)
+    want_q, want_grad = ref.dual_data_step(A, W, np.moveaxis(q.astype(np.float64), -1, 0), x_bar, x_hat, eps)
+    got_q = np.moveaxis(q_wp.numpy().astype(np.float64), -1, 0)
+    close(got_q, want_q, atol=1e-4)
+    close(grad_wp.numpy(), want_grad, atol=1e-4)
+    assert np.any(np.abs(want_q) == 1.0) and np.any(np.abs(want_q) < 1.0)  # clipping exercised
+    # rows with w_k = 0 keep their dual
+    off = W == 0
+    np.testing.assert_array_equal(got_q[off], np.moveaxis(q, -1, 0)[off])
+
+    # Kᵀ by the adjoint identity ⟨K Δ, q⟩ = ⟨Δ, Kᵀ q⟩, K Δ from the linear parts of w_k ρ_k
+    delta = r.standard_normal((h, w, 4))
+    k_delta = W * (ref.data_residuals(A, delta) - ref.data_residuals(A, np.zeros_like(delta)))
+    lhs = np.sum(k_delta * got_q)
+    rhs = np.sum(delta * grad_wp.numpy())
+    assert abs(lhs - rhs) <= 1e-4 * (np.sum(np.abs(k_delta * got_q)) + 1.0), (lhs, rhs)
+
+
+# --- TGV -----------------------------------------------------------------------------------
+
+
+def _image_with_flat_patch(seed, h=7, w=9, patch=(3, 4)):
+    img = rng(seed).random((h, w)).astype(np.float32)
+    img[:patch[0], :patch[1]] = 0.4  # ∇I = 0 inside the patch (central differences, clamped)
+    return img
+
+
+def _run_tensor(img, gamma, beta, device):
+    from lfsf.kernels import tgv
+
+    h, w = img.shape
+    out = wp.zeros((h, w), dtype=wp.vec3, device=device)
+    launch(tgv.diffusion_tensor, (h, w), [arr(img, float, device), gamma, beta], [out], device)
+    return out.numpy().astype(np.float64)
+
+
+@pytest.mark.parametrize("gamma,beta", [(5.0, 0.7), (4.0, 1.0)])
+def test_diffusion_tensor_matches_reference(gamma, beta, device):
+    img = _image_with_flat_patch(12)
+    got = _run_tensor(img, gamma, beta, device)
+    want = ref.tensor_components(ref.diffusion_tensor(img, gamma, beta))
+    close(got, want)
+    # identity where ∇I = 0
+    close(got[:2, :3], np.broadcast_to([1.0, 0.0, 1.0], (2, 3, 3)))
+    # symmetric positive definite, eigenvalues e = exp(−γ|∇I|^β) (along n) and 1
+    gx, gy = ref.central_gradient(img)
+    mag = np.hypot(gx, gy)
+    e = np.exp(-gamma * mag**beta)
+    mats = np.stack([got[..., 0], got[..., 1], got[..., 1], got[..., 2]], -1).reshape(*img.shape, 2, 2)
+    eig = np.linalg.eigvalsh(mats)
+    assert np.all(eig > 0)
+    close(eig[..., 0], np.minimum(e, 1.0), atol=2e-5)
+    close(eig[..., 1], 1.0, atol=2e-5)
+    # the e-eigenvector is ∇I
+    g = np.stack([gx, gy], -1)
+    close(np.einsum("...ij,...j->...i", mats, g), e[..., None] * g, atol=2e-5)
+
+
+def _tgv_setting(seed, h=4, w=5):
+    t1 = ref.tensor_components(ref.diffusion_tensor(_image_with_flat_patch(seed, h, w, (2, 2)), 5.0, 0.7))
+    t2 = ref.tensor_components(ref.diffusion_tensor(rng(seed + 100).random((h, w)), 3.0, 1.0))
+    return t1.astype(np.float32), t2.astype(np.float32)
+
+
+def test_tgv_preconditioner_is_abs_sums_of_K(device):
+    from lfsf.kernels import tgv
+
+    h, w = 4, 5
+    alpha0, alpha1, eps = 2.0, 0.7, 1e-6
+    t1, t2 = _tgv_setting(13, h, w)
+    assert np.any(t1[..., 1] < 0) and np.any(t1[..., 1] > 0)
+    data_colsum = rng(14).uniform(0.0, 3.0, (h, w, 4)).astype(np.float32)
+    outs = [wp.zeros((h, w), dtype=wp.vec4, device=device) for _ in range(5)]
+    launch(tgv.tgv_preconditioner, (h, w),
+           [arr(data_colsum, wp.vec4, device), arr(t1, wp.vec3, device), arr(t2, wp.vec3, device),
+            alpha0, alpha1, eps], outs, device)
+    want, zrows = ref.tgv_preconditioner(data_colsum.astype(np.float64), t1.astype(np.float64),
+                                         t2.astype(np.float64), alpha0, alpha1, eps)
+    for name, got in zip(("tau_x", "tau_w0", "tau_w1", "sigma_y0", "sigma_y1"), outs):
+        np.testing.assert_allclose(got.numpy(), want[name], rtol=1e-5, err_msg=name)
+    # σ_z = 1/(2α0) (the solver's constant) is 1/row sum of every nonzero z row
+    nonzero = zrows[zrows > 0]
+    close(nonzero, 2.0 * alpha0)
+    assert np.all((zrows == 0) | (np.abs(zrows - 2 * alpha0) < 1e-12))
+
+
+def _tgv_fields(seed, h, w, scale=1.0):
+    r = rng(seed)
+    return [(scale * r.standard_normal((h, w, 4))).astype(np.float32) for _ in range(9)]
+
+
+def test_tgv_dual_step_matches_reference(device):
+    from lfsf.kernels import tgv
+
+    h, w = 4, 5
+    alpha0, alpha1 = 2.0, 0.7
+    t1, t2 = _tgv_setting(15, h, w)
+    x_bar, w0_bar, w1_bar, y0, y1, z00, z01, z10, z11 = _tgv_fields(16, h, w, 0.5)
+    r = rng(17)
+    sigma_y0 = r.uniform(0.1, 0.8, (h, w, 4)).astype(np.float32)
+    sigma_y1 = r.uniform(0.1, 0.8, (h, w, 4)).astype(np.float32)
+    sigma_z = 1.0 / (2.0 * alpha0)
+    duals = [arr(a, wp.vec4, device) for a in (y0, y1, z00, z01, z10, z11)]
+    launch(tgv.tgv_dual_step, (h, w),
+           [arr(x_bar, wp.vec4, device), arr(w0_bar, wp.vec4, device), arr(w1_bar, wp.vec4, device),
+            arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(sigma_y0, wp.vec4, device),
+            arr(sigma_y1, wp.vec4, device), sigma_z, alpha0, alpha1], duals, device)
+    want = ref.tgv_dual_step(x_bar, w0_bar, w1_bar, t1, t2, sigma_y0, sigma_y1, sigma_z, alpha0, alpha1,
+                             y0, y1, z00, z01, z10, z11)
+    for name, got, exp in zip(("y0", "y1", "z00", "z01", "z10", "z11"), duals, want):
+        np.testing.assert_allclose(got.numpy(), exp, rtol=1e-5, atol=1e-5, err_msg=name)
+    # both projections were exercised, and hold
+    y = np.hypot(want[0], want[1])
+    z = np.sqrt(sum(a * a for a in want[2:]))
+    assert np.any(np.isclose(y, 1.0)) and np.any(y < 0.99) and np.all(y <= 1 + 1e-9)
+    assert np.any(np.isclose(z, 1.0)) and np.any(z < 0.99) and np.all(z <= 1 + 1e-9)
+
+
+def test_tgv_primal_step_matches_reference(device):
+    from lfsf.kernels import tgv
+
+    h, w = 4, 5
+    alpha0, alpha1 = 2.0, 0.7
+    t1, t2 = _tgv_setting(18, h, w)
+    x, w0, w1, y0, y1, z00, z01, z10, z11 = _tgv_fields(19, h, w, 0.5)
+    r = rng(20)
+    data_grad = r.standard_normal((h, w, 4)).astype(np.float32)
+    tau_x, tau_w0, tau_w1 = (r.uniform(0.05, 0.5, (h, w, 4)).astype(np.float32) for _ in range(3))
+    prim = [arr(a, wp.vec4, device) for a in (x, w0, w1)]
+    bars = [wp.zeros((h, w), dtype=wp.vec4, device=device) for _ in range(3)]
+    launch(tgv.tgv_primal_step, (h, w),
+           [arr(data_grad, wp.vec4, device)] + [arr(a, wp.vec4, device) for a in (y0, y1, z00, z01, z10, z11)]
+           + [arr(t1, wp.vec3, device), arr(t2, wp.vec3, device)]
+           + [arr(a, wp.vec4, device) for a in (tau_x, tau_w0, tau_w1)] + [alpha0, alpha1],
+           prim + bars, device)
+    want = ref.tgv_primal_step(data_grad, y0, y1, z00, z01, z10, z11, t1, t2, tau_x, tau_w0, tau_w1,
+                               alpha0, alpha1, x, w0, w1)
+    for name, got, exp in zip(("x", "w0", "w1", "x_bar", "w0_bar", "w1_bar"), prim + bars, want):
+        np.testing.assert_allclose(got.numpy(), exp, rtol=1e-5, atol=1e-5, err_msg=name)
+
+
+def test_tgv_gradient_and_divergence_are_negative_adjoints(device):
+    """⟨α1Γ∇x, y⟩ = −⟨x, α1 div(Γy)⟩ and ⟨∇w, z⟩ = −⟨w, div z⟩, with the gradient taken from
+    the dual step and the divergence from the primal step, both checked against the
+    forward-difference matrix and its transpose."""
+    from lfsf.kernels import tgv
+
+    h, w = 5, 6
+    n = h * w
+    alpha1 = 0.8
+    r = rng(21)
+    t1, t2 = _tgv_setting(22, h, w)
+    zeros = np.zeros((h, w, 4), np.float32)
+    ones = np.ones((h, w, 4), np.float32)
+
+    # gradient: one dual step from y = 0, z = 0 with σ small enough that nothing is projected
+    x = r.standard_normal((h, w, 4)).astype(np.float32)
+    wf = r.standard_normal((h, w, 4)).astype(np.float32)
+    step = 1e-2
+    duals = [wp.zeros((h, w), dtype=wp.vec4, device=device) for _ in range(6)]
+    launch(tgv.tgv_dual_step, (h, w),
+           [arr(x, wp.vec4, device), arr(zeros, wp.vec4, device), arr(wf, wp.vec4, device),
+            arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(step * ones, wp.vec4, device),
+            arr(step * ones, wp.vec4, device), step, 1.0, alpha1], duals, device)
+    ky0, ky1, gw00, gw01, gw10, gw11 = (d.numpy().astype(np.float64) / step for d in duals)
+    # with w0 = 0, w1 = wf: z00, z01 = 0 and (z10, z11) = ∇wf
+    close(gw00, 0.0)
+    close(gw01, 0.0)
+    dx, dy = ref.gradient_matrix(h, w)
+    for k in range(4):
+        close(gw10[..., k].ravel(), dx @ wf[..., k].ravel(), atol=1e-4)
+        close(gw11[..., k].ravel(), dy @ wf[..., k].ravel(), atol=1e-4)
+
+    # divergence: one primal step at τ = 1, zero data gradient
+    y0, y1, z0, z1 = (r.standard_normal((h, w, 4)).astype(np.float32) for _ in range(4))
+    prim = [arr(x, wp.vec4, device), arr(zeros, wp.vec4, device), arr(zeros, wp.vec4, device)]
+    bars = [wp.zeros((h, w), dtype=wp.vec4, device=device) for _ in range(3)]
+    launch(tgv.tgv_primal_step, (h, w),
+           [arr(zeros, wp.vec4, device), arr(y0, wp.vec4, device), arr(y1, wp.vec4, device),
+            arr(z0, wp.vec4, device), arr(z1, wp.vec4, device), arr(zeros, wp.vec4, device),
+            arr(zeros, wp.vec4, device), arr(t1, wp.vec3, device), arr(t2, wp.vec3, device),
+            arr(ones, wp.vec4, device), arr(ones, wp.vec4, device), arr(ones, wp.vec4, device), 1.0, alpha1],
+           prim + bars, device)
+    div_gy = prim[0].numpy().astype(np.float64) - x        # α1 div(Γy)
+    w0_change = prim[1].numpy().astype(np.float64)          # α1 (Γy)_0 + div(z00, z01)
+
+    for k in range(4):
+        g = (t2 if k == 1 else t1).astype(np.float64)
+        gy0 = g[..., 0] * y0[..., k] + g[..., 1] * y1[..., k]
+        gy1 = g[..., 1] * y0[..., k] + g[..., 2] * y1[..., k]
+        # adjoint identity with the kernels' own gradient and divergence
+        lhs = np.sum(ky0[..., k] * y0[..., k] + ky1[..., k] * y1[..., k])   # ⟨α1 Γ(∇x − w), y⟩, w = (0, wf)
+        lhs_w = -alpha1 * np.sum(gy1 * wf[..., k])                           # its −w part
+        rhs = -np.sum(x[..., k] * div_gy[..., k])
+        assert abs((lhs - lhs_w) - rhs) < 1e-3 * (1 + abs(rhs)), (k, lhs - lhs_w, rhs)
+        # divergence = −(∇ᵀ) of the forward-difference matrix
+        want_div = -alpha1 * (dx.T @ gy0.ravel() + dy.T @ gy1.ravel())
+        close(div_gy[..., k].ravel(), want_div, atol=1e-4)
+        want_w0 = alpha1 * gy0.ravel() - (dx.T @ z0[..., k].ravel() + dy.T @ z1[..., k].ravel())
+        close(w0_change[..., k].ravel(), want_w0, atol=1e-4)
+        assert n == want_w0.size
+
+
+# --- median --------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("radius", [1, 2])
+def test_median_flow_matches_reference(radius, device):
+    from lfsf.kernels import median
+
+    h, w = 7, 9
+    r = rng(23)
+    x = r.standard_normal((h, w, 4)).astype(np.float32)
+    x[..., 3] = np.round(x[..., 3] * 2) / 2  # many ties
+    out = wp.zeros((h, w), dtype=wp.vec4, device=device)
+    launch(median.median_flow, (h, w), [arr(x, wp.vec4, device), radius], [out], device)
+    got = out.numpy()
+    want = ref.median_flow(x, radius)
+    np.testing.assert_array_equal(got, want.astype(np.float32))
+    np.testing.assert_array_equal(got[..., :2], x[..., :2])
+
+
+# --- solver energy -------------------------------------------------------------------------
+
+
+def test_level_solver_energy_decreases(device):
+    from lfsf import synth
+    from lfsf.estimate import _structure_texture
+    from lfsf.kernels import sampling
+    from lfsf.params import Params
+    from lfsf.solver import LevelSolver
+
+    params = Params.preset("fast").replace(radius=2.0, rof_iterations=20)
+    lf1, lf2, _ = synth.render_scene("paper", size=(40, 30), grid=5, supersample=1, device=device)
+    rows, cols = lf1.grid
+    h, w = lf1.height, lf1.width
+    phis, _ = params.sample_offsets((rows, cols))
+    n = len(phis)
+    weights = np.tile(np.array([params.lambda1, params.lambda2, params.lambda3], np.float32) / n, (n, 1))
+    weights[0, :2] = 0.0
+    wp_phis = arr(phis, wp.vec2, device)
+    stacks = []
+    for lf in (lf1, lf2):
+        views = arr(lf.grey().views.reshape(rows * cols, h, w), float, device)
+        out = wp.empty((n, h, w), dtype=float, device=device)
+        launch(sampling.sample_subaperture, (n * h, w), [views, rows, cols, wp_phis], [out], device)
+        stacks.append(out)
+    centres = [wp.clone(s[0]) for s in stacks]
+    textures = [_structure_texture(s, params, device) for s in stacks]
+    solver = LevelSolver(textures[0], textures[1], centres[0], centres[1], wp_phis,
+                         arr(weights, wp.vec3, device), params, device)
+    solver.set_state(np.zeros((h, w, 4), np.float32))
+    solver.linearise()
+    e0 = solver.energy()
+    solver.iterate(10)
+    e10 = solver.energy()
+    solver.iterate(190)
+    e200 = solver.energy()
+    assert np.isfinite(e200)
+    assert e200 < e10 < e0, (e0, e10, e200)
