@@ -110,3 +110,70 @@ def select_disparity(
             d = d + 0.5 * (cl - cr) / curv * step
     best[i, j] = d
     best_cost[i, j] = cmin
+
+
+@wp.kernel
+def flow_cost(
+    row0: int,
+    centre1: wp.array2d(dtype=float),
+    centre2: wp.array2d(dtype=float),
+    candidates: wp.array(dtype=wp.vec2),
+    base: wp.array2d(dtype=wp.vec4),
+    # outputs
+    cost: wp.array3d(dtype=float),
+):
+    """cost[k, p] = |I1(p) − I2(p + u_k)| with u_k = candidates[k] + (u, v) of ``base``
+    (components 2, 3): the flow residual ρ3 at φ = 0; 1 where p + u_k leaves the image.
+    Launch over (candidates × rows, columns)."""
+    r, j = wp.tid()
+    r = r + row0
+    h = cost.shape[1]
+    k = r // h
+    i = r - k * h
+    b = base[i, j]
+    c = candidates[k]
+    x = float(j) + b[2] + c[0]
+    y = float(i) + b[3] + c[1]
+    value = float(1.0)
+    if inside(centre2, x, y):
+        value = wp.abs(centre1[i, j] - bilinear(centre2, x, y))
+    cost[k, i, j] = value
+
+
+@wp.kernel
+def select_flow(
+    row0: int,
+    cost: wp.array3d(dtype=float),
+    half: int,
+    # outputs
+    best: wp.array2d(dtype=wp.vec2),
+):
+    """Winner-take-all over a (2n+1)² grid of whole-pixel candidates (k = (dy+n)(2n+1) +
+    (dx+n)), refined by a parabola along each axis. Launch over (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    side = 2 * half + 1
+    kmin = int(0)
+    cmin = cost[0, i, j]
+    for k in range(1, side * side):
+        c = cost[k, i, j]
+        if c < cmin:
+            cmin = c
+            kmin = k
+    ky = kmin // side
+    kx = kmin - ky * side
+    dx = float(kx - half)
+    dy = float(ky - half)
+    if kx > 0 and kx < side - 1:
+        cl = cost[kmin - 1, i, j]
+        cr = cost[kmin + 1, i, j]
+        curv = cl - 2.0 * cmin + cr
+        if curv > 1.0e-12:
+            dx = dx + 0.5 * (cl - cr) / curv
+    if ky > 0 and ky < side - 1:
+        cu = cost[kmin - side, i, j]
+        cd = cost[kmin + side, i, j]
+        curv = cu - 2.0 * cmin + cd
+        if curv > 1.0e-12:
+            dy = dy + 0.5 * (cu - cd) / curv
+    best[i, j] = wp.vec2(dx, dy)

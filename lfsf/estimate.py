@@ -84,6 +84,13 @@ class SceneFlow:
 
 ProgressFn = Callable[[str], None]
 
+#: The flow search runs on the finest level where its range is at most this many pixels.
+FLOW_SEARCH_HALF = 12
+#: A searched value replaces the current one only where its matching cost is lower by
+#: more than this factor: small differences are noise, and flipping on them would break
+#: the symmetry of the model (identical light fields must give δ1 = δ2 and zero flow).
+FUSION_MARGIN = 0.8
+
 
 def _as_lightfield(lf, name: str) -> LightField:
     if isinstance(lf, LightField):
@@ -239,6 +246,54 @@ def _sample_at_flow(image: np.ndarray, x: np.ndarray) -> np.ndarray:
     return ((1 - fy) * top + fy * bottom).astype(np.float32)
 
 
+def _flow_search(centre1, centre2, half: int, search_radius: int, device: str) -> np.ndarray:
+    """Whole-pixel block matching of the centre views over a (2n+1)² window of
+    displacements (windowed |I1(p) − I2(p + u)|), refined to sub-pixel: (h, w, 2)."""
+    from lfsf.kernels import search
+
+    wp = _device.warp()
+    h, w = centre1.shape
+    grid = np.stack(np.meshgrid(np.arange(-half, half + 1), np.arange(-half, half + 1)), -1).reshape(-1, 2)
+    candidates = wp.array(grid.astype(np.float32), dtype=wp.vec2, device=device)
+    base = wp.zeros((h, w), dtype=wp.vec4, device=device)
+    cost = wp.empty((len(grid), h, w), dtype=float, device=device)
+    _device.launch_rows(search.flow_cost, dim=(len(grid) * h, w), inputs=[centre1, centre2, candidates, base],
+                        outputs=[cost], device=device)
+    smooth = wp.empty_like(cost)
+    _device.launch_rows(search.box_sum, dim=(len(grid) * h, w), inputs=[cost, search_radius], outputs=[smooth],
+                        device=device)
+    best = wp.empty((h, w), dtype=wp.vec2, device=device)
+    _device.launch_rows(search.select_flow, dim=(h, w), inputs=[smooth, half], outputs=[best], device=device)
+    return best.numpy()
+
+
+def _window_flow_cost(centre1, centre2, x: np.ndarray, search_radius: int, device: str) -> np.ndarray:
+    from lfsf.kernels import search
+
+    wp = _device.warp()
+    h, w = centre1.shape
+    zero = wp.zeros(1, dtype=wp.vec2, device=device)
+    base = wp.array(np.ascontiguousarray(x, np.float32), dtype=wp.vec4, device=device)
+    cost = wp.empty((1, h, w), dtype=float, device=device)
+    _device.launch_rows(search.flow_cost, dim=(h, w), inputs=[centre1, centre2, zero, base], outputs=[cost],
+                        device=device)
+    smooth = wp.empty_like(cost)
+    _device.launch_rows(search.box_sum, dim=(h, w), inputs=[cost, search_radius], outputs=[smooth], device=device)
+    return smooth.numpy()[0]
+
+
+def _fuse_flow(x: np.ndarray, centre1, centre2, found: np.ndarray, params: Params, device: str) -> np.ndarray:
+    """Per pixel, keep the flow or take the searched one, whichever matches better."""
+    cand = x.copy()
+    cand[..., 2:] = found
+    r = params.search_radius
+    better = (_window_flow_cost(centre1, centre2, cand, r, device)
+              < FUSION_MARGIN * _window_flow_cost(centre1, centre2, x, r, device))
+    out = x.copy()
+    out[better, 2:] = found[better]
+    return out
+
+
 def _fuse_disparities(x: np.ndarray, s1, s2, phis, found1: np.ndarray, found2: np.ndarray, params: Params,
                       device: str) -> np.ndarray:
     """Per pixel, keep δ1 (δ2) or take the searched one, whichever matches better."""
@@ -247,11 +302,11 @@ def _fuse_disparities(x: np.ndarray, s1, s2, phis, found1: np.ndarray, found2: n
     r = params.search_radius
     cur1 = _window_cost(s1, phis, x[..., 0], no_flow, r, device)
     new1 = _window_cost(s1, phis, found1, no_flow, r, device)
-    x[..., 0] = np.where(new1 < cur1, found1, x[..., 0])
+    x[..., 0] = np.where(new1 < FUSION_MARGIN * cur1, found1, x[..., 0])
     cand2 = _sample_at_flow(found2, x)
     cur2 = _window_cost(s2, phis, x[..., 1], x, r, device)
     new2 = _window_cost(s2, phis, cand2, x, r, device)
-    x[..., 1] = np.where(new2 < cur2, cand2, x[..., 1])
+    x[..., 1] = np.where(new2 < FUSION_MARGIN * cur2, cand2, x[..., 1])
     return x
 
 
@@ -363,6 +418,16 @@ def estimate_scene_flow(
                         params.disparity_range * level_scale, params.search_radius, dev) / level_scale
                  for t in (0, 1)]
         lap("search")
+    flow_search = params.flow_search
+    if flow_search:
+        # the finest level on which the whole range is a small window of whole pixels
+        k = next((k for k in range(len(sizes)) if params.flow_range * sizes[k][1] / width <= FLOW_SEARCH_HALF),
+                 len(sizes) - 1)
+        half = max(1, int(math.ceil(params.flow_range * sizes[k][1] / width)))
+        tex = levels[k][0]
+        flow_found = (_flow_search(wp.clone(tex[0]), wp.clone(tex[n_samples]), half, params.search_radius, dev),
+                      sizes[k])
+        lap("search")
     say(f"{width}×{height}, {rows}×{cols} views, {n_samples} samples (R = {radius:g}), "
         f"{len(sizes)} levels on {dev}")
 
@@ -375,6 +440,12 @@ def estimate_scene_flow(
         solver = LevelSolver(s1, s2, wp.clone(cen[0]), wp.clone(cen[1]), wp_phis, wp_weights, params, dev)
         if x is None:
             x = np.zeros((h, w, 4), np.float32)
+        if flow_search:
+            found_flow, (fh, fw) = flow_found
+            resized = np.stack([_resize_map(found_flow[..., 0], (h, w), w / fw, dev),
+                                _resize_map(found_flow[..., 1], (h, w), h / fh, dev)], -1)
+            x = _fuse_flow(x, s1[0], s2[0], resized, params, dev)
+            lap("search")
         if search:
             scale = w / width
             x = _fuse_disparities(x, s1, s2, wp_phis, _resize_map(found[0], (h, w), scale, dev),

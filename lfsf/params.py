@@ -42,6 +42,9 @@ class Params:
             pixel, of the warped estimate and a plane sweep over the samples.
         disparity_range : the sweep covers ±this many px per view step (full resolution).
         search_radius : the sweep's matching costs are averaged over (2r+1)² windows.
+        flow_search : likewise for the flow, with a whole-pixel block-matching search of
+            the centre views on a coarse level, for motions too large for the pyramid.
+        flow_range : the flow search covers ±this many px (full resolution).
     """
 
     circles: int = 3
@@ -67,6 +70,8 @@ class Params:
     disparity_search: bool = True
     disparity_range: float = 4.0
     search_radius: int = 2
+    flow_search: bool = True
+    flow_range: float = 24.0
 
     def __post_init__(self):
         object.__setattr__(self, "samples", tuple(int(n) for n in self.samples))
@@ -143,6 +148,7 @@ class Params:
         need(math.isfinite(self.disparity_range) and self.disparity_range > 0,
              f"disparity_range must be positive, got {self.disparity_range}")
         need(0 <= self.search_radius <= 5, f"search_radius must be in 0…5, got {self.search_radius}")
+        need(math.isfinite(self.flow_range) and self.flow_range > 0, f"flow_range must be positive, got {self.flow_range}")
 
     def sample_offsets(self, grid: tuple[int, int]) -> tuple[np.ndarray, float]:
         """The angular offsets φ_ij = r_i (cos s_ij, sin s_ij) in view steps, centre first,

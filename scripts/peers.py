@@ -73,10 +73,13 @@ def _check_pair(c1, c2):
 
 # --------------------------------------------------------------------------- optical flow
 
-#: The defaults of cv2.optflow.DualTVL1OpticalFlow_create(), recorded by the comparison.
-OPENCV_TVL1_DEFAULTS = ("tau", "lambda", "theta", "nscales", "warps", "epsilon",
-                        "innerIterations", "outerIterations", "scaleStep", "gamma",
-                        "medianFiltering", "useInitialFlow")
+#: Getters of the parameters of cv2.optflow.DualTVL1OpticalFlow, recorded by the comparison.
+_OPENCV_TVL1_GETTERS = {"tau": "getTau", "lambda": "getLambda", "theta": "getTheta",
+                        "nscales": "getScalesNumber", "warps": "getWarpingsNumber",
+                        "epsilon": "getEpsilon", "innerIterations": "getInnerIterations",
+                        "outerIterations": "getOuterIterations", "scaleStep": "getScaleStep",
+                        "gamma": "getGamma", "medianFiltering": "getMedianFiltering",
+                        "useInitialFlow": "getUseInitialFlow"}
 
 
 def opencv_tvl1_parameters() -> dict:
@@ -85,10 +88,9 @@ def opencv_tvl1_parameters() -> dict:
 
     tv = cv2.optflow.DualTVL1OpticalFlow_create()
     out = {}
-    for name in OPENCV_TVL1_DEFAULTS:
-        getter = getattr(tv, "get" + name[0].upper() + name[1:], None)
-        if getter is not None:
-            value = getter()
+    for name, getter in _OPENCV_TVL1_GETTERS.items():
+        if hasattr(tv, getter):
+            value = getattr(tv, getter)()
             out[name] = value if isinstance(value, (bool, int, float)) else float(value)
     return out
 

@@ -356,7 +356,6 @@ def tgv_preconditioner(data_colsum, tensor1, tensor2, alpha0, alpha1, eps):
     """τ_x, τ_w0, τ_w1, σ_y0, σ_y1 (each (h, w, 4)) from the exact abs row/column sums of
     :func:`tgv_matrix` (data column sums added to τ_x), and σ_z (one per z row, (4, h, w, 4))."""
     h, w = tensor1.shape[:2]
-    n = h * w
     out = {k: np.zeros((h, w, 4)) for k in ("tau_x", "tau_w0", "tau_w1", "sigma_y0", "sigma_y1")}
     zrows = np.zeros((4, h, w, 4))
     for k in range(4):
@@ -369,7 +368,6 @@ def tgv_preconditioner(data_colsum, tensor1, tensor2, alpha0, alpha1, eps):
         out["sigma_y0"][..., k] = 1.0 / (row[0] + eps)
         out["sigma_y1"][..., k] = 1.0 / (row[1] + eps)
         zrows[..., k] = row[2:]
-    assert n == h * w
     return out, zrows
 
 
@@ -428,3 +426,91 @@ def median_flow(x: np.ndarray, radius: int) -> np.ndarray:
         windows = np.lib.stride_tricks.sliding_window_view(padded, (side, side))
         out[..., k] = np.median(windows.reshape(*windows.shape[:2], -1), axis=-1)
     return out
+
+
+# --- the linearised problem of one warp (MODEL.md §3–§5) -----------------------------------
+
+
+class LinearisedProblem:
+    """E(x, w) = Σ_s Σ_k w_k|ρ_k(x)| + α1 Σ|Γ(∇x − w)| + α0 Σ|∇w| for fixed coefficients
+    A (9, S, h, w), weights W (3, S, h, w), linearisation point x̂ (h, w, 4) and tensors
+    (Γ00, Γ01, Γ11) of t1 and t2 (h, w, 3) each; Γ_t2 for δ2, Γ_t1 for δ1, u, v."""
+
+    def __init__(self, A, W, x_hat, tensor1, tensor2, alpha0, alpha1):
+        self.A, self.W = np.asarray(A, np.float64), np.asarray(W, np.float64)
+        self.x_hat = np.asarray(x_hat, np.float64)
+        t1, t2 = np.asarray(tensor1, np.float64), np.asarray(tensor2, np.float64)
+        self.tensor1, self.tensor2 = t1, t2
+        self.G = [np.stack([t1[..., m], t2[..., m], t1[..., m], t1[..., m]], -1) for m in range(3)]
+        self.alpha0, self.alpha1 = alpha0, alpha1
+        self.b = self.W * data_residuals(self.A, np.zeros_like(self.x_hat))
+
+    def K(self, x, w0, w1):
+        """K P as the seven dual blocks (q, y0, y1, z00, z01, z10, z11), without −b."""
+        A, W, G, a0, a1 = self.A, self.W, self.G, self.alpha0, self.alpha1
+        delta = x - self.x_hat
+        kd = W * (data_residuals(A, delta) - data_residuals(A, np.zeros_like(delta)))
+        gx, gy = grad(x)
+        r0, r1 = gx - w0, gy - w1
+        d0x, d0y = grad(w0)
+        d1x, d1y = grad(w1)
+        return [kd, a1 * (G[0] * r0 + G[1] * r1), a1 * (G[1] * r0 + G[2] * r1),
+                a0 * d0x, a0 * d0y, a0 * d1x, a0 * d1y]
+
+    def KT(self, q, y0, y1, z00, z01, z10, z11):
+        """Kᵀ D as (x, w0, w1)."""
+        G, a0, a1 = self.G, self.alpha0, self.alpha1
+        h0 = G[0] * y0 + G[1] * y1
+        h1 = G[1] * y0 + G[2] * y1
+        return (data_K_transpose(self.A, self.W, q) - a1 * div(h0, h1),
+                -a1 * h0 - a0 * div(z00, z01), -a1 * h1 - a0 * div(z10, z11))
+
+    def energy(self, x, w0, w1) -> float:
+        kp = self.K(*(np.asarray(a, np.float64) for a in (x, w0, w1)))
+        return float(np.sum(np.abs(kp[0] + self.b)) + np.sum(np.hypot(kp[1], kp[2]))
+                     + np.sum(np.sqrt(kp[3] ** 2 + kp[4] ** 2 + kp[5] ** 2 + kp[6] ** 2)))
+
+    def preconditioners(self, eps: float) -> dict:
+        """Pock–Chambolle (α = 1) steps from the abs row/column sums of K: σ of the data
+        rows (3, S, h, w), σ_y0, σ_y1, σ_z and τ_x, τ_w0, τ_w1 (each (h, w, 4))."""
+        rowsum = np.zeros_like(self.b)
+        colsum = np.zeros_like(self.x_hat)
+        for coeff, (row, col) in data_jacobian(self.A, self.W).values():
+            rowsum[row] += np.abs(coeff)
+            colsum[..., col] += np.sum(np.abs(coeff), axis=0)
+        tgv, _ = tgv_preconditioner(colsum, self.tensor1, self.tensor2, self.alpha0, self.alpha1, eps)
+        return dict(tgv, sigma_q=1.0 / (rowsum + eps), sigma_z=1.0 / (2.0 * self.alpha0))
+
+    def solve(self, iterations: int, steps: dict | None = None, seed: int = 0):
+        """Chambolle–Pock from x = x̂, w = 0: with ``steps`` (see :meth:`preconditioners`)
+        the diagonally preconditioned iteration of MODEL.md §5, else scalar steps
+        τ = σ = 0.99/‖K‖. Returns (x, w0, w1)."""
+        shape = self.x_hat.shape
+        if steps is None:
+            r = np.random.default_rng(seed)
+            P = [r.standard_normal(shape) for _ in range(3)]
+            for _ in range(60):  # power iteration for ‖K‖²
+                P = list(self.KT(*self.K(*P)))
+                norm = np.sqrt(sum(np.sum(p * p) for p in P))
+                P = [p / norm for p in P]
+            step = 0.99 / np.sqrt(norm)
+            sigma = [step] * 7
+            tau = [step] * 3
+        else:
+            sigma = [steps["sigma_q"], steps["sigma_y0"], steps["sigma_y1"]] + [steps["sigma_z"]] * 4
+            tau = [steps["tau_x"], steps["tau_w0"], steps["tau_w1"]]
+        P = [self.x_hat.copy(), np.zeros(shape), np.zeros(shape)]
+        P_bar = [p.copy() for p in P]
+        Dl = [np.zeros_like(self.b)] + [np.zeros(shape) for _ in range(6)]
+        for _ in range(iterations):
+            kp = self.K(*P_bar)
+            Dl[0] = np.clip(Dl[0] + sigma[0] * (kp[0] + self.b), -1.0, 1.0)
+            for m in range(1, 7):
+                Dl[m] = Dl[m] + sigma[m] * kp[m]
+            ny = np.maximum(1.0, np.hypot(Dl[1], Dl[2]))
+            nz = np.maximum(1.0, np.sqrt(sum(Dl[m] ** 2 for m in range(3, 7))))
+            Dl = [Dl[0], Dl[1] / ny, Dl[2] / ny] + [Dl[m] / nz for m in range(3, 7)]
+            new = [p - t * g for p, t, g in zip(P, tau, self.KT(*Dl))]
+            P_bar = [2.0 * n - p for n, p in zip(new, P)]
+            P = new
+        return P

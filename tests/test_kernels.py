@@ -106,7 +106,10 @@ def test_rof_dual_step_matches_reference(device):
     want = ref.rof_dual_step(u_bar, p, sigma)
     close(got, want)
     assert np.all(np.linalg.norm(got, axis=-1) <= 1 + 1e-6)
-    assert np.any(np.linalg.norm(p + 0.0, axis=-1) > 1)  # the projection was exercised
+    unprojected = p + sigma * np.stack(
+        [np.moveaxis(g, -1, 0) for g in ref.grad(np.moveaxis(u_bar.astype(np.float64), 0, -1))], -1)
+    assert np.any(np.linalg.norm(unprojected, axis=-1) > 1)  # the projection was exercised
+    assert np.any(np.linalg.norm(unprojected, axis=-1) < 1)
 
 
 def test_rof_primal_step_matches_reference(device):
@@ -358,7 +361,8 @@ def test_dual_data_step_matches_reference(device):
     A = r.standard_normal((9, s, h, w))
     W = r.uniform(0.2, 1.5, (3, s, h, w)) * (r.random((3, s, h, w)) > 0.2)
     coef = np.concatenate([A, W]).transpose(1, 2, 3, 0).astype(np.float32)
-    A, W = coef[..., :9].transpose(3, 0, 1, 2).astype(np.float64), coef[..., 9:].transpose(3, 0, 1, 2).astype(np.float64)
+    A = np.moveaxis(coef[..., :9], -1, 0).astype(np.float64)  # the float32 values the kernel sees
+    W = np.moveaxis(coef[..., 9:], -1, 0).astype(np.float64)
     x_bar = r.standard_normal((h, w, 4)).astype(np.float32)
     x_hat = r.standard_normal((h, w, 4)).astype(np.float32)
     q = r.uniform(-1, 1, (s, h, w, 3)).astype(np.float32)
@@ -515,7 +519,6 @@ def test_tgv_gradient_and_divergence_are_negative_adjoints(device):
     from lfsf.kernels import tgv
 
     h, w = 5, 6
-    n = h * w
     alpha1 = 0.8
     r = rng(21)
     t1, t2 = _tgv_setting(22, h, w)
@@ -567,7 +570,16 @@ def test_tgv_gradient_and_divergence_are_negative_adjoints(device):
         close(div_gy[..., k].ravel(), want_div, atol=1e-4)
         want_w0 = alpha1 * gy0.ravel() - (dx.T @ z0[..., k].ravel() + dy.T @ z1[..., k].ravel())
         close(w0_change[..., k].ravel(), want_w0, atol=1e-4)
-        assert n == want_w0.size
+        # the dual step's α1 Γ(∇x − w) from the forward-difference matrix
+        r0 = (dx @ x[..., k].ravel()).reshape(h, w)
+        r1 = (dy @ x[..., k].ravel()).reshape(h, w) - wf[..., k]
+        close(ky0[..., k], alpha1 * (g[..., 0] * r0 + g[..., 1] * r1), atol=1e-4)
+        close(ky1[..., k], alpha1 * (g[..., 1] * r0 + g[..., 2] * r1), atol=1e-4)
+        # ⟨∇w, z⟩ = −⟨w, div z⟩ with the kernels' ∇ (dual step) and div (primal step)
+        div_z = w0_change[..., k] - alpha1 * gy0
+        lhs_z = np.sum(gw10[..., k] * z0[..., k] + gw11[..., k] * z1[..., k])
+        rhs_z = -np.sum(wf[..., k] * div_z)
+        assert abs(lhs_z - rhs_z) < 1e-3 * (1 + abs(rhs_z)), (k, lhs_z, rhs_z)
 
 
 # --- median --------------------------------------------------------------------------------
@@ -592,15 +604,15 @@ def test_median_flow_matches_reference(radius, device):
 # --- solver energy -------------------------------------------------------------------------
 
 
-def test_level_solver_energy_decreases(device):
+def _level_solver(size, grid, params, device):
+    """A LevelSolver for the finest level of a small synthetic pair, built as
+    lfsf.estimate does (sampling, texture split), started at x = 0."""
     from lfsf import synth
     from lfsf.estimate import _structure_texture
     from lfsf.kernels import sampling
-    from lfsf.params import Params
     from lfsf.solver import LevelSolver
 
-    params = Params.preset("fast").replace(radius=2.0, rof_iterations=20)
-    lf1, lf2, _ = synth.render_scene("paper", size=(40, 30), grid=5, supersample=1, device=device)
+    lf1, lf2, _ = synth.render_scene("paper", size=size, grid=grid, supersample=1, device=device)
     rows, cols = lf1.grid
     h, w = lf1.height, lf1.width
     phis, _ = params.sample_offsets((rows, cols))
@@ -619,6 +631,21 @@ def test_level_solver_energy_decreases(device):
     solver = LevelSolver(textures[0], textures[1], centres[0], centres[1], wp_phis,
                          arr(weights, wp.vec3, device), params, device)
     solver.set_state(np.zeros((h, w, 4), np.float32))
+    return solver
+
+
+def _linearised_problem(solver):
+    c = solver.coef.numpy().astype(np.float64)
+    return ref.LinearisedProblem(np.moveaxis(c[..., :9], -1, 0), np.moveaxis(c[..., 9:], -1, 0),
+                                 solver.x_hat.numpy(), solver.tensor1.numpy(), solver.tensor2.numpy(),
+                                 solver.params.alpha0, solver.params.alpha1)
+
+
+def test_level_solver_energy_decreases(device):
+    from lfsf.params import Params
+
+    params = Params.preset("fast").replace(radius=2.0, rof_iterations=20)
+    solver = _level_solver((40, 30), 5, params, device)
     solver.linearise()
     e0 = solver.energy()
     solver.iterate(10)
@@ -626,4 +653,45 @@ def test_level_solver_energy_decreases(device):
     solver.iterate(190)
     e200 = solver.energy()
     assert np.isfinite(e200)
-    assert e200 < e10 < e0, (e0, e10, e200)
+    assert e200 < e10 and e200 < e0, (e0, e10, e200)
+    # LevelSolver.energy is the linearised energy of MODEL.md (independent NumPy build)
+    problem = _linearised_problem(solver)
+    assert abs(problem.energy(*solver.state()) - e200) < 1e-4 * e200
+
+
+@pytest.fixture(scope="module")
+def small_params():
+    from lfsf.params import Params
+
+    return Params.preset("fast").replace(radius=1.0, rof_iterations=10, lambda1=20.0, lambda2=20.0,
+                                         lambda3=20.0)
+
+
+def test_level_solver_iterates_the_preconditioned_primal_dual(device, small_params):
+    """LevelSolver.iterate (all kernels together) equals the diagonally preconditioned
+    Chambolle–Pock of MODEL.md §5 in NumPy, with τ, σ from the abs sums of the actual K."""
+    solver = _level_solver((14, 12), 3, small_params, device)
+    solver.linearise()
+    problem = _linearised_problem(solver)
+    steps = problem.preconditioners(small_params.eps)
+    close(solver.tau_x.numpy(), steps["tau_x"], rtol=1e-5, atol=0)
+    solver.iterate(200)
+    want = problem.solve(200, steps)
+    for name, got, exp in zip(("x", "w0", "w1"), solver.state(), want):
+        np.testing.assert_allclose(got, exp, rtol=0, atol=2e-3, err_msg=name)
+    e_kernel, e_numpy = solver.energy(), problem.energy(*want)
+    assert abs(e_kernel - e_numpy) < 1e-4 * e_numpy, (e_kernel, e_numpy)
+
+
+def test_level_solver_reaches_the_minimum_of_the_linearised_energy(device, small_params):
+    """The preconditioned kernels and a plain scalar-step Chambolle–Pock in NumPy, on the
+    same linearised problem, end at nearly the same energy."""
+    solver = _level_solver((14, 12), 3, small_params, device)
+    solver.linearise()
+    problem = _linearised_problem(solver)
+    e_start = solver.energy()
+    solver.iterate(1000)
+    e_kernel = solver.energy()
+    e_numpy = problem.energy(*problem.solve(3000))
+    assert e_kernel < e_start
+    assert abs(e_kernel - e_numpy) < 2e-3 * e_numpy, (e_start, e_kernel, e_numpy)
