@@ -19,6 +19,65 @@ from .common import bilinear, bilinear_gradient, inside
 wp.set_module_options({"enable_backward": False})
 
 vec12 = wp.types.vector(length=12, dtype=wp.float32)
+vec8 = wp.types.vector(length=8, dtype=wp.float32)
+
+#: Half-planes tried by the occlusion test: normals at multiples of 45°.
+HALF_PLANES = wp.constant(8)
+
+
+@wp.func
+def half_plane_normal(m: int):
+    angle = float(m) * (3.14159265358979 / 4.0)
+    return wp.vec2(wp.cos(angle), wp.sin(angle))
+
+
+@wp.func
+def in_half_plane(phi: wp.vec2, normal: wp.vec2):
+    return wp.dot(phi, normal) >= -1.0e-3 * wp.length(phi)
+
+
+@wp.func
+def visible_half(samples: wp.array3d(dtype=float), phis: wp.array(dtype=wp.vec2), qx: float, qy: float,
+                 disparity: float, centre: float, ratio: float):
+    """Occlusion test of one light field at one pixel: the mean residual |L(q − δφ, φ) −
+    L(q, 0)| over each half of the samples (split by a line through φ = 0 at multiples of
+    45°). Returns the best half's index and whether it is an occlusion: its mean below
+    ``ratio`` times the mean over all samples (an occluder spoils the samples on one
+    side). Index −1: no occlusion, keep every sample."""
+    sums = vec8()
+    counts = vec8()
+    total = float(0.0)
+    count = float(0.0)
+    for s in range(1, phis.shape[0]):
+        phi = phis[s]
+        x = qx - disparity * phi[0]
+        y = qy - disparity * phi[1]
+        if inside(samples[s], x, y):
+            e = wp.abs(bilinear(samples[s], x, y) - centre)
+            total += e
+            count += 1.0
+            for m in range(HALF_PLANES):
+                if in_half_plane(phi, half_plane_normal(m)):
+                    sums[m] = sums[m] + e
+                    counts[m] = counts[m] + 1.0
+    best = int(-1)
+    if count > 0.0 and ratio > 0.0:
+        mean_all = total / count
+        best_mean = mean_all
+        for m in range(HALF_PLANES):
+            if counts[m] > 0.0:
+                mean_m = sums[m] / counts[m]
+                if mean_m < best_mean:
+                    best_mean = mean_m
+                    best = m
+        if best_mean >= ratio * mean_all:
+            best = -1
+    return best
+
+
+@wp.func
+def keeps(best: int, phi: wp.vec2):
+    return best < 0 or in_half_plane(phi, half_plane_normal(best))
 
 
 @wp.kernel
@@ -29,6 +88,7 @@ def data_coefficients(
     phis: wp.array(dtype=wp.vec2),
     weights: wp.array(dtype=wp.vec3),
     x_hat: wp.array2d(dtype=wp.vec4),
+    occlusion_ratio: float,
     # outputs
     coef: wp.array3d(dtype=vec12),
     data_colsum: wp.array2d(dtype=wp.vec4),
@@ -38,7 +98,10 @@ def data_coefficients(
 
     ``samples1[s]``, ``samples2[s]``: (texture part of) the sub-aperture image at φ_s at
     t1 and t2; sample 0 must be the centre view (φ = 0). ``weights[s]`` = (λ1, λ2, λ3)
-    for that sample. Launch over (rows, columns).
+    for that sample. Where one side of the samples matches much worse than the other
+    (``occlusion_ratio``, see :func:`visible_half`; 0 disables), the samples of the worse
+    side are left out of that light field's rows: near a depth edge the occluder hides
+    the point in the views on its side. Launch over (rows, columns).
     """
     i, j = wp.tid()
     i = i + row0
@@ -53,6 +116,8 @@ def data_coefficients(
     j2 = bilinear(centre2, xj, yj)
     gj = bilinear_gradient(centre2, xj, yj)
     in_j = inside(centre2, xj, yj)
+    half1 = visible_half(samples1, phis, px, py, xh[0], i1, occlusion_ratio)
+    half2 = visible_half(samples2, phis, xj, yj, xh[1], j2, occlusion_ratio)
     colsum = wp.vec4(0.0)
     for s in range(phis.shape[0]):
         phi = phis[s]
@@ -66,8 +131,8 @@ def data_coefficients(
         g1 = bilinear_gradient(view1, x1, y1)
         w2v = bilinear(view2, x2, y2)
         g2 = bilinear_gradient(view2, x2, y2)
-        in_1 = inside(view1, x1, y1)
-        in_2 = inside(view2, x2, y2)
+        in_1 = inside(view1, x1, y1) and keeps(half1, phi)
+        in_2 = inside(view2, x2, y2) and keeps(half2, phi)
         a1 = -wp.dot(phi, g1)
         a2 = i1 - w1v
         a3 = -wp.dot(phi, g2)

@@ -23,6 +23,9 @@ class Params:
         lambda1, lambda2, lambda3 : λ1 (stereo at t1), λ2 (stereo at t2), λ3 (flow).
             Each is divided by the number of samples, so the weights mean the same
             whatever the sampling.
+        occlusion_ratio : occlusion handling (an addition to the paper): where the samples
+            on one side of a line through the centre match better than this fraction of
+            the mean, the other side is left out of that pixel's stereo rows (0: off).
         texture_theta : θ of the structure–texture split T = I − θ·ROF(I); 0 disables it.
         rof_weight : μ, the ROF fidelity weight (min Σ|∇u| + 1/(2μ) Σ(u − f)²).
         rof_iterations : primal–dual iterations of the ROF solve.
@@ -53,6 +56,7 @@ class Params:
     lambda1: float = 10.0
     lambda2: float = 10.0
     lambda3: float = 10.0
+    occlusion_ratio: float = 0.5
     texture_theta: float = 0.95
     rof_weight: float = 0.125
     rof_iterations: int = 60
@@ -137,6 +141,7 @@ class Params:
             value = getattr(self, name)
             need(math.isfinite(value) and value >= 0, f"{name} must be a finite number ≥ 0, got {value}")
         need(self.alpha0 > 0 and self.alpha1 > 0, "alpha0 and alpha1 must be positive")
+        need(0 <= self.occlusion_ratio < 1, f"occlusion_ratio must be in [0, 1), got {self.occlusion_ratio}")
         need(0 <= self.texture_theta <= 1, f"texture_theta (θ) must be in [0, 1], got {self.texture_theta}")
         need(0 < self.pyramid_scale < 1, f"pyramid_scale (η_s) must be in (0, 1), got {self.pyramid_scale}")
         need(self.min_size >= 4, f"min_size must be at least 4, got {self.min_size}")

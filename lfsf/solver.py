@@ -106,7 +106,7 @@ class LevelSolver:
         wp.copy(self.w0_bar, self.w0)
         wp.copy(self.w1_bar, self.w1)
         self._launch(data_term.data_coefficients,
-                     inputs=[self.samples1, self.samples2, self.phis, self.weights, self.x_hat],
+                     inputs=[self.samples1, self.samples2, self.phis, self.weights, self.x_hat, p.occlusion_ratio],
                      outputs=[self.coef, self.data_colsum])
         self._launch(tgv.tgv_preconditioner,
                      inputs=[self.data_colsum, self.tensor1, self.tensor2, p.alpha0, p.alpha1, p.eps],
