@@ -23,6 +23,9 @@ vec8 = wp.types.vector(length=8, dtype=wp.float32)
 
 #: Half-planes tried by the occlusion test: normals at multiples of 45°.
 HALF_PLANES = wp.constant(8)
+#: An occlusion must also raise the mean residual by this much (intensities in [0, 1]):
+#: in weak texture, ratios of tiny residuals are noise.
+OCCLUSION_FLOOR = wp.constant(0.01)
 
 
 @wp.func
@@ -43,7 +46,8 @@ def visible_half(samples: wp.array3d(dtype=float), phis: wp.array(dtype=wp.vec2)
     L(q, 0)| over each half of the samples (split by a line through φ = 0 at multiples of
     45°). Returns the best half's index and whether it is an occlusion: its mean below
     ``ratio`` times the mean over all samples (an occluder spoils the samples on one
-    side). Index −1: no occlusion, keep every sample."""
+    side), and lower by at least OCCLUSION_FLOOR. Index −1: no occlusion, keep every
+    sample."""
     sums = vec8()
     counts = vec8()
     total = float(0.0)
@@ -70,7 +74,7 @@ def visible_half(samples: wp.array3d(dtype=float), phis: wp.array(dtype=wp.vec2)
                 if mean_m < best_mean:
                     best_mean = mean_m
                     best = m
-        if best_mean >= ratio * mean_all:
+        if best_mean >= ratio * mean_all or mean_all - best_mean < OCCLUSION_FLOOR:
             best = -1
     return best
 

@@ -98,28 +98,94 @@ def cmd_eval(args) -> int:
     return 0
 
 
-# --- commands that need the estimator --------------------------------------------------------
+# --- run and demo ----------------------------------------------------------------------------
 
-def _not_yet(command: str) -> NotImplementedError:
-    return NotImplementedError(
-        f"'lfsf {command}' needs the scene-flow estimator, which is not implemented yet "
-        "(issue 3); 'lfsf synth' and 'lfsf eval' work"
-    )
+class _Progress:
+    """Progress lines on a terminal (each overwriting the last); silent in logs or --quiet."""
+
+    def __init__(self, args):
+        self.live = sys.stderr.isatty() and not getattr(args, "quiet", False)
+        self.t0 = time.perf_counter()
+        self.width = 0
+
+    def __call__(self, message: str) -> None:
+        if not self.live:
+            return
+        line = f"[{time.perf_counter() - self.t0:6.1f} s] {message}"
+        sys.stderr.write("\r" + line.ljust(self.width))
+        sys.stderr.flush()
+        self.width = len(line)
+
+    def done(self) -> None:
+        if self.live and self.width:
+            sys.stderr.write("\n")
+            sys.stderr.flush()
+
+
+def _params(args):
+    from lfsf.params import Params
+
+    params = Params.preset(args.preset)
+    if getattr(args, "config", None):
+        params = Params.from_toml(args.config, base=params)
+    return params
 
 
 def cmd_run(args) -> int:
     from lfsf.device import resolve_device
+    from lfsf.estimate import estimate_scene_flow
     from lfsf.io import check_pair, read_lightfield
 
-    resolve_device(args.device)
+    device = resolve_device(args.device)
+    params = _params(args)
     lf1 = read_lightfield(args.lf1)
     lf2 = read_lightfield(args.lf2)
     check_pair(lf1, lf2)
-    raise _not_yet("run")
+    progress = _Progress(args)
+    t0 = time.perf_counter()
+    sf = estimate_scene_flow(lf1, lf2, params, device=device, progress=progress)
+    progress.done()
+    paths = sf.save(args.out, lf1.centre, lf2.centre)
+    _log(args, f"estimated in {time.perf_counter() - t0:.1f} s on {device}; wrote {len(paths)} files to {args.out}")
+    return 0
 
 
 def cmd_demo(args) -> int:
-    raise _not_yet("demo")
+    from lfsf import synth
+    from lfsf.device import resolve_device
+    from lfsf.estimate import estimate_scene_flow
+    from lfsf.evaluate import SYNTH_BORDER, evaluate, format_table
+    from lfsf.viz import overview_figure
+
+    device = resolve_device(args.device)
+    params = _params(args)
+    width, height = args.size
+    out = Path(args.out)
+    print(f"lfsf demo: scene '{args.scene}', {width}×{height}, {args.grid}×{args.grid} views, preset "
+          f"'{args.preset}', on {device}", flush=True)
+    t0 = time.perf_counter()
+    lf1, lf2, gt = synth.render_scene(args.scene, size=(width, height), grid=args.grid, device=device)
+    t_render = time.perf_counter() - t0
+    progress = _Progress(args)
+    t0 = time.perf_counter()
+    sf = estimate_scene_flow(lf1, lf2, params, device=device, progress=progress)
+    progress.done()
+    t_est = time.perf_counter() - t0
+    errors = evaluate(sf.as_dict(), gt, border=SYNTH_BORDER)
+    print(f"rendered in {t_render:.1f} s, estimated in {t_est:.1f} s")
+    print(format_table(errors))
+    sf.save(out, lf1.centre, lf2.centre)
+    overview_figure(lf1.centre, lf2.centre, sf.disp1, sf.disp2, sf.u, sf.v, gt=gt, path=out / "overview.png",
+                    title=f"lfsf demo: '{args.scene}' ({width}×{height}, {args.grid}×{args.grid} views)")
+    print(f"wrote {out / 'overview.png'} and the results (disp1.pfm, disp2.pfm, flow.flo, sceneflow.npz) to {out}")
+    return 0
+
+
+def _estimator_options(p) -> None:
+    p.add_argument("--preset", default="paper", help="paper (17 views), fast or lytro (default paper)")
+    p.add_argument("--config", type=Path, help="TOML file setting any parameter of lfsf.Params")
+    p.add_argument("--device", help="cpu or cuda:N (default: $LFSF_DEVICE, else cuda:0 if present, else cpu)")
+    p.add_argument("--quiet", action="store_true", help="no progress messages")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -154,19 +220,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", type=Path, help="also write the figures to this JSON file")
     p.set_defaults(func=cmd_eval)
 
-    p = sub.add_parser("run", help="estimate scene flow from two light fields (estimator: not implemented yet)",
-                       description="Estimate δ1, δ2 and the flow of the centre view from light fields "
-                                   "at t1 and t2 (inputs are read and checked; the estimator is issue 3).")
+    p = sub.add_parser("run", help="estimate scene flow from two light fields",
+                       description="Estimate δ1, δ2 and the flow of the centre view from light fields at t1 and "
+                                   "t2; writes disp1.pfm, disp2.pfm, flow.flo, sceneflow.npz and pictures.")
     p.add_argument("lf1", type=Path, help="light field at t1 (folder of views or .npz)")
     p.add_argument("lf2", type=Path, help="light field at t2")
     p.add_argument("--out", type=Path, required=True, help="output folder")
-    p.add_argument("--preset", choices=("paper", "fast"), default="paper")
-    p.add_argument("--config", type=Path, help="TOML file of parameters")
-    p.add_argument("--device", help="cpu or cuda:N (default: $LFSF_DEVICE, else cuda:0 if present, else cpu)")
-    p.add_argument("--quiet", action="store_true", help="no progress messages")
+    _estimator_options(p)
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("demo", help="render a built-in scene, estimate it, print its errors (not implemented yet)")
+    p = sub.add_parser("demo", help="render a built-in scene, estimate it, print its errors",
+                       description="Render a synthetic scene with exact ground truth, estimate its scene flow, "
+                                   "print the error table and write an overview picture.")
+    p.add_argument("--scene", default="paper", help="scene name (see 'lfsf synth --list'; default paper)")
+    p.add_argument("--size", nargs=2, type=_size, metavar=("W", "H"), default=(320, 240),
+                   help="view size (default 320 240)")
+    p.add_argument("--grid", type=_positive, default=9, metavar="N", help="N×N views (default 9)")
+    p.add_argument("--out", type=Path, default=Path("lfsf-demo"), help="output folder (default ./lfsf-demo)")
+    _estimator_options(p)
     p.set_defaults(func=cmd_demo)
     return parser
 
@@ -186,8 +257,7 @@ def main(argv=None) -> int:
     prog = f"lfsf {args.command}"
     try:
         return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError,
-            NotImplementedError) as exc:
+    except (ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError) as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:

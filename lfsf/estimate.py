@@ -441,9 +441,9 @@ def estimate_scene_flow(
         if x is None:
             x = np.zeros((h, w, 4), np.float32)
         if flow_search:
-            found_flow, (fh, fw) = flow_found
-            resized = np.stack([_resize_map(found_flow[..., 0], (h, w), w / fw, dev),
-                                _resize_map(found_flow[..., 1], (h, w), h / fh, dev)], -1)
+            found_flow, (search_h, search_w) = flow_found
+            resized = np.stack([_resize_map(found_flow[..., 0], (h, w), w / search_w, dev),
+                                _resize_map(found_flow[..., 1], (h, w), h / search_h, dev)], -1)
             x = _fuse_flow(x, s1[0], s2[0], resized, params, dev)
             lap("search")
         if search:

@@ -55,17 +55,17 @@ class Params:
     radius: float = 4.0
     lambda1: float = 10.0
     lambda2: float = 10.0
-    lambda3: float = 10.0
-    occlusion_ratio: float = 0.5
+    lambda3: float = 30.0
+    occlusion_ratio: float = 0.7
     texture_theta: float = 0.95
     rof_weight: float = 0.125
     rof_iterations: int = 60
     alpha0: float = 2.0
     alpha1: float = 0.5
-    gamma: float = 5.0
+    gamma: float = 10.0
     beta: float = 0.7
     pyramid_scale: float = 0.5
-    min_size: int = 24
+    min_size: int = 10
     max_levels: int = 0
     warps: int = 5
     iterations: int = 50
@@ -73,7 +73,7 @@ class Params:
     eps: float = 1e-6
     disparity_search: bool = True
     disparity_range: float = 4.0
-    search_radius: int = 2
+    search_radius: int = 1
     flow_search: bool = True
     flow_range: float = 24.0
 

@@ -95,10 +95,35 @@ def test_light_fields_of_different_shapes_are_rejected(tmp_path):
     assert_clean_error(status, err, "3×3", "5×5")
 
 
-def test_run_without_estimator_says_so(tmp_path):
-    np.savez(tmp_path / "a.npz", views=np.full((3, 3, 10, 12), 0.5, np.float32))
-    status, _, err = lfsf("run", tmp_path / "a.npz", tmp_path / "a.npz", "--out", tmp_path / "r")
-    assert_clean_error(status, err, "not implemented yet")
+def test_run_writes_every_result_and_eval_reads_them(tmp_path):
+    assert main(["synth", "paper", "--out", str(tmp_path / "s"), "--size", "40", "32", "--grid", "3", "--quiet"]) == 0
+    status, _, err = lfsf("run", tmp_path / "s" / "lf1.npz", tmp_path / "s" / "lf2.npz", "--out", tmp_path / "r",
+                          "--preset", "fast", "--quiet")
+    assert status == 0, err
+    names = sorted(p.name for p in (tmp_path / "r").iterdir())
+    assert names == ["disp1.pfm", "disp1.png", "disp2.pfm", "disp2.png", "flow.flo", "flow.png", "overview.png",
+                     "sceneflow.npz"]
+    with np.load(tmp_path / "r" / "sceneflow.npz") as z:
+        assert z["disp1"].shape == (32, 40) and z["u"].dtype == np.float32
+        np.testing.assert_array_equal(z["disp1"], io.read_pfm(tmp_path / "r" / "disp1.pfm"))
+        np.testing.assert_array_equal(z["v"], io.read_flo(tmp_path / "r" / "flow.flo")[..., 1])
+        assert "lambda1" in str(z["params"])
+    status, out, err = lfsf("eval", tmp_path / "r", tmp_path / "s" / "gt.npz")
+    assert status == 0, err and "flow" in out
+
+
+def test_config_file_sets_parameters_and_bad_ones_are_clear_errors(tmp_path):
+    np.savez(tmp_path / "a.npz", views=np.full((3, 3, 16, 16), 0.5, np.float32))
+    (tmp_path / "bad.toml").write_text("lambda9 = 3\n")
+    status, _, err = lfsf("run", tmp_path / "a.npz", tmp_path / "a.npz", "--out", tmp_path / "r",
+                          "--config", tmp_path / "bad.toml")
+    assert_clean_error(status, err, "bad.toml", "lambda9")
+    (tmp_path / "broken.toml").write_text("warps = = 3\n")
+    status, _, err = lfsf("run", tmp_path / "a.npz", tmp_path / "a.npz", "--out", tmp_path / "r",
+                          "--config", tmp_path / "broken.toml")
+    assert_clean_error(status, err, "broken.toml", "TOML")
+    status, _, err = lfsf("run", tmp_path / "a.npz", tmp_path / "a.npz", "--out", tmp_path / "r", "--preset", "slow")
+    assert_clean_error(status, err, "unknown preset 'slow'")
     assert not (tmp_path / "r").exists()
 
 

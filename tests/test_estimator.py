@@ -64,8 +64,10 @@ def test_known_shift_is_recovered():
 def test_identical_light_fields_give_zero_flow_and_equal_disparities():
     lf1, _ = shift_lightfields(disp1=-0.7)
     sf = estimate_scene_flow(lf1, lf1, QUICK, device="cpu")
-    assert np.mean(np.abs(sf.u)) < 0.02 and np.mean(np.abs(sf.v)) < 0.02
-    assert np.mean(np.abs(sf.disp1 - sf.disp2)) < 0.02
+    # within a few pixels of the image border, samples that leave the image drop out of
+    # some rows but not others, which breaks the symmetry; inside it holds
+    assert np.mean(np.abs(interior(sf.u))) < 0.02 and np.mean(np.abs(interior(sf.v))) < 0.02
+    assert np.mean(np.abs(interior(sf.disp1 - sf.disp2))) < 0.005
     assert np.median(np.abs(interior(sf.disp1) + 0.7)) < 0.03
 
 
