@@ -45,7 +45,7 @@ def shift_lightfields(h=48, w=64, grid=5, disp1=0.6, disp2=0.4, flow=(1.5, -0.8)
     return [lfsf.LightField(((v - lo) / (hi - lo)).astype(np.float32), source="shifted plane") for v in lfs]
 
 
-QUICK = Params.preset("fast").replace(iterations=40, warps=4, median_radius=1)
+QUICK = Params.preset("fast").replace(iterations=80, warps=4, median_radius=1)
 
 
 def interior(a, b=6):
