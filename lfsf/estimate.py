@@ -137,6 +137,22 @@ def _structure_texture(stack, params: Params, device: str):
     return texture
 
 
+def _normalise_contrast(stack, params: Params, device: str):
+    """Scale the whole (texture) stack so that the t1 centre view's mean absolute
+    deviation is ``params.contrast``: the data weights λ then mean the same for dim and
+    bright, weakly and strongly textured scenes. One factor for every image, so that
+    brightness constancy between views and times is kept."""
+    if params.contrast <= 0:
+        return stack
+    wp = _device.warp()
+    centre = stack[0].numpy()
+    spread = float(np.mean(np.abs(centre - np.median(centre))))
+    if not np.isfinite(spread) or spread < 1e-6:
+        return stack  # a flat image: nothing to match, nothing to scale
+    data = stack.numpy() * np.float32(params.contrast / spread)
+    return wp.array(data, dtype=float, device=device)
+
+
 def _downsample(stack, size, device: str):
     from lfsf.kernels import pyramid
 
@@ -399,7 +415,7 @@ def estimate_scene_flow(
     wp.copy(both, stacks[0], dest_offset=0, count=n_samples * height * width)
     wp.copy(both, stacks[1], dest_offset=n_samples * height * width, count=n_samples * height * width)
     del stacks
-    texture = _structure_texture(both, params, dev)
+    texture = _normalise_contrast(_structure_texture(both, params, dev), params, dev)
     lap("texture")
 
     sizes = pyramid_sizes(height, width, params)

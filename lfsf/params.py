@@ -29,6 +29,9 @@ class Params:
         texture_theta : θ of the structure–texture split T = I − θ·ROF(I); 0 disables it.
         rof_weight : μ, the ROF fidelity weight (min Σ|∇u| + 1/(2μ) Σ(u − f)²).
         rof_iterations : primal–dual iterations of the ROF solve.
+        contrast : the matched images (texture parts) are scaled by one factor so that the
+            t1 centre view's mean absolute deviation is this (0: no scaling); λ is then
+            independent of the scene's contrast.
     Regulariser: image-driven TGV² (§4)
         alpha0, alpha1 : α0 (on ∇w) and α1 (on Γ(∇x − w)).
         gamma, beta : γ, β of Γ = exp(−γ|∇I|^β) n nᵀ + n⊥ n⊥ᵀ.
@@ -60,6 +63,7 @@ class Params:
     texture_theta: float = 0.95
     rof_weight: float = 0.125
     rof_iterations: int = 60
+    contrast: float = 0.04
     alpha0: float = 2.0
     alpha1: float = 0.5
     gamma: float = 10.0
@@ -142,6 +146,7 @@ class Params:
             need(math.isfinite(value) and value >= 0, f"{name} must be a finite number ≥ 0, got {value}")
         need(self.alpha0 > 0 and self.alpha1 > 0, "alpha0 and alpha1 must be positive")
         need(0 <= self.occlusion_ratio < 1, f"occlusion_ratio must be in [0, 1), got {self.occlusion_ratio}")
+        need(math.isfinite(self.contrast) and self.contrast >= 0, f"contrast must be ≥ 0, got {self.contrast}")
         need(0 <= self.texture_theta <= 1, f"texture_theta (θ) must be in [0, 1], got {self.texture_theta}")
         need(0 < self.pyramid_scale < 1, f"pyramid_scale (η_s) must be in (0, 1), got {self.pyramid_scale}")
         need(self.min_size >= 4, f"min_size must be at least 4, got {self.min_size}")

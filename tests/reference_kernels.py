@@ -192,11 +192,78 @@ def upsample(coarse: np.ndarray, size: tuple[int, int], scale: float) -> np.ndar
 # --- data term (MODEL.md §3, §5) -------------------------------------------------------------
 
 
-def data_coefficients(samples1, samples2, phis, weights, x_hat):
+#: Occlusion test (data_term.visible_half): half-planes with normals at m·45°, m = 0…7, and
+#: the least rise of the mean residual (intensities in [0, 1]) that counts as an occlusion.
+HALF_PLANES = 8
+OCCLUSION_FLOOR = 0.01
+
+
+def half_plane_members(phis) -> np.ndarray:
+    """(8, S) bool: sample s lies in half-plane m, φ_s·n_m ≥ −1e-3|φ_s| with
+    n_m = (cos m·45°, sin m·45°). φ = 0 lies in every half-plane."""
+    phis = np.asarray(phis, np.float64)
+    ang = np.arange(HALF_PLANES) * (np.pi / 4.0)
+    normals = np.stack([np.cos(ang), np.sin(ang)], -1)  # (8, 2)
+    dots = normals @ phis.T  # (8, S)
+    return dots >= -1e-3 * np.linalg.norm(phis, axis=-1)[None, :]
+
+
+def visible_half(samples, phis, qx, qy, disparity, centre, ratio) -> dict:
+    """The occlusion test of one light field, per pixel (MODEL.md addition, data_term docs).
+
+    e_s = |L(q − δφ_s, φ_s) − centre| for the samples s ≥ 1 whose warped position lies in
+    the image; mean_all = their mean; mean_m = the mean over those in half-plane m. The best
+    half is the m of the lowest mean_m (the first such m), if it is below mean_all; it is an
+    occlusion when mean_m < ratio·mean_all and mean_all − mean_m ≥ OCCLUSION_FLOOR, else
+    best = −1 (no occlusion, also where no sample is in the image or ratio ≤ 0).
+
+    Returns {best (h, w) int, mean_all (h, w), means (8, h, w) (inf where a half holds no
+    sample), count (h, w), members (8, S)}.
+    """
+    samples = np.asarray(samples, np.float64)
+    phis = np.asarray(phis, np.float64)
+    n, h, w = samples.shape
+    qx, qy, disparity, centre = np.broadcast_arrays(*(np.asarray(a, np.float64) for a in (qx, qy, disparity, centre)))
+    members = half_plane_members(phis)
+    total = np.zeros((h, w))
+    count = np.zeros((h, w))
+    sums = np.zeros((HALF_PLANES, h, w))
+    counts = np.zeros((HALF_PLANES, h, w))
+    for s in range(1, n):
+        xi, eta = phis[s]
+        x, y = qx - disparity * xi, qy - disparity * eta
+        valid = inside((h, w), x, y)
+        e = np.where(valid, np.abs(bilinear(samples[s], x, y) - centre), 0.0)
+        total += e
+        count += valid
+        sums += members[:, s, None, None] * e
+        counts += members[:, s, None, None] * valid
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_all = np.where(count > 0, total / np.maximum(count, 1), 0.0)
+        means = np.where(counts > 0, sums / np.maximum(counts, 1), np.inf)
+    m_best = np.argmin(means, axis=0)
+    best_mean = np.take_along_axis(means, m_best[None], 0)[0]
+    occluded = ((count > 0) & (ratio > 0) & (best_mean < mean_all) & (best_mean < ratio * mean_all)
+                & (mean_all - best_mean >= OCCLUSION_FLOOR))
+    best = np.where(occluded, m_best, -1)
+    return dict(best=best, mean_all=mean_all, means=means, count=count, members=members)
+
+
+def kept_samples(best: np.ndarray, members: np.ndarray) -> np.ndarray:
+    """(S, h, w) bool: sample s is used at p (no occlusion there, or s in the best half)."""
+    keep = members[np.maximum(best, 0)]  # (h, w, S)
+    return np.moveaxis(keep, -1, 0) | (best < 0)[None]
+
+
+def data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio=0.0, details=None):
     """A1…A9 (9, S, h, w), row weights (3, S, h, w) and data column sums (h, w, 4).
 
     W1 = L(p − δ̂1 φ, φ, t1), W2 = L(p + û − δ̂2 φ, φ, t2), J2 = L(p + û, 0, t2); sample 0 is
     the centre view; w_k = λ_k, or 0 where a warped position of row k leaves the image.
+    Occlusion (``occlusion_ratio`` > 0): the t1 light field is tested at q = p with δ̂1 and
+    centre I1(p), the t2 light field at q = p + û with δ̂2 and centre J2 (:func:`visible_half`);
+    samples outside the best half of t1 get w1 = 0, of t2 get w2 = 0, and w3 = 0 if left
+    out of either. ``details``, a dict, receives the two occlusion tests ("t1", "t2").
     """
     samples1 = np.asarray(samples1, np.float64)
     samples2 = np.asarray(samples2, np.float64)
@@ -209,6 +276,12 @@ def data_coefficients(samples1, samples2, phis, weights, x_hat):
     j2 = bilinear(samples2[0], xj, yj)
     gjx, gjy = bilinear_gradient(samples2[0], xj, yj)
     in_j = inside((h, w), xj, yj)
+    occ1 = visible_half(samples1, phis, px, py, d1, i1, occlusion_ratio)
+    occ2 = visible_half(samples2, phis, xj, yj, d2, j2, occlusion_ratio)
+    keep1 = kept_samples(occ1["best"], occ1["members"])
+    keep2 = kept_samples(occ2["best"], occ2["members"])
+    if details is not None:
+        details.update(t1=occ1, t2=occ2)
     A = np.zeros((9, n, h, w))
     W = np.zeros((3, n, h, w))
     for s in range(n):
@@ -229,8 +302,8 @@ def data_coefficients(samples1, samples2, phis, weights, x_hat):
         A[6, s] = w1 - w2
         A[7, s] = gjx - g2x
         A[8, s] = gjy - g2y
-        in1 = inside((h, w), x1, y1)
-        in2 = inside((h, w), x2, y2)
+        in1 = inside((h, w), x1, y1) & keep1[s]
+        in2 = inside((h, w), x2, y2) & keep2[s]
         W[0, s] = np.where(in1, lam[0], 0.0)
         W[1, s] = np.where(in2 & in_j, lam[1], 0.0)
         W[2, s] = np.where(in1 & in2, lam[2], 0.0)
@@ -514,3 +587,112 @@ class LinearisedProblem:
             P_bar = [2.0 * n - p for n, p in zip(new, P)]
             P = new
         return P
+
+
+# --- discrete search (kernels/search.py) ---------------------------------------------------
+
+
+def disparity_cost(samples, phis, candidates, base, offset) -> np.ndarray:
+    """cost[k, p] = mean over s ≥ 1 of |L(q − δ_k φ_s, φ_s) − L(q, 0)|, q = p + (u, v) of
+    ``offset`` (h, w, 4), δ_k = candidates[k] + base[p]; samples whose warped position
+    leaves the image are left out, cost 1 where none remain. (K, h, w)."""
+    samples = np.asarray(samples, np.float64)
+    phis = np.asarray(phis, np.float64)
+    offset = np.asarray(offset, np.float64)
+    n, h, w = samples.shape
+    py, px = np.mgrid[0:h, 0:w].astype(np.float64)
+    qx, qy = px + offset[..., 2], py + offset[..., 3]
+    centre = bilinear(samples[0], qx, qy)
+    out = np.zeros((len(candidates), h, w))
+    for k, c in enumerate(np.asarray(candidates, np.float64)):
+        d = c + np.asarray(base, np.float64)
+        acc = np.zeros((h, w))
+        cnt = np.zeros((h, w))
+        for s in range(1, n):
+            x, y = qx - d * phis[s, 0], qy - d * phis[s, 1]
+            valid = inside((h, w), x, y)
+            acc += np.where(valid, np.abs(bilinear(samples[s], x, y) - centre), 0.0)
+            cnt += valid
+        out[k] = np.where(cnt > 0, acc / np.maximum(cnt, 1), 1.0)
+    return out
+
+
+def box_mean(values, radius: int) -> np.ndarray:
+    """Mean of each slice of (K, h, w) over (2r+1)² windows, borders replicated."""
+    values = np.asarray(values, np.float64)
+    side = 2 * radius + 1
+    padded = np.pad(values, ((0, 0), (radius, radius), (radius, radius)), mode="edge")
+    win = np.lib.stride_tricks.sliding_window_view(padded, (side, side), axis=(1, 2))
+    return win.mean(axis=(-2, -1))
+
+
+def parabola_vertex(cl, c0, cr):
+    """Offset (in steps) of the vertex of the parabola through (−1, cl), (0, c0), (1, cr)."""
+    return 0.5 * (cl - cr) / (cl - 2.0 * c0 + cr)
+
+
+def select_disparity(cost, candidates):
+    """Winner-take-all (first minimum) over the candidates (K, h, w), moved to the vertex of
+    the parabola through the minimum and its two neighbours (when both exist and the
+    parabola is convex); returns (disparity, winning cost) as (h, w) arrays."""
+    cost = np.asarray(cost, np.float64)
+    cand = np.asarray(candidates, np.float64)
+    n = cost.shape[0]
+    k = np.argmin(cost, axis=0)
+    c0 = np.take_along_axis(cost, k[None], 0)[0]
+    d = cand[k]
+    interior = (k > 0) & (k < n - 1)
+    kl, kr = np.clip(k - 1, 0, n - 1), np.clip(k + 1, 0, n - 1)
+    cl = np.take_along_axis(cost, kl[None], 0)[0]
+    cr = np.take_along_axis(cost, kr[None], 0)[0]
+    curv = cl - 2.0 * c0 + cr
+    refine = interior & (curv > 1e-12)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        step = cand[kr] - cand[k]
+        d = np.where(refine, d + parabola_vertex(cl, c0, cr) * step, d)
+    return d, c0
+
+
+def flow_cost(centre1, centre2, candidates, base) -> np.ndarray:
+    """cost[k, p] = |I1(p) − I2(p + u_k)|, u_k = candidates[k] + (u, v) of ``base``
+    (h, w, 4); 1 where p + u_k leaves the image. (K, h, w)."""
+    centre1 = np.asarray(centre1, np.float64)
+    base = np.asarray(base, np.float64)
+    h, w = centre1.shape
+    py, px = np.mgrid[0:h, 0:w].astype(np.float64)
+    out = np.zeros((len(candidates), h, w))
+    for k, (cu, cv) in enumerate(np.asarray(candidates, np.float64)):
+        x, y = px + base[..., 2] + cu, py + base[..., 3] + cv
+        out[k] = np.where(inside((h, w), x, y), np.abs(centre1 - bilinear(centre2, x, y)), 1.0)
+    return out
+
+
+def flow_grid(half: int) -> np.ndarray:
+    """The whole-pixel candidates (dx, dy) of select_flow, k = (dy+n)(2n+1) + (dx+n)."""
+    r = np.arange(-half, half + 1)
+    dy, dx = np.meshgrid(r, r, indexing="ij")
+    return np.stack([dx.ravel(), dy.ravel()], -1)
+
+
+def select_flow(cost, half: int) -> np.ndarray:
+    """Winner-take-all (first minimum) over the (2n+1)² grid (:func:`flow_grid`), each axis
+    moved to the vertex of the parabola through the minimum and its two neighbours along
+    that axis (when both exist and the parabola is convex). (h, w, 2) = (dx, dy)."""
+    cost = np.asarray(cost, np.float64)
+    side = 2 * half + 1
+    _, h, w = cost.shape
+    grid = cost.reshape(side, side, h, w)  # [dy + n, dx + n]
+    k = np.argmin(cost, axis=0)
+    ky, kx = np.divmod(k, side)
+    ii, jj = np.mgrid[0:h, 0:w]
+    c0 = grid[ky, kx, ii, jj]
+    out = np.stack([kx - half, ky - half], -1).astype(np.float64)
+    for axis, (ka, neighbours) in enumerate((
+            (kx, lambda d: grid[ky, np.clip(kx + d, 0, side - 1), ii, jj]),
+            (ky, lambda d: grid[np.clip(ky + d, 0, side - 1), kx, ii, jj]))):
+        cl, cr = neighbours(-1), neighbours(1)
+        curv = cl - 2.0 * c0 + cr
+        refine = (ka > 0) & (ka < side - 1) & (curv > 1e-12)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out[..., axis] += np.where(refine, parabola_vertex(cl, c0, cr), 0.0)
+    return out

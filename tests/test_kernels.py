@@ -258,7 +258,7 @@ def _data_inputs(seed, h=7, w=9):
     return samples1, samples2, phis, weights, x_hat
 
 
-def _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device):
+def _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device, occlusion_ratio=0.0):
     from lfsf.kernels import data_term
 
     s, h, w = samples1.shape
@@ -266,20 +266,28 @@ def _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device):
     colsum = wp.zeros((h, w), dtype=wp.vec4, device=device)
     launch(data_term.data_coefficients, (h, w),
            [arr(samples1, float, device), arr(samples2, float, device), arr(phis, wp.vec2, device),
-            arr(weights, wp.vec3, device), arr(x_hat, wp.vec4, device)],
+            arr(weights, wp.vec3, device), arr(x_hat, wp.vec4, device), float(occlusion_ratio)],
            [coef, colsum], device)
     return coef.numpy().astype(np.float64), colsum.numpy().astype(np.float64)
 
 
-def test_data_coefficients_match_reference(device):
-    samples1, samples2, phis, weights, x_hat = _data_inputs(9)
-    coef, colsum = _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device)
-    A, W, want_colsum = ref.data_coefficients(samples1, samples2, phis, weights, x_hat)
+def _check_data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio, device):
+    """Kernel vs reference: A1…A9, the row weights (exactly) and the column sums. Returns
+    (kernel coef, reference W, reference occlusion details)."""
+    coef, colsum = _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device, occlusion_ratio)
+    details = {}
+    A, W, want_colsum = ref.data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio, details)
     for k in range(9):
         close(coef[..., k], A[k], atol=2e-5)
     for k in range(3):
         np.testing.assert_array_equal(coef[..., 9 + k], W[k].astype(np.float32), err_msg=f"w{k + 1}")
     close(colsum, want_colsum, atol=5e-5)
+    return coef, W, details
+
+
+def test_data_coefficients_match_reference(device):
+    samples1, samples2, phis, weights, x_hat = _data_inputs(9)
+    coef, W, _ = _check_data_coefficients(samples1, samples2, phis, weights, x_hat, 0.0, device)
     # the rows whose warps leave the image are switched off
     assert np.all(coef[1:, 0, 0, 9] == 0) and np.all(coef[1:, 0, 0, 11] == 0)
     assert np.all(coef[:, 3, 4, 10] == 0)
@@ -289,6 +297,203 @@ def test_data_coefficients_match_reference(device):
     close(coef[0, ..., 3], 0.0)
     close(coef[0, ..., 0], 0.0)
     close(coef[0, ..., 2], 0.0)
+
+
+# --- data term: occlusion handling ------------------------------------------------------------
+
+
+RING = np.array([(0.0, 0.0)] + [(1.2 * math.cos(a), 1.2 * math.sin(a)) for a in np.arange(8) * math.pi / 4],
+                np.float32)  # the centre and 8 samples at multiples of 45° (on half-plane borders)
+
+
+def _assert_decisions_robust(occ, ratio, tol=1e-5):
+    """The test input must not sit on a knife edge of the occlusion test (float32 kernel vs
+    float64 reference): where an occlusion is found, no other half-plane that keeps other
+    samples comes within ``tol`` of the best mean; and the ratio and floor rules decide
+    with a margin of at least ``tol``."""
+    means, mean_all, members, best = occ["means"], occ["mean_all"], occ["members"], occ["best"]
+    m_best = np.argmin(means, axis=0)
+    best_mean = np.take_along_axis(means, m_best[None], 0)[0]
+    live = (occ["count"] > 0) & np.isfinite(best_mean)
+    differ = np.any(members[:, None, :] != members[None, :, :], axis=-1)  # (8, 8)
+    with np.errstate(invalid="ignore"):
+        near = np.abs(means - best_mean[None]) < tol
+    fragile = np.any(near & differ[m_best].transpose(2, 0, 1), axis=0) & (best >= 0)
+    with np.errstate(invalid="ignore"):
+        by_ratio = ratio * mean_all - best_mean              # > 0: the ratio rule says occluded
+        by_floor = mean_all - best_mean - ref.OCCLUSION_FLOOR  # ≥ 0: the floor rule says occluded
+    robust = (by_ratio < -tol) | (by_floor < -tol) | ((by_ratio > tol) & (by_floor > tol))
+    fragile |= ~robust
+    assert not np.any(fragile & live), np.argwhere(fragile & live)
+
+
+def _occlusion_random_inputs(seed, h=7, w=9):
+    """Random images and linearisation point with 11 samples: the occlusion test decides
+    both ways at random pixels, on warps partly outside the image too."""
+    r = rng(seed)
+    phis = np.concatenate([RING, np.array([(0.4, -1.9), (-1.7, 0.3)], np.float32)])
+    s = len(phis)
+    samples1 = r.random((s, h, w)).astype(np.float32)
+    samples2 = r.random((s, h, w)).astype(np.float32)
+    weights = r.uniform(0.5, 2.0, (s, 3)).astype(np.float32)
+    x_hat = np.stack([r.uniform(-1.0, 1.0, (h, w)), r.uniform(-1.0, 1.0, (h, w)),
+                      r.uniform(-1.5, 1.5, (h, w)), r.uniform(-1.5, 1.5, (h, w))], -1).astype(np.float32)
+    x_hat[0, 0] = (3.0, -4.0, 0.3, 0.2)
+    x_hat[3, 4] = (0.1, 0.2, 20.0, 0.0)  # p + û outside: the t2 test sees no sample
+    return samples1, samples2, phis, weights, x_hat
+
+
+def _texture(seed, waves=6):
+    """A smooth random texture T(x, y) in [0, 1]: a sum of plane waves (wavelengths 6–15 px)."""
+    r = rng(seed)
+    freq = r.uniform(0.4, 1.0, waves)
+    ang = r.uniform(0, 2 * math.pi, waves)
+    phase = r.uniform(0, 2 * math.pi, waves)
+    kx, ky = freq * np.cos(ang), freq * np.sin(ang)
+
+    def t(x, y):
+        x = np.asarray(x, np.float64)[..., None]
+        y = np.asarray(y, np.float64)[..., None]
+        return 0.5 + 0.4 / waves * np.sum(np.sin(kx * x + ky * y + phase), -1)
+    return t
+
+
+def _occlusion_constructed_inputs(h=9, w=13):
+    """The light fields of a smooth texture at disparity 0.6 (t2: moved by û = (0.7, −0.4)),
+    with a block of each stack made to disagree by +0.5 in the samples with φ_x > 0 only."""
+    tex = _texture(31)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    phis = RING
+    delta, u, v = 0.6, 0.7, -0.4
+    samples1 = np.array([tex(xx + delta * fx, yy + delta * fy) for fx, fy in phis.astype(np.float64)])
+    samples2 = np.array([tex(xx - u + delta * fx, yy - v + delta * fy) for fx, fy in phis.astype(np.float64)])
+    right = phis[:, 0] > 1e-3
+    samples1[np.ix_(right, range(1, 8), range(1, 5))] += 0.5
+    samples2[np.ix_(right, range(1, 8), range(8, 12))] += 0.5
+    weights = rng(32).uniform(0.5, 2.0, (len(phis), 3)).astype(np.float32)
+    x_hat = np.broadcast_to(np.array([delta, delta, u, v], np.float32), (h, w, 4)).copy()
+    return samples1.astype(np.float32), samples2.astype(np.float32), phis, weights, x_hat
+
+
+def test_data_coefficients_occlusion_matches_reference_random(device):
+    ratio = 0.8
+    samples1, samples2, phis, weights, x_hat = _occlusion_random_inputs(33)
+    _, W, details = _check_data_coefficients(samples1, samples2, phis, weights, x_hat, ratio, device)
+    for name in ("t1", "t2"):
+        occ = details[name]
+        _assert_decisions_robust(occ, ratio)
+        # the input exercises both outcomes, and several different half-planes
+        best = occ["best"]
+        assert 0.1 < np.mean(best >= 0) < 0.9, (name, np.mean(best >= 0))
+        assert len(np.unique(best[best >= 0])) >= 3, (name, np.unique(best))
+    assert details["t2"]["count"][3, 4] == 0 and details["t2"]["best"][3, 4] == -1
+    # ratio 0 disables the test: every sample kept, as without occlusion handling
+    _, W0, d0 = _check_data_coefficients(samples1, samples2, phis, weights, x_hat, 0.0, device)
+    assert np.all(d0["t1"]["best"] == -1) and np.all(d0["t2"]["best"] == -1)
+    assert np.all(W <= W0) and np.any(W < W0)
+
+
+def test_data_coefficients_occlusion_matches_reference_constructed(device):
+    """Samples with φ_x > 0 disagree strongly with the centre in a block: there, the
+    kernel and the reference leave out exactly those samples (half-plane m = 4, normal
+    (−1, 0)), in the t1 rows (w1, w3) and, for the t2 block, in the t2 rows (w2, w3)."""
+    ratio = 0.7
+    samples1, samples2, phis, weights, x_hat = _occlusion_constructed_inputs()
+    coef, W, details = _check_data_coefficients(samples1, samples2, phis, weights, x_hat, ratio, device)
+    for name in ("t1", "t2"):
+        _assert_decisions_robust(details[name], ratio)
+    right = phis[:, 0] > 1e-3
+    lam = weights.astype(np.float32)
+    # t1: pixel (4, 3) warps into the t1 block from every sample (and the t2 light field is
+    # clean there); t2: (4, 9) + û = (9.7, 3.6) warps into the t2 block (and t1 is clean).
+    for (i, j), name, row in (((4, 3), "t1", 0), ((4, 9), "t2", 1)):
+        assert details[name]["best"][i, j] == 4, (name, details[name]["best"])
+        got = coef[:, i, j, 9 + row]
+        np.testing.assert_array_equal(got[right], 0.0, err_msg=name)
+        np.testing.assert_array_equal(got[~right], lam[~right, row], err_msg=name)
+        np.testing.assert_array_equal(coef[right, i, j, 11], 0.0, err_msg=name)
+    assert details["t1"]["best"][4, 9] == -1 and details["t2"]["best"][4, 3] == -1
+    np.testing.assert_array_equal(coef[:, 4, 3, 10], lam[:, 1])
+    np.testing.assert_array_equal(coef[:, 4, 9, 9], lam[:, 0])
+    # away from the blocks, every sample is kept: the interpolation errors there are far
+    # below OCCLUSION_FLOOR, which overrules the ratio rule at some pixels
+    for name in ("t1", "t2"):
+        occ = details[name]
+        best = occ["best"]
+        assert np.sum(best == 4) >= 12 and np.sum(best == -1) >= 30, (name, best)
+        by_ratio_only = (np.min(occ["means"], axis=0) < ratio * occ["mean_all"]) & (best < 0)
+        assert np.any(by_ratio_only), name
+
+
+OCCLUDER_SIDES = {"left": (-1, 0), "right": (1, 0), "above": (0, -1), "below": (0, 1)}
+
+
+def _depth_edge_scene(normal, h=14, w=16, d_front=3, d_back=1, flow=(2, 1), seed=34):
+    """Two light fields (t1, t2 = scene moved by ``flow`` whole pixels) of a straight depth
+    edge through the image centre (half-integer coordinates): a random-textured front plane
+    (disparity ``d_front``) on the side (P − e)·n > 0 of the edge, a random-textured back
+    plane (``d_back``) elsewhere. Samples at the 8 neighbouring views: all shifts are whole
+    pixels, so every visible sample matches exactly. Returns samples1, samples2, phis, the
+    correct x̂ and the pixels of the back plane hidden from the samples with φ·n > 0."""
+    r = rng(seed)
+    pad = 8
+    front = r.random((h + 2 * pad, w + 2 * pad))
+    back = r.random((h + 2 * pad, w + 2 * pad))
+    phis = np.array([(0, 0)] + [(a, b) for b in (-1, 0, 1) for a in (-1, 0, 1) if (a, b) != (0, 0)], np.float32)
+    e = np.array([w / 2 - 0.5, h / 2 - 0.5])
+    n = np.asarray(normal, np.float64)
+    yy, xx = np.mgrid[0:h, 0:w]
+
+    def stack(tx, ty):
+        out = []
+        for fx, fy in phis.astype(int):
+            xs, ys = xx - tx, yy - ty  # the scene point's centre pixel at t1
+            # the view at φ shows at pixel x the point whose centre pixel is x + δφ
+            xf, yf = xs + d_front * fx, ys + d_front * fy
+            xb, yb = xs + d_back * fx, ys + d_back * fy
+            is_front = (xf - e[0]) * n[0] + (yf - e[1]) * n[1] > 0
+            out.append(np.where(is_front, front[yf + pad, xf + pad], back[yb + pad, xb + pad]))
+        return np.array(out, np.float32)
+
+    side = (xx - e[0]) * n[0] + (yy - e[1]) * n[1]
+    disparity = np.where(side > 0, d_front, d_back).astype(np.float32)
+    x_hat = np.stack([disparity, disparity, np.full((h, w), flow[0]), np.full((h, w), flow[1])], -1)
+    band = (side < 0) & (side > -(d_front - d_back))  # hidden in the views with φ·n = 1
+    return stack(0, 0), stack(*flow), phis, x_hat.astype(np.float32), band
+
+
+@pytest.mark.parametrize("side", list(OCCLUDER_SIDES))
+def test_occlusion_weights_drop_on_the_occluders_side(side, device):
+    normal = OCCLUDER_SIDES[side]
+    samples1, samples2, phis, x_hat, band = _depth_edge_scene(normal)
+    s, h, w = samples1.shape
+    weights = np.tile(np.array([1.0, 2.0, 3.0], np.float32), (s, 1))
+    ratio = 0.7
+    coef, W, details = _check_data_coefficients(samples1, samples2, phis, weights, x_hat, ratio, device)
+    assert band.sum() == 2 * (h if normal[1] == 0 else w)
+    # the pixels where every warped position of both light fields lies in the image
+    yy, xx = np.mgrid[0:h, 0:w]
+    interior = np.ones((h, w), bool)
+    for fx, fy in phis:
+        for t, (dx, dy) in ((0, (0.0, 0.0)), (1, tuple(x_hat[0, 0, 2:]))):
+            x = xx + dx - x_hat[..., t] * fx
+            y = yy + dy - x_hat[..., t] * fy
+            interior &= (x >= 0) & (y >= 0) & (x <= w - 1) & (y <= h - 1)
+    assert np.sum(band & interior) >= 8
+    occluder_side = (phis @ np.asarray(normal, np.float32)) > 0  # the 3 samples towards the occluder
+    kept = np.where(band[None] & occluder_side[:, None, None], 0.0, 1.0)
+    for k in range(3):
+        got = coef[..., 9 + k][:, interior]
+        np.testing.assert_array_equal(got, weights[0, k] * kept[:, interior], err_msg=f"w{k + 1}")
+    # the kept half is the one facing away from the occluder
+    m_away = int(round(math.degrees(math.atan2(-normal[1], -normal[0])) / 45.0)) % 8
+    for name in ("t1", "t2"):
+        best = details[name]["best"]
+        np.testing.assert_array_equal(best[interior], np.where(band, m_away, -1)[interior], err_msg=name)
+    # occlusion_ratio = 0: every weight back
+    coef0, _ = _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device, 0.0)
+    for k in range(3):
+        np.testing.assert_array_equal(coef0[..., 9 + k][:, interior], weights[0, k], err_msg=f"w{k + 1}")
 
 
 def _smooth_view(s, t):
@@ -333,7 +538,7 @@ def test_data_linearisation_is_first_order_accurate(device):
         0.6 + 0.2 * np.sin(0.3 * xx), -0.4 + 0.2 * np.cos(0.2 * yy),
         1.1 + 0.3 * np.sin(0.2 * yy), -0.8 + 0.2 * np.cos(0.25 * xx),
     ], -1).astype(np.float32)
-    coef, _ = _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device)
+    coef, _ = _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device, 0.0)
     A = np.moveaxis(coef[..., :9], -1, 0)
     base = _exact_residuals(views1, views2, phis, x_hat)
     interior = np.zeros((h, w), bool)
