@@ -43,11 +43,13 @@ def in_half_plane(phi: wp.vec2, normal: wp.vec2):
 def visible_half(samples: wp.array3d(dtype=float), phis: wp.array(dtype=wp.vec2), qx: float, qy: float,
                  disparity: float, centre: float, ratio: float):
     """Occlusion test of one light field at one pixel: the mean residual |L(q − δφ, φ) −
-    L(q, 0)| over each half of the samples (split by a line through φ = 0 at multiples of
-    45°). Returns the best half's index and whether it is an occlusion: its mean below
-    ``ratio`` times the mean over all samples (an occluder spoils the samples on one
-    side), and lower by at least OCCLUSION_FLOOR. Index −1: no occlusion, keep every
-    sample."""
+    c| of the samples s ≥ 1 against the point's appearance c, over each half of the
+    samples (split by a line through φ = 0 at multiples of 45°). An occluder spoils the
+    samples on its side: the best half is taken when its mean is below ``ratio`` times
+    the mean over all samples and lower by at least OCCLUSION_FLOOR.
+
+    Returns the best half's index (−1: no occlusion, keep every sample) and the mean
+    residual of the samples kept."""
     sums = vec8()
     counts = vec8()
     total = float(0.0)
@@ -65,6 +67,9 @@ def visible_half(samples: wp.array3d(dtype=float), phis: wp.array(dtype=wp.vec2)
                     sums[m] = sums[m] + e
                     counts[m] = counts[m] + 1.0
     best = int(-1)
+    kept_mean = float(0.0)
+    if count > 0.0:
+        kept_mean = total / count
     if count > 0.0 and ratio > 0.0:
         mean_all = total / count
         best_mean = mean_all
@@ -76,7 +81,9 @@ def visible_half(samples: wp.array3d(dtype=float), phis: wp.array(dtype=wp.vec2)
                     best = m
         if best_mean >= ratio * mean_all or mean_all - best_mean < OCCLUSION_FLOOR:
             best = -1
-    return best
+        else:
+            kept_mean = best_mean
+    return best, kept_mean
 
 
 @wp.func
@@ -120,8 +127,14 @@ def data_coefficients(
     j2 = bilinear(centre2, xj, yj)
     gj = bilinear_gradient(centre2, xj, yj)
     in_j = inside(centre2, xj, yj)
-    half1 = visible_half(samples1, phis, px, py, xh[0], i1, occlusion_ratio)
-    half2 = visible_half(samples2, phis, xj, yj, xh[1], j2, occlusion_ratio)
+    # Both light fields are tested against the point's appearance at t1, I1(p): at t2
+    # the centre view itself may be the occluded one (the point moved behind something)
+    # while side views still see it; then the stereo rows at t2 (which compare with
+    # J2) and the centre's flow row are left out, and the visible side views carry ρ3.
+    half1, kept1 = visible_half(samples1, phis, px, py, xh[0], i1, occlusion_ratio)
+    half2, kept2 = visible_half(samples2, phis, xj, yj, xh[1], i1, occlusion_ratio)
+    if occlusion_ratio > 0.0 and wp.abs(i1 - j2) > 3.0 * kept2 + OCCLUSION_FLOOR:
+        in_j = False
     colsum = wp.vec4(0.0)
     for s in range(phis.shape[0]):
         phi = phis[s]
@@ -136,7 +149,7 @@ def data_coefficients(
         w2v = bilinear(view2, x2, y2)
         g2 = bilinear_gradient(view2, x2, y2)
         in_1 = inside(view1, x1, y1) and keeps(half1, phi)
-        in_2 = inside(view2, x2, y2) and keeps(half2, phi)
+        in_2 = inside(view2, x2, y2) and keeps(half2, phi) and (s > 0 or in_j)
         a1 = -wp.dot(phi, g1)
         a2 = i1 - w1v
         a3 = -wp.dot(phi, g2)

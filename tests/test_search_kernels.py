@@ -1,0 +1,345 @@
+"""The discrete search kernels (kernels/search.py) against their NumPy references
+(tests/reference_kernels.py, written from the docstrings) on tiny seeded inputs, and the
+searches they make up: a plane sweep that finds a known disparity and block matching that
+finds a known shift, both to sub-candidate precision."""
+
+import math
+
+import numpy as np
+import pytest
+
+from lfsf import device as D
+
+import reference_kernels as ref
+
+wp = D.warp()
+
+
+def rng(seed=0):
+    return np.random.default_rng(seed)
+
+
+def arr(a, dtype, device):
+    """A Warp array of float32 data with the given Warp dtype."""
+    return wp.array(np.ascontiguousarray(a, np.float32), dtype=dtype, device=device)
+
+
+def launch(kernel, dim, inputs, outputs, device):
+    D.launch_rows(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device)
+
+
+def close(got, want, rtol=1e-5, atol=1e-5):
+    np.testing.assert_allclose(np.asarray(got, np.float64), want, rtol=rtol, atol=atol)
+
+
+# --- kernel runners ------------------------------------------------------------------------
+
+
+def run_disparity_cost(samples, phis, candidates, base, offset, device):
+    from lfsf.kernels import search
+
+    _, h, w = samples.shape
+    k = len(candidates)
+    cost = wp.zeros((k, h, w), dtype=float, device=device)
+    launch(search.disparity_cost, (k * h, w),
+           [arr(samples, float, device), arr(phis, wp.vec2, device), arr(candidates, float, device),
+            arr(base, float, device), arr(offset, wp.vec4, device)], [cost], device)
+    return cost.numpy()
+
+
+def run_box_sum(values, radius, device):
+    from lfsf.kernels import search
+
+    k, h, w = values.shape
+    out = wp.zeros((k, h, w), dtype=float, device=device)
+    launch(search.box_sum, (k * h, w), [arr(values, float, device), radius], [out], device)
+    return out.numpy()
+
+
+def run_select_disparity(cost, candidates, device):
+    from lfsf.kernels import search
+
+    _, h, w = cost.shape
+    best = wp.zeros((h, w), dtype=float, device=device)
+    best_cost = wp.zeros((h, w), dtype=float, device=device)
+    launch(search.select_disparity, (h, w), [arr(cost, float, device), arr(candidates, float, device)],
+           [best, best_cost], device)
+    return best.numpy(), best_cost.numpy()
+
+
+def run_flow_cost(centre1, centre2, candidates, base, device):
+    from lfsf.kernels import search
+
+    h, w = centre1.shape
+    k = len(candidates)
+    cost = wp.zeros((k, h, w), dtype=float, device=device)
+    launch(search.flow_cost, (k * h, w),
+           [arr(centre1, float, device), arr(centre2, float, device), arr(candidates, wp.vec2, device),
+            arr(base, wp.vec4, device)], [cost], device)
+    return cost.numpy()
+
+
+def run_select_flow(cost, half, device):
+    from lfsf.kernels import search
+
+    _, h, w = cost.shape
+    best = wp.zeros((h, w), dtype=wp.vec2, device=device)
+    launch(search.select_flow, (h, w), [arr(cost, float, device), half], [best], device)
+    return best.numpy()
+
+
+# --- against the references ----------------------------------------------------------------
+
+
+def test_disparity_cost_matches_reference(device):
+    r = rng(1)
+    h, w = 7, 9
+    phis = np.array([(0.0, 0.0), (1.0, 0.0), (-0.7, 0.7), (0.3, -1.4), (-1.5, -0.5)], np.float32)
+    samples = r.random((len(phis), h, w)).astype(np.float32)
+    candidates = np.array([-1.0, -0.3, 0.0, 0.45, 1.2], np.float32)
+    base = r.uniform(-0.5, 0.5, (h, w)).astype(np.float32)
+    offset = r.uniform(-1.5, 1.5, (h, w, 4)).astype(np.float32)
+    offset[..., :2] = 7.0  # components 0, 1 are not used
+    offset[2, 3, 2:] = (30.0, 0.0)  # q far outside: no sample left, cost 1
+    offset[5, 6, 2:] = (0.0, -0.4)
+    got = run_disparity_cost(samples, phis, candidates, base, offset, device)
+    want = ref.disparity_cost(samples, phis, candidates, base, offset)
+    close(got, want, atol=2e-5)
+    np.testing.assert_array_equal(got[:, 2, 3], 1.0)
+    # some samples were left out at some pixels, and the costs stay in [0, 1]
+    assert np.all((got >= 0) & (got <= 1))
+    full = ref.disparity_cost(samples, phis, candidates, base, np.zeros_like(offset))
+    assert not np.allclose(full, want)
+
+
+def test_disparity_cost_of_an_exact_light_field_is_zero_at_the_true_disparity(device):
+    """Whole-pixel shifts: L(x, φ) = T(x + δφ) sampled exactly, so the cost at δ is 0
+    wherever the warped samples stay in the image (and at p + û with an offset)."""
+    r = rng(2)
+    h, w, pad = 8, 10, 6
+    tex = r.random((h + 2 * pad, w + 2 * pad))
+    phis = np.array([(0, 0), (1, 0), (0, 1), (-1, -1), (2, -1)], np.float32)
+    delta = 2.0
+    samples = np.array([tex[pad + int(delta * fy):pad + int(delta * fy) + h,
+                            pad + int(delta * fx):pad + int(delta * fx) + w] for fx, fy in phis], np.float32)
+    candidates = np.array([0.0, 1.0, 2.0, 3.0], np.float32)
+    offset = np.zeros((h, w, 4), np.float32)
+    offset[..., 2:] = (1.0, -1.0)
+    got = run_disparity_cost(samples, phis, candidates, np.zeros((h, w), np.float32), offset, device)
+    interior = (slice(5, h - 3), slice(4, w - 5))
+    np.testing.assert_array_equal(got[2][interior], 0.0)
+    assert np.all(got[[0, 1, 3]][:, interior[0], interior[1]] > 0)
+
+
+@pytest.mark.parametrize("radius", [0, 1, 2])
+def test_box_sum_matches_reference(radius, device):
+    values = rng(3).random((3, 4, 6)).astype(np.float32)
+    got = run_box_sum(values, radius, device)
+    close(got, ref.box_mean(values, radius))
+    if radius == 0:
+        np.testing.assert_array_equal(got, values)
+    # a constant is kept, borders included (the window is clamped, the mean stays a mean)
+    close(run_box_sum(np.full((1, 4, 6), 0.3, np.float32), radius, device), 0.3)
+
+
+def _costs_with_minima_everywhere(r, n, h, w):
+    """Random costs whose minimum falls at the first candidate, the last and in between."""
+    cost = r.random((n, h, w)).astype(np.float32)
+    cost[0, 0, :] = -1.0      # minimum at the first candidate: no refinement
+    cost[n - 1, 1, :] = -1.0  # at the last: no refinement
+    cost[n // 2, 2, :] = -1.0
+    return cost
+
+
+def test_select_disparity_matches_reference(device):
+    r = rng(4)
+    n, h, w = 7, 6, 8
+    step = 0.3
+    candidates = (np.arange(n) * step - 0.8).astype(np.float32)
+    cost = _costs_with_minima_everywhere(r, n, h, w)
+    best, best_cost = run_select_disparity(cost, candidates, device)
+    want, want_cost = ref.select_disparity(cost, candidates)
+    close(best, want, atol=2e-6)
+    np.testing.assert_array_equal(best_cost, np.min(cost, axis=0))
+    np.testing.assert_array_equal(best_cost, want_cost.astype(np.float32))
+    k = np.argmin(cost, axis=0)
+    np.testing.assert_array_equal(best[0], candidates[0])
+    np.testing.assert_array_equal(best[1], candidates[-1])
+    # the parabola moves at most half a step, towards the lower neighbour
+    assert np.all(np.abs(best - candidates[k]) <= 0.5 * step + 1e-6)
+    moved = np.abs(best - candidates[k]) > 1e-4
+    assert moved.sum() > h * w // 2
+
+
+def test_select_disparity_finds_the_vertex_of_a_sampled_parabola(device):
+    """Costs sampled from a(δ − δ*)² + b on evenly spaced candidates: the refined choice is
+    δ*, wherever δ* lies between candidates."""
+    n, h, w = 9, 3, 5
+    step = 0.25
+    candidates = (np.arange(n) * step - 1.0).astype(np.float32)
+    r = rng(5)
+    target = r.uniform(-0.85, 0.85, (h, w))
+    a = r.uniform(0.5, 3.0, (h, w))
+    b = r.uniform(0.0, 0.2, (h, w))
+    cost = (a * (candidates[:, None, None] - target) ** 2 + b).astype(np.float32)
+    best, best_cost = run_select_disparity(cost, candidates, device)
+    close(best, target, atol=2e-4)
+    close(best_cost, np.min(cost, axis=0), atol=0)
+
+
+def test_flow_cost_matches_reference(device):
+    r = rng(6)
+    h, w = 6, 8
+    centre1 = r.random((h, w)).astype(np.float32)
+    centre2 = r.random((h, w)).astype(np.float32)
+    candidates = np.concatenate([ref.flow_grid(1), [(0.4, -0.7), (-2.5, 1.5)]]).astype(np.float32)
+    base = r.uniform(-1.0, 1.0, (h, w, 4)).astype(np.float32)
+    base[..., :2] = 5.0  # components 0, 1 are not used
+    base[1, 2, 2:] = (0.0, 0.0)
+    got = run_flow_cost(centre1, centre2, candidates, base, device)
+    want = ref.flow_cost(centre1, centre2, candidates, base)
+    close(got, want, atol=2e-6)
+    # where p + u_k leaves the image the cost is 1; at u = 0 it is |I1 − I2|
+    outside = want == 1.0
+    assert 0 < outside.sum() < outside.size // 2
+    close(got[4, 1, 2], abs(float(centre1[1, 2]) - float(centre2[1, 2])), atol=1e-7)
+
+
+@pytest.mark.parametrize("half", [1, 2])
+def test_select_flow_matches_reference(half, device):
+    side = 2 * half + 1
+    h, w = 4, side + 2
+    cost = rng(7).random((side * side, h, w)).astype(np.float32)
+    # row 0: the minimum at each grid candidate along the top row of the grid, row 1 along
+    # the left column, row 2 at the centre, row 3 random
+    for j in range(w):
+        cost[min(j, side - 1), 0, j] = -1.0
+        cost[min(j, side - 1) * side, 1, j] = -1.0
+    cost[half * side + half, 2, :] = -1.0
+    got = run_select_flow(cost, half, device)
+    want = ref.select_flow(cost, half)
+    close(got, want, atol=2e-6)
+    k = np.argmin(cost, axis=0)
+    whole = ref.flow_grid(half)[k]  # (h, w, 2)
+    assert np.all(np.abs(got - whole) <= 0.5 + 1e-6)
+    # on the grid's border the component across the border is not refined
+    np.testing.assert_array_equal(got[0, ..., 1], -half)
+    np.testing.assert_array_equal(got[1, ..., 0], -half)
+    assert np.any(np.abs(got[2] - whole[2]) > 1e-3)
+
+
+def test_select_flow_finds_the_vertex_of_a_sampled_paraboloid(device):
+    half = 2
+    grid = ref.flow_grid(half).astype(np.float64)  # (K, 2) = (dx, dy)
+    h, w = 3, 4
+    r = rng(8)
+    target = r.uniform(-1.4, 1.4, (h, w, 2))
+    a = r.uniform(0.5, 2.0, (h, w, 2))
+    cost = (a[..., 0] * (grid[:, 0, None, None] - target[..., 0]) ** 2
+            + a[..., 1] * (grid[:, 1, None, None] - target[..., 1]) ** 2).astype(np.float32)
+    got = run_select_flow(cost, half, device)
+    close(got, target, atol=2e-4)
+
+
+# --- the searches ----------------------------------------------------------------------------
+
+
+def _texture(seed, waves=8):
+    """A smooth random texture T(x, y) in [0, 1]: plane waves of wavelength 5–12 px."""
+    r = rng(seed)
+    freq = r.uniform(0.5, 1.25, waves)
+    ang = r.uniform(0, 2 * math.pi, waves)
+    phase = r.uniform(0, 2 * math.pi, waves)
+    kx, ky = freq * np.cos(ang), freq * np.sin(ang)
+
+    def t(x, y):
+        x = np.asarray(x, np.float64)[..., None]
+        y = np.asarray(y, np.float64)[..., None]
+        return 0.5 + 0.45 / math.sqrt(waves) * np.sum(np.sin(kx * x + ky * y + phase), -1)
+    return t
+
+
+def _circle_samples(radius, rings=(1, 8, 8)):
+    """φ on circles (MODEL.md §2): M = len(rings), radii R·i/(M − 1)."""
+    m = len(rings)
+    phis = []
+    for i, count in enumerate(rings):
+        r = radius * i / (m - 1)
+        for j in range(count):
+            s = 2 * math.pi * j / count
+            phis.append((r * math.cos(s), r * math.sin(s)))
+    return np.array(phis, np.float32)
+
+
+@pytest.mark.parametrize("delta", [0.35, -0.6])
+def test_plane_sweep_recovers_a_constant_disparity(delta, device):
+    """The light field of a fronto-parallel textured plane at disparity δ (sample φ shows
+    T(x + δφ)); candidates 0.25 apart (half a pixel at the outer circle, as lfsf.estimate
+    spaces them) with δ between two of them: cost → box_sum → select_disparity gives δ to
+    a fraction of the candidate step, much closer than the nearest candidate."""
+    h, w = 24, 30
+    radius = 2.0
+    phis = _circle_samples(radius)
+    tex = _texture(9)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    samples = np.array([tex(xx + delta * fx, yy + delta * fy) for fx, fy in phis.astype(np.float64)],
+                       np.float32)
+    step = 0.5 / radius
+    candidates = (np.arange(-5, 6) * step).astype(np.float32)
+    cost = run_disparity_cost(samples, phis, candidates, np.zeros((h, w), np.float32),
+                              np.zeros((h, w, 4), np.float32), device)
+    smooth = run_box_sum(cost, 2, device)
+    best, _ = run_select_disparity(smooth, candidates, device)
+    margin = int(math.ceil(radius * np.max(np.abs(candidates)))) + 3
+    inner = best[margin:-margin, margin:-margin]
+    nearest = candidates[np.argmin(np.abs(candidates - delta))]
+    wta_error = abs(nearest - delta)
+    assert wta_error >= 0.35 * step
+    err = np.abs(inner - delta)
+    assert np.median(err) < 0.1 * step, np.median(err)
+    assert np.max(err) < 0.5 * wta_error, (np.max(err), wta_error)
+
+
+def _block_matching(shift, device, half=2, h=20, w=24):
+    """I2 = I1 moved by a known shift u (I2(p + u) = I1(p)): flow_cost over a (2n+1)² grid
+    of whole-pixel candidates → box_sum (5 × 5) → select_flow, as lfsf.estimate does.
+    Returns the estimates of the pixels whose candidates all stay in the image."""
+    tex = _texture(10)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    centre1 = tex(xx, yy).astype(np.float32)
+    centre2 = tex(xx - shift[0], yy - shift[1]).astype(np.float32)
+    grid = ref.flow_grid(half).astype(np.float32)
+    cost = run_flow_cost(centre1, centre2, grid, np.zeros((h, w, 4), np.float32), device)
+    smooth = run_box_sum(cost, 2, device)
+    best = run_select_flow(smooth, half, device)
+    margin = half + 3
+    return best[margin:-margin, margin:-margin]
+
+
+def test_block_matching_recovers_a_whole_pixel_shift(device):
+    shift = (2.0, -1.0)
+    err = np.abs(_block_matching(shift, device) - np.asarray(shift))
+    assert np.max(np.median(err, axis=(0, 1))) < 0.03, np.median(err, axis=(0, 1))
+    assert np.max(err) < 0.1, np.max(err)
+
+
+@pytest.mark.parametrize("shift", [(1.35, 0.0), (-0.7, 0.0)])
+def test_block_matching_recovers_a_sub_pixel_shift(shift, device):
+    """A shift with a fractional x: the parabola along x recovers most of the fraction."""
+    err = np.abs(_block_matching(shift, device) - np.asarray(shift))
+    wta_error = abs(shift[0] - round(shift[0]))
+    med = np.median(err, axis=(0, 1))
+    assert med[0] < 0.4 * wta_error and med[1] < 0.15, (med, wta_error)
+    assert np.max(err) < 0.3, np.max(err, axis=(0, 1))
+
+
+def test_block_matching_with_two_fractional_components_is_closer_than_whole_pixels(device):
+    """Both components fractional: the refinement (one parabola per axis, through the
+    whole-pixel winner's row and column) is biased towards the winner, since each slice
+    misses the true minimum by the other component's fraction; it still beats the nearest
+    whole-pixel candidate."""
+    shift = np.array([1.35, -0.6])
+    got = _block_matching(tuple(shift), device)
+    wta_error = np.abs(shift - np.round(shift))
+    med = np.median(np.abs(got - shift), axis=(0, 1))
+    assert np.all(med < 0.8 * wta_error), (med, wta_error)
