@@ -26,6 +26,9 @@ HALF_PLANES = wp.constant(8)
 #: An occlusion must also raise the mean residual by this much (intensities in [0, 1]):
 #: in weak texture, ratios of tiny residuals are noise.
 OCCLUSION_FLOOR = wp.constant(0.01)
+#: The centre view at t2 is taken as occluded where it differs from the point's t1
+#: appearance by more than this many times the residual of the visible t2 samples.
+CENTRE_OCCLUSION_FACTOR = wp.constant(3.0)
 
 
 @wp.func
@@ -112,7 +115,11 @@ def data_coefficients(
     for that sample. Where one side of the samples matches much worse than the other
     (``occlusion_ratio``, see :func:`visible_half`; 0 disables), the samples of the worse
     side are left out of that light field's rows: near a depth edge the occluder hides
-    the point in the views on its side. Launch over (rows, columns).
+    the point in the views on its side. Both light fields are tested against the point's
+    appearance at t1, I1(p); where the centre view at t2 is itself occluded (|I1 − J2|
+    above CENTRE_OCCLUSION_FACTOR times the visible t2 samples' residual, plus the
+    floor), every t2 stereo row and the centre's flow row are left out. Launch over
+    (rows, columns).
     """
     i, j = wp.tid()
     i = i + row0
@@ -133,7 +140,7 @@ def data_coefficients(
     # J2) and the centre's flow row are left out, and the visible side views carry ρ3.
     half1, kept1 = visible_half(samples1, phis, px, py, xh[0], i1, occlusion_ratio)
     half2, kept2 = visible_half(samples2, phis, xj, yj, xh[1], i1, occlusion_ratio)
-    if occlusion_ratio > 0.0 and wp.abs(i1 - j2) > 3.0 * kept2 + OCCLUSION_FLOOR:
+    if occlusion_ratio > 0.0 and wp.abs(i1 - j2) > CENTRE_OCCLUSION_FACTOR * kept2 + OCCLUSION_FLOOR:
         in_j = False
     colsum = wp.vec4(0.0)
     for s in range(phis.shape[0]):

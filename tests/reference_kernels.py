@@ -1,6 +1,6 @@
 """NumPy references of the Warp kernels in :mod:`lfsf.kernels`, written from the formulas
 of MODEL.md and the kernels' docstrings (not from the kernel code): vectorised over
-pixels, float64. Used by ``tests/test_kernels.py``.
+pixels, float64. Used by ``tests/test_kernels.py`` and ``tests/test_search_kernels.py``.
 
 Conventions: images are (h, w) arrays, pixel (i, j) has its centre at (x, y) = (j, i).
 Per-pixel vec4 fields are (h, w, 4) arrays ordered (δ1, δ2, u, v).
@@ -196,6 +196,9 @@ def upsample(coarse: np.ndarray, size: tuple[int, int], scale: float) -> np.ndar
 #: the least rise of the mean residual (intensities in [0, 1]) that counts as an occlusion.
 HALF_PLANES = 8
 OCCLUSION_FLOOR = 0.01
+#: The centre view at t2 counts as occluded where |I1(p) − J2| exceeds this many times the
+#: mean residual of the t2 samples kept (plus OCCLUSION_FLOOR).
+CENTRE_OCCLUSION_FACTOR = 3.0
 
 
 def half_plane_members(phis) -> np.ndarray:
@@ -218,7 +221,8 @@ def visible_half(samples, phis, qx, qy, disparity, centre, ratio) -> dict:
     best = −1 (no occlusion, also where no sample is in the image or ratio ≤ 0).
 
     Returns {best (h, w) int, mean_all (h, w), means (8, h, w) (inf where a half holds no
-    sample), count (h, w), members (8, S)}.
+    sample), count (h, w), members (8, S), kept_mean (h, w): the mean residual of the
+    samples kept (mean_all, or the best half's mean where occluded; 0 without samples)}.
     """
     samples = np.asarray(samples, np.float64)
     phis = np.asarray(phis, np.float64)
@@ -246,7 +250,8 @@ def visible_half(samples, phis, qx, qy, disparity, centre, ratio) -> dict:
     occluded = ((count > 0) & (ratio > 0) & (best_mean < mean_all) & (best_mean < ratio * mean_all)
                 & (mean_all - best_mean >= OCCLUSION_FLOOR))
     best = np.where(occluded, m_best, -1)
-    return dict(best=best, mean_all=mean_all, means=means, count=count, members=members)
+    kept_mean = np.where(occluded, best_mean, mean_all)
+    return dict(best=best, mean_all=mean_all, means=means, count=count, members=members, kept_mean=kept_mean)
 
 
 def kept_samples(best: np.ndarray, members: np.ndarray) -> np.ndarray:
@@ -260,10 +265,15 @@ def data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio=
 
     W1 = L(p − δ̂1 φ, φ, t1), W2 = L(p + û − δ̂2 φ, φ, t2), J2 = L(p + û, 0, t2); sample 0 is
     the centre view; w_k = λ_k, or 0 where a warped position of row k leaves the image.
-    Occlusion (``occlusion_ratio`` > 0): the t1 light field is tested at q = p with δ̂1 and
-    centre I1(p), the t2 light field at q = p + û with δ̂2 and centre J2 (:func:`visible_half`);
-    samples outside the best half of t1 get w1 = 0, of t2 get w2 = 0, and w3 = 0 if left
-    out of either. ``details``, a dict, receives the two occlusion tests ("t1", "t2").
+    Occlusion (``occlusion_ratio`` > 0): both light fields are tested against the point's
+    appearance at t1, I1(p) (:func:`visible_half`): t1 at q = p with δ̂1, t2 at q = p + û
+    with δ̂2. Samples outside the best half of t1 get w1 = 0, of t2 get w2 = 0, and w3 = 0
+    if left out of either. The centre view at t2 is itself taken as occluded where
+    |I1(p) − J2| > CENTRE_OCCLUSION_FACTOR·(mean residual of the t2 samples kept) +
+    OCCLUSION_FLOOR: then every w2 is 0 (the stereo rows at t2 compare with J2) and so is
+    w3 of the centre sample (the flow row I1 − J2). ``details``, a dict, receives the two
+    occlusion tests ("t1", "t2") and the centre test ("centre_occluded", "centre_margin"
+    = |I1 − J2| − threshold).
     """
     samples1 = np.asarray(samples1, np.float64)
     samples2 = np.asarray(samples2, np.float64)
@@ -277,11 +287,15 @@ def data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio=
     gjx, gjy = bilinear_gradient(samples2[0], xj, yj)
     in_j = inside((h, w), xj, yj)
     occ1 = visible_half(samples1, phis, px, py, d1, i1, occlusion_ratio)
-    occ2 = visible_half(samples2, phis, xj, yj, d2, j2, occlusion_ratio)
+    occ2 = visible_half(samples2, phis, xj, yj, d2, i1, occlusion_ratio)
     keep1 = kept_samples(occ1["best"], occ1["members"])
     keep2 = kept_samples(occ2["best"], occ2["members"])
+    centre_margin = np.abs(i1 - j2) - (CENTRE_OCCLUSION_FACTOR * occ2["kept_mean"] + OCCLUSION_FLOOR)
+    centre_occluded = (occlusion_ratio > 0) & (centre_margin > 0)
+    in_j = in_j & ~centre_occluded
+    keep2[0] &= in_j
     if details is not None:
-        details.update(t1=occ1, t2=occ2)
+        details.update(t1=occ1, t2=occ2, centre_occluded=centre_occluded, centre_margin=centre_margin)
     A = np.zeros((9, n, h, w))
     W = np.zeros((3, n, h, w))
     for s in range(n):

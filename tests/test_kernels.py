@@ -1,7 +1,10 @@
 """Every estimator kernel against its NumPy reference (tests/reference_kernels.py) on tiny
 seeded inputs, plus the identities the model relies on: adjointness of gradient and
 divergence, the data term's linearisation and Kᵀ, the preconditioner as abs row/column
-sums of the actual K, and the solver's energy going down."""
+sums of the actual K, and the solver's energy going down. The data term's occlusion
+handling is checked against its reference on random and constructed inputs, and on
+synthetic depth edges, where the weights must drop exactly on the occluder's side.
+(The search kernels: tests/test_search_kernels.py.)"""
 
 import math
 
@@ -282,6 +285,10 @@ def _check_data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion
     for k in range(3):
         np.testing.assert_array_equal(coef[..., 9 + k], W[k].astype(np.float32), err_msg=f"w{k + 1}")
     close(colsum, want_colsum, atol=5e-5)
+    if occlusion_ratio > 0:  # the input decides the occlusion tests with a margin
+        for name in ("t1", "t2"):
+            _assert_decisions_robust(details[name], occlusion_ratio)
+        assert np.all(np.abs(details["centre_margin"]) > 1e-5), np.argwhere(np.abs(details["centre_margin"]) <= 1e-5)
     return coef, W, details
 
 
@@ -309,7 +316,8 @@ RING = np.array([(0.0, 0.0)] + [(1.2 * math.cos(a), 1.2 * math.sin(a)) for a in 
 def _assert_decisions_robust(occ, ratio, tol=1e-5):
     """The test input must not sit on a knife edge of the occlusion test (float32 kernel vs
     float64 reference): where an occlusion is found, no other half-plane that keeps other
-    samples comes within ``tol`` of the best mean; and the ratio and floor rules decide
+    samples comes within ``tol`` of the best mean (but exact matches, mean 0, tie
+    exactly: the first half-plane wins in both); and the ratio and floor rules decide
     with a margin of at least ``tol``."""
     means, mean_all, members, best = occ["means"], occ["mean_all"], occ["members"], occ["best"]
     m_best = np.argmin(means, axis=0)
@@ -317,7 +325,8 @@ def _assert_decisions_robust(occ, ratio, tol=1e-5):
     live = (occ["count"] > 0) & np.isfinite(best_mean)
     differ = np.any(members[:, None, :] != members[None, :, :], axis=-1)  # (8, 8)
     with np.errstate(invalid="ignore"):
-        near = np.abs(means - best_mean[None]) < tol
+        exact_zero = (means == 0) & (best_mean[None] == 0)  # exact matches tie exactly
+        near = (np.abs(means - best_mean[None]) < tol) & ~exact_zero
     fragile = np.any(near & differ[m_best].transpose(2, 0, 1), axis=0) & (best >= 0)
     with np.errstate(invalid="ignore"):
         by_ratio = ratio * mean_all - best_mean              # > 0: the ratio rule says occluded
@@ -369,7 +378,7 @@ def _occlusion_constructed_inputs(h=9, w=13):
     samples2 = np.array([tex(xx - u + delta * fx, yy - v + delta * fy) for fx, fy in phis.astype(np.float64)])
     right = phis[:, 0] > 1e-3
     samples1[np.ix_(right, range(1, 8), range(1, 5))] += 0.5
-    samples2[np.ix_(right, range(1, 8), range(8, 12))] += 0.5
+    samples2[np.ix_(right, range(1, 7), range(8, 12))] += 0.5
     weights = rng(32).uniform(0.5, 2.0, (len(phis), 3)).astype(np.float32)
     x_hat = np.broadcast_to(np.array([delta, delta, u, v], np.float32), (h, w, 4)).copy()
     return samples1.astype(np.float32), samples2.astype(np.float32), phis, weights, x_hat
@@ -381,12 +390,19 @@ def test_data_coefficients_occlusion_matches_reference_random(device):
     _, W, details = _check_data_coefficients(samples1, samples2, phis, weights, x_hat, ratio, device)
     for name in ("t1", "t2"):
         occ = details[name]
-        _assert_decisions_robust(occ, ratio)
         # the input exercises both outcomes, and several different half-planes
         best = occ["best"]
         assert 0.1 < np.mean(best >= 0) < 0.9, (name, np.mean(best >= 0))
         assert len(np.unique(best[best >= 0])) >= 3, (name, np.unique(best))
     assert details["t2"]["count"][3, 4] == 0 and details["t2"]["best"][3, 4] == -1
+    # the centre view at t2 is found occluded at some pixels (|I1 − J2| large against the
+    # kept t2 samples): no t2 stereo row there, nor the centre's flow row; the flow rows
+    # of the side views stay wherever t1 and t2 both keep the sample
+    occ_c = details["centre_occluded"]
+    assert 0 < occ_c.sum() < occ_c.size // 2
+    assert np.all(W[1][:, occ_c] == 0) and np.all(W[2][0, occ_c] == 0)
+    assert np.any(W[2][1:, occ_c] > 0)
+    assert np.any(W[1][:, ~occ_c] > 0)
     # ratio 0 disables the test: every sample kept, as without occlusion handling
     _, W0, d0 = _check_data_coefficients(samples1, samples2, phis, weights, x_hat, 0.0, device)
     assert np.all(d0["t1"]["best"] == -1) and np.all(d0["t2"]["best"] == -1)
@@ -399,9 +415,7 @@ def test_data_coefficients_occlusion_matches_reference_constructed(device):
     (−1, 0)), in the t1 rows (w1, w3) and, for the t2 block, in the t2 rows (w2, w3)."""
     ratio = 0.7
     samples1, samples2, phis, weights, x_hat = _occlusion_constructed_inputs()
-    coef, W, details = _check_data_coefficients(samples1, samples2, phis, weights, x_hat, ratio, device)
-    for name in ("t1", "t2"):
-        _assert_decisions_robust(details[name], ratio)
+    coef, _, details = _check_data_coefficients(samples1, samples2, phis, weights, x_hat, ratio, device)
     right = phis[:, 0] > 1e-3
     lam = weights.astype(np.float32)
     # t1: pixel (4, 3) warps into the t1 block from every sample (and the t2 light field is
@@ -426,62 +440,86 @@ def test_data_coefficients_occlusion_matches_reference_constructed(device):
 
 
 OCCLUDER_SIDES = {"left": (-1, 0), "right": (1, 0), "above": (0, -1), "below": (0, 1)}
+NEIGHBOURS = [(a, b) for b in (-1, 0, 1) for a in (-1, 0, 1) if (a, b) != (0, 0)]
 
 
-def _depth_edge_scene(normal, h=14, w=16, d_front=3, d_back=1, flow=(2, 1), seed=34):
-    """Two light fields (t1, t2 = scene moved by ``flow`` whole pixels) of a straight depth
-    edge through the image centre (half-integer coordinates): a random-textured front plane
-    (disparity ``d_front``) on the side (P − e)·n > 0 of the edge, a random-textured back
-    plane (``d_back``) elsewhere. Samples at the 8 neighbouring views: all shifts are whole
-    pixels, so every visible sample matches exactly. Returns samples1, samples2, phis, the
-    correct x̂ and the pixels of the back plane hidden from the samples with φ·n > 0."""
+def _depth_edge_scene(normal, phis, h=14, w=16, d_front=3, d_back=1, flow=(2, 1), front_flow=None, seed=34):
+    """Two light fields of a straight depth edge through the image centre (at half-integer
+    coordinates e): a random-textured bright front plane (disparity ``d_front``) on the side
+    (P − e)·n > 0 of the edge, a random-textured dark back plane (``d_back``) elsewhere. From
+    t1 to t2 the back plane moves by ``flow`` and the front plane by ``front_flow`` (default
+    the same), whole pixels. With whole-pixel φ every shift is whole pixels, so every
+    visible sample matches exactly. Returns samples1, samples2, the correct x̂, the side
+    (P − e)·n of each pixel and the occlusion geometry: hidden1, hidden2 (S, h, w), true
+    where the t1 (t2) light field's sample s of the back-plane point at p shows the front."""
     r = rng(seed)
-    pad = 8
-    front = r.random((h + 2 * pad, w + 2 * pad))
-    back = r.random((h + 2 * pad, w + 2 * pad))
-    phis = np.array([(0, 0)] + [(a, b) for b in (-1, 0, 1) for a in (-1, 0, 1) if (a, b) != (0, 0)], np.float32)
+    pad = 10
+    front = 0.6 + 0.4 * r.random((h + 2 * pad, w + 2 * pad))  # differs from the back by ≥ 0.2
+    back = 0.4 * r.random((h + 2 * pad, w + 2 * pad))
+    front_flow = flow if front_flow is None else front_flow
     e = np.array([w / 2 - 0.5, h / 2 - 0.5])
     n = np.asarray(normal, np.float64)
     yy, xx = np.mgrid[0:h, 0:w]
 
-    def stack(tx, ty):
+    def stack(tf, tb):
         out = []
-        for fx, fy in phis.astype(int):
-            xs, ys = xx - tx, yy - ty  # the scene point's centre pixel at t1
-            # the view at φ shows at pixel x the point whose centre pixel is x + δφ
-            xf, yf = xs + d_front * fx, ys + d_front * fy
-            xb, yb = xs + d_back * fx, ys + d_back * fy
+        for fx, fy in np.asarray(phis).astype(int):
+            # the view at φ shows at pixel x the point whose centre pixel is x + δφ (at t1:
+            # minus the plane's motion)
+            xf, yf = xx - tf[0] + d_front * fx, yy - tf[1] + d_front * fy
+            xb, yb = xx - tb[0] + d_back * fx, yy - tb[1] + d_back * fy
             is_front = (xf - e[0]) * n[0] + (yf - e[1]) * n[1] > 0
             out.append(np.where(is_front, front[yf + pad, xf + pad], back[yb + pad, xb + pad]))
         return np.array(out, np.float32)
 
     side = (xx - e[0]) * n[0] + (yy - e[1]) * n[1]
-    disparity = np.where(side > 0, d_front, d_back).astype(np.float32)
-    x_hat = np.stack([disparity, disparity, np.full((h, w), flow[0]), np.full((h, w), flow[1])], -1)
-    band = (side < 0) & (side > -(d_front - d_back))  # hidden in the views with φ·n = 1
-    return stack(0, 0), stack(*flow), phis, x_hat.astype(np.float32), band
+    is_front = side > 0
+    disparity = np.where(is_front, d_front, d_back).astype(np.float32)
+    x_hat = np.stack([disparity, disparity,
+                      np.where(is_front, front_flow[0], flow[0]), np.where(is_front, front_flow[1], flow[1])], -1)
+    # a back-plane point at p, seen in view φ, lies behind the front plane's point at
+    # p + (d_front − d_back)φ (+ the planes' relative motion at t2)
+    rel = np.asarray(flow, np.float64) - np.asarray(front_flow, np.float64)
+    phi_n = np.asarray(phis, np.float64) @ n
+    hidden1 = ~is_front[None] & (side[None] + (d_front - d_back) * phi_n[:, None, None] > 0)
+    hidden2 = ~is_front[None] & (side[None] + rel @ n + (d_front - d_back) * phi_n[:, None, None] > 0)
+    return stack((0, 0), (0, 0)), stack(front_flow, flow), x_hat.astype(np.float32), side, hidden1, hidden2
+
+
+def _interior(x_hat, phis):
+    """Pixels where every warped position of both light fields lies in the image."""
+    h, w = x_hat.shape[:2]
+    yy, xx = np.mgrid[0:h, 0:w]
+    interior = np.ones((h, w), bool)
+    for fx, fy in phis:
+        for t, (dx, dy) in ((0, (0.0, 0.0)), (1, (x_hat[..., 2], x_hat[..., 3]))):
+            x = xx + dx - x_hat[..., t] * fx
+            y = yy + dy - x_hat[..., t] * fy
+            interior &= (x >= 0) & (y >= 0) & (x <= w - 1) & (y <= h - 1)
+    return interior
 
 
 @pytest.mark.parametrize("side", list(OCCLUDER_SIDES))
 def test_occlusion_weights_drop_on_the_occluders_side(side, device):
+    """Both planes move alike: next to the edge, the back-plane points are hidden from the
+    three samples towards the occluder (φ·n = 1), in both light fields; exactly those
+    samples lose their weights there, and only there (interior pixels)."""
     normal = OCCLUDER_SIDES[side]
-    samples1, samples2, phis, x_hat, band = _depth_edge_scene(normal)
+    phis = np.array([(0, 0)] + NEIGHBOURS, np.float32)
+    samples1, samples2, x_hat, where, hidden1, hidden2 = _depth_edge_scene(normal, phis)
     s, h, w = samples1.shape
     weights = np.tile(np.array([1.0, 2.0, 3.0], np.float32), (s, 1))
     ratio = 0.7
-    coef, W, details = _check_data_coefficients(samples1, samples2, phis, weights, x_hat, ratio, device)
+    coef, _, details = _check_data_coefficients(samples1, samples2, phis, weights, x_hat, ratio, device)
+    band = (where < 0) & (where > -2)  # d_front − d_back = 2
+    np.testing.assert_array_equal(hidden1, hidden2)
+    np.testing.assert_array_equal(np.any(hidden1, 0), band)
     assert band.sum() == 2 * (h if normal[1] == 0 else w)
-    # the pixels where every warped position of both light fields lies in the image
-    yy, xx = np.mgrid[0:h, 0:w]
-    interior = np.ones((h, w), bool)
-    for fx, fy in phis:
-        for t, (dx, dy) in ((0, (0.0, 0.0)), (1, tuple(x_hat[0, 0, 2:]))):
-            x = xx + dx - x_hat[..., t] * fx
-            y = yy + dy - x_hat[..., t] * fy
-            interior &= (x >= 0) & (y >= 0) & (x <= w - 1) & (y <= h - 1)
+    interior = _interior(x_hat, phis)
     assert np.sum(band & interior) >= 8
     occluder_side = (phis @ np.asarray(normal, np.float32)) > 0  # the 3 samples towards the occluder
-    kept = np.where(band[None] & occluder_side[:, None, None], 0.0, 1.0)
+    np.testing.assert_array_equal(hidden1[:, band], np.broadcast_to(occluder_side[:, None], (s, band.sum())))
+    kept = np.where(hidden1, 0.0, 1.0)
     for k in range(3):
         got = coef[..., 9 + k][:, interior]
         np.testing.assert_array_equal(got, weights[0, k] * kept[:, interior], err_msg=f"w{k + 1}")
@@ -490,10 +528,45 @@ def test_occlusion_weights_drop_on_the_occluders_side(side, device):
     for name in ("t1", "t2"):
         best = details[name]["best"]
         np.testing.assert_array_equal(best[interior], np.where(band, m_away, -1)[interior], err_msg=name)
+    assert not np.any(details["centre_occluded"][interior])
     # occlusion_ratio = 0: every weight back
     coef0, _ = _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device, 0.0)
     for k in range(3):
         np.testing.assert_array_equal(coef0[..., 9 + k][:, interior], weights[0, k], err_msg=f"w{k + 1}")
+
+
+@pytest.mark.parametrize("side", ["left", "below"])
+def test_occlusion_of_the_centre_view_at_t2(side, device):
+    """The front plane moves one pixel over the back plane from t1 to t2: next to the edge
+    the back-plane point is hidden at t2 in the centre view and in the views towards the
+    occluder, but seen by the views away from it. There the t2 stereo rows (which compare
+    with J2) are all dropped, and the flow rows are carried by the views that see the
+    point in both light fields (φ·n < 0) alone; the centre's flow row is dropped too."""
+    normal = np.asarray(OCCLUDER_SIDES[side])
+    # no sample with φ·n = 0 but the centre: the hidden views then form a half-plane
+    phis = np.array([(0, 0)] + [p for p in NEIGHBOURS if np.dot(p, normal) != 0], np.float32)
+    flow = (2, 1)
+    samples1, samples2, x_hat, where, hidden1, hidden2 = _depth_edge_scene(
+        normal, phis, flow=flow, front_flow=tuple(np.asarray(flow) - normal))
+    s, h, w = samples1.shape
+    weights = np.tile(np.array([1.0, 2.0, 3.0], np.float32), (s, 1))
+    coef, _, details = _check_data_coefficients(samples1, samples2, phis, weights, x_hat, 0.7, device)
+    interior = _interior(x_hat, phis)
+    centre_hidden = hidden2[0]
+    np.testing.assert_array_equal(centre_hidden, (where < 0) & (where > -1))  # the column/row next to the edge
+    assert np.sum(centre_hidden & interior) >= 4
+    np.testing.assert_array_equal(details["centre_occluded"][interior], centre_hidden[interior])
+    away = (phis @ normal.astype(np.float32)) < 0
+    np.testing.assert_array_equal(hidden2[:, centre_hidden], np.broadcast_to(~away[:, None], (s, centre_hidden.sum())))
+    keep1 = ~hidden1
+    keep2 = ~hidden2 & ~centre_hidden[None]  # a hidden centre view spoils every t2 stereo row
+    want = [keep1, keep2, keep1 & ~hidden2]
+    for k in range(3):
+        np.testing.assert_array_equal(coef[..., 9 + k][:, interior], weights[0, k] * want[k][:, interior],
+                                      err_msg=f"w{k + 1}")
+    got_w3 = coef[..., 11][:, centre_hidden & interior]
+    np.testing.assert_array_equal(got_w3[away], weights[0, 2])
+    np.testing.assert_array_equal(got_w3[~away], 0.0)
 
 
 def _smooth_view(s, t):
