@@ -93,3 +93,21 @@ def test_bad_inputs_raise():
         estimate_scene_flow(lf1, small, QUICK)
     with pytest.raises(ValueError, match="one count per circle"):
         Params(circles=2, samples=(1,))
+
+
+@pytest.mark.parametrize("scene", ["paper", "slanted"])
+def test_accuracy_against_ground_truth_on_synthetic_scenes(scene):
+    """A regression guard on small renders (the acceptance figures are measured at
+    160×120 and larger by scripts/compare_peers.py): the estimate must be far better
+    than knowing nothing (zero disparity and flow)."""
+    from lfsf import evaluate, synth
+
+    lf1, lf2, gt = synth.render_scene(scene, size=(96, 72), grid=9)
+    sf = estimate_scene_flow(lf1, lf2, Params.preset("fast"), device="cpu")
+    got = evaluate.evaluate(sf.as_dict(), gt, border=8)
+    zero = {k: np.zeros_like(sf.disp1) for k in ("disp1", "disp2", "u", "v")}
+    none = evaluate.evaluate(zero, gt, border=8)
+    assert got["disp1"]["mse"] < 0.1 * none["disp1"]["mse"], (got["disp1"], none["disp1"])
+    # δ2 also needs the flow right (it is read at p + u): a looser bound
+    assert got["disp2"]["mse"] < 0.25 * none["disp2"]["mse"], (got["disp2"], none["disp2"])
+    assert got["flow"]["epe"] < 0.25 * none["flow"]["epe"], (got["flow"], none["flow"])
