@@ -61,3 +61,22 @@ def forward_gradient(img: wp.array2d(dtype=float), i: int, j: int):
     if i < h - 1:
         gy = img[i + 1, j] - v
     return wp.vec2(gx, gy)
+
+
+vec8 = wp.types.vector(length=8, dtype=wp.float32)
+
+#: Occlusion-aware matching splits the samples by lines through φ = 0 at multiples of
+#: 45°: an occluder next to a pixel hides it in the views on one side only.
+HALF_PLANES = wp.constant(8)
+
+
+@wp.func
+def half_plane_normal(m: int):
+    angle = float(m) * (3.14159265358979 / 4.0)
+    return wp.vec2(wp.cos(angle), wp.sin(angle))
+
+
+@wp.func
+def in_half_plane(phi: wp.vec2, normal: wp.vec2):
+    """φ lies in the closed half-plane {φ · n ≥ 0} (with a small tolerance)."""
+    return wp.dot(phi, normal) >= -1.0e-3 * wp.length(phi)

@@ -14,32 +14,17 @@ weight λ_k (divided by the sample count) or 0 where a warped position leaves th
 
 import warp as wp
 
-from .common import bilinear, bilinear_gradient, inside
+from .common import HALF_PLANES, bilinear, bilinear_gradient, half_plane_normal, in_half_plane, inside, vec8
 
 wp.set_module_options({"enable_backward": False})
 
 vec12 = wp.types.vector(length=12, dtype=wp.float32)
-vec8 = wp.types.vector(length=8, dtype=wp.float32)
-
-#: Half-planes tried by the occlusion test: normals at multiples of 45°.
-HALF_PLANES = wp.constant(8)
 #: An occlusion must also raise the mean residual by this much (intensities in [0, 1]):
 #: in weak texture, ratios of tiny residuals are noise.
 OCCLUSION_FLOOR = wp.constant(0.01)
 #: The centre view at t2 is taken as occluded where it differs from the point's t1
 #: appearance by more than this many times the residual of the visible t2 samples.
 CENTRE_OCCLUSION_FACTOR = wp.constant(3.0)
-
-
-@wp.func
-def half_plane_normal(m: int):
-    angle = float(m) * (3.14159265358979 / 4.0)
-    return wp.vec2(wp.cos(angle), wp.sin(angle))
-
-
-@wp.func
-def in_half_plane(phi: wp.vec2, normal: wp.vec2):
-    return wp.dot(phi, normal) >= -1.0e-3 * wp.length(phi)
 
 
 @wp.func

@@ -10,7 +10,7 @@ or ρ2 at p + û); costs are then summed over a small window before the choice.
 
 import warp as wp
 
-from .common import bilinear, inside
+from .common import HALF_PLANES, bilinear, half_plane_normal, in_half_plane, inside, vec8
 
 wp.set_module_options({"enable_backward": False})
 
@@ -26,10 +26,12 @@ def disparity_cost(
     # outputs
     cost: wp.array3d(dtype=float),
 ):
-    """cost[k, p] = mean_{s≥1} |L(q − δ_k φ_s, φ_s) − L(q, 0)| with q = p + (u, v) of
-    ``offset`` (components 2, 3) and δ_k = candidates[k] + base[p]. Samples whose warped
-    position leaves the image are left out (cost 1 where none remain). Launch over
-    (candidates × rows, columns)."""
+    """cost[k, p] = the least, over the half-planes of samples (split by lines through
+    φ = 0 at multiples of 45°), mean |L(q − δ_k φ_s, φ_s) − L(q, 0)| over the samples
+    s ≥ 1 of that half, with q = p + (u, v) of ``offset`` (components 2, 3) and δ_k =
+    candidates[k] + base[p]. Taking the best half makes the cost indifferent to an
+    occluder on one side. Samples whose warped position leaves the image are left out
+    (cost 1 where none remain). Launch over (candidates × rows, columns)."""
     r, j = wp.tid()
     r = r + row0
     h = cost.shape[1]
@@ -40,18 +42,22 @@ def disparity_cost(
     qy = float(i) + o[3]
     d = candidates[k] + base[i, j]
     centre = bilinear(samples[0], qx, qy)
-    acc = float(0.0)
-    n = float(0.0)
+    sums = vec8()
+    counts = vec8()
     for s in range(1, phis.shape[0]):
         phi = phis[s]
         x = qx - d * phi[0]
         y = qy - d * phi[1]
         if inside(samples[s], x, y):
-            acc += wp.abs(bilinear(samples[s], x, y) - centre)
-            n += 1.0
+            e = wp.abs(bilinear(samples[s], x, y) - centre)
+            for m in range(HALF_PLANES):
+                if in_half_plane(phi, half_plane_normal(m)):
+                    sums[m] = sums[m] + e
+                    counts[m] = counts[m] + 1.0
     c = float(1.0)
-    if n > 0.0:
-        c = acc / n
+    for m in range(HALF_PLANES):
+        if counts[m] > 0.0:
+            c = wp.min(c, sums[m] / counts[m])
     cost[k, i, j] = c
 
 

@@ -90,6 +90,8 @@ FLOW_SEARCH_HALF = 12
 #: more than this factor: small differences are noise, and flipping on them would break
 #: the symmetry of the model (identical light fields must give δ1 = δ2 and zero flow).
 FUSION_MARGIN = 0.8
+#: The disparity sweep runs at full resolution: depth edges are where its value matters.
+SWEEP_LEVEL = 0
 
 
 def _as_lightfield(lf, name: str) -> LightField:
@@ -427,7 +429,7 @@ def estimate_scene_flow(
     search = params.disparity_search and n_samples > 1
     if search:
         # the sweep runs once, at half resolution where there is one
-        k = min(1, len(sizes) - 1)
+        k = min(SWEEP_LEVEL, len(sizes) - 1)
         tex = levels[k][0]
         level_scale = sizes[k][1] / width
         found = [_sweep(wp.clone(tex[t * n_samples:(t + 1) * n_samples]), wp_phis, radius,

@@ -607,12 +607,15 @@ class LinearisedProblem:
 
 
 def disparity_cost(samples, phis, candidates, base, offset) -> np.ndarray:
-    """cost[k, p] = mean over s ≥ 1 of |L(q − δ_k φ_s, φ_s) − L(q, 0)|, q = p + (u, v) of
-    ``offset`` (h, w, 4), δ_k = candidates[k] + base[p]; samples whose warped position
-    leaves the image are left out, cost 1 where none remain. (K, h, w)."""
+    """cost[k, p] = the least, over the 8 half-planes of samples (lines through φ = 0 at
+    multiples of 45°), mean of |L(q − δ_k φ_s, φ_s) − L(q, 0)| over the samples s ≥ 1 of
+    that half; q = p + (u, v) of ``offset`` (h, w, 4), δ_k = candidates[k] + base[p];
+    samples whose warped position leaves the image are left out, cost 1 where no half
+    has any. (K, h, w)."""
     samples = np.asarray(samples, np.float64)
     phis = np.asarray(phis, np.float64)
     offset = np.asarray(offset, np.float64)
+    members = half_plane_members(phis)  # (8, S) bool
     n, h, w = samples.shape
     py, px = np.mgrid[0:h, 0:w].astype(np.float64)
     qx, qy = px + offset[..., 2], py + offset[..., 3]
@@ -620,14 +623,18 @@ def disparity_cost(samples, phis, candidates, base, offset) -> np.ndarray:
     out = np.zeros((len(candidates), h, w))
     for k, c in enumerate(np.asarray(candidates, np.float64)):
         d = c + np.asarray(base, np.float64)
-        acc = np.zeros((h, w))
-        cnt = np.zeros((h, w))
+        sums = np.zeros((8, h, w))
+        cnts = np.zeros((8, h, w))
         for s in range(1, n):
             x, y = qx - d * phis[s, 0], qy - d * phis[s, 1]
             valid = inside((h, w), x, y)
-            acc += np.where(valid, np.abs(bilinear(samples[s], x, y) - centre), 0.0)
-            cnt += valid
-        out[k] = np.where(cnt > 0, acc / np.maximum(cnt, 1), 1.0)
+            e = np.where(valid, np.abs(bilinear(samples[s], x, y) - centre), 0.0)
+            for m in range(8):
+                if members[m, s]:
+                    sums[m] += e
+                    cnts[m] += valid
+        means = np.where(cnts > 0, sums / np.maximum(cnts, 1), np.inf)
+        out[k] = np.minimum(means.min(axis=0), 1.0)
     return out
 
 
