@@ -140,18 +140,20 @@ def _structure_texture(stack, params: Params, device: str):
 
 
 def _normalise_contrast(stack, params: Params, device: str):
-    """Scale the whole (texture) stack so that the t1 centre view's mean absolute
-    deviation is ``params.contrast``: the data weights λ then mean the same for dim and
-    bright, weakly and strongly textured scenes. One factor for every image, so that
+    """Scale the whole (texture) stack so that the t1 centre view's mean absolute image
+    gradient is ``params.contrast``: the data weights λ then mean the same for dim and
+    bright, weakly and strongly textured scenes, with or without the texture split. The
+    gradient, not the spread of values, measures what matching sees (large smooth
+    shading has a wide spread and no texture). One factor for every image, so that
     brightness constancy between views and times is kept."""
     if params.contrast <= 0:
         return stack
     wp = _device.warp()
     centre = stack[0].numpy()
-    spread = float(np.mean(np.abs(centre - np.median(centre))))
-    if not np.isfinite(spread) or spread < 1e-6:
+    gradient = 0.5 * (float(np.mean(np.abs(np.diff(centre, axis=1)))) + float(np.mean(np.abs(np.diff(centre, axis=0)))))
+    if not np.isfinite(gradient) or gradient < 1e-7:
         return stack  # a flat image: nothing to match, nothing to scale
-    data = stack.numpy() * np.float32(params.contrast / spread)
+    data = stack.numpy() * np.float32(params.contrast / gradient)
     return wp.array(data, dtype=float, device=device)
 
 

@@ -30,8 +30,8 @@ class Params:
         rof_weight : μ, the ROF fidelity weight (min Σ|∇u| + 1/(2μ) Σ(u − f)²).
         rof_iterations : primal–dual iterations of the ROF solve.
         contrast : the matched images (texture parts) are scaled by one factor so that the
-            t1 centre view's mean absolute deviation is this (0: no scaling); λ is then
-            independent of the scene's contrast.
+            t1 centre view's mean absolute image gradient is this (0: no scaling); λ is
+            then independent of the scene's contrast.
     Regulariser: image-driven TGV² (§4)
         alpha0, alpha1 : α0 (on ∇w) and α1 (on Γ(∇x − w)).
         gamma, beta : γ, β of Γ = exp(−γ|∇I|^β) n nᵀ + n⊥ n⊥ᵀ.
@@ -63,7 +63,7 @@ class Params:
     texture_theta: float = 0.95
     rof_weight: float = 0.125
     rof_iterations: int = 60
-    contrast: float = 0.04
+    contrast: float = 0.02
     alpha0: float = 2.0
     alpha1: float = 0.5
     gamma: float = 10.0
