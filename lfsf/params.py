@@ -75,7 +75,7 @@ class Params:
     min_size: int = 10
     max_levels: int = 0
     warps: int = 5
-    iterations: int = 50
+    iterations: int = 100
     median_radius: int = 2
     eps: float = 1e-6
     disparity_search: bool = True
