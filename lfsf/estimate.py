@@ -430,7 +430,7 @@ def estimate_scene_flow(
     lap("pyramid")
     search = params.disparity_search and n_samples > 1
     if search:
-        # the sweep runs once, at half resolution where there is one
+        # the sweep runs once, on level SWEEP_LEVEL (full resolution)
         k = min(SWEEP_LEVEL, len(sizes) - 1)
         tex = levels[k][0]
         level_scale = sizes[k][1] / width
