@@ -89,7 +89,10 @@ def cmd_eval(args) -> int:
     estimate = load_estimate(args.result)
     gt, default_border = load_ground_truth(args.gt)
     border = default_border if args.border is None else args.border
-    errors = evaluate(estimate, gt, border=border)
+    try:
+        errors = evaluate(estimate, gt, border=border)
+    except ValueError as exc:
+        raise ValueError(f"{args.result} against {args.gt}: {exc}") from None
     print(f"{args.result} against {args.gt} (border {border} px)")
     print(format_table(errors))
     if args.json:
