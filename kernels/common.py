@@ -80,3 +80,28 @@ def half_plane_normal(m: int):
 def in_half_plane(phi: wp.vec2, normal: wp.vec2):
     """φ lies in the closed half-plane {φ · n ≥ 0} (with a small tolerance)."""
     return wp.dot(phi, normal) >= -1.0e-3 * wp.length(phi)
+
+
+@wp.func
+def half_plane_residuals(samples: wp.array3d(dtype=float), phis: wp.array(dtype=wp.vec2), qx: float, qy: float,
+                         disparity: float, centre: float):
+    """Residuals |L(q − δφ_s, φ_s) − c| of the samples s ≥ 1 whose warped position lies in
+    the image, summed per half-plane of samples and over all of them: returns (sums,
+    counts) per half-plane (vec8) and (total, count)."""
+    sums = vec8()
+    counts = vec8()
+    total = float(0.0)
+    count = float(0.0)
+    for s in range(1, phis.shape[0]):
+        phi = phis[s]
+        x = qx - disparity * phi[0]
+        y = qy - disparity * phi[1]
+        if inside(samples[s], x, y):
+            e = wp.abs(bilinear(samples[s], x, y) - centre)
+            total += e
+            count += 1.0
+            for m in range(HALF_PLANES):
+                if in_half_plane(phi, half_plane_normal(m)):
+                    sums[m] = sums[m] + e
+                    counts[m] = counts[m] + 1.0
+    return sums, counts, total, count

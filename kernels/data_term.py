@@ -14,7 +14,7 @@ weight λ_k (divided by the sample count) or 0 where a warped position leaves th
 
 import warp as wp
 
-from .common import HALF_PLANES, bilinear, bilinear_gradient, half_plane_normal, in_half_plane, inside, vec8
+from .common import HALF_PLANES, bilinear, bilinear_gradient, half_plane_normal, half_plane_residuals, in_half_plane, inside
 
 wp.set_module_options({"enable_backward": False})
 
@@ -38,22 +38,7 @@ def visible_half(samples: wp.array3d(dtype=float), phis: wp.array(dtype=wp.vec2)
 
     Returns the best half's index (−1: no occlusion, keep every sample) and the mean
     residual of the samples kept."""
-    sums = vec8()
-    counts = vec8()
-    total = float(0.0)
-    count = float(0.0)
-    for s in range(1, phis.shape[0]):
-        phi = phis[s]
-        x = qx - disparity * phi[0]
-        y = qy - disparity * phi[1]
-        if inside(samples[s], x, y):
-            e = wp.abs(bilinear(samples[s], x, y) - centre)
-            total += e
-            count += 1.0
-            for m in range(HALF_PLANES):
-                if in_half_plane(phi, half_plane_normal(m)):
-                    sums[m] = sums[m] + e
-                    counts[m] = counts[m] + 1.0
+    sums, counts, total, count = half_plane_residuals(samples, phis, qx, qy, disparity, centre)
     best = int(-1)
     kept_mean = float(0.0)
     if count > 0.0:

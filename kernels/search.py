@@ -10,7 +10,7 @@ or ρ2 at p + û); costs are then summed over a small window before the choice.
 
 import warp as wp
 
-from .common import HALF_PLANES, bilinear, half_plane_normal, in_half_plane, inside, vec8
+from .common import HALF_PLANES, bilinear, half_plane_residuals, inside
 
 wp.set_module_options({"enable_backward": False})
 
@@ -42,18 +42,7 @@ def disparity_cost(
     qy = float(i) + o[3]
     d = candidates[k] + base[i, j]
     centre = bilinear(samples[0], qx, qy)
-    sums = vec8()
-    counts = vec8()
-    for s in range(1, phis.shape[0]):
-        phi = phis[s]
-        x = qx - d * phi[0]
-        y = qy - d * phi[1]
-        if inside(samples[s], x, y):
-            e = wp.abs(bilinear(samples[s], x, y) - centre)
-            for m in range(HALF_PLANES):
-                if in_half_plane(phi, half_plane_normal(m)):
-                    sums[m] = sums[m] + e
-                    counts[m] = counts[m] + 1.0
+    sums, counts, total, count = half_plane_residuals(samples, phis, qx, qy, d, centre)
     c = float(1.0)
     for m in range(HALF_PLANES):
         if counts[m] > 0.0:

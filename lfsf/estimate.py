@@ -187,6 +187,21 @@ def _upsample_state(arrays: list[np.ndarray], size, scales, device: str) -> list
     return out
 
 
+def _windowed_cost(kernel, inputs, count: int, size, search_radius: int, device: str):
+    """Per-pixel matching costs of ``count`` candidates (a cost kernel of
+    :mod:`lfsf.kernels.search`), averaged over (2r+1)² windows: (count, h, w)."""
+    from lfsf.kernels import search
+
+    wp = _device.warp()
+    h, w = size
+    cost = wp.empty((count, h, w), dtype=float, device=device)
+    _device.launch_rows(kernel, dim=(count * h, w), inputs=inputs, outputs=[cost], device=device)
+    smooth = wp.empty_like(cost)
+    _device.launch_rows(search.box_sum, dim=(count * h, w), inputs=[cost, search_radius], outputs=[smooth],
+                        device=device)
+    return smooth
+
+
 def _sweep(samples, phis, radius_used: float, disparity_range: float, search_radius: int, device: str):
     """Plane-sweep disparity of a (S, h, w) sample stack (the t1 or t2 light field in its
     own frame): winner-take-all over windowed costs, candidates spaced so that the outer
@@ -201,12 +216,8 @@ def _sweep(samples, phis, radius_used: float, disparity_range: float, search_rad
     candidates = wp.array(cands, dtype=float, device=device)
     zero = wp.zeros((h, w), dtype=float, device=device)
     no_offset = wp.zeros((h, w), dtype=wp.vec4, device=device)
-    cost = wp.empty((len(cands), h, w), dtype=float, device=device)
-    _device.launch_rows(search.disparity_cost, dim=(len(cands) * h, w),
-                        inputs=[samples, phis, candidates, zero, no_offset], outputs=[cost], device=device)
-    smooth = wp.empty_like(cost)
-    _device.launch_rows(search.box_sum, dim=(len(cands) * h, w), inputs=[cost, search_radius], outputs=[smooth],
-                        device=device)
+    smooth = _windowed_cost(search.disparity_cost, [samples, phis, candidates, zero, no_offset], len(cands), (h, w),
+                            search_radius, device)
     best = wp.empty((h, w), dtype=float, device=device)
     best_cost = wp.empty((h, w), dtype=float, device=device)
     _device.launch_rows(search.select_disparity, dim=(h, w), inputs=[smooth, candidates], outputs=[best, best_cost],
@@ -223,12 +234,8 @@ def _window_cost(samples, phis, disparity: np.ndarray, offset: np.ndarray, searc
     zero = wp.zeros(1, dtype=float, device=device)
     base = wp.array(np.ascontiguousarray(disparity, np.float32), dtype=float, device=device)
     off = wp.array(np.ascontiguousarray(offset, np.float32), dtype=wp.vec4, device=device)
-    cost = wp.empty((1, h, w), dtype=float, device=device)
-    _device.launch_rows(search.disparity_cost, dim=(h, w), inputs=[samples, phis, zero, base, off], outputs=[cost],
-                        device=device)
-    smooth = wp.empty_like(cost)
-    _device.launch_rows(search.box_sum, dim=(h, w), inputs=[cost, search_radius], outputs=[smooth], device=device)
-    return smooth.numpy()[0]
+    return _windowed_cost(search.disparity_cost, [samples, phis, zero, base, off], 1, (h, w), search_radius,
+                          device).numpy()[0]
 
 
 def _resize_map(image: np.ndarray, size, scale: float, device: str) -> np.ndarray:
@@ -276,12 +283,8 @@ def _flow_search(centre1, centre2, half: int, search_radius: int, device: str) -
     grid = np.stack(np.meshgrid(np.arange(-half, half + 1), np.arange(-half, half + 1)), -1).reshape(-1, 2)
     candidates = wp.array(grid.astype(np.float32), dtype=wp.vec2, device=device)
     base = wp.zeros((h, w), dtype=wp.vec4, device=device)
-    cost = wp.empty((len(grid), h, w), dtype=float, device=device)
-    _device.launch_rows(search.flow_cost, dim=(len(grid) * h, w), inputs=[centre1, centre2, candidates, base],
-                        outputs=[cost], device=device)
-    smooth = wp.empty_like(cost)
-    _device.launch_rows(search.box_sum, dim=(len(grid) * h, w), inputs=[cost, search_radius], outputs=[smooth],
-                        device=device)
+    smooth = _windowed_cost(search.flow_cost, [centre1, centre2, candidates, base], len(grid), (h, w),
+                            search_radius, device)
     best = wp.empty((h, w), dtype=wp.vec2, device=device)
     _device.launch_rows(search.select_flow, dim=(h, w), inputs=[smooth, half], outputs=[best], device=device)
     return best.numpy()
@@ -294,12 +297,8 @@ def _window_flow_cost(centre1, centre2, x: np.ndarray, search_radius: int, devic
     h, w = centre1.shape
     zero = wp.zeros(1, dtype=wp.vec2, device=device)
     base = wp.array(np.ascontiguousarray(x, np.float32), dtype=wp.vec4, device=device)
-    cost = wp.empty((1, h, w), dtype=float, device=device)
-    _device.launch_rows(search.flow_cost, dim=(h, w), inputs=[centre1, centre2, zero, base], outputs=[cost],
-                        device=device)
-    smooth = wp.empty_like(cost)
-    _device.launch_rows(search.box_sum, dim=(h, w), inputs=[cost, search_radius], outputs=[smooth], device=device)
-    return smooth.numpy()[0]
+    return _windowed_cost(search.flow_cost, [centre1, centre2, zero, base], 1, (h, w), search_radius,
+                          device).numpy()[0]
 
 
 def _fuse_flow(x: np.ndarray, centre1, centre2, found: np.ndarray, params: Params, device: str) -> np.ndarray:

@@ -2,6 +2,7 @@
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -32,3 +33,20 @@ def data_path(*parts) -> Path:
     if not path.exists():
         pytest.skip(f"{path} not present")
     return path
+
+
+def rng(seed=0):
+    return np.random.default_rng(seed)
+
+
+def arr(a, dtype, device):
+    """A Warp array of float32 data with the given Warp dtype."""
+    from lfsf.device import warp
+
+    return warp().array(np.ascontiguousarray(a, np.float32), dtype=dtype, device=device)
+
+
+def launch(kernel, dim, inputs, outputs, device):
+    from lfsf.device import launch_rows
+
+    launch_rows(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device)

@@ -21,17 +21,7 @@ RTOL = 1e-5
 ATOL = 1e-5
 
 
-def rng(seed=0):
-    return np.random.default_rng(seed)
-
-
-def arr(a, dtype, device):
-    """A Warp array of float32 data with the given Warp dtype."""
-    return wp.array(np.ascontiguousarray(a, np.float32), dtype=dtype, device=device)
-
-
-def launch(kernel, dim, inputs, outputs, device):
-    D.launch_rows(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device)
+from conftest import arr, launch, rng  # noqa: E402
 
 
 def close(got, want, rtol=RTOL, atol=ATOL):

@@ -15,17 +15,7 @@ import reference_kernels as ref
 wp = D.warp()
 
 
-def rng(seed=0):
-    return np.random.default_rng(seed)
-
-
-def arr(a, dtype, device):
-    """A Warp array of float32 data with the given Warp dtype."""
-    return wp.array(np.ascontiguousarray(a, np.float32), dtype=dtype, device=device)
-
-
-def launch(kernel, dim, inputs, outputs, device):
-    D.launch_rows(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device)
+from conftest import arr, launch, rng  # noqa: E402
 
 
 def close(got, want, rtol=1e-5, atol=1e-5):
