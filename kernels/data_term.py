@@ -73,6 +73,7 @@ def data_coefficients(
     weights: wp.array(dtype=wp.vec3),
     x_hat: wp.array2d(dtype=wp.vec4),
     occlusion_ratio: float,
+    hidden2: wp.array2d(dtype=float),
     # outputs
     coef: wp.array3d(dtype=vec12),
     data_colsum: wp.array2d(dtype=wp.vec4),
@@ -88,8 +89,9 @@ def data_coefficients(
     the point in the views on its side. Both light fields are tested against the point's
     appearance at t1, I1(p); where the centre view at t2 is itself occluded (|I1 − J2|
     above CENTRE_OCCLUSION_FACTOR times the visible t2 samples' residual, plus the
-    floor), every t2 stereo row and the centre's flow row are left out. Launch over
-    (rows, columns).
+    floor), or where ``hidden2`` says a nearer point covers it (the geometric test of
+    :mod:`lfsf.kernels.occlusion`; zeros to skip it), every t2 stereo row and the centre's
+    flow row are left out. Launch over (rows, columns).
     """
     i, j = wp.tid()
     i = i + row0
@@ -111,6 +113,8 @@ def data_coefficients(
     half1, kept1 = visible_half(samples1, phis, px, py, xh[0], i1, occlusion_ratio)
     half2, kept2 = visible_half(samples2, phis, xj, yj, xh[1], i1, occlusion_ratio)
     if occlusion_ratio > 0.0 and wp.abs(i1 - j2) > CENTRE_OCCLUSION_FACTOR * kept2 + OCCLUSION_FLOOR:
+        in_j = False
+    if hidden2[i, j] > 0.5:
         in_j = False
     colsum = wp.vec4(0.0)
     for s in range(phis.shape[0]):

@@ -26,6 +26,10 @@ class Params:
         occlusion_ratio : occlusion handling (an addition to the paper): where the samples
             on one side of a line through the centre match better than this fraction of
             the mean, the other side is left out of that pixel's stereo rows (0: off).
+        occlusion_margin : geometric occlusion at t2 (an addition to the paper): a point
+            counts as hidden in the t2 centre view where a point nearer by more than this
+            many px per view step (larger δ2) lands on the same pixel; its t2 stereo rows
+            and centre flow row are then left out (0: off).
         texture_theta : θ of the structure–texture split T = I − θ·ROF(I); 0 disables it.
             The paper's 0.95 suits real data (HCI antinous BadPix 18.7 % at 0.8) but costs
             accuracy on brightness-constant scenes; 0.7 is the measured compromise
@@ -63,6 +67,7 @@ class Params:
     lambda2: float = 10.0
     lambda3: float = 30.0
     occlusion_ratio: float = 0.7
+    occlusion_margin: float = 0.25
     texture_theta: float = 0.7
     rof_weight: float = 0.125
     rof_iterations: int = 60
@@ -148,6 +153,7 @@ class Params:
             value = getattr(self, name)
             need(math.isfinite(value) and value >= 0, f"{name} must be a finite number ≥ 0, got {value}")
         need(self.alpha0 > 0 and self.alpha1 > 0, "alpha0 and alpha1 must be positive")
+        need(self.occlusion_margin >= 0, f"occlusion_margin must be ≥ 0, got {self.occlusion_margin}")
         need(0 <= self.occlusion_ratio < 1, f"occlusion_ratio must be in [0, 1), got {self.occlusion_ratio}")
         need(math.isfinite(self.contrast) and self.contrast >= 0, f"contrast must be ≥ 0, got {self.contrast}")
         need(0 <= self.texture_theta <= 1, f"texture_theta (θ) must be in [0, 1], got {self.texture_theta}")

@@ -67,6 +67,9 @@ class LevelSolver:
         self.tau_x, self.tau_w0, self.tau_w1 = zeros4(), zeros4(), zeros4()
         self.sigma_y0, self.sigma_y1 = zeros4(), zeros4()
         self.scratch = zeros4()
+        # geometric occlusion at t2: z-buffer of δ2 and the hidden mask
+        self.zbuf = wp.zeros((h, w), dtype=float, device=device)
+        self.hidden2 = wp.zeros((h, w), dtype=float, device=device)
 
     def _launch(self, kernel, inputs, outputs):
         _device.launch_rows(kernel, dim=self.shape, inputs=inputs, outputs=outputs, device=self.device)
@@ -105,12 +108,28 @@ class LevelSolver:
         wp.copy(self.x_bar, self.x)
         wp.copy(self.w0_bar, self.w0)
         wp.copy(self.w1_bar, self.w1)
+        self.find_hidden()
         self._launch(data_term.data_coefficients,
-                     inputs=[self.samples1, self.samples2, self.phis, self.weights, self.x_hat, p.occlusion_ratio],
+                     inputs=[self.samples1, self.samples2, self.phis, self.weights, self.x_hat, p.occlusion_ratio,
+                             self.hidden2],
                      outputs=[self.coef, self.data_colsum])
         self._launch(tgv.tgv_preconditioner,
                      inputs=[self.data_colsum, self.tensor1, self.tensor2, p.alpha0, p.alpha1, p.eps],
                      outputs=[self.tau_x, self.tau_w0, self.tau_w1, self.sigma_y0, self.sigma_y1])
+
+    def find_hidden(self) -> None:
+        """Mark the points of x̂ hidden at t2 by a nearer point (``hidden2``; all zero when
+        ``params.occlusion_margin`` is 0)."""
+        from lfsf.kernels import occlusion
+
+        margin = self.params.occlusion_margin
+        if margin <= 0:
+            self.hidden2.zero_()
+            return
+        self.zbuf.fill_(occlusion.EMPTY)
+        _device.launch_rows(occlusion.splat_depth, dim=self.shape, inputs=[self.x_hat], outputs=[self.zbuf],
+                            device=self.device, bands=1)  # atomics: one launch
+        self._launch(occlusion.hidden_at_t2, inputs=[self.x_hat, self.zbuf, margin], outputs=[self.hidden2])
 
     def iterate(self, n: int) -> None:
         """n preconditioned primal–dual iterations (Chambolle & Pock 2011)."""

@@ -46,7 +46,7 @@ def arr(a, dtype, device):
     return warp().array(np.ascontiguousarray(a, np.float32), dtype=dtype, device=device)
 
 
-def launch(kernel, dim, inputs, outputs, device):
+def launch(kernel, dim, inputs, outputs, device, bands=None):
     from lfsf.device import launch_rows
 
-    launch_rows(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device)
+    launch_rows(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device, bands=bands)

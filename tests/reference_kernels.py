@@ -260,7 +260,7 @@ def kept_samples(best: np.ndarray, members: np.ndarray) -> np.ndarray:
     return np.moveaxis(keep, -1, 0) | (best < 0)[None]
 
 
-def data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio=0.0, details=None):
+def data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio=0.0, details=None, hidden2=None):
     """A1…A9 (9, S, h, w), row weights (3, S, h, w) and data column sums (h, w, 4).
 
     W1 = L(p − δ̂1 φ, φ, t1), W2 = L(p + û − δ̂2 φ, φ, t2), J2 = L(p + û, 0, t2); sample 0 is
@@ -273,7 +273,8 @@ def data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio=
     OCCLUSION_FLOOR: then every w2 is 0 (the stereo rows at t2 compare with J2) and so is
     w3 of the centre sample (the flow row I1 − J2). ``details``, a dict, receives the two
     occlusion tests ("t1", "t2") and the centre test ("centre_occluded", "centre_margin"
-    = |I1 − J2| − threshold).
+    = |I1 − J2| − threshold). ``hidden2`` (h, w): where > 0.5 the centre view at t2 is
+    taken as occluded too (the geometric test, :func:`hidden_at_t2`).
     """
     samples1 = np.asarray(samples1, np.float64)
     samples2 = np.asarray(samples2, np.float64)
@@ -293,6 +294,8 @@ def data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio=
     centre_margin = np.abs(i1 - j2) - (CENTRE_OCCLUSION_FACTOR * occ2["kept_mean"] + OCCLUSION_FLOOR)
     centre_occluded = (occlusion_ratio > 0) & (centre_margin > 0)
     in_j = in_j & ~centre_occluded
+    if hidden2 is not None:
+        in_j = in_j & ~(np.asarray(hidden2) > 0.5)
     keep2[0] &= in_j
     if details is not None:
         details.update(t1=occ1, t2=occ2, centre_occluded=centre_occluded, centre_margin=centre_margin)
@@ -716,4 +719,32 @@ def select_flow(cost, half: int) -> np.ndarray:
         refine = (ka > 0) & (ka < side - 1) & (curv > 1e-12)
         with np.errstate(invalid="ignore", divide="ignore"):
             out[..., axis] += np.where(refine, parabola_vertex(cl, c0, cr), 0.0)
+    return out
+
+
+# --- geometric occlusion at t2 (kernels/occlusion.py) ---------------------------------------
+
+
+def hidden_at_t2(x, margin):
+    """(h, w) float: 1 where the t2 pixel nearest to p + (u, v) is reached (less than one
+    pixel away along each axis: the floor and ceiling pixels of the landing point) by a
+    point whose δ2 exceeds δ2(p) + margin; z-buffer by explicit loops."""
+    x = np.asarray(x, np.float32)
+    h, w = x.shape[:2]
+    zbuf = np.full((h, w), -np.inf)
+    for i in range(h):
+        for j in range(w):
+            d2, u, v = x[i, j, 1], x[i, j, 2], x[i, j, 3]
+            tx, ty = np.float32(j) + np.float32(u), np.float32(i) + np.float32(v)
+            for yy in sorted({int(np.floor(ty)), int(np.ceil(ty))}):
+                for xx in sorted({int(np.floor(tx)), int(np.ceil(tx))}):
+                    if 0 <= yy < h and 0 <= xx < w:
+                        zbuf[yy, xx] = max(zbuf[yy, xx], d2)
+    out = np.zeros((h, w))
+    for i in range(h):
+        for j in range(w):
+            tx = int(np.floor(np.float32(j) + np.float32(x[i, j, 2]) + np.float32(0.5)))
+            ty = int(np.floor(np.float32(i) + np.float32(x[i, j, 3]) + np.float32(0.5)))
+            if 0 <= ty < h and 0 <= tx < w and zbuf[ty, tx] > x[i, j, 1] + margin:
+                out[i, j] = 1.0
     return out

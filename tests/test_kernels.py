@@ -251,25 +251,28 @@ def _data_inputs(seed, h=7, w=9):
     return samples1, samples2, phis, weights, x_hat
 
 
-def _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device, occlusion_ratio=0.0):
+def _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device, occlusion_ratio=0.0, hidden2=None):
     from lfsf.kernels import data_term
 
     s, h, w = samples1.shape
+    hidden2 = np.zeros((h, w), np.float32) if hidden2 is None else hidden2
     coef = wp.zeros((s, h, w), dtype=data_term.vec12, device=device)
     colsum = wp.zeros((h, w), dtype=wp.vec4, device=device)
     launch(data_term.data_coefficients, (h, w),
            [arr(samples1, float, device), arr(samples2, float, device), arr(phis, wp.vec2, device),
-            arr(weights, wp.vec3, device), arr(x_hat, wp.vec4, device), float(occlusion_ratio)],
+            arr(weights, wp.vec3, device), arr(x_hat, wp.vec4, device), float(occlusion_ratio),
+            arr(hidden2, float, device)],
            [coef, colsum], device)
     return coef.numpy().astype(np.float64), colsum.numpy().astype(np.float64)
 
 
-def _check_data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio, device):
+def _check_data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio, device, hidden2=None):
     """Kernel vs reference: A1…A9, the row weights (exactly) and the column sums. Returns
     (kernel coef, reference W, reference occlusion details)."""
-    coef, colsum = _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device, occlusion_ratio)
+    coef, colsum = _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device, occlusion_ratio, hidden2)
     details = {}
-    A, W, want_colsum = ref.data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio, details)
+    A, W, want_colsum = ref.data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio, details,
+                                              hidden2)
     for k in range(9):
         close(coef[..., k], A[k], atol=2e-5)
     for k in range(3):
@@ -280,6 +283,22 @@ def _check_data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion
             _assert_decisions_robust(details[name], occlusion_ratio)
         assert np.all(np.abs(details["centre_margin"]) > 1e-5), np.argwhere(np.abs(details["centre_margin"]) <= 1e-5)
     return coef, W, details
+
+
+def test_data_coefficients_leave_out_hidden_points(device):
+    """Where the geometric test says the point is hidden at t2 (hidden2 = 1), every t2
+    stereo row and the centre's flow row are off, and nothing else changes."""
+    samples1, samples2, phis, weights, x_hat = _data_inputs(13)
+    h, w = samples1.shape[1:]
+    hidden2 = (np.random.default_rng(5).random((h, w)) < 0.3).astype(np.float32)
+    coef, W, _ = _check_data_coefficients(samples1, samples2, phis, weights, x_hat, 0.0, device, hidden2)
+    coef0, _ = _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device, 0.0)
+    hid = hidden2 > 0.5
+    assert hid.any() and (~hid).any()
+    assert np.all(coef[:, hid, 10] == 0) and np.all(coef[0, hid, 11] == 0)
+    np.testing.assert_array_equal(coef[:, ~hid], coef0[:, ~hid])
+    np.testing.assert_array_equal(coef[1:, hid, 11], coef0[1:, hid, 11])
+    np.testing.assert_array_equal(coef[..., :10], coef0[..., :10])
 
 
 def test_data_coefficients_match_reference(device):
@@ -963,3 +982,46 @@ def test_level_solver_reaches_the_minimum_of_the_linearised_energy(device, small
     e_numpy = problem.energy(*problem.solve(3000))
     assert e_kernel < e_start
     assert abs(e_kernel - e_numpy) < 2e-3 * e_numpy, (e_start, e_kernel, e_numpy)
+
+
+# --- geometric occlusion at t2 -------------------------------------------------------------------
+
+
+def _hidden(x, margin, device):
+    from lfsf.kernels import occlusion
+
+    h, w = x.shape[:2]
+    xa = arr(x, wp.vec4, device)
+    zbuf = wp.full((h, w), occlusion.EMPTY, dtype=float, device=device)
+    launch(occlusion.splat_depth, (h, w), [xa], [zbuf], device, bands=1)
+    out = wp.zeros((h, w), dtype=float, device=device)
+    launch(occlusion.hidden_at_t2, (h, w), [xa, zbuf, float(margin)], [out], device)
+    return out.numpy()
+
+
+def test_hidden_at_t2_matches_reference(device):
+    rng = np.random.default_rng(11)
+    h, w = 9, 12
+    x = np.zeros((h, w, 4), np.float32)
+    x[..., 1] = rng.uniform(-2, 2, (h, w))
+    x[..., 2:] = rng.uniform(-3, 3, (h, w, 2))
+    x[0, 0, 2] = 40.0  # lands outside: never hidden
+    want = ref.hidden_at_t2(x, 0.3)
+    got = _hidden(x, 0.3, device)
+    np.testing.assert_array_equal(got, want)
+    assert 0 < want.sum() < h * w and got[0, 0] == 0
+
+
+def test_hidden_at_t2_finds_the_covered_background(device):
+    """A near square (δ2 = 1) moving 3 px right over a still far background (δ2 = −1)
+    covers the 3 background columns to its right, and nothing else."""
+    h, w = 12, 16
+    x = np.zeros((h, w, 4), np.float32)
+    x[..., 1] = -1.0
+    x[3:8, 4:9, 1] = 1.0
+    x[3:8, 4:9, 2] = 3.0
+    want = np.zeros((h, w))
+    want[3:8, 9:12] = 1.0
+    np.testing.assert_array_equal(_hidden(x, 0.25, device), want)
+    # with a margin above the depth difference nothing is hidden
+    assert _hidden(x, 2.5, device).sum() == 0

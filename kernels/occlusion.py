@@ -1,0 +1,72 @@
+"""Geometric occlusion at t2: which points of the t1 centre view are hidden at t2 in the
+centre view, from the current scene flow itself (an addition to the paper).
+
+Every pixel p lands at p + (u, v) in the t2 centre view with disparity δ2(p). Nearer
+points have larger disparities (MODEL.md §1), so a z-buffer of the largest δ2 landing at
+each t2 pixel says who is seen there; p is hidden where a point nearer by more than a
+margin lands on the same pixel. This is the test a photometric one cannot make in weak or
+repetitive texture, and it is what the light field buys: the depth order of the points.
+"""
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+#: z-buffer value of a t2 pixel on which no point lands.
+EMPTY = wp.constant(-1.0e30)
+
+
+@wp.kernel
+def splat_depth(
+    row0: int,
+    x: wp.array2d(dtype=wp.vec4),
+    # outputs
+    zbuf: wp.array2d(dtype=float),
+):
+    """zbuf[t] = max δ2 over the points whose t2 position p + (u, v) lies less than one
+    pixel from t along each axis (the pixels at its floor and ceiling: four, or one at a
+    whole-pixel position). ``zbuf`` must be filled with EMPTY first. Uses
+    atomics: launch in one piece (``bands=1`` on the CPU), over (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    h = zbuf.shape[0]
+    w = zbuf.shape[1]
+    v = x[i, j]
+    tx = float(j) + v[2]
+    ty = float(i) + v[3]
+    x0 = int(wp.floor(tx))
+    y0 = int(wp.floor(ty))
+    nx = int(wp.ceil(tx)) - x0
+    ny = int(wp.ceil(ty)) - y0
+    for dy in range(ny + 1):
+        for dx in range(nx + 1):
+            yy = y0 + dy
+            xx = x0 + dx
+            if yy >= 0 and yy < h and xx >= 0 and xx < w:
+                wp.atomic_max(zbuf, yy, xx, v[1])
+
+
+@wp.kernel
+def hidden_at_t2(
+    row0: int,
+    x: wp.array2d(dtype=wp.vec4),
+    zbuf: wp.array2d(dtype=float),
+    margin: float,
+    # outputs
+    hidden: wp.array2d(dtype=float),
+):
+    """hidden[p] = 1 where the t2 pixel nearest to p + (u, v) is held by a point with δ2
+    larger than δ2(p) + margin, else 0 (also 0 where p + (u, v) leaves the image: the
+    data term already leaves those rows out). Launch over (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    h = zbuf.shape[0]
+    w = zbuf.shape[1]
+    v = x[i, j]
+    tx = int(wp.floor(float(j) + v[2] + 0.5))
+    ty = int(wp.floor(float(i) + v[3] + 0.5))
+    out = float(0.0)
+    if ty >= 0 and ty < h and tx >= 0 and tx < w:
+        if zbuf[ty, tx] > v[1] + margin:
+            out = 1.0
+    hidden[i, j] = out
