@@ -89,9 +89,11 @@ def data_coefficients(
     the point in the views on its side. Both light fields are tested against the point's
     appearance at t1, I1(p); where the centre view at t2 is itself occluded (|I1 − J2|
     above CENTRE_OCCLUSION_FACTOR times the visible t2 samples' residual, plus the
-    floor), or where ``hidden2`` says a nearer point covers it (the geometric test of
-    :mod:`lfsf.kernels.occlusion`; zeros to skip it), every t2 stereo row and the centre's
-    flow row are left out. Launch over (rows, columns).
+    floor), every t2 stereo row and the centre's flow row are left out. Where ``hidden2``
+    says a nearer point covers the point at t2 (the geometric test of
+    :mod:`lfsf.kernels.occlusion`; zeros to skip it), every row involving t2 is left out
+    (w2 = w3 = 0 for all samples): its δ2 and flow come from the regulariser alone, which
+    measured better than trusting the side views there. Launch over (rows, columns).
     """
     i, j = wp.tid()
     i = i + row0
@@ -114,8 +116,8 @@ def data_coefficients(
     half2, kept2 = visible_half(samples2, phis, xj, yj, xh[1], i1, occlusion_ratio)
     if occlusion_ratio > 0.0 and wp.abs(i1 - j2) > CENTRE_OCCLUSION_FACTOR * kept2 + OCCLUSION_FLOOR:
         in_j = False
-    if hidden2[i, j] > 0.5:
-        in_j = False
+    # a nearer point covers p at t2 (geometric test): no t2 view is trusted to see it
+    hidden = hidden2[i, j] > 0.5
     colsum = wp.vec4(0.0)
     for s in range(phis.shape[0]):
         phi = phis[s]
@@ -130,7 +132,7 @@ def data_coefficients(
         w2v = bilinear(view2, x2, y2)
         g2 = bilinear_gradient(view2, x2, y2)
         in_1 = inside(view1, x1, y1) and keeps(half1, phi)
-        in_2 = inside(view2, x2, y2) and keeps(half2, phi) and (s > 0 or in_j)
+        in_2 = inside(view2, x2, y2) and keeps(half2, phi) and (s > 0 or in_j) and not hidden
         a1 = -wp.dot(phi, g1)
         a2 = i1 - w1v
         a3 = -wp.dot(phi, g2)

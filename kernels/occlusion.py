@@ -1,11 +1,15 @@
 """Geometric occlusion at t2: which points of the t1 centre view are hidden at t2 in the
 centre view, from the current scene flow itself (an addition to the paper).
 
-Every pixel p lands at p + (u, v) in the t2 centre view with disparity δ2(p). Nearer
-points have larger disparities (MODEL.md §1), so a z-buffer of the largest δ2 landing at
-each t2 pixel says who is seen there; p is hidden where a point nearer by more than a
-margin lands on the same pixel. This is the test a photometric one cannot make in weak or
-repetitive texture, and it is what the light field buys: the depth order of the points.
+Every pixel p lands at p + (u, v) in the t2 centre view. Nearer points have larger
+disparities (MODEL.md §1), so a z-buffer of the largest disparity landing at each t2 pixel
+says who is seen there; p is hidden where a point nearer by more than a margin lands
+within ``reach`` pixels of where p lands. The depth key is δ1, the point's disparity at
+t1: it is known from the t1 light field alone, whereas δ2 of a hidden point is itself
+unobserved and, while the estimate is wrong, takes the occluder's value (which would hide
+the occlusion). The order of depths rarely changes between two frames. This is the test a
+photometric one cannot make in weak or repetitive texture, and it is what the light field
+buys: the depth order of the points.
 """
 
 import warp as wp
@@ -23,7 +27,7 @@ def splat_depth(
     # outputs
     zbuf: wp.array2d(dtype=float),
 ):
-    """zbuf[t] = max δ2 over the points whose t2 position p + (u, v) lies less than one
+    """zbuf[t] = max δ1 over the points whose t2 position p + (u, v) lies less than one
     pixel from t along each axis (the pixels at its floor and ceiling: four, or one at a
     whole-pixel position). ``zbuf`` must be filled with EMPTY first. Uses
     atomics: launch in one piece (``bands=1`` on the CPU), over (rows, columns)."""
@@ -43,7 +47,7 @@ def splat_depth(
             yy = y0 + dy
             xx = x0 + dx
             if yy >= 0 and yy < h and xx >= 0 and xx < w:
-                wp.atomic_max(zbuf, yy, xx, v[1])
+                wp.atomic_max(zbuf, yy, xx, v[0])
 
 
 @wp.kernel
@@ -52,12 +56,13 @@ def hidden_at_t2(
     x: wp.array2d(dtype=wp.vec4),
     zbuf: wp.array2d(dtype=float),
     margin: float,
+    reach: int,
     # outputs
     hidden: wp.array2d(dtype=float),
 ):
-    """hidden[p] = 1 where the t2 pixel nearest to p + (u, v) is held by a point with δ2
-    larger than δ2(p) + margin, else 0 (also 0 where p + (u, v) leaves the image: the
-    data term already leaves those rows out). Launch over (rows, columns)."""
+    """hidden[p] = 1 where a t2 pixel within ``reach`` pixels (a (2r+1)² window) of the
+    one nearest to p + (u, v) is held by a point with δ1 larger than δ1(p) + margin, else
+    0 (also 0 where the window leaves the image). Launch over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0
     h = zbuf.shape[0]
@@ -66,7 +71,11 @@ def hidden_at_t2(
     tx = int(wp.floor(float(j) + v[2] + 0.5))
     ty = int(wp.floor(float(i) + v[3] + 0.5))
     out = float(0.0)
-    if ty >= 0 and ty < h and tx >= 0 and tx < w:
-        if zbuf[ty, tx] > v[1] + margin:
-            out = 1.0
+    for dy in range(-reach, reach + 1):
+        for dx in range(-reach, reach + 1):
+            yy = ty + dy
+            xx = tx + dx
+            if yy >= 0 and yy < h and xx >= 0 and xx < w:
+                if zbuf[yy, xx] > v[0] + margin:
+                    out = 1.0
     hidden[i, j] = out

@@ -5,6 +5,8 @@ field."""
 
 import warp as wp
 
+from .common import bilinear
+
 wp.set_module_options({"enable_backward": False})
 
 
@@ -38,3 +40,20 @@ def sample_subaperture(
     top = (1.0 - fb) * views[a0 * grid_cols + b0, y, x] + fb * views[a0 * grid_cols + b1, y, x]
     bottom = (1.0 - fb) * views[a1 * grid_cols + b0, y, x] + fb * views[a1 * grid_cols + b1, y, x]
     samples[s, y, x] = (1.0 - fa) * top + fa * bottom
+
+
+@wp.kernel
+def warp_by_flow(
+    row0: int,
+    image: wp.array2d(dtype=float),
+    x_hat: wp.array2d(dtype=wp.vec4),
+    # outputs
+    out: wp.array2d(dtype=float),
+):
+    """out(p) = image(p + (u, v)) (bilinear; positions clamped to the image), the flow
+    being components 2, 3 of ``x_hat``: a t2 image on the t1 grid. Launch over (rows,
+    columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    v = x_hat[i, j]
+    out[i, j] = bilinear(image, float(j) + v[2], float(i) + v[3])

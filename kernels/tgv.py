@@ -4,7 +4,9 @@ For each unknown x ∈ (δ1, δ2, u, v), packed per pixel as vec4:
 
     Φ(x) = min_w α1 Σ|Γ(∇x − w)| + α0 Σ|∇w|,   Γ = exp(−γ|∇I|^β) n nᵀ + n⊥ n⊥ᵀ
 
-with Γ of the centre view at t1 for δ1, u, v and at t2 for δ2. w = (w0, w1) is stored as
+with Γ of the centre view at t1 for δ1, u, v and at t2 for δ2 (each unknown's tensor is
+an input: the solver may also let the flow's see the disparity's edges and warp the t2
+view onto the t1 grid, see :class:`lfsf.Params`). w = (w0, w1) is stored as
 two vec4 (its x and y components for the four unknowns); the duals are y = (y0, y1) for
 α1Γ(∇x − w) (|y| ≤ 1) and z = (z00, z01, z10, z11) for α0∇w (Frobenius norm ≤ 1).
 Gradients are forward differences with Neumann boundary (zero at the last column/row);
@@ -19,12 +21,13 @@ wp.set_module_options({"enable_backward": False})
 
 
 @wp.func
-def tensor_per_unknown(g1: wp.vec3, g2: wp.vec3):
-    """(Γ00, Γ01, Γ11) as vec4 over the unknowns (δ1, δ2, u, v): Γ_t2 for δ2, Γ_t1 else."""
+def tensor_per_unknown(g1: wp.vec3, g2: wp.vec3, g3: wp.vec3):
+    """(Γ00, Γ01, Γ11) as vec4 over the unknowns (δ1, δ2, u, v): ``g1`` for δ1, ``g2`` for
+    δ2 and ``g3`` for u and v."""
     return (
-        wp.vec4(g1[0], g2[0], g1[0], g1[0]),
-        wp.vec4(g1[1], g2[1], g1[1], g1[1]),
-        wp.vec4(g1[2], g2[2], g1[2], g1[2]),
+        wp.vec4(g1[0], g2[0], g3[0], g3[0]),
+        wp.vec4(g1[1], g2[1], g3[1], g3[1]),
+        wp.vec4(g1[2], g2[2], g3[2], g3[2]),
     )
 
 
@@ -36,6 +39,41 @@ def vabs(v: wp.vec4):
 @wp.func
 def reciprocal(v: wp.vec4, eps: float):
     return wp.vec4(1.0 / (v[0] + eps), 1.0 / (v[1] + eps), 1.0 / (v[2] + eps), 1.0 / (v[3] + eps))
+
+
+@wp.func
+def central_gradient(image: wp.array2d(dtype=float), i: int, j: int):
+    return wp.vec2(0.5 * (pixel(image, i, j + 1) - pixel(image, i, j - 1)),
+                   0.5 * (pixel(image, i + 1, j) - pixel(image, i - 1, j)))
+
+
+@wp.func
+def tensor_from_gradients(g: wp.vec2, d: wp.vec2, gamma: float, beta: float):
+    """Γ = exp(−γ m^β) n nᵀ + n⊥ n⊥ᵀ as (Γ00, Γ01, Γ11) for a two-channel guide with
+    gradients g and d: n and m² are the leading eigenvector and eigenvalue of g gᵀ + d dᵀ
+    (Di Zenzo's edge of a multi-channel image; with d = 0, n = g/|g| and m = |g|).
+    Identity where both vanish."""
+    a = g[0] * g[0] + d[0] * d[0]
+    b = g[0] * g[1] + d[0] * d[1]
+    c = g[1] * g[1] + d[1] * d[1]
+    half = 0.5 * (a - c)
+    root = wp.sqrt(half * half + b * b)
+    lam = 0.5 * (a + c) + root
+    t = wp.vec3(1.0, 0.0, 1.0)
+    if lam > 1.0e-24:
+        # eigenvector of the larger eigenvalue: (λ − c, b), or (b, λ − a), whichever is longer
+        nx = lam - c
+        ny = b
+        if a < c:
+            nx = b
+            ny = lam - a
+        norm = wp.sqrt(nx * nx + ny * ny)
+        if norm > 1.0e-30:
+            nx = nx / norm
+            ny = ny / norm
+            e = wp.exp(-gamma * wp.pow(wp.sqrt(lam), beta))
+            t = wp.vec3(e * nx * nx + ny * ny, (e - 1.0) * nx * ny, e * ny * ny + nx * nx)
+    return t
 
 
 @wp.kernel
@@ -51,16 +89,30 @@ def diffusion_tensor(
     differences; Γ = identity where ∇I vanishes. Launch over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0
-    gx = 0.5 * (pixel(image, i, j + 1) - pixel(image, i, j - 1))
-    gy = 0.5 * (pixel(image, i + 1, j) - pixel(image, i - 1, j))
-    mag = wp.sqrt(gx * gx + gy * gy)
-    t = wp.vec3(1.0, 0.0, 1.0)
-    if mag > 1.0e-12:
-        e = wp.exp(-gamma * wp.pow(mag, beta))
-        nx = gx / mag
-        ny = gy / mag
-        t = wp.vec3(e * nx * nx + ny * ny, (e - 1.0) * nx * ny, e * ny * ny + nx * nx)
-    tensor[i, j] = t
+    tensor[i, j] = tensor_from_gradients(central_gradient(image, i, j), wp.vec2(0.0), gamma, beta)
+
+
+@wp.kernel
+def joint_diffusion_tensor(
+    row0: int,
+    image: wp.array2d(dtype=float),
+    x_hat: wp.array2d(dtype=wp.vec4),
+    weight: float,
+    gamma: float,
+    beta: float,
+    # outputs
+    tensor: wp.array2d(dtype=wp.vec3),
+):
+    """Γ of the two-channel guide (I, weight·δ1) (:func:`tensor_from_gradients`; δ1 is
+    component 0 of ``x_hat``): edges of the image and of the disparity both stop the
+    diffusion. With weight 0 it equals :func:`diffusion_tensor`. Launch over (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    h = x_hat.shape[0]
+    w = x_hat.shape[1]
+    dx = 0.5 * (x_hat[i, wp.min(j + 1, w - 1)][0] - x_hat[i, wp.max(j - 1, 0)][0])
+    dy = 0.5 * (x_hat[wp.min(i + 1, h - 1), j][0] - x_hat[wp.max(i - 1, 0), j][0])
+    tensor[i, j] = tensor_from_gradients(central_gradient(image, i, j), weight * wp.vec2(dx, dy), gamma, beta)
 
 
 @wp.kernel
@@ -69,6 +121,7 @@ def tgv_preconditioner(
     data_colsum: wp.array2d(dtype=wp.vec4),
     tensor1: wp.array2d(dtype=wp.vec3),
     tensor2: wp.array2d(dtype=wp.vec3),
+    tensor3: wp.array2d(dtype=wp.vec3),
     alpha0: float,
     alpha1: float,
     eps: float,
@@ -92,16 +145,16 @@ def tgv_preconditioner(
         a = 1.0
     if i < h - 1:
         b = 1.0
-    g00, g01, g11 = tensor_per_unknown(tensor1[i, j], tensor2[i, j])
+    g00, g01, g11 = tensor_per_unknown(tensor1[i, j], tensor2[i, j], tensor3[i, j])
     # x(p) in the rows y(p) (−Γ(a, b)ᵀ), y(p − e_x) (Γ col 0) and y(p − e_y) (Γ col 1)
     col = vabs(a * g00 + b * g01) + vabs(a * g01 + b * g11)
     count = a + b
     if j > 0:
-        h00, h01, h11 = tensor_per_unknown(tensor1[i, j - 1], tensor2[i, j - 1])
+        h00, h01, h11 = tensor_per_unknown(tensor1[i, j - 1], tensor2[i, j - 1], tensor3[i, j - 1])
         col += vabs(h00) + vabs(h01)
         count += 1.0
     if i > 0:
-        k00, k01, k11 = tensor_per_unknown(tensor1[i - 1, j], tensor2[i - 1, j])
+        k00, k01, k11 = tensor_per_unknown(tensor1[i - 1, j], tensor2[i - 1, j], tensor3[i - 1, j])
         col += vabs(k01) + vabs(k11)
         count += 1.0
     tau_x[i, j] = reciprocal(data_colsum[i, j] + alpha1 * col, eps)
@@ -122,6 +175,7 @@ def tgv_dual_step(
     w1_bar: wp.array2d(dtype=wp.vec4),
     tensor1: wp.array2d(dtype=wp.vec3),
     tensor2: wp.array2d(dtype=wp.vec3),
+    tensor3: wp.array2d(dtype=wp.vec3),
     sigma_y0: wp.array2d(dtype=wp.vec4),
     sigma_y1: wp.array2d(dtype=wp.vec4),
     sigma_z: float,
@@ -159,7 +213,7 @@ def tgv_dual_step(
         dy1 = w1_bar[i + 1, j] - wb1
     r0 = gx - wb0
     r1 = gy - wb1
-    g00, g01, g11 = tensor_per_unknown(tensor1[i, j], tensor2[i, j])
+    g00, g01, g11 = tensor_per_unknown(tensor1[i, j], tensor2[i, j], tensor3[i, j])
     n0 = y0[i, j] + alpha1 * wp.cw_mul(sigma_y0[i, j], wp.cw_mul(g00, r0) + wp.cw_mul(g01, r1))
     n1 = y1[i, j] + alpha1 * wp.cw_mul(sigma_y1[i, j], wp.cw_mul(g01, r0) + wp.cw_mul(g11, r1))
     m00 = z00[i, j] + (sigma_z * alpha0) * dx0
@@ -183,13 +237,14 @@ def tgv_dual_step(
 def gamma_y(
     tensor1: wp.array2d(dtype=wp.vec3),
     tensor2: wp.array2d(dtype=wp.vec3),
+    tensor3: wp.array2d(dtype=wp.vec3),
     y0: wp.array2d(dtype=wp.vec4),
     y1: wp.array2d(dtype=wp.vec4),
     i: int,
     j: int,
 ):
     """Γ·y at a pixel, per unknown: (Γ00 y0 + Γ01 y1, Γ01 y0 + Γ11 y1)."""
-    g00, g01, g11 = tensor_per_unknown(tensor1[i, j], tensor2[i, j])
+    g00, g01, g11 = tensor_per_unknown(tensor1[i, j], tensor2[i, j], tensor3[i, j])
     a = y0[i, j]
     b = y1[i, j]
     return wp.cw_mul(g00, a) + wp.cw_mul(g01, b), wp.cw_mul(g01, a) + wp.cw_mul(g11, b)
@@ -207,6 +262,7 @@ def tgv_primal_step(
     z11: wp.array2d(dtype=wp.vec4),
     tensor1: wp.array2d(dtype=wp.vec3),
     tensor2: wp.array2d(dtype=wp.vec3),
+    tensor3: wp.array2d(dtype=wp.vec3),
     tau_x: wp.array2d(dtype=wp.vec4),
     tau_w0: wp.array2d(dtype=wp.vec4),
     tau_w1: wp.array2d(dtype=wp.vec4),
@@ -226,7 +282,7 @@ def tgv_primal_step(
     i = i + row0
     h = x.shape[0]
     w = x.shape[1]
-    h0, h1 = gamma_y(tensor1, tensor2, y0, y1, i, j)
+    h0, h1 = gamma_y(tensor1, tensor2, tensor3, y0, y1, i, j)
     div_h = wp.vec4(0.0)
     div_z0 = wp.vec4(0.0)
     div_z1 = wp.vec4(0.0)
@@ -235,7 +291,7 @@ def tgv_primal_step(
         div_z0 += z00[i, j]
         div_z1 += z10[i, j]
     if j > 0:
-        l0, l1 = gamma_y(tensor1, tensor2, y0, y1, i, j - 1)
+        l0, l1 = gamma_y(tensor1, tensor2, tensor3, y0, y1, i, j - 1)
         div_h -= l0
         div_z0 -= z00[i, j - 1]
         div_z1 -= z10[i, j - 1]
@@ -244,7 +300,7 @@ def tgv_primal_step(
         div_z0 += z01[i, j]
         div_z1 += z11[i, j]
     if i > 0:
-        u0, u1 = gamma_y(tensor1, tensor2, y0, y1, i - 1, j)
+        u0, u1 = gamma_y(tensor1, tensor2, tensor3, y0, y1, i - 1, j)
         div_h -= u1
         div_z0 -= z01[i - 1, j]
         div_z1 -= z11[i - 1, j]

@@ -26,10 +26,11 @@ class Params:
         occlusion_ratio : occlusion handling (an addition to the paper): where the samples
             on one side of a line through the centre match better than this fraction of
             the mean, the other side is left out of that pixel's stereo rows (0: off).
-        occlusion_margin : geometric occlusion at t2 (an addition to the paper): a point
-            counts as hidden in the t2 centre view where a point nearer by more than this
-            many px per view step (larger δ2) lands on the same pixel; its t2 stereo rows
-            and centre flow row are then left out (0: off).
+        occlusion_margin, occlusion_reach : geometric occlusion at t2 (an addition to
+            the paper, :mod:`lfsf.kernels.occlusion`): a point counts as hidden in the t2
+            centre view where a point nearer by more than ``occlusion_margin`` px per
+            view step (larger δ1) lands within ``occlusion_reach`` pixels of where it
+            lands; every row involving t2 is then left out there (margin 0: off).
         texture_theta : θ of the structure–texture split T = I − θ·ROF(I); 0 disables it.
             The paper's 0.95 suits real data (HCI antinous BadPix 18.7 % at 0.8) but costs
             accuracy on brightness-constant scenes; 0.7 is the measured compromise
@@ -42,6 +43,12 @@ class Params:
     Regulariser: image-driven TGV² (§4)
         alpha0, alpha1 : α0 (on ∇w) and α1 (on Γ(∇x − w)).
         gamma, beta : γ, β of Γ = exp(−γ|∇I|^β) n nᵀ + n⊥ n⊥ᵀ.
+        flow_edge_weight : the flow's tensor Γ_uv is that of the two-channel guide (I1,
+            c·δ̂1) with c this weight: depth edges, where objects at different depths
+            move differently, let the flow jump too (an addition; 0: Γ_t1, the paper).
+        warp_tensor2 : Γ_t2 (for δ2, a map on the t1 grid) from the t2 centre view
+            warped onto the t1 grid by the current flow, I2(p + û), so that its edges
+            are where δ2's are (False: the view as it is).
     Optimisation (§5, §6)
         pyramid_scale : η_s, the size ratio between pyramid levels.
         min_size : the coarsest level's shorter side is at least this many pixels.
@@ -68,6 +75,7 @@ class Params:
     lambda3: float = 30.0
     occlusion_ratio: float = 0.7
     occlusion_margin: float = 0.25
+    occlusion_reach: int = 2
     texture_theta: float = 0.7
     rof_weight: float = 0.125
     rof_iterations: int = 60
@@ -76,6 +84,8 @@ class Params:
     alpha1: float = 0.5
     gamma: float = 10.0
     beta: float = 0.7
+    flow_edge_weight: float = 0.5
+    warp_tensor2: bool = True
     pyramid_scale: float = 0.5
     min_size: int = 10
     max_levels: int = 0
@@ -153,6 +163,8 @@ class Params:
             value = getattr(self, name)
             need(math.isfinite(value) and value >= 0, f"{name} must be a finite number ≥ 0, got {value}")
         need(self.alpha0 > 0 and self.alpha1 > 0, "alpha0 and alpha1 must be positive")
+        need(self.flow_edge_weight >= 0, f"flow_edge_weight must be ≥ 0, got {self.flow_edge_weight}")
+        need(self.occlusion_reach >= 0, f"occlusion_reach must be ≥ 0, got {self.occlusion_reach}")
         need(self.occlusion_margin >= 0, f"occlusion_margin must be ≥ 0, got {self.occlusion_margin}")
         need(0 <= self.occlusion_ratio < 1, f"occlusion_ratio must be in [0, 1), got {self.occlusion_ratio}")
         need(math.isfinite(self.contrast) and self.contrast >= 0, f"contrast must be ≥ 0, got {self.contrast}")

@@ -273,8 +273,8 @@ def data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio=
     OCCLUSION_FLOOR: then every w2 is 0 (the stereo rows at t2 compare with J2) and so is
     w3 of the centre sample (the flow row I1 − J2). ``details``, a dict, receives the two
     occlusion tests ("t1", "t2") and the centre test ("centre_occluded", "centre_margin"
-    = |I1 − J2| − threshold). ``hidden2`` (h, w): where > 0.5 the centre view at t2 is
-    taken as occluded too (the geometric test, :func:`hidden_at_t2`).
+    = |I1 − J2| − threshold). ``hidden2`` (h, w): where > 0.5 the point is hidden at t2
+    (the geometric test, :func:`hidden_at_t2`) and every w2 and w3 is 0.
     """
     samples1 = np.asarray(samples1, np.float64)
     samples2 = np.asarray(samples2, np.float64)
@@ -294,9 +294,9 @@ def data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio=
     centre_margin = np.abs(i1 - j2) - (CENTRE_OCCLUSION_FACTOR * occ2["kept_mean"] + OCCLUSION_FLOOR)
     centre_occluded = (occlusion_ratio > 0) & (centre_margin > 0)
     in_j = in_j & ~centre_occluded
-    if hidden2 is not None:
-        in_j = in_j & ~(np.asarray(hidden2) > 0.5)
     keep2[0] &= in_j
+    if hidden2 is not None:
+        keep2 &= ~(np.asarray(hidden2) > 0.5)[None]
     if details is not None:
         details.update(t1=occ1, t2=occ2, centre_occluded=centre_occluded, centre_margin=centre_margin)
     A = np.zeros((9, n, h, w))
@@ -405,6 +405,29 @@ def diffusion_tensor(img: np.ndarray, gamma: float, beta: float) -> np.ndarray:
     return e[..., None, None] * n[..., :, None] * n[..., None, :] + nperp[..., :, None] * nperp[..., None, :]
 
 
+def joint_diffusion_tensor(img: np.ndarray, disparity: np.ndarray, weight: float, gamma: float,
+                           beta: float) -> np.ndarray:
+    """Γ of the two-channel guide (I, weight·δ) as (h, w, 2, 2): n and m² the leading
+    eigenvector and eigenvalue of ∇I∇Iᵀ + weight²∇δ∇δᵀ (numpy.linalg.eigh), Γ =
+    exp(−γ m^β) n nᵀ + n⊥ n⊥ᵀ; identity where both gradients vanish."""
+    gx, gy = central_gradient(img)
+    dx, dy = central_gradient(disparity)
+    dx, dy = weight * dx, weight * dy
+    J = np.empty(gx.shape + (2, 2))
+    J[..., 0, 0] = gx * gx + dx * dx
+    J[..., 0, 1] = J[..., 1, 0] = gx * gy + dx * dy
+    J[..., 1, 1] = gy * gy + dy * dy
+    lam, vec = np.linalg.eigh(J)
+    m = np.sqrt(np.maximum(lam[..., 1], 0.0))
+    n = vec[..., :, 1]
+    nperp = np.stack([-n[..., 1], n[..., 0]], -1)
+    e = np.exp(-gamma * m**beta)
+    t = e[..., None, None] * n[..., :, None] * n[..., None, :] + nperp[..., :, None] * nperp[..., None, :]
+    flat = lam[..., 1] <= 1e-24
+    t[flat] = np.eye(2)
+    return t
+
+
 def tensor_components(t: np.ndarray) -> np.ndarray:
     """(h, w, 2, 2) → (h, w, 3) = (Γ00, Γ01, Γ11), the layout of the kernels."""
     return np.stack([t[..., 0, 0], t[..., 0, 1], t[..., 1, 1]], -1)
@@ -437,19 +460,24 @@ def tgv_matrix(tensor: np.ndarray, alpha0: float, alpha1: float) -> np.ndarray:
     return np.vstack([y0, y1, z00, z01, z10, z11])
 
 
-def per_unknown(tensor1: np.ndarray, tensor2: np.ndarray, k: int) -> np.ndarray:
-    """Γ used for unknown k of (δ1, δ2, u, v): Γ_t2 for δ2, Γ_t1 for the others."""
-    return tensor2 if k == 1 else tensor1
+def per_unknown(tensor1: np.ndarray, tensor2: np.ndarray, k: int, tensor3: np.ndarray | None = None) -> np.ndarray:
+    """Γ used for unknown k of (δ1, δ2, u, v): tensor2 for δ2, tensor3 (default tensor1)
+    for u and v, tensor1 for δ1."""
+    if k == 1:
+        return tensor2
+    if k >= 2 and tensor3 is not None:
+        return tensor3
+    return tensor1
 
 
-def tgv_preconditioner(data_colsum, tensor1, tensor2, alpha0, alpha1, eps):
+def tgv_preconditioner(data_colsum, tensor1, tensor2, alpha0, alpha1, eps, tensor3=None):
     """τ_x, τ_w0, τ_w1, σ_y0, σ_y1 (each (h, w, 4)) from the exact abs row/column sums of
     :func:`tgv_matrix` (data column sums added to τ_x), and σ_z (one per z row, (4, h, w, 4))."""
     h, w = tensor1.shape[:2]
     out = {k: np.zeros((h, w, 4)) for k in ("tau_x", "tau_w0", "tau_w1", "sigma_y0", "sigma_y1")}
     zrows = np.zeros((4, h, w, 4))
     for k in range(4):
-        K = np.abs(tgv_matrix(per_unknown(tensor1, tensor2, k), alpha0, alpha1))
+        K = np.abs(tgv_matrix(per_unknown(tensor1, tensor2, k, tensor3), alpha0, alpha1))
         col = K.sum(axis=0).reshape(3, h, w)
         row = K.sum(axis=1).reshape(6, h, w)
         out["tau_x"][..., k] = 1.0 / (data_colsum[..., k] + col[0] + eps)
@@ -467,13 +495,13 @@ def _pack(x, w0, w1, k):
 
 
 def tgv_dual_step(x_bar, w0_bar, w1_bar, tensor1, tensor2, sigma_y0, sigma_y1, sigma_z, alpha0, alpha1,
-                  y0, y1, z00, z01, z10, z11):
+                  y0, y1, z00, z01, z10, z11, tensor3=None):
     """D ← proj(D + Σ K P̄) per unknown with K = :func:`tgv_matrix`: y = (y0, y1) onto
     |y| ≤ 1, z = (z00, z01, z10, z11) onto Frobenius norm ≤ 1. Returns the six new duals."""
     h, w = x_bar.shape[:2]
     duals = [np.array(a, np.float64) for a in (y0, y1, z00, z01, z10, z11)]
     for k in range(4):
-        K = tgv_matrix(per_unknown(tensor1, tensor2, k), alpha0, alpha1)
+        K = tgv_matrix(per_unknown(tensor1, tensor2, k, tensor3), alpha0, alpha1)
         kp = (K @ _pack(x_bar, w0_bar, w1_bar, k)).reshape(6, h, w)
         steps = [sigma_y0[..., k], sigma_y1[..., k]] + [sigma_z] * 4
         new = [duals[m][..., k] + steps[m] * kp[m] for m in range(6)]
@@ -485,13 +513,13 @@ def tgv_dual_step(x_bar, w0_bar, w1_bar, tensor1, tensor2, sigma_y0, sigma_y1, s
 
 
 def tgv_primal_step(data_grad, y0, y1, z00, z01, z10, z11, tensor1, tensor2, tau_x, tau_w0, tau_w1,
-                    alpha0, alpha1, x, w0, w1):
+                    alpha0, alpha1, x, w0, w1, tensor3=None):
     """P_new = P − T (Kᵀ D + (data_grad, 0, 0)) per unknown with K = :func:`tgv_matrix`;
     returns (x, w0, w1, x̄, w̄0, w̄1) with P̄ = 2 P_new − P."""
     h, w = x.shape[:2]
     outs = [np.array(a, np.float64) for a in (x, w0, w1)]
     for k in range(4):
-        K = tgv_matrix(per_unknown(tensor1, tensor2, k), alpha0, alpha1)
+        K = tgv_matrix(per_unknown(tensor1, tensor2, k, tensor3), alpha0, alpha1)
         d = np.concatenate([a[..., k].ravel() for a in (y0, y1, z00, z01, z10, z11)])
         kt = (K.T @ d).reshape(3, h, w)
         kt[0] += data_grad[..., k]
@@ -524,14 +552,16 @@ def median_flow(x: np.ndarray, radius: int) -> np.ndarray:
 class LinearisedProblem:
     """E(x, w) = Σ_s Σ_k w_k|ρ_k(x)| + α1 Σ|Γ(∇x − w)| + α0 Σ|∇w| for fixed coefficients
     A (9, S, h, w), weights W (3, S, h, w), linearisation point x̂ (h, w, 4) and tensors
-    (Γ00, Γ01, Γ11) of t1 and t2 (h, w, 3) each; Γ_t2 for δ2, Γ_t1 for δ1, u, v."""
+    (Γ00, Γ01, Γ11) (h, w, 3) each: tensor1 for δ1, tensor2 for δ2, tensor3 (default
+    tensor1) for u and v."""
 
-    def __init__(self, A, W, x_hat, tensor1, tensor2, alpha0, alpha1):
+    def __init__(self, A, W, x_hat, tensor1, tensor2, alpha0, alpha1, tensor3=None):
         self.A, self.W = np.asarray(A, np.float64), np.asarray(W, np.float64)
         self.x_hat = np.asarray(x_hat, np.float64)
         t1, t2 = np.asarray(tensor1, np.float64), np.asarray(tensor2, np.float64)
-        self.tensor1, self.tensor2 = t1, t2
-        self.G = [np.stack([t1[..., m], t2[..., m], t1[..., m], t1[..., m]], -1) for m in range(3)]
+        t3 = t1 if tensor3 is None else np.asarray(tensor3, np.float64)
+        self.tensor1, self.tensor2, self.tensor3 = t1, t2, t3
+        self.G = [np.stack([t1[..., m], t2[..., m], t3[..., m], t3[..., m]], -1) for m in range(3)]
         self.alpha0, self.alpha1 = alpha0, alpha1
         self.b = self.W * data_residuals(self.A, np.zeros_like(self.x_hat))
 
@@ -725,26 +755,28 @@ def select_flow(cost, half: int) -> np.ndarray:
 # --- geometric occlusion at t2 (kernels/occlusion.py) ---------------------------------------
 
 
-def hidden_at_t2(x, margin):
-    """(h, w) float: 1 where the t2 pixel nearest to p + (u, v) is reached (less than one
-    pixel away along each axis: the floor and ceiling pixels of the landing point) by a
-    point whose δ2 exceeds δ2(p) + margin; z-buffer by explicit loops."""
+def hidden_at_t2(x, margin, reach):
+    """(h, w) float: 1 where a t2 pixel within ``reach`` (a (2r+1)² window) of the one
+    nearest to p + (u, v) is reached (less than one pixel away along each axis: the floor
+    and ceiling pixels of a landing point) by a point whose δ1 exceeds δ1(p) + margin;
+    z-buffer by explicit loops."""
     x = np.asarray(x, np.float32)
     h, w = x.shape[:2]
     zbuf = np.full((h, w), -np.inf)
     for i in range(h):
         for j in range(w):
-            d2, u, v = x[i, j, 1], x[i, j, 2], x[i, j, 3]
+            d1, u, v = x[i, j, 0], x[i, j, 2], x[i, j, 3]
             tx, ty = np.float32(j) + np.float32(u), np.float32(i) + np.float32(v)
             for yy in sorted({int(np.floor(ty)), int(np.ceil(ty))}):
                 for xx in sorted({int(np.floor(tx)), int(np.ceil(tx))}):
                     if 0 <= yy < h and 0 <= xx < w:
-                        zbuf[yy, xx] = max(zbuf[yy, xx], d2)
+                        zbuf[yy, xx] = max(zbuf[yy, xx], d1)
     out = np.zeros((h, w))
     for i in range(h):
         for j in range(w):
             tx = int(np.floor(np.float32(j) + np.float32(x[i, j, 2]) + np.float32(0.5)))
             ty = int(np.floor(np.float32(i) + np.float32(x[i, j, 3]) + np.float32(0.5)))
-            if 0 <= ty < h and 0 <= tx < w and zbuf[ty, tx] > x[i, j, 1] + margin:
+            window = zbuf[max(ty - reach, 0):max(ty + reach + 1, 0), max(tx - reach, 0):max(tx + reach + 1, 0)]
+            if window.size and window.max() > x[i, j, 0] + margin:
                 out[i, j] = 1.0
     return out

@@ -286,8 +286,8 @@ def _check_data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion
 
 
 def test_data_coefficients_leave_out_hidden_points(device):
-    """Where the geometric test says the point is hidden at t2 (hidden2 = 1), every t2
-    stereo row and the centre's flow row are off, and nothing else changes."""
+    """Where the geometric test says the point is hidden at t2 (hidden2 = 1), every row
+    involving t2 is off (w2 = w3 = 0), and nothing else changes."""
     samples1, samples2, phis, weights, x_hat = _data_inputs(13)
     h, w = samples1.shape[1:]
     hidden2 = (np.random.default_rng(5).random((h, w)) < 0.3).astype(np.float32)
@@ -295,9 +295,8 @@ def test_data_coefficients_leave_out_hidden_points(device):
     coef0, _ = _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device, 0.0)
     hid = hidden2 > 0.5
     assert hid.any() and (~hid).any()
-    assert np.all(coef[:, hid, 10] == 0) and np.all(coef[0, hid, 11] == 0)
+    assert np.all(coef[:, hid, 10:] == 0) and np.any(coef0[:, hid, 10:] != 0)
     np.testing.assert_array_equal(coef[:, ~hid], coef0[:, ~hid])
-    np.testing.assert_array_equal(coef[1:, hid, 11], coef0[1:, hid, 11])
     np.testing.assert_array_equal(coef[..., :10], coef0[..., :10])
 
 
@@ -716,10 +715,46 @@ def test_diffusion_tensor_matches_reference(gamma, beta, device):
     close(np.einsum("...ij,...j->...i", mats, g), e[..., None] * g, atol=2e-5)
 
 
+@pytest.mark.parametrize("weight", [0.0, 0.5, 3.0])
+def test_joint_diffusion_tensor_matches_reference(weight, device):
+    """Γ of the guide (I, c·δ1): the eigen-decomposition by NumPy; with c = 0 it is the
+    plain image tensor."""
+    from lfsf.kernels import tgv
+
+    h, w = 7, 9
+    img = _image_with_flat_patch(31, h, w)
+    x_hat = np.zeros((h, w, 4), np.float32)
+    x_hat[..., 0] = rng(32).uniform(-2, 2, (h, w))
+    x_hat[:3, :4, 0] = 0.5  # flat image and flat disparity on [:2, :3]: identity there
+    x_hat[..., 1:] = rng(33).standard_normal((h, w, 3))  # ignored
+    out = wp.zeros((h, w), dtype=wp.vec3, device=device)
+    launch(tgv.joint_diffusion_tensor, (h, w), [arr(img, float, device), arr(x_hat, wp.vec4, device),
+                                                float(weight), 5.0, 0.7], [out], device)
+    got = out.numpy().astype(np.float64)
+    close(got, ref.tensor_components(ref.joint_diffusion_tensor(img, x_hat[..., 0], weight, 5.0, 0.7)), atol=2e-5)
+    close(got[:2, :3], np.broadcast_to([1.0, 0.0, 1.0], (2, 3, 3)), atol=1e-6)
+    if weight == 0.0:
+        close(got, _run_tensor(img, 5.0, 0.7, device), atol=1e-6)
+
+
+def test_warp_by_flow_matches_reference(device):
+    from lfsf.kernels import sampling
+
+    h, w = 6, 8
+    img = rng(34).random((h, w)).astype(np.float32)
+    x_hat = rng(35).uniform(-3, 3, (h, w, 4)).astype(np.float32)
+    out = wp.zeros((h, w), dtype=float, device=device)
+    launch(sampling.warp_by_flow, (h, w), [arr(img, float, device), arr(x_hat, wp.vec4, device)], [out], device)
+    py, px = np.mgrid[0:h, 0:w].astype(np.float64)
+    close(out.numpy(), ref.bilinear(img, px + x_hat[..., 2], py + x_hat[..., 3]), atol=1e-6)
+
+
 def _tgv_setting(seed, h=4, w=5):
+    """Three different tensors: for δ1, for δ2, and for u and v."""
     t1 = ref.tensor_components(ref.diffusion_tensor(_image_with_flat_patch(seed, h, w, (2, 2)), 5.0, 0.7))
     t2 = ref.tensor_components(ref.diffusion_tensor(rng(seed + 100).random((h, w)), 3.0, 1.0))
-    return t1.astype(np.float32), t2.astype(np.float32)
+    t3 = ref.tensor_components(ref.diffusion_tensor(rng(seed + 200).random((h, w)), 8.0, 0.5))
+    return t1.astype(np.float32), t2.astype(np.float32), t3.astype(np.float32)
 
 
 def test_tgv_preconditioner_is_abs_sums_of_K(device):
@@ -727,15 +762,15 @@ def test_tgv_preconditioner_is_abs_sums_of_K(device):
 
     h, w = 4, 5
     alpha0, alpha1, eps = 2.0, 0.7, 1e-6
-    t1, t2 = _tgv_setting(13, h, w)
+    t1, t2, t3 = _tgv_setting(13, h, w)
     assert np.any(t1[..., 1] < 0) and np.any(t1[..., 1] > 0)
     data_colsum = rng(14).uniform(0.0, 3.0, (h, w, 4)).astype(np.float32)
     outs = [wp.zeros((h, w), dtype=wp.vec4, device=device) for _ in range(5)]
     launch(tgv.tgv_preconditioner, (h, w),
-           [arr(data_colsum, wp.vec4, device), arr(t1, wp.vec3, device), arr(t2, wp.vec3, device),
+           [arr(data_colsum, wp.vec4, device), arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(t3, wp.vec3, device),
             alpha0, alpha1, eps], outs, device)
     want, zrows = ref.tgv_preconditioner(data_colsum.astype(np.float64), t1.astype(np.float64),
-                                         t2.astype(np.float64), alpha0, alpha1, eps)
+                                         t2.astype(np.float64), alpha0, alpha1, eps, t3.astype(np.float64))
     for name, got in zip(("tau_x", "tau_w0", "tau_w1", "sigma_y0", "sigma_y1"), outs):
         np.testing.assert_allclose(got.numpy(), want[name], rtol=1e-5, err_msg=name)
     # σ_z = 1/(2α0) (the solver's constant) is 1/row sum of every nonzero z row
@@ -754,7 +789,7 @@ def test_tgv_dual_step_matches_reference(device):
 
     h, w = 4, 5
     alpha0, alpha1 = 2.0, 0.7
-    t1, t2 = _tgv_setting(15, h, w)
+    t1, t2, t3 = _tgv_setting(15, h, w)
     x_bar, w0_bar, w1_bar, y0, y1, z00, z01, z10, z11 = _tgv_fields(16, h, w, 0.5)
     r = rng(17)
     sigma_y0 = r.uniform(0.1, 0.8, (h, w, 4)).astype(np.float32)
@@ -763,10 +798,10 @@ def test_tgv_dual_step_matches_reference(device):
     duals = [arr(a, wp.vec4, device) for a in (y0, y1, z00, z01, z10, z11)]
     launch(tgv.tgv_dual_step, (h, w),
            [arr(x_bar, wp.vec4, device), arr(w0_bar, wp.vec4, device), arr(w1_bar, wp.vec4, device),
-            arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(sigma_y0, wp.vec4, device),
+            arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(t3, wp.vec3, device), arr(sigma_y0, wp.vec4, device),
             arr(sigma_y1, wp.vec4, device), sigma_z, alpha0, alpha1], duals, device)
     want = ref.tgv_dual_step(x_bar, w0_bar, w1_bar, t1, t2, sigma_y0, sigma_y1, sigma_z, alpha0, alpha1,
-                             y0, y1, z00, z01, z10, z11)
+                             y0, y1, z00, z01, z10, z11, t3)
     for name, got, exp in zip(("y0", "y1", "z00", "z01", "z10", "z11"), duals, want):
         np.testing.assert_allclose(got.numpy(), exp, rtol=1e-5, atol=1e-5, err_msg=name)
     # both projections were exercised, and hold
@@ -781,7 +816,7 @@ def test_tgv_primal_step_matches_reference(device):
 
     h, w = 4, 5
     alpha0, alpha1 = 2.0, 0.7
-    t1, t2 = _tgv_setting(18, h, w)
+    t1, t2, t3 = _tgv_setting(18, h, w)
     x, w0, w1, y0, y1, z00, z01, z10, z11 = _tgv_fields(19, h, w, 0.5)
     r = rng(20)
     data_grad = r.standard_normal((h, w, 4)).astype(np.float32)
@@ -790,11 +825,11 @@ def test_tgv_primal_step_matches_reference(device):
     bars = [wp.zeros((h, w), dtype=wp.vec4, device=device) for _ in range(3)]
     launch(tgv.tgv_primal_step, (h, w),
            [arr(data_grad, wp.vec4, device)] + [arr(a, wp.vec4, device) for a in (y0, y1, z00, z01, z10, z11)]
-           + [arr(t1, wp.vec3, device), arr(t2, wp.vec3, device)]
+           + [arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(t3, wp.vec3, device)]
            + [arr(a, wp.vec4, device) for a in (tau_x, tau_w0, tau_w1)] + [alpha0, alpha1],
            prim + bars, device)
     want = ref.tgv_primal_step(data_grad, y0, y1, z00, z01, z10, z11, t1, t2, tau_x, tau_w0, tau_w1,
-                               alpha0, alpha1, x, w0, w1)
+                               alpha0, alpha1, x, w0, w1, t3)
     for name, got, exp in zip(("x", "w0", "w1", "x_bar", "w0_bar", "w1_bar"), prim + bars, want):
         np.testing.assert_allclose(got.numpy(), exp, rtol=1e-5, atol=1e-5, err_msg=name)
 
@@ -808,7 +843,7 @@ def test_tgv_gradient_and_divergence_are_negative_adjoints(device):
     h, w = 5, 6
     alpha1 = 0.8
     r = rng(21)
-    t1, t2 = _tgv_setting(22, h, w)
+    t1, t2, t3 = _tgv_setting(22, h, w)
     zeros = np.zeros((h, w, 4), np.float32)
     ones = np.ones((h, w, 4), np.float32)
 
@@ -819,7 +854,7 @@ def test_tgv_gradient_and_divergence_are_negative_adjoints(device):
     duals = [wp.zeros((h, w), dtype=wp.vec4, device=device) for _ in range(6)]
     launch(tgv.tgv_dual_step, (h, w),
            [arr(x, wp.vec4, device), arr(zeros, wp.vec4, device), arr(wf, wp.vec4, device),
-            arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(step * ones, wp.vec4, device),
+            arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(t3, wp.vec3, device), arr(step * ones, wp.vec4, device),
             arr(step * ones, wp.vec4, device), step, 1.0, alpha1], duals, device)
     ky0, ky1, gw00, gw01, gw10, gw11 = (d.numpy().astype(np.float64) / step for d in duals)
     # with w0 = 0, w1 = wf: z00, z01 = 0 and (z10, z11) = ∇wf
@@ -837,14 +872,14 @@ def test_tgv_gradient_and_divergence_are_negative_adjoints(device):
     launch(tgv.tgv_primal_step, (h, w),
            [arr(zeros, wp.vec4, device), arr(y0, wp.vec4, device), arr(y1, wp.vec4, device),
             arr(z0, wp.vec4, device), arr(z1, wp.vec4, device), arr(zeros, wp.vec4, device),
-            arr(zeros, wp.vec4, device), arr(t1, wp.vec3, device), arr(t2, wp.vec3, device),
+            arr(zeros, wp.vec4, device), arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(t3, wp.vec3, device),
             arr(ones, wp.vec4, device), arr(ones, wp.vec4, device), arr(ones, wp.vec4, device), 1.0, alpha1],
            prim + bars, device)
     div_gy = prim[0].numpy().astype(np.float64) - x        # α1 div(Γy)
     w0_change = prim[1].numpy().astype(np.float64)          # α1 (Γy)_0 + div(z00, z01)
 
     for k in range(4):
-        g = (t2 if k == 1 else t1).astype(np.float64)
+        g = ref.per_unknown(t1, t2, k, t3).astype(np.float64)
         gy0 = g[..., 0] * y0[..., k] + g[..., 1] * y1[..., k]
         gy1 = g[..., 1] * y0[..., k] + g[..., 2] * y1[..., k]
         # adjoint identity with the kernels' own gradient and divergence
@@ -925,7 +960,7 @@ def _linearised_problem(solver):
     c = solver.coef.numpy().astype(np.float64)
     return ref.LinearisedProblem(np.moveaxis(c[..., :9], -1, 0), np.moveaxis(c[..., 9:], -1, 0),
                                  solver.x_hat.numpy(), solver.tensor1.numpy(), solver.tensor2.numpy(),
-                                 solver.params.alpha0, solver.params.alpha1)
+                                 solver.params.alpha0, solver.params.alpha1, solver.tensor3.numpy())
 
 
 def test_level_solver_energy_decreases(device):
@@ -987,7 +1022,7 @@ def test_level_solver_reaches_the_minimum_of_the_linearised_energy(device, small
 # --- geometric occlusion at t2 -------------------------------------------------------------------
 
 
-def _hidden(x, margin, device):
+def _hidden(x, margin, device, reach=0):
     from lfsf.kernels import occlusion
 
     h, w = x.shape[:2]
@@ -995,7 +1030,7 @@ def _hidden(x, margin, device):
     zbuf = wp.full((h, w), occlusion.EMPTY, dtype=float, device=device)
     launch(occlusion.splat_depth, (h, w), [xa], [zbuf], device, bands=1)
     out = wp.zeros((h, w), dtype=float, device=device)
-    launch(occlusion.hidden_at_t2, (h, w), [xa, zbuf, float(margin)], [out], device)
+    launch(occlusion.hidden_at_t2, (h, w), [xa, zbuf, float(margin), int(reach)], [out], device)
     return out.numpy()
 
 
@@ -1003,25 +1038,31 @@ def test_hidden_at_t2_matches_reference(device):
     rng = np.random.default_rng(11)
     h, w = 9, 12
     x = np.zeros((h, w, 4), np.float32)
-    x[..., 1] = rng.uniform(-2, 2, (h, w))
+    x[..., :2] = rng.uniform(-2, 2, (h, w, 2))
     x[..., 2:] = rng.uniform(-3, 3, (h, w, 2))
     x[0, 0, 2] = 40.0  # lands outside: never hidden
-    want = ref.hidden_at_t2(x, 0.3)
-    got = _hidden(x, 0.3, device)
-    np.testing.assert_array_equal(got, want)
-    assert 0 < want.sum() < h * w and got[0, 0] == 0
+    for reach in (0, 1, 2):
+        want = ref.hidden_at_t2(x, 0.3, reach)
+        got = _hidden(x, 0.3, device, reach)
+        np.testing.assert_array_equal(got, want)
+        assert 0 < want.sum() < h * w and got[0, 0] == 0
 
 
 def test_hidden_at_t2_finds_the_covered_background(device):
-    """A near square (δ2 = 1) moving 3 px right over a still far background (δ2 = −1)
-    covers the 3 background columns to its right, and nothing else."""
+    """A near square (δ1 = δ2 = 1) moving 3 px right over a still far background (δ = −1)
+    covers the 3 background columns to its right, and nothing else; ``reach`` widens the
+    band by that many pixels around the square's new place."""
     h, w = 12, 16
     x = np.zeros((h, w, 4), np.float32)
-    x[..., 1] = -1.0
-    x[3:8, 4:9, 1] = 1.0
+    x[..., :2] = -1.0
+    x[3:8, 4:9, :2] = 1.0
     x[3:8, 4:9, 2] = 3.0
     want = np.zeros((h, w))
     want[3:8, 9:12] = 1.0
     np.testing.assert_array_equal(_hidden(x, 0.25, device), want)
+    wide = np.zeros((h, w))
+    wide[2:9, 6:13] = 1.0  # the square lands on rows 3–7, columns 7–11; one pixel around
+    wide[3:8, 4:9] = 0.0  # the square itself is the nearer point
+    np.testing.assert_array_equal(_hidden(x, 0.25, device, reach=1), wide)
     # with a margin above the depth difference nothing is hidden
-    assert _hidden(x, 2.5, device).sum() == 0
+    assert _hidden(x, 2.5, device, reach=1).sum() == 0
