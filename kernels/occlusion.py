@@ -3,8 +3,9 @@ centre view, from the current scene flow itself (an addition to the paper).
 
 Every pixel p lands at p + (u, v) in the t2 centre view. Nearer points have larger
 disparities (MODEL.md §1), so a z-buffer of the largest disparity landing at each t2 pixel
-says who is seen there; p is hidden where a point nearer by more than a margin lands
-within ``reach`` pixels of where p lands. The depth key is δ1, the point's disparity at
+says who is seen there; p is hidden where a point nearer by more than a margin lands on
+the pixel where p lands, and the hidden band then spreads ``reach`` pixels over its own
+surface (the band's edge pixels, whose flow is as wrong as the band's). The depth key is δ1, the point's disparity at
 t1: it is known from the t1 light field alone, whereas δ2 of a hidden point is itself
 unobserved and, while the estimate is wrong, takes the occluder's value (which would hide
 the occlusion). The order of depths rarely changes between two frames. This is the test a
@@ -27,27 +28,19 @@ def splat_depth(
     # outputs
     zbuf: wp.array2d(dtype=float),
 ):
-    """zbuf[t] = max δ1 over the points whose t2 position p + (u, v) lies less than one
-    pixel from t along each axis (the pixels at its floor and ceiling: four, or one at a
-    whole-pixel position). ``zbuf`` must be filled with EMPTY first. Uses
-    atomics: launch in one piece (``bands=1`` on the CPU), over (rows, columns)."""
+    """zbuf[t] = max δ1 over the points whose t2 position p + (u, v) is nearest to t
+    (rounded). ``zbuf`` must be filled with EMPTY first. A point that stays where it is
+    (u = v = 0, stereo) covers only its own pixel. Uses atomics: launch in one piece
+    (``bands=1`` on the CPU), over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0
     h = zbuf.shape[0]
     w = zbuf.shape[1]
     v = x[i, j]
-    tx = float(j) + v[2]
-    ty = float(i) + v[3]
-    x0 = int(wp.floor(tx))
-    y0 = int(wp.floor(ty))
-    nx = int(wp.ceil(tx)) - x0
-    ny = int(wp.ceil(ty)) - y0
-    for dy in range(ny + 1):
-        for dx in range(nx + 1):
-            yy = y0 + dy
-            xx = x0 + dx
-            if yy >= 0 and yy < h and xx >= 0 and xx < w:
-                wp.atomic_max(zbuf, yy, xx, v[0])
+    tx = int(wp.floor(float(j) + v[2] + 0.5))
+    ty = int(wp.floor(float(i) + v[3] + 0.5))
+    if ty >= 0 and ty < h and tx >= 0 and tx < w:
+        wp.atomic_max(zbuf, ty, tx, v[0])
 
 
 @wp.kernel
@@ -56,13 +49,12 @@ def hidden_at_t2(
     x: wp.array2d(dtype=wp.vec4),
     zbuf: wp.array2d(dtype=float),
     margin: float,
-    reach: int,
     # outputs
     hidden: wp.array2d(dtype=float),
 ):
-    """hidden[p] = 1 where a t2 pixel within ``reach`` pixels (a (2r+1)² window) of the
-    one nearest to p + (u, v) is held by a point with δ1 larger than δ1(p) + margin, else
-    0 (also 0 where the window leaves the image). Launch over (rows, columns)."""
+    """hidden[p] = 1 where the t2 pixel nearest to p + (u, v) is held by a point with δ1
+    larger than δ1(p) + margin, else 0 (also 0 where p + (u, v) leaves the image).
+    Launch over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0
     h = zbuf.shape[0]
@@ -71,11 +63,37 @@ def hidden_at_t2(
     tx = int(wp.floor(float(j) + v[2] + 0.5))
     ty = int(wp.floor(float(i) + v[3] + 0.5))
     out = float(0.0)
+    if ty >= 0 and ty < h and tx >= 0 and tx < w:
+        if zbuf[ty, tx] > v[0] + margin:
+            out = 1.0
+    hidden[i, j] = out
+
+
+@wp.kernel
+def spread_hidden(
+    row0: int,
+    x: wp.array2d(dtype=wp.vec4),
+    hidden: wp.array2d(dtype=float),
+    margin: float,
+    reach: int,
+    # outputs
+    out: wp.array2d(dtype=float),
+):
+    """out[p] = 1 where a hidden point q lies within ``reach`` pixels of p (a (2r+1)²
+    window) on the same surface, |δ1(q) − δ1(p)| ≤ margin: the hidden band's edge pixels,
+    whose own (wrong) flow may carry them out of it, join it; the occluder does not.
+    Where nothing is hidden (no motion), nothing spreads. Launch over (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    h = hidden.shape[0]
+    w = hidden.shape[1]
+    d = x[i, j][0]
+    value = hidden[i, j]
     for dy in range(-reach, reach + 1):
         for dx in range(-reach, reach + 1):
-            yy = ty + dy
-            xx = tx + dx
+            yy = i + dy
+            xx = j + dx
             if yy >= 0 and yy < h and xx >= 0 and xx < w:
-                if zbuf[yy, xx] > v[0] + margin:
-                    out = 1.0
-    hidden[i, j] = out
+                if hidden[yy, xx] > 0.5 and wp.abs(x[yy, xx][0] - d) <= margin:
+                    value = 1.0
+    out[i, j] = value

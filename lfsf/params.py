@@ -29,8 +29,9 @@ class Params:
         occlusion_margin, occlusion_reach : geometric occlusion at t2 (an addition to
             the paper, :mod:`lfsf.kernels.occlusion`): a point counts as hidden in the t2
             centre view where a point nearer by more than ``occlusion_margin`` px per
-            view step (larger δ1) lands within ``occlusion_reach`` pixels of where it
-            lands; every row involving t2 is then left out there (margin 0: off).
+            view step (larger δ1) lands on the pixel where it lands; the hidden band then
+            spreads ``occlusion_reach`` pixels over its own surface. Every row involving
+            t2 is left out there (margin 0: off).
         texture_theta : θ of the structure–texture split T = I − θ·ROF(I); 0 disables it.
             The paper's 0.95 suits real data (HCI antinous BadPix 18.7 % at 0.8) but costs
             accuracy on brightness-constant scenes; 0.7 is the measured compromise
@@ -75,7 +76,7 @@ class Params:
     lambda3: float = 30.0
     occlusion_ratio: float = 0.7
     occlusion_margin: float = 0.25
-    occlusion_reach: int = 2
+    occlusion_reach: int = 3
     texture_theta: float = 0.7
     rof_weight: float = 0.125
     rof_iterations: int = 60

@@ -74,6 +74,7 @@ class LevelSolver:
         # geometric occlusion at t2: z-buffer of δ2 and the hidden mask
         self.zbuf = wp.zeros((h, w), dtype=float, device=device)
         self.hidden2 = wp.zeros((h, w), dtype=float, device=device)
+        self.scratch1 = wp.zeros((h, w), dtype=float, device=device)
         self._tensors()
 
     def _launch(self, kernel, inputs, outputs):
@@ -163,7 +164,8 @@ class LevelSolver:
         self.zbuf.fill_(occlusion.EMPTY)
         _device.launch_rows(occlusion.splat_depth, dim=self.shape, inputs=[self.x_hat], outputs=[self.zbuf],
                             device=self.device, bands=1)  # atomics: one launch
-        self._launch(occlusion.hidden_at_t2, inputs=[self.x_hat, self.zbuf, margin, int(self.params.occlusion_reach)],
+        self._launch(occlusion.hidden_at_t2, inputs=[self.x_hat, self.zbuf, margin], outputs=[self.scratch1])
+        self._launch(occlusion.spread_hidden, inputs=[self.x_hat, self.scratch1, margin, int(self.params.occlusion_reach)],
                      outputs=[self.hidden2])
 
     def iterate(self, n: int) -> None:

@@ -756,27 +756,34 @@ def select_flow(cost, half: int) -> np.ndarray:
 
 
 def hidden_at_t2(x, margin, reach):
-    """(h, w) float: 1 where a t2 pixel within ``reach`` (a (2r+1)² window) of the one
-    nearest to p + (u, v) is reached (less than one pixel away along each axis: the floor
-    and ceiling pixels of a landing point) by a point whose δ1 exceeds δ1(p) + margin;
-    z-buffer by explicit loops."""
+    """(h, w) float: 1 where p is hidden at t2 or lies within ``reach`` pixels (a (2r+1)²
+    window) of a hidden q with |δ1(q) − δ1(p)| ≤ margin; p is hidden where the pixel
+    nearest to p + (u, v) is also the nearest landing pixel of a point whose δ1 exceeds
+    δ1(p) + margin. Explicit loops."""
     x = np.asarray(x, np.float32)
     h, w = x.shape[:2]
+
+    def target(i, j):
+        return (int(np.floor(np.float32(i) + x[i, j, 3] + np.float32(0.5))),
+                int(np.floor(np.float32(j) + x[i, j, 2] + np.float32(0.5))))
+
     zbuf = np.full((h, w), -np.inf)
     for i in range(h):
         for j in range(w):
-            d1, u, v = x[i, j, 0], x[i, j, 2], x[i, j, 3]
-            tx, ty = np.float32(j) + np.float32(u), np.float32(i) + np.float32(v)
-            for yy in sorted({int(np.floor(ty)), int(np.ceil(ty))}):
-                for xx in sorted({int(np.floor(tx)), int(np.ceil(tx))}):
-                    if 0 <= yy < h and 0 <= xx < w:
-                        zbuf[yy, xx] = max(zbuf[yy, xx], d1)
-    out = np.zeros((h, w))
+            ty, tx = target(i, j)
+            if 0 <= ty < h and 0 <= tx < w:
+                zbuf[ty, tx] = max(zbuf[ty, tx], x[i, j, 0])
+    hidden = np.zeros((h, w))
     for i in range(h):
         for j in range(w):
-            tx = int(np.floor(np.float32(j) + np.float32(x[i, j, 2]) + np.float32(0.5)))
-            ty = int(np.floor(np.float32(i) + np.float32(x[i, j, 3]) + np.float32(0.5)))
-            window = zbuf[max(ty - reach, 0):max(ty + reach + 1, 0), max(tx - reach, 0):max(tx + reach + 1, 0)]
-            if window.size and window.max() > x[i, j, 0] + margin:
-                out[i, j] = 1.0
+            ty, tx = target(i, j)
+            if 0 <= ty < h and 0 <= tx < w and zbuf[ty, tx] > x[i, j, 0] + margin:
+                hidden[i, j] = 1.0
+    out = hidden.copy()
+    for i in range(h):
+        for j in range(w):
+            for yy in range(max(i - reach, 0), min(i + reach + 1, h)):
+                for xx in range(max(j - reach, 0), min(j + reach + 1, w)):
+                    if hidden[yy, xx] and abs(x[yy, xx, 0] - x[i, j, 0]) <= margin:
+                        out[i, j] = 1.0
     return out

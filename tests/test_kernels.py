@@ -1029,8 +1029,10 @@ def _hidden(x, margin, device, reach=0):
     xa = arr(x, wp.vec4, device)
     zbuf = wp.full((h, w), occlusion.EMPTY, dtype=float, device=device)
     launch(occlusion.splat_depth, (h, w), [xa], [zbuf], device, bands=1)
+    hidden = wp.zeros((h, w), dtype=float, device=device)
+    launch(occlusion.hidden_at_t2, (h, w), [xa, zbuf, float(margin)], [hidden], device)
     out = wp.zeros((h, w), dtype=float, device=device)
-    launch(occlusion.hidden_at_t2, (h, w), [xa, zbuf, float(margin), int(reach)], [out], device)
+    launch(occlusion.spread_hidden, (h, w), [xa, hidden, float(margin), int(reach)], [out], device)
     return out.numpy()
 
 
@@ -1045,13 +1047,14 @@ def test_hidden_at_t2_matches_reference(device):
         want = ref.hidden_at_t2(x, 0.3, reach)
         got = _hidden(x, 0.3, device, reach)
         np.testing.assert_array_equal(got, want)
-        assert 0 < want.sum() < h * w and got[0, 0] == 0
+        assert 0 < want.sum() < h * w
+        assert reach > 0 or got[0, 0] == 0  # lands outside: hidden only by spreading
 
 
 def test_hidden_at_t2_finds_the_covered_background(device):
-    """A near square (δ1 = δ2 = 1) moving 3 px right over a still far background (δ = −1)
+    """A near square (δ1 = 1) moving 3 px right over a still far background (δ1 = −1)
     covers the 3 background columns to its right, and nothing else; ``reach`` widens the
-    band by that many pixels around the square's new place."""
+    band over the background only. Still scenes (stereo) hide nothing."""
     h, w = 12, 16
     x = np.zeros((h, w, 4), np.float32)
     x[..., :2] = -1.0
@@ -1061,8 +1064,11 @@ def test_hidden_at_t2_finds_the_covered_background(device):
     want[3:8, 9:12] = 1.0
     np.testing.assert_array_equal(_hidden(x, 0.25, device), want)
     wide = np.zeros((h, w))
-    wide[2:9, 6:13] = 1.0  # the square lands on rows 3–7, columns 7–11; one pixel around
-    wide[3:8, 4:9] = 0.0  # the square itself is the nearer point
+    wide[2:9, 8:13] = 1.0  # one pixel around the band
+    wide[3:8, 4:9] = 0.0  # but not on the square (another surface)
     np.testing.assert_array_equal(_hidden(x, 0.25, device, reach=1), wide)
     # with a margin above the depth difference nothing is hidden
     assert _hidden(x, 2.5, device, reach=1).sum() == 0
+    # no motion: depth edges alone hide nothing
+    x[..., 2:] = 0.0
+    assert _hidden(x, 0.25, device, reach=3).sum() == 0
