@@ -184,6 +184,36 @@ def cmd_demo(args) -> int:
     return 0
 
 
+# --- bench ---------------------------------------------------------------------------------
+
+def cmd_bench(args) -> int:
+    from lfsf import bench
+    from lfsf._files import write_bytes_atomic
+    from lfsf.device import resolve_device
+
+    device = resolve_device(args.device)
+    size = tuple(args.size) if args.size else None
+    say = (lambda m: None) if args.quiet else (lambda m: _log(args, f"lfsf bench {args.kind}: {m}"))
+    if args.kind == "pipeline":
+        rows = bench.bench_pipeline(size or (640, 480), device, repeats=args.repeats or 3, progress=say)
+    elif args.kind == "kernels":
+        rows = bench.bench_kernels(size or (640, 480), device, repeats=args.repeats or 20, progress=say)
+    else:
+        rows = bench.bench_peers(size or (640, 480), device, repeats=args.repeats or 3, progress=say)
+    print(bench.format_rows(args.kind, rows))
+    print(f"peak RSS {bench.peak_rss_mb():.0f} MB; {_machine()}")
+    if args.json:
+        write_bytes_atomic(args.json, (json.dumps(rows, indent=2) + "\n").encode())
+    return 0
+
+
+def _machine() -> str:
+    import os
+    import platform
+
+    return f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}"
+
+
 def _estimator_options(p) -> None:
     p.add_argument("--preset", default="paper", help="paper (17 views), fast or lytro (default paper)")
     p.add_argument("--config", type=Path, help="TOML file setting any parameter of lfsf.Params")
@@ -242,6 +272,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=Path("lfsf-demo"), help="output folder (default ./lfsf-demo)")
     _estimator_options(p)
     p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("bench", help="benchmarks: kernels, the whole pipeline, or the peers",
+                       description="Time repeated runs after a warm-up and print median and spread; --json writes "
+                                   "the rows. pipeline: the estimator per setting (the paper's first) with per-stage "
+                                   "seconds and peak RSS; kernels: the hot kernels' bandwidth against a plain copy; "
+                                   "peers: flow-only lfsf, scene flow, OpenCV DualTVL1 and skimage TV-L1 with EPE.")
+    p.add_argument("kind", nargs="?", default="pipeline", choices=("kernels", "pipeline", "peers"),
+                   help="what to measure (default pipeline)")
+    p.add_argument("--size", nargs=2, type=_size, metavar=("W", "H"), help="view size (default 640 480)")
+    p.add_argument("--repeats", type=_positive, help="timed runs (default 3; kernels 20)")
+    p.add_argument("--device", help="cpu or cuda:N (default: $LFSF_DEVICE, else cuda:0 if present, else cpu)")
+    p.add_argument("--json", type=Path, help="also write the rows to this JSON file")
+    p.add_argument("--quiet", action="store_true", help="no progress messages")
+    p.set_defaults(func=cmd_bench)
     return parser
 
 

@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """Compare lfsf with the peer methods named in the acceptance targets.
 
-Peers (wrapped in ``scripts/peers.py``, all returning lfsf's conventions, MODEL.md §1):
+Peers (wrapped in ``lfsf/peers.py``, all returning lfsf's conventions, MODEL.md §1):
 
 * flow: OpenCV ``cv2.optflow.DualTVL1OpticalFlow_create()`` (defaults, 8-bit grey input)
   and scikit-image ``skimage.registration.optical_flow_tvl1`` (defaults), on the two
@@ -54,8 +54,7 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 DEFAULT_DATA = ROOT.parent / "shared" / "data"
 
-sys.path.insert(0, str(HERE))
-import peers  # noqa: E402  (scripts/peers.py)
+from lfsf import peers  # noqa: E402  (the peer wrappers)
 
 SYNTH_BORDER = 8
 HCI_BORDER = 15

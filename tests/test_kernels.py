@@ -907,7 +907,7 @@ def test_tgv_gradient_and_divergence_are_negative_adjoints(device):
 # --- median --------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("radius", [1, 2])
+@pytest.mark.parametrize("radius", [1, 2, 4])  # 4: the path that reads the image per comparison
 def test_median_flow_matches_reference(radius, device):
     from lfsf.kernels import median
 

@@ -1,25 +1,19 @@
-"""The peer wrappers of scripts/peers.py return lfsf's conventions (MODEL.md §1).
+"""The peer wrappers of lfsf/peers.py return lfsf's conventions (MODEL.md §1).
 
 Each wrapper must recover a known synthetic shift (flow) or constant disparity (plenpy) in
 OUR convention, with the right sign and axis order. The peers are the optional ``peers``
 extra, which CI does not install: each test skips when its peer is missing.
 """
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
-
-SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 
 
 @pytest.fixture(scope="module")
 def peers():
     pytest.importorskip("scipy")
-    spec = importlib.util.spec_from_file_location("lfsf_peers", SCRIPTS / "peers.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    from lfsf import peers as module
+
     return module
 
 

@@ -1,6 +1,6 @@
 """Peer methods, wrapped so that their outputs are in lfsf's conventions (MODEL.md §1).
 
-Used by ``scripts/compare_peers.py`` (the acceptance comparison) and checked by
+Used by ``scripts/compare_peers.py`` (the acceptance comparison) and ``lfsf bench peers``, and checked by
 ``tests/test_peers.py``. Needs the ``peers`` extra (``pip install -e '.[peers]'``):
 OpenCV contrib, scikit-image and plenpy. Each peer is imported only when its wrapper is
 first called, so this module imports without them.
@@ -15,7 +15,7 @@ Conventions (MODEL.md §1), which every wrapper returns:
   ``p − δ·φ``.
 
 How each peer's own convention was established is written in its wrapper's docstring;
-``python scripts/peers.py`` re-runs those checks and prints the numbers.
+``python -m lfsf.peers`` re-runs those checks and prints the numbers.
 
 Timing: :func:`timed` returns ``(result, seconds)`` of any call (wall clock,
 ``time.perf_counter``); the comparison script times every peer call with it.
@@ -109,7 +109,7 @@ def opencv_tvl1(c1, c2) -> tuple[np.ndarray, np.ndarray]:
 
     Check: ``c2(q) = c1(q − (1.3, −0.7))`` (a textured image shifted by u = +1.3,
     v = −0.7, cubic interpolation) gives a mean flow of (+1.27, −0.73) inside a 10-px
-    border (``python scripts/peers.py``; ``tests/test_peers.py`` repeats it).
+    border (``python -m lfsf.peers``; ``tests/test_peers.py`` repeats it).
 
     OpenCV runs this on all cores (its own thread pool).
     """
@@ -137,7 +137,7 @@ def skimage_tvl1(c1, c2) -> tuple[np.ndarray, np.ndarray]:
     ``p + flow`` — matches ``reference_image`` (c1). So the wrapper only swaps the order.
 
     Check: ``c2(q) = c1(q − (1.3, −0.7))`` gives ``flow[0]`` ≈ −0.70 (v) and ``flow[1]``
-    ≈ +1.31 (u) in the mean inside a 10-px border (``python scripts/peers.py``;
+    ≈ +1.31 (u) in the mean inside a 10-px border (``python -m lfsf.peers``;
     ``tests/test_peers.py`` repeats it).
 
     Single-threaded NumPy/SciPy.
@@ -200,7 +200,7 @@ def plenpy_disparity(views, *, nan_guard: bool = True) -> np.ndarray:
       EPI index units, i.e. pixels per view index, along the centre row and centre
       column of views, and returned negated; nothing scales it by the grid size or by an
       angular spacing, so the unit is px per view step;
-    * synthetic check (``python scripts/peers.py``): a 9×9 light field made by sampling
+    * synthetic check (``python -m lfsf.peers``): a 9×9 light field made by sampling
       one textured image at ``p + δ·φ`` (so the point of centre pixel p is at p − δφ),
       for δ = ±0.1 … ±2.5, gives medians of 0.93δ … 0.97δ, same sign, both EPI
       directions agreeing; on HCI antinous (ground truth in our convention) the

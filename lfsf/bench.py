@@ -1,0 +1,305 @@
+"""Benchmarks behind ``lfsf bench kernels|pipeline|peers`` (INTERFACE.md, Benchmarks).
+
+Every figure is the median of repeated runs after a warm-up, with its spread (min, max):
+the machine is shared and noisy, so single timings are not quoted. Each benchmark returns
+a list of rows (dicts) that the command prints as a table and writes as JSON.
+
+* ``pipeline``: the whole estimator (:func:`lfsf.estimate_scene_flow`) on a synthetic scene,
+  per setting (the paper's first), with the per-stage seconds of the median run and the
+  process's peak resident memory.
+* ``kernels``: the hot kernels on inputs of the paper's setting, as effective bandwidth —
+  the bytes each kernel must move (every array it reads once, every array it writes
+  once) over its time — next to a plain array copy of the same size on the same device,
+  timed in the same run.
+* ``peers``: flow-only lfsf, the whole scene flow, OpenCV's DualTVL1 and scikit-image's
+  TV-L1 on the same pair, with their end-point errors.
+"""
+
+from __future__ import annotations
+
+import resource
+import statistics
+import sys
+import time
+from typing import Callable
+
+import numpy as np
+
+from lfsf import device as _device
+
+#: (name, preset, Params overrides) of the pipeline settings; the paper's first.
+PIPELINE_SETTINGS = (
+    ("paper", "paper", {}),
+    ("fast", "fast", {}),
+    ("flow only (M=1)", "paper", {"circles": 1, "samples": (1,)}),
+)
+
+
+def peak_rss_mb() -> float:
+    """Peak resident set size of this process so far, in MB (ru_maxrss: KiB on Linux)."""
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return rss / 1024.0 if sys.platform != "darwin" else rss / 2**20
+
+
+def summarise(seconds: list[float]) -> dict:
+    """Median and spread of repeated timings."""
+    return {
+        "seconds_median": statistics.median(seconds),
+        "seconds_min": min(seconds),
+        "seconds_max": max(seconds),
+        "repeats": len(seconds),
+    }
+
+
+def time_repeated(fn: Callable[[], object], repeats: int, warmup: int = 1, sync: Callable[[], None] | None = None):
+    """Run ``fn`` ``warmup`` times untimed, then ``repeats`` times timed; returns the
+    list of seconds and the last result. ``sync`` (e.g. a device synchronisation) runs
+    before each clock reading."""
+    sync = sync or (lambda: None)
+    result = None
+    for _ in range(warmup):
+        result = fn()
+    sync()
+    seconds = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        result = fn()
+        sync()
+        seconds.append(time.perf_counter() - t0)
+    return seconds, result
+
+
+# --- pipeline ------------------------------------------------------------------------------
+
+def bench_pipeline(size=(640, 480), device: str | None = None, repeats: int = 3, scene: str = "paper",
+                   settings=PIPELINE_SETTINGS, progress: Callable[[str], None] | None = None) -> list[dict]:
+    """Rows of the whole estimator per setting: seconds (median, spread), per-stage
+    seconds of the median run, peak RSS, and the errors against the ground truth."""
+    from lfsf import synth
+    from lfsf.estimate import estimate_scene_flow
+    from lfsf.evaluate import SYNTH_BORDER, evaluate
+    from lfsf.params import Params
+
+    say = progress or (lambda _m: None)
+    dev = _device.resolve_device(device)
+    width, height = size
+    say(f"rendering '{scene}' at {width}×{height}")
+    lf1, lf2, gt = synth.render_scene(scene, size=(width, height), grid=9, device=dev)
+    rows = []
+    for name, preset, overrides in settings:
+        params = Params.preset(preset).replace(**overrides)
+        runs = []
+
+        def once():
+            sf = estimate_scene_flow(lf1, lf2, params, device=dev)
+            runs.append(sf)
+            return sf
+
+        say(f"{name}: warm-up and {repeats} runs")
+        seconds, _ = time_repeated(once, repeats, warmup=1)
+        timed = runs[1:]
+        median_run = timed[int(np.argsort(seconds)[len(seconds) // 2])]
+        errors = evaluate(median_run.as_dict(), gt, border=SYNTH_BORDER)
+        phis, _radius = params.sample_offsets(lf1.grid)
+        rows.append({
+            "setting": name,
+            "device": dev,
+            "size": [width, height],
+            "views": len(phis),
+            **summarise(seconds),
+            "stages": {k: round(v, 4) for k, v in median_run.timings.items()},
+            "peak_rss_mb": round(peak_rss_mb(), 1),
+            "errors": {k: {m: round(float(x), 5) for m, x in v.items()} for k, v in errors.items()},
+        })
+    return rows
+
+
+# --- kernels -------------------------------------------------------------------------------
+
+def _memcpy_seconds(nbytes: int, dev: str, repeats: int) -> list[float]:
+    """Seconds of a plain device array copy of ``nbytes`` bytes (read once, written once)."""
+    wp = _device.warp()
+    n = max(1, nbytes // 4)
+    src = wp.zeros(n, dtype=float, device=dev)
+    dst = wp.empty(n, dtype=float, device=dev)
+    seconds, _ = time_repeated(lambda: wp.copy(dst, src), repeats, warmup=2,
+                               sync=lambda: wp.synchronize_device(dev))
+    return seconds
+
+
+def kernel_cases(size, dev: str, samples: int = 17) -> list[tuple[str, Callable[[], None], int]]:
+    """(name, launch, bytes it must move) of the hot kernels on inputs of the paper's
+    setting: ``samples`` sampled views of ``size``; the unknowns and coefficients at
+    realistic values, so that branches go as they do in a real run."""
+    from lfsf.kernels import data_term, sampling, tgv
+
+    wp = _device.warp()
+    width, height = size
+    h, w, s = height, width, samples
+    rng = np.random.default_rng(0)
+    f = 4  # bytes per float
+
+    def arr(a, dtype):
+        return wp.array(np.ascontiguousarray(a, np.float32), dtype=dtype, device=dev)
+
+    def launch(kernel, inputs, outputs, dim=(h, w)):
+        return lambda: _device.launch_rows(kernel, dim=dim, inputs=inputs, outputs=outputs, device=dev)
+
+    angles = np.linspace(0, 2 * np.pi, 9)[:-1]
+    rings = [np.zeros((1, 2))] + [r * np.stack([np.cos(angles), np.sin(angles)], -1) for r in (2.0, 4.0)]
+    phis = np.concatenate(rings)[:s].astype(np.float32)
+    wp_phis = arr(phis, wp.vec2)
+    weights = arr(np.tile([10.0 / s, 10.0 / s, 30.0 / s], (s, 1)), wp.vec3)
+    views = arr(rng.random((81, h, w)), float)
+    stack1 = arr(rng.random((s, h, w)), float)
+    stack2 = arr(rng.random((s, h, w)), float)
+    x_hat = np.zeros((h, w, 4), np.float32)
+    x_hat[..., :2] = rng.uniform(-1, 1, (h, w, 1))
+    x_hat[..., 2:] = rng.uniform(-2, 2, (h, w, 2))
+    x_hat = arr(x_hat, wp.vec4)
+    zeros = arr(np.zeros((h, w)), float)
+    coef = wp.empty((s, h, w), dtype=data_term.vec12, device=dev)
+    colsum = wp.empty((h, w), dtype=wp.vec4, device=dev)
+    sampled = wp.empty((s, h, w), dtype=float, device=dev)
+
+    def v4(scale=1.0):
+        return arr(scale * rng.standard_normal((h, w, 4)), wp.vec4)
+
+    def tensor():
+        t = rng.uniform(0.1, 1.0, (h, w, 3))
+        t[..., 1] = 0.0
+        return arr(t, wp.vec3)
+
+    t1, t2, t3 = tensor(), tensor(), tensor()
+    q = wp.zeros((s, h, w), dtype=wp.vec3, device=dev)
+    data_grad = v4()
+    x_bar, w0_bar, w1_bar = v4(), v4(), v4()
+    y0, y1, z00, z01, z10, z11 = (v4(0.1) for _ in range(6))
+    x, w0, w1 = v4(), v4(), v4()
+    tau = [arr(rng.uniform(0.05, 0.5, (h, w, 4)), wp.vec4) for _ in range(3)]
+    sig = [arr(rng.uniform(0.05, 0.5, (h, w, 4)), wp.vec4) for _ in range(2)]
+    cases = [
+        # reads 4 neighbouring views per sample, writes the sample
+        ("sample_subaperture", launch(sampling.sample_subaperture, [views, 9, 9, wp_phis], [sampled], dim=(s * h, w)),
+         f * h * w * s * 5),
+        # reads both sample stacks, x̂ and the hidden mask; writes 12 coefficients per sample and the column sums
+        ("data_coefficients", launch(data_term.data_coefficients,
+                                     [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros], [coef, colsum]),
+         f * h * w * (2 * s + 4 + 1 + 12 * s + 4)),
+        # reads the coefficients, x̄, x̂ and q; writes q and Kᵀq
+        ("dual_data_step", launch(data_term.dual_data_step, [coef, x_bar, x_hat, 1e-6], [q, data_grad]),
+         f * h * w * (12 * s + 4 + 4 + 3 * s + 3 * s + 4)),
+        # reads x̄, w̄ (8), three tensors (9), σ_y (8) and the six duals (24); writes the duals (24)
+        ("tgv_dual_step", launch(tgv.tgv_dual_step, [x_bar, w0_bar, w1_bar, t1, t2, t3, sig[0], sig[1], 0.25, 2.0, 0.5],
+                                 [y0, y1, z00, z01, z10, z11]),
+         f * h * w * (12 + 9 + 8 + 24 + 24)),
+        # reads Kᵀq (4), the duals (24), tensors (9), τ (12), x and w (12); writes x, w and their bars (24)
+        ("tgv_primal_step", launch(tgv.tgv_primal_step,
+                                   [data_grad, y0, y1, z00, z01, z10, z11, t1, t2, t3, tau[0], tau[1], tau[2], 2.0,
+                                    0.5], [x, w0, w1, x_bar, w0_bar, w1_bar]),
+         f * h * w * (4 + 24 + 9 + 12 + 12 + 24)),
+    ]
+    return cases
+
+
+def bench_kernels(size=(640, 480), device: str | None = None, repeats: int = 20,
+                  progress: Callable[[str], None] | None = None) -> list[dict]:
+    """Rows per hot kernel: seconds per launch (median, spread), effective GB/s and the
+    plain-copy GB/s of the same byte count on the same device, and their ratio."""
+    wp = _device.warp()
+    say = progress or (lambda _m: None)
+    dev = _device.resolve_device(device)
+    rows = []
+    for name, run, nbytes in kernel_cases(size, dev):
+        say(f"{name}: {repeats} launches")
+        seconds, _ = time_repeated(run, repeats, warmup=2, sync=lambda: wp.synchronize_device(dev))
+        copy = _memcpy_seconds(nbytes // 2, dev, repeats)  # a copy of nbytes/2 reads and writes nbytes in all
+        gbs = nbytes / statistics.median(seconds) / 1e9
+        copy_gbs = nbytes / statistics.median(copy) / 1e9
+        rows.append({
+            "kernel": name,
+            "device": dev,
+            "size": list(size),
+            "bytes": int(nbytes),
+            **summarise(seconds),
+            "gbytes_per_s": round(gbs, 3),
+            "memcpy_gbytes_per_s": round(copy_gbs, 3),
+            "fraction_of_memcpy": round(gbs / copy_gbs, 3),
+        })
+    return rows
+
+
+# --- peers ---------------------------------------------------------------------------------
+
+def bench_peers(size=(640, 480), device: str | None = None, repeats: int = 3, scene: str = "paper",
+                progress: Callable[[str], None] | None = None) -> list[dict]:
+    """Rows per method on the same synthetic pair: seconds (median, spread) and the flow
+    end-point error over valid pixels (8-px border). Peers that are not installed get a
+    row saying so (``pip install -e '.[peers]'``)."""
+    from lfsf import peers, synth
+    from lfsf.estimate import estimate_scene_flow
+    from lfsf.evaluate import SYNTH_BORDER, evaluate
+    from lfsf.params import Params
+
+    say = progress or (lambda _m: None)
+    dev = _device.resolve_device(device)
+    width, height = size
+    say(f"rendering '{scene}' at {width}×{height}")
+    lf1, lf2, gt = synth.render_scene(scene, size=(width, height), grid=9, device=dev)
+    c1, c2 = lf1.grey().centre, lf2.grey().centre
+
+    def lfsf_run(params):
+        sf = estimate_scene_flow(lf1, lf2, params, device=dev)
+        return sf.u, sf.v
+
+    methods = [
+        ("lfsf flow-only", lambda: lfsf_run(Params.preset("paper").replace(circles=1, samples=(1,)))),
+        ("lfsf scene flow", lambda: lfsf_run(Params.preset("paper"))),
+        ("opencv DualTVL1", lambda: peers.opencv_tvl1(c1, c2)),
+        ("skimage TV-L1", lambda: peers.skimage_tvl1(c1, c2)),
+    ]
+    rows = []
+    for name, fn in methods:
+        say(f"{name}: warm-up and {repeats} runs")
+        try:
+            seconds, (u, v) = time_repeated(fn, repeats, warmup=1)
+        except ImportError as exc:
+            rows.append({"method": name, "epe": None, "seconds_median": None,
+                         "note": f"not installed ({exc}); pip install -e '.[peers]'"})
+            continue
+        epe = evaluate({"u": u, "v": v}, gt, border=SYNTH_BORDER)["flow"]["epe"]
+        rows.append({"method": name, "device": dev if name.startswith("lfsf") else "cpu", "size": [width, height],
+                     "epe": round(float(epe), 5), **summarise(seconds)})
+    return rows
+
+
+# --- table ---------------------------------------------------------------------------------
+
+def format_rows(kind: str, rows: list[dict]) -> str:
+    """A Markdown table of benchmark rows."""
+    def sec(r):
+        if r.get("seconds_median") is None:
+            return "–"
+        return f"{r['seconds_median']:.4g} ({r['seconds_min']:.4g}–{r['seconds_max']:.4g})"
+
+    if kind == "pipeline":
+        stages = sorted({k for r in rows for k in r["stages"]}, key=lambda k: -max(r["stages"].get(k, 0) for r in rows))
+        head = "| setting | device | size | views | seconds median (min–max) | peak RSS MB | " + \
+            " | ".join(stages) + " |"
+        lines = [head, "|" + "---|" * (6 + len(stages))]
+        for r in rows:
+            lines.append(f"| {r['setting']} | {r['device']} | {r['size'][0]}×{r['size'][1]} | {r['views']} | {sec(r)} | "
+                         f"{r['peak_rss_mb']:.0f} | " + " | ".join(f"{r['stages'].get(k, 0):.2f}" for k in stages) + " |")
+        return "\n".join(lines)
+    if kind == "kernels":
+        lines = ["| kernel | device | seconds per launch median (min–max) | GB/s | memcpy GB/s | fraction |",
+                 "|---|---|---|---|---|---|"]
+        for r in rows:
+            lines.append(f"| {r['kernel']} | {r['device']} | {sec(r)} | {r['gbytes_per_s']:.2f} | "
+                         f"{r['memcpy_gbytes_per_s']:.2f} | {r['fraction_of_memcpy']:.2f} |")
+        return "\n".join(lines)
+    lines = ["| method | seconds median (min–max) | flow EPE |", "|---|---|---|"]
+    for r in rows:
+        epe = "–" if r.get("epe") is None else f"{r['epe']:.4f}"
+        lines.append(f"| {r['method']} | {sec(r)} | {epe}{' (' + r['note'] + ')' if r.get('note') else ''} |")
+    return "\n".join(lines)

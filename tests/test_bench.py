@@ -1,0 +1,83 @@
+"""`lfsf bench`: the rows INTERFACE.md promises, and figures that mean what they say.
+
+Timings are never asserted (the machine is shared and noisy); what is checked is the
+shape of the report, that the byte counts match the arrays the kernels touch, and that
+the errors reported are the estimator's.
+"""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from lfsf import bench
+
+
+def test_time_repeated_warms_up_then_times_each_run():
+    calls = []
+    seconds, result = bench.time_repeated(lambda: calls.append(1) or len(calls), repeats=3, warmup=2)
+    assert len(calls) == 5 and result == 5 and len(seconds) == 3 and all(s >= 0 for s in seconds)
+    s = bench.summarise([3.0, 1.0, 2.0])
+    assert s == {"seconds_median": 2.0, "seconds_min": 1.0, "seconds_max": 3.0, "repeats": 3}
+
+
+def test_kernel_cases_count_the_bytes_of_their_arrays():
+    """The bytes a data-term step must move: coefficients (12 floats per sample), q read
+    and written (3 + 3), x̄, x̂ and Kᵀq (4 each) per pixel."""
+    cases = {name: nbytes for name, _run, nbytes in bench.kernel_cases((20, 10), "cpu", samples=17)}
+    assert set(cases) == {"sample_subaperture", "data_coefficients", "dual_data_step", "tgv_dual_step",
+                          "tgv_primal_step"}
+    assert cases["dual_data_step"] == 4 * 200 * (12 * 17 + 6 * 17 + 12)
+    assert cases["tgv_dual_step"] == 4 * 200 * 77
+
+
+def test_bench_kernels_rows():
+    rows = bench.bench_kernels((24, 16), "cpu", repeats=2)
+    assert [r["kernel"] for r in rows][:2] == ["sample_subaperture", "data_coefficients"]
+    for r in rows:
+        assert r["gbytes_per_s"] > 0 and r["memcpy_gbytes_per_s"] > 0
+        assert r["seconds_min"] <= r["seconds_median"] <= r["seconds_max"]
+        assert r["fraction_of_memcpy"] == pytest.approx(r["gbytes_per_s"] / r["memcpy_gbytes_per_s"], rel=0.01, abs=1e-3)
+
+
+def test_bench_pipeline_reports_stages_memory_and_the_estimators_errors():
+    from lfsf import synth
+    from lfsf.estimate import estimate_scene_flow
+    from lfsf.evaluate import evaluate
+    from lfsf.params import Params
+
+    settings = (("fast", "fast", {}),)
+    rows = bench.bench_pipeline((48, 32), "cpu", repeats=2, settings=settings)
+    (row,) = rows
+    assert row["setting"] == "fast" and row["size"] == [48, 32] and row["views"] == 9
+    assert row["repeats"] == 2 and row["peak_rss_mb"] > 10
+    assert {"sampling", "texture", "iterate", "linearise"} <= set(row["stages"])
+    assert sum(row["stages"].values()) <= row["seconds_max"] + 1e-3
+    # the errors are those of the estimator on the same scene (deterministic on the CPU)
+    lf1, lf2, gt = synth.render_scene("paper", size=(48, 32), grid=9)
+    want = evaluate(estimate_scene_flow(lf1, lf2, Params.preset("fast"), device="cpu").as_dict(), gt, border=8)
+    assert row["errors"]["flow"]["epe"] == pytest.approx(want["flow"]["epe"], abs=1e-5)
+
+
+def test_bench_command_writes_json(tmp_path):
+    out = tmp_path / "k.json"
+    proc = subprocess.run([sys.executable, "-m", "lfsf", "bench", "kernels", "--size", "16", "12", "--repeats", "2",
+                           "--json", str(out), "--quiet"], capture_output=True, text=True,
+                          env={**os.environ, "LFSF_DEVICE": ""})
+    assert proc.returncode == 0, proc.stderr
+    rows = json.loads(out.read_text())
+    assert len(rows) == 5 and all({"kernel", "seconds_median", "gbytes_per_s", "memcpy_gbytes_per_s"} <= set(r)
+                                  for r in rows)
+    assert "| kernel |" in proc.stdout
+
+
+def test_bench_peers_rows_without_or_with_the_peers():
+    rows = bench.bench_peers((48, 32), "cpu", repeats=1)
+    assert [r["method"] for r in rows] == ["lfsf flow-only", "lfsf scene flow", "opencv DualTVL1", "skimage TV-L1"]
+    for r in rows[:2]:
+        assert np.isfinite(r["epe"]) and r["seconds_median"] > 0
+    for r in rows[2:]:
+        assert r["epe"] is None and "not installed" in r["note"] or np.isfinite(r["epe"])
