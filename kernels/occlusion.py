@@ -21,6 +21,14 @@ wp.set_module_options({"enable_backward": False})
 EMPTY = wp.constant(-1.0e30)
 
 
+@wp.func
+def landing_pixel(v: wp.vec4, i: int, j: int, h: int, w: int):
+    """(row, column, inside) of the t2 pixel nearest to p + (u, v), p = (i, j)."""
+    tx = int(wp.floor(float(j) + v[2] + 0.5))
+    ty = int(wp.floor(float(i) + v[3] + 0.5))
+    return ty, tx, ty >= 0 and ty < h and tx >= 0 and tx < w
+
+
 @wp.kernel
 def splat_depth(
     row0: int,
@@ -34,12 +42,9 @@ def splat_depth(
     (``bands=1`` on the CPU), over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0
-    h = zbuf.shape[0]
-    w = zbuf.shape[1]
     v = x[i, j]
-    tx = int(wp.floor(float(j) + v[2] + 0.5))
-    ty = int(wp.floor(float(i) + v[3] + 0.5))
-    if ty >= 0 and ty < h and tx >= 0 and tx < w:
+    ty, tx, inside = landing_pixel(v, i, j, zbuf.shape[0], zbuf.shape[1])
+    if inside:
         wp.atomic_max(zbuf, ty, tx, v[0])
 
 
@@ -57,13 +62,10 @@ def hidden_at_t2(
     Launch over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0
-    h = zbuf.shape[0]
-    w = zbuf.shape[1]
     v = x[i, j]
-    tx = int(wp.floor(float(j) + v[2] + 0.5))
-    ty = int(wp.floor(float(i) + v[3] + 0.5))
+    ty, tx, inside = landing_pixel(v, i, j, zbuf.shape[0], zbuf.shape[1])
     out = float(0.0)
-    if ty >= 0 and ty < h and tx >= 0 and tx < w:
+    if inside:
         if zbuf[ty, tx] > v[0] + margin:
             out = 1.0
     hidden[i, j] = out
