@@ -67,6 +67,9 @@ def test_eval_of_ground_truth_against_itself_is_zero(tmp_path):
         (["run", "{tmp}/missing1", "{tmp}/missing2", "--out", "{tmp}/r"], ["missing1"]),
         (["run", "{tmp}/a.npz", "{tmp}/a.npz", "--out", "{tmp}/r", "--device", "quantum"], ["unknown device"]),
         (["frobnicate"], ["invalid choice"]),
+        (["bench", "kernels", "--device", "quantum"], ["unknown device"]),
+        (["bench", "everything"], ["invalid choice"]),
+        (["bench", "pipeline", "--size", "4", "4"], ["at least 8"]),
     ],
 )
 def test_bad_input_is_one_clear_line_and_status_2(tmp_path, args, needles):
