@@ -127,15 +127,17 @@ def _memcpy_seconds(nbytes: int, dev: str, repeats: int) -> list[float]:
     return seconds
 
 
-def kernel_cases(size, dev: str, samples: int = 17) -> list[tuple[str, Callable[[], None], int]]:
+def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
     """(name, launch, bytes it must move) of the hot kernels on inputs of the paper's
-    setting: ``samples`` sampled views of ``size``; the unknowns and coefficients at
-    realistic values, so that branches go as they do in a real run."""
+    setting: its sampled views (17 on a 9×9 grid) of ``size``; the unknowns and
+    coefficients at realistic values, so that branches go as they do in a real run."""
     from lfsf.kernels import data_term, sampling, tgv
+    from lfsf.params import Params
 
     wp = _device.warp()
     width, height = size
-    h, w, s = height, width, samples
+    phis, _radius = Params.preset("paper").sample_offsets((9, 9))
+    h, w, s = height, width, len(phis)
     rng = np.random.default_rng(0)
     f = 4  # bytes per float
 
@@ -145,9 +147,6 @@ def kernel_cases(size, dev: str, samples: int = 17) -> list[tuple[str, Callable[
     def launch(kernel, inputs, outputs, dim=(h, w)):
         return lambda: _device.launch_rows(kernel, dim=dim, inputs=inputs, outputs=outputs, device=dev)
 
-    angles = np.linspace(0, 2 * np.pi, 9)[:-1]
-    rings = [np.zeros((1, 2))] + [r * np.stack([np.cos(angles), np.sin(angles)], -1) for r in (2.0, 4.0)]
-    phis = np.concatenate(rings)[:s].astype(np.float32)
     wp_phis = arr(phis, wp.vec2)
     weights = arr(np.tile([10.0 / s, 10.0 / s, 30.0 / s], (s, 1)), wp.vec3)
     views = arr(rng.random((81, h, w)), float)

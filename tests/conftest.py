@@ -2,6 +2,8 @@
 
 from pathlib import Path
 
+import math
+
 import numpy as np
 import pytest
 
@@ -37,6 +39,23 @@ def data_path(*parts) -> Path:
 
 def rng(seed=0):
     return np.random.default_rng(seed)
+
+
+def wave_texture(seed, waves, freq, amplitude):
+    """A smooth random texture T(x, y) = 0.5 + amplitude·Σ sin(k·(x, y) + phase): ``waves``
+    plane waves with spatial frequencies uniform in ``freq`` (rad/px) and random
+    directions and phases. Returns T as a function of (x, y) arrays."""
+    r = rng(seed)
+    f = r.uniform(freq[0], freq[1], waves)
+    ang = r.uniform(0, 2 * math.pi, waves)
+    phase = r.uniform(0, 2 * math.pi, waves)
+    kx, ky = f * np.cos(ang), f * np.sin(ang)
+
+    def t(x, y):
+        x = np.asarray(x, np.float64)[..., None]
+        y = np.asarray(y, np.float64)[..., None]
+        return 0.5 + amplitude * np.sum(np.sin(kx * x + ky * y + phase), -1)
+    return t
 
 
 def arr(a, dtype, device):

@@ -21,7 +21,7 @@ RTOL = 1e-5
 ATOL = 1e-5
 
 
-from conftest import arr, launch, rng  # noqa: E402
+from conftest import arr, launch, rng, wave_texture  # noqa: E402
 
 
 def close(got, want, rtol=RTOL, atol=ATOL):
@@ -362,17 +362,7 @@ def _occlusion_random_inputs(seed, h=7, w=9):
 
 def _texture(seed, waves=6):
     """A smooth random texture T(x, y) in [0, 1]: a sum of plane waves (wavelengths 6–15 px)."""
-    r = rng(seed)
-    freq = r.uniform(0.4, 1.0, waves)
-    ang = r.uniform(0, 2 * math.pi, waves)
-    phase = r.uniform(0, 2 * math.pi, waves)
-    kx, ky = freq * np.cos(ang), freq * np.sin(ang)
-
-    def t(x, y):
-        x = np.asarray(x, np.float64)[..., None]
-        y = np.asarray(y, np.float64)[..., None]
-        return 0.5 + 0.4 / waves * np.sum(np.sin(kx * x + ky * y + phase), -1)
-    return t
+    return wave_texture(seed, waves, (0.4, 1.0), 0.4 / waves)
 
 
 def _occlusion_constructed_inputs(h=9, w=13):

@@ -15,7 +15,7 @@ import reference_kernels as ref
 wp = D.warp()
 
 
-from conftest import arr, launch, rng  # noqa: E402
+from conftest import arr, launch, rng, wave_texture  # noqa: E402
 
 
 def close(got, want, rtol=1e-5, atol=1e-5):
@@ -236,17 +236,7 @@ def test_select_flow_finds_the_vertex_of_a_sampled_paraboloid(device):
 
 def _texture(seed, waves=8):
     """A smooth random texture T(x, y) in [0, 1]: plane waves of wavelength 5–12 px."""
-    r = rng(seed)
-    freq = r.uniform(0.5, 1.25, waves)
-    ang = r.uniform(0, 2 * math.pi, waves)
-    phase = r.uniform(0, 2 * math.pi, waves)
-    kx, ky = freq * np.cos(ang), freq * np.sin(ang)
-
-    def t(x, y):
-        x = np.asarray(x, np.float64)[..., None]
-        y = np.asarray(y, np.float64)[..., None]
-        return 0.5 + 0.45 / math.sqrt(waves) * np.sum(np.sin(kx * x + ky * y + phase), -1)
-    return t
+    return wave_texture(seed, waves, (0.5, 1.25), 0.45 / math.sqrt(waves))
 
 
 def _circle_samples(radius, rings=(1, 8, 8)):
