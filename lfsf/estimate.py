@@ -336,6 +336,7 @@ def estimate_scene_flow(
     *,
     device: str | None = None,
     progress: ProgressFn | None = None,
+    init=None,
 ) -> SceneFlow:
     """Estimate scene flow between two light fields (Heber & Pock, GCPR 2014).
 
@@ -349,6 +350,11 @@ def estimate_scene_flow(
         ``cpu`` or ``cuda:N`` (default: :func:`lfsf.device.resolve_device`).
     progress : callable, optional
         Called with a line of text at each level and warp.
+    init : SceneFlow or dict, optional
+        A starting estimate (``disp1``, ``disp2``, ``u``, ``v``, (H, W) maps of the t1
+        centre view), e.g. :func:`predict_next` of the previous pair of a sequence. The
+        coarsest level run (all levels, or the finest ``params.warm_levels``) starts from
+        it instead of from zero; the searches still fuse in where they match better.
 
     Returns
     -------
@@ -422,6 +428,9 @@ def estimate_scene_flow(
     lap("texture")
 
     sizes = pyramid_sizes(height, width, params)
+    start = _check_init(init, height, width)
+    if start is not None and params.warm_levels:
+        sizes = sizes[:params.warm_levels]
     levels = [(texture, _stack2(centres, dev))]
     for size in sizes[1:]:
         tex, cen = levels[-1]
@@ -457,7 +466,12 @@ def estimate_scene_flow(
         s1 = wp.clone(tex[:n_samples])
         s2 = wp.clone(tex[n_samples:])
         solver = LevelSolver(s1, s2, wp.clone(cen[0]), wp.clone(cen[1]), wp_phis, wp_weights, params, dev)
-        if x is None:
+        if x is None and start is not None:
+            sd = w / width
+            x = np.stack([_resize_map(start[..., 0], (h, w), sd, dev), _resize_map(start[..., 1], (h, w), sd, dev),
+                          _resize_map(start[..., 2], (h, w), sd, dev),
+                          _resize_map(start[..., 3], (h, w), h / height, dev)], -1)
+        elif x is None:
             x = np.zeros((h, w, 4), np.float32)
         if flow_search:
             found_flow, (search_h, search_w) = flow_found
@@ -493,6 +507,58 @@ def estimate_scene_flow(
         disp1=x[..., 0].copy(), disp2=x[..., 1].copy(), u=x[..., 2].copy(), v=x[..., 3].copy(),
         params=params, radius=float(radius), device=dev, timings=timings,
     )
+
+
+def _check_init(init, height: int, width: int) -> np.ndarray | None:
+    """A starting estimate as one (H, W, 4) array [δ1, δ2, u, v], checked."""
+    if init is None:
+        return None
+    maps = init.as_dict() if isinstance(init, SceneFlow) else init
+    try:
+        arrays = [np.asarray(maps[k], np.float32) for k in ("disp1", "disp2", "u", "v")]
+    except (KeyError, TypeError):
+        raise ValueError("init must be a SceneFlow or a dict with disp1, disp2, u and v") from None
+    for name, a in zip(("disp1", "disp2", "u", "v"), arrays):
+        if a.shape != (height, width):
+            raise ValueError(f"init: {name} is {a.shape}, the views are {(height, width)}")
+        if not np.isfinite(a).all():
+            raise ValueError(f"init: {name} has NaN or infinite values")
+    return np.stack(arrays, -1)
+
+
+def predict_next(previous) -> dict[str, np.ndarray]:
+    """The estimate of the next pair of a sequence predicted from this pair's, assuming
+    every point keeps its motion (image velocity and change of disparity).
+
+    ``previous`` holds δ1, δ2, u, v of frame k's centre view (pair k → k + 1). A point seen
+    at q in frame k is at q + u(q) in frame k + 1 with disparity δ2(q); there the next
+    pair starts with δ1 = δ2(q), flow u(q) and δ2 = δ2(q) + (δ2 − δ1)(q). Points are
+    splatted to their nearest pixel, the nearer (larger δ) winning where several land;
+    pixels nothing lands on take the value found at p − u(p).
+    """
+    maps = previous.as_dict() if isinstance(previous, SceneFlow) else previous
+    d1, d2, u, v = (np.asarray(maps[k], np.float32) for k in ("disp1", "disp2", "u", "v"))
+    h, w = d1.shape
+    moved = np.stack([d2, 2 * d2 - d1, u, v], -1)  # what each point carries to frame k + 1
+    yy, xx = np.mgrid[0:h, 0:w]
+    tx = np.rint(xx + u).astype(np.int64)
+    ty = np.rint(yy + v).astype(np.int64)
+    inside = (tx >= 0) & (tx < w) & (ty >= 0) & (ty < h)
+    target = (ty * w + tx)[inside]
+    carried = moved[inside]
+    # nearest first wins: sort by target, then by δ descending, keep the first of each target
+    order = np.lexsort((-carried[:, 0], target))
+    target, carried = target[order], carried[order]
+    first = np.ones(len(target), bool)
+    first[1:] = target[1:] != target[:-1]
+    out = np.full((h * w, 4), np.nan, np.float32)
+    out[target[first]] = carried[first]
+    out = out.reshape(h, w, 4)
+    holes = np.isnan(out[..., 0])
+    if holes.any():
+        back = np.stack([_sample_at_flow(moved[..., c], np.stack([d1, d2, -u, -v], -1)) for c in range(4)], -1)
+        out[holes] = back[holes]
+    return {"disp1": out[..., 0], "disp2": out[..., 1], "u": out[..., 2], "v": out[..., 3]}
 
 
 def _stack2(images, device):

@@ -58,6 +58,9 @@ class Params:
         iterations : primal–dual iterations per warp.
         median_radius : radius of the median filter on the flow after each warp (0: off).
         eps : ε added to the preconditioners' denominators.
+        warm_levels : when the estimate starts from a given one (``init`` of
+            :func:`lfsf.estimate_scene_flow`, e.g. the previous pair of a sequence), only
+            the finest this many levels run (0: all levels, started from it).
     Disparity search (an addition to the paper: see :mod:`lfsf.kernels.search`)
         disparity_search : start each level's disparities from whichever is better, per
             pixel, of the warped estimate and a plane sweep over the samples.
@@ -94,6 +97,7 @@ class Params:
     iterations: int = 100
     median_radius: int = 2
     eps: float = 1e-6
+    warm_levels: int = 0
     disparity_search: bool = True
     disparity_range: float = 4.0
     search_radius: int = 1
@@ -176,6 +180,7 @@ class Params:
             need(getattr(self, name) >= 1, f"{name} must be at least 1, got {getattr(self, name)}")
         need(self.max_levels >= 0 and self.rof_iterations >= 0 and self.median_radius >= 0,
              "max_levels, rof_iterations and median_radius must be ≥ 0")
+        need(self.warm_levels >= 0, f"warm_levels must be ≥ 0, got {self.warm_levels}")
         need(self.median_radius <= 3, f"median_radius must be at most 3, got {self.median_radius}")
         need(math.isfinite(self.disparity_range) and self.disparity_range > 0,
              f"disparity_range must be positive, got {self.disparity_range}")

@@ -201,42 +201,50 @@ class CameraArray:
         return np.array([(x - self.cx) * depth / self.focal, (y - self.cy) * depth / self.focal, depth])
 
 
-def _object_poses(prim: Primitive, cam: CameraArray):
-    """World poses (rotation, centre) at t1 and t2, world size and texture frequency."""
+def _object_poses(prim: Primitive, cam: CameraArray, times=(0, 1)):
+    """World poses (rotation, centre) at each frame of ``times``, world size and texture
+    frequency.
+
+    Frame 0 is t1 and frame 1 is t2. The motion repeats at a constant rate: at frame k the
+    centre has moved k·``shift`` px in the centre view and k·``approach`` in depth, and the
+    object has turned by ``spin`` k times. Frames 0 and 1 are the pair of the scene itself.
+    """
     x1 = prim.at[0] * (cam.width - 1)
     y1 = prim.at[1] * (cam.height - 1)
-    z1 = prim.depth
-    z2 = prim.depth + prim.approach
-    if z2 <= 0:
-        raise ValueError(f"object moves behind the camera (depth {z1} + approach {prim.approach})")
-    c1 = cam.back_project(x1, y1, z1)
-    c2 = cam.back_project(x1 + prim.shift[0], y1 + prim.shift[1], z2)
     r1 = _rotation(prim.tilt)
-    r2 = _rotation(prim.spin) @ r1
-    # sizes are fractions of the image width at the object's depth
-    world_per_px = z1 / cam.focal
+    spin = _rotation(prim.spin)
+    poses = []
+    for k in times:
+        z = prim.depth + k * prim.approach
+        if z <= 0:
+            raise ValueError(f"object moves behind the camera at frame {k} "
+                             f"(depth {prim.depth} + {k} × approach {prim.approach})")
+        centre = cam.back_project(x1 + k * prim.shift[0], y1 + k * prim.shift[1], z)
+        poses.append((np.linalg.matrix_power(spin, int(k)) @ r1, centre))
+    # sizes are fractions of the image width at the object's depth at frame 0
+    world_per_px = prim.depth / cam.focal
     size = np.zeros(3)
     size[: len(prim.size)] = np.asarray(prim.size, dtype=np.float64) * cam.width * world_per_px
     period_px = max(prim.texture.period * cam.width / REFERENCE_WIDTH, MIN_TEXTURE_PERIOD)
     tex_freq = 1.0 / (period_px * world_per_px)
-    return (r1, c1), (r2, c2), size, tex_freq
+    return poses, size, tex_freq
 
 
 _KINDS = {"plane": 0, "sphere": 1, "box": 2}
 
 
-def _scene_arrays(scene: Scene, cam: CameraArray, device: str):
-    """Warp arrays of SceneObject at t1 and at t2."""
+def _scene_arrays(scene: Scene, cam: CameraArray, device: str, times=(0, 1)):
+    """Warp arrays of SceneObject, one per frame of ``times`` (default t1 and t2)."""
     import warp as wp
 
     from lfsf.kernels import render
 
-    per_time = ([], [])
+    per_time = tuple([] for _ in times)
     for prim in scene.objects:
         if prim.kind not in _KINDS:
             raise ValueError(f"scene {scene.name!r}: unknown primitive kind {prim.kind!r}")
-        poses1, poses2, size, tex_freq = _object_poses(prim, cam)
-        for (rot, centre), out in zip((poses1, poses2), per_time):
+        poses, size, tex_freq = _object_poses(prim, cam, times)
+        for (rot, centre), out in zip(poses, per_time):
             obj = render.SceneObject()
             obj.kind = _KINDS[prim.kind]
             obj.rot = wp.mat33(*rot.astype(np.float32).ravel())
@@ -312,6 +320,34 @@ def render_scene(
         ``occluded`` (MODEL.md §1 conventions), plus the camera as scalars
         (``focal``, ``baseline``, ``shift``)
     """
+    lfs, gts = render_sequence(scene, 2, size=size, grid=grid, supersample=supersample, colour=colour,
+                               device=device)
+    return lfs[0], lfs[1], gts[0]
+
+
+def render_sequence(
+    scene: str | Scene,
+    frames: int,
+    *,
+    size: tuple[int, int] = (640, 480),
+    grid: int | tuple[int, int] = 9,
+    supersample: int = 2,
+    colour: bool = False,
+    device: str | None = None,
+):
+    """Render ``frames`` light fields of a scene moving at a constant rate, and the exact
+    ground truth of each consecutive pair.
+
+    Frame k shows every object after k times its motion from t1 to t2 (see
+    :func:`_object_poses`), so frames 0 and 1 are :func:`render_scene`'s pair and every
+    later pair moves the same way again. Parameters are those of :func:`render_scene`.
+
+    Returns
+    -------
+    lfs : list of ``frames`` :class:`lfsf.io.LightField`
+    gts : list of ``frames − 1`` ground-truth dicts as :func:`render_scene`'s, pair k
+        going from frame k to frame k + 1
+    """
     from lfsf.io import LightField
     from lfsf.kernels import render
 
@@ -321,10 +357,12 @@ def render_scene(
     rows, cols = _grid(grid)
     if int(supersample) < 1:
         raise ValueError(f"supersample must be at least 1, got {supersample}")
+    if int(frames) < 2:
+        raise ValueError(f"a sequence needs at least 2 frames, got {frames}")
     dev = _device.resolve_device(device)
     cam = CameraArray.for_size(width, height)
     wcam = _warp_camera(cam)
-    objects = _scene_arrays(sc, cam, dev)
+    objects = _scene_arrays(sc, cam, dev, times=range(int(frames)))
     channels = 3 if colour else 1
 
     lfs = []
@@ -340,21 +378,25 @@ def render_scene(
         arr = views.numpy().reshape(rows, cols, height, width, channels)
         if channels == 1:
             arr = arr[..., 0]
-        lfs.append(LightField(arr, source=f"synthetic scene '{sc.name}' at t{t + 1}"))
+        name = f"t{t + 1}" if frames == 2 else f"frame {t}"
+        lfs.append(LightField(arr, source=f"synthetic scene '{sc.name}' at {name}"))
 
-    out = {k: wp.empty((height, width), dtype=float, device=dev) for k in ("disp1", "disp2", "u", "v")}
-    masks = {k: wp.empty((height, width), dtype=wp.uint8, device=dev) for k in ("valid", "occluded")}
-    _device.launch_rows(
-        render.ground_truth,
-        dim=(height, width),
-        inputs=[wcam, objects[0], objects[1], width, height],
-        outputs=[out["disp1"], out["disp2"], out["u"], out["v"], masks["valid"], masks["occluded"]],
-        device=dev,
-    )
-    gt = {k: a.numpy().astype(np.float32) for k, a in out.items()}
-    gt.update({k: a.numpy().astype(bool) for k, a in masks.items()})
-    gt.update(focal=np.float32(cam.focal), baseline=np.float32(cam.baseline), shift=np.float32(cam.shift))
-    return lfs[0], lfs[1], gt
+    gts = []
+    for t in range(int(frames) - 1):
+        out = {k: wp.empty((height, width), dtype=float, device=dev) for k in ("disp1", "disp2", "u", "v")}
+        masks = {k: wp.empty((height, width), dtype=wp.uint8, device=dev) for k in ("valid", "occluded")}
+        _device.launch_rows(
+            render.ground_truth,
+            dim=(height, width),
+            inputs=[wcam, objects[t], objects[t + 1], width, height],
+            outputs=[out["disp1"], out["disp2"], out["u"], out["v"], masks["valid"], masks["occluded"]],
+            device=dev,
+        )
+        gt = {k: a.numpy().astype(np.float32) for k, a in out.items()}
+        gt.update({k: a.numpy().astype(bool) for k, a in masks.items()})
+        gt.update(focal=np.float32(cam.focal), baseline=np.float32(cam.baseline), shift=np.float32(cam.shift))
+        gts.append(gt)
+    return lfs, gts
 
 
 def write_scene(
@@ -383,4 +425,37 @@ def write_scene(
     write_lightfield(lf2, paths["lf2"])
     sc = get_scene(scene)
     savez_atomic(paths["gt"], compressed=True, scene=np.str_(sc.name), **gt)
+    return paths
+
+
+def write_sequence(
+    scene: str | Scene,
+    out: str | Path,
+    frames: int,
+    *,
+    size: tuple[int, int] = (640, 480),
+    grid: int | tuple[int, int] = 9,
+    supersample: int = 2,
+    colour: bool = False,
+    device: str | None = None,
+) -> dict[str, list[Path]]:
+    """Render :func:`render_sequence` and write the frames ``out/frames/f000.npz``, … (a
+    folder ``lfsf batch`` reads as consecutive pairs) and each pair's ground truth
+    ``out/gt/f000.npz``, … (named after the pair's first frame), each atomically."""
+    from lfsf._files import savez_atomic
+    from lfsf.io import write_lightfield
+
+    lfs, gts = render_sequence(scene, frames, size=size, grid=grid, supersample=supersample, colour=colour,
+                               device=device)
+    out = Path(out)
+    paths: dict[str, list[Path]] = {"frames": [], "gt": []}
+    (out / "frames").mkdir(parents=True, exist_ok=True)
+    (out / "gt").mkdir(parents=True, exist_ok=True)
+    name = get_scene(scene).name
+    for k, lf in enumerate(lfs):
+        paths["frames"].append(out / "frames" / f"f{k:03d}.npz")
+        write_lightfield(lf, paths["frames"][-1])
+    for k, gt in enumerate(gts):
+        paths["gt"].append(out / "gt" / f"f{k:03d}.npz")
+        savez_atomic(paths["gt"][-1], compressed=True, scene=np.str_(name), **gt)
     return paths

@@ -103,7 +103,7 @@ def scene_objects(scene, cam):
     """Per time, a list of dicts describing each primitive (from synth's own geometry)."""
     times = ([], [])
     for prim in synth.get_scene(scene).objects:
-        p1, p2, size, freq = synth._object_poses(prim, cam)
+        (p1, p2), size, freq = synth._object_poses(prim, cam)
         for (rot, pos), out in zip((p1, p2), times):
             out.append(dict(kind=KINDS[prim.kind], rot=rot, pos=pos, size=size, freq=freq,
                             seed=prim.texture.seed, mean=prim.texture.mean,

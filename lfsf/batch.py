@@ -1,0 +1,431 @@
+"""Batch runs: many light-field pairs, in this process or on a Dask cluster (``lfsf batch``).
+
+Each pair is one task that loads its two light fields, estimates, and writes its results
+to ``OUT/NAME/`` as ``lfsf run`` does. Nothing is shared between tasks but the output
+folder:
+
+* a task writes into a hidden temporary folder ``OUT/.NAME.part-PID-…`` and renames it
+  to ``OUT/NAME`` only when every file is there, so a killed run never leaves a
+  half-written result, and a result folder that exists is complete;
+* a re-run skips the pairs whose result folder is complete;
+* a pair that fails (bad input, an error in the estimate) is reported with its reason
+  and the others go on; a worker process that dies in the middle of a task is replaced
+  and the task runs again elsewhere (Dask retries it);
+* with ``warm_start``, the pairs of one sequence run in order and each starts from the
+  previous pair's result (:func:`lfsf.estimate.predict_next`), read back from its folder.
+
+Execution is on Dask distributed (the ``batch`` extra): a local cluster of ``workers``
+processes, or a running scheduler. Without Dask, one worker runs in this process.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io as _io
+import os
+import shutil
+import sys
+import time
+import traceback
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from lfsf._files import write_bytes_atomic
+
+#: The files of a complete result (those :meth:`lfsf.estimate.SceneFlow.save` writes
+#: without the centre views).
+RESULT_FILES = ("disp1.pfm", "disp2.pfm", "flow.flo", "sceneflow.npz", "disp1.png", "disp2.png", "flow.png")
+#: Light-field files a frame folder may hold (besides sub-folders of views).
+FRAME_SUFFIXES = (".npz",)
+INSTALL_HINT = "pip install 'lfsf[batch]' (or: pip install 'dask[distributed]')"
+
+
+@dataclass(frozen=True)
+class Pair:
+    """One task: light fields ``t1`` and ``t2``, results to ``OUT/name``. ``previous``
+    names the pair before it in the same sequence (for warm starts)."""
+
+    name: str
+    t1: Path
+    t2: Path
+    previous: str | None = None
+
+
+@dataclass
+class Outcome:
+    """What became of one pair: ``status`` is ``done``, ``skipped`` or ``failed``."""
+
+    name: str
+    status: str
+    seconds: float = 0.0
+    reason: str = ""
+    warm: bool = False
+
+
+@dataclass
+class Summary:
+    """A whole batch: one :class:`Outcome` per pair, in the order of the pairs."""
+
+    outcomes: list[Outcome] = field(default_factory=list)
+    seconds: float = 0.0
+
+    def count(self, status: str) -> int:
+        return sum(o.status == status for o in self.outcomes)
+
+    @property
+    def failed(self) -> list[Outcome]:
+        return [o for o in self.outcomes if o.status == "failed"]
+
+    def describe(self) -> str:
+        done = [o.seconds for o in self.outcomes if o.status == "done"]
+        per_pair = f", {np.median(done):.1f} s per pair (median)" if done else ""
+        return (f"{self.count('done')} done, {self.count('skipped')} skipped (complete), "
+                f"{self.count('failed')} failed in {self.seconds:.1f} s{per_pair}")
+
+
+# --- sources ----------------------------------------------------------------------------------
+
+def pairs_from_sources(sources: Sequence[str | os.PathLike]) -> list[Pair]:
+    """The pairs named by manifests and frame folders.
+
+    A manifest is a CSV file with ``t1,t2[,name]`` per line (a header line ``t1,t2…`` is
+    optional; relative paths are relative to the manifest's folder; the name defaults to
+    t1's stem). A folder holds one light field per frame (a sub-folder of views or a
+    ``.npz``), sorted by name; consecutive frames make the pairs, named after their first
+    frame, each the successor of the one before.
+
+    Raises
+    ------
+    FileNotFoundError
+        A source that does not exist.
+    ValueError
+        A malformed manifest, a folder with fewer than two frames, two pairs with one name.
+    """
+    if not sources:
+        raise ValueError("give at least one manifest CSV or folder of frames")
+    pairs: list[Pair] = []
+    for source in sources:
+        path = Path(source)
+        if not path.exists():
+            raise FileNotFoundError(f"{path}: no such manifest or folder")
+        pairs.extend(_folder_pairs(path) if path.is_dir() else _manifest_pairs(path))
+    seen: dict[str, Pair] = {}
+    for pair in pairs:
+        if pair.name in seen:
+            raise ValueError(f"two pairs are both named {pair.name!r} ({seen[pair.name].t1} and {pair.t1}); "
+                             "name them in a manifest's third column")
+        seen[pair.name] = pair
+    return pairs
+
+
+def _manifest_pairs(path: Path) -> list[Pair]:
+    try:
+        text = path.read_text()
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a text CSV manifest") from None
+    rows = [row for row in csv.reader(_io.StringIO(text)) if row and any(c.strip() for c in row)]
+    if rows and [c.strip().lower() for c in rows[0][:2]] == ["t1", "t2"]:
+        rows = rows[1:]
+    if not rows:
+        raise ValueError(f"{path}: the manifest names no pairs (expected lines 't1,t2[,name]')")
+    pairs = []
+    for number, row in enumerate(rows, 1):
+        cells = [c.strip() for c in row]
+        if len(cells) not in (2, 3) or not cells[0] or not cells[1]:
+            raise ValueError(f"{path}: pair {number} ({','.join(row)!r}) is not 't1,t2[,name]'")
+        t1, t2 = ((path.parent / c) for c in cells[:2])
+        name = cells[2] if len(cells) == 3 and cells[2] else _stem(t1)
+        if not name or name.startswith(".") or "/" in name or "\\" in name:
+            raise ValueError(f"{path}: pair {number} has the name {name!r}, which cannot be a folder name")
+        pairs.append(Pair(name, t1, t2))
+    return pairs
+
+
+def _folder_pairs(folder: Path) -> list[Pair]:
+    frames = sorted(p for p in folder.iterdir()
+                    if not p.name.startswith(".") and (p.is_dir() or p.suffix.lower() in FRAME_SUFFIXES))
+    if len(frames) < 2:
+        raise ValueError(f"{folder}: a folder of frames needs at least two light fields (sub-folders of views "
+                         f"or .npz files), found {len(frames)}")
+    pairs, previous = [], None
+    for a, b in zip(frames[:-1], frames[1:]):
+        pairs.append(Pair(_stem(a), a, b, previous))
+        previous = pairs[-1].name
+    return pairs
+
+
+def _stem(path: Path) -> str:
+    return path.name[: -len(path.suffix)] if path.suffix.lower() in FRAME_SUFFIXES else path.name
+
+
+# --- one task -------------------------------------------------------------------------------
+
+def is_complete(folder: Path) -> bool:
+    """Whether ``folder`` holds a complete result."""
+    return all((folder / name).is_file() for name in RESULT_FILES)
+
+
+def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = None,
+             warm_start: bool = False, _after=None) -> Outcome:
+    """Estimate one pair and write its results to ``out/pair.name`` (skipped when complete).
+
+    Errors in the pair (unreadable input, mismatched light fields, …) come back as a
+    ``failed`` :class:`Outcome` with the reason; they are not raised, so that a Dask retry
+    is spent only on a worker that died. ``_after`` is the previous pair's outcome when
+    the scheduler must run the two in order; it is not used otherwise.
+    """
+    from lfsf.estimate import estimate_scene_flow, predict_next
+    from lfsf.io import check_pair, read_lightfield
+
+    out = Path(out)
+    final = out / pair.name
+    if is_complete(final):
+        return Outcome(pair.name, "skipped")
+    t0 = time.perf_counter()
+    _remove_stale(out, pair.name)
+    tmp = out / f".{pair.name}.part-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    try:
+        tmp.mkdir(parents=True)
+        lf1 = read_lightfield(pair.t1)
+        lf2 = read_lightfield(pair.t2)
+        check_pair(lf1, lf2)
+        init = None
+        if warm_start and pair.previous is not None:
+            init = _previous_estimate(out / pair.previous, lf1.centre.shape[:2])
+            init = None if init is None else predict_next(init)
+        sf = estimate_scene_flow(lf1, lf2, params, device=_worker_device(device), init=init)
+        sf.save(tmp)
+        if final.exists():  # an incomplete result left by hand or by an older version
+            shutil.rmtree(final)
+        os.replace(tmp, final)
+        return Outcome(pair.name, "done", time.perf_counter() - t0, warm=init is not None)
+    except Exception as exc:  # noqa: BLE001 - every failure of a pair is reported, the batch goes on
+        reason = _reason(exc)
+        return Outcome(pair.name, "failed", time.perf_counter() - t0, reason)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _reason(exc: BaseException) -> str:
+    if isinstance(exc, (ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError)):
+        return str(exc)
+    where = traceback.extract_tb(exc.__traceback__)[-1] if exc.__traceback__ else None
+    at = f" (at {Path(where.filename).name}:{where.lineno})" if where else ""
+    return f"{type(exc).__name__}: {exc}{at}"
+
+
+def _remove_stale(out: Path, name: str) -> None:
+    """Temporary folders of earlier attempts at this pair (a killed worker's)."""
+    if out.is_dir():
+        for stale in out.glob(f".{name}.part-*"):
+            shutil.rmtree(stale, ignore_errors=True)
+
+
+def _previous_estimate(folder: Path, shape) -> dict | None:
+    """The previous pair's estimate, if it is complete and of the same size."""
+    if not is_complete(folder):
+        return None
+    with np.load(folder / "sceneflow.npz") as data:
+        maps = {k: data[k] for k in ("disp1", "disp2", "u", "v")}
+    return maps if maps["disp1"].shape == tuple(shape) else None
+
+
+def _worker_device(device: str | None) -> str:
+    """The device for this task: the one asked for, else, on a Dask worker of a machine
+    with several GPUs, one GPU per worker (by the worker's number), else the default."""
+    from lfsf.device import available_devices, resolve_device
+
+    if device:
+        return resolve_device(device)
+    gpus = [d for d in available_devices() if d.startswith("cuda")]
+    if len(gpus) > 1:
+        with contextlib.suppress(Exception):
+            from distributed import get_worker
+
+            number = get_worker().name
+            if isinstance(number, int):
+                return gpus[number % len(gpus)]
+    return resolve_device(None)
+
+
+# --- the batch --------------------------------------------------------------------------------
+
+def have_dask() -> bool:
+    try:
+        import distributed  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def run_batch(
+    pairs: Sequence[Pair],
+    out: str | os.PathLike,
+    params,
+    *,
+    workers: int = 1,
+    scheduler: str | None = None,
+    device: str | None = None,
+    warm_start: bool = False,
+    retries: int = 2,
+    progress: Callable[[Outcome, int, int], None] | None = None,
+) -> Summary:
+    """Run every pair and write ``out/failed.csv`` (name, t1, t2, reason) if any failed.
+
+    Parameters
+    ----------
+    pairs : from :func:`pairs_from_sources`
+    out : the output folder
+    params : :class:`lfsf.Params` for every pair
+    workers : processes of the local Dask cluster; 1 without Dask runs in this process
+    scheduler : address of a running Dask scheduler (``tcp://host:8786``) instead
+    device : for every task (default: each worker's own, one GPU per worker)
+    warm_start : start each pair of a sequence from the previous one's result
+    retries : extra attempts for a task whose worker died
+    progress : called after each pair with its outcome, the pairs finished and the total
+
+    Returns
+    -------
+    Summary
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    report = progress or (lambda outcome, finished, total: None)
+    if scheduler is None and workers == 1 and not have_dask():
+        outcomes = _run_here(pairs, out, params, device, warm_start, report)
+    else:
+        if not have_dask():
+            raise ValueError(f"--workers {workers} and --scheduler need Dask: {INSTALL_HINT}")
+        outcomes = _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retries, report)
+    summary = Summary(outcomes, time.perf_counter() - t0)
+    _write_failed(out, pairs, summary)
+    return summary
+
+
+def _run_here(pairs, out, params, device, warm_start, report) -> list[Outcome]:
+    outcomes = []
+    for pair in pairs:
+        outcomes.append(run_pair(pair, out, params, device, warm_start))
+        report(outcomes[-1], len(outcomes), len(pairs))
+    return outcomes
+
+
+def _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retries, report) -> list[Outcome]:
+    import logging
+
+    from distributed import Client, LocalCluster, as_completed
+
+    with contextlib.ExitStack() as stack:
+        if scheduler:
+            try:
+                client = stack.enter_context(Client(scheduler, timeout="10s"))
+            except OSError as exc:
+                raise ValueError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+        else:
+            # one thread per worker: the estimator runs its own CPU threads
+            threads = max(1, (os.cpu_count() or 1) // workers)
+            cluster = stack.enter_context(LocalCluster(
+                n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                silence_logs=logging.ERROR, env={"LFSF_THREADS": str(threads)}))
+            client = stack.enter_context(Client(cluster))
+        futures, by_name = {}, {}
+        for index, pair in enumerate(pairs):
+            after = by_name.get(pair.previous) if warm_start and pair.previous else None
+            future = client.submit(run_pair, pair, str(out), params, device, warm_start, after,
+                                   key=f"lfsf-{pair.name}-{uuid.uuid4().hex[:8]}", retries=retries, pure=False)
+            futures[future] = index
+            by_name[pair.name] = future
+        outcomes: list[Outcome | None] = [None] * len(pairs)
+        finished = 0
+        for future in as_completed(futures):
+            index = futures[future]
+            try:
+                outcome = future.result()
+            except Exception as exc:  # noqa: BLE001 - a task that died on every attempt
+                outcome = Outcome(pairs[index].name, "failed", reason=_dask_reason(exc, retries))
+            outcomes[index] = outcome
+            finished += 1
+            report(outcome, finished, len(pairs))
+    return outcomes
+
+
+def _dask_reason(exc: BaseException, retries: int) -> str:
+    if type(exc).__name__ == "KilledWorker":
+        return f"its worker process died on each of {retries + 1} attempts"
+    return f"{type(exc).__name__}: {exc}"
+
+
+def _write_failed(out: Path, pairs: Sequence[Pair], summary: Summary) -> None:
+    """``out/failed.csv`` lists this run's failures; it is removed when there are none."""
+    path = out / "failed.csv"
+    failed = summary.failed
+    if not failed:
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
+        return
+    by_name = {p.name: p for p in pairs}
+    text = _io.StringIO()
+    writer = csv.writer(text)
+    writer.writerow(["name", "t1", "t2", "reason"])
+    for outcome in failed:
+        pair = by_name[outcome.name]
+        writer.writerow([pair.name, pair.t1, pair.t2, outcome.reason])
+    write_bytes_atomic(path, text.getvalue().encode())
+
+
+# --- progress ----------------------------------------------------------------------------
+
+class ProgressBar:
+    """One bar over the pairs with the time left, on a terminal; one line per pair in a
+    log; nothing with ``quiet``. Failures are always reported, with their reason."""
+
+    def __init__(self, total: int, quiet: bool = False, stream=None, width: int = 30):
+        self.stream = stream or sys.stderr
+        self.live = self.stream.isatty() and not quiet
+        self.quiet = quiet
+        self.total = total
+        self.width = width
+        self.t0 = time.perf_counter()
+        self.failed = 0
+
+    def __call__(self, outcome: Outcome, finished: int, total: int) -> None:
+        self.failed += outcome.status == "failed"
+        elapsed = time.perf_counter() - self.t0
+        left = elapsed / finished * (total - finished)
+        if outcome.status == "failed":
+            self._line(f"pair {outcome.name} failed: {outcome.reason}")
+        elif not self.live and not self.quiet:
+            self._line(f"[{finished}/{total}] {outcome.name}: {outcome.status}"
+                       + (f" in {outcome.seconds:.1f} s" if outcome.status == "done" else "")
+                       + f"; about {_duration(left)} left")
+        if self.live:
+            filled = int(round(self.width * finished / total))
+            bar = "#" * filled + "." * (self.width - filled)
+            failed = f", {self.failed} failed" if self.failed else ""
+            self.stream.write(f"\r[{bar}] {finished}/{total} pairs{failed}, {_duration(elapsed)} elapsed, "
+                              f"about {_duration(left)} left ")
+            if finished == total:
+                self.stream.write("\n")
+            self.stream.flush()
+
+    def _line(self, text: str) -> None:
+        if self.live:
+            self.stream.write("\r\033[K")
+        self.stream.write(f"lfsf batch: {text}\n")
+        self.stream.flush()
+
+
+def _duration(seconds: float) -> str:
+    seconds = int(round(seconds))
+    if seconds < 60:
+        return f"{seconds} s"
+    if seconds < 3600:
+        return f"{seconds // 60} min {seconds % 60:02d} s"
+    return f"{seconds // 3600} h {seconds % 3600 // 60:02d} min"

@@ -1,0 +1,255 @@
+"""Batch runs (lfsf.batch, ``lfsf batch``): sources, a broken pair, re-runs, a killed
+worker, warm starts. The cluster tests run a local Dask cluster of 2 processes on small
+synthetic pairs."""
+
+from __future__ import annotations
+
+import csv
+import os
+import re
+import signal
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lfsf import batch, synth
+from lfsf.cli import main
+from lfsf.io import write_lightfield
+from lfsf.params import Params
+
+needs_dask = pytest.mark.skipif(not batch.have_dask(), reason="Dask distributed is not installed (extra 'batch')")
+
+PARAMS = Params.preset("fast")
+
+
+@pytest.fixture(scope="module")
+def frames(tmp_path_factory):
+    """A folder of 4 frames of the scene 'paper' moving at a constant rate (48×40, 5×5
+    views), and the ground truth of each consecutive pair."""
+    folder = tmp_path_factory.mktemp("frames")
+    lfs, gts = synth.render_sequence("paper", 4, size=(48, 40), grid=5, device="cpu")
+    for k, lf in enumerate(lfs):
+        write_lightfield(lf, folder / f"f{k:03d}.npz")
+    return folder, gts
+
+
+def _manifest(path: Path, rows) -> Path:
+    path.write_text("".join(",".join(str(c) for c in row) + "\n" for row in rows))
+    return path
+
+
+def _mtimes(out: Path, name: str) -> dict[str, int]:
+    return {f: (out / name / f).stat().st_mtime_ns for f in batch.RESULT_FILES}
+
+
+def _leftovers(out: Path) -> list[str]:
+    return sorted(p.name for p in out.iterdir() if ".part" in p.name)
+
+
+# --- sources ----------------------------------------------------------------------------
+
+def test_folder_gives_consecutive_pairs_named_after_their_first_frame(frames):
+    folder, _ = frames
+    pairs = batch.pairs_from_sources([folder])
+    assert [(p.name, p.t1.name, p.t2.name, p.previous) for p in pairs] == [
+        ("f000", "f000.npz", "f001.npz", None),
+        ("f001", "f001.npz", "f002.npz", "f000"),
+        ("f002", "f002.npz", "f003.npz", "f001"),
+    ]
+
+
+def test_manifest_with_and_without_header(tmp_path):
+    a = _manifest(tmp_path / "a.csv", [("t1", "t2", "name"), ("x/one.npz", "x/two.npz", "first"), ("b.npz", "c.npz")])
+    b = _manifest(tmp_path / "b.csv", [("d.npz", "e.npz", "other")])
+    pairs = batch.pairs_from_sources([a, b])
+    assert [(p.name, p.t1, p.t2) for p in pairs] == [
+        ("first", tmp_path / "x/one.npz", tmp_path / "x/two.npz"),  # relative to the manifest
+        ("b", tmp_path / "b.npz", tmp_path / "c.npz"),  # name defaults to t1's stem
+        ("other", tmp_path / "d.npz", tmp_path / "e.npz"),
+    ]
+    assert all(p.previous is None for p in pairs)
+
+
+@pytest.mark.parametrize("rows, message", [
+    ([("only-one-column",)], "is not 't1,t2"),
+    ([("a", "b", "c", "d")], "is not 't1,t2"),
+    ([("t1", "t2")], "names no pairs"),
+    ([("a.npz", "b.npz", "same"), ("c.npz", "d.npz", "same")], "both named 'same'"),
+    ([("a.npz", "b.npz", ".hidden")], "cannot be a folder name"),
+])
+def test_bad_manifest_is_a_clear_error(tmp_path, rows, message):
+    path = _manifest(tmp_path / "m.csv", rows)
+    with pytest.raises(ValueError, match=re.escape(message)):
+        batch.pairs_from_sources([path])
+
+
+def test_missing_source_and_short_folder(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no such manifest or folder"):
+        batch.pairs_from_sources([tmp_path / "nowhere"])
+    (tmp_path / "one").mkdir()
+    (tmp_path / "one" / "f0.npz").write_bytes(b"")
+    with pytest.raises(ValueError, match="at least two light fields"):
+        batch.pairs_from_sources([tmp_path / "one"])
+
+
+# --- in this process ------------------------------------------------------------------------
+
+def test_in_process_run_matches_lfsf_run_and_reports_a_broken_pair(frames, tmp_path, monkeypatch):
+    """Without Dask, one worker runs here: same results as one estimate of the pair, the
+    broken pair in failed.csv, the rest done."""
+    from lfsf.estimate import estimate_scene_flow
+    from lfsf.io import read_lightfield
+
+    monkeypatch.setattr(batch, "have_dask", lambda: False)
+    folder, _ = frames
+    broken = tmp_path / "broken.npz"
+    broken.write_bytes(b"PK\x03\x04 truncated")
+    manifest = _manifest(tmp_path / "m.csv", [(folder / "f000.npz", folder / "f001.npz", "good"),
+                                              (folder / "f001.npz", broken, "bad")])
+    out = tmp_path / "out"
+    summary = batch.run_batch(batch.pairs_from_sources([manifest]), out, PARAMS, workers=1, device="cpu")
+    assert [(o.name, o.status) for o in summary.outcomes] == [("good", "done"), ("bad", "failed")]
+    assert "broken.npz" in summary.outcomes[1].reason
+    with open(out / "failed.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["name"] for r in rows] == ["bad"] and "broken.npz" in rows[0]["reason"]
+    assert not (out / "bad").exists() and _leftovers(out) == []
+    sf = estimate_scene_flow(read_lightfield(folder / "f000.npz"), read_lightfield(folder / "f001.npz"),
+                             PARAMS, device="cpu")
+    with np.load(out / "good" / "sceneflow.npz") as got:
+        for key in ("disp1", "disp2", "u", "v"):
+            np.testing.assert_allclose(got[key], getattr(sf, key), atol=1e-5)
+    with pytest.raises(ValueError, match="need Dask"):
+        batch.run_batch(batch.pairs_from_sources([manifest]), out, PARAMS, workers=2)
+
+
+def test_warm_start_uses_the_previous_pair_and_stays_accurate(frames, tmp_path, monkeypatch):
+    """Warm starts chain the pairs of a sequence; each later pair starts from the
+    prediction of the one before, and its flow is as good as a cold start's."""
+    from lfsf.evaluate import evaluate
+
+    monkeypatch.setattr(batch, "have_dask", lambda: False)
+    folder, gts = frames
+    pairs = batch.pairs_from_sources([folder])
+    errors = {}
+    for warm in (False, True):
+        out = tmp_path / f"warm{warm}"
+        summary = batch.run_batch(pairs, out, PARAMS, device="cpu", warm_start=warm)
+        assert [o.warm for o in summary.outcomes] == [False, warm, warm]
+        errors[warm] = [evaluate(dict(np.load(out / p.name / "sceneflow.npz")), gt, border=4)["flow"]["epe"]
+                        for p, gt in zip(pairs, gts)]
+    assert errors[True][0] == pytest.approx(errors[False][0], abs=1e-6)  # the first pair has no predecessor
+    assert np.mean(errors[True][1:]) <= 1.25 * np.mean(errors[False][1:])
+
+
+# --- a local cluster of 2 processes -------------------------------------------------------------
+
+@needs_dask
+def test_cluster_broken_pair_then_rerun_skips_complete_results(frames, tmp_path):
+    folder, _ = frames
+    pairs = batch.pairs_from_sources([folder])
+    broken = tmp_path / "broken"
+    broken.mkdir()  # a folder with no views in it
+    pairs.append(batch.Pair("broken", folder / "f000.npz", broken))
+    out = tmp_path / "out"
+    seen = []
+    summary = batch.run_batch(pairs, out, PARAMS, workers=2, device="cpu",
+                              progress=lambda o, finished, total: seen.append((finished, total)))
+    assert sorted(seen) == [(k, 4) for k in range(1, 5)]
+    assert {o.name: o.status for o in summary.outcomes} == {"f000": "done", "f001": "done", "f002": "done",
+                                                            "broken": "failed"}
+    assert "broken" in summary.failed[0].reason
+    with open(out / "failed.csv") as f:
+        assert [r["name"] for r in csv.DictReader(f)] == ["broken"]
+    assert all(batch.is_complete(out / p.name) for p in pairs[:3]) and _leftovers(out) == []
+    before = {p.name: _mtimes(out, p.name) for p in pairs[:3]}
+
+    # the re-run: complete results are skipped and not rewritten; the fixed pair runs
+    (out / "f001" / "flow.png").unlink()  # an incomplete result runs again
+    pairs[-1] = batch.Pair("broken", folder / "f000.npz", folder / "f001.npz")
+    summary = batch.run_batch(pairs, out, PARAMS, workers=2, device="cpu")
+    assert {o.name: o.status for o in summary.outcomes} == {"f000": "skipped", "f001": "done", "f002": "skipped",
+                                                            "broken": "done"}
+    for name in ("f000", "f002"):
+        assert _mtimes(out, name) == before[name]
+    assert batch.is_complete(out / "f001") and not (out / "failed.csv").exists()
+
+
+@needs_dask
+def test_cluster_survives_a_worker_killed_mid_task(tmp_path):
+    """SIGKILL the worker process running a pair (found by the pid in its temporary
+    folder's name): Dask retries the task on a new worker and the batch completes, with
+    every result complete and no temporary folder left."""
+    lfs, _ = synth.render_sequence("slanted", 5, size=(96, 72), grid=5, device="cpu")
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k, lf in enumerate(lfs):
+        write_lightfield(lf, folder / f"f{k:03d}.npz")
+    pairs = batch.pairs_from_sources([folder])
+    out = tmp_path / "out"
+    out.mkdir()
+    killed = []
+
+    def killer():
+        deadline = time.monotonic() + 120
+        while not killed and time.monotonic() < deadline:
+            for part in out.glob(".*.part-*"):
+                pid = int(part.name.split(".part-")[1].split("-")[0])
+                if pid != os.getpid():
+                    os.kill(pid, signal.SIGKILL)
+                    killed.append((part.name, pid))
+                    return
+            time.sleep(0.002)
+
+    thread = threading.Thread(target=killer, daemon=True)
+    thread.start()
+    summary = batch.run_batch(pairs, out, PARAMS, workers=2, device="cpu", retries=2)
+    thread.join(5)
+    assert killed, "no task was seen running"
+    assert [o.status for o in summary.outcomes] == ["done"] * 4, summary.describe()
+    assert all(batch.is_complete(out / p.name) for p in pairs)
+    assert _leftovers(out) == []
+    victim = killed[0][0].split(".part-")[0].lstrip(".")
+    with np.load(out / victim / "sceneflow.npz") as data:
+        assert np.isfinite(data["disp1"]).all()
+
+
+# --- the command ------------------------------------------------------------------------------
+
+def test_cli_exit_status_1_when_a_pair_fails_and_2_for_bad_input(frames, tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(batch, "have_dask", lambda: False)
+    folder, _ = frames
+    manifest = _manifest(tmp_path / "m.csv", [("t1", "t2", "name"), (folder / "f000.npz", folder / "f001.npz", "ok"),
+                                              (folder / "f000.npz", tmp_path / "missing.npz", "gone")])
+    out = tmp_path / "out"
+    assert main(["batch", str(manifest), "--out", str(out), "--preset", "fast", "--device", "cpu", "--quiet"]) == 1
+    printed = capsys.readouterr()
+    assert "1 done, 0 skipped (complete), 1 failed" in printed.out
+    assert "pair gone failed" in printed.err and "missing.npz" in printed.err
+    assert batch.is_complete(out / "ok")
+
+    assert main(["batch", str(tmp_path / "nowhere"), "--out", str(out)]) == 2
+    assert "nowhere: no such manifest or folder" in capsys.readouterr().err
+    assert main(["batch", str(manifest), "--out", str(out), "--workers", "2"]) == 2
+    assert "pip install 'lfsf[batch]'" in capsys.readouterr().err
+
+
+@needs_dask
+def test_cli_on_a_running_scheduler(frames, tmp_path, capsys):
+    """--scheduler: the tasks go to a cluster started elsewhere (here a LocalCluster of
+    2 processes standing in for a remote one)."""
+    import logging
+
+    from distributed import LocalCluster
+
+    folder, _ = frames
+    out = tmp_path / "out"
+    with LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None,
+                      silence_logs=logging.ERROR) as cluster:
+        assert main(["batch", str(folder), "--out", str(out), "--scheduler", cluster.scheduler_address,
+                     "--preset", "fast", "--device", "cpu", "--warm-start"]) == 0
+    assert "3 done" in capsys.readouterr().out
+    assert all(batch.is_complete(out / f"f00{k}") for k in range(3))
