@@ -97,7 +97,8 @@ def pairs_from_sources(sources: Sequence[str | os.PathLike]) -> list[Pair]:
     optional; relative paths are relative to the manifest's folder; the name defaults to
     t1's stem). A folder holds one light field per frame (a sub-folder of views or a
     ``.npz``), sorted by name; consecutive frames make the pairs, named after their first
-    frame, each the successor of the one before.
+    frame, each the successor of the one before. Paths come back absolute: on a cluster,
+    every worker must see them under the same names (a shared file system).
 
     Raises
     ------
@@ -110,7 +111,7 @@ def pairs_from_sources(sources: Sequence[str | os.PathLike]) -> list[Pair]:
         raise ValueError("give at least one manifest CSV or folder of frames")
     pairs: list[Pair] = []
     for source in sources:
-        path = Path(source)
+        path = Path(source).absolute()  # workers on other machines see the same names
         if not path.exists():
             raise FileNotFoundError(f"{path}: no such manifest or folder")
         pairs.extend(_folder_pairs(path) if path.is_dir() else _manifest_pairs(path))
@@ -294,7 +295,7 @@ def run_batch(
     -------
     Summary
     """
-    out = Path(out)
+    out = Path(out).absolute()
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     report = progress or (lambda outcome, finished, total: None)

@@ -59,6 +59,17 @@ def cmd_synth(args) -> int:
     synth.get_scene(args.scene)  # unknown scene: clear error before any work
     device = resolve_device(args.device)
     width, height = args.size
+    if args.frames > 2:
+        if args.preview:
+            raise ValueError("--preview is for a pair; a sequence (--frames) writes none")
+        _log(args, f"rendering '{args.scene}' at {width}×{height}, {args.grid}×{args.grid} views, "
+                   f"{args.frames} frames, on {device} …")
+        t0 = time.perf_counter()
+        paths = synth.write_sequence(args.scene, args.out, args.frames, size=(width, height), grid=args.grid,
+                                     supersample=args.supersample, colour=args.colour, device=device)
+        _log(args, f"wrote {len(paths['frames'])} frames to {Path(args.out) / 'frames'} and the ground truth of "
+                   f"each pair to {Path(args.out) / 'gt'} in {time.perf_counter() - t0:.1f} s")
+        return 0
     _log(args, f"rendering '{args.scene}' at {width}×{height}, {args.grid}×{args.grid} views, t1 and t2, on {device} …")
     t0 = time.perf_counter()
     paths = synth.write_scene(args.scene, args.out, size=(width, height), grid=args.grid,
@@ -184,6 +195,53 @@ def cmd_demo(args) -> int:
     return 0
 
 
+# --- batch ---------------------------------------------------------------------------------
+
+def cmd_batch(args) -> int:
+    from lfsf import batch
+    from lfsf.device import resolve_device
+
+    params = _params(args)
+    if args.device and not args.scheduler:
+        resolve_device(args.device)  # a device this machine lacks: one clear error before any work
+    pairs = batch.pairs_from_sources(args.sources)
+    if (args.workers > 1 or args.scheduler) and not batch.have_dask():
+        raise ValueError(f"--workers {args.workers}{' and --scheduler' if args.scheduler else ''} need Dask, "
+                         f"which is not installed: {batch.INSTALL_HINT}; or run with --workers 1")
+    where = (f"the Dask scheduler at {args.scheduler}" if args.scheduler
+             else f"a local Dask cluster of {args.workers} process{'es' if args.workers > 1 else ''}"
+             if batch.have_dask() else "this process (Dask is not installed)")
+    _log(args, f"lfsf batch: {len(pairs)} pairs to {args.out}, preset '{args.preset}', on {where}"
+               + (", each pair of a sequence starting from the one before" if args.warm_start else ""))
+    bar = batch.ProgressBar(len(pairs), quiet=args.quiet)
+    summary = batch.run_batch(pairs, args.out, params, workers=args.workers, scheduler=args.scheduler,
+                              device=args.device, warm_start=args.warm_start, progress=bar)
+    print(f"lfsf batch: {summary.describe()}")
+    if summary.failed:
+        print(f"lfsf batch: the failed pairs and why are in {Path(args.out) / 'failed.csv'}")
+        return 1
+    return 0
+
+
+# --- decode --------------------------------------------------------------------------------
+
+def cmd_decode(args) -> int:
+    from lfsf.decode import decode_files
+    from lfsf.device import resolve_device
+
+    device = resolve_device(args.device)
+    t0 = time.perf_counter()
+    lf, report = decode_files(args.raw, args.white, args.out, views=args.views, bayer=args.bayer,
+                              flip=args.flip, device=device)
+    lattice = lf.meta["lattice"]
+    _log(args, f"{lattice.describe()}")
+    rows, cols = lf.grid
+    _log(args, f"decoded {rows}×{cols} views of {lf.width}×{lf.height} pixels"
+               f"{' (RGB)' if lf.is_colour else ''} in {time.perf_counter() - t0:.1f} s on {device}; "
+               f"wrote {args.out} (HCI layout), {args.out / 'views.npz'} and {args.out / 'decode.json'}")
+    return 0
+
+
 # --- bench ---------------------------------------------------------------------------------
 
 def cmd_bench(args) -> int:
@@ -238,6 +296,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--supersample", type=_positive, default=2, metavar="K",
                    help="K×K rays per pixel (default 2)")
     p.add_argument("--colour", action="store_true", help="RGB views (default grey)")
+    p.add_argument("--frames", type=_positive, default=2, metavar="K",
+                   help="K > 2: a sequence moving at a constant rate, DIR/frames/f000.npz … and the ground truth "
+                        "of each pair DIR/gt/f000.npz … (default 2: DIR/lf1.npz, DIR/lf2.npz, DIR/gt.npz)")
     p.add_argument("--preview", action="store_true", help="also write DIR/preview.png of the ground truth")
     p.add_argument("--device", help="cpu or cuda:N (default: $LFSF_DEVICE, else cuda:0 if present, else cpu)")
     p.add_argument("--quiet", action="store_true", help="no progress messages")
@@ -262,6 +323,23 @@ def build_parser() -> argparse.ArgumentParser:
     _estimator_options(p)
     p.set_defaults(func=cmd_run)
 
+    p = sub.add_parser("decode", help="decode a raw lenslet image into sub-aperture views",
+                       description="Calibrate the micro-lens lattice from WHITE alone, devignette and demosaic RAW, "
+                                   "and resample it into N×N views: DIR in the HCI layout, DIR/views.npz and "
+                                   "DIR/decode.json (the lattice). RAW and WHITE: 16-bit PNG/TIFF, Lytro "
+                                   ".lfr/.lfp/.raw, or any raw format rawpy reads.")
+    p.add_argument("raw", type=Path, help="raw lenslet image")
+    p.add_argument("--white", type=Path, required=True, help="white image of the same camera")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--views", type=_positive, metavar="N",
+                   help="N×N views spanning one lens pitch (default: the largest odd N not above the pitch)")
+    p.add_argument("--bayer", type=str.upper, choices=("RGGB", "BGGR", "GRBG", "GBRG"),
+                   help="Bayer pattern of a colour sensor (default: from the file's metadata; none: grey)")
+    p.add_argument("--flip", action="store_true", help="negate the angular axes (optics that invert micro-images)")
+    p.add_argument("--device", help="cpu or cuda:N (default: $LFSF_DEVICE, else cuda:0 if present, else cpu)")
+    p.add_argument("--quiet", action="store_true", help="no progress messages")
+    p.set_defaults(func=cmd_decode)
+
     p = sub.add_parser("demo", help="render a built-in scene, estimate it, print its errors",
                        description="Render a synthetic scene with exact ground truth, estimate its scene flow, "
                                    "print the error table and write an overview picture.")
@@ -272,6 +350,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=Path("lfsf-demo"), help="output folder (default ./lfsf-demo)")
     _estimator_options(p)
     p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("batch", help="estimate many pairs, on a local or remote Dask cluster",
+                       description="Estimate every pair of manifests (CSV lines t1,t2[,name]) and folders of frames "
+                                   "(consecutive pairs); each pair's results go to DIR/NAME/ as for 'lfsf run'. "
+                                   "Complete results are skipped; failed pairs are listed in DIR/failed.csv and the "
+                                   "exit status is then 1.")
+    p.add_argument("sources", nargs="+", type=Path, metavar="SOURCE", help="a manifest CSV or a folder of frames")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--workers", type=_positive, default=1, metavar="N",
+                   help="processes of the local Dask cluster (default 1; without Dask, 1 runs in this process)")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler, e.g. tcp://host:8786")
+    p.add_argument("--warm-start", action="store_true",
+                   help="start each pair of a sequence from the previous pair's result (pairs run in order)")
+    _estimator_options(p)
+    p.set_defaults(func=cmd_batch)
 
     p = sub.add_parser("bench", help="benchmarks: kernels, the whole pipeline, or the peers",
                        description="Time repeated runs after a warm-up and print median and spread; --json writes "
