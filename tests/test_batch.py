@@ -296,3 +296,29 @@ def test_cli_on_a_running_scheduler(frames, tmp_path, capsys):
                      "--preset", "fast", "--device", "cpu", "--warm-start"]) == 0
     assert "3 done" in capsys.readouterr().out
     assert all(batch.is_complete(out / f"f00{k}") for k in range(3))
+
+
+def test_progress_bar_on_a_terminal_and_in_a_log():
+    """A terminal gets one bar redrawn in place with the time left; a log one line per
+    pair; failures always come with their reason; quiet silences all but failures."""
+    import io
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    outcomes = [batch.Outcome("a", "done", 2.0), batch.Outcome("b", "failed", 0.1, "b.npz: not a light field"),
+                batch.Outcome("c", "skipped")]
+    streams = {"terminal": Terminal(), "log": io.StringIO(), "quiet": io.StringIO()}
+    for name, stream in streams.items():
+        bar = batch.ProgressBar(3, quiet=name == "quiet", stream=stream)
+        for k, outcome in enumerate(outcomes, 1):
+            bar(outcome, k, 3)
+    terminal = streams["terminal"].getvalue()
+    assert terminal.count("\r[") == 3 and "3/3 pairs, 1 failed" in terminal and "left" in terminal
+    assert "[" + "#" * 30 + "]" in terminal and terminal.endswith("\n")
+    log = streams["log"].getvalue().splitlines()
+    assert log[0].startswith("lfsf batch: [1/3] a: done in 2.0 s; about ")
+    assert log[1] == "lfsf batch: pair b failed: b.npz: not a light field"
+    assert log[2].startswith("lfsf batch: [3/3] c: skipped")
+    assert streams["quiet"].getvalue() == "lfsf batch: pair b failed: b.npz: not a light field\n"

@@ -430,3 +430,18 @@ def test_lytro_metadata_gives_pattern_and_levels(tmp_path):
     (tmp_path / "white.txt").write_text(json.dumps({"mosaic": {"tile": "r,gr:gb,b", "upperLeftPixel": "b"}}))
     image = D.read_raw(path)
     assert image.data.shape == (3280, 3280) and image.bayer == "BGGR"
+
+
+def test_16_bit_tiff_decodes_like_the_png(lenslet_files, tmp_path):
+    """A 16-bit TIFF raw reads to the same values as the PNG and decodes the same."""
+    import imageio.v3 as iio
+    from lfsf.io import read_image
+
+    tif = tmp_path / "raw.tif"
+    iio.imwrite(tif, read_image(lenslet_files / "raw.png"))
+    png_raw, tif_raw = D.read_raw(lenslet_files / "raw.png"), D.read_raw(tif)
+    np.testing.assert_array_equal(tif_raw.data, png_raw.data)
+    white = D.read_raw(lenslet_files / "white.png")
+    a = decode(png_raw, white, views=7, bayer="RGGB", device="cpu")
+    b = decode(tif_raw, white, views=7, bayer="RGGB", device="cpu")
+    np.testing.assert_array_equal(a.views, b.views)
