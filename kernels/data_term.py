@@ -8,8 +8,12 @@ W1 = L(p − δ̂1 φ, φ, t1), W2 = L(p + û − δ̂2 φ, φ, t2) and J2 = L(p
     ρ3 ≈ A7 + A1 Δδ1 − A3 Δδ2 − A5 Δu − A6 Δv     (flow, weight λ3)
 
 with Δx = x − x̂. The unknowns are packed per pixel as vec4 (δ1, δ2, u, v). Each sample's
-coefficients are stored as ``vec12`` = (A1 … A9, w1, w2, w3), where w_k is the row's
-weight λ_k (divided by the sample count) or 0 where a warped position leaves the image.
+coefficients are stored as ``vec12`` = (A1 … A9, σ̃1, σ̃2, σ̃3), pixel-major (``coef[i, j,
+s]``: what one pixel's iteration reads is contiguous). The row weight w_k is λ_k (divided
+by the sample count) or 0 where the row is left out (a warped position leaves the image,
+an occlusion); σ̃_k = w_k² / (w_k Σ|row k| + ε) is the dual step of the scaled dual
+q̃_k = w_k q_k ∈ [−w_k, w_k], so the iterations divide nothing and a left-out row has
+σ̃_k = 0 and q̃_k = 0.
 """
 
 import warp as wp
@@ -74,12 +78,14 @@ def data_coefficients(
     x_hat: wp.array2d(dtype=wp.vec4),
     occlusion_ratio: float,
     hidden2: wp.array2d(dtype=float),
+    eps: float,
     # outputs
     coef: wp.array3d(dtype=vec12),
     data_colsum: wp.array2d(dtype=wp.vec4),
 ):
-    """Coefficients A1…A9 of every sample at the linearisation point x̂, and the column
-    sums Σ|K| of the data rows for each unknown (the data part of the preconditioner τ).
+    """Coefficients A1…A9 and dual steps σ̃1…σ̃3 of every sample at the linearisation
+    point x̂ (``coef[i, j, s]``), and the column sums Σ|K| of the data rows for each
+    unknown (the data part of the preconditioner τ).
 
     ``samples1[s]``, ``samples2[s]``: (texture part of) the sub-aperture image at φ_s at
     t1 and t2; sample 0 must be the centre view (φ = 0). ``weights[s]`` = (λ1, λ2, λ3)
@@ -162,10 +168,10 @@ def data_coefficients(
         c[6] = a7
         c[7] = a8
         c[8] = a9
-        c[9] = wt1
-        c[10] = wt2
-        c[11] = wt3
-        coef[s, i, j] = c
+        c[9] = wt1 * wt1 / (wt1 * wp.abs(a1) + eps)
+        c[10] = wt2 * wt2 / (wt2 * (wp.abs(a3) + wp.abs(a8) + wp.abs(a9)) + eps)
+        c[11] = wt3 * wt3 / (wt3 * (wp.abs(a1) + wp.abs(a3) + wp.abs(a5) + wp.abs(a6)) + eps)
+        coef[i, j, s] = c
         colsum += wp.vec4(
             (wt1 + wt3) * wp.abs(a1),
             (wt2 + wt3) * wp.abs(a3),
@@ -175,53 +181,56 @@ def data_coefficients(
     data_colsum[i, j] = colsum
 
 
+@wp.func
+def row_weight(sigma: float, weight: float):
+    """w_k of a row from its σ̃_k: the sample's λ_k where the row is in, else 0."""
+    if sigma > 0.0:
+        return weight
+    return 0.0
+
+
 @wp.kernel
 def dual_data_step(
     row0: int,
     coef: wp.array3d(dtype=vec12),
+    weights: wp.array(dtype=wp.vec3),
     x_bar: wp.array2d(dtype=wp.vec4),
     x_hat: wp.array2d(dtype=wp.vec4),
-    eps: float,
     # outputs
     q: wp.array3d(dtype=wp.vec3),
     data_grad: wp.array2d(dtype=wp.vec4),
 ):
     """Dual ascent on the data rows, fused with the primal gradient Kᵀq of the data term.
 
-    q_k ← clip(q_k + σ_k w_k ρ_k(x̄), −1, 1) with the diagonal preconditioner
-    σ_k = 1 / (w_k Σ|row k| + ε); then ``data_grad`` = Σ_s Kᵀ q for (δ1, δ2, u, v).
+    With the scaled duals q̃_k = w_k q_k (``q[i, j, s]``):
+    q̃_k ← clip(q̃_k + σ̃_k ρ_k(x̄), −w_k, w_k), σ̃_k = w_k σ_k and σ_k = 1 / (w_k Σ|row k| + ε)
+    the diagonal preconditioner; then ``data_grad`` = Σ_s Kᵀ q for (δ1, δ2, u, v). This
+    is q_k ← clip(q_k + σ_k w_k ρ_k, −1, 1) of the unscaled duals, without a division.
     Launch over (rows, columns).
     """
     i, j = wp.tid()
     i = i + row0
     d = x_bar[i, j] - x_hat[i, j]
     g = wp.vec4(0.0)
-    for s in range(coef.shape[0]):
-        c = coef[s, i, j]
+    for s in range(coef.shape[2]):
+        c = coef[i, j, s]
+        lam = weights[s]
         a1 = c[0]
         a3 = c[2]
         a5 = c[4]
         a6 = c[5]
         a8 = c[7]
         a9 = c[8]
-        wt1 = c[9]
-        wt2 = c[10]
-        wt3 = c[11]
+        wt1 = row_weight(c[9], lam[0])
+        wt2 = row_weight(c[10], lam[1])
+        wt3 = row_weight(c[11], lam[2])
         rho1 = c[1] - a1 * d[0]
         rho2 = c[3] - a3 * d[1] + a8 * d[2] + a9 * d[3]
         rho3 = c[6] + a1 * d[0] - a3 * d[1] - a5 * d[2] - a6 * d[3]
-        qs = q[s, i, j]
-        s1 = wt1 / (wt1 * wp.abs(a1) + eps)
-        s2 = wt2 / (wt2 * (wp.abs(a3) + wp.abs(a8) + wp.abs(a9)) + eps)
-        s3 = wt3 / (wt3 * (wp.abs(a1) + wp.abs(a3) + wp.abs(a5) + wp.abs(a6)) + eps)
-        q1 = wp.clamp(qs[0] + s1 * rho1, -1.0, 1.0)
-        q2 = wp.clamp(qs[1] + s2 * rho2, -1.0, 1.0)
-        q3 = wp.clamp(qs[2] + s3 * rho3, -1.0, 1.0)
-        q[s, i, j] = wp.vec3(q1, q2, q3)
-        g += wp.vec4(
-            (wt3 * q3 - wt1 * q1) * a1,
-            -(wt2 * q2 + wt3 * q3) * a3,
-            wt2 * q2 * a8 - wt3 * q3 * a5,
-            wt2 * q2 * a9 - wt3 * q3 * a6,
-        )
+        qs = q[i, j, s]
+        q1 = wp.clamp(qs[0] + c[9] * rho1, -wt1, wt1)
+        q2 = wp.clamp(qs[1] + c[10] * rho2, -wt2, wt2)
+        q3 = wp.clamp(qs[2] + c[11] * rho3, -wt3, wt3)
+        q[i, j, s] = wp.vec3(q1, q2, q3)
+        g += wp.vec4((q3 - q1) * a1, -(q2 + q3) * a3, q2 * a8 - q3 * a5, q2 * a9 - q3 * a6)
     data_grad[i, j] = g

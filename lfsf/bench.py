@@ -157,7 +157,7 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
     x_hat[..., 2:] = rng.uniform(-2, 2, (h, w, 2))
     x_hat = arr(x_hat, wp.vec4)
     zeros = arr(np.zeros((h, w)), float)
-    coef = wp.empty((s, h, w), dtype=data_term.vec12, device=dev)
+    coef = wp.empty((h, w, s), dtype=data_term.vec12, device=dev)
     colsum = wp.empty((h, w), dtype=wp.vec4, device=dev)
     sampled = wp.empty((s, h, w), dtype=float, device=dev)
 
@@ -170,7 +170,7 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
         return arr(t, wp.vec3)
 
     t1, t2, t3 = tensor(), tensor(), tensor()
-    q = wp.zeros((s, h, w), dtype=wp.vec3, device=dev)
+    q = wp.zeros((h, w, s), dtype=wp.vec3, device=dev)
     data_grad = v4()
     x_bar, w0_bar, w1_bar = v4(), v4(), v4()
     y0, y1, z00, z01, z10, z11 = (v4(0.1) for _ in range(6))
@@ -183,10 +183,10 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
          f * h * w * s * 5),
         # reads both sample stacks, x̂ and the hidden mask; writes 12 coefficients per sample and the column sums
         ("data_coefficients", launch(data_term.data_coefficients,
-                                     [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros], [coef, colsum]),
+                                     [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros, 1e-6], [coef, colsum]),
          f * h * w * (2 * s + 4 + 1 + 12 * s + 4)),
-        # reads the coefficients, x̄, x̂ and q; writes q and Kᵀq
-        ("dual_data_step", launch(data_term.dual_data_step, [coef, x_bar, x_hat, 1e-6], [q, data_grad]),
+        # reads the coefficients, x̄, x̂ and q; writes q and Kᵀq (the S weights stay in cache)
+        ("dual_data_step", launch(data_term.dual_data_step, [coef, weights, x_bar, x_hat], [q, data_grad]),
          f * h * w * (12 * s + 4 + 4 + 3 * s + 3 * s + 4)),
         # reads x̄, w̄ (8), three tensors (9), σ_y (8) and the six duals (24); writes the duals (24)
         ("tgv_dual_step", launch(tgv.tgv_dual_step, [x_bar, w0_bar, w1_bar, t1, t2, t3, sig[0], sig[1], 0.25, 2.0, 0.5],

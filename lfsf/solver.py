@@ -56,9 +56,9 @@ class LevelSolver:
         self.warped2 = wp.empty((h, w), dtype=float, device=device)
         self._launch(tgv.diffusion_tensor, inputs=[centre1, params.gamma, params.beta], outputs=[self.tensor1])
 
-        # data term: coefficients per sample, its duals q, and Kᵀq
-        self.coef = wp.zeros((n, h, w), dtype=data_term.vec12, device=device)
-        self.q = wp.zeros((n, h, w), dtype=wp.vec3, device=device)
+        # data term: coefficients per pixel and sample, the scaled duals q̃, and Kᵀq
+        self.coef = wp.zeros((h, w, n), dtype=data_term.vec12, device=device)
+        self.q = wp.zeros((h, w, n), dtype=wp.vec3, device=device)
         self.data_colsum = zeros4()
         self.data_grad = zeros4()
         # primal: x = (δ1, δ2, u, v), w = (w0, w1), their over-relaxed copies, x̂
@@ -120,7 +120,7 @@ class LevelSolver:
         self._flow_tensor()
         self._launch(data_term.data_coefficients,
                      inputs=[self.samples1, self.samples2, self.phis, self.weights, self.x_hat, p.occlusion_ratio,
-                             self.hidden2],
+                             self.hidden2, p.eps],
                      outputs=[self.coef, self.data_colsum])
         self._launch(tgv.tgv_preconditioner,
                      inputs=[self.data_colsum, self.tensor1, self.tensor2, self.tensor3, p.alpha0, p.alpha1, p.eps],
@@ -176,7 +176,7 @@ class LevelSolver:
         sigma_z = 1.0 / (2.0 * p.alpha0)
         for _ in range(n):
             self._launch(data_term.dual_data_step,
-                         inputs=[self.coef, self.x_bar, self.x_hat, p.eps],
+                         inputs=[self.coef, self.weights, self.x_bar, self.x_hat],
                          outputs=[self.q, self.data_grad])
             self._launch(tgv.tgv_dual_step,
                          inputs=[self.x_bar, self.w0_bar, self.w1_bar, self.tensor1, self.tensor2, self.tensor3,
@@ -201,15 +201,23 @@ class LevelSolver:
 
     # --- diagnostics ---------------------------------------------------------------------
 
+    def data_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """The linearised data rows as NumPy arrays, sample-major: A1…A9 as (9, S, h, w)
+        and the row weights w1…w3 as (3, S, h, w) (λ_k of the sample where the row is in,
+        else 0). For tests and diagnostics, not the hot path."""
+        c = self.coef.numpy().astype(np.float64)  # (h, w, S, 12), pixel-major
+        a = np.moveaxis(c[..., :9], (3, 2), (0, 1))
+        lam = self.weights.numpy().astype(np.float64)  # (S, 3)
+        on = np.moveaxis(c[..., 9:] > 0, (3, 2), (0, 1))
+        return a, np.where(on, lam.T[:, :, None, None], 0.0)
+
     def energy(self) -> float:
         """Energy of the linearised model at the current (x, w): Σ_s Σ_k w_k|ρ_k| +
         α1 Σ|Γ(∇x − w)| + α0 Σ|∇w| (NumPy; for tests and diagnostics, not the hot path)."""
         p = self.params
         x, w0, w1 = self.state()
         d = x - self.x_hat.numpy()
-        c = self.coef.numpy()  # (S, h, w, 12)
-        a = [c[..., k] for k in range(9)]
-        wt1, wt2, wt3 = c[..., 9], c[..., 10], c[..., 11]
+        a, (wt1, wt2, wt3) = self.data_rows()
         rho1 = a[1] - a[0] * d[..., 0]
         rho2 = a[3] - a[2] * d[..., 1] + a[7] * d[..., 2] + a[8] * d[..., 3]
         rho3 = a[6] + a[0] * d[..., 0] - a[2] * d[..., 1] - a[4] * d[..., 2] - a[5] * d[..., 3]

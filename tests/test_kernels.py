@@ -252,31 +252,57 @@ def _data_inputs(seed, h=7, w=9):
 
 
 def _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device, occlusion_ratio=0.0, hidden2=None):
+    """The kernel's coefficients as (S, h, w, 12) with the row weights w_k in [9:12] (w_k
+    is λ_k where the kernel's σ̃_k > 0, else 0), and the column sums."""
+    coef, colsum = _run_data_coefficients_raw(samples1, samples2, phis, weights, x_hat, device, occlusion_ratio,
+                                              hidden2)
+    coef[..., 9:] = np.where(coef[..., 9:] > 0, np.asarray(weights, np.float32)[:, None, None, :], 0.0)
+    return coef, colsum
+
+
+def _run_data_coefficients_raw(samples1, samples2, phis, weights, x_hat, device, occlusion_ratio=0.0,
+                               hidden2=None):
+    """The kernel's output as it is: (A1…A9, σ̃1…σ̃3) per sample, as (S, h, w, 12)."""
     from lfsf.kernels import data_term
 
     s, h, w = samples1.shape
     hidden2 = np.zeros((h, w), np.float32) if hidden2 is None else hidden2
-    coef = wp.zeros((s, h, w), dtype=data_term.vec12, device=device)
+    coef = wp.zeros((h, w, s), dtype=data_term.vec12, device=device)
     colsum = wp.zeros((h, w), dtype=wp.vec4, device=device)
     launch(data_term.data_coefficients, (h, w),
            [arr(samples1, float, device), arr(samples2, float, device), arr(phis, wp.vec2, device),
             arr(weights, wp.vec3, device), arr(x_hat, wp.vec4, device), float(occlusion_ratio),
-            arr(hidden2, float, device)],
+            arr(hidden2, float, device), DATA_EPS],
            [coef, colsum], device)
-    return coef.numpy().astype(np.float64), colsum.numpy().astype(np.float64)
+    # pixel-major in the solver; sample-major (S, h, w, 12) here, as the reference
+    return coef.numpy().transpose(2, 0, 1, 3).astype(np.float64), colsum.numpy().astype(np.float64)
+
+
+DATA_EPS = 1e-6
+
+
+def _dual_steps(A, W, eps=DATA_EPS):
+    """σ̃_k = w_k² / (w_k Σ|row k| + ε) of each row (MODEL.md §5, scaled duals)."""
+    a = np.abs(A)
+    sums = (a[0], a[2] + a[7] + a[8], a[0] + a[2] + a[4] + a[5])
+    return [W[k] * W[k] / (W[k] * sums[k] + eps) for k in range(3)]
 
 
 def _check_data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio, device, hidden2=None):
-    """Kernel vs reference: A1…A9, the row weights (exactly) and the column sums. Returns
-    (kernel coef, reference W, reference occlusion details)."""
-    coef, colsum = _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device, occlusion_ratio, hidden2)
+    """Kernel vs reference: A1…A9, the rows left out (exactly), the dual steps σ̃ and the
+    column sums. Returns (kernel coef with the row weights in [9:12], reference W,
+    reference occlusion details)."""
+    coef, colsum = _run_data_coefficients_raw(samples1, samples2, phis, weights, x_hat, device, occlusion_ratio,
+                                              hidden2)
     details = {}
     A, W, want_colsum = ref.data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio, details,
                                               hidden2)
     for k in range(9):
         close(coef[..., k], A[k], atol=2e-5)
-    for k in range(3):
-        np.testing.assert_array_equal(coef[..., 9 + k], W[k].astype(np.float32), err_msg=f"w{k + 1}")
+    for k, sigma in enumerate(_dual_steps(A, W)):
+        np.testing.assert_array_equal(coef[..., 9 + k] > 0, W[k] > 0, err_msg=f"rows of w{k + 1} left out")
+        np.testing.assert_allclose(coef[..., 9 + k], sigma, rtol=1e-4, atol=1e-6, err_msg=f"σ̃{k + 1}")
+        coef[..., 9 + k] = np.where(coef[..., 9 + k] > 0, np.asarray(weights, np.float32)[:, None, None, k], 0.0)
     close(colsum, want_colsum, atol=5e-5)
     if occlusion_ratio > 0:  # the input decides the occlusion tests with a margin
         for name in ("t1", "t2"):
@@ -630,32 +656,36 @@ def test_data_linearisation_is_first_order_accurate(device):
 
 
 def test_dual_data_step_matches_reference(device):
+    """The kernel's scaled duals q̃ = w q against the reference's q, and Kᵀq."""
     from lfsf.kernels import data_term
 
     r = rng(11)
     s, h, w = 3, 7, 9
     A = r.standard_normal((9, s, h, w))
-    W = r.uniform(0.2, 1.5, (3, s, h, w)) * (r.random((3, s, h, w)) > 0.2)
-    coef = np.concatenate([A, W]).transpose(1, 2, 3, 0).astype(np.float32)
-    A = np.moveaxis(coef[..., :9], -1, 0).astype(np.float64)  # the float32 values the kernel sees
-    W = np.moveaxis(coef[..., 9:], -1, 0).astype(np.float64)
+    lam = r.uniform(0.2, 1.5, (s, 3)).astype(np.float32)  # λ_k of each sample
+    W = lam.T[:, :, None, None] * (r.random((3, s, h, w)) > 0.2)
+    A = A.astype(np.float32).astype(np.float64)  # the float32 values the kernel sees
+    W = W.astype(np.float32).astype(np.float64)
+    sigma = _dual_steps(A, W)
+    coef = np.concatenate([A, sigma]).transpose(2, 3, 1, 0).astype(np.float32)  # (h, w, S, 12)
     x_bar = r.standard_normal((h, w, 4)).astype(np.float32)
     x_hat = r.standard_normal((h, w, 4)).astype(np.float32)
-    q = r.uniform(-1, 1, (s, h, w, 3)).astype(np.float32)
-    eps = 1e-6
-    q_wp = arr(q, wp.vec3, device)
+    q = r.uniform(-1, 1, (3, s, h, w))
+    q_wp = arr((W * q).transpose(2, 3, 1, 0), wp.vec3, device)
     grad_wp = wp.zeros((h, w), dtype=wp.vec4, device=device)
     launch(data_term.dual_data_step, (h, w),
-           [arr(coef, data_term.vec12, device), arr(x_bar, wp.vec4, device), arr(x_hat, wp.vec4, device), eps],
+           [arr(coef, data_term.vec12, device), arr(lam, wp.vec3, device), arr(x_bar, wp.vec4, device),
+            arr(x_hat, wp.vec4, device)],
            [q_wp, grad_wp], device)
-    want_q, want_grad = ref.dual_data_step(A, W, np.moveaxis(q.astype(np.float64), -1, 0), x_bar, x_hat, eps)
-    got_q = np.moveaxis(q_wp.numpy().astype(np.float64), -1, 0)
-    close(got_q, want_q, atol=1e-4)
+    want_q, want_grad = ref.dual_data_step(A, W, q, x_bar, x_hat, DATA_EPS)
+    got_q = q_wp.numpy().astype(np.float64).transpose(3, 2, 0, 1)  # q̃, (3, S, h, w)
+    close(got_q, W * want_q, atol=1e-4)
     close(grad_wp.numpy(), want_grad, atol=1e-4)
     assert np.any(np.abs(want_q) == 1.0) and np.any(np.abs(want_q) < 1.0)  # clipping exercised
-    # rows with w_k = 0 keep their dual
+    # rows left out (w_k = 0) have q̃ = 0
     off = W == 0
-    np.testing.assert_array_equal(got_q[off], np.moveaxis(q, -1, 0)[off])
+    assert off.any() and np.all(got_q[off] == 0)
+    got_q = np.where(off, 0.0, got_q / np.where(off, 1.0, W))  # back to q for the identity below
 
     # Kᵀ by the adjoint identity ⟨K Δ, q⟩ = ⟨Δ, Kᵀ q⟩, K Δ from the linear parts of w_k ρ_k
     delta = r.standard_normal((h, w, 4))
@@ -947,8 +977,8 @@ def _level_solver(size, grid, params, device):
 
 
 def _linearised_problem(solver):
-    c = solver.coef.numpy().astype(np.float64)
-    return ref.LinearisedProblem(np.moveaxis(c[..., :9], -1, 0), np.moveaxis(c[..., 9:], -1, 0),
+    a, weights = solver.data_rows()
+    return ref.LinearisedProblem(a, weights,
                                  solver.x_hat.numpy(), solver.tensor1.numpy(), solver.tensor2.numpy(),
                                  solver.params.alpha0, solver.params.alpha1, solver.tensor3.numpy())
 
