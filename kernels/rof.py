@@ -2,7 +2,9 @@
 decomposition of Wedel et al. (2009): the texture part of an image f is
 ``f − θ·u`` with u = argmin_u Σ|∇u| + 1/(2·μ) Σ (u − f)² (MODEL.md §3).
 
-Images are stacks [n, y, x]; launches run over (n × rows, columns)."""
+Images are stacks [n, y, x]. The steps run over (n × rows, ⌈columns / span⌉): each thread
+walks ``span`` consecutive pixels of a row (:func:`lfsf.device.row_span`: the whole row
+on the CPU, where a thread per pixel costs more than the stencil; one pixel on CUDA)."""
 
 import warp as wp
 
@@ -14,24 +16,31 @@ def rof_dual_step(
     row0: int,
     u_bar: wp.array3d(dtype=float),
     sigma: float,
+    span: int,
     # outputs
     p: wp.array3d(dtype=wp.vec2),
 ):
     """p ← proj_{|p|≤1}(p + σ ∇ū), forward differences with Neumann boundary."""
-    r, j = wp.tid()
+    r, c = wp.tid()
     r = r + row0
     h = u_bar.shape[1]
     w = u_bar.shape[2]
     n = r // h
     i = r - n * h
-    v = u_bar[n, i, j]
-    g = wp.vec2(0.0)
-    if j < w - 1:
-        g[0] = u_bar[n, i, j + 1] - v
-    if i < h - 1:
-        g[1] = u_bar[n, i + 1, j] - v
-    q = p[n, i, j] + sigma * g
-    p[n, i, j] = q / wp.max(1.0, wp.length(q))
+    j0 = c * span
+    down = i < h - 1
+    v = u_bar[n, i, j0]
+    for j in range(j0, wp.min(w, j0 + span)):
+        g = wp.vec2(0.0)
+        right = v
+        if j < w - 1:
+            right = u_bar[n, i, j + 1]
+            g[0] = right - v
+        if down:
+            g[1] = u_bar[n, i + 1, j] - v
+        q = p[n, i, j] + sigma * g
+        p[n, i, j] = q / wp.max(1.0, wp.length(q))
+        v = right
 
 
 @wp.kernel
@@ -41,30 +50,37 @@ def rof_primal_step(
     p: wp.array3d(dtype=wp.vec2),
     tau: float,
     mu: float,
+    span: int,
     # outputs
     u: wp.array3d(dtype=float),
     u_bar: wp.array3d(dtype=float),
 ):
     """u ← (u + τ div p + (τ/μ) f) / (1 + τ/μ);  ū ← 2u_new − u_old."""
-    r, j = wp.tid()
+    r, c = wp.tid()
     r = r + row0
     h = f.shape[1]
     w = f.shape[2]
     n = r // h
     i = r - n * h
-    div = float(0.0)
-    if j < w - 1:
-        div += p[n, i, j][0]
-    if j > 0:
-        div -= p[n, i, j - 1][0]
-    if i < h - 1:
-        div += p[n, i, j][1]
-    if i > 0:
-        div -= p[n, i - 1, j][1]
-    old = u[n, i, j]
-    new = (old + tau * div + (tau / mu) * f[n, i, j]) / (1.0 + tau / mu)
-    u[n, i, j] = new
-    u_bar[n, i, j] = 2.0 * new - old
+    j0 = c * span
+    k = tau / mu
+    left = float(0.0)  # p_x of the pixel to the left (0 at the border)
+    if j0 > 0:
+        left = p[n, i, j0 - 1][0]
+    for j in range(j0, wp.min(w, j0 + span)):
+        pc = p[n, i, j]
+        div = -left
+        if j < w - 1:
+            div += pc[0]
+        if i < h - 1:
+            div += pc[1]
+        if i > 0:
+            div -= p[n, i - 1, j][1]
+        old = u[n, i, j]
+        new = (old + tau * div + k * f[n, i, j]) / (1.0 + k)
+        u[n, i, j] = new
+        u_bar[n, i, j] = 2.0 * new - old
+        left = pc[0]
 
 
 @wp.kernel

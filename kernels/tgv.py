@@ -181,6 +181,7 @@ def tgv_dual_step(
     sigma_z: float,
     alpha0: float,
     alpha1: float,
+    span: int,
     # outputs
     y0: wp.array2d(dtype=wp.vec4),
     y1: wp.array2d(dtype=wp.vec4),
@@ -190,47 +191,49 @@ def tgv_dual_step(
     z11: wp.array2d(dtype=wp.vec4),
 ):
     """y ← proj(y + σ_y α1 Γ(∇x̄ − w̄)),  z ← proj(z + σ_z α0 ∇w̄). Launch over (rows, columns)."""
-    i, j = wp.tid()
+    i, c = wp.tid()
     i = i + row0
     h = x_bar.shape[0]
     w = x_bar.shape[1]
-    xb = x_bar[i, j]
-    wb0 = w0_bar[i, j]
-    wb1 = w1_bar[i, j]
-    gx = wp.vec4(0.0)
-    gy = wp.vec4(0.0)
-    dx0 = wp.vec4(0.0)
-    dy0 = wp.vec4(0.0)
-    dx1 = wp.vec4(0.0)
-    dy1 = wp.vec4(0.0)
-    if j < w - 1:
-        gx = x_bar[i, j + 1] - xb
-        dx0 = w0_bar[i, j + 1] - wb0
-        dx1 = w1_bar[i, j + 1] - wb1
-    if i < h - 1:
-        gy = x_bar[i + 1, j] - xb
-        dy0 = w0_bar[i + 1, j] - wb0
-        dy1 = w1_bar[i + 1, j] - wb1
-    r0 = gx - wb0
-    r1 = gy - wb1
-    g00, g01, g11 = tensor_per_unknown(tensor1[i, j], tensor2[i, j], tensor3[i, j])
-    n0 = y0[i, j] + alpha1 * wp.cw_mul(sigma_y0[i, j], wp.cw_mul(g00, r0) + wp.cw_mul(g01, r1))
-    n1 = y1[i, j] + alpha1 * wp.cw_mul(sigma_y1[i, j], wp.cw_mul(g01, r0) + wp.cw_mul(g11, r1))
-    m00 = z00[i, j] + (sigma_z * alpha0) * dx0
-    m01 = z01[i, j] + (sigma_z * alpha0) * dy0
-    m10 = z10[i, j] + (sigma_z * alpha0) * dx1
-    m11 = z11[i, j] + (sigma_z * alpha0) * dy1
-    sy = wp.vec4(0.0)
-    sz = wp.vec4(0.0)
-    for k in range(4):
-        sy[k] = 1.0 / wp.max(1.0, wp.sqrt(n0[k] * n0[k] + n1[k] * n1[k]))
-        sz[k] = 1.0 / wp.max(1.0, wp.sqrt(m00[k] * m00[k] + m01[k] * m01[k] + m10[k] * m10[k] + m11[k] * m11[k]))
-    y0[i, j] = wp.cw_mul(n0, sy)
-    y1[i, j] = wp.cw_mul(n1, sy)
-    z00[i, j] = wp.cw_mul(m00, sz)
-    z01[i, j] = wp.cw_mul(m01, sz)
-    z10[i, j] = wp.cw_mul(m10, sz)
-    z11[i, j] = wp.cw_mul(m11, sz)
+    j0 = c * span
+    for j in range(j0, wp.min(w, j0 + span)):
+        xb = x_bar[i, j]
+        wb0 = w0_bar[i, j]
+        wb1 = w1_bar[i, j]
+        gx = wp.vec4(0.0)
+        gy = wp.vec4(0.0)
+        dx0 = wp.vec4(0.0)
+        dy0 = wp.vec4(0.0)
+        dx1 = wp.vec4(0.0)
+        dy1 = wp.vec4(0.0)
+        if j < w - 1:
+            gx = x_bar[i, j + 1] - xb
+            dx0 = w0_bar[i, j + 1] - wb0
+            dx1 = w1_bar[i, j + 1] - wb1
+        if i < h - 1:
+            gy = x_bar[i + 1, j] - xb
+            dy0 = w0_bar[i + 1, j] - wb0
+            dy1 = w1_bar[i + 1, j] - wb1
+        r0 = gx - wb0
+        r1 = gy - wb1
+        g00, g01, g11 = tensor_per_unknown(tensor1[i, j], tensor2[i, j], tensor3[i, j])
+        n0 = y0[i, j] + alpha1 * wp.cw_mul(sigma_y0[i, j], wp.cw_mul(g00, r0) + wp.cw_mul(g01, r1))
+        n1 = y1[i, j] + alpha1 * wp.cw_mul(sigma_y1[i, j], wp.cw_mul(g01, r0) + wp.cw_mul(g11, r1))
+        m00 = z00[i, j] + (sigma_z * alpha0) * dx0
+        m01 = z01[i, j] + (sigma_z * alpha0) * dy0
+        m10 = z10[i, j] + (sigma_z * alpha0) * dx1
+        m11 = z11[i, j] + (sigma_z * alpha0) * dy1
+        sy = wp.vec4(0.0)
+        sz = wp.vec4(0.0)
+        for k in range(4):
+            sy[k] = 1.0 / wp.max(1.0, wp.sqrt(n0[k] * n0[k] + n1[k] * n1[k]))
+            sz[k] = 1.0 / wp.max(1.0, wp.sqrt(m00[k] * m00[k] + m01[k] * m01[k] + m10[k] * m10[k] + m11[k] * m11[k]))
+        y0[i, j] = wp.cw_mul(n0, sy)
+        y1[i, j] = wp.cw_mul(n1, sy)
+        z00[i, j] = wp.cw_mul(m00, sz)
+        z01[i, j] = wp.cw_mul(m01, sz)
+        z10[i, j] = wp.cw_mul(m10, sz)
+        z11[i, j] = wp.cw_mul(m11, sz)
 
 
 @wp.func
@@ -268,6 +271,7 @@ def tgv_primal_step(
     tau_w1: wp.array2d(dtype=wp.vec4),
     alpha0: float,
     alpha1: float,
+    span: int,
     # outputs
     x: wp.array2d(dtype=wp.vec4),
     w0: wp.array2d(dtype=wp.vec4),
@@ -278,41 +282,43 @@ def tgv_primal_step(
 ):
     """x ← x − τ_x (Kᵀq − α1 div(Γy)),  w ← w − τ_w (−α1 Γy − α0 div z), then the
     over-relaxation x̄ = 2x_new − x_old (likewise w̄). Launch over (rows, columns)."""
-    i, j = wp.tid()
+    i, c = wp.tid()
     i = i + row0
     h = x.shape[0]
     w = x.shape[1]
-    h0, h1 = gamma_y(tensor1, tensor2, tensor3, y0, y1, i, j)
-    div_h = wp.vec4(0.0)
-    div_z0 = wp.vec4(0.0)
-    div_z1 = wp.vec4(0.0)
-    if j < w - 1:
-        div_h += h0
-        div_z0 += z00[i, j]
-        div_z1 += z10[i, j]
-    if j > 0:
-        l0, l1 = gamma_y(tensor1, tensor2, tensor3, y0, y1, i, j - 1)
-        div_h -= l0
-        div_z0 -= z00[i, j - 1]
-        div_z1 -= z10[i, j - 1]
-    if i < h - 1:
-        div_h += h1
-        div_z0 += z01[i, j]
-        div_z1 += z11[i, j]
-    if i > 0:
-        u0, u1 = gamma_y(tensor1, tensor2, tensor3, y0, y1, i - 1, j)
-        div_h -= u1
-        div_z0 -= z01[i - 1, j]
-        div_z1 -= z11[i - 1, j]
-    x_old = x[i, j]
-    w0_old = w0[i, j]
-    w1_old = w1[i, j]
-    x_new = x_old - wp.cw_mul(tau_x[i, j], data_grad[i, j] - alpha1 * div_h)
-    w0_new = w0_old + wp.cw_mul(tau_w0[i, j], alpha1 * h0 + alpha0 * div_z0)
-    w1_new = w1_old + wp.cw_mul(tau_w1[i, j], alpha1 * h1 + alpha0 * div_z1)
-    x[i, j] = x_new
-    w0[i, j] = w0_new
-    w1[i, j] = w1_new
-    x_bar[i, j] = 2.0 * x_new - x_old
-    w0_bar[i, j] = 2.0 * w0_new - w0_old
-    w1_bar[i, j] = 2.0 * w1_new - w1_old
+    j0 = c * span
+    for j in range(j0, wp.min(w, j0 + span)):
+        h0, h1 = gamma_y(tensor1, tensor2, tensor3, y0, y1, i, j)
+        div_h = wp.vec4(0.0)
+        div_z0 = wp.vec4(0.0)
+        div_z1 = wp.vec4(0.0)
+        if j < w - 1:
+            div_h += h0
+            div_z0 += z00[i, j]
+            div_z1 += z10[i, j]
+        if j > 0:
+            l0, l1 = gamma_y(tensor1, tensor2, tensor3, y0, y1, i, j - 1)
+            div_h -= l0
+            div_z0 -= z00[i, j - 1]
+            div_z1 -= z10[i, j - 1]
+        if i < h - 1:
+            div_h += h1
+            div_z0 += z01[i, j]
+            div_z1 += z11[i, j]
+        if i > 0:
+            u0, u1 = gamma_y(tensor1, tensor2, tensor3, y0, y1, i - 1, j)
+            div_h -= u1
+            div_z0 -= z01[i - 1, j]
+            div_z1 -= z11[i - 1, j]
+        x_old = x[i, j]
+        w0_old = w0[i, j]
+        w1_old = w1[i, j]
+        x_new = x_old - wp.cw_mul(tau_x[i, j], data_grad[i, j] - alpha1 * div_h)
+        w0_new = w0_old + wp.cw_mul(tau_w0[i, j], alpha1 * h0 + alpha0 * div_z0)
+        w1_new = w1_old + wp.cw_mul(tau_w1[i, j], alpha1 * h1 + alpha0 * div_z1)
+        x[i, j] = x_new
+        w0[i, j] = w0_new
+        w1[i, j] = w1_new
+        x_bar[i, j] = 2.0 * x_new - x_old
+        w0_bar[i, j] = 2.0 * w0_new - w0_old
+        w1_bar[i, j] = 2.0 * w1_new - w1_old

@@ -148,6 +148,7 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
         return lambda: _device.launch_rows(kernel, dim=dim, inputs=inputs, outputs=outputs, device=dev)
 
     wp_phis = arr(phis, wp.vec2)
+    span, per_row = _device.row_span(dev, w)
     weights = arr(np.tile([10.0 / s, 10.0 / s, 30.0 / s], (s, 1)), wp.vec3)
     views = arr(rng.random((81, h, w)), float)
     stack1 = arr(rng.random((s, h, w)), float)
@@ -189,13 +190,13 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
         ("dual_data_step", launch(data_term.dual_data_step, [coef, weights, x_bar, x_hat], [q, data_grad]),
          f * h * w * (12 * s + 4 + 4 + 3 * s + 3 * s + 4)),
         # reads x̄, w̄ (8), three tensors (9), σ_y (8) and the six duals (24); writes the duals (24)
-        ("tgv_dual_step", launch(tgv.tgv_dual_step, [x_bar, w0_bar, w1_bar, t1, t2, t3, sig[0], sig[1], 0.25, 2.0, 0.5],
-                                 [y0, y1, z00, z01, z10, z11]),
+        ("tgv_dual_step", launch(tgv.tgv_dual_step, [x_bar, w0_bar, w1_bar, t1, t2, t3, sig[0], sig[1], 0.25, 2.0, 0.5,
+                                                     span], [y0, y1, z00, z01, z10, z11], dim=(h, per_row)),
          f * h * w * (12 + 9 + 8 + 24 + 24)),
         # reads Kᵀq (4), the duals (24), tensors (9), τ (12), x and w (12); writes x, w and their bars (24)
         ("tgv_primal_step", launch(tgv.tgv_primal_step,
                                    [data_grad, y0, y1, z00, z01, z10, z11, t1, t2, t3, tau[0], tau[1], tau[2], 2.0,
-                                    0.5], [x, w0, w1, x_bar, w0_bar, w1_bar]),
+                                    0.5, span], [x, w0, w1, x_bar, w0_bar, w1_bar], dim=(h, per_row)),
          f * h * w * (4 + 24 + 9 + 12 + 12 + 24)),
     ]
     return cases

@@ -125,13 +125,15 @@ def _structure_texture(stack, params: Params, device: str):
         return stack
     n, h, w = stack.shape
     dim = (n * h, w)
+    span, per_row = _device.row_span(device, w)
     u = wp.clone(stack)
     u_bar = wp.clone(stack)
     p = wp.zeros((n, h, w), dtype=wp.vec2, device=device)
     tau = sigma = 1.0 / math.sqrt(8.0)
     for _ in range(params.rof_iterations):
-        _device.launch_rows(rof.rof_dual_step, dim=dim, inputs=[u_bar, sigma], outputs=[p], device=device)
-        _device.launch_rows(rof.rof_primal_step, dim=dim, inputs=[stack, p, tau, params.rof_weight],
+        _device.launch_rows(rof.rof_dual_step, dim=(n * h, per_row), inputs=[u_bar, sigma, span], outputs=[p],
+                            device=device)
+        _device.launch_rows(rof.rof_primal_step, dim=(n * h, per_row), inputs=[stack, p, tau, params.rof_weight, span],
                             outputs=[u, u_bar], device=device)
     texture = wp.empty_like(stack)
     _device.launch_rows(rof.texture_part, dim=dim, inputs=[stack, u, params.texture_theta], outputs=[texture],

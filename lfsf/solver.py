@@ -42,6 +42,7 @@ class LevelSolver:
         self.phis, self.weights = phis, weights
         n, h, w = samples1.shape
         self.shape = (h, w)
+        self.span, self.per_row = _device.row_span(device, w)  # pixels per thread (TGV steps)
         vec4 = wp.vec4
 
         def zeros4():
@@ -79,6 +80,11 @@ class LevelSolver:
 
     def _launch(self, kernel, inputs, outputs):
         _device.launch_rows(kernel, dim=self.shape, inputs=inputs, outputs=outputs, device=self.device)
+
+    def _launch_spans(self, kernel, inputs, outputs):
+        """A kernel whose threads each walk ``self.span`` pixels of a row."""
+        _device.launch_rows(kernel, dim=(self.shape[0], self.per_row), inputs=inputs, outputs=outputs,
+                            device=self.device)
 
     # --- state ---------------------------------------------------------------------------
 
@@ -178,15 +184,15 @@ class LevelSolver:
             self._launch(data_term.dual_data_step,
                          inputs=[self.coef, self.weights, self.x_bar, self.x_hat],
                          outputs=[self.q, self.data_grad])
-            self._launch(tgv.tgv_dual_step,
-                         inputs=[self.x_bar, self.w0_bar, self.w1_bar, self.tensor1, self.tensor2, self.tensor3,
-                                 self.sigma_y0, self.sigma_y1, sigma_z, p.alpha0, p.alpha1],
-                         outputs=[self.y0, self.y1, self.z00, self.z01, self.z10, self.z11])
-            self._launch(tgv.tgv_primal_step,
-                         inputs=[self.data_grad, self.y0, self.y1, self.z00, self.z01, self.z10, self.z11,
-                                 self.tensor1, self.tensor2, self.tensor3, self.tau_x, self.tau_w0, self.tau_w1,
-                                 p.alpha0, p.alpha1],
-                         outputs=[self.x, self.w0, self.w1, self.x_bar, self.w0_bar, self.w1_bar])
+            self._launch_spans(tgv.tgv_dual_step,
+                               inputs=[self.x_bar, self.w0_bar, self.w1_bar, self.tensor1, self.tensor2, self.tensor3,
+                                       self.sigma_y0, self.sigma_y1, sigma_z, p.alpha0, p.alpha1, self.span],
+                               outputs=[self.y0, self.y1, self.z00, self.z01, self.z10, self.z11])
+            self._launch_spans(tgv.tgv_primal_step,
+                               inputs=[self.data_grad, self.y0, self.y1, self.z00, self.z01, self.z10, self.z11,
+                                       self.tensor1, self.tensor2, self.tensor3, self.tau_x, self.tau_w0,
+                                       self.tau_w1, p.alpha0, p.alpha1, self.span],
+                               outputs=[self.x, self.w0, self.w1, self.x_bar, self.w0_bar, self.w1_bar])
 
     def median(self) -> None:
         """Median-filter the flow (u, v) of x over a (2r+1)² window (r = median_radius)."""

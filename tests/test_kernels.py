@@ -85,7 +85,8 @@ def test_sample_subaperture_integer_offsets_are_views(device):
 # --- ROF -----------------------------------------------------------------------------------
 
 
-def test_rof_dual_step_matches_reference(device):
+@pytest.mark.parametrize("span", [1, 4, 9])  # a pixel per thread (CUDA), part of a row, a whole row (CPU)
+def test_rof_dual_step_matches_reference(device, span):
     from lfsf.kernels import rof
 
     r = rng(3)
@@ -94,7 +95,7 @@ def test_rof_dual_step_matches_reference(device):
     p = (r.standard_normal((n, h, w, 2)) * 0.6).astype(np.float32)
     sigma = 0.9
     p_wp = arr(p, wp.vec2, device)
-    launch(rof.rof_dual_step, (n * h, w), [arr(u_bar, float, device), sigma], [p_wp], device)
+    launch(rof.rof_dual_step, (n * h, -(-w // span)), [arr(u_bar, float, device), sigma, span], [p_wp], device)
     got = p_wp.numpy()
     want = ref.rof_dual_step(u_bar, p, sigma)
     close(got, want)
@@ -105,7 +106,8 @@ def test_rof_dual_step_matches_reference(device):
     assert np.any(np.linalg.norm(unprojected, axis=-1) < 1)
 
 
-def test_rof_primal_step_matches_reference(device):
+@pytest.mark.parametrize("span", [1, 4, 9])
+def test_rof_primal_step_matches_reference(device, span):
     from lfsf.kernels import rof
 
     r = rng(4)
@@ -116,8 +118,8 @@ def test_rof_primal_step_matches_reference(device):
     tau, mu = 0.3, 0.125
     u_wp = arr(u, float, device)
     ub_wp = wp.zeros((n, h, w), dtype=float, device=device)
-    launch(rof.rof_primal_step, (n * h, w), [arr(f, float, device), arr(p, wp.vec2, device), tau, mu],
-           [u_wp, ub_wp], device)
+    launch(rof.rof_primal_step, (n * h, -(-w // span)), [arr(f, float, device), arr(p, wp.vec2, device), tau, mu,
+                                                        span], [u_wp, ub_wp], device)
     want_u, want_ub = ref.rof_primal_step(f, p, u, tau, mu)
     close(u_wp.numpy(), want_u)
     close(ub_wp.numpy(), want_ub)
@@ -144,9 +146,10 @@ def _rof_kernel_solve(f, mu, iterations, device):
     u_bar = arr(f, float, device)
     p = wp.zeros((n, h, w), dtype=wp.vec2, device=device)
     tau = sigma = 1.0 / math.sqrt(8.0)
+    span, per_row = D.row_span(device, w)
     for _ in range(iterations):
-        launch(rof.rof_dual_step, (n * h, w), [u_bar, sigma], [p], device)
-        launch(rof.rof_primal_step, (n * h, w), [f_wp, p, tau, mu], [u, u_bar], device)
+        launch(rof.rof_dual_step, (n * h, per_row), [u_bar, sigma, span], [p], device)
+        launch(rof.rof_primal_step, (n * h, per_row), [f_wp, p, tau, mu, span], [u, u_bar], device)
     return u.numpy().astype(np.float64), p.numpy().astype(np.float64)
 
 
@@ -804,7 +807,8 @@ def _tgv_fields(seed, h, w, scale=1.0):
     return [(scale * r.standard_normal((h, w, 4))).astype(np.float32) for _ in range(9)]
 
 
-def test_tgv_dual_step_matches_reference(device):
+@pytest.mark.parametrize("span", [1, 2, 5])  # a pixel per thread (CUDA), part of a row, a whole row (CPU)
+def test_tgv_dual_step_matches_reference(device, span):
     from lfsf.kernels import tgv
 
     h, w = 4, 5
@@ -816,10 +820,10 @@ def test_tgv_dual_step_matches_reference(device):
     sigma_y1 = r.uniform(0.1, 0.8, (h, w, 4)).astype(np.float32)
     sigma_z = 1.0 / (2.0 * alpha0)
     duals = [arr(a, wp.vec4, device) for a in (y0, y1, z00, z01, z10, z11)]
-    launch(tgv.tgv_dual_step, (h, w),
+    launch(tgv.tgv_dual_step, (h, -(-w // span)),
            [arr(x_bar, wp.vec4, device), arr(w0_bar, wp.vec4, device), arr(w1_bar, wp.vec4, device),
             arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(t3, wp.vec3, device), arr(sigma_y0, wp.vec4, device),
-            arr(sigma_y1, wp.vec4, device), sigma_z, alpha0, alpha1], duals, device)
+            arr(sigma_y1, wp.vec4, device), sigma_z, alpha0, alpha1, span], duals, device)
     want = ref.tgv_dual_step(x_bar, w0_bar, w1_bar, t1, t2, sigma_y0, sigma_y1, sigma_z, alpha0, alpha1,
                              y0, y1, z00, z01, z10, z11, t3)
     for name, got, exp in zip(("y0", "y1", "z00", "z01", "z10", "z11"), duals, want):
@@ -831,7 +835,8 @@ def test_tgv_dual_step_matches_reference(device):
     assert np.any(np.isclose(z, 1.0)) and np.any(z < 0.99) and np.all(z <= 1 + 1e-9)
 
 
-def test_tgv_primal_step_matches_reference(device):
+@pytest.mark.parametrize("span", [1, 2, 5])
+def test_tgv_primal_step_matches_reference(device, span):
     from lfsf.kernels import tgv
 
     h, w = 4, 5
@@ -843,10 +848,10 @@ def test_tgv_primal_step_matches_reference(device):
     tau_x, tau_w0, tau_w1 = (r.uniform(0.05, 0.5, (h, w, 4)).astype(np.float32) for _ in range(3))
     prim = [arr(a, wp.vec4, device) for a in (x, w0, w1)]
     bars = [wp.zeros((h, w), dtype=wp.vec4, device=device) for _ in range(3)]
-    launch(tgv.tgv_primal_step, (h, w),
+    launch(tgv.tgv_primal_step, (h, -(-w // span)),
            [arr(data_grad, wp.vec4, device)] + [arr(a, wp.vec4, device) for a in (y0, y1, z00, z01, z10, z11)]
            + [arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(t3, wp.vec3, device)]
-           + [arr(a, wp.vec4, device) for a in (tau_x, tau_w0, tau_w1)] + [alpha0, alpha1],
+           + [arr(a, wp.vec4, device) for a in (tau_x, tau_w0, tau_w1)] + [alpha0, alpha1, span],
            prim + bars, device)
     want = ref.tgv_primal_step(data_grad, y0, y1, z00, z01, z10, z11, t1, t2, tau_x, tau_w0, tau_w1,
                                alpha0, alpha1, x, w0, w1, t3)
@@ -872,10 +877,11 @@ def test_tgv_gradient_and_divergence_are_negative_adjoints(device):
     wf = r.standard_normal((h, w, 4)).astype(np.float32)
     step = 1e-2
     duals = [wp.zeros((h, w), dtype=wp.vec4, device=device) for _ in range(6)]
-    launch(tgv.tgv_dual_step, (h, w),
+    span, per_row = D.row_span(device, w)
+    launch(tgv.tgv_dual_step, (h, per_row),
            [arr(x, wp.vec4, device), arr(zeros, wp.vec4, device), arr(wf, wp.vec4, device),
             arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(t3, wp.vec3, device), arr(step * ones, wp.vec4, device),
-            arr(step * ones, wp.vec4, device), step, 1.0, alpha1], duals, device)
+            arr(step * ones, wp.vec4, device), step, 1.0, alpha1, span], duals, device)
     ky0, ky1, gw00, gw01, gw10, gw11 = (d.numpy().astype(np.float64) / step for d in duals)
     # with w0 = 0, w1 = wf: z00, z01 = 0 and (z10, z11) = ∇wf
     close(gw00, 0.0)
@@ -889,11 +895,11 @@ def test_tgv_gradient_and_divergence_are_negative_adjoints(device):
     y0, y1, z0, z1 = (r.standard_normal((h, w, 4)).astype(np.float32) for _ in range(4))
     prim = [arr(x, wp.vec4, device), arr(zeros, wp.vec4, device), arr(zeros, wp.vec4, device)]
     bars = [wp.zeros((h, w), dtype=wp.vec4, device=device) for _ in range(3)]
-    launch(tgv.tgv_primal_step, (h, w),
+    launch(tgv.tgv_primal_step, (h, per_row),
            [arr(zeros, wp.vec4, device), arr(y0, wp.vec4, device), arr(y1, wp.vec4, device),
             arr(z0, wp.vec4, device), arr(z1, wp.vec4, device), arr(zeros, wp.vec4, device),
             arr(zeros, wp.vec4, device), arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(t3, wp.vec3, device),
-            arr(ones, wp.vec4, device), arr(ones, wp.vec4, device), arr(ones, wp.vec4, device), 1.0, alpha1],
+            arr(ones, wp.vec4, device), arr(ones, wp.vec4, device), arr(ones, wp.vec4, device), 1.0, alpha1, span],
            prim + bars, device)
     div_gy = prim[0].numpy().astype(np.float64) - x        # α1 div(Γy)
     w0_change = prim[1].numpy().astype(np.float64)          # α1 (Γy)_0 + div(z00, z01)
