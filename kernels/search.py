@@ -55,23 +55,26 @@ def box_sum(
     row0: int,
     values: wp.array3d(dtype=float),
     radius: int,
+    span: int,
     # outputs
     out: wp.array3d(dtype=float),
 ):
     """Mean of each slice over a (2r+1)² window, clamped at the borders. Launch over
-    (slices × rows, columns)."""
-    r, j = wp.tid()
+    (slices × rows, ⌈columns / span⌉) (:func:`lfsf.device.row_span`)."""
+    r, c = wp.tid()
     r = r + row0
     h = values.shape[1]
     w = values.shape[2]
     k = r // h
     i = r - k * h
-    acc = float(0.0)
-    for dy in range(-radius, radius + 1):
-        for dx in range(-radius, radius + 1):
-            acc += values[k, wp.clamp(i + dy, 0, h - 1), wp.clamp(j + dx, 0, w - 1)]
     side = float(2 * radius + 1)
-    out[k, i, j] = acc / (side * side)
+    j0 = c * span
+    for j in range(j0, wp.min(w, j0 + span)):
+        acc = float(0.0)
+        for dy in range(-radius, radius + 1):
+            for dx in range(-radius, radius + 1):
+                acc += values[k, wp.clamp(i + dy, 0, h - 1), wp.clamp(j + dx, 0, w - 1)]
+        out[k, i, j] = acc / (side * side)
 
 
 @wp.kernel
@@ -114,25 +117,29 @@ def flow_cost(
     centre2: wp.array2d(dtype=float),
     candidates: wp.array(dtype=wp.vec2),
     base: wp.array2d(dtype=wp.vec4),
+    span: int,
     # outputs
     cost: wp.array3d(dtype=float),
 ):
     """cost[k, p] = |I1(p) − I2(p + u_k)| with u_k = candidates[k] + (u, v) of ``base``
     (components 2, 3): the flow residual ρ3 at φ = 0; 1 where p + u_k leaves the image.
-    Launch over (candidates × rows, columns)."""
-    r, j = wp.tid()
+    Launch over (candidates × rows, ⌈columns / span⌉) (:func:`lfsf.device.row_span`)."""
+    r, c = wp.tid()
     r = r + row0
     h = cost.shape[1]
     k = r // h
     i = r - k * h
-    b = base[i, j]
-    c = candidates[k]
-    x = float(j) + b[2] + c[0]
-    y = float(i) + b[3] + c[1]
-    value = float(1.0)
-    if inside(centre2, x, y):
-        value = wp.abs(centre1[i, j] - bilinear(centre2, x, y))
-    cost[k, i, j] = value
+    w = cost.shape[2]
+    u_k = candidates[k]
+    j0 = c * span
+    for j in range(j0, wp.min(w, j0 + span)):
+        b = base[i, j]
+        x = float(j) + b[2] + u_k[0]
+        y = float(i) + b[3] + u_k[1]
+        value = float(1.0)
+        if inside(centre2, x, y):
+            value = wp.abs(centre1[i, j] - bilinear(centre2, x, y))
+        cost[k, i, j] = value
 
 
 @wp.kernel

@@ -197,10 +197,15 @@ def _windowed_cost(kernel, inputs, count: int, size, search_radius: int, device:
     wp = _device.warp()
     h, w = size
     cost = wp.empty((count, h, w), dtype=float, device=device)
-    _device.launch_rows(kernel, dim=(count * h, w), inputs=inputs, outputs=[cost], device=device)
+    if kernel is search.flow_cost:  # one light lookup per pixel: a row span per thread
+        span, per_row = _device.row_span(device, w)
+        _device.launch_rows(kernel, dim=(count * h, per_row), inputs=[*inputs, span], outputs=[cost], device=device)
+    else:
+        _device.launch_rows(kernel, dim=(count * h, w), inputs=inputs, outputs=[cost], device=device)
     smooth = wp.empty_like(cost)
-    _device.launch_rows(search.box_sum, dim=(count * h, w), inputs=[cost, search_radius], outputs=[smooth],
-                        device=device)
+    span, per_row = _device.row_span(device, w)
+    _device.launch_rows(search.box_sum, dim=(count * h, per_row), inputs=[cost, search_radius, span],
+                        outputs=[smooth], device=device)
     return smooth
 
 

@@ -37,12 +37,14 @@ def run_disparity_cost(samples, phis, candidates, base, offset, device):
     return cost.numpy()
 
 
-def run_box_sum(values, radius, device):
+def run_box_sum(values, radius, device, span=None):
+    """``span`` pixels of a row per thread (default: the device's, lfsf.device.row_span)."""
     from lfsf.kernels import search
 
     k, h, w = values.shape
+    span = D.row_span(device, w)[0] if span is None else span
     out = wp.zeros((k, h, w), dtype=float, device=device)
-    launch(search.box_sum, (k * h, w), [arr(values, float, device), radius], [out], device)
+    launch(search.box_sum, (k * h, -(-w // span)), [arr(values, float, device), radius, span], [out], device)
     return out.numpy()
 
 
@@ -57,15 +59,16 @@ def run_select_disparity(cost, candidates, device):
     return best.numpy(), best_cost.numpy()
 
 
-def run_flow_cost(centre1, centre2, candidates, base, device):
+def run_flow_cost(centre1, centre2, candidates, base, device, span=None):
     from lfsf.kernels import search
 
     h, w = centre1.shape
     k = len(candidates)
+    span = D.row_span(device, w)[0] if span is None else span
     cost = wp.zeros((k, h, w), dtype=float, device=device)
-    launch(search.flow_cost, (k * h, w),
+    launch(search.flow_cost, (k * h, -(-w // span)),
            [arr(centre1, float, device), arr(centre2, float, device), arr(candidates, wp.vec2, device),
-            arr(base, wp.vec4, device)], [cost], device)
+            arr(base, wp.vec4, device), span], [cost], device)
     return cost.numpy()
 
 
@@ -121,10 +124,11 @@ def test_disparity_cost_of_an_exact_light_field_is_zero_at_the_true_disparity(de
     assert np.all(got[[0, 1, 3]][:, interior[0], interior[1]] > 0)
 
 
+@pytest.mark.parametrize("span", [1, 4, 6])  # a pixel per thread (CUDA), part of a row, a whole row (CPU)
 @pytest.mark.parametrize("radius", [0, 1, 2])
-def test_box_sum_matches_reference(radius, device):
+def test_box_sum_matches_reference(radius, span, device):
     values = rng(3).random((3, 4, 6)).astype(np.float32)
-    got = run_box_sum(values, radius, device)
+    got = run_box_sum(values, radius, device, span)
     close(got, ref.box_mean(values, radius))
     if radius == 0:
         np.testing.assert_array_equal(got, values)
@@ -177,7 +181,8 @@ def test_select_disparity_finds_the_vertex_of_a_sampled_parabola(device):
     close(best_cost, np.min(cost, axis=0), atol=0)
 
 
-def test_flow_cost_matches_reference(device):
+@pytest.mark.parametrize("span", [1, 3, 8])
+def test_flow_cost_matches_reference(device, span):
     r = rng(6)
     h, w = 6, 8
     centre1 = r.random((h, w)).astype(np.float32)
@@ -186,7 +191,7 @@ def test_flow_cost_matches_reference(device):
     base = r.uniform(-1.0, 1.0, (h, w, 4)).astype(np.float32)
     base[..., :2] = 5.0  # components 0, 1 are not used
     base[1, 2, 2:] = (0.0, 0.0)
-    got = run_flow_cost(centre1, centre2, candidates, base, device)
+    got = run_flow_cost(centre1, centre2, candidates, base, device, span)
     want = ref.flow_cost(centre1, centre2, candidates, base)
     close(got, want, atol=2e-6)
     # where p + u_k leaves the image the cost is 1; at u = 0 it is |I1 − I2|
