@@ -43,6 +43,7 @@ class LevelSolver:
         n, h, w = samples1.shape
         self.shape = (h, w)
         self.span, self.per_row = _device.row_span(device, w)  # pixels per thread (TGV steps)
+        self.bands = 1 if h * w < _device.SMALL_IMAGE else None  # small levels: no thread pool
         vec4 = wp.vec4
 
         def zeros4():
@@ -79,12 +80,13 @@ class LevelSolver:
         self._tensors()
 
     def _launch(self, kernel, inputs, outputs):
-        _device.launch_rows(kernel, dim=self.shape, inputs=inputs, outputs=outputs, device=self.device)
+        _device.launch_rows(kernel, dim=self.shape, inputs=inputs, outputs=outputs, device=self.device,
+                            bands=self.bands)
 
     def _launch_spans(self, kernel, inputs, outputs):
         """A kernel whose threads each walk ``self.span`` pixels of a row."""
         _device.launch_rows(kernel, dim=(self.shape[0], self.per_row), inputs=inputs, outputs=outputs,
-                            device=self.device)
+                            device=self.device, bands=self.bands)
 
     # --- state ---------------------------------------------------------------------------
 
