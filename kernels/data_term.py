@@ -189,27 +189,18 @@ def row_weight(sigma: float, weight: float):
     return 0.0
 
 
-@wp.kernel
-def dual_data_step(
-    row0: int,
+@wp.func
+def dual_data_pixel(
     coef: wp.array3d(dtype=vec12),
     weights: wp.array(dtype=wp.vec3),
     x_bar: wp.array2d(dtype=wp.vec4),
     x_hat: wp.array2d(dtype=wp.vec4),
-    # outputs
     q: wp.array3d(dtype=wp.vec3),
     data_grad: wp.array2d(dtype=wp.vec4),
+    i: int,
+    j: int,
 ):
-    """Dual ascent on the data rows, fused with the primal gradient Kᵀq of the data term.
-
-    With the scaled duals q̃_k = w_k q_k (``q[i, j, s]``):
-    q̃_k ← clip(q̃_k + σ̃_k ρ_k(x̄), −w_k, w_k), σ̃_k = w_k σ_k and σ_k = 1 / (w_k Σ|row k| + ε)
-    the diagonal preconditioner; then ``data_grad`` = Σ_s Kᵀ q for (δ1, δ2, u, v). This
-    is q_k ← clip(q_k + σ_k w_k ρ_k, −1, 1) of the unscaled duals, without a division.
-    Launch over (rows, columns).
-    """
-    i, j = wp.tid()
-    i = i + row0
+    """The dual data step at pixel (i, j) (see :func:`dual_data_step`)."""
     d = x_bar[i, j] - x_hat[i, j]
     g = wp.vec4(0.0)
     for s in range(coef.shape[2]):
@@ -234,3 +225,31 @@ def dual_data_step(
         q[i, j, s] = wp.vec3(q1, q2, q3)
         g += wp.vec4((q3 - q1) * a1, -(q2 + q3) * a3, q2 * a8 - q3 * a5, q2 * a9 - q3 * a6)
     data_grad[i, j] = g
+
+
+@wp.kernel
+def dual_data_step(
+    row0: int,
+    coef: wp.array3d(dtype=vec12),
+    weights: wp.array(dtype=wp.vec3),
+    x_bar: wp.array2d(dtype=wp.vec4),
+    x_hat: wp.array2d(dtype=wp.vec4),
+    span: int,
+    # outputs
+    q: wp.array3d(dtype=wp.vec3),
+    data_grad: wp.array2d(dtype=wp.vec4),
+):
+    """Dual ascent on the data rows, fused with the primal gradient Kᵀq of the data term.
+
+    With the scaled duals q̃_k = w_k q_k (``q[i, j, s]``):
+    q̃_k ← clip(q̃_k + σ̃_k ρ_k(x̄), −w_k, w_k), σ̃_k = w_k σ_k and σ_k = 1 / (w_k Σ|row k| + ε)
+    the diagonal preconditioner; then ``data_grad`` = Σ_s Kᵀ q for (δ1, δ2, u, v). This
+    is q_k ← clip(q_k + σ_k w_k ρ_k, −1, 1) of the unscaled duals, without a division.
+    Launch over (rows, ⌈columns / span⌉): each thread walks ``span`` pixels of a row
+    (:func:`lfsf.device.row_span`).
+    """
+    i, c0 = wp.tid()
+    i = i + row0
+    j0 = c0 * span
+    for j in range(j0, wp.min(x_bar.shape[1], j0 + span)):
+        dual_data_pixel(coef, weights, x_bar, x_hat, q, data_grad, i, j)

@@ -187,7 +187,8 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
                                      [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros, 1e-6], [coef, colsum]),
          f * h * w * (2 * s + 4 + 1 + 12 * s + 4)),
         # reads the coefficients, x̄, x̂ and q; writes q and Kᵀq (the S weights stay in cache)
-        ("dual_data_step", launch(data_term.dual_data_step, [coef, weights, x_bar, x_hat], [q, data_grad]),
+        ("dual_data_step", launch(data_term.dual_data_step, [coef, weights, x_bar, x_hat, span], [q, data_grad],
+                                  dim=(h, per_row)),
          f * h * w * (12 * s + 4 + 4 + 3 * s + 3 * s + 4)),
         # reads x̄, w̄ (8), three tensors (9), σ_y (8) and the six duals (24); writes the duals (24)
         ("tgv_dual_step", launch(tgv.tgv_dual_step, [x_bar, w0_bar, w1_bar, t1, t2, t3, sig[0], sig[1], 0.25, 2.0, 0.5,

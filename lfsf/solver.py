@@ -42,7 +42,7 @@ class LevelSolver:
         self.phis, self.weights = phis, weights
         n, h, w = samples1.shape
         self.shape = (h, w)
-        self.span, self.per_row = _device.row_span(device, w)  # pixels per thread (TGV steps)
+        self.span, self.per_row = _device.row_span(device, w)  # pixels per thread (iteration steps)
         self.bands = 1 if h * w < _device.SMALL_IMAGE else None  # small levels: no thread pool
         vec4 = wp.vec4
 
@@ -183,9 +183,9 @@ class LevelSolver:
         p = self.params
         sigma_z = 1.0 / (2.0 * p.alpha0)
         for _ in range(n):
-            self._launch(data_term.dual_data_step,
-                         inputs=[self.coef, self.weights, self.x_bar, self.x_hat],
-                         outputs=[self.q, self.data_grad])
+            self._launch_spans(data_term.dual_data_step,
+                               inputs=[self.coef, self.weights, self.x_bar, self.x_hat, self.span],
+                               outputs=[self.q, self.data_grad])
             self._launch_spans(tgv.tgv_dual_step,
                                inputs=[self.x_bar, self.w0_bar, self.w1_bar, self.tensor1, self.tensor2, self.tensor3,
                                        self.sigma_y0, self.sigma_y1, sigma_z, p.alpha0, p.alpha1, self.span],

@@ -658,7 +658,8 @@ def test_data_linearisation_is_first_order_accurate(device):
                 f"ρ{part + 1} w.r.t. {names[k]}: |linearised − exact| = {err:.3g}, |exact change| = {scale:.3g}")
 
 
-def test_dual_data_step_matches_reference(device):
+@pytest.mark.parametrize("span", [1, 4, 9])  # a pixel per thread (CUDA), part of a row, a whole row (CPU)
+def test_dual_data_step_matches_reference(device, span):
     """The kernel's scaled duals q̃ = w q against the reference's q, and Kᵀq."""
     from lfsf.kernels import data_term
 
@@ -676,9 +677,9 @@ def test_dual_data_step_matches_reference(device):
     q = r.uniform(-1, 1, (3, s, h, w))
     q_wp = arr((W * q).transpose(2, 3, 1, 0), wp.vec3, device)
     grad_wp = wp.zeros((h, w), dtype=wp.vec4, device=device)
-    launch(data_term.dual_data_step, (h, w),
+    launch(data_term.dual_data_step, (h, -(-w // span)),
            [arr(coef, data_term.vec12, device), arr(lam, wp.vec3, device), arr(x_bar, wp.vec4, device),
-            arr(x_hat, wp.vec4, device)],
+            arr(x_hat, wp.vec4, device), span],
            [q_wp, grad_wp], device)
     want_q, want_grad = ref.dual_data_step(A, W, q, x_bar, x_hat, DATA_EPS)
     got_q = q_wp.numpy().astype(np.float64).transpose(3, 2, 0, 1)  # q̃, (3, S, h, w)
