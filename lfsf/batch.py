@@ -296,10 +296,10 @@ def run_batch(
     Summary
     """
     out = Path(out).absolute()
-    out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     report = progress or (lambda outcome, finished, total: None)
     if scheduler is None and workers == 1 and not have_dask():
+        out.mkdir(parents=True, exist_ok=True)
         outcomes = _run_here(pairs, out, params, device, warm_start, report)
     else:
         if not have_dask():
@@ -336,6 +336,7 @@ def _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retrie
                 n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
                 silence_logs=logging.ERROR, env={"LFSF_THREADS": str(threads)}))
             client = stack.enter_context(Client(cluster))
+        out.mkdir(parents=True, exist_ok=True)  # only once there is a cluster to write into it
         futures, by_name = {}, {}
         for index, pair in enumerate(pairs):
             after = by_name.get(pair.previous) if warm_start and pair.previous else None

@@ -281,6 +281,15 @@ def test_cli_exit_status_1_when_a_pair_fails_and_2_for_bad_input(frames, tmp_pat
 
 
 @needs_dask
+def test_cli_unreachable_scheduler_is_a_clear_error(frames, tmp_path, capsys):
+    folder, _ = frames
+    out = tmp_path / "out"
+    assert main(["batch", str(folder), "--out", str(out), "--scheduler", "tcp://127.0.0.1:1", "--quiet"]) == 2
+    assert "cannot reach the Dask scheduler at tcp://127.0.0.1:1" in capsys.readouterr().err
+    assert not out.exists()  # nothing written without a cluster
+
+
+@needs_dask
 def test_cli_on_a_running_scheduler(frames, tmp_path, capsys):
     """--scheduler: the tasks go to a cluster started elsewhere (here a LocalCluster of
     2 processes standing in for a remote one)."""
