@@ -272,11 +272,16 @@ def _machine() -> str:
     return f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}"
 
 
+def _device_options(p) -> None:
+    """--device and --quiet, which every command that computes takes."""
+    p.add_argument("--device", help="cpu or cuda:N (default: $LFSF_DEVICE, else cuda:0 if present, else cpu)")
+    p.add_argument("--quiet", action="store_true", help="no progress messages")
+
+
 def _estimator_options(p) -> None:
     p.add_argument("--preset", default="paper", help="paper (17 views), fast or lytro (default paper)")
     p.add_argument("--config", type=Path, help="TOML file setting any parameter of lfsf.Params")
-    p.add_argument("--device", help="cpu or cuda:N (default: $LFSF_DEVICE, else cuda:0 if present, else cpu)")
-    p.add_argument("--quiet", action="store_true", help="no progress messages")
+    _device_options(p)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -300,8 +305,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="K > 2: a sequence moving at a constant rate, DIR/frames/f000.npz … and the ground truth "
                         "of each pair DIR/gt/f000.npz … (default 2: DIR/lf1.npz, DIR/lf2.npz, DIR/gt.npz)")
     p.add_argument("--preview", action="store_true", help="also write DIR/preview.png of the ground truth")
-    p.add_argument("--device", help="cpu or cuda:N (default: $LFSF_DEVICE, else cuda:0 if present, else cpu)")
-    p.add_argument("--quiet", action="store_true", help="no progress messages")
+    _device_options(p)
     p.set_defaults(func=cmd_synth)
 
     p = sub.add_parser("eval", help="errors of a result against ground truth",
@@ -336,8 +340,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--bayer", type=str.upper, choices=("RGGB", "BGGR", "GRBG", "GBRG"),
                    help="Bayer pattern of a colour sensor (default: from the file's metadata; none: grey)")
     p.add_argument("--flip", action="store_true", help="negate the angular axes (optics that invert micro-images)")
-    p.add_argument("--device", help="cpu or cuda:N (default: $LFSF_DEVICE, else cuda:0 if present, else cpu)")
-    p.add_argument("--quiet", action="store_true", help="no progress messages")
+    _device_options(p)
     p.set_defaults(func=cmd_decode)
 
     p = sub.add_parser("demo", help="render a built-in scene, estimate it, print its errors",
@@ -375,9 +378,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="what to measure (default pipeline)")
     p.add_argument("--size", nargs=2, type=_size, metavar=("W", "H"), help="view size (default 640 480)")
     p.add_argument("--repeats", type=_positive, help="timed runs (default 3; kernels 20)")
-    p.add_argument("--device", help="cpu or cuda:N (default: $LFSF_DEVICE, else cuda:0 if present, else cpu)")
     p.add_argument("--json", type=Path, help="also write the rows to this JSON file")
-    p.add_argument("--quiet", action="store_true", help="no progress messages")
+    _device_options(p)
     p.set_defaults(func=cmd_bench)
     return parser
 
