@@ -35,6 +35,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from lfsf._errors import BAD_INPUT_ERRORS
 from lfsf._files import write_bytes_atomic
 
 #: The files of a complete result (those :meth:`lfsf.estimate.SceneFlow.save` writes
@@ -214,7 +215,7 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
 
 
 def _reason(exc: BaseException) -> str:
-    if isinstance(exc, (ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError)):
+    if isinstance(exc, BAD_INPUT_ERRORS):
         return str(exc)
     where = traceback.extract_tb(exc.__traceback__)[-1] if exc.__traceback__ else None
     at = f" (at {Path(where.filename).name}:{where.lineno})" if where else ""

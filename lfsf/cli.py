@@ -12,6 +12,8 @@ import sys
 import time
 from pathlib import Path
 
+from lfsf._errors import BAD_INPUT_ERRORS
+
 EXIT_BAD_INPUT = 2
 
 
@@ -399,7 +401,7 @@ def main(argv=None) -> int:
     prog = f"lfsf {args.command}"
     try:
         return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError) as exc:
+    except BAD_INPUT_ERRORS as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
