@@ -23,6 +23,7 @@ def disparity_cost(
     candidates: wp.array(dtype=float),
     base: wp.array2d(dtype=float),
     offset: wp.array2d(dtype=wp.vec4),
+    span: int,
     # outputs
     cost: wp.array3d(dtype=float),
 ):
@@ -31,23 +32,27 @@ def disparity_cost(
     s ≥ 1 of that half, with q = p + (u, v) of ``offset`` (components 2, 3) and δ_k =
     candidates[k] + base[p]. Taking the best half makes the cost indifferent to an
     occluder on one side. Samples whose warped position leaves the image are left out
-    (cost 1 where none remain). Launch over (candidates × rows, columns)."""
-    r, j = wp.tid()
+    (cost 1 where none remain). Launch over (candidates × rows, ⌈columns / span⌉)
+    (:func:`lfsf.device.row_span`)."""
+    r, c0 = wp.tid()
     r = r + row0
     h = cost.shape[1]
+    w = cost.shape[2]
     k = r // h
     i = r - k * h
-    o = offset[i, j]
-    qx = float(j) + o[2]
-    qy = float(i) + o[3]
-    d = candidates[k] + base[i, j]
-    centre = bilinear(samples[0], qx, qy)
-    sums, counts, total, count = half_plane_residuals(samples, phis, qx, qy, d, centre)
-    c = float(1.0)
-    for m in range(HALF_PLANES):
-        if counts[m] > 0.0:
-            c = wp.min(c, sums[m] / counts[m])
-    cost[k, i, j] = c
+    j0 = c0 * span
+    for j in range(j0, wp.min(w, j0 + span)):
+        o = offset[i, j]
+        qx = float(j) + o[2]
+        qy = float(i) + o[3]
+        d = candidates[k] + base[i, j]
+        centre = bilinear(samples[0], qx, qy)
+        sums, counts, total, count = half_plane_residuals(samples, phis, qx, qy, d, centre)
+        c = float(1.0)
+        for m in range(HALF_PLANES):
+            if counts[m] > 0.0:
+                c = wp.min(c, sums[m] / counts[m])
+        cost[k, i, j] = c
 
 
 @wp.kernel

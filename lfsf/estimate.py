@@ -191,19 +191,16 @@ def _upsample_state(arrays: list[np.ndarray], size, scales, device: str) -> list
 
 def _windowed_cost(kernel, inputs, count: int, size, search_radius: int, device: str):
     """Per-pixel matching costs of ``count`` candidates (a cost kernel of
-    :mod:`lfsf.kernels.search`), averaged over (2r+1)² windows: (count, h, w)."""
+    :mod:`lfsf.kernels.search`, which walks a row span per thread), averaged over
+    (2r+1)² windows: (count, h, w)."""
     from lfsf.kernels import search
 
     wp = _device.warp()
     h, w = size
     cost = wp.empty((count, h, w), dtype=float, device=device)
-    if kernel is search.flow_cost:  # one light lookup per pixel: a row span per thread
-        span, per_row = _device.row_span(device, w)
-        _device.launch_rows(kernel, dim=(count * h, per_row), inputs=[*inputs, span], outputs=[cost], device=device)
-    else:
-        _device.launch_rows(kernel, dim=(count * h, w), inputs=inputs, outputs=[cost], device=device)
-    smooth = wp.empty_like(cost)
     span, per_row = _device.row_span(device, w)
+    _device.launch_rows(kernel, dim=(count * h, per_row), inputs=[*inputs, span], outputs=[cost], device=device)
+    smooth = wp.empty_like(cost)
     _device.launch_rows(search.box_sum, dim=(count * h, per_row), inputs=[cost, search_radius, span],
                         outputs=[smooth], device=device)
     return smooth

@@ -25,15 +25,16 @@ def close(got, want, rtol=1e-5, atol=1e-5):
 # --- kernel runners ------------------------------------------------------------------------
 
 
-def run_disparity_cost(samples, phis, candidates, base, offset, device):
+def run_disparity_cost(samples, phis, candidates, base, offset, device, span=None):
     from lfsf.kernels import search
 
     _, h, w = samples.shape
     k = len(candidates)
+    span = D.row_span(device, w)[0] if span is None else span
     cost = wp.zeros((k, h, w), dtype=float, device=device)
-    launch(search.disparity_cost, (k * h, w),
+    launch(search.disparity_cost, (k * h, -(-w // span)),
            [arr(samples, float, device), arr(phis, wp.vec2, device), arr(candidates, float, device),
-            arr(base, float, device), arr(offset, wp.vec4, device)], [cost], device)
+            arr(base, float, device), arr(offset, wp.vec4, device), span], [cost], device)
     return cost.numpy()
 
 
@@ -84,7 +85,8 @@ def run_select_flow(cost, half, device):
 # --- against the references ----------------------------------------------------------------
 
 
-def test_disparity_cost_matches_reference(device):
+@pytest.mark.parametrize("span", [1, 4, 9])  # a pixel per thread (CUDA), part of a row, a whole row (CPU)
+def test_disparity_cost_matches_reference(device, span):
     r = rng(1)
     h, w = 7, 9
     phis = np.array([(0.0, 0.0), (1.0, 0.0), (-0.7, 0.7), (0.3, -1.4), (-1.5, -0.5)], np.float32)
@@ -95,7 +97,7 @@ def test_disparity_cost_matches_reference(device):
     offset[..., :2] = 7.0  # components 0, 1 are not used
     offset[2, 3, 2:] = (30.0, 0.0)  # q far outside: no sample left, cost 1
     offset[5, 6, 2:] = (0.0, -0.4)
-    got = run_disparity_cost(samples, phis, candidates, base, offset, device)
+    got = run_disparity_cost(samples, phis, candidates, base, offset, device, span)
     want = ref.disparity_cost(samples, phis, candidates, base, offset)
     close(got, want, atol=2e-5)
     np.testing.assert_array_equal(got[:, 2, 3], 1.0)
