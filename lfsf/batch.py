@@ -231,10 +231,11 @@ def _remove_stale(out: Path, name: str) -> None:
 
 def _previous_estimate(folder: Path, shape) -> dict | None:
     """The previous pair's estimate, if it is complete and of the same size."""
+    from lfsf.evaluate import load_estimate
+
     if not is_complete(folder):
         return None
-    with np.load(folder / "sceneflow.npz") as data:
-        maps = {k: data[k] for k in ("disp1", "disp2", "u", "v")}
+    maps = load_estimate(folder)
     return maps if maps["disp1"].shape == tuple(shape) else None
 
 
