@@ -471,10 +471,8 @@ def estimate_scene_flow(
         s2 = wp.clone(tex[n_samples:])
         solver = LevelSolver(s1, s2, wp.clone(cen[0]), wp.clone(cen[1]), wp_phis, wp_weights, params, dev)
         if x is None and start is not None:
-            sd = w / width
-            x = np.stack([_resize_map(start[..., 0], (h, w), sd, dev), _resize_map(start[..., 1], (h, w), sd, dev),
-                          _resize_map(start[..., 2], (h, w), sd, dev),
-                          _resize_map(start[..., 3], (h, w), h / height, dev)], -1)
+            scales = (w / width, w / width, w / width, h / height)  # δ1, δ2 and u with the width, v with the height
+            x = np.stack([_resize_map(start[..., c], (h, w), scales[c], dev) for c in range(4)], -1)
         elif x is None:
             x = np.zeros((h, w, 4), np.float32)
         if flow_search:
