@@ -267,6 +267,15 @@ def have_dask() -> bool:
     return True
 
 
+def check_dask(workers: int, scheduler: str | None) -> None:
+    """Raise ValueError, saying how to install it, when the execution asked for needs
+    Dask and Dask is not installed (one worker runs in this process without it)."""
+    if (workers > 1 or scheduler) and not have_dask():
+        asked = f"--workers {workers}" if workers > 1 else ""
+        asked += (" and " if asked and scheduler else "") + ("--scheduler" if scheduler else "")
+        raise ValueError(f"{asked} need Dask, which is not installed: {INSTALL_HINT}; or run with --workers 1")
+
+
 def run_batch(
     pairs: Sequence[Pair],
     out: str | os.PathLike,
@@ -300,12 +309,11 @@ def run_batch(
     out = Path(out).absolute()
     t0 = time.perf_counter()
     report = progress or (lambda outcome, finished, total: None)
+    check_dask(workers, scheduler)
     if scheduler is None and workers == 1 and not have_dask():
         out.mkdir(parents=True, exist_ok=True)
         outcomes = _run_here(pairs, out, params, device, warm_start, report)
     else:
-        if not have_dask():
-            raise ValueError(f"--workers {workers} and --scheduler need Dask: {INSTALL_HINT}")
         outcomes = _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retries, report)
     summary = Summary(outcomes, time.perf_counter() - t0)
     _write_failed(out, pairs, summary)

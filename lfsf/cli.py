@@ -207,9 +207,7 @@ def cmd_batch(args) -> int:
     if args.device and not args.scheduler:
         resolve_device(args.device)  # a device this machine lacks: one clear error before any work
     pairs = batch.pairs_from_sources(args.sources)
-    if (args.workers > 1 or args.scheduler) and not batch.have_dask():
-        raise ValueError(f"--workers {args.workers}{' and --scheduler' if args.scheduler else ''} need Dask, "
-                         f"which is not installed: {batch.INSTALL_HINT}; or run with --workers 1")
+    batch.check_dask(args.workers, args.scheduler)  # before the first line of the run
     where = (f"the Dask scheduler at {args.scheduler}" if args.scheduler
              else f"a local Dask cluster of {args.workers} process{'es' if args.workers > 1 else ''}"
              if batch.have_dask() else "this process (Dask is not installed)")
