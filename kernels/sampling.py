@@ -17,13 +17,16 @@ def sample_subaperture(
     grid_rows: int,
     grid_cols: int,
     phis: wp.array(dtype=wp.vec2),
+    span: int,
     # outputs
     samples: wp.array3d(dtype=float),
 ):
     """samples[s] = L(·, φ_s): views is [a·cols + b, y, x]; φ_s = (ξ, η) in view steps
     from the grid centre ((rows−1)/2, (cols−1)/2). Angular positions outside the grid are
-    clamped to it. Launch over (samples × rows, columns)."""
-    r, x = wp.tid()
+    clamped to it. Launch over (samples × rows, ⌈columns / span⌉): each thread walks
+    ``span`` pixels of a row (:func:`lfsf.device.row_span`), with the four views and
+    their weights found once."""
+    r, c = wp.tid()
     r = r + row0
     height = samples.shape[1]
     s = r // height
@@ -37,9 +40,18 @@ def sample_subaperture(
     b1 = wp.min(b0 + 1, grid_cols - 1)
     fa = a - float(a0)
     fb = b - float(b0)
-    top = (1.0 - fb) * views[a0 * grid_cols + b0, y, x] + fb * views[a0 * grid_cols + b1, y, x]
-    bottom = (1.0 - fb) * views[a1 * grid_cols + b0, y, x] + fb * views[a1 * grid_cols + b1, y, x]
-    samples[s, y, x] = (1.0 - fa) * top + fa * bottom
+    w00 = (1.0 - fa) * (1.0 - fb)
+    w01 = (1.0 - fa) * fb
+    w10 = fa * (1.0 - fb)
+    w11 = fa * fb
+    v00 = views[a0 * grid_cols + b0, y]
+    v01 = views[a0 * grid_cols + b1, y]
+    v10 = views[a1 * grid_cols + b0, y]
+    v11 = views[a1 * grid_cols + b1, y]
+    out = samples[s, y]
+    x0 = c * span
+    for x in range(x0, wp.min(samples.shape[2], x0 + span)):
+        out[x] = (w00 * v00[x] + w01 * v01[x]) + (w10 * v10[x] + w11 * v11[x])
 
 
 @wp.kernel

@@ -147,40 +147,111 @@ def flow_cost(
         cost[k, i, j] = value
 
 
+#: The largest window radius of :func:`flow_search` (its ring buffer of column sums).
+MAX_SEARCH_RADIUS = wp.constant(5)
+vec11 = wp.types.vector(length=11, dtype=wp.float32)
+
+
+@wp.func
+def shifted_cost(centre1: wp.array2d(dtype=float), centre2: wp.array2d(dtype=float), i: int, j: int, dx: int,
+                 dy: int):
+    """|I1(p) − I2(p + (dx, dy))| at pixel p = (i, j) for a whole-pixel shift; 1 where
+    p + (dx, dy) leaves the image (as :func:`flow_cost`)."""
+    y = i + dy
+    x = j + dx
+    value = float(1.0)
+    if x >= 0 and y >= 0 and x < centre2.shape[1] and y < centre2.shape[0]:
+        value = wp.abs(centre1[i, j] - centre2[y, x])
+    return value
+
+
+@wp.func
+def column_cost(centre1: wp.array2d(dtype=float), centre2: wp.array2d(dtype=float), i: int, j: int, dx: int,
+                dy: int, radius: int):
+    """Σ over the window's column at (clamped) column j: Σ_t cost(clamp(i + t), j)."""
+    h = centre1.shape[0]
+    w = centre1.shape[1]
+    jc = wp.clamp(j, 0, w - 1)
+    acc = float(0.0)
+    for t in range(-radius, radius + 1):
+        acc += shifted_cost(centre1, centre2, wp.clamp(i + t, 0, h - 1), jc, dx, dy)
+    return acc
+
+
+@wp.func
+def window_shift_cost(centre1: wp.array2d(dtype=float), centre2: wp.array2d(dtype=float), i: int, j: int,
+                      dx: int, dy: int, radius: int):
+    """The mean of :func:`shifted_cost` over the (2r+1)² window at p, clamped at the
+    borders (as :func:`box_sum` of :func:`flow_cost`), summed column by column."""
+    acc = float(0.0)
+    for t in range(-radius, radius + 1):
+        acc += column_cost(centre1, centre2, i, j + t, dx, dy, radius)
+    n = float(2 * radius + 1)
+    return acc / (n * n)
+
+
 @wp.kernel
-def select_flow(
+def flow_search(
     row0: int,
-    cost: wp.array3d(dtype=float),
+    centre1: wp.array2d(dtype=float),
+    centre2: wp.array2d(dtype=float),
     half: int,
+    radius: int,
+    span: int,
     # outputs
+    best_cost: wp.array2d(dtype=float),
+    best_k: wp.array2d(dtype=int),
     best: wp.array2d(dtype=wp.vec2),
 ):
-    """Winner-take-all over a (2n+1)² grid of whole-pixel candidates (k = (dy+n)(2n+1) +
-    (dx+n)), refined by a parabola along each axis. Launch over (rows, columns)."""
-    i, j = wp.tid()
+    """Whole-pixel block matching without a cost volume: for every shift of the
+    (2n+1)² grid (k = (dy+n)(2n+1) + (dx+n), n = ``half``) the windowed mean of
+    |I1(p) − I2(p + (dx, dy))| over (2r+1)² (r = ``radius`` ≤ MAX_SEARCH_RADIUS, clamped
+    at the borders), the first minimum kept per pixel, then each axis refined by the
+    parabola through the minimum and its two neighbours: the same as :func:`flow_cost`,
+    :func:`box_sum` and :func:`select_flow` in turn. Each thread walks ``span`` pixels
+    of a row, the window's column sums kept in a ring so that each is computed once
+    per shift. Launch over (rows, ⌈columns / span⌉) (:func:`lfsf.device.row_span`)."""
+    i, c = wp.tid()
     i = i + row0
+    w = centre1.shape[1]
     side = 2 * half + 1
-    kmin = int(0)
-    cmin = cost[0, i, j]
-    for k in range(1, side * side):
-        c = cost[k, i, j]
-        if c < cmin:
-            cmin = c
-            kmin = k
-    ky = kmin // side
-    kx = kmin - ky * side
-    dx = float(kx - half)
-    dy = float(ky - half)
-    if kx > 0 and kx < side - 1:
-        cl = cost[kmin - 1, i, j]
-        cr = cost[kmin + 1, i, j]
-        curv = cl - 2.0 * cmin + cr
-        if curv > 1.0e-12:
-            dx = dx + 0.5 * (cl - cr) / curv
-    if ky > 0 and ky < side - 1:
-        cu = cost[kmin - side, i, j]
-        cd = cost[kmin + side, i, j]
-        curv = cu - 2.0 * cmin + cd
-        if curv > 1.0e-12:
-            dy = dy + 0.5 * (cu - cd) / curv
-    best[i, j] = wp.vec2(dx, dy)
+    n = 2 * radius + 1
+    area = float(n * n)
+    j0 = c * span
+    j1 = wp.min(w, j0 + span)
+    for k in range(side * side):
+        sy = k // side - half
+        sx = k - (k // side) * side - half
+        ring = vec11()
+        # the ring holds the column sums of columns j − r … j + r at slot (column + r) mod n
+        for t in range(-radius, radius):
+            ring[(j0 + t + radius + n) % n] = column_cost(centre1, centre2, i, j0 + t, sx, sy, radius)
+        for j in range(j0, j1):
+            ring[(j + 2 * radius) % n] = column_cost(centre1, centre2, i, j + radius, sx, sy, radius)
+            acc = float(0.0)
+            for t in range(n):
+                acc += ring[(j + t) % n]
+            value = acc / area
+            if k == 0 or value < best_cost[i, j]:
+                best_cost[i, j] = value
+                best_k[i, j] = k
+    for j in range(j0, j1):
+        kmin = best_k[i, j]
+        cmin = best_cost[i, j]
+        ky = kmin // side
+        kx = kmin - ky * side
+        dx = float(kx - half)
+        dy = float(ky - half)
+        if kx > 0 and kx < side - 1:
+            cl = window_shift_cost(centre1, centre2, i, j, kx - 1 - half, ky - half, radius)
+            cr = window_shift_cost(centre1, centre2, i, j, kx + 1 - half, ky - half, radius)
+            curv = cl - 2.0 * cmin + cr
+            if curv > 1.0e-12:
+                dx = dx + 0.5 * (cl - cr) / curv
+        if ky > 0 and ky < side - 1:
+            cu = window_shift_cost(centre1, centre2, i, j, kx - half, ky - 1 - half, radius)
+            cd = window_shift_cost(centre1, centre2, i, j, kx - half, ky + 1 - half, radius)
+            curv = cu - 2.0 * cmin + cd
+            if curv > 1.0e-12:
+                dy = dy + 0.5 * (cu - cd) / curv
+        best[i, j] = wp.vec2(dx, dy)

@@ -180,7 +180,8 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
     sig = [arr(rng.uniform(0.05, 0.5, (h, w, 4)), wp.vec4) for _ in range(2)]
     cases = [
         # reads 4 neighbouring views per sample, writes the sample
-        ("sample_subaperture", launch(sampling.sample_subaperture, [views, 9, 9, wp_phis], [sampled], dim=(s * h, w)),
+        ("sample_subaperture", launch(sampling.sample_subaperture, [views, 9, 9, wp_phis, span], [sampled],
+                                             dim=(s * h, per_row)),
          f * h * w * s * 5),
         # reads both sample stacks, x̂ and the hidden mask; writes 12 coefficients per sample and the column sums
         ("data_coefficients", launch(data_term.data_coefficients,

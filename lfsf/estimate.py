@@ -279,18 +279,18 @@ def _sample_at_flow(image: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 def _flow_search(centre1, centre2, half: int, search_radius: int, device: str) -> np.ndarray:
     """Whole-pixel block matching of the centre views over a (2n+1)² window of
-    displacements (windowed |I1(p) − I2(p + u)|), refined to sub-pixel: (h, w, 2)."""
+    displacements (windowed |I1(p) − I2(p + u)|), refined to sub-pixel: (h, w, 2). One
+    pass over the shifts keeps each pixel's best; no cost volume is stored."""
     from lfsf.kernels import search
 
     wp = _device.warp()
     h, w = centre1.shape
-    grid = np.stack(np.meshgrid(np.arange(-half, half + 1), np.arange(-half, half + 1)), -1).reshape(-1, 2)
-    candidates = wp.array(grid.astype(np.float32), dtype=wp.vec2, device=device)
-    base = wp.zeros((h, w), dtype=wp.vec4, device=device)
-    smooth = _windowed_cost(search.flow_cost, [centre1, centre2, candidates, base], len(grid), (h, w),
-                            search_radius, device)
+    span, per_row = _device.row_span(device, w)
+    best_cost = wp.empty((h, w), dtype=float, device=device)
+    best_k = wp.empty((h, w), dtype=int, device=device)
     best = wp.empty((h, w), dtype=wp.vec2, device=device)
-    _device.launch_rows(search.select_flow, dim=(h, w), inputs=[smooth, half], outputs=[best], device=device)
+    _device.launch_rows(search.flow_search, dim=(h, per_row), inputs=[centre1, centre2, half, search_radius, span],
+                        outputs=[best_cost, best_k, best], device=device)
     return best.numpy()
 
 
@@ -418,8 +418,9 @@ def estimate_scene_flow(
         grey = lf.grey().views.reshape(rows * cols, height, width)
         views = wp.array(np.ascontiguousarray(grey, dtype=np.float32), dtype=float, device=dev)
         out = wp.empty((n_samples, height, width), dtype=float, device=dev)
-        _device.launch_rows(sampling.sample_subaperture, dim=(n_samples * height, width),
-                            inputs=[views, rows, cols, wp_phis], outputs=[out], device=dev)
+        span, per_row = _device.row_span(dev, width)
+        _device.launch_rows(sampling.sample_subaperture, dim=(n_samples * height, per_row),
+                            inputs=[views, rows, cols, wp_phis, span], outputs=[out], device=dev)
         stacks.append(out)
         del views
     lap("sampling")

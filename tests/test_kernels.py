@@ -31,8 +31,9 @@ def close(got, want, rtol=RTOL, atol=ATOL):
 # --- sampling ------------------------------------------------------------------------------
 
 
+@pytest.mark.parametrize("span", [1, 4, 9])  # a pixel per thread (CUDA), part of a row, a whole row (CPU)
 @pytest.mark.parametrize("grid", [(5, 5), (4, 6), (3, 2)])
-def test_sample_subaperture_matches_reference(grid, device):
+def test_sample_subaperture_matches_reference(grid, span, device):
     from lfsf.kernels import sampling
 
     rows, cols = grid
@@ -50,8 +51,8 @@ def test_sample_subaperture_matches_reference(grid, device):
         (-3.3, 7.5),              # clamped: view (rows − 1, 0)
     ], np.float32)
     out = wp.empty((len(phis), h, w), dtype=float, device=device)
-    launch(sampling.sample_subaperture, (len(phis) * h, w),
-           [arr(views.reshape(rows * cols, h, w), float, device), rows, cols, arr(phis, wp.vec2, device)],
+    launch(sampling.sample_subaperture, (len(phis) * h, -(-w // span)),
+           [arr(views.reshape(rows * cols, h, w), float, device), rows, cols, arr(phis, wp.vec2, device), span],
            [out], device)
     got = out.numpy()
     close(got, ref.sample_subaperture(views, phis))
@@ -74,8 +75,9 @@ def test_sample_subaperture_integer_offsets_are_views(device):
     ab = [(a, b) for a in range(rows) for b in range(cols)]
     phis = np.array([(b - 3, a - 2) for a, b in ab], np.float32)
     out = wp.empty((len(phis), h, w), dtype=float, device=device)
-    launch(sampling.sample_subaperture, (len(phis) * h, w),
-           [arr(views.reshape(rows * cols, h, w), float, device), rows, cols, arr(phis, wp.vec2, device)],
+    span, per_row = D.row_span(device, w)
+    launch(sampling.sample_subaperture, (len(phis) * h, per_row),
+           [arr(views.reshape(rows * cols, h, w), float, device), rows, cols, arr(phis, wp.vec2, device), span],
            [out], device)
     got = out.numpy()
     for s, (a, b) in enumerate(ab):
@@ -973,7 +975,7 @@ def _level_solver(size, grid, params, device):
     for lf in (lf1, lf2):
         views = arr(lf.grey().views.reshape(rows * cols, h, w), float, device)
         out = wp.empty((n, h, w), dtype=float, device=device)
-        launch(sampling.sample_subaperture, (n * h, w), [views, rows, cols, wp_phis], [out], device)
+        launch(sampling.sample_subaperture, (n * h, 1), [views, rows, cols, wp_phis, w], [out], device)
         stacks.append(out)
     centres = [wp.clone(s[0]) for s in stacks]
     textures = [_structure_texture(s, params, device) for s in stacks]

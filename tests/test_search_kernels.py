@@ -73,12 +73,17 @@ def run_flow_cost(centre1, centre2, candidates, base, device, span=None):
     return cost.numpy()
 
 
-def run_select_flow(cost, half, device):
+def run_flow_search(centre1, centre2, half, radius, device, span=None):
     from lfsf.kernels import search
 
-    _, h, w = cost.shape
+    h, w = centre1.shape
+    span = D.row_span(device, w)[0] if span is None else span
+    best_cost = wp.zeros((h, w), dtype=float, device=device)
+    best_k = wp.zeros((h, w), dtype=int, device=device)
     best = wp.zeros((h, w), dtype=wp.vec2, device=device)
-    launch(search.select_flow, (h, w), [arr(cost, float, device), half], [best], device)
+    launch(search.flow_search, (h, -(-w // span)),
+           [arr(centre1, float, device), arr(centre2, float, device), half, radius, span], [best_cost, best_k, best],
+           device)
     return best.numpy()
 
 
@@ -202,40 +207,22 @@ def test_flow_cost_matches_reference(device, span):
     close(got[4, 1, 2], abs(float(centre1[1, 2]) - float(centre2[1, 2])), atol=1e-7)
 
 
-@pytest.mark.parametrize("half", [1, 2])
-def test_select_flow_matches_reference(half, device):
-    side = 2 * half + 1
-    h, w = 4, side + 2
-    cost = rng(7).random((side * side, h, w)).astype(np.float32)
-    # row 0: the minimum at each grid candidate along the top row of the grid, row 1 along
-    # the left column, row 2 at the centre, row 3 random
-    for j in range(w):
-        cost[min(j, side - 1), 0, j] = -1.0
-        cost[min(j, side - 1) * side, 1, j] = -1.0
-    cost[half * side + half, 2, :] = -1.0
-    got = run_select_flow(cost, half, device)
+@pytest.mark.parametrize("span", [1, 3, 9])
+@pytest.mark.parametrize("half,radius", [(1, 0), (1, 1), (2, 2), (2, 5)])
+def test_flow_search_matches_reference(half, radius, span, device):
+    """flow_search is flow_cost over the whole-pixel grid (base 0), then box_sum, then
+    select_flow, in one pass without a cost volume. A flat patch makes every shift tie
+    there: the first candidate wins and is not refined (on the grid's border)."""
+    r = rng(7)
+    h, w = 7, 9
+    centre1 = r.random((h, w)).astype(np.float32)
+    centre2 = r.random((h, w)).astype(np.float32)
+    centre1[:, :2] = centre2[:, :4] = 0.25  # flat patches: every shift within them ties
+    got = run_flow_search(centre1, centre2, half, radius, device, span)
+    grid = ref.flow_grid(half).astype(np.float32)
+    cost = ref.box_mean(ref.flow_cost(centre1, centre2, grid, np.zeros((h, w, 4), np.float32)), radius)
     want = ref.select_flow(cost, half)
-    close(got, want, atol=2e-6)
-    k = np.argmin(cost, axis=0)
-    whole = ref.flow_grid(half)[k]  # (h, w, 2)
-    assert np.all(np.abs(got - whole) <= 0.5 + 1e-6)
-    # on the grid's border the component across the border is not refined
-    np.testing.assert_array_equal(got[0, ..., 1], -half)
-    np.testing.assert_array_equal(got[1, ..., 0], -half)
-    assert np.any(np.abs(got[2] - whole[2]) > 1e-3)
-
-
-def test_select_flow_finds_the_vertex_of_a_sampled_paraboloid(device):
-    half = 2
-    grid = ref.flow_grid(half).astype(np.float64)  # (K, 2) = (dx, dy)
-    h, w = 3, 4
-    r = rng(8)
-    target = r.uniform(-1.4, 1.4, (h, w, 2))
-    a = r.uniform(0.5, 2.0, (h, w, 2))
-    cost = (a[..., 0] * (grid[:, 0, None, None] - target[..., 0]) ** 2
-            + a[..., 1] * (grid[:, 1, None, None] - target[..., 1]) ** 2).astype(np.float32)
-    got = run_select_flow(cost, half, device)
-    close(got, target, atol=2e-4)
+    close(got, want, atol=2e-5)
 
 
 # --- the searches ----------------------------------------------------------------------------
@@ -288,17 +275,15 @@ def test_plane_sweep_recovers_a_constant_disparity(delta, device):
 
 
 def _block_matching(shift, device, half=2, h=20, w=24):
-    """I2 = I1 moved by a known shift u (I2(p + u) = I1(p)): flow_cost over a (2n+1)² grid
-    of whole-pixel candidates → box_sum (5 × 5) → select_flow, as lfsf.estimate does.
+    """I2 = I1 moved by a known shift u (I2(p + u) = I1(p)): flow_search over a (2n+1)²
+    grid of whole-pixel candidates with 5 × 5 windows, as lfsf.estimate does.
     Returns the estimates of the pixels whose candidates all stay in the image."""
     tex = _texture(10)
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
     centre1 = tex(xx, yy).astype(np.float32)
     centre2 = tex(xx - shift[0], yy - shift[1]).astype(np.float32)
     grid = ref.flow_grid(half).astype(np.float32)
-    cost = run_flow_cost(centre1, centre2, grid, np.zeros((h, w, 4), np.float32), device)
-    smooth = run_box_sum(cost, 2, device)
-    best = run_select_flow(smooth, half, device)
+    best = run_flow_search(centre1, centre2, half, 2, device)
     margin = half + 3
     return best[margin:-margin, margin:-margin]
 
