@@ -43,6 +43,45 @@ def bilinear_gradient(img: wp.array2d(dtype=float), x: float, y: float):
 
 
 @wp.func
+def bilinear_with_gradient(img: wp.array2d(dtype=float), x: float, y: float):
+    """(:func:`bilinear`, :func:`bilinear_gradient`) at (x, y) in one: away from the
+    borders the five lookups share their weights and twelve pixels; within a pixel of
+    a border, the two functions as they are (clamped)."""
+    h = img.shape[0]
+    w = img.shape[1]
+    value = float(0.0)
+    g = wp.vec2(0.0)
+    if x >= 1.0 and y >= 1.0 and x < float(w - 2) and y < float(h - 2):
+        j = int(x)
+        i = int(y)
+        fx = x - float(j)
+        fy = y - float(i)
+        gx = 1.0 - fx
+        gy = 1.0 - fy
+        # rows i and i + 1 over columns j − 1 … j + 2; rows i − 1 and i + 2 over j, j + 1
+        a0 = img[i, j - 1]
+        a1 = img[i, j]
+        a2 = img[i, j + 1]
+        a3 = img[i, j + 2]
+        b0 = img[i + 1, j - 1]
+        b1 = img[i + 1, j]
+        b2 = img[i + 1, j + 1]
+        b3 = img[i + 1, j + 2]
+        top = gx * a1 + fx * a2
+        bottom = gx * b1 + fx * b2
+        value = gy * top + fy * bottom
+        left = gy * (gx * a0 + fx * a1) + fy * (gx * b0 + fx * b1)
+        right = gy * (gx * a2 + fx * a3) + fy * (gx * b2 + fx * b3)
+        up = gy * (gx * img[i - 1, j] + fx * img[i - 1, j + 1]) + fy * top
+        down = gy * bottom + fy * (gx * img[i + 2, j] + fx * img[i + 2, j + 1])
+        g = wp.vec2(0.5 * (right - left), 0.5 * (down - up))
+    else:
+        value = bilinear(img, x, y)
+        g = bilinear_gradient(img, x, y)
+    return value, g
+
+
+@wp.func
 def inside(img: wp.array2d(dtype=float), x: float, y: float):
     """True when (x, y) lies within the image's pixel centres."""
     return x >= 0.0 and y >= 0.0 and x <= float(img.shape[1] - 1) and y <= float(img.shape[0] - 1)
@@ -80,6 +119,27 @@ def half_plane_normal(m: int):
 def in_half_plane(phi: wp.vec2, normal: wp.vec2):
     """φ lies in the closed half-plane {φ · n ≥ 0} (with a small tolerance)."""
     return wp.dot(phi, normal) >= -1.0e-3 * wp.length(phi)
+
+
+@wp.func
+def half_plane_mask(phi: wp.vec2):
+    """1 for each half-plane m (:func:`half_plane_normal`) that contains φ, else 0."""
+    mask = vec8()
+    for m in range(HALF_PLANES):
+        if in_half_plane(phi, half_plane_normal(m)):
+            mask[m] = 1.0
+    return mask
+
+
+@wp.func
+def least_half_mean(sums: vec8, counts: vec8):
+    """The least mean sums[m] / counts[m] over the half-planes that hold a sample; 1
+    where none does."""
+    c = float(1.0)
+    for m in range(HALF_PLANES):
+        if counts[m] > 0.0:
+            c = wp.min(c, sums[m] / counts[m])
+    return c
 
 
 @wp.func

@@ -18,7 +18,8 @@ q̃_k = w_k q_k ∈ [−w_k, w_k], so the iterations divide nothing and a left-o
 
 import warp as wp
 
-from .common import HALF_PLANES, bilinear, bilinear_gradient, half_plane_normal, half_plane_residuals, in_half_plane, inside
+from .common import (HALF_PLANES, bilinear_with_gradient, half_plane_mask, half_plane_normal, in_half_plane, inside,
+                     vec8)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -32,17 +33,16 @@ CENTRE_OCCLUSION_FACTOR = wp.constant(3.0)
 
 
 @wp.func
-def visible_half(samples: wp.array3d(dtype=float), phis: wp.array(dtype=wp.vec2), qx: float, qy: float,
-                 disparity: float, centre: float, ratio: float):
-    """Occlusion test of one light field at one pixel: the mean residual |L(q − δφ, φ) −
-    c| of the samples s ≥ 1 against the point's appearance c, over each half of the
-    samples (split by a line through φ = 0 at multiples of 45°). An occluder spoils the
-    samples on its side: the best half is taken when its mean is below ``ratio`` times
-    the mean over all samples and lower by at least OCCLUSION_FLOOR.
+def best_half(sums: vec8, counts: vec8, total: float, count: float, ratio: float):
+    """Occlusion test of one light field at one pixel, from the residuals |L(q − δφ, φ) −
+    c| of its samples s ≥ 1 against the point's appearance c: summed over each half of
+    the samples (split by a line through φ = 0 at multiples of 45°; ``sums``,
+    ``counts``) and over all (``total``, ``count``). An occluder spoils the samples on
+    its side: the best half is taken when its mean is below ``ratio`` times the mean over
+    all samples and lower by at least OCCLUSION_FLOOR.
 
     Returns the best half's index (−1: no occlusion, keep every sample) and the mean
     residual of the samples kept."""
-    sums, counts, total, count = half_plane_residuals(samples, phis, qx, qy, disparity, centre)
     best = int(-1)
     kept_mean = float(0.0)
     if count > 0.0:
@@ -90,7 +90,7 @@ def data_coefficients(
     ``samples1[s]``, ``samples2[s]``: (texture part of) the sub-aperture image at φ_s at
     t1 and t2; sample 0 must be the centre view (φ = 0). ``weights[s]`` = (λ1, λ2, λ3)
     for that sample. Where one side of the samples matches much worse than the other
-    (``occlusion_ratio``, see :func:`visible_half`; 0 disables), the samples of the worse
+    (``occlusion_ratio``, see :func:`best_half`; 0 disables), the samples of the worse
     side are left out of that light field's rows: near a depth edge the occluder hides
     the point in the views on its side. Both light fields are tested against the point's
     appearance at t1, I1(p); where the centre view at t2 is itself occluded (|I1 − J2|
@@ -106,25 +106,23 @@ def data_coefficients(
     xh = x_hat[i, j]
     px = float(j)
     py = float(i)
-    centre1 = samples1[0]
-    centre2 = samples2[0]
-    i1 = centre1[i, j]
+    i1 = samples1[0, i, j]
     xj = px + xh[2]
     yj = py + xh[3]
-    j2 = bilinear(centre2, xj, yj)
-    gj = bilinear_gradient(centre2, xj, yj)
+    centre2 = samples2[0]
+    j2, gj = bilinear_with_gradient(centre2, xj, yj)
     in_j = inside(centre2, xj, yj)
-    # Both light fields are tested against the point's appearance at t1, I1(p): at t2
-    # the centre view itself may be the occluded one (the point moved behind something)
-    # while side views still see it; then the stereo rows at t2 (which compare with
-    # J2) and the centre's flow row are left out, and the visible side views carry ρ3.
-    half1, kept1 = visible_half(samples1, phis, px, py, xh[0], i1, occlusion_ratio)
-    half2, kept2 = visible_half(samples2, phis, xj, yj, xh[1], i1, occlusion_ratio)
-    if occlusion_ratio > 0.0 and wp.abs(i1 - j2) > CENTRE_OCCLUSION_FACTOR * kept2 + OCCLUSION_FLOOR:
-        in_j = False
-    # a nearer point covers p at t2 (geometric test): no t2 view is trusted to see it
-    hidden = hidden2[i, j] > 0.5
-    colsum = wp.vec4(0.0)
+    # first pass: the warped samples and their gradients give A1…A9 (stored now, the
+    # steps σ̃ in the second pass); their residuals against the point's appearance at t1,
+    # I1(p), summed per half of the samples, give the occlusion test of each light field
+    sums1 = vec8()
+    counts1 = vec8()
+    sums2 = vec8()
+    counts2 = vec8()
+    total1 = float(0.0)
+    count1 = float(0.0)
+    total2 = float(0.0)
+    count2 = float(0.0)
     for s in range(phis.shape[0]):
         phi = phis[s]
         view1 = samples1[s]
@@ -133,21 +131,60 @@ def data_coefficients(
         y1 = py - xh[0] * phi[1]
         x2 = xj - xh[1] * phi[0]
         y2 = yj - xh[1] * phi[1]
-        w1v = bilinear(view1, x1, y1)
-        g1 = bilinear_gradient(view1, x1, y1)
-        w2v = bilinear(view2, x2, y2)
-        g2 = bilinear_gradient(view2, x2, y2)
-        in_1 = inside(view1, x1, y1) and keeps(half1, phi)
-        in_2 = inside(view2, x2, y2) and keeps(half2, phi) and (s > 0 or in_j) and not hidden
-        a1 = -wp.dot(phi, g1)
-        a2 = i1 - w1v
-        a3 = -wp.dot(phi, g2)
-        a4 = j2 - w2v
-        a5 = g2[0]
-        a6 = g2[1]
-        a7 = w1v - w2v
-        a8 = gj[0] - a5
-        a9 = gj[1] - a6
+        w1v, g1 = bilinear_with_gradient(view1, x1, y1)
+        w2v, g2 = bilinear_with_gradient(view2, x2, y2)
+        c = vec12()
+        c[0] = -wp.dot(phi, g1)
+        c[1] = i1 - w1v
+        c[2] = -wp.dot(phi, g2)
+        c[3] = j2 - w2v
+        c[4] = g2[0]
+        c[5] = g2[1]
+        c[6] = w1v - w2v
+        c[7] = gj[0] - g2[0]
+        c[8] = gj[1] - g2[1]
+        coef[i, j, s] = c
+        if s > 0:
+            mask = half_plane_mask(phi)
+            if inside(view1, x1, y1):
+                e1 = wp.abs(w1v - i1)
+                total1 += e1
+                count1 += 1.0
+                sums1 += e1 * mask
+                counts1 += mask
+            if inside(view2, x2, y2):
+                e2 = wp.abs(w2v - i1)
+                total2 += e2
+                count2 += 1.0
+                sums2 += e2 * mask
+                counts2 += mask
+    # Both light fields are tested against the point's appearance at t1, I1(p): at t2
+    # the centre view itself may be the occluded one (the point moved behind something)
+    # while side views still see it; then the stereo rows at t2 (which compare with
+    # J2) and the centre's flow row are left out, and the visible side views carry ρ3.
+    half1, kept1 = best_half(sums1, counts1, total1, count1, occlusion_ratio)
+    half2, kept2 = best_half(sums2, counts2, total2, count2, occlusion_ratio)
+    if occlusion_ratio > 0.0 and wp.abs(i1 - j2) > CENTRE_OCCLUSION_FACTOR * kept2 + OCCLUSION_FLOOR:
+        in_j = False
+    # a nearer point covers p at t2 (geometric test): no t2 view is trusted to see it
+    hidden = hidden2[i, j] > 0.5
+    # second pass: which rows are in, their steps σ̃ and the column sums
+    colsum = wp.vec4(0.0)
+    for s in range(phis.shape[0]):
+        phi = phis[s]
+        x1 = px - xh[0] * phi[0]
+        y1 = py - xh[0] * phi[1]
+        x2 = xj - xh[1] * phi[0]
+        y2 = yj - xh[1] * phi[1]
+        in_1 = inside(samples1[s], x1, y1) and keeps(half1, phi)
+        in_2 = inside(samples2[s], x2, y2) and keeps(half2, phi) and (s > 0 or in_j) and not hidden
+        c = coef[i, j, s]
+        a1 = wp.abs(c[0])
+        a3 = wp.abs(c[2])
+        a5 = wp.abs(c[4])
+        a6 = wp.abs(c[5])
+        a8 = wp.abs(c[7])
+        a9 = wp.abs(c[8])
         lam = weights[s]
         wt1 = float(0.0)
         wt2 = float(0.0)
@@ -158,26 +195,11 @@ def data_coefficients(
             wt2 = lam[1]
         if in_1 and in_2:
             wt3 = lam[2]
-        c = vec12()
-        c[0] = a1
-        c[1] = a2
-        c[2] = a3
-        c[3] = a4
-        c[4] = a5
-        c[5] = a6
-        c[6] = a7
-        c[7] = a8
-        c[8] = a9
-        c[9] = wt1 * wt1 / (wt1 * wp.abs(a1) + eps)
-        c[10] = wt2 * wt2 / (wt2 * (wp.abs(a3) + wp.abs(a8) + wp.abs(a9)) + eps)
-        c[11] = wt3 * wt3 / (wt3 * (wp.abs(a1) + wp.abs(a3) + wp.abs(a5) + wp.abs(a6)) + eps)
+        c[9] = wt1 * wt1 / (wt1 * a1 + eps)
+        c[10] = wt2 * wt2 / (wt2 * (a3 + a8 + a9) + eps)
+        c[11] = wt3 * wt3 / (wt3 * (a1 + a3 + a5 + a6) + eps)
         coef[i, j, s] = c
-        colsum += wp.vec4(
-            (wt1 + wt3) * wp.abs(a1),
-            (wt2 + wt3) * wp.abs(a3),
-            wt2 * wp.abs(a8) + wt3 * wp.abs(a5),
-            wt2 * wp.abs(a9) + wt3 * wp.abs(a6),
-        )
+        colsum += wp.vec4((wt1 + wt3) * a1, (wt2 + wt3) * a3, wt2 * a8 + wt3 * a5, wt2 * a9 + wt3 * a6)
     data_colsum[i, j] = colsum
 
 

@@ -10,7 +10,7 @@ or ρ2 at p + û); costs are then summed over a small window before the choice.
 
 import warp as wp
 
-from .common import HALF_PLANES, bilinear, half_plane_residuals, inside
+from .common import bilinear, half_plane_mask, half_plane_residuals, inside, least_half_mean, vec8
 
 wp.set_module_options({"enable_backward": False})
 
@@ -48,11 +48,70 @@ def disparity_cost(
         d = candidates[k] + base[i, j]
         centre = bilinear(samples[0], qx, qy)
         sums, counts, total, count = half_plane_residuals(samples, phis, qx, qy, d, centre)
-        c = float(1.0)
-        for m in range(HALF_PLANES):
-            if counts[m] > 0.0:
-                c = wp.min(c, sums[m] / counts[m])
-        cost[k, i, j] = c
+        cost[k, i, j] = least_half_mean(sums, counts)
+
+
+@wp.kernel
+def sample_half_planes(
+    row0: int,
+    phis: wp.array(dtype=wp.vec2),
+    # outputs
+    masks: wp.array(dtype=vec8),
+):
+    """masks[s] = the half-planes that hold φ_s (:func:`lfsf.kernels.common.half_plane_mask`).
+    Launch over the samples."""
+    s = wp.tid() + row0
+    masks[s] = half_plane_mask(phis[s])
+
+
+@wp.kernel
+def sweep_cost(
+    row0: int,
+    samples: wp.array3d(dtype=float),
+    shifts: wp.array2d(dtype=wp.vec4),
+    masks: wp.array(dtype=vec8),
+    span: int,
+    # outputs
+    cost: wp.array3d(dtype=float),
+):
+    """:func:`disparity_cost` of a plane sweep (no base disparity, no flow offset), where
+    each sample's warped position moves by a constant: q − δ_k φ_s = q + (a, b) + (f, g)
+    with whole (a, b) and fractions (f, g) ∈ [0, 1) given per candidate and sample as
+    ``shifts[k, s]`` = (a, b, f, g), and the half-planes holding φ_s as ``masks[s]``
+    (:func:`lfsf.kernels.common.half_plane_mask`). The bilinear weights are then the same
+    for every pixel. Launch over (candidates × rows, ⌈columns / span⌉)
+    (:func:`lfsf.device.row_span`)."""
+    r, c0 = wp.tid()
+    r = r + row0
+    h = cost.shape[1]
+    w = cost.shape[2]
+    k = r // h
+    i = r - k * h
+    centre = samples[0]
+    j0 = c0 * span
+    for j in range(j0, wp.min(w, j0 + span)):
+        value0 = centre[i, j]
+        sums = vec8()
+        counts = vec8()
+        for s in range(1, samples.shape[0]):
+            sh = shifts[k, s]
+            x0 = j + int(sh[0])
+            y0 = i + int(sh[1])
+            fx = sh[2]
+            fy = sh[3]
+            # inside the pixel centres: 0 ≤ x0 + fx ≤ w − 1 (likewise y)
+            if x0 >= 0 and y0 >= 0 and (x0 < w - 1 or (x0 == w - 1 and fx == 0.0)) and (
+                    y0 < h - 1 or (y0 == h - 1 and fy == 0.0)):
+                view = samples[s]
+                x1 = wp.min(x0 + 1, w - 1)
+                y1 = wp.min(y0 + 1, h - 1)
+                top = (1.0 - fx) * view[y0, x0] + fx * view[y0, x1]
+                bottom = (1.0 - fx) * view[y1, x0] + fx * view[y1, x1]
+                e = wp.abs((1.0 - fy) * top + fy * bottom - value0)
+                mask = masks[s]
+                sums += e * mask
+                counts += mask
+        cost[k, i, j] = least_half_mean(sums, counts)
 
 
 @wp.kernel

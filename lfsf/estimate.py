@@ -206,11 +206,21 @@ def _windowed_cost(kernel, inputs, count: int, size, search_radius: int, device:
     return smooth
 
 
+def sweep_shifts(candidates: np.ndarray, phis: np.ndarray) -> np.ndarray:
+    """The shifts of :func:`lfsf.kernels.search.sweep_cost`: sample s of candidate k looks
+    at q − δ_k φ_s, a constant shift (a, b) + (f, g), whole part and fraction ∈ [0, 1):
+    (K, S, 4) float32."""
+    offsets = -np.asarray(candidates, np.float32)[:, None, None] * np.asarray(phis, np.float32)[None, :, :]
+    whole = np.floor(offsets)
+    return np.concatenate([whole, offsets - whole], -1).astype(np.float32)
+
+
 def _sweep(samples, phis, radius_used: float, disparity_range: float, search_radius: int, device: str):
     """Plane-sweep disparity of a (S, h, w) sample stack (the t1 or t2 light field in its
     own frame): winner-take-all over windowed costs, candidates spaced so that the outer
     samples move by half a pixel from one to the next."""
     from lfsf.kernels import search
+    from lfsf.kernels.common import vec8
 
     wp = _device.warp()
     n, h, w = samples.shape
@@ -218,10 +228,10 @@ def _sweep(samples, phis, radius_used: float, disparity_range: float, search_rad
     count = int(math.ceil(disparity_range / step))
     cands = np.arange(-count, count + 1, dtype=np.float32) * np.float32(step)
     candidates = wp.array(cands, dtype=float, device=device)
-    zero = wp.zeros((h, w), dtype=float, device=device)
-    no_offset = wp.zeros((h, w), dtype=wp.vec4, device=device)
-    smooth = _windowed_cost(search.disparity_cost, [samples, phis, candidates, zero, no_offset], len(cands), (h, w),
-                            search_radius, device)
+    shifts = wp.array(sweep_shifts(cands, phis.numpy()), dtype=wp.vec4, device=device)
+    masks = wp.empty(n, dtype=vec8, device=device)
+    _device.launch_rows(search.sample_half_planes, dim=n, inputs=[phis], outputs=[masks], device=device, bands=1)
+    smooth = _windowed_cost(search.sweep_cost, [samples, shifts, masks], len(cands), (h, w), search_radius, device)
     best = wp.empty((h, w), dtype=float, device=device)
     best_cost = wp.empty((h, w), dtype=float, device=device)
     _device.launch_rows(search.select_disparity, dim=(h, w), inputs=[smooth, candidates], outputs=[best, best_cost],

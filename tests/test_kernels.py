@@ -775,6 +775,39 @@ def test_warp_by_flow_matches_reference(device):
     close(out.numpy(), ref.bilinear(img, px + x_hat[..., 2], py + x_hat[..., 3]), atol=1e-6)
 
 
+from lfsf.kernels.common import bilinear_with_gradient  # noqa: E402
+
+
+@wp.kernel
+def _value_and_gradient(row0: int, img: wp.array2d(dtype=float), xs: wp.array(dtype=wp.vec2),
+                        out: wp.array(dtype=wp.vec3)):
+    k = wp.tid() + row0
+    v, g = bilinear_with_gradient(img, xs[k][0], xs[k][1])
+    out[k] = wp.vec3(v, g[0], g[1])
+
+
+def test_bilinear_with_gradient_is_bilinear_and_its_gradient(device):
+    """The fused lookup of the data term (shared weights away from the borders, the
+    clamped functions within a pixel of one) gives the bilinear value and the central
+    differences of the interpolant, in the interior, at the borders and outside."""
+    h, w = 6, 8
+    img = rng(36).random((h, w)).astype(np.float32)
+    r = rng(37)
+    pts = np.concatenate([
+        r.uniform(-1.5, [w + 0.5, h + 0.5], (200, 2)),           # everywhere, outside included
+        r.uniform(1.0, [w - 2.0, h - 2.0], (100, 2)),            # the fast path
+        [(1.0, 1.0), (w - 2.0, 3.0), (3.0, h - 2.0), (w - 2.0001, h - 2.0001), (0.0, 0.0), (w - 1.0, h - 1.0)],
+    ]).astype(np.float32)
+    out = wp.zeros(len(pts), dtype=wp.vec3, device=device)
+    launch(_value_and_gradient, len(pts), [arr(img, float, device), arr(pts, wp.vec2, device)], [out], device)
+    got = out.numpy()
+    x, y = pts[:, 0].astype(np.float64), pts[:, 1].astype(np.float64)
+    gx, gy = ref.bilinear_gradient(img, x, y)
+    close(got[:, 0], ref.bilinear(img, x, y), atol=2e-6)
+    close(got[:, 1], gx, atol=2e-6)
+    close(got[:, 2], gy, atol=2e-6)
+
+
 def _tgv_setting(seed, h=4, w=5):
     """Three different tensors: for δ1, for δ2, and for u and v."""
     t1 = ref.tensor_components(ref.diffusion_tensor(_image_with_flat_patch(seed, h, w, (2, 2)), 5.0, 0.7))

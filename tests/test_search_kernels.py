@@ -112,6 +112,34 @@ def test_disparity_cost_matches_reference(device, span):
     assert not np.allclose(full, want)
 
 
+@pytest.mark.parametrize("span", [1, 4, 9])
+def test_sweep_cost_matches_reference(device, span):
+    """The plane sweep's cost (constant shifts per candidate and sample) is disparity_cost
+    without a base disparity or a flow offset, borders and half-planes included."""
+    from lfsf.estimate import sweep_shifts
+    from lfsf.kernels import search
+    from lfsf.kernels.common import vec8
+
+    r = rng(11)
+    h, w = 7, 9
+    phis = np.array([(0.0, 0.0), (1.0, 0.0), (-0.7, 0.7), (0.3, -1.4), (-1.5, -0.5), (0.0, 2.0)], np.float32)
+    samples = r.random((len(phis), h, w)).astype(np.float32)
+    # whole-pixel shifts (onto the last column/row exactly), fractions, far outside
+    candidates = np.array([-3.0, -1.0, -0.3, 0.0, 0.45, 1.0, 1.2, 20.0], np.float32)
+    masks = wp.empty(len(phis), dtype=vec8, device=device)
+    launch(search.sample_half_planes, len(phis), [arr(phis, wp.vec2, device)], [masks], device)
+    np.testing.assert_array_equal(masks.numpy().T, ref.half_plane_members(phis).astype(np.float32))
+    cost = wp.zeros((len(candidates), h, w), dtype=float, device=device)
+    launch(search.sweep_cost, (len(candidates) * h, -(-w // span)),
+           [arr(samples, float, device), arr(sweep_shifts(candidates, phis), wp.vec4, device), masks, span], [cost],
+           device)
+    got = cost.numpy()
+    want = ref.disparity_cost(samples, phis, candidates, np.zeros((h, w), np.float32),
+                              np.zeros((h, w, 4), np.float32))
+    close(got, want, atol=2e-5)
+    np.testing.assert_array_equal(got[-1], 1.0)  # every sample leaves the image
+
+
 def test_disparity_cost_of_an_exact_light_field_is_zero_at_the_true_disparity(device):
     """Whole-pixel shifts: L(x, φ) = T(x + δφ) sampled exactly, so the cost at δ is 0
     wherever the warped samples stay in the image (and at p + û with an offset)."""
