@@ -30,6 +30,9 @@ class LevelSolver:
         (λ1, λ2, λ3) per sample, already divided by the sample count.
     params : lfsf.Params
     device : str
+
+    Call ``set_state`` and then ``linearise`` before ``iterate``: the data term's buffers
+    are allocated uninitialised and filled there.
     """
 
     def __init__(self, samples1, samples2, centre1, centre2, phis, weights, params, device: str):
@@ -59,8 +62,8 @@ class LevelSolver:
         self._launch(tgv.diffusion_tensor, inputs=[centre1, params.gamma, params.beta], outputs=[self.tensor1])
 
         # data term: coefficients per pixel and sample, the scaled duals q̃, and Kᵀq
-        self.coef = wp.zeros((h, w, n), dtype=data_term.vec12, device=device)
-        self.q = wp.zeros((h, w, n), dtype=wp.vec3, device=device)
+        self.coef = wp.empty((h, w, n), dtype=data_term.vec12, device=device)  # written by linearise
+        self.q = wp.empty((h, w, n), dtype=wp.vec3, device=device)  # zeroed by set_state
         self.data_colsum = zeros4()
         self.data_grad = zeros4()
         # primal: x = (δ1, δ2, u, v), w = (w0, w1), their over-relaxed copies, x̂
