@@ -50,12 +50,15 @@ def rof_primal_step(
     p: wp.array3d(dtype=wp.vec2),
     tau: float,
     mu: float,
+    relax: float,
     span: int,
     # outputs
     u: wp.array3d(dtype=float),
     u_bar: wp.array3d(dtype=float),
 ):
-    """u ← (u + τ div p + (τ/μ) f) / (1 + τ/μ);  ū ← 2u_new − u_old."""
+    """u ← (u + τ div p + (τ/μ) f) / (1 + τ/μ);  ū ← u_new + ϑ(u_new − u_old), ϑ = ``relax``
+    (1 for the plain algorithm; the accelerated one of Chambolle & Pock (2011, Alg. 2)
+    lowers it with τ)."""
     r, c = wp.tid()
     r = r + row0
     h = f.shape[1]
@@ -79,7 +82,7 @@ def rof_primal_step(
         old = u[n, i, j]
         new = (old + tau * div + k * f[n, i, j]) / (1.0 + k)
         u[n, i, j] = new
-        u_bar[n, i, j] = 2.0 * new - old
+        u_bar[n, i, j] = new + relax * (new - old)
         left = pc[0]
 
 

@@ -33,11 +33,12 @@ class Params:
             spreads ``occlusion_reach`` pixels over its own surface. Every row involving
             t2 is left out there (margin 0: off).
         texture_theta : θ of the structure–texture split T = I − θ·ROF(I); 0 disables it.
-            The paper's 0.95 suits real data (HCI antinous BadPix 18.7 % at 0.8) but costs
-            accuracy on brightness-constant scenes; 0.7 is the measured compromise
-            (scripts/sweep.py; README).
+            Higher θ suits real data (HCI antinous BadPix 13.7 % at 0.85, 21.6 % at 0.5)
+            but costs accuracy on brightness-constant scenes (``weak_texture`` flow EPE
+            0.108 at 0.85, 0.071 at 0.5, 320×240); 0.5 is the measured compromise
+            (README, Accuracy).
         rof_weight : μ, the ROF fidelity weight (min Σ|∇u| + 1/(2μ) Σ(u − f)²).
-        rof_iterations : primal–dual iterations of the ROF solve.
+        rof_iterations : iterations of the (accelerated) primal–dual ROF solve.
         contrast : the matched images (texture parts) are scaled by one factor so that the
             t1 centre view's mean absolute image gradient is this (0: no scaling); λ is
             then independent of the scene's contrast.
@@ -80,7 +81,7 @@ class Params:
     occlusion_ratio: float = 0.7
     occlusion_margin: float = 0.25
     occlusion_reach: int = 3
-    texture_theta: float = 0.7
+    texture_theta: float = 0.5
     rof_weight: float = 0.125
     rof_iterations: int = 60
     contrast: float = 0.02
