@@ -57,7 +57,9 @@ class Params:
         max_levels : an upper bound on the number of levels (0: no bound).
         warps : re-linearisations per level.
         iterations : primal–dual iterations per warp.
-        median_radius : radius of the median filter on the flow after each warp (0: off).
+        median_radius : radius of the median filter on the flow after each warp (0: off),
+            on levels up to 320 px wide; wider levels scale it with their width, up to 3
+            (:meth:`lfsf.solver.LevelSolver.median_radius`).
         eps : ε added to the preconditioners' denominators.
         warm_levels : when the estimate starts from a given one (``init`` of
             :func:`lfsf.estimate_scene_flow`, e.g. the previous pair of a sequence), only

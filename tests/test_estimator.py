@@ -125,3 +125,11 @@ def test_joint_flow_beats_flow_only():
         sf = estimate_scene_flow(lf1, lf2, Params.preset("fast").replace(**kw), device="cpu")
         epe[name] = evaluate.evaluate(sf.as_dict(), gt, border=8)["flow"]["epe"]
     assert epe["joint"] < 0.75 * epe["flow only"], epe
+
+
+def test_median_radius_grows_with_levels_wider_than_320_pixels():
+    from lfsf.solver import level_median_radius
+
+    assert [level_median_radius(2, w) for w in (10, 160, 320, 400, 480, 640, 2000)] == [2, 2, 2, 2, 3, 3, 3]
+    assert [level_median_radius(1, w) for w in (320, 480, 640, 960)] == [1, 2, 2, 3]
+    assert level_median_radius(0, 640) == 0
