@@ -64,6 +64,13 @@ def best_half(sums: vec8, counts: vec8, total: float, count: float, ratio: float
 
 
 @wp.func
+def add_residual(sums: vec8, counts: vec8, total: float, count: float, e: float, mask: vec8):
+    """One sample's residual e added to the sums of :func:`best_half`: to each half that
+    holds the sample (``mask``) and to the total."""
+    return sums + e * mask, counts + mask, total + e, count + 1.0
+
+
+@wp.func
 def keeps(best: int, phi: wp.vec2):
     return best < 0 or in_half_plane(phi, half_plane_normal(best))
 
@@ -147,17 +154,9 @@ def data_coefficients(
         if s > 0:
             mask = half_plane_mask(phi)
             if inside(view1, x1, y1):
-                e1 = wp.abs(w1v - i1)
-                total1 += e1
-                count1 += 1.0
-                sums1 += e1 * mask
-                counts1 += mask
+                sums1, counts1, total1, count1 = add_residual(sums1, counts1, total1, count1, wp.abs(w1v - i1), mask)
             if inside(view2, x2, y2):
-                e2 = wp.abs(w2v - i1)
-                total2 += e2
-                count2 += 1.0
-                sums2 += e2 * mask
-                counts2 += mask
+                sums2, counts2, total2, count2 = add_residual(sums2, counts2, total2, count2, wp.abs(w2v - i1), mask)
     # Both light fields are tested against the point's appearance at t1, I1(p): at t2
     # the centre view itself may be the occluded one (the point moved behind something)
     # while side views still see it; then the stereo rows at t2 (which compare with
