@@ -11,19 +11,9 @@ vec49 = wp.types.vector(length=49, dtype=wp.float32)
 
 
 @wp.func
-def gathered_median(x: wp.array2d(dtype=wp.vec4), i: int, j: int, k: int, radius: int):
-    """The same median as :func:`window_median`, from the window's values gathered once
-    into a local vector and sorted there (radius ≤ LOCAL_RADIUS; 5× faster at radius 2)."""
-    h = x.shape[0]
-    w = x.shape[1]
-    side = 2 * radius + 1
-    n = side * side
-    m = n // 2
-    vals = vec49()
-    for c in range(n):
-        vals[c] = x[wp.clamp(i + c // side - radius, 0, h - 1), wp.clamp(j + c % side - radius, 0, w - 1)][k]
-    # insertion sort of the window, then the middle value (the m-th order statistic, the
-    # value rank selection finds)
+def select_rank(vals: vec49, n: int, m: int):
+    """The m-th smallest of vals[0 … n−1] (insertion sort of the window, then the middle
+    value: the order statistic that rank selection finds)."""
     for a in range(1, n):
         key = vals[a]
         b = a - 1
@@ -32,6 +22,28 @@ def gathered_median(x: wp.array2d(dtype=wp.vec4), i: int, j: int, k: int, radius
             b -= 1
         vals[b + 1] = key
     return vals[m]
+
+
+@wp.func
+def gathered_flow_median(x: wp.array2d(dtype=wp.vec4), i: int, j: int, radius: int):
+    """The medians of u and v (components 2, 3) over the window, as :func:`window_median`,
+    from the window's values gathered once into local vectors (radius ≤ LOCAL_RADIUS;
+    each pixel read once for both components)."""
+    h = x.shape[0]
+    w = x.shape[1]
+    side = 2 * radius + 1
+    us = vec49()
+    vs = vec49()
+    c = int(0)
+    for dy in range(-radius, radius + 1):
+        row = wp.clamp(i + dy, 0, h - 1)
+        for dx in range(-radius, radius + 1):
+            value = x[row, wp.clamp(j + dx, 0, w - 1)]
+            us[c] = value[2]
+            vs[c] = value[3]
+            c += 1
+    n = side * side
+    return select_rank(us, n, n // 2), select_rank(vs, n, n // 2)
 
 
 @wp.func
@@ -75,6 +87,7 @@ def median_flow(
     i = i + row0
     v = x[i, j]
     if radius <= LOCAL_RADIUS:
-        out[i, j] = wp.vec4(v[0], v[1], gathered_median(x, i, j, 2, radius), gathered_median(x, i, j, 3, radius))
+        mu, mv = gathered_flow_median(x, i, j, radius)
+        out[i, j] = wp.vec4(v[0], v[1], mu, mv)
     else:
         out[i, j] = wp.vec4(v[0], v[1], window_median(x, i, j, 2, radius), window_median(x, i, j, 3, radius))
