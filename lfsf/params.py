@@ -171,6 +171,7 @@ class Params:
             value = getattr(self, name)
             need(math.isfinite(value) and value >= 0, f"{name} must be a finite number ≥ 0, got {value}")
         need(self.alpha0 > 0 and self.alpha1 > 0, "alpha0 and alpha1 must be positive")
+        need(self.rof_weight > 0, f"rof_weight (μ) must be positive, got {self.rof_weight}")
         need(self.flow_edge_weight >= 0, f"flow_edge_weight must be ≥ 0, got {self.flow_edge_weight}")
         need(self.occlusion_reach >= 0, f"occlusion_reach must be ≥ 0, got {self.occlusion_reach}")
         need(self.occlusion_margin >= 0, f"occlusion_margin must be ≥ 0, got {self.occlusion_margin}")

@@ -93,6 +93,8 @@ def test_bad_inputs_raise():
         estimate_scene_flow(lf1, small, QUICK)
     with pytest.raises(ValueError, match="one count per circle"):
         Params(circles=2, samples=(1,))
+    with pytest.raises(ValueError, match="rof_weight"):  # the ROF steps divide by μ
+        Params(rof_weight=0.0)
 
 
 @pytest.mark.parametrize("scene", ["paper", "slanted"])
