@@ -143,6 +143,13 @@ def least_half_mean(sums: vec8, counts: vec8):
 
 
 @wp.func
+def add_residual(sums: vec8, counts: vec8, total: float, count: float, e: float, mask: vec8):
+    """One sample's residual e added to per-half-plane sums: to each half that holds the
+    sample (``mask``, :func:`half_plane_mask`) and to the total."""
+    return sums + e * mask, counts + mask, total + e, count + 1.0
+
+
+@wp.func
 def half_plane_residuals(samples: wp.array3d(dtype=float), phis: wp.array(dtype=wp.vec2), qx: float, qy: float,
                          disparity: float, centre: float):
     """Residuals |L(q − δφ_s, φ_s) − c| of the samples s ≥ 1 whose warped position lies in
@@ -158,10 +165,5 @@ def half_plane_residuals(samples: wp.array3d(dtype=float), phis: wp.array(dtype=
         y = qy - disparity * phi[1]
         if inside(samples[s], x, y):
             e = wp.abs(bilinear(samples[s], x, y) - centre)
-            total += e
-            count += 1.0
-            for m in range(HALF_PLANES):
-                if in_half_plane(phi, half_plane_normal(m)):
-                    sums[m] = sums[m] + e
-                    counts[m] = counts[m] + 1.0
+            sums, counts, total, count = add_residual(sums, counts, total, count, e, half_plane_mask(phi))
     return sums, counts, total, count

@@ -18,8 +18,8 @@ q̃_k = w_k q_k ∈ [−w_k, w_k], so the iterations divide nothing and a left-o
 
 import warp as wp
 
-from .common import (HALF_PLANES, bilinear_with_gradient, half_plane_mask, half_plane_normal, in_half_plane, inside,
-                     vec8)
+from .common import (HALF_PLANES, add_residual, bilinear_with_gradient, half_plane_mask, half_plane_normal,
+                     in_half_plane, inside, vec8)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -61,13 +61,6 @@ def best_half(sums: vec8, counts: vec8, total: float, count: float, ratio: float
         else:
             kept_mean = best_mean
     return best, kept_mean
-
-
-@wp.func
-def add_residual(sums: vec8, counts: vec8, total: float, count: float, e: float, mask: vec8):
-    """One sample's residual e added to the sums of :func:`best_half`: to each half that
-    holds the sample (``mask``) and to the total."""
-    return sums + e * mask, counts + mask, total + e, count + 1.0
 
 
 @wp.func

@@ -10,7 +10,7 @@ or ρ2 at p + û); costs are then summed over a small window before the choice.
 
 import warp as wp
 
-from .common import bilinear, half_plane_mask, half_plane_residuals, inside, least_half_mean, vec8
+from .common import add_residual, bilinear, half_plane_mask, half_plane_residuals, inside, least_half_mean, vec8
 
 wp.set_module_options({"enable_backward": False})
 
@@ -93,6 +93,8 @@ def sweep_cost(
         value0 = centre[i, j]
         sums = vec8()
         counts = vec8()
+        total = float(0.0)
+        count = float(0.0)
         for s in range(1, samples.shape[0]):
             sh = shifts[k, s]
             x0 = j + int(sh[0])
@@ -108,9 +110,7 @@ def sweep_cost(
                 top = (1.0 - fx) * view[y0, x0] + fx * view[y0, x1]
                 bottom = (1.0 - fx) * view[y1, x0] + fx * view[y1, x1]
                 e = wp.abs((1.0 - fy) * top + fy * bottom - value0)
-                mask = masks[s]
-                sums += e * mask
-                counts += mask
+                sums, counts, total, count = add_residual(sums, counts, total, count, e, masks[s])
         cost[k, i, j] = least_half_mean(sums, counts)
 
 
@@ -141,6 +141,17 @@ def box_sum(
         out[k, i, j] = acc / (side * side)
 
 
+@wp.func
+def parabola_vertex(left: float, centre: float, right: float):
+    """The vertex of the parabola through (−1, left), (0, centre), (1, right), in steps
+    from the middle sample; 0 where the parabola is not convex."""
+    curv = left - 2.0 * centre + right
+    offset = float(0.0)
+    if curv > 1.0e-12:
+        offset = 0.5 * (left - right) / curv
+    return offset
+
+
 @wp.kernel
 def select_disparity(
     row0: int,
@@ -164,12 +175,8 @@ def select_disparity(
             kmin = k
     d = candidates[kmin]
     if kmin > 0 and kmin < n - 1:
-        cl = cost[kmin - 1, i, j]
-        cr = cost[kmin + 1, i, j]
-        curv = cl - 2.0 * cmin + cr
-        if curv > 1.0e-12:
-            step = candidates[kmin + 1] - candidates[kmin]
-            d = d + 0.5 * (cl - cr) / curv * step
+        step = candidates[kmin + 1] - candidates[kmin]
+        d = d + parabola_vertex(cost[kmin - 1, i, j], cmin, cost[kmin + 1, i, j]) * step
     best[i, j] = d
     best_cost[i, j] = cmin
 
@@ -302,15 +309,9 @@ def flow_search(
         dx = float(kx - half)
         dy = float(ky - half)
         if kx > 0 and kx < side - 1:
-            cl = window_shift_cost(centre1, centre2, i, j, kx - 1 - half, ky - half, radius)
-            cr = window_shift_cost(centre1, centre2, i, j, kx + 1 - half, ky - half, radius)
-            curv = cl - 2.0 * cmin + cr
-            if curv > 1.0e-12:
-                dx = dx + 0.5 * (cl - cr) / curv
+            dx = dx + parabola_vertex(window_shift_cost(centre1, centre2, i, j, kx - 1 - half, ky - half, radius), cmin,
+                                      window_shift_cost(centre1, centre2, i, j, kx + 1 - half, ky - half, radius))
         if ky > 0 and ky < side - 1:
-            cu = window_shift_cost(centre1, centre2, i, j, kx - half, ky - 1 - half, radius)
-            cd = window_shift_cost(centre1, centre2, i, j, kx - half, ky + 1 - half, radius)
-            curv = cu - 2.0 * cmin + cd
-            if curv > 1.0e-12:
-                dy = dy + 0.5 * (cu - cd) / curv
+            dy = dy + parabola_vertex(window_shift_cost(centre1, centre2, i, j, kx - half, ky - 1 - half, radius), cmin,
+                                      window_shift_cost(centre1, centre2, i, j, kx - half, ky + 1 - half, radius))
         best[i, j] = wp.vec2(dx, dy)
