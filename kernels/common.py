@@ -6,6 +6,45 @@ import warp as wp
 
 wp.set_module_options({"enable_backward": False})
 
+#: The solver's unknowns per pixel: vec4 (δ1, δ2, u, v), or vec2 (u, v) for flow only
+#: (M = 1, where no data row involves δ1 or δ2). Kernels on the unknowns are generic over
+#: these two (``dtype=Any``), with an explicit overload for each (:func:`overload_unknowns`).
+UNKNOWNS = (wp.vec4, wp.vec2)
+
+
+def overload_unknowns(kernel, *names: str, extra: dict | None = None):
+    """Declare ``kernel``'s overloads for each type of :data:`UNKNOWNS`: the arrays named
+    (2-D, generic ``dtype``) hold the unknowns. Declaring them at import keeps the module
+    the same whichever is launched first (no recompilation on the other's first launch)."""
+    for vec in UNKNOWNS:
+        wp.overload(kernel, {**{name: wp.array2d(dtype=vec) for name in names}, **(extra or {})})
+    return kernel
+
+
+@wp.func
+def to_vec4(x: wp.vec4):
+    """The unknowns as (δ1, δ2, u, v)."""
+    return x
+
+
+@wp.func
+def to_vec4(x: wp.vec2):
+    """Flow only: (0, 0, u, v); δ1 and δ2 have no data rows, and the data coefficients of
+    the centre view (φ = 0) do not involve them."""
+    return wp.vec4(0.0, 0.0, x[0], x[1])
+
+
+@wp.func
+def from_vec4(v: wp.vec4, like: wp.vec4):
+    """(δ1, δ2, u, v) as the type of ``like``: as it is."""
+    return v
+
+
+@wp.func
+def from_vec4(v: wp.vec4, like: wp.vec2):
+    """(δ1, δ2, u, v) as the type of ``like``: flow only, (u, v)."""
+    return wp.vec2(v[2], v[3])
+
 
 @wp.func
 def pixel(img: wp.array2d(dtype=float), i: int, j: int):

@@ -7,7 +7,8 @@ W1 = L(p − δ̂1 φ, φ, t1), W2 = L(p + û − δ̂2 φ, φ, t2) and J2 = L(p
     ρ2 ≈ A4 − A3 Δδ2 + A8 Δu + A9 Δv              (stereo at t2, weight λ2)
     ρ3 ≈ A7 + A1 Δδ1 − A3 Δδ2 − A5 Δu − A6 Δv     (flow, weight λ3)
 
-with Δx = x − x̂. The unknowns are packed per pixel as vec4 (δ1, δ2, u, v). Each sample's
+with Δx = x − x̂. The unknowns are packed per pixel as vec4 (δ1, δ2, u, v), or as vec2
+(u, v) for flow only (:data:`lfsf.kernels.common.UNKNOWNS`). Each sample's
 coefficients are stored as ``vec12`` = (A1 … A9, σ̃1, σ̃2, σ̃3), pixel-major (``coef[i, j,
 s]``: what one pixel's iteration reads is contiguous). The row weight w_k is λ_k (divided
 by the sample count) or 0 where the row is left out (a warped position leaves the image,
@@ -16,10 +17,12 @@ q̃_k = w_k q_k ∈ [−w_k, w_k], so the iterations divide nothing and a left-o
 σ̃_k = 0 and q̃_k = 0.
 """
 
+from typing import Any
+
 import warp as wp
 
-from .common import (HALF_PLANES, add_residual, bilinear_with_gradient, half_plane_mask, half_plane_normal,
-                     in_half_plane, inside, vec8)
+from .common import (HALF_PLANES, add_residual, bilinear_with_gradient, from_vec4, half_plane_mask, half_plane_normal,
+                     in_half_plane, inside, overload_unknowns, to_vec4, vec8)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -75,13 +78,13 @@ def data_coefficients(
     samples2: wp.array3d(dtype=float),
     phis: wp.array(dtype=wp.vec2),
     weights: wp.array(dtype=wp.vec3),
-    x_hat: wp.array2d(dtype=wp.vec4),
+    x_hat: wp.array2d(dtype=Any),
     occlusion_ratio: float,
     hidden2: wp.array2d(dtype=float),
     eps: float,
     # outputs
     coef: wp.array3d(dtype=vec12),
-    data_colsum: wp.array2d(dtype=wp.vec4),
+    data_colsum: wp.array2d(dtype=Any),
 ):
     """Coefficients A1…A9 and dual steps σ̃1…σ̃3 of every sample at the linearisation
     point x̂ (``coef[i, j, s]``), and the column sums Σ|K| of the data rows for each
@@ -103,7 +106,8 @@ def data_coefficients(
     """
     i, j = wp.tid()
     i = i + row0
-    xh = x_hat[i, j]
+    unknowns = x_hat[i, j]
+    xh = to_vec4(unknowns)
     px = float(j)
     py = float(i)
     i1 = samples1[0, i, j]
@@ -192,7 +196,7 @@ def data_coefficients(
         c[11] = wt3 * wt3 / (wt3 * (a1 + a3 + a5 + a6) + eps)
         coef[i, j, s] = c
         colsum += wp.vec4((wt1 + wt3) * a1, (wt2 + wt3) * a3, wt2 * a8 + wt3 * a5, wt2 * a9 + wt3 * a6)
-    data_colsum[i, j] = colsum
+    data_colsum[i, j] = from_vec4(colsum, unknowns)
 
 
 @wp.func
@@ -207,15 +211,16 @@ def row_weight(sigma: float, weight: float):
 def dual_data_pixel(
     coef: wp.array3d(dtype=vec12),
     weights: wp.array(dtype=wp.vec3),
-    x_bar: wp.array2d(dtype=wp.vec4),
-    x_hat: wp.array2d(dtype=wp.vec4),
+    x_bar: wp.array2d(dtype=Any),
+    x_hat: wp.array2d(dtype=Any),
     q: wp.array3d(dtype=wp.vec3),
-    data_grad: wp.array2d(dtype=wp.vec4),
+    data_grad: wp.array2d(dtype=Any),
     i: int,
     j: int,
 ):
     """The dual data step at pixel (i, j) (see :func:`dual_data_step`)."""
-    d = x_bar[i, j] - x_hat[i, j]
+    unknowns = x_hat[i, j]
+    d = to_vec4(x_bar[i, j]) - to_vec4(unknowns)
     g = wp.vec4(0.0)
     for s in range(coef.shape[2]):
         c = coef[i, j, s]
@@ -238,7 +243,7 @@ def dual_data_pixel(
         q3 = wp.clamp(qs[2] + c[11] * rho3, -wt3, wt3)
         q[i, j, s] = wp.vec3(q1, q2, q3)
         g += wp.vec4((q3 - q1) * a1, -(q2 + q3) * a3, q2 * a8 - q3 * a5, q2 * a9 - q3 * a6)
-    data_grad[i, j] = g
+    data_grad[i, j] = from_vec4(g, unknowns)
 
 
 @wp.kernel
@@ -246,12 +251,12 @@ def dual_data_step(
     row0: int,
     coef: wp.array3d(dtype=vec12),
     weights: wp.array(dtype=wp.vec3),
-    x_bar: wp.array2d(dtype=wp.vec4),
-    x_hat: wp.array2d(dtype=wp.vec4),
+    x_bar: wp.array2d(dtype=Any),
+    x_hat: wp.array2d(dtype=Any),
     span: int,
     # outputs
     q: wp.array3d(dtype=wp.vec3),
-    data_grad: wp.array2d(dtype=wp.vec4),
+    data_grad: wp.array2d(dtype=Any),
 ):
     """Dual ascent on the data rows, fused with the primal gradient Kᵀq of the data term.
 
@@ -267,3 +272,8 @@ def dual_data_step(
     j0 = c0 * span
     for j in range(j0, wp.min(x_bar.shape[1], j0 + span)):
         dual_data_pixel(coef, weights, x_bar, x_hat, q, data_grad, i, j)
+
+
+# the kernels on the unknowns, for vec4 (δ1, δ2, u, v) and vec2 (u, v; flow only)
+overload_unknowns(data_coefficients, "x_hat", "data_colsum")
+overload_unknowns(dual_data_step, "x_bar", "x_hat", "data_grad")

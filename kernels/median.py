@@ -1,6 +1,10 @@
 """Median filtering of the flow after each warp (Wedel et al. 2009), a stabiliser."""
 
+from typing import Any
+
 import warp as wp
+
+from .common import from_vec4, overload_unknowns, to_vec4
 
 wp.set_module_options({"enable_backward": False})
 
@@ -12,20 +16,36 @@ vec49 = wp.types.vector(length=49, dtype=wp.float32)
 
 @wp.func
 def select_rank(vals: vec49, n: int, m: int):
-    """The m-th smallest of vals[0 … n−1] (insertion sort of the window, then the middle
-    value: the order statistic that rank selection finds)."""
-    for a in range(1, n):
-        key = vals[a]
-        b = a - 1
-        while b >= 0 and vals[b] > key:
-            vals[b + 1] = vals[b]
-            b -= 1
-        vals[b + 1] = key
+    """The m-th smallest of vals[0 … n−1]: Hoare's selection (Wirth's variant), which
+    partitions around vals[m] and keeps the side holding rank m, about 3n comparisons
+    against the n²/4 of sorting the window by insertion (7×7 windows: 204 → ? ms per
+    640×480 pass)."""
+    lo = int(0)
+    hi = n - 1
+    while lo < hi:
+        pivot = vals[m]
+        a = lo
+        b = hi
+        while a <= b:
+            while vals[a] < pivot:
+                a += 1
+            while pivot < vals[b]:
+                b -= 1
+            if a <= b:
+                t = vals[a]
+                vals[a] = vals[b]
+                vals[b] = t
+                a += 1
+                b -= 1
+        if b < m:
+            lo = a
+        if m < a:
+            hi = b
     return vals[m]
 
 
 @wp.func
-def gathered_flow_median(x: wp.array2d(dtype=wp.vec4), i: int, j: int, radius: int):
+def gathered_flow_median(x: wp.array2d(dtype=Any), i: int, j: int, radius: int):
     """The medians of u and v (components 2, 3) over the window, as :func:`window_median`,
     from the window's values gathered once into local vectors (radius ≤ LOCAL_RADIUS;
     each pixel read once for both components)."""
@@ -38,7 +58,7 @@ def gathered_flow_median(x: wp.array2d(dtype=wp.vec4), i: int, j: int, radius: i
     for dy in range(-radius, radius + 1):
         row = wp.clamp(i + dy, 0, h - 1)
         for dx in range(-radius, radius + 1):
-            value = x[row, wp.clamp(j + dx, 0, w - 1)]
+            value = to_vec4(x[row, wp.clamp(j + dx, 0, w - 1)])
             us[c] = value[2]
             vs[c] = value[3]
             c += 1
@@ -47,7 +67,7 @@ def gathered_flow_median(x: wp.array2d(dtype=wp.vec4), i: int, j: int, radius: i
 
 
 @wp.func
-def window_median(x: wp.array2d(dtype=wp.vec4), i: int, j: int, k: int, radius: int):
+def window_median(x: wp.array2d(dtype=Any), i: int, j: int, k: int, radius: int):
     """Median of component k of x over the (2r+1)² window at (i, j), clamped at the borders.
 
     Rank selection: the value with fewer than m smaller and at least m+1 smaller-or-equal
@@ -57,13 +77,13 @@ def window_median(x: wp.array2d(dtype=wp.vec4), i: int, j: int, k: int, radius: 
     side = 2 * radius + 1
     n = side * side
     m = n // 2
-    result = x[i, j][k]
+    result = to_vec4(x[i, j])[k]
     for c in range(n):
-        vc = x[wp.clamp(i + c // side - radius, 0, h - 1), wp.clamp(j + c % side - radius, 0, w - 1)][k]
+        vc = to_vec4(x[wp.clamp(i + c // side - radius, 0, h - 1), wp.clamp(j + c % side - radius, 0, w - 1)])[k]
         less = int(0)
         equal = int(0)
         for d in range(n):
-            vd = x[wp.clamp(i + d // side - radius, 0, h - 1), wp.clamp(j + d % side - radius, 0, w - 1)][k]
+            vd = to_vec4(x[wp.clamp(i + d // side - radius, 0, h - 1), wp.clamp(j + d % side - radius, 0, w - 1)])[k]
             if vd < vc:
                 less += 1
             elif vd == vc:
@@ -76,18 +96,23 @@ def window_median(x: wp.array2d(dtype=wp.vec4), i: int, j: int, k: int, radius: 
 @wp.kernel
 def median_flow(
     row0: int,
-    x: wp.array2d(dtype=wp.vec4),
+    x: wp.array2d(dtype=Any),
     radius: int,
     # outputs
-    out: wp.array2d(dtype=wp.vec4),
+    out: wp.array2d(dtype=Any),
 ):
     """out = x with u and v (components 2, 3) median-filtered over a (2r+1)² window;
     δ1 and δ2 are copied. Launch over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0
-    v = x[i, j]
+    unknowns = x[i, j]
+    v = to_vec4(unknowns)
     if radius <= LOCAL_RADIUS:
         mu, mv = gathered_flow_median(x, i, j, radius)
-        out[i, j] = wp.vec4(v[0], v[1], mu, mv)
+        out[i, j] = from_vec4(wp.vec4(v[0], v[1], mu, mv), unknowns)
     else:
-        out[i, j] = wp.vec4(v[0], v[1], window_median(x, i, j, 2, radius), window_median(x, i, j, 3, radius))
+        out[i, j] = from_vec4(wp.vec4(v[0], v[1], window_median(x, i, j, 2, radius), window_median(x, i, j, 3, radius)),
+                              unknowns)
+
+
+overload_unknowns(median_flow, "x", "out")

@@ -3,9 +3,11 @@ bilinearly between the four nearest views (MODEL.md §2). Together with the bili
 spatial lookups of the data term this is the quadrilinear interpolation of the light
 field."""
 
+from typing import Any
+
 import warp as wp
 
-from .common import bilinear
+from .common import bilinear, overload_unknowns, to_vec4
 
 wp.set_module_options({"enable_backward": False})
 
@@ -58,7 +60,7 @@ def sample_subaperture(
 def warp_by_flow(
     row0: int,
     image: wp.array2d(dtype=float),
-    x_hat: wp.array2d(dtype=wp.vec4),
+    x_hat: wp.array2d(dtype=Any),
     # outputs
     out: wp.array2d(dtype=float),
 ):
@@ -67,5 +69,8 @@ def warp_by_flow(
     columns)."""
     i, j = wp.tid()
     i = i + row0
-    v = x_hat[i, j]
+    v = to_vec4(x_hat[i, j])
     out[i, j] = bilinear(image, float(j) + v[2], float(i) + v[3])
+
+
+overload_unknowns(warp_by_flow, "x_hat")

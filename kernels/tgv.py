@@ -1,27 +1,31 @@
 """Image-driven second-order TGV (MODEL.md §4) and its preconditioned primal–dual steps.
 
-For each unknown x ∈ (δ1, δ2, u, v), packed per pixel as vec4:
+For each unknown x ∈ (δ1, δ2, u, v), packed per pixel as vec4 (or (u, v) as vec2 for
+flow only: the kernels on the unknowns are generic over both, see
+:data:`lfsf.kernels.common.UNKNOWNS`):
 
     Φ(x) = min_w α1 Σ|Γ(∇x − w)| + α0 Σ|∇w|,   Γ = exp(−γ|∇I|^β) n nᵀ + n⊥ n⊥ᵀ
 
 with Γ of the centre view at t1 for δ1, u, v and at t2 for δ2 (each unknown's tensor is
 an input: the solver may also let the flow's see the disparity's edges and warp the t2
 view onto the t1 grid, see :class:`lfsf.Params`). w = (w0, w1) is stored as
-two vec4 (its x and y components for the four unknowns); the duals are y = (y0, y1) for
+two vectors (its x and y components for the unknowns); the duals are y = (y0, y1) for
 α1Γ(∇x − w) (|y| ≤ 1) and z = (z00, z01, z10, z11) for α0∇w (Frobenius norm ≤ 1).
 Gradients are forward differences with Neumann boundary (zero at the last column/row);
 divergences are their exact negative adjoints.
 """
 
+from typing import Any
+
 import warp as wp
 
-from .common import pixel
+from .common import overload_unknowns, pixel, to_vec4
 
 wp.set_module_options({"enable_backward": False})
 
 
 @wp.func
-def tensor_per_unknown(g1: wp.vec3, g2: wp.vec3, g3: wp.vec3):
+def tensor_per_unknown(g1: wp.vec3, g2: wp.vec3, g3: wp.vec3, like: wp.vec4):
     """(Γ00, Γ01, Γ11) as vec4 over the unknowns (δ1, δ2, u, v): ``g1`` for δ1, ``g2`` for
     δ2 and ``g3`` for u and v."""
     return (
@@ -32,13 +36,26 @@ def tensor_per_unknown(g1: wp.vec3, g2: wp.vec3, g3: wp.vec3):
 
 
 @wp.func
-def vabs(v: wp.vec4):
-    return wp.vec4(wp.abs(v[0]), wp.abs(v[1]), wp.abs(v[2]), wp.abs(v[3]))
+def tensor_per_unknown(g1: wp.vec3, g2: wp.vec3, g3: wp.vec3, like: wp.vec2):
+    """Flow only: (Γ00, Γ01, Γ11) as vec2 over (u, v), both ``g3``."""
+    return (
+        wp.vec2(g3[0], g3[0]),
+        wp.vec2(g3[1], g3[1]),
+        wp.vec2(g3[2], g3[2]),
+    )
 
 
 @wp.func
-def reciprocal(v: wp.vec4, eps: float):
-    return wp.vec4(1.0 / (v[0] + eps), 1.0 / (v[1] + eps), 1.0 / (v[2] + eps), 1.0 / (v[3] + eps))
+def vabs(v: Any):
+    return wp.abs(v)
+
+
+@wp.func
+def reciprocal(v: Any, eps: float):
+    r = v
+    for k in range(len(v)):
+        r[k] = 1.0 / (v[k] + eps)
+    return r
 
 
 @wp.func
@@ -96,7 +113,7 @@ def diffusion_tensor(
 def joint_diffusion_tensor(
     row0: int,
     image: wp.array2d(dtype=float),
-    x_hat: wp.array2d(dtype=wp.vec4),
+    x_hat: wp.array2d(dtype=Any),
     weight: float,
     gamma: float,
     beta: float,
@@ -110,15 +127,15 @@ def joint_diffusion_tensor(
     i = i + row0
     h = x_hat.shape[0]
     w = x_hat.shape[1]
-    dx = 0.5 * (x_hat[i, wp.min(j + 1, w - 1)][0] - x_hat[i, wp.max(j - 1, 0)][0])
-    dy = 0.5 * (x_hat[wp.min(i + 1, h - 1), j][0] - x_hat[wp.max(i - 1, 0), j][0])
+    dx = 0.5 * (to_vec4(x_hat[i, wp.min(j + 1, w - 1)])[0] - to_vec4(x_hat[i, wp.max(j - 1, 0)])[0])
+    dy = 0.5 * (to_vec4(x_hat[wp.min(i + 1, h - 1), j])[0] - to_vec4(x_hat[wp.max(i - 1, 0), j])[0])
     tensor[i, j] = tensor_from_gradients(central_gradient(image, i, j), weight * wp.vec2(dx, dy), gamma, beta)
 
 
 @wp.kernel
 def tgv_preconditioner(
     row0: int,
-    data_colsum: wp.array2d(dtype=wp.vec4),
+    data_colsum: wp.array2d(dtype=Any),
     tensor1: wp.array2d(dtype=wp.vec3),
     tensor2: wp.array2d(dtype=wp.vec3),
     tensor3: wp.array2d(dtype=wp.vec3),
@@ -126,11 +143,11 @@ def tgv_preconditioner(
     alpha1: float,
     eps: float,
     # outputs
-    tau_x: wp.array2d(dtype=wp.vec4),
-    tau_w0: wp.array2d(dtype=wp.vec4),
-    tau_w1: wp.array2d(dtype=wp.vec4),
-    sigma_y0: wp.array2d(dtype=wp.vec4),
-    sigma_y1: wp.array2d(dtype=wp.vec4),
+    tau_x: wp.array2d(dtype=Any),
+    tau_w0: wp.array2d(dtype=Any),
+    tau_w1: wp.array2d(dtype=Any),
+    sigma_y0: wp.array2d(dtype=Any),
+    sigma_y1: wp.array2d(dtype=Any),
 ):
     """Diagonal preconditioners of Pock & Chambolle (2011), α = 1: τ = 1/Σ_row|K| per
     primal column (data part given), σ = 1/Σ_col|K| per TGV dual row (σ_z = 1/(2α0) is a
@@ -145,20 +162,21 @@ def tgv_preconditioner(
         a = 1.0
     if i < h - 1:
         b = 1.0
-    g00, g01, g11 = tensor_per_unknown(tensor1[i, j], tensor2[i, j], tensor3[i, j])
+    colsum = data_colsum[i, j]
+    g00, g01, g11 = tensor_per_unknown(tensor1[i, j], tensor2[i, j], tensor3[i, j], colsum)
     # x(p) in the rows y(p) (−Γ(a, b)ᵀ), y(p − e_x) (Γ col 0) and y(p − e_y) (Γ col 1)
     col = vabs(a * g00 + b * g01) + vabs(a * g01 + b * g11)
     count = a + b
     if j > 0:
-        h00, h01, h11 = tensor_per_unknown(tensor1[i, j - 1], tensor2[i, j - 1], tensor3[i, j - 1])
+        h00, h01, h11 = tensor_per_unknown(tensor1[i, j - 1], tensor2[i, j - 1], tensor3[i, j - 1], colsum)
         col += vabs(h00) + vabs(h01)
         count += 1.0
     if i > 0:
-        k00, k01, k11 = tensor_per_unknown(tensor1[i - 1, j], tensor2[i - 1, j], tensor3[i - 1, j])
+        k00, k01, k11 = tensor_per_unknown(tensor1[i - 1, j], tensor2[i - 1, j], tensor3[i - 1, j], colsum)
         col += vabs(k01) + vabs(k11)
         count += 1.0
-    tau_x[i, j] = reciprocal(data_colsum[i, j] + alpha1 * col, eps)
-    ones = wp.vec4(1.0)
+    tau_x[i, j] = reciprocal(colsum + alpha1 * col, eps)
+    ones = type(colsum)(1.0)
     tau_w0[i, j] = reciprocal(alpha1 * (vabs(g00) + vabs(g01)) + alpha0 * count * ones, eps)
     tau_w1[i, j] = reciprocal(alpha1 * (vabs(g01) + vabs(g11)) + alpha0 * count * ones, eps)
     row0_sum = a * vabs(g00) + b * vabs(g01) + vabs(a * g00 + b * g01) + vabs(g00) + vabs(g01)
@@ -170,25 +188,25 @@ def tgv_preconditioner(
 @wp.kernel
 def tgv_dual_step(
     row0: int,
-    x_bar: wp.array2d(dtype=wp.vec4),
-    w0_bar: wp.array2d(dtype=wp.vec4),
-    w1_bar: wp.array2d(dtype=wp.vec4),
+    x_bar: wp.array2d(dtype=Any),
+    w0_bar: wp.array2d(dtype=Any),
+    w1_bar: wp.array2d(dtype=Any),
     tensor1: wp.array2d(dtype=wp.vec3),
     tensor2: wp.array2d(dtype=wp.vec3),
     tensor3: wp.array2d(dtype=wp.vec3),
-    sigma_y0: wp.array2d(dtype=wp.vec4),
-    sigma_y1: wp.array2d(dtype=wp.vec4),
+    sigma_y0: wp.array2d(dtype=Any),
+    sigma_y1: wp.array2d(dtype=Any),
     sigma_z: float,
     alpha0: float,
     alpha1: float,
     span: int,
     # outputs
-    y0: wp.array2d(dtype=wp.vec4),
-    y1: wp.array2d(dtype=wp.vec4),
-    z00: wp.array2d(dtype=wp.vec4),
-    z01: wp.array2d(dtype=wp.vec4),
-    z10: wp.array2d(dtype=wp.vec4),
-    z11: wp.array2d(dtype=wp.vec4),
+    y0: wp.array2d(dtype=Any),
+    y1: wp.array2d(dtype=Any),
+    z00: wp.array2d(dtype=Any),
+    z01: wp.array2d(dtype=Any),
+    z10: wp.array2d(dtype=Any),
+    z11: wp.array2d(dtype=Any),
 ):
     """y ← proj(y + σ_y α1 Γ(∇x̄ − w̄)),  z ← proj(z + σ_z α0 ∇w̄). Launch over (rows, columns)."""
     i, c = wp.tid()
@@ -200,12 +218,13 @@ def tgv_dual_step(
         xb = x_bar[i, j]
         wb0 = w0_bar[i, j]
         wb1 = w1_bar[i, j]
-        gx = wp.vec4(0.0)
-        gy = wp.vec4(0.0)
-        dx0 = wp.vec4(0.0)
-        dy0 = wp.vec4(0.0)
-        dx1 = wp.vec4(0.0)
-        dy1 = wp.vec4(0.0)
+        zero = type(xb)(0.0)
+        gx = zero
+        gy = zero
+        dx0 = zero
+        dy0 = zero
+        dx1 = zero
+        dy1 = zero
         if j < w - 1:
             gx = x_bar[i, j + 1] - xb
             dx0 = w0_bar[i, j + 1] - wb0
@@ -216,16 +235,16 @@ def tgv_dual_step(
             dy1 = w1_bar[i + 1, j] - wb1
         r0 = gx - wb0
         r1 = gy - wb1
-        g00, g01, g11 = tensor_per_unknown(tensor1[i, j], tensor2[i, j], tensor3[i, j])
+        g00, g01, g11 = tensor_per_unknown(tensor1[i, j], tensor2[i, j], tensor3[i, j], xb)
         n0 = y0[i, j] + alpha1 * wp.cw_mul(sigma_y0[i, j], wp.cw_mul(g00, r0) + wp.cw_mul(g01, r1))
         n1 = y1[i, j] + alpha1 * wp.cw_mul(sigma_y1[i, j], wp.cw_mul(g01, r0) + wp.cw_mul(g11, r1))
         m00 = z00[i, j] + (sigma_z * alpha0) * dx0
         m01 = z01[i, j] + (sigma_z * alpha0) * dy0
         m10 = z10[i, j] + (sigma_z * alpha0) * dx1
         m11 = z11[i, j] + (sigma_z * alpha0) * dy1
-        sy = wp.vec4(0.0)
-        sz = wp.vec4(0.0)
-        for k in range(4):
+        sy = zero
+        sz = zero
+        for k in range(len(xb)):
             sy[k] = 1.0 / wp.max(1.0, wp.sqrt(n0[k] * n0[k] + n1[k] * n1[k]))
             sz[k] = 1.0 / wp.max(1.0, wp.sqrt(m00[k] * m00[k] + m01[k] * m01[k] + m10[k] * m10[k] + m11[k] * m11[k]))
         y0[i, j] = wp.cw_mul(n0, sy)
@@ -241,44 +260,44 @@ def gamma_y(
     tensor1: wp.array2d(dtype=wp.vec3),
     tensor2: wp.array2d(dtype=wp.vec3),
     tensor3: wp.array2d(dtype=wp.vec3),
-    y0: wp.array2d(dtype=wp.vec4),
-    y1: wp.array2d(dtype=wp.vec4),
+    y0: wp.array2d(dtype=Any),
+    y1: wp.array2d(dtype=Any),
     i: int,
     j: int,
 ):
     """Γ·y at a pixel, per unknown: (Γ00 y0 + Γ01 y1, Γ01 y0 + Γ11 y1)."""
-    g00, g01, g11 = tensor_per_unknown(tensor1[i, j], tensor2[i, j], tensor3[i, j])
     a = y0[i, j]
     b = y1[i, j]
+    g00, g01, g11 = tensor_per_unknown(tensor1[i, j], tensor2[i, j], tensor3[i, j], a)
     return wp.cw_mul(g00, a) + wp.cw_mul(g01, b), wp.cw_mul(g01, a) + wp.cw_mul(g11, b)
 
 
 @wp.kernel
 def tgv_primal_step(
     row0: int,
-    data_grad: wp.array2d(dtype=wp.vec4),
-    y0: wp.array2d(dtype=wp.vec4),
-    y1: wp.array2d(dtype=wp.vec4),
-    z00: wp.array2d(dtype=wp.vec4),
-    z01: wp.array2d(dtype=wp.vec4),
-    z10: wp.array2d(dtype=wp.vec4),
-    z11: wp.array2d(dtype=wp.vec4),
+    data_grad: wp.array2d(dtype=Any),
+    y0: wp.array2d(dtype=Any),
+    y1: wp.array2d(dtype=Any),
+    z00: wp.array2d(dtype=Any),
+    z01: wp.array2d(dtype=Any),
+    z10: wp.array2d(dtype=Any),
+    z11: wp.array2d(dtype=Any),
     tensor1: wp.array2d(dtype=wp.vec3),
     tensor2: wp.array2d(dtype=wp.vec3),
     tensor3: wp.array2d(dtype=wp.vec3),
-    tau_x: wp.array2d(dtype=wp.vec4),
-    tau_w0: wp.array2d(dtype=wp.vec4),
-    tau_w1: wp.array2d(dtype=wp.vec4),
+    tau_x: wp.array2d(dtype=Any),
+    tau_w0: wp.array2d(dtype=Any),
+    tau_w1: wp.array2d(dtype=Any),
     alpha0: float,
     alpha1: float,
     span: int,
     # outputs
-    x: wp.array2d(dtype=wp.vec4),
-    w0: wp.array2d(dtype=wp.vec4),
-    w1: wp.array2d(dtype=wp.vec4),
-    x_bar: wp.array2d(dtype=wp.vec4),
-    w0_bar: wp.array2d(dtype=wp.vec4),
-    w1_bar: wp.array2d(dtype=wp.vec4),
+    x: wp.array2d(dtype=Any),
+    w0: wp.array2d(dtype=Any),
+    w1: wp.array2d(dtype=Any),
+    x_bar: wp.array2d(dtype=Any),
+    w0_bar: wp.array2d(dtype=Any),
+    w1_bar: wp.array2d(dtype=Any),
 ):
     """x ← x − τ_x (Kᵀq − α1 div(Γy)),  w ← w − τ_w (−α1 Γy − α0 div z), then the
     over-relaxation x̄ = 2x_new − x_old (likewise w̄). Launch over (rows, columns)."""
@@ -289,9 +308,9 @@ def tgv_primal_step(
     j0 = c * span
     for j in range(j0, wp.min(w, j0 + span)):
         h0, h1 = gamma_y(tensor1, tensor2, tensor3, y0, y1, i, j)
-        div_h = wp.vec4(0.0)
-        div_z0 = wp.vec4(0.0)
-        div_z1 = wp.vec4(0.0)
+        div_h = type(h0)(0.0)
+        div_z0 = div_h
+        div_z1 = div_h
         if j < w - 1:
             div_h += h0
             div_z0 += z00[i, j]
@@ -322,3 +341,12 @@ def tgv_primal_step(
         x_bar[i, j] = 2.0 * x_new - x_old
         w0_bar[i, j] = 2.0 * w0_new - w0_old
         w1_bar[i, j] = 2.0 * w1_new - w1_old
+
+
+# the kernels on the unknowns, for vec4 (δ1, δ2, u, v) and vec2 (u, v; flow only)
+overload_unknowns(joint_diffusion_tensor, "x_hat")
+overload_unknowns(tgv_preconditioner, "data_colsum", "tau_x", "tau_w0", "tau_w1", "sigma_y0", "sigma_y1")
+overload_unknowns(tgv_dual_step, "x_bar", "w0_bar", "w1_bar", "sigma_y0", "sigma_y1", "y0", "y1", "z00", "z01",
+                  "z10", "z11")
+overload_unknowns(tgv_primal_step, "data_grad", "y0", "y1", "z00", "z01", "z10", "z11", "tau_x", "tau_w0", "tau_w1",
+                  "x", "w0", "w1", "x_bar", "w0_bar", "w1_bar")

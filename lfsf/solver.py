@@ -39,6 +39,12 @@ class LevelSolver:
 
     Call ``set_state`` and then ``linearise`` before ``iterate``: the data term's buffers
     are allocated uninitialised and filled there.
+
+    With one sample (M = 1, the centre view alone) no data row involves δ1 or δ2: the
+    solver then iterates on (u, v) alone, as vec2 (``flow_only``), and carries δ1, δ2 (and
+    their w) through unchanged, which is what the four-unknown iterations do to them from
+    a constant start, at half the memory traffic. The kernels are the same (generic over
+    :data:`lfsf.kernels.common.UNKNOWNS`).
     """
 
     def __init__(self, samples1, samples2, centre1, centre2, phis, weights, params, device: str):
@@ -53,26 +59,32 @@ class LevelSolver:
         self.shape = (h, w)
         self.span, self.per_row = _device.row_span(device, w)  # pixels per thread (iteration steps)
         self.bands = 1 if h * w < _device.SMALL_IMAGE else None  # small levels: no thread pool
-        vec4 = wp.vec4
+        self.flow_only = n == 1
+        self.vec = wp.vec2 if self.flow_only else wp.vec4
+        self._held: dict[str, np.ndarray] = {}  # flow only: the (δ1, δ2) parts of x, w0, w1
 
         def zeros4():
-            return wp.zeros((h, w), dtype=vec4, device=device)
+            return wp.zeros((h, w), dtype=self.vec, device=device)
 
         # diffusion tensors: Γ_t1 for δ1 (fixed for the level), Γ_t2 for δ2 and Γ_uv for the
         # flow (set at each linearisation, see _tensors)
         self.centre1, self.centre2 = centre1, centre2
         self.tensor1 = wp.empty((h, w), dtype=wp.vec3, device=device)
-        self.tensor2 = wp.empty((h, w), dtype=wp.vec3, device=device)
-        self.tensor3 = wp.empty((h, w), dtype=wp.vec3, device=device)
-        self.warped2 = wp.empty((h, w), dtype=float, device=device)
         self._launch(tgv.diffusion_tensor, inputs=[centre1, params.gamma, params.beta], outputs=[self.tensor1])
+        if self.flow_only:
+            # Γ_uv of a zero δ̂1 is Γ_t1, and no δ is iterated: one tensor for all three
+            self.tensor2 = self.tensor3 = self.tensor1
+        else:
+            self.tensor2 = wp.empty((h, w), dtype=wp.vec3, device=device)
+            self.tensor3 = wp.empty((h, w), dtype=wp.vec3, device=device)
+        self.warped2 = wp.empty((h, w), dtype=float, device=device)
 
         # data term: coefficients per pixel and sample, the scaled duals q̃, and Kᵀq
         self.coef = wp.empty((h, w, n), dtype=data_term.vec12, device=device)  # written by linearise
         self.q = wp.empty((h, w, n), dtype=wp.vec3, device=device)  # zeroed by set_state
         self.data_colsum = zeros4()
         self.data_grad = zeros4()
-        # primal: x = (δ1, δ2, u, v), w = (w0, w1), their over-relaxed copies, x̂
+        # primal: x = (δ1, δ2, u, v) (flow only: (u, v)), w = (w0, w1), their over-relaxed copies, x̂
         self.x, self.x_bar, self.x_hat = zeros4(), zeros4(), zeros4()
         self.w0, self.w1, self.w0_bar, self.w1_bar = zeros4(), zeros4(), zeros4(), zeros4()
         # TGV duals
@@ -86,6 +98,7 @@ class LevelSolver:
         self.zbuf = wp.zeros((h, w), dtype=float, device=device)
         self.hidden2 = wp.zeros((h, w), dtype=float, device=device)
         self.scratch1 = wp.zeros((h, w), dtype=float, device=device)
+        self._iteration = None  # the recorded iteration (``iterate``)
         self._tensors()
 
     def _launch(self, kernel, inputs, outputs):
@@ -101,14 +114,18 @@ class LevelSolver:
 
     def set_state(self, x: np.ndarray, w0: np.ndarray | None = None, w1: np.ndarray | None = None) -> None:
         """Start from x (h, w, 4) = (δ1, δ2, u, v) and w (each (h, w, 4), default 0);
-        duals are reset, and the tensors Γ_t2, Γ_uv set from x."""
+        duals are reset, and the tensors Γ_t2, Γ_uv set from x. Flow only, the (δ1, δ2)
+        parts are held as they are."""
         wp = _device.warp()
         h, w = self.shape
         for name, value in (("x", x), ("w0", w0), ("w1", w1)):
             arr = np.zeros((h, w, 4), np.float32) if value is None else np.ascontiguousarray(value, np.float32)
             if arr.shape != (h, w, 4):
                 raise ValueError(f"{name} must have shape {(h, w, 4)}, got {arr.shape}")
-            src = wp.array(arr, dtype=wp.vec4, device=self.device)
+            if self.flow_only:
+                self._held[name] = arr[..., :2].copy()
+                arr = np.ascontiguousarray(arr[..., 2:])
+            src = wp.array(arr, dtype=self.vec, device=self.device)
             wp.copy(getattr(self, name), src)
             wp.copy(getattr(self, name + "_bar"), src)
         for dual in (self.q, self.y0, self.y1, self.z00, self.z01, self.z10, self.z11):
@@ -118,7 +135,16 @@ class LevelSolver:
 
     def state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(x, w0, w1) as numpy arrays of shape (h, w, 4)."""
-        return self.x.numpy(), self.w0.numpy(), self.w1.numpy()
+        return self._full("x", self.x), self._full("w0", self.w0), self._full("w1", self.w1)
+
+    def linearisation_point(self) -> np.ndarray:
+        """x̂ as a numpy array of shape (h, w, 4)."""
+        return self._full("x", self.x_hat)
+
+    def _full(self, name: str, array) -> np.ndarray:
+        """A buffer of unknowns as (h, w, 4); flow only, with the held (δ1, δ2) of ``name``."""
+        a = array.numpy()
+        return np.concatenate([self._held[name], a], -1) if self.flow_only else a
 
     # --- one warp ------------------------------------------------------------------------
 
@@ -152,6 +178,8 @@ class LevelSolver:
         from lfsf.kernels import sampling, tgv
 
         p = self.params
+        if self.flow_only:
+            return
         image2 = self.centre2
         if p.warp_tensor2:
             self._launch(sampling.warp_by_flow, inputs=[self.centre2, self.x_hat], outputs=[self.warped2])
@@ -166,6 +194,8 @@ class LevelSolver:
         from lfsf.kernels import tgv
 
         p = self.params
+        if self.flow_only:
+            return
         self._launch(tgv.joint_diffusion_tensor, inputs=[self.centre1, self.x_hat, p.flow_edge_weight, p.gamma,
                                                          p.beta], outputs=[self.tensor3])
 
@@ -175,7 +205,7 @@ class LevelSolver:
         from lfsf.kernels import occlusion
 
         margin = self.params.occlusion_margin
-        if margin <= 0:
+        if margin <= 0 or self.flow_only:  # flow only: no t2 view but the centre
             self.hidden2.zero_()
             return
         self.zbuf.fill_(occlusion.EMPTY)
@@ -186,24 +216,38 @@ class LevelSolver:
                      outputs=[self.hidden2])
 
     def iterate(self, n: int) -> None:
-        """n preconditioned primal–dual iterations (Chambolle & Pock 2011)."""
+        """n preconditioned primal–dual iterations (Chambolle & Pock 2011). The three
+        launches of an iteration are recorded on first use and replayed (as a captured
+        graph where each is one launch: CUDA, and small levels on the CPU)."""
+        if self._iteration is None:
+            self._iteration = _device.CapturedLoop(self._iteration_steps(), device=self.device)
+        self._iteration.run(n)
+
+    def _iteration_steps(self) -> list:
         from lfsf.kernels import data_term, tgv
 
         p = self.params
         sigma_z = 1.0 / (2.0 * p.alpha0)
-        for _ in range(n):
-            self._launch_spans(data_term.dual_data_step,
-                               inputs=[self.coef, self.weights, self.x_bar, self.x_hat, self.span],
-                               outputs=[self.q, self.data_grad])
-            self._launch_spans(tgv.tgv_dual_step,
-                               inputs=[self.x_bar, self.w0_bar, self.w1_bar, self.tensor1, self.tensor2, self.tensor3,
-                                       self.sigma_y0, self.sigma_y1, sigma_z, p.alpha0, p.alpha1, self.span],
-                               outputs=[self.y0, self.y1, self.z00, self.z01, self.z10, self.z11])
-            self._launch_spans(tgv.tgv_primal_step,
-                               inputs=[self.data_grad, self.y0, self.y1, self.z00, self.z01, self.z10, self.z11,
-                                       self.tensor1, self.tensor2, self.tensor3, self.tau_x, self.tau_w0,
-                                       self.tau_w1, p.alpha0, p.alpha1, self.span],
-                               outputs=[self.x, self.w0, self.w1, self.x_bar, self.w0_bar, self.w1_bar])
+        dim = (self.shape[0], self.per_row)
+
+        def record(kernel, inputs, outputs):
+            return _device.RecordedRows(kernel, dim, inputs=inputs, outputs=outputs, device=self.device,
+                                        bands=self.bands)
+
+        return [
+            record(data_term.dual_data_step,
+                   inputs=[self.coef, self.weights, self.x_bar, self.x_hat, self.span],
+                   outputs=[self.q, self.data_grad]),
+            record(tgv.tgv_dual_step,
+                   inputs=[self.x_bar, self.w0_bar, self.w1_bar, self.tensor1, self.tensor2, self.tensor3,
+                           self.sigma_y0, self.sigma_y1, sigma_z, p.alpha0, p.alpha1, self.span],
+                   outputs=[self.y0, self.y1, self.z00, self.z01, self.z10, self.z11]),
+            record(tgv.tgv_primal_step,
+                   inputs=[self.data_grad, self.y0, self.y1, self.z00, self.z01, self.z10, self.z11,
+                           self.tensor1, self.tensor2, self.tensor3, self.tau_x, self.tau_w0,
+                           self.tau_w1, p.alpha0, p.alpha1, self.span],
+                   outputs=[self.x, self.w0, self.w1, self.x_bar, self.w0_bar, self.w1_bar]),
+        ]
 
     def median_radius(self) -> int:
         """The median filter's radius on this level (:func:`level_median_radius`)."""
@@ -238,7 +282,7 @@ class LevelSolver:
         α1 Σ|Γ(∇x − w)| + α0 Σ|∇w| (NumPy; for tests and diagnostics, not the hot path)."""
         p = self.params
         x, w0, w1 = self.state()
-        d = x - self.x_hat.numpy()
+        d = x - self.linearisation_point()
         a, (wt1, wt2, wt3) = self.data_rows()
         rho1 = a[1] - a[0] * d[..., 0]
         rho2 = a[3] - a[2] * d[..., 1] + a[7] * d[..., 2] + a[8] * d[..., 3]

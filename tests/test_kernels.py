@@ -28,6 +28,25 @@ def close(got, want, rtol=RTOL, atol=ATOL):
     np.testing.assert_allclose(np.asarray(got, np.float64), want, rtol=rtol, atol=atol)
 
 
+#: The kernels on the unknowns run on vec4 (δ1, δ2, u, v) and, flow only, on vec2 (u, v):
+#: each test of one runs both, the vec2 one against the flow components of the reference.
+UNKNOWNS = pytest.mark.parametrize("unknowns", ["vec4", "vec2"])
+
+
+def unknowns_arr(a, unknowns, device):
+    """(h, w, 4) data as the kernel's unknowns: all four, or (u, v) alone."""
+    return arr(a, wp.vec4, device) if unknowns == "vec4" else arr(a[..., 2:], wp.vec2, device)
+
+
+def unknowns_zeros(shape, unknowns, device):
+    return wp.zeros(shape, dtype=wp.vec4 if unknowns == "vec4" else wp.vec2, device=device)
+
+
+def flow_part(a, unknowns):
+    """The components of (h, w, 4) data the ``unknowns`` hold."""
+    return a if unknowns == "vec4" else a[..., 2:]
+
+
 # --- sampling ------------------------------------------------------------------------------
 
 
@@ -654,9 +673,11 @@ def test_data_linearisation_is_first_order_accurate(device):
                 f"ρ{part + 1} w.r.t. {names[k]}: |linearised − exact| = {err:.3g}, |exact change| = {scale:.3g}")
 
 
+@UNKNOWNS
 @pytest.mark.parametrize("span", [1, 4, 9])  # a pixel per thread (CUDA), part of a row, a whole row (CPU)
-def test_dual_data_step_matches_reference(device, span):
-    """The kernel's scaled duals q̃ = w q against the reference's q, and Kᵀq."""
+def test_dual_data_step_matches_reference(device, span, unknowns):
+    """The kernel's scaled duals q̃ = w q against the reference's q, and Kᵀq. On vec2
+    (flow only) δ1, δ2 are 0 and Kᵀq has the flow's components."""
     from lfsf.kernels import data_term
 
     r = rng(11)
@@ -670,14 +691,17 @@ def test_dual_data_step_matches_reference(device, span):
     coef = np.concatenate([A, sigma]).transpose(2, 3, 1, 0).astype(np.float32)  # (h, w, S, 12)
     x_bar = r.standard_normal((h, w, 4)).astype(np.float32)
     x_hat = r.standard_normal((h, w, 4)).astype(np.float32)
+    if unknowns == "vec2":
+        x_bar[..., :2] = x_hat[..., :2] = 0.0
     q = r.uniform(-1, 1, (3, s, h, w))
     q_wp = arr((W * q).transpose(2, 3, 1, 0), wp.vec3, device)
-    grad_wp = wp.zeros((h, w), dtype=wp.vec4, device=device)
+    grad_wp = unknowns_zeros((h, w), unknowns, device)
     launch(data_term.dual_data_step, (h, -(-w // span)),
-           [arr(coef, data_term.vec12, device), arr(lam, wp.vec3, device), arr(x_bar, wp.vec4, device),
-            arr(x_hat, wp.vec4, device), span],
+           [arr(coef, data_term.vec12, device), arr(lam, wp.vec3, device), unknowns_arr(x_bar, unknowns, device),
+            unknowns_arr(x_hat, unknowns, device), span],
            [q_wp, grad_wp], device)
     want_q, want_grad = ref.dual_data_step(A, W, q, x_bar, x_hat, DATA_EPS)
+    want_grad = flow_part(want_grad, unknowns)
     got_q = q_wp.numpy().astype(np.float64).transpose(3, 2, 0, 1)  # q̃, (3, S, h, w)
     close(got_q, W * want_q, atol=1e-4)
     close(grad_wp.numpy(), want_grad, atol=1e-4)
@@ -689,9 +713,11 @@ def test_dual_data_step_matches_reference(device, span):
 
     # Kᵀ by the adjoint identity ⟨K Δ, q⟩ = ⟨Δ, Kᵀ q⟩, K Δ from the linear parts of w_k ρ_k
     delta = r.standard_normal((h, w, 4))
+    if unknowns == "vec2":
+        delta[..., :2] = 0.0
     k_delta = W * (ref.data_residuals(A, delta) - ref.data_residuals(A, np.zeros_like(delta)))
     lhs = np.sum(k_delta * got_q)
-    rhs = np.sum(delta * grad_wp.numpy())
+    rhs = np.sum(flow_part(delta, unknowns) * grad_wp.numpy())
     assert abs(lhs - rhs) <= 1e-4 * (np.sum(np.abs(k_delta * got_q)) + 1.0), (lhs, rhs)
 
 
@@ -755,16 +781,23 @@ def test_joint_diffusion_tensor_matches_reference(weight, device):
     close(got[:2, :3], np.broadcast_to([1.0, 0.0, 1.0], (2, 3, 3)), atol=1e-6)
     if weight == 0.0:
         close(got, _run_tensor(img, 5.0, 0.7, device), atol=1e-6)
+    # flow only (vec2 unknowns): δ1 is 0, the plain image tensor
+    out2 = wp.zeros((h, w), dtype=wp.vec3, device=device)
+    launch(tgv.joint_diffusion_tensor, (h, w), [arr(img, float, device), unknowns_arr(x_hat, "vec2", device),
+                                                float(weight), 5.0, 0.7], [out2], device)
+    close(out2.numpy(), _run_tensor(img, 5.0, 0.7, device), atol=1e-6)
 
 
-def test_warp_by_flow_matches_reference(device):
+@UNKNOWNS
+def test_warp_by_flow_matches_reference(device, unknowns):
     from lfsf.kernels import sampling
 
     h, w = 6, 8
     img = rng(34).random((h, w)).astype(np.float32)
     x_hat = rng(35).uniform(-3, 3, (h, w, 4)).astype(np.float32)
     out = wp.zeros((h, w), dtype=float, device=device)
-    launch(sampling.warp_by_flow, (h, w), [arr(img, float, device), arr(x_hat, wp.vec4, device)], [out], device)
+    launch(sampling.warp_by_flow, (h, w), [arr(img, float, device), unknowns_arr(x_hat, unknowns, device)], [out],
+           device)
     py, px = np.mgrid[0:h, 0:w].astype(np.float64)
     close(out.numpy(), ref.bilinear(img, px + x_hat[..., 2], py + x_hat[..., 3]), atol=1e-6)
 
@@ -810,7 +843,8 @@ def _tgv_setting(seed, h=4, w=5):
     return t1.astype(np.float32), t2.astype(np.float32), t3.astype(np.float32)
 
 
-def test_tgv_preconditioner_is_abs_sums_of_K(device):
+@UNKNOWNS
+def test_tgv_preconditioner_is_abs_sums_of_K(device, unknowns):
     from lfsf.kernels import tgv
 
     h, w = 4, 5
@@ -818,14 +852,14 @@ def test_tgv_preconditioner_is_abs_sums_of_K(device):
     t1, t2, t3 = _tgv_setting(13, h, w)
     assert np.any(t1[..., 1] < 0) and np.any(t1[..., 1] > 0)
     data_colsum = rng(14).uniform(0.0, 3.0, (h, w, 4)).astype(np.float32)
-    outs = [wp.zeros((h, w), dtype=wp.vec4, device=device) for _ in range(5)]
+    outs = [unknowns_zeros((h, w), unknowns, device) for _ in range(5)]
     launch(tgv.tgv_preconditioner, (h, w),
-           [arr(data_colsum, wp.vec4, device), arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(t3, wp.vec3, device),
+           [unknowns_arr(data_colsum, unknowns, device), arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(t3, wp.vec3, device),
             alpha0, alpha1, eps], outs, device)
     want, zrows = ref.tgv_preconditioner(data_colsum.astype(np.float64), t1.astype(np.float64),
                                          t2.astype(np.float64), alpha0, alpha1, eps, t3.astype(np.float64))
     for name, got in zip(("tau_x", "tau_w0", "tau_w1", "sigma_y0", "sigma_y1"), outs):
-        np.testing.assert_allclose(got.numpy(), want[name], rtol=1e-5, err_msg=name)
+        np.testing.assert_allclose(got.numpy(), flow_part(want[name], unknowns), rtol=1e-5, err_msg=name)
     # σ_z = 1/(2α0) (the solver's constant) is 1/row sum of every nonzero z row
     nonzero = zrows[zrows > 0]
     close(nonzero, 2.0 * alpha0)
@@ -837,8 +871,9 @@ def _tgv_fields(seed, h, w, scale=1.0):
     return [(scale * r.standard_normal((h, w, 4))).astype(np.float32) for _ in range(9)]
 
 
+@UNKNOWNS
 @pytest.mark.parametrize("span", [1, 2, 5])  # a pixel per thread (CUDA), part of a row, a whole row (CPU)
-def test_tgv_dual_step_matches_reference(device, span):
+def test_tgv_dual_step_matches_reference(device, span, unknowns):
     from lfsf.kernels import tgv
 
     h, w = 4, 5
@@ -849,15 +884,16 @@ def test_tgv_dual_step_matches_reference(device, span):
     sigma_y0 = r.uniform(0.1, 0.8, (h, w, 4)).astype(np.float32)
     sigma_y1 = r.uniform(0.1, 0.8, (h, w, 4)).astype(np.float32)
     sigma_z = 1.0 / (2.0 * alpha0)
-    duals = [arr(a, wp.vec4, device) for a in (y0, y1, z00, z01, z10, z11)]
+    duals = [unknowns_arr(a, unknowns, device) for a in (y0, y1, z00, z01, z10, z11)]
     launch(tgv.tgv_dual_step, (h, -(-w // span)),
-           [arr(x_bar, wp.vec4, device), arr(w0_bar, wp.vec4, device), arr(w1_bar, wp.vec4, device),
-            arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(t3, wp.vec3, device), arr(sigma_y0, wp.vec4, device),
-            arr(sigma_y1, wp.vec4, device), sigma_z, alpha0, alpha1, span], duals, device)
+           [unknowns_arr(x_bar, unknowns, device), unknowns_arr(w0_bar, unknowns, device),
+            unknowns_arr(w1_bar, unknowns, device), arr(t1, wp.vec3, device), arr(t2, wp.vec3, device),
+            arr(t3, wp.vec3, device), unknowns_arr(sigma_y0, unknowns, device), unknowns_arr(sigma_y1, unknowns, device),
+            sigma_z, alpha0, alpha1, span], duals, device)
     want = ref.tgv_dual_step(x_bar, w0_bar, w1_bar, t1, t2, sigma_y0, sigma_y1, sigma_z, alpha0, alpha1,
                              y0, y1, z00, z01, z10, z11, t3)
     for name, got, exp in zip(("y0", "y1", "z00", "z01", "z10", "z11"), duals, want):
-        np.testing.assert_allclose(got.numpy(), exp, rtol=1e-5, atol=1e-5, err_msg=name)
+        np.testing.assert_allclose(got.numpy(), flow_part(exp, unknowns), rtol=1e-5, atol=1e-5, err_msg=name)
     # both projections were exercised, and hold
     y = np.hypot(want[0], want[1])
     z = np.sqrt(sum(a * a for a in want[2:]))
@@ -865,8 +901,9 @@ def test_tgv_dual_step_matches_reference(device, span):
     assert np.any(np.isclose(z, 1.0)) and np.any(z < 0.99) and np.all(z <= 1 + 1e-9)
 
 
+@UNKNOWNS
 @pytest.mark.parametrize("span", [1, 2, 5])
-def test_tgv_primal_step_matches_reference(device, span):
+def test_tgv_primal_step_matches_reference(device, span, unknowns):
     from lfsf.kernels import tgv
 
     h, w = 4, 5
@@ -876,17 +913,18 @@ def test_tgv_primal_step_matches_reference(device, span):
     r = rng(20)
     data_grad = r.standard_normal((h, w, 4)).astype(np.float32)
     tau_x, tau_w0, tau_w1 = (r.uniform(0.05, 0.5, (h, w, 4)).astype(np.float32) for _ in range(3))
-    prim = [arr(a, wp.vec4, device) for a in (x, w0, w1)]
-    bars = [wp.zeros((h, w), dtype=wp.vec4, device=device) for _ in range(3)]
+    prim = [unknowns_arr(a, unknowns, device) for a in (x, w0, w1)]
+    bars = [unknowns_zeros((h, w), unknowns, device) for _ in range(3)]
     launch(tgv.tgv_primal_step, (h, -(-w // span)),
-           [arr(data_grad, wp.vec4, device)] + [arr(a, wp.vec4, device) for a in (y0, y1, z00, z01, z10, z11)]
+           [unknowns_arr(data_grad, unknowns, device)]
+           + [unknowns_arr(a, unknowns, device) for a in (y0, y1, z00, z01, z10, z11)]
            + [arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(t3, wp.vec3, device)]
-           + [arr(a, wp.vec4, device) for a in (tau_x, tau_w0, tau_w1)] + [alpha0, alpha1, span],
+           + [unknowns_arr(a, unknowns, device) for a in (tau_x, tau_w0, tau_w1)] + [alpha0, alpha1, span],
            prim + bars, device)
     want = ref.tgv_primal_step(data_grad, y0, y1, z00, z01, z10, z11, t1, t2, tau_x, tau_w0, tau_w1,
                                alpha0, alpha1, x, w0, w1, t3)
     for name, got, exp in zip(("x", "w0", "w1", "x_bar", "w0_bar", "w1_bar"), prim + bars, want):
-        np.testing.assert_allclose(got.numpy(), exp, rtol=1e-5, atol=1e-5, err_msg=name)
+        np.testing.assert_allclose(got.numpy(), flow_part(exp, unknowns), rtol=1e-5, atol=1e-5, err_msg=name)
 
 
 def test_tgv_gradient_and_divergence_are_negative_adjoints(device):
@@ -963,8 +1001,9 @@ def test_tgv_gradient_and_divergence_are_negative_adjoints(device):
 # --- median --------------------------------------------------------------------------------
 
 
+@UNKNOWNS
 @pytest.mark.parametrize("radius", [1, 2, 3, 4])  # 4: the path that reads the image per comparison
-def test_median_flow_matches_reference(radius, device):
+def test_median_flow_matches_reference(radius, device, unknowns):
     from lfsf.kernels import median
 
     h, w = 7, 9
@@ -972,12 +1011,13 @@ def test_median_flow_matches_reference(radius, device):
     x = r.standard_normal((h, w, 4)).astype(np.float32)
     x[..., 3] = np.round(x[..., 3] * 2) / 2  # many ties
     x[:3, :4, 2] = 0.25  # a constant patch: every value ties
-    out = wp.zeros((h, w), dtype=wp.vec4, device=device)
-    launch(median.median_flow, (h, w), [arr(x, wp.vec4, device), radius], [out], device)
+    out = unknowns_zeros((h, w), unknowns, device)
+    launch(median.median_flow, (h, w), [unknowns_arr(x, unknowns, device), radius], [out], device)
     got = out.numpy()
     want = ref.median_flow(x, radius)
-    np.testing.assert_array_equal(got, want.astype(np.float32))
-    np.testing.assert_array_equal(got[..., :2], x[..., :2])
+    np.testing.assert_array_equal(got, flow_part(want, unknowns).astype(np.float32))
+    if unknowns == "vec4":
+        np.testing.assert_array_equal(got[..., :2], x[..., :2])
 
 
 # --- solver energy -------------------------------------------------------------------------
@@ -1016,7 +1056,7 @@ def _level_solver(size, grid, params, device):
 def _linearised_problem(solver):
     a, weights = solver.data_rows()
     return ref.LinearisedProblem(a, weights,
-                                 solver.x_hat.numpy(), solver.tensor1.numpy(), solver.tensor2.numpy(),
+                                 solver.linearisation_point(), solver.tensor1.numpy(), solver.tensor2.numpy(),
                                  solver.params.alpha0, solver.params.alpha1, solver.tensor3.numpy())
 
 
@@ -1046,14 +1086,19 @@ def small_params():
                                          lambda3=20.0)
 
 
-def test_level_solver_iterates_the_preconditioned_primal_dual(device, small_params):
+@pytest.mark.parametrize("circles", [2, 1])  # 1: flow only, iterated on vec2 (u, v)
+def test_level_solver_iterates_the_preconditioned_primal_dual(device, small_params, circles):
     """LevelSolver.iterate (all kernels together) equals the diagonally preconditioned
-    Chambolle–Pock of MODEL.md §5 in NumPy, with τ, σ from the abs sums of the actual K."""
-    solver = _level_solver((14, 12), 3, small_params, device)
+    Chambolle–Pock of MODEL.md §5 in NumPy, with τ, σ from the abs sums of the actual K.
+    Flow only, the solver iterates (u, v) alone; the four-unknown NumPy iteration leaves
+    δ1, δ2 at their start (0) there."""
+    params = small_params if circles == 2 else small_params.replace(circles=1, samples=(1,))
+    solver = _level_solver((14, 12), 3, params, device)
+    assert solver.flow_only == (circles == 1)
     solver.linearise()
     problem = _linearised_problem(solver)
     steps = problem.preconditioners(small_params.eps)
-    close(solver.tau_x.numpy(), steps["tau_x"], rtol=1e-5, atol=0)
+    close(solver.tau_x.numpy(), steps["tau_x"][..., 4 - len(solver.vec()):], rtol=1e-5, atol=0)
     solver.iterate(200)
     want = problem.solve(200, steps)
     for name, got, exp in zip(("x", "w0", "w1"), solver.state(), want):
