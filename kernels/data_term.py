@@ -160,7 +160,8 @@ def data_coefficients(
     # J2) and the centre's flow row are left out, and the visible side views carry ρ3.
     half1, kept1 = best_half(sums1, counts1, total1, count1, occlusion_ratio)
     half2, kept2 = best_half(sums2, counts2, total2, count2, occlusion_ratio)
-    if occlusion_ratio > 0.0 and wp.abs(i1 - j2) > CENTRE_OCCLUSION_FACTOR * kept2 + OCCLUSION_FLOOR:
+    # (only where side views at t2 give a residual to compare with: flow only, M = 1, has none)
+    if occlusion_ratio > 0.0 and count2 > 0.0 and wp.abs(i1 - j2) > CENTRE_OCCLUSION_FACTOR * kept2 + OCCLUSION_FLOOR:
         in_j = False
     # a nearer point covers p at t2 (geometric test): no t2 view is trusted to see it
     hidden = hidden2[i, j] > 0.5

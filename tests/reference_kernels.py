@@ -276,7 +276,8 @@ def data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio=
     with δ̂2. Samples outside the best half of t1 get w1 = 0, of t2 get w2 = 0, and w3 = 0
     if left out of either. The centre view at t2 is itself taken as occluded where
     |I1(p) − J2| > CENTRE_OCCLUSION_FACTOR·(mean residual of the t2 samples kept) +
-    OCCLUSION_FLOOR: then every w2 is 0 (the stereo rows at t2 compare with J2) and so is
+    OCCLUSION_FLOOR, where there are t2 samples in the image to tell (none with the centre
+    view alone, M = 1): then every w2 is 0 (the stereo rows at t2 compare with J2) and so is
     w3 of the centre sample (the flow row I1 − J2). ``details``, a dict, receives the two
     occlusion tests ("t1", "t2") and the centre test ("centre_occluded", "centre_margin"
     = |I1 − J2| − threshold). ``hidden2`` (h, w): where > 0.5 the point is hidden at t2
@@ -298,7 +299,7 @@ def data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio=
     keep1 = kept_samples(occ1["best"], occ1["members"])
     keep2 = kept_samples(occ2["best"], occ2["members"])
     centre_margin = np.abs(i1 - j2) - (CENTRE_OCCLUSION_FACTOR * occ2["kept_mean"] + OCCLUSION_FLOOR)
-    centre_occluded = (occlusion_ratio > 0) & (centre_margin > 0)
+    centre_occluded = (occlusion_ratio > 0) & (occ2["count"] > 0) & (centre_margin > 0)
     in_j = in_j & ~centre_occluded
     keep2[0] &= in_j
     if hidden2 is not None:

@@ -329,6 +329,26 @@ def _check_data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion
     return coef, W, details
 
 
+def test_data_coefficients_centre_view_alone_keeps_its_flow_row(device):
+    """With the centre view alone (M = 1, flow only) there are no side views at t2 to
+    judge whether the centre view is occluded: the flow row is kept wherever both ends
+    are in the image, however large |I1 − J2| (before, any residual over OCCLUSION_FLOOR
+    dropped it, and flow-only lost most of its data rows on real texture)."""
+    samples1, samples2, phis, weights, x_hat = _data_inputs(14)
+    one = slice(0, 1)
+    coef, W, details = _check_data_coefficients(samples1[one], samples2[one], phis[one], weights[one], x_hat, 0.7,
+                                                device)
+    h, w = samples1.shape[1:]
+    py, px = np.mgrid[0:h, 0:w]
+    in_j = ref.inside((h, w), px + x_hat[..., 2], py + x_hat[..., 3])
+    assert not in_j.all() and in_j.any()
+    i1 = samples1[0]
+    j2 = ref.bilinear(samples2[0], px + x_hat[..., 2], py + x_hat[..., 3])
+    assert np.sum((np.abs(i1 - j2) > 0.1) & in_j) > 10  # large residuals, which the old test dropped
+    np.testing.assert_array_equal(W[2, 0] > 0, in_j)
+    assert not details["centre_occluded"].any()
+
+
 def test_data_coefficients_leave_out_hidden_points(device):
     """Where the geometric test says the point is hidden at t2 (hidden2 = 1), every row
     involving t2 is off (w2 = w3 = 0), and nothing else changes."""
