@@ -1040,6 +1040,24 @@ def test_median_flow_matches_reference(radius, device, unknowns):
         np.testing.assert_array_equal(got[..., :2], x[..., :2])
 
 
+def test_median_networks_select_the_median_and_match_their_generator():
+    """The selection networks (kernels/median_networks.py) are what
+    scripts/gen_median_networks.py generates, and select the median of random, tied and
+    0/1 inputs (its check, NumPy on the same operations)."""
+    import importlib.util
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("gen_median_networks", root / "scripts" / "gen_median_networks.py")
+    gen = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(gen)
+    text = (root / "kernels" / "median_networks.py").read_text()
+    for n in gen.SIZES:
+        gen.check(n)
+        code, _ = gen.emit(n)
+        assert code in text, f"kernels/median_networks.py is stale for n = {n}: run scripts/gen_median_networks.py"
+
+
 # --- solver energy -------------------------------------------------------------------------
 
 
