@@ -85,10 +85,13 @@ def data_coefficients(
     # outputs
     coef: wp.array3d(dtype=vec12),
     data_colsum: wp.array2d(dtype=Any),
+    q: wp.array3d(dtype=wp.vec3),
 ):
     """Coefficients A1…A9 and dual steps σ̃1…σ̃3 of every sample at the linearisation
     point x̂ (``coef[i, j, s]``), and the column sums Σ|K| of the data rows for each
-    unknown (the data part of the preconditioner τ).
+    unknown (the data part of the preconditioner τ). The scaled duals q̃ of the rows
+    left out are set to 0 (the others kept): :func:`dual_data_step` then needs no row
+    flags, since a row with σ̃ = 0 and q̃ = 0 stays at 0.
 
     ``samples1[s]``, ``samples2[s]``: (texture part of) the sub-aperture image at φ_s at
     t1 and t2; sample 0 must be the centre view (φ = 0). ``weights[s]`` = (λ1, λ2, λ3)
@@ -196,16 +199,11 @@ def data_coefficients(
         c[10] = wt2 * wt2 / (wt2 * (a3 + a8 + a9) + eps)
         c[11] = wt3 * wt3 / (wt3 * (a1 + a3 + a5 + a6) + eps)
         coef[i, j, s] = c
+        qs = q[i, j, s]
+        q[i, j, s] = wp.vec3(wp.where(wt1 > 0.0, qs[0], 0.0), wp.where(wt2 > 0.0, qs[1], 0.0),
+                             wp.where(wt3 > 0.0, qs[2], 0.0))
         colsum += wp.vec4((wt1 + wt3) * a1, (wt2 + wt3) * a3, wt2 * a8 + wt3 * a5, wt2 * a9 + wt3 * a6)
     data_colsum[i, j] = from_vec4(colsum, unknowns)
-
-
-@wp.func
-def row_weight(sigma: float, weight: float):
-    """w_k of a row from its σ̃_k: the sample's λ_k where the row is in, else 0."""
-    if sigma > 0.0:
-        return weight
-    return 0.0
 
 
 @wp.func
@@ -232,16 +230,15 @@ def dual_data_pixel(
         a6 = c[5]
         a8 = c[7]
         a9 = c[8]
-        wt1 = row_weight(c[9], lam[0])
-        wt2 = row_weight(c[10], lam[1])
-        wt3 = row_weight(c[11], lam[2])
         rho1 = c[1] - a1 * d[0]
         rho2 = c[3] - a3 * d[1] + a8 * d[2] + a9 * d[3]
         rho3 = c[6] + a1 * d[0] - a3 * d[1] - a5 * d[2] - a6 * d[3]
+        # clipped to ±λ_k: a row left out has σ̃_k = 0 and q̃_k = 0 (data_coefficients), so
+        # it stays 0 without a test of its flag
         qs = q[i, j, s]
-        q1 = wp.clamp(qs[0] + c[9] * rho1, -wt1, wt1)
-        q2 = wp.clamp(qs[1] + c[10] * rho2, -wt2, wt2)
-        q3 = wp.clamp(qs[2] + c[11] * rho3, -wt3, wt3)
+        q1 = wp.clamp(qs[0] + c[9] * rho1, -lam[0], lam[0])
+        q2 = wp.clamp(qs[1] + c[10] * rho2, -lam[1], lam[1])
+        q3 = wp.clamp(qs[2] + c[11] * rho3, -lam[2], lam[2])
         q[i, j, s] = wp.vec3(q1, q2, q3)
         g += wp.vec4((q3 - q1) * a1, -(q2 + q3) * a3, q2 * a8 - q3 * a5, q2 * a9 - q3 * a6)
     data_grad[i, j] = from_vec4(g, unknowns)
@@ -265,7 +262,8 @@ def dual_data_step(
     q̃_k ← clip(q̃_k + σ̃_k ρ_k(x̄), −w_k, w_k), σ̃_k = w_k σ_k and σ_k = 1 / (w_k Σ|row k| + ε)
     the diagonal preconditioner; then ``data_grad`` = Σ_s Kᵀ q for (δ1, δ2, u, v). This
     is q_k ← clip(q_k + σ_k w_k ρ_k, −1, 1) of the unscaled duals, without a division.
-    Launch over (rows, ⌈columns / span⌉): each thread walks ``span`` pixels of a row
+    Rows left out (w_k = 0) must have q̃_k = 0, as :func:`data_coefficients` leaves them:
+    the clip is to ±λ_k, and σ̃_k = 0 keeps them at 0. Launch over (rows, ⌈columns / span⌉): each thread walks ``span`` pixels of a row
     (:func:`lfsf.device.row_span`).
     """
     i, c0 = wp.tid()

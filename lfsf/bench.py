@@ -183,10 +183,11 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
         ("sample_subaperture", launch(sampling.sample_subaperture, [views, 9, 9, wp_phis, span], [sampled],
                                              dim=(s * h, per_row)),
          f * h * w * s * 5),
-        # reads both sample stacks, x̂ and the hidden mask; writes 12 coefficients per sample and the column sums
+        # reads both sample stacks, x̂ and the hidden mask; writes 12 coefficients per sample and the column
+        # sums; reads and writes q (the duals of rows left out are zeroed)
         ("data_coefficients", launch(data_term.data_coefficients,
-                                     [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros, 1e-6], [coef, colsum]),
-         f * h * w * (2 * s + 4 + 1 + 12 * s + 4)),
+                                     [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros, 1e-6], [coef, colsum, q]),
+         f * h * w * (2 * s + 4 + 1 + 12 * s + 4 + 6 * s)),
         # reads the coefficients, x̄, x̂ and q; writes q and Kᵀq (the S weights stay in cache)
         ("dual_data_step", launch(data_term.dual_data_step, [coef, weights, x_bar, x_hat, span], [q, data_grad],
                                   dim=(h, per_row)),

@@ -81,7 +81,7 @@ class LevelSolver:
 
         # data term: coefficients per pixel and sample, the scaled duals q̃, and Kᵀq
         self.coef = wp.empty((h, w, n), dtype=data_term.vec12, device=device)  # written by linearise
-        self.q = wp.empty((h, w, n), dtype=wp.vec3, device=device)  # zeroed by set_state
+        self.q = wp.empty((h, w, n), dtype=wp.vec3, device=device)  # zeroed by set_state, rows left out by linearise
         self.data_colsum = zeros4()
         self.data_grad = zeros4()
         # primal: x = (δ1, δ2, u, v) (flow only: (u, v)), w = (w0, w1), their over-relaxed copies, x̂
@@ -164,7 +164,7 @@ class LevelSolver:
         self._launch(data_term.data_coefficients,
                      inputs=[self.samples1, self.samples2, self.phis, self.weights, self.x_hat, p.occlusion_ratio,
                              self.hidden2, p.eps],
-                     outputs=[self.coef, self.data_colsum])
+                     outputs=[self.coef, self.data_colsum, self.q])
         self._launch(tgv.tgv_preconditioner,
                      inputs=[self.data_colsum, self.tensor1, self.tensor2, self.tensor3, p.alpha0, p.alpha1, p.eps],
                      outputs=[self.tau_x, self.tau_w0, self.tau_w1, self.sigma_y0, self.sigma_y1])

@@ -287,13 +287,18 @@ def _run_data_coefficients_raw(samples1, samples2, phis, weights, x_hat, device,
     hidden2 = np.zeros((h, w), np.float32) if hidden2 is None else hidden2
     coef = wp.zeros((h, w, s), dtype=data_term.vec12, device=device)
     colsum = wp.zeros((h, w), dtype=wp.vec4, device=device)
+    q_before = rng(99).uniform(-1.0, 1.0, (h, w, s, 3)).astype(np.float32)  # the duals of the last warp
+    q = arr(q_before, wp.vec3, device)
     launch(data_term.data_coefficients, (h, w),
            [arr(samples1, float, device), arr(samples2, float, device), arr(phis, wp.vec2, device),
             arr(weights, wp.vec3, device), arr(x_hat, wp.vec4, device), float(occlusion_ratio),
             arr(hidden2, float, device), DATA_EPS],
-           [coef, colsum], device)
+           [coef, colsum, q], device)
     # pixel-major in the solver; sample-major (S, h, w, 12) here, as the reference
-    return coef.numpy().transpose(2, 0, 1, 3).astype(np.float64), colsum.numpy().astype(np.float64)
+    got = coef.numpy()
+    # the duals of rows left out are zeroed, the others kept as they were
+    np.testing.assert_array_equal(q.numpy(), np.where(got[..., 9:] > 0, q_before, 0.0))
+    return got.transpose(2, 0, 1, 3).astype(np.float64), colsum.numpy().astype(np.float64)
 
 
 DATA_EPS = 1e-6
