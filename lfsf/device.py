@@ -179,7 +179,9 @@ class CapturedLoop:
         self._tried = True
         wp = warp()
         try:
-            with wp.ScopedCapture(device=self.device) as capture:
+            # the steps' modules are loaded (RecordedRows); loading every module first,
+            # the default, would compile all of lfsf's kernels for the device
+            with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
                 for step in self.steps:
                     step()
             self.graph = capture.graph
