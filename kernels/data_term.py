@@ -67,8 +67,11 @@ def best_half(sums: vec8, counts: vec8, total: float, count: float, ratio: float
 
 
 @wp.func
-def keeps(best: int, phi: wp.vec2):
-    return best < 0 or in_half_plane(phi, half_plane_normal(best))
+def keeps(best: int, normal: wp.vec2, phi: wp.vec2):
+    """Sample φ is kept by the occlusion test: no occlusion (best < 0), or φ in the best
+    half-plane, whose normal (:func:`half_plane_normal` of best) the caller computes once
+    per pixel (not per sample: it costs a cosine and a sine)."""
+    return best < 0 or in_half_plane(phi, normal)
 
 
 @wp.kernel
@@ -168,6 +171,8 @@ def data_coefficients(
         in_j = False
     # a nearer point covers p at t2 (geometric test): no t2 view is trusted to see it
     hidden = hidden2[i, j] > 0.5
+    normal1 = half_plane_normal(wp.max(half1, 0))
+    normal2 = half_plane_normal(wp.max(half2, 0))
     # second pass: which rows are in, their steps σ̃ and the column sums
     colsum = wp.vec4(0.0)
     for s in range(phis.shape[0]):
@@ -176,8 +181,8 @@ def data_coefficients(
         y1 = py - xh[0] * phi[1]
         x2 = xj - xh[1] * phi[0]
         y2 = yj - xh[1] * phi[1]
-        in_1 = inside(samples1[s], x1, y1) and keeps(half1, phi)
-        in_2 = inside(samples2[s], x2, y2) and keeps(half2, phi) and (s > 0 or in_j) and not hidden
+        in_1 = inside(samples1[s], x1, y1) and keeps(half1, normal1, phi)
+        in_2 = inside(samples2[s], x2, y2) and keeps(half2, normal2, phi) and (s > 0 or in_j) and not hidden
         c = coef[i, j, s]
         a1 = wp.abs(c[0])
         a3 = wp.abs(c[2])
