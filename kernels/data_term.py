@@ -12,9 +12,9 @@ with Δx = x − x̂. The unknowns are packed per pixel as vec4 (δ1, δ2, u, v)
 coefficients are stored as ``vec12`` = (A1 … A9, σ̃1, σ̃2, σ̃3), pixel-major (``coef[i, j,
 s]``: what one pixel's iteration reads is contiguous). The row weight w_k is λ_k (divided
 by the sample count) or 0 where the row is left out (a warped position leaves the image,
-an occlusion); σ̃_k = w_k² / (w_k Σ|row k| + ε) is the dual step of the scaled dual
-q̃_k = w_k q_k ∈ [−w_k, w_k], so the iterations divide nothing and a left-out row has
-σ̃_k = 0 and q̃_k = 0.
+an occlusion); σ̃_k = w_k² / ((w_k Σ|row k| + ε) c) is the dual step of the scaled dual
+q̃_k = w_k q_k ∈ [−w_k, w_k] (c: the step ratio, :class:`lfsf.Params` ``step_ratio``),
+so the iterations divide nothing and a left-out row has σ̃_k = 0 and q̃_k = 0.
 """
 
 from typing import Any
@@ -85,14 +85,16 @@ def data_coefficients(
     occlusion_ratio: float,
     hidden2: wp.array2d(dtype=float),
     eps: float,
+    step_ratio: float,
     # outputs
     coef: wp.array3d(dtype=vec12),
     data_colsum: wp.array2d(dtype=Any),
     q: wp.array3d(dtype=wp.vec3),
 ):
     """Coefficients A1…A9 and dual steps σ̃1…σ̃3 of every sample at the linearisation
-    point x̂ (``coef[i, j, s]``), and the column sums Σ|K| of the data rows for each
-    unknown (the data part of the preconditioner τ). The scaled duals q̃ of the rows
+    point x̂ (``coef[i, j, s]``; σ̃ divided by the step ratio c), and the column sums
+    Σ|K| of the data rows for each unknown (the data part of the preconditioner τ). The
+    scaled duals q̃ of the rows
     left out are set to 0 (the others kept): :func:`dual_data_step` then needs no row
     flags, since a row with σ̃ = 0 and q̃ = 0 stays at 0.
 
@@ -200,9 +202,9 @@ def data_coefficients(
             wt2 = lam[1]
         if in_1 and in_2:
             wt3 = lam[2]
-        c[9] = wt1 * wt1 / (wt1 * a1 + eps)
-        c[10] = wt2 * wt2 / (wt2 * (a3 + a8 + a9) + eps)
-        c[11] = wt3 * wt3 / (wt3 * (a1 + a3 + a5 + a6) + eps)
+        c[9] = wt1 * wt1 / ((wt1 * a1 + eps) * step_ratio)
+        c[10] = wt2 * wt2 / ((wt2 * (a3 + a8 + a9) + eps) * step_ratio)
+        c[11] = wt3 * wt3 / ((wt3 * (a1 + a3 + a5 + a6) + eps) * step_ratio)
         coef[i, j, s] = c
         qs = q[i, j, s]
         q[i, j, s] = wp.vec3(wp.where(wt1 > 0.0, qs[0], 0.0), wp.where(wt2 > 0.0, qs[1], 0.0),

@@ -142,6 +142,7 @@ def tgv_preconditioner(
     alpha0: float,
     alpha1: float,
     eps: float,
+    step_ratio: float,
     # outputs
     tau_x: wp.array2d(dtype=Any),
     tau_w0: wp.array2d(dtype=Any),
@@ -151,7 +152,8 @@ def tgv_preconditioner(
 ):
     """Diagonal preconditioners of Pock & Chambolle (2011), α = 1: τ = 1/Σ_row|K| per
     primal column (data part given), σ = 1/Σ_col|K| per TGV dual row (σ_z = 1/(2α0) is a
-    constant). Launch over (rows, columns)."""
+    constant); then τ·c and σ/c for the step ratio c (:class:`lfsf.Params`
+    ``step_ratio``). Launch over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0
     h = tensor1.shape[0]
@@ -175,14 +177,14 @@ def tgv_preconditioner(
         k00, k01, k11 = tensor_per_unknown(tensor1[i - 1, j], tensor2[i - 1, j], tensor3[i - 1, j], colsum)
         col += vabs(k01) + vabs(k11)
         count += 1.0
-    tau_x[i, j] = reciprocal(colsum + alpha1 * col, eps)
+    tau_x[i, j] = step_ratio * reciprocal(colsum + alpha1 * col, eps)
     ones = type(colsum)(1.0)
-    tau_w0[i, j] = reciprocal(alpha1 * (vabs(g00) + vabs(g01)) + alpha0 * count * ones, eps)
-    tau_w1[i, j] = reciprocal(alpha1 * (vabs(g01) + vabs(g11)) + alpha0 * count * ones, eps)
+    tau_w0[i, j] = step_ratio * reciprocal(alpha1 * (vabs(g00) + vabs(g01)) + alpha0 * count * ones, eps)
+    tau_w1[i, j] = step_ratio * reciprocal(alpha1 * (vabs(g01) + vabs(g11)) + alpha0 * count * ones, eps)
     row0_sum = a * vabs(g00) + b * vabs(g01) + vabs(a * g00 + b * g01) + vabs(g00) + vabs(g01)
     row1_sum = a * vabs(g01) + b * vabs(g11) + vabs(a * g01 + b * g11) + vabs(g01) + vabs(g11)
-    sigma_y0[i, j] = reciprocal(alpha1 * row0_sum, eps)
-    sigma_y1[i, j] = reciprocal(alpha1 * row1_sum, eps)
+    sigma_y0[i, j] = reciprocal(alpha1 * row0_sum, eps) / step_ratio
+    sigma_y1[i, j] = reciprocal(alpha1 * row1_sum, eps) / step_ratio
 
 
 @wp.kernel

@@ -188,7 +188,7 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
         # reads both sample stacks, x̂ and the hidden mask; writes 12 coefficients per sample and the column
         # sums; reads and writes q (the duals of rows left out are zeroed)
         ("data_coefficients", launch(data_term.data_coefficients,
-                                     [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros, 1e-6], [coef, colsum, q]),
+                                     [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros, 1e-6, 1.0], [coef, colsum, q]),
          f * h * w * (2 * s + 4 + 1 + 12 * s + 4 + 6 * s)),
         # reads the coefficients, x̄, x̂ and q; writes q and Kᵀq (the S weights stay in cache)
         ("dual_data_step", launch(data_term.dual_data_step, [coef, weights, x_bar, x_hat, span], [q, data_grad],
@@ -259,8 +259,8 @@ def bench_peers(size=(640, 480), device: str | None = None, repeats: int = 3, sc
 
     methods = [
         ("lfsf flow-only", lambda: lfsf_run(Params.preset("paper").replace(circles=1, samples=(1,)))),
-        # the same with the `fast` preset's schedule (3 warps of 30 iterations, 30 ROF iterations)
-        ("lfsf flow-only, fast", lambda: lfsf_run(Params.preset("fast").replace(circles=1, samples=(1,)))),
+        # the `flow` preset: 3 warps of 30 iterations, steps balanced towards the duals
+        ("lfsf flow preset", lambda: lfsf_run(Params.preset("flow"))),
         ("lfsf scene flow", lambda: lfsf_run(Params.preset("paper"))),
         ("opencv DualTVL1", lambda: peers.opencv_tvl1(c1, c2)),
         ("skimage TV-L1", lambda: peers.skimage_tvl1(c1, c2)),

@@ -279,7 +279,9 @@ def _device_options(p) -> None:
 
 
 def _estimator_options(p) -> None:
-    p.add_argument("--preset", default="paper", help="paper (17 views), fast or lytro (default paper)")
+    p.add_argument("--preset", default="paper",
+                   help="paper (17 views), fast, lytro, or flow (optical flow of the centre views alone) "
+                        "(default paper)")
     p.add_argument("--config", type=Path, help="TOML file setting any parameter of lfsf.Params")
     _device_options(p)
 

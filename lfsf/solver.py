@@ -163,10 +163,11 @@ class LevelSolver:
         self._flow_tensor()
         self._launch(data_term.data_coefficients,
                      inputs=[self.samples1, self.samples2, self.phis, self.weights, self.x_hat, p.occlusion_ratio,
-                             self.hidden2, p.eps],
+                             self.hidden2, p.eps, p.step_ratio],
                      outputs=[self.coef, self.data_colsum, self.q])
         self._launch(tgv.tgv_preconditioner,
-                     inputs=[self.data_colsum, self.tensor1, self.tensor2, self.tensor3, p.alpha0, p.alpha1, p.eps],
+                     inputs=[self.data_colsum, self.tensor1, self.tensor2, self.tensor3, p.alpha0, p.alpha1, p.eps,
+                             p.step_ratio],
                      outputs=[self.tau_x, self.tau_w0, self.tau_w1, self.sigma_y0, self.sigma_y1])
 
     def _tensors(self) -> None:
@@ -227,7 +228,7 @@ class LevelSolver:
         from lfsf.kernels import data_term, tgv
 
         p = self.params
-        sigma_z = 1.0 / (2.0 * p.alpha0)
+        sigma_z = 1.0 / (2.0 * p.alpha0 * p.step_ratio)
         dim = (self.shape[0], self.per_row)
 
         def record(kernel, inputs, outputs):

@@ -597,16 +597,18 @@ class LinearisedProblem:
         return float(np.sum(np.abs(kp[0] + self.b)) + np.sum(np.hypot(kp[1], kp[2]))
                      + np.sum(np.sqrt(kp[3] ** 2 + kp[4] ** 2 + kp[5] ** 2 + kp[6] ** 2)))
 
-    def preconditioners(self, eps: float) -> dict:
+    def preconditioners(self, eps: float, step_ratio: float = 1.0) -> dict:
         """Pock–Chambolle (α = 1) steps from the abs row/column sums of K: σ of the data
-        rows (3, S, h, w), σ_y0, σ_y1, σ_z and τ_x, τ_w0, τ_w1 (each (h, w, 4))."""
+        rows (3, S, h, w), σ_y0, σ_y1, σ_z and τ_x, τ_w0, τ_w1 (each (h, w, 4)); every τ
+        multiplied and every σ divided by ``step_ratio``."""
         rowsum = np.zeros_like(self.b)
         colsum = np.zeros_like(self.x_hat)
         for coeff, (row, col) in data_jacobian(self.A, self.W).values():
             rowsum[row] += np.abs(coeff)
             colsum[..., col] += np.sum(np.abs(coeff), axis=0)
-        tgv, _ = tgv_preconditioner(colsum, self.tensor1, self.tensor2, self.alpha0, self.alpha1, eps)
-        return dict(tgv, sigma_q=1.0 / (rowsum + eps), sigma_z=1.0 / (2.0 * self.alpha0))
+        tgv, _ = tgv_preconditioner(colsum, self.tensor1, self.tensor2, self.alpha0, self.alpha1, eps, self.tensor3)
+        steps = dict(tgv, sigma_q=1.0 / (rowsum + eps), sigma_z=1.0 / (2.0 * self.alpha0))
+        return {k: v * step_ratio if k.startswith("tau") else v / step_ratio for k, v in steps.items()}
 
     def solve(self, iterations: int, steps: dict | None = None, seed: int = 0):
         """Chambolle–Pock from x = x̂, w = 0: with ``steps`` (see :meth:`preconditioners`)

@@ -76,7 +76,7 @@ def test_bench_command_writes_json(tmp_path):
 
 def test_bench_peers_rows_without_or_with_the_peers():
     rows = bench.bench_peers((48, 32), "cpu", repeats=1)
-    assert [r["method"] for r in rows] == ["lfsf flow-only", "lfsf flow-only, fast", "lfsf scene flow", "opencv DualTVL1",
+    assert [r["method"] for r in rows] == ["lfsf flow-only", "lfsf flow preset", "lfsf scene flow", "opencv DualTVL1",
                                           "skimage TV-L1"]
     for r in rows[:3]:
         assert np.isfinite(r["epe"]) and r["seconds_median"] > 0

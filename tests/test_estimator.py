@@ -78,6 +78,18 @@ def test_flow_only_special_case_leaves_disparity_untouched():
     assert np.median(np.abs(interior(sf.u) - 1.5)) < 0.05
 
 
+def test_flow_preset_is_flow_only_and_recovers_the_shift():
+    """The `flow` preset: the centre views alone (M = 1), a step ratio of 0.25; the
+    known shift comes back, the disparities stay 0."""
+    params = Params.preset("flow")
+    assert params.circles == 1 and params.step_ratio == 0.25
+    lf1, lf2 = shift_lightfields()
+    sf = estimate_scene_flow(lf1, lf2, params, device="cpu")
+    assert np.all(sf.disp1 == 0) and np.all(sf.disp2 == 0)
+    assert np.median(np.abs(interior(sf.u) - 1.5)) < 0.05
+    assert np.median(np.abs(interior(sf.v) + 0.8)) < 0.05
+
+
 def test_two_view_stereo_special_case():
     lf1, lf2 = shift_lightfields()
     sf = estimate_scene_flow(lf1, lf2, QUICK.replace(circles=2, samples=(1, 1)), device="cpu")
@@ -95,6 +107,8 @@ def test_bad_inputs_raise():
         Params(circles=2, samples=(1,))
     with pytest.raises(ValueError, match="rof_weight"):  # the ROF steps divide by μ
         Params(rof_weight=0.0)
+    with pytest.raises(ValueError, match="step_ratio"):
+        Params(step_ratio=0.0)
 
 
 @pytest.mark.parametrize("scene", ["paper", "slanted"])

@@ -292,7 +292,7 @@ def _run_data_coefficients_raw(samples1, samples2, phis, weights, x_hat, device,
     launch(data_term.data_coefficients, (h, w),
            [arr(samples1, float, device), arr(samples2, float, device), arr(phis, wp.vec2, device),
             arr(weights, wp.vec3, device), arr(x_hat, wp.vec4, device), float(occlusion_ratio),
-            arr(hidden2, float, device), DATA_EPS],
+            arr(hidden2, float, device), DATA_EPS, 1.0],
            [coef, colsum, q], device)
     # pixel-major in the solver; sample-major (S, h, w, 12) here, as the reference
     got = coef.numpy()
@@ -869,7 +869,8 @@ def _tgv_setting(seed, h=4, w=5):
 
 
 @UNKNOWNS
-def test_tgv_preconditioner_is_abs_sums_of_K(device, unknowns):
+@pytest.mark.parametrize("step_ratio", [1.0, 0.25])  # Pock–Chambolle's; τ·c and σ/c
+def test_tgv_preconditioner_is_abs_sums_of_K(device, unknowns, step_ratio):
     from lfsf.kernels import tgv
 
     h, w = 4, 5
@@ -880,11 +881,12 @@ def test_tgv_preconditioner_is_abs_sums_of_K(device, unknowns):
     outs = [unknowns_zeros((h, w), unknowns, device) for _ in range(5)]
     launch(tgv.tgv_preconditioner, (h, w),
            [unknowns_arr(data_colsum, unknowns, device), arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(t3, wp.vec3, device),
-            alpha0, alpha1, eps], outs, device)
+            alpha0, alpha1, eps, step_ratio], outs, device)
     want, zrows = ref.tgv_preconditioner(data_colsum.astype(np.float64), t1.astype(np.float64),
                                          t2.astype(np.float64), alpha0, alpha1, eps, t3.astype(np.float64))
     for name, got in zip(("tau_x", "tau_w0", "tau_w1", "sigma_y0", "sigma_y1"), outs):
-        np.testing.assert_allclose(got.numpy(), flow_part(want[name], unknowns), rtol=1e-5, err_msg=name)
+        scale = step_ratio if name.startswith("tau") else 1.0 / step_ratio
+        np.testing.assert_allclose(got.numpy(), scale * flow_part(want[name], unknowns), rtol=1e-5, err_msg=name)
     # σ_z = 1/(2α0) (the solver's constant) is 1/row sum of every nonzero z row
     nonzero = zrows[zrows > 0]
     close(nonzero, 2.0 * alpha0)
@@ -1129,18 +1131,20 @@ def small_params():
                                          lambda3=20.0)
 
 
-@pytest.mark.parametrize("circles", [2, 1])  # 1: flow only, iterated on vec2 (u, v)
-def test_level_solver_iterates_the_preconditioned_primal_dual(device, small_params, circles):
+@pytest.mark.parametrize("circles,step_ratio", [(2, 1.0), (1, 1.0), (2, 0.25)])  # 1: flow only, on vec2 (u, v)
+def test_level_solver_iterates_the_preconditioned_primal_dual(device, small_params, circles, step_ratio):
     """LevelSolver.iterate (all kernels together) equals the diagonally preconditioned
-    Chambolle–Pock of MODEL.md §5 in NumPy, with τ, σ from the abs sums of the actual K.
-    Flow only, the solver iterates (u, v) alone; the four-unknown NumPy iteration leaves
-    δ1, δ2 at their start (0) there."""
-    params = small_params if circles == 2 else small_params.replace(circles=1, samples=(1,))
+    Chambolle–Pock of MODEL.md §5 in NumPy, with τ, σ from the abs sums of the actual K
+    (τ·c and σ/c for a step ratio c). Flow only, the solver iterates (u, v) alone; the
+    four-unknown NumPy iteration leaves δ1, δ2 at their start (0) there."""
+    params = small_params.replace(step_ratio=step_ratio)
+    if circles == 1:
+        params = params.replace(circles=1, samples=(1,))
     solver = _level_solver((14, 12), 3, params, device)
     assert solver.flow_only == (circles == 1)
     solver.linearise()
     problem = _linearised_problem(solver)
-    steps = problem.preconditioners(small_params.eps)
+    steps = problem.preconditioners(small_params.eps, step_ratio)
     close(solver.tau_x.numpy(), steps["tau_x"][..., 4 - len(solver.vec()):], rtol=1e-5, atol=0)
     solver.iterate(200)
     want = problem.solve(200, steps)
