@@ -90,6 +90,22 @@ def test_flow_preset_is_flow_only_and_recovers_the_shift():
     assert np.median(np.abs(interior(sf.v) + 0.8)) < 0.05
 
 
+def test_flow_search_level_by_range_and_width():
+    """The flow search runs on the finest level where ±flow_range is at most 12 whole
+    pixels and that is at most 160 px wide."""
+    from lfsf.estimate import flow_search_level, pyramid_sizes
+
+    def level_width(w, h, flow_range=24.0):
+        sizes = pyramid_sizes(h, w, Params())
+        return sizes[flow_search_level(sizes, flow_range)][1]
+
+    assert level_width(640, 480) == 160  # the range allows 320; the width cap says 160
+    assert level_width(320, 240) == 160
+    assert level_width(160, 120) == 80  # ±24 px is ±12 at 80 px wide
+    assert level_width(160, 120, flow_range=6.0) == 160
+    assert level_width(12, 10) == 12  # one level: that one
+
+
 def test_two_view_stereo_special_case():
     lf1, lf2 = shift_lightfields()
     sf = estimate_scene_flow(lf1, lf2, QUICK.replace(circles=2, samples=(1, 1)), device="cpu")
