@@ -90,8 +90,10 @@ ProgressFn = Callable[[str], None]
 #: the 320×240 one took the `flow` preset's EPE from 0.190 / 0.090 / 0.322 / 0.211 to
 #: 0.167 / 0.087 / 0.288 / 0.162 (paper / slanted / large_motion / weak_texture) and the
 #: joint flow EPE from 0.076 / 0.033 / 0.129 / 0.110 to 0.074 / 0.031 / 0.134 / 0.117;
-#: at 320×240 and 160×120 a level coarser than the width cap gives lost large_motion's
-#: fast objects (its flow-only EPE 0.409 → 0.496 at 320×240).
+#: at 320×240 and 160×120 a level coarser than the range rule's lost large_motion's fast
+#: objects (its flow-only EPE 0.409 → 0.496 at 320×240), and at 160×120 searching at full
+#: resolution (finer than the range rule's 80 px) was worse too (flow preset EPE 0.211 /
+#: 0.134 / 1.269 / 0.143 → 0.273 / 0.189 / 1.136 / 0.168). A measured rule, not a law.
 FLOW_SEARCH_HALF = 12
 FLOW_SEARCH_WIDTH = 160
 #: A searched value replaces the current one only where its matching cost is lower by
