@@ -94,9 +94,9 @@ def data_coefficients(
     """Coefficients A1…A9 and dual steps σ̃1…σ̃3 of every sample at the linearisation
     point x̂ (``coef[i, j, s]``; σ̃ divided by the step ratio c), and the column sums
     Σ|K| of the data rows for each unknown (the data part of the preconditioner τ). The
-    scaled duals q̃ of the rows
-    left out are set to 0 (the others kept): :func:`dual_data_step` then needs no row
-    flags, since a row with σ̃ = 0 and q̃ = 0 stays at 0.
+    scaled duals q̃ of the rows left out are set to 0 (the others kept):
+    :func:`dual_data_step` then needs no row flags, since a row with σ̃ = 0 and q̃ = 0
+    stays at 0.
 
     ``samples1[s]``, ``samples2[s]``: (texture part of) the sub-aperture image at φ_s at
     t1 and t2; sample 0 must be the centre view (φ = 0). ``weights[s]`` = (λ1, λ2, λ3)
@@ -270,8 +270,8 @@ def dual_data_step(
     the diagonal preconditioner; then ``data_grad`` = Σ_s Kᵀ q for (δ1, δ2, u, v). This
     is q_k ← clip(q_k + σ_k w_k ρ_k, −1, 1) of the unscaled duals, without a division.
     Rows left out (w_k = 0) must have q̃_k = 0, as :func:`data_coefficients` leaves them:
-    the clip is to ±λ_k, and σ̃_k = 0 keeps them at 0. Launch over (rows, ⌈columns / span⌉): each thread walks ``span`` pixels of a row
-    (:func:`lfsf.device.row_span`).
+    the clip is to ±λ_k, and σ̃_k = 0 keeps them at 0. Launch over (rows, ⌈columns /
+    span⌉): each thread walks ``span`` pixels of a row (:func:`lfsf.device.row_span`).
     """
     i, c0 = wp.tid()
     i = i + row0

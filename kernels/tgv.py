@@ -46,11 +46,6 @@ def tensor_per_unknown(g1: wp.vec3, g2: wp.vec3, g3: wp.vec3, like: wp.vec2):
 
 
 @wp.func
-def vabs(v: Any):
-    return wp.abs(v)
-
-
-@wp.func
 def reciprocal(v: Any, eps: float):
     r = v
     for k in range(len(v)):
@@ -167,22 +162,22 @@ def tgv_preconditioner(
     colsum = data_colsum[i, j]
     g00, g01, g11 = tensor_per_unknown(tensor1[i, j], tensor2[i, j], tensor3[i, j], colsum)
     # x(p) in the rows y(p) (−Γ(a, b)ᵀ), y(p − e_x) (Γ col 0) and y(p − e_y) (Γ col 1)
-    col = vabs(a * g00 + b * g01) + vabs(a * g01 + b * g11)
+    col = wp.abs(a * g00 + b * g01) + wp.abs(a * g01 + b * g11)
     count = a + b
     if j > 0:
         h00, h01, h11 = tensor_per_unknown(tensor1[i, j - 1], tensor2[i, j - 1], tensor3[i, j - 1], colsum)
-        col += vabs(h00) + vabs(h01)
+        col += wp.abs(h00) + wp.abs(h01)
         count += 1.0
     if i > 0:
         k00, k01, k11 = tensor_per_unknown(tensor1[i - 1, j], tensor2[i - 1, j], tensor3[i - 1, j], colsum)
-        col += vabs(k01) + vabs(k11)
+        col += wp.abs(k01) + wp.abs(k11)
         count += 1.0
     tau_x[i, j] = step_ratio * reciprocal(colsum + alpha1 * col, eps)
     ones = type(colsum)(1.0)
-    tau_w0[i, j] = step_ratio * reciprocal(alpha1 * (vabs(g00) + vabs(g01)) + alpha0 * count * ones, eps)
-    tau_w1[i, j] = step_ratio * reciprocal(alpha1 * (vabs(g01) + vabs(g11)) + alpha0 * count * ones, eps)
-    row0_sum = a * vabs(g00) + b * vabs(g01) + vabs(a * g00 + b * g01) + vabs(g00) + vabs(g01)
-    row1_sum = a * vabs(g01) + b * vabs(g11) + vabs(a * g01 + b * g11) + vabs(g01) + vabs(g11)
+    tau_w0[i, j] = step_ratio * reciprocal(alpha1 * (wp.abs(g00) + wp.abs(g01)) + alpha0 * count * ones, eps)
+    tau_w1[i, j] = step_ratio * reciprocal(alpha1 * (wp.abs(g01) + wp.abs(g11)) + alpha0 * count * ones, eps)
+    row0_sum = a * wp.abs(g00) + b * wp.abs(g01) + wp.abs(a * g00 + b * g01) + wp.abs(g00) + wp.abs(g01)
+    row1_sum = a * wp.abs(g01) + b * wp.abs(g11) + wp.abs(a * g01 + b * g11) + wp.abs(g01) + wp.abs(g11)
     sigma_y0[i, j] = reciprocal(alpha1 * row0_sum, eps) / step_ratio
     sigma_y1[i, j] = reciprocal(alpha1 * row1_sum, eps) / step_ratio
 
