@@ -189,6 +189,19 @@ def add_residual(sums: vec8, counts: vec8, total: float, count: float, e: float,
 
 
 @wp.func
+def visible(zbuf: wp.array3d(dtype=float), s: int, x: float, y: float, disparity: float, margin: float):
+    """Sample s at (x, y) of its view sees the point of disparity δ = ``disparity``: no
+    point nearer by more than ``margin`` lands on the pixel nearest to (x, y), by the
+    view z-buffer ``zbuf[s]`` (:func:`lfsf.kernels.occlusion.splat_views`; clamped to the
+    image)."""
+    h = zbuf.shape[1]
+    w = zbuf.shape[2]
+    i = wp.clamp(int(wp.floor(y + 0.5)), 0, h - 1)
+    j = wp.clamp(int(wp.floor(x + 0.5)), 0, w - 1)
+    return zbuf[s, i, j] <= disparity + margin
+
+
+@wp.func
 def half_plane_residuals(samples: wp.array3d(dtype=float), phis: wp.array(dtype=wp.vec2), qx: float, qy: float,
                          disparity: float, centre: float):
     """Residuals |L(q − δφ_s, φ_s) − c| of the samples s ≥ 1 whose warped position lies in

@@ -22,7 +22,7 @@ from typing import Any
 import warp as wp
 
 from .common import (HALF_PLANES, add_residual, bilinear_with_gradient, from_vec4, half_plane_mask, half_plane_normal,
-                     in_half_plane, inside, overload_unknowns, to_vec4, vec8)
+                     in_half_plane, inside, overload_unknowns, to_vec4, vec8, visible)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -86,6 +86,10 @@ def data_coefficients(
     hidden2: wp.array2d(dtype=float),
     eps: float,
     step_ratio: float,
+    zbuf1: wp.array3d(dtype=float),
+    zbuf2: wp.array3d(dtype=float),
+    margin: float,
+    use_zbuf: int,
     # outputs
     coef: wp.array3d(dtype=vec12),
     data_colsum: wp.array2d(dtype=Any),
@@ -110,7 +114,13 @@ def data_coefficients(
     says a nearer point covers the point at t2 (the geometric test of
     :mod:`lfsf.kernels.occlusion`; zeros to skip it), every row involving t2 is left out
     (w2 = w3 = 0 for all samples): its δ2 and flow come from the regulariser alone, which
-    measured better than trusting the side views there. Launch over (rows, columns).
+    measured better than trusting the side views there. With ``use_zbuf`` 1, which side
+    views see the point is asked of the view z-buffers instead of the best half:
+    ``zbuf1`` of δ̂1 at p, ``zbuf2`` of δ̂2 at p + û (:func:`lfsf.kernels.occlusion.splat_views`);
+    a sample is left out where a point nearer by more than ``margin`` covers its warped
+    position (:func:`lfsf.kernels.common.visible`). The best halves still give the
+    residual of the t2 samples for the test of the centre view at t2. Launch over (rows,
+    columns).
     """
     i, j = wp.tid()
     i = i + row0
@@ -183,8 +193,16 @@ def data_coefficients(
         y1 = py - xh[0] * phi[1]
         x2 = xj - xh[1] * phi[0]
         y2 = yj - xh[1] * phi[1]
-        in_1 = inside(samples1[s], x1, y1) and keeps(half1, normal1, phi)
-        in_2 = inside(samples2[s], x2, y2) and keeps(half2, normal2, phi) and (s > 0 or in_j) and not hidden
+        seen1 = bool(False)
+        seen2 = bool(False)
+        if use_zbuf != 0:
+            seen1 = visible(zbuf1, s, x1, y1, xh[0], margin)
+            seen2 = visible(zbuf2, s, x2, y2, xh[1], margin)
+        else:
+            seen1 = keeps(half1, normal1, phi)
+            seen2 = keeps(half2, normal2, phi)
+        in_1 = inside(samples1[s], x1, y1) and seen1
+        in_2 = inside(samples2[s], x2, y2) and seen2 and (s > 0 or in_j) and not hidden
         c = coef[i, j, s]
         a1 = wp.abs(c[0])
         a3 = wp.abs(c[2])

@@ -1,4 +1,17 @@
-"""Geometric occlusion at t2: which points of the t1 centre view are hidden at t2 in the
+"""Geometric occlusion, from the current scene flow itself (an addition to the paper):
+in the side views of each light field (view z-buffers, :func:`splat_views`), and at t2
+in the centre view (:func:`splat_depth`, :func:`hidden_at_t2`, :func:`spread_hidden`).
+
+Near a depth edge the nearer surface hides the farther one in the views on its side.
+Each point p of the t1 centre view, with disparity δ, lands in view φ at p − δφ (at t2,
+at p + u − δ2 φ); a z-buffer of the largest disparity landing on each pixel of each view
+then says, for any sample position and disparity, whether a nearer point covers it
+(:func:`lfsf.kernels.common.visible`). This asks the geometry, not the residuals: the
+test that keeps the better-matching half of the samples (:mod:`lfsf.kernels.data_term`)
+favours, where the background has little texture, any disparity that sees no occluder
+at all, the foreground's, and fattens it by R times the disparity step.
+
+Geometric occlusion at t2: which points of the t1 centre view are hidden at t2 in the
 centre view, from the current scene flow itself (an addition to the paper).
 
 Every pixel p lands at p + (u, v) in the t2 centre view. Nearer points have larger
@@ -99,3 +112,47 @@ def spread_hidden(
                 if hidden[yy, xx] > 0.5 and wp.abs(x[yy, xx][0] - d) <= margin:
                     value = 1.0
     out[i, j] = value
+
+
+@wp.kernel
+def splat_views(
+    row0: int,
+    x: wp.array2d(dtype=wp.vec4),
+    component: int,
+    flow: int,
+    phis: wp.array(dtype=wp.vec2),
+    # outputs
+    zbuf: wp.array3d(dtype=float),
+):
+    """zbuf[s, t] = the largest δ = x[p][component] over the points p whose position in
+    view φ_s, q − δ φ_s with q = p (``flow`` 0) or q = p + (u, v) (``flow`` 1, components
+    2, 3), has t among its bilinear neighbours of non-zero weight (so a sample read within
+    a pixel of a nearer point's position counts as covered; a point at a whole position,
+    such as every point in the centre view, covers its own pixel only). ``zbuf`` must be filled with EMPTY first.
+    Uses atomics: launch in one piece (``bands=1`` on the CPU), over (samples × rows,
+    columns)."""
+    r, j = wp.tid()
+    r = r + row0
+    h = zbuf.shape[1]
+    w = zbuf.shape[2]
+    s = r // h
+    i = r - s * h
+    v = x[i, j]
+    d = v[component]
+    phi = phis[s]
+    px = float(j) - d * phi[0]
+    py = float(i) - d * phi[1]
+    if flow != 0:
+        px = px + v[2]
+        py = py + v[3]
+    j0 = int(wp.floor(px))
+    i0 = int(wp.floor(py))
+    # the neighbours of non-zero bilinear weight: a whole coordinate covers one pixel
+    dxs = wp.where(px > float(j0), 2, 1)
+    dys = wp.where(py > float(i0), 2, 1)
+    for dy in range(dys):
+        for dx in range(dxs):
+            ii = i0 + dy
+            jj = j0 + dx
+            if ii >= 0 and ii < h and jj >= 0 and jj < w:
+                wp.atomic_max(zbuf, s, ii, jj, d)

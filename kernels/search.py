@@ -6,11 +6,21 @@ outer samples by R·e pixels, far outside the range of the linearisation.
 For a disparity candidate δ the per-pixel matching cost of the samples s ≥ 1 is the mean
 absolute difference of the warped samples to the centre view (the stereo residual ρ1,
 or ρ2 at p + û); costs are then summed over a small window before the choice.
+
+Two kinds of cost leave occluded samples out. The first needs nothing but the images: the
+least mean over the halves of the samples (an occluder spoils the samples on its side).
+Where the background has almost no texture it favours the foreground's disparity a few
+pixels into the background (every half matches there, and the least of eight means is
+lower than the mean of the one half that is free of the occluder). The second
+(``*_visible``) asks view z-buffers made from a first estimate
+(:func:`lfsf.kernels.occlusion.splat_views`) which samples a nearer point covers, and
+takes the mean over the others.
 """
 
 import warp as wp
 
-from .common import add_residual, bilinear, half_plane_mask, half_plane_residuals, inside, least_half_mean, vec8
+from .common import (add_residual, bilinear, half_plane_mask, half_plane_residuals, inside, least_half_mean, vec8,
+                     visible)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -49,6 +59,62 @@ def disparity_cost(
         centre = bilinear(samples[0], qx, qy)
         sums, counts, total, count = half_plane_residuals(samples, phis, qx, qy, d, centre)
         cost[k, i, j] = least_half_mean(sums, counts)
+
+
+@wp.func
+def visible_mean(samples: wp.array3d(dtype=float), phis: wp.array(dtype=wp.vec2), zbuf: wp.array3d(dtype=float),
+                 qx: float, qy: float, disparity: float, centre: float, margin: float):
+    """Mean |L(q − δφ_s, φ_s) − c| over the samples s ≥ 1 whose warped position lies in
+    the image and is not covered by a nearer point (:func:`lfsf.kernels.common.visible`);
+    1 where none is."""
+    total = float(0.0)
+    count = float(0.0)
+    for s in range(1, phis.shape[0]):
+        phi = phis[s]
+        x = qx - disparity * phi[0]
+        y = qy - disparity * phi[1]
+        if inside(samples[s], x, y):
+            if visible(zbuf, s, x, y, disparity, margin):
+                total += wp.abs(bilinear(samples[s], x, y) - centre)
+                count += 1.0
+    c = float(1.0)
+    if count > 0.0:
+        c = total / count
+    return c
+
+
+@wp.kernel
+def disparity_cost_visible(
+    row0: int,
+    samples: wp.array3d(dtype=float),
+    phis: wp.array(dtype=wp.vec2),
+    candidates: wp.array(dtype=float),
+    base: wp.array2d(dtype=float),
+    offset: wp.array2d(dtype=wp.vec4),
+    zbuf: wp.array3d(dtype=float),
+    margin: float,
+    span: int,
+    # outputs
+    cost: wp.array3d(dtype=float),
+):
+    """cost[k, p] = :func:`visible_mean` at q = p + (u, v) of ``offset`` (components 2,
+    3) for δ_k = candidates[k] + base[p] and c = L(q, 0): :func:`disparity_cost` with
+    the samples a nearer point covers left out, by the view z-buffers ``zbuf`` (S, h, w)
+    and ``margin`` instead of the best half. Launch over (candidates × rows, ⌈columns /
+    span⌉) (:func:`lfsf.device.row_span`)."""
+    r, c0 = wp.tid()
+    r = r + row0
+    h = cost.shape[1]
+    w = cost.shape[2]
+    k = r // h
+    i = r - k * h
+    j0 = c0 * span
+    for j in range(j0, wp.min(w, j0 + span)):
+        o = offset[i, j]
+        qx = float(j) + o[2]
+        qy = float(i) + o[3]
+        centre = bilinear(samples[0], qx, qy)
+        cost[k, i, j] = visible_mean(samples, phis, zbuf, qx, qy, candidates[k] + base[i, j], centre, margin)
 
 
 @wp.kernel
@@ -115,6 +181,58 @@ def sweep_cost(
 
 
 @wp.kernel
+def sweep_cost_visible(
+    row0: int,
+    samples: wp.array3d(dtype=float),
+    shifts: wp.array2d(dtype=wp.vec4),
+    candidates: wp.array(dtype=float),
+    zbuf: wp.array3d(dtype=float),
+    margin: float,
+    span: int,
+    # outputs
+    cost: wp.array3d(dtype=float),
+):
+    """:func:`disparity_cost_visible` of a plane sweep (no base disparity, no flow
+    offset), with the constant shifts of :func:`sweep_cost`: the mean residual of the
+    samples s ≥ 1 inside the image that no point nearer than δ_k + ``margin`` covers
+    (view z-buffers ``zbuf``, :func:`lfsf.kernels.common.visible`); 1 where none is.
+    Launch over (candidates × rows, ⌈columns / span⌉)."""
+    r, c0 = wp.tid()
+    r = r + row0
+    h = cost.shape[1]
+    w = cost.shape[2]
+    k = r // h
+    i = r - k * h
+    d = candidates[k]
+    centre = samples[0]
+    j0 = c0 * span
+    for j in range(j0, wp.min(w, j0 + span)):
+        value0 = centre[i, j]
+        total = float(0.0)
+        count = float(0.0)
+        for s in range(1, samples.shape[0]):
+            sh = shifts[k, s]
+            x0 = j + int(sh[0])
+            y0 = i + int(sh[1])
+            fx = sh[2]
+            fy = sh[3]
+            if x0 >= 0 and y0 >= 0 and (x0 < w - 1 or (x0 == w - 1 and fx == 0.0)) and (
+                    y0 < h - 1 or (y0 == h - 1 and fy == 0.0)):
+                if visible(zbuf, s, float(x0) + fx, float(y0) + fy, d, margin):
+                    view = samples[s]
+                    x1 = wp.min(x0 + 1, w - 1)
+                    y1 = wp.min(y0 + 1, h - 1)
+                    top = (1.0 - fx) * view[y0, x0] + fx * view[y0, x1]
+                    bottom = (1.0 - fx) * view[y1, x0] + fx * view[y1, x1]
+                    total += wp.abs((1.0 - fy) * top + fy * bottom - value0)
+                    count += 1.0
+        c = float(1.0)
+        if count > 0.0:
+            c = total / count
+        cost[k, i, j] = c
+
+
+@wp.kernel
 def box_sum(
     row0: int,
     values: wp.array3d(dtype=float),
@@ -139,6 +257,33 @@ def box_sum(
             for dx in range(-radius, radius + 1):
                 acc += values[k, wp.clamp(i + dy, 0, h - 1), wp.clamp(j + dx, 0, w - 1)]
         out[k, i, j] = acc / (side * side)
+
+
+@wp.kernel
+def box_min(
+    row0: int,
+    values: wp.array3d(dtype=float),
+    radius: int,
+    span: int,
+    # outputs
+    out: wp.array3d(dtype=float),
+):
+    """Least value of each slice over a (2r+1)² window, clamped at the borders: after
+    :func:`box_sum`, the cost of the best of the windows that hold the pixel (shiftable
+    windows). Launch over (slices × rows, ⌈columns / span⌉)."""
+    r, c = wp.tid()
+    r = r + row0
+    h = values.shape[1]
+    w = values.shape[2]
+    k = r // h
+    i = r - k * h
+    j0 = c * span
+    for j in range(j0, wp.min(w, j0 + span)):
+        m = values[k, i, j]
+        for dy in range(-radius, radius + 1):
+            for dx in range(-radius, radius + 1):
+                m = wp.min(m, values[k, wp.clamp(i + dy, 0, h - 1), wp.clamp(j + dx, 0, w - 1)])
+        out[k, i, j] = m
 
 
 @wp.func

@@ -160,6 +160,9 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
     x_hat[..., 2:] = rng.uniform(-2, 2, (h, w, 2))
     x_hat = arr(x_hat, wp.vec4)
     zeros = arr(np.zeros((h, w)), float)
+    # view z-buffers (the default, Params.visibility): a nearer point somewhere in each view
+    zbuf1 = arr(rng.uniform(-3, 1, (s, h, w)), float)
+    zbuf2 = arr(rng.uniform(-3, 1, (s, h, w)), float)
     coef = wp.empty((h, w, s), dtype=data_term.vec12, device=dev)
     colsum = wp.empty((h, w), dtype=wp.vec4, device=dev)
     sampled = wp.empty((s, h, w), dtype=float, device=dev)
@@ -185,11 +188,13 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
         ("sample_subaperture", launch(sampling.sample_subaperture, [views, 9, 9, wp_phis, span], [sampled],
                                              dim=(s * h, per_row)),
          f * h * w * s * 5),
-        # reads both sample stacks, x̂ and the hidden mask; writes 12 coefficients per sample and the column
-        # sums; reads and writes q (the duals of rows left out are zeroed)
+        # reads both sample stacks, x̂, the hidden mask and a value of each view z-buffer per sample; writes
+        # 12 coefficients per sample and the column sums; reads and writes q (the duals of rows left out are
+        # zeroed)
         ("data_coefficients", launch(data_term.data_coefficients,
-                                     [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros, 1e-6, 1.0], [coef, colsum, q]),
-         f * h * w * (2 * s + 4 + 1 + 12 * s + 4 + 6 * s)),
+                                     [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros, 1e-6, 1.0, zbuf1, zbuf2,
+                                      0.25, 1], [coef, colsum, q]),
+         f * h * w * (2 * s + 4 + 1 + 2 * s + 12 * s + 4 + 6 * s)),
         # reads the coefficients, x̄, x̂ and q; writes q and Kᵀq (the S weights stay in cache)
         ("dual_data_step", launch(data_term.dual_data_step, [coef, weights, x_bar, x_hat, span], [q, data_grad],
                                   dim=(h, per_row)),

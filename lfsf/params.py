@@ -26,6 +26,13 @@ class Params:
         occlusion_ratio : occlusion handling (an addition to the paper): where the samples
             on one side of a line through the centre match better than this fraction of
             the mean, the other side is left out of that pixel's stereo rows (0: off).
+        visibility : geometric visibility of the side views (an addition to the paper,
+            :mod:`lfsf.kernels.occlusion`): view z-buffers of the current disparities say
+            which samples a point nearer by more than ``occlusion_margin`` covers; those
+            are left out of the data rows, of the plane sweep's second pass and of the
+            fusion of searched values. False: the best-half test alone decides. Where the
+            background has little texture, the best half favours the foreground's
+            disparity there (HCI antinous MSE×100 19.8 with it alone).
         occlusion_margin, occlusion_reach : geometric occlusion at t2 (an addition to
             the paper, :mod:`lfsf.kernels.occlusion`): a point counts as hidden in the t2
             centre view where a point nearer by more than ``occlusion_margin`` px per
@@ -87,6 +94,7 @@ class Params:
     lambda2: float = 10.0
     lambda3: float = 30.0
     occlusion_ratio: float = 0.7
+    visibility: bool = True
     occlusion_margin: float = 0.25
     occlusion_reach: int = 3
     texture_theta: float = 0.5

@@ -96,6 +96,10 @@ class LevelSolver:
         self.scratch = zeros4()
         # geometric occlusion at t2: z-buffer of δ2 and the hidden mask
         self.zbuf = wp.zeros((h, w), dtype=float, device=device)
+        # geometric visibility of the side views: a z-buffer per sample, t1 and t2
+        views = n if params.visibility and not self.flow_only else 1
+        self.view_zbuf1 = wp.zeros((views, h, w) if views > 1 else (1, 1, 1), dtype=float, device=device)
+        self.view_zbuf2 = wp.zeros((views, h, w) if views > 1 else (1, 1, 1), dtype=float, device=device)
         self.hidden2 = wp.zeros((h, w), dtype=float, device=device)
         self.scratch1 = wp.zeros((h, w), dtype=float, device=device)
         self._iteration = None  # the recorded iteration (``iterate``)
@@ -160,10 +164,12 @@ class LevelSolver:
         wp.copy(self.w0_bar, self.w0)
         wp.copy(self.w1_bar, self.w1)
         self.find_hidden()
+        use_zbuf = self.find_visible()
         self._flow_tensor()
         self._launch(data_term.data_coefficients,
                      inputs=[self.samples1, self.samples2, self.phis, self.weights, self.x_hat, p.occlusion_ratio,
-                             self.hidden2, p.eps, p.step_ratio],
+                             self.hidden2, p.eps, p.step_ratio, self.view_zbuf1, self.view_zbuf2, p.occlusion_margin,
+                             use_zbuf],
                      outputs=[self.coef, self.data_colsum, self.q])
         self._launch(tgv.tgv_preconditioner,
                      inputs=[self.data_colsum, self.tensor1, self.tensor2, self.tensor3, p.alpha0, p.alpha1, p.eps,
@@ -199,6 +205,22 @@ class LevelSolver:
             return
         self._launch(tgv.joint_diffusion_tensor, inputs=[self.centre1, self.x_hat, p.flow_edge_weight, p.gamma,
                                                          p.beta], outputs=[self.tensor3])
+
+    def find_visible(self) -> int:
+        """The view z-buffers of x̂ (``params.visibility``): of δ̂1 at p (t1) and of δ̂2
+        at p + û (t2) in every sampled view. Returns 1 where they are made, else 0 (the
+        data term then keeps the best half)."""
+        from lfsf.kernels import occlusion
+
+        if self.view_zbuf1.shape[0] == 1:
+            return 0
+        n, h, w = self.view_zbuf1.shape
+        for zbuf, component in ((self.view_zbuf1, 0), (self.view_zbuf2, 1)):
+            zbuf.fill_(occlusion.EMPTY)
+            _device.launch_rows(occlusion.splat_views, dim=(n * h, w),
+                                inputs=[self.x_hat, component, component, self.phis], outputs=[zbuf],
+                                device=self.device, bands=1)  # atomics: one launch
+        return 1
 
     def find_hidden(self) -> None:
         """Mark the points of x̂ hidden at t2 by a nearer point (``hidden2``; all zero when

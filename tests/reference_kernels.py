@@ -266,7 +266,8 @@ def kept_samples(best: np.ndarray, members: np.ndarray) -> np.ndarray:
     return np.moveaxis(keep, -1, 0) | (best < 0)[None]
 
 
-def data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio=0.0, details=None, hidden2=None):
+def data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio=0.0, details=None, hidden2=None,
+                      zbufs=None, margin=0.0):
     """A1…A9 (9, S, h, w), row weights (3, S, h, w) and data column sums (h, w, 4).
 
     W1 = L(p − δ̂1 φ, φ, t1), W2 = L(p + û − δ̂2 φ, φ, t2), J2 = L(p + û, 0, t2); sample 0 is
@@ -281,7 +282,11 @@ def data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio=
     w3 of the centre sample (the flow row I1 − J2). ``details``, a dict, receives the two
     occlusion tests ("t1", "t2") and the centre test ("centre_occluded", "centre_margin"
     = |I1 − J2| − threshold). ``hidden2`` (h, w): where > 0.5 the point is hidden at t2
-    (the geometric test, :func:`hidden_at_t2`) and every w2 and w3 is 0.
+    (the geometric test, :func:`hidden_at_t2`) and every w2 and w3 is 0. ``zbufs`` = (Z1,
+    Z2), view z-buffers (S, h, w) of δ̂1 at p and of δ̂2 at p + û (:func:`splat_views`):
+    then sample s is kept in light field k where :func:`visible` by Z_k[s] (with
+    ``margin``) instead of by the best half; the best half of t2 still gives the residual
+    of the centre test.
     """
     samples1 = np.asarray(samples1, np.float64)
     samples2 = np.asarray(samples2, np.float64)
@@ -298,6 +303,11 @@ def data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio=
     occ2 = visible_half(samples2, phis, xj, yj, d2, i1, occlusion_ratio)
     keep1 = kept_samples(occ1["best"], occ1["members"])
     keep2 = kept_samples(occ2["best"], occ2["members"])
+    if zbufs is not None:
+        for s in range(n):
+            xi, eta = (float(c) for c in phis[s])
+            keep1[s] = visible(zbufs[0][s], px - d1 * xi, py - d1 * eta, d1, margin)
+            keep2[s] = visible(zbufs[1][s], xj - d2 * xi, yj - d2 * eta, d2, margin)
     centre_margin = np.abs(i1 - j2) - (CENTRE_OCCLUSION_FACTOR * occ2["kept_mean"] + OCCLUSION_FLOOR)
     centre_occluded = (occlusion_ratio > 0) & (occ2["count"] > 0) & (centre_margin > 0)
     in_j = in_j & ~centre_occluded
@@ -689,6 +699,15 @@ def box_mean(values, radius: int) -> np.ndarray:
     return win.mean(axis=(-2, -1))
 
 
+def box_min(values, radius: int) -> np.ndarray:
+    """Least value of each slice of (K, h, w) over (2r+1)² windows, borders replicated."""
+    values = np.asarray(values, np.float64)
+    side = 2 * radius + 1
+    padded = np.pad(values, ((0, 0), (radius, radius), (radius, radius)), mode="edge")
+    win = np.lib.stride_tricks.sliding_window_view(padded, (side, side), axis=(1, 2))
+    return win.min(axis=(-2, -1))
+
+
 def parabola_vertex(cl, c0, cr):
     """Offset (in steps) of the vertex of the parabola through (−1, cl), (0, c0), (1, cr)."""
     return 0.5 * (cl - cr) / (cl - 2.0 * c0 + cr)
@@ -795,4 +814,64 @@ def hidden_at_t2(x, margin, reach):
                 for xx in range(max(j - reach, 0), min(j + reach + 1, w)):
                     if hidden[yy, xx] and abs(x[yy, xx, 0] - x[i, j, 0]) <= margin:
                         out[i, j] = 1.0
+    return out
+
+
+# --- view z-buffers (kernels/occlusion.py splat_views, common.visible) ---------------------------
+
+
+def splat_views(x, component: int, flow: bool, phis) -> np.ndarray:
+    """(S, h, w): zbuf[s, t] = max δ = x[p][component] over the points p whose position in
+    view s, q − δφ_s with q = p (+ (u, v) when ``flow``), has t among its bilinear
+    neighbours (floor of each coordinate, and floor + 1 where the coordinate is not
+    whole); −inf where none. Explicit loops."""
+    x = np.asarray(x, np.float32)
+    phis = np.asarray(phis, np.float32)
+    h, w = x.shape[:2]
+    zbuf = np.full((len(phis), h, w), -np.inf)
+    for s, (xi, eta) in enumerate(phis):
+        for i in range(h):
+            for j in range(w):
+                d = x[i, j, component]
+                px = np.float32(j) - d * xi + (x[i, j, 2] if flow else np.float32(0.0))
+                py = np.float32(i) - d * eta + (x[i, j, 3] if flow else np.float32(0.0))
+                i0, j0 = int(np.floor(py)), int(np.floor(px))
+                for ii in (i0, i0 + 1) if py > i0 else (i0,):
+                    for jj in (j0, j0 + 1) if px > j0 else (j0,):
+                        if 0 <= ii < h and 0 <= jj < w:
+                            zbuf[s, ii, jj] = max(zbuf[s, ii, jj], d)
+    return zbuf
+
+
+def visible(zbuf_s, x, y, disparity, margin) -> np.ndarray:
+    """Sample position (x, y) of a view sees the point of disparity δ: the view's z-buffer
+    at the pixel nearest to (x, y) (clamped to the image) is at most δ + margin."""
+    h, w = zbuf_s.shape
+    i = np.clip(np.floor(np.asarray(y) + 0.5).astype(int), 0, h - 1)
+    j = np.clip(np.floor(np.asarray(x) + 0.5).astype(int), 0, w - 1)
+    return zbuf_s[i, j] <= np.asarray(disparity) + margin
+
+
+def disparity_cost_visible(samples, phis, candidates, base, offset, zbuf, margin) -> np.ndarray:
+    """cost[k, p] = mean of |L(q − δ_k φ_s, φ_s) − L(q, 0)| over the samples s ≥ 1 whose
+    warped position lies in the image and is :func:`visible` by zbuf[s]; q = p + (u, v)
+    of ``offset``, δ_k = candidates[k] + base[p]; 1 where no sample is left. (K, h, w)."""
+    samples = np.asarray(samples, np.float64)
+    phis = np.asarray(phis, np.float64)
+    offset = np.asarray(offset, np.float64)
+    n, h, w = samples.shape
+    py, px = np.mgrid[0:h, 0:w].astype(np.float64)
+    qx, qy = px + offset[..., 2], py + offset[..., 3]
+    centre = bilinear(samples[0], qx, qy)
+    out = np.zeros((len(candidates), h, w))
+    for k, c in enumerate(np.asarray(candidates, np.float64)):
+        d = c + np.asarray(base, np.float64)
+        total = np.zeros((h, w))
+        count = np.zeros((h, w))
+        for s in range(1, n):
+            x, y = qx - d * phis[s, 0], qy - d * phis[s, 1]
+            ok = inside((h, w), x, y) & visible(zbuf[s], x, y, d, margin)
+            total += np.where(ok, np.abs(bilinear(samples[s], x, y) - centre), 0.0)
+            count += ok
+        out[k] = np.where(count > 0, total / np.maximum(count, 1), 1.0)
     return out

@@ -165,3 +165,23 @@ def test_median_radius_grows_with_levels_wider_than_320_pixels():
     assert [level_median_radius(2, w) for w in (10, 160, 320, 400, 480, 640, 2000)] == [2, 2, 2, 2, 3, 3, 3]
     assert [level_median_radius(1, w) for w in (320, 480, 640, 960)] == [1, 2, 2, 3]
     assert level_median_radius(0, 640) == 0
+
+
+def test_hci_antinous_stereo_has_no_foreground_halo():
+    """Real rendered data (../shared/data, skipped without it), the light field given as
+    both t1 and t2 with the default preset: the bust's disparity must not spread over
+    the dark, nearly textureless wall behind it. With the best-half occlusion test alone
+    and centred matching windows it did (MSE×100 19.8, 94 % of it within 16 px outside
+    the bust); view z-buffers and shiftable windows give 5.0 (README, Accuracy). The
+    issue's target is 2.0."""
+    from conftest import data_path
+
+    from lfsf import evaluate, io
+
+    folder = data_path("hci-antinous")
+    lf = lfsf.read_lightfield(folder)
+    gt = io.read_pfm(folder / "gt_disp_lowres.pfm")
+    sf = estimate_scene_flow(lf, lf, device="cpu")
+    e = evaluate.disparity_errors(sf.disp1, gt, None, 15)
+    assert e["mse_x100"] < 7.0, e
+    assert e["badpix_0.07"] < 25.0, e

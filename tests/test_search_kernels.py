@@ -140,6 +140,64 @@ def test_sweep_cost_matches_reference(device, span):
     np.testing.assert_array_equal(got[-1], 1.0)  # every sample leaves the image
 
 
+def _random_zbuf(r, n, h, w):
+    """View z-buffers whose values sit well away from the disparities they are compared
+    with (δ + margin): the visibility decisions are then the same in float32 and float64."""
+    z = r.choice([-5.0, 5.0], (n, h, w)).astype(np.float32)
+    z[r.random((n, h, w)) < 0.2] = -1e30  # EMPTY: nothing landed
+    return z
+
+
+@pytest.mark.parametrize("span", [1, 4, 9])
+def test_disparity_cost_visible_matches_reference(device, span):
+    from lfsf.kernels import search
+
+    r = rng(3)
+    h, w = 7, 9
+    phis = np.array([(0.0, 0.0), (1.0, 0.0), (-0.7, 0.7), (0.3, -1.4), (-1.5, -0.5)], np.float32)
+    samples = r.random((len(phis), h, w)).astype(np.float32)
+    candidates = np.array([-1.0, -0.3, 0.0, 0.45, 1.2], np.float32)
+    base = r.uniform(-0.5, 0.5, (h, w)).astype(np.float32)
+    offset = r.uniform(-1.5, 1.5, (h, w, 4)).astype(np.float32)
+    offset[2, 3, 2:] = (30.0, 0.0)  # q far outside: no sample left, cost 1
+    zbuf = _random_zbuf(r, len(phis), h, w)
+    cost = wp.zeros((len(candidates), h, w), dtype=float, device=device)
+    launch(search.disparity_cost_visible, (len(candidates) * h, -(-w // span)),
+           [arr(samples, float, device), arr(phis, wp.vec2, device), arr(candidates, float, device),
+            arr(base, float, device), arr(offset, wp.vec4, device), arr(zbuf, float, device), 0.25, span], [cost],
+           device)
+    got = cost.numpy()
+    want = ref.disparity_cost_visible(samples, phis, candidates, base, offset, zbuf, 0.25)
+    close(got, want, atol=2e-5)
+    np.testing.assert_array_equal(got[:, 2, 3], 1.0)
+    everything = ref.disparity_cost_visible(samples, phis, candidates, base, offset, np.full_like(zbuf, -1e30), 0.25)
+    assert not np.allclose(everything, want)  # some samples were covered
+
+
+@pytest.mark.parametrize("span", [1, 4, 9])
+def test_sweep_cost_visible_matches_reference(device, span):
+    """The plane sweep's visibility cost is disparity_cost_visible without a base
+    disparity or a flow offset."""
+    from lfsf.estimate import sweep_shifts
+    from lfsf.kernels import search
+
+    r = rng(12)
+    h, w = 7, 9
+    phis = np.array([(0.0, 0.0), (1.0, 0.0), (-0.7, 0.7), (0.3, -1.4), (-1.5, -0.5), (0.0, 2.0)], np.float32)
+    samples = r.random((len(phis), h, w)).astype(np.float32)
+    candidates = np.array([-3.0, -1.0, -0.3, 0.0, 0.45, 1.0, 1.2, 20.0], np.float32)
+    zbuf = _random_zbuf(r, len(phis), h, w)
+    cost = wp.zeros((len(candidates), h, w), dtype=float, device=device)
+    launch(search.sweep_cost_visible, (len(candidates) * h, -(-w // span)),
+           [arr(samples, float, device), arr(sweep_shifts(candidates, phis), wp.vec4, device),
+            arr(candidates, float, device), arr(zbuf, float, device), 0.25, span], [cost], device)
+    got = cost.numpy()
+    want = ref.disparity_cost_visible(samples, phis, candidates, np.zeros((h, w), np.float32),
+                                      np.zeros((h, w, 4), np.float32), zbuf, 0.25)
+    close(got, want, atol=2e-5)
+    np.testing.assert_array_equal(got[-1], 1.0)  # every sample leaves the image
+
+
 def test_disparity_cost_of_an_exact_light_field_is_zero_at_the_true_disparity(device):
     """Whole-pixel shifts: L(x, φ) = T(x + δφ) sampled exactly, so the cost at δ is 0
     wherever the warped samples stay in the image (and at p + û with an offset)."""
@@ -169,6 +227,40 @@ def test_box_sum_matches_reference(radius, span, device):
         np.testing.assert_array_equal(got, values)
     # a constant is kept, borders included (the window is clamped, the mean stays a mean)
     close(run_box_sum(np.full((1, 4, 6), 0.3, np.float32), radius, device), 0.3)
+
+
+@pytest.mark.parametrize("span", [1, 4, 6])
+@pytest.mark.parametrize("radius", [0, 1, 2])
+def test_box_min_matches_reference(radius, span, device):
+    from lfsf.kernels import search
+
+    values = rng(4).random((3, 5, 6)).astype(np.float32)
+    out = wp.zeros((3, 5, 6), dtype=float, device=device)
+    launch(search.box_min, (3 * 5, -(-6 // span)), [arr(values, float, device), radius, span], [out], device)
+    np.testing.assert_array_equal(out.numpy(), ref.box_min(values, radius).astype(np.float32))
+    if radius == 0:
+        np.testing.assert_array_equal(out.numpy(), values)
+
+
+def test_windowed_cost_takes_the_best_window_that_holds_the_pixel(device):
+    """lfsf.estimate._windowed_cost: box mean, then the least of those over the windows
+    that hold the pixel (shiftable windows): next to a high-cost column the pixel takes
+    the window on its own side."""
+    from lfsf.estimate import _windowed_cost
+    from lfsf.kernels import search
+
+    r = rng(5)
+    h, w = 6, 9
+    samples = r.random((3, h, w)).astype(np.float32)
+    phis = np.array([(0.0, 0.0), (1.0, 0.0), (0.0, -1.0)], np.float32)
+    candidates = np.array([-0.5, 0.0, 0.7], np.float32)
+    zero = np.zeros((h, w), np.float32)
+    inputs = [arr(samples, float, device), arr(phis, wp.vec2, device), arr(candidates, float, device),
+              arr(zero, float, device), arr(np.zeros((h, w, 4), np.float32), wp.vec4, device)]
+    got = _windowed_cost(search.disparity_cost, inputs, 3, (h, w), 1, device).numpy()
+    raw = ref.disparity_cost(samples, phis, candidates, zero, np.zeros((h, w, 4), np.float32))
+    close(got, ref.box_min(ref.box_mean(raw, 1), 1), atol=2e-5)
+    close(_windowed_cost(search.disparity_cost, inputs, 3, (h, w), 0, device).numpy(), raw, atol=2e-5)
 
 
 def _costs_with_minima_everywhere(r, n, h, w):
