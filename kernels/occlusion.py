@@ -129,14 +129,12 @@ def splat_views(
     2, 3), has t among its bilinear neighbours of non-zero weight (so a sample read within
     a pixel of a nearer point's position counts as covered; a point at a whole position,
     such as every point in the centre view, covers its own pixel only). ``zbuf`` must be filled with EMPTY first.
-    Uses atomics: launch in one piece (``bands=1`` on the CPU), over (samples × rows,
-    columns)."""
-    r, j = wp.tid()
-    r = r + row0
+    Uses atomics only within a view's z-buffer: launch over (samples, rows, columns),
+    in bands of whole samples (``row0`` is the first sample), which never meet."""
+    s, i, j = wp.tid()
+    s = s + row0
     h = zbuf.shape[1]
     w = zbuf.shape[2]
-    s = r // h
-    i = r - s * h
     v = x[i, j]
     d = v[component]
     phi = phis[s]

@@ -217,7 +217,7 @@ def _upsample_state(arrays: list[np.ndarray], size, scales, device: str) -> list
     return out
 
 
-def _windowed_cost(kernel, inputs, count: int, size, search_radius: int, device: str):
+def _windowed_cost(kernel, inputs, count: int, size, search_radius: int, device: str, shiftable: bool = True):
     """Per-pixel matching costs of ``count`` candidates (a cost kernel of
     :mod:`lfsf.kernels.search`, which walks a row span per thread), averaged over
     (2r+1)² windows, and of those the best window that holds the pixel (shiftable
@@ -238,6 +238,8 @@ def _windowed_cost(kernel, inputs, count: int, size, search_radius: int, device:
     smooth = wp.empty_like(cost)
     _device.launch_rows(search.box_sum, dim=(count * h, per_row), inputs=[cost, search_radius, span],
                         outputs=[smooth], device=device)
+    if not shiftable:
+        return smooth
     _device.launch_rows(search.box_min, dim=(count * h, per_row), inputs=[smooth, search_radius, span],
                         outputs=[cost], device=device)
     return cost
@@ -299,9 +301,9 @@ def _view_zbuffer(disparity: np.ndarray, flow: np.ndarray | None, phis, device: 
         x[..., 2:] = flow
     n = phis.shape[0]
     zbuf = wp.full((n, h, w), occlusion.EMPTY, dtype=float, device=device)
-    _device.launch_rows(occlusion.splat_views, dim=(n * h, w),
+    _device.launch_rows(occlusion.splat_views, dim=(n, h, w),
                         inputs=[wp.array(x, dtype=wp.vec4, device=device), 0, 0 if flow is None else 1, phis],
-                        outputs=[zbuf], device=device, bands=1)  # atomics: one launch
+                        outputs=[zbuf], device=device)  # bands of whole samples: the atomics never meet
     return zbuf
 
 

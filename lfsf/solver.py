@@ -217,9 +217,9 @@ class LevelSolver:
         n, h, w = self.view_zbuf1.shape
         for zbuf, component in ((self.view_zbuf1, 0), (self.view_zbuf2, 1)):
             zbuf.fill_(occlusion.EMPTY)
-            _device.launch_rows(occlusion.splat_views, dim=(n * h, w),
+            _device.launch_rows(occlusion.splat_views, dim=(n, h, w),
                                 inputs=[self.x_hat, component, component, self.phis], outputs=[zbuf],
-                                device=self.device, bands=1)  # atomics: one launch
+                                device=self.device)  # bands of whole samples: the atomics never meet
         return 1
 
     def find_hidden(self) -> None:

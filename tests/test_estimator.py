@@ -172,8 +172,8 @@ def test_hci_antinous_stereo_has_no_foreground_halo():
     both t1 and t2 with the default preset: the bust's disparity must not spread over
     the dark, nearly textureless wall behind it. With the best-half occlusion test alone
     and centred matching windows it did (MSE×100 19.8, 94 % of it within 16 px outside
-    the bust); view z-buffers and shiftable windows give 5.0 (README, Accuracy). The
-    issue's target is 2.0."""
+    the bust); view z-buffers and shiftable windows give 5.0, and α0 = 6 3.6 (README,
+    Accuracy). The issue's target is 2.0."""
     from conftest import data_path
 
     from lfsf import evaluate, io

@@ -367,8 +367,8 @@ def _splat_views(x, component, flow, phis, device):
 
     h, w = x.shape[:2]
     zbuf = wp.full((len(phis), h, w), occlusion.EMPTY, dtype=float, device=device)
-    launch(occlusion.splat_views, (len(phis) * h, w), [arr(x, wp.vec4, device), component, flow,
-                                                       arr(phis, wp.vec2, device)], [zbuf], device, bands=1)
+    launch(occlusion.splat_views, (len(phis), h, w), [arr(x, wp.vec4, device), component, flow,
+                                                      arr(phis, wp.vec2, device)], [zbuf], device)
     return zbuf.numpy()
 
 
@@ -1193,8 +1193,10 @@ def test_level_solver_energy_decreases(device):
 def small_params():
     from lfsf.params import Params
 
+    # α0 fixed (not the default, which tuning moves): NumPy's scalar-step reference
+    # needs more iterations the larger α0 is
     return Params.preset("fast").replace(radius=1.0, rof_iterations=10, lambda1=20.0, lambda2=20.0,
-                                         lambda3=20.0)
+                                         lambda3=20.0, alpha0=2.0)
 
 
 @pytest.mark.parametrize("circles,step_ratio", [(2, 1.0), (1, 1.0), (2, 0.25)])  # 1: flow only, on vec2 (u, v)
