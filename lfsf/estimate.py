@@ -217,7 +217,7 @@ def _upsample_state(arrays: list[np.ndarray], size, scales, device: str) -> list
     return out
 
 
-def _windowed_cost(kernel, inputs, count: int, size, search_radius: int, device: str, shiftable: bool = True):
+def _windowed_cost(kernel, inputs, count: int, size, search_radius: int, device: str):
     """Per-pixel matching costs of ``count`` candidates (a cost kernel of
     :mod:`lfsf.kernels.search`, which walks a row span per thread), averaged over
     (2r+1)² windows, and of those the best window that holds the pixel (shiftable
@@ -238,8 +238,6 @@ def _windowed_cost(kernel, inputs, count: int, size, search_radius: int, device:
     smooth = wp.empty_like(cost)
     _device.launch_rows(search.box_sum, dim=(count * h, per_row), inputs=[cost, search_radius, span],
                         outputs=[smooth], device=device)
-    if not shiftable:
-        return smooth
     _device.launch_rows(search.box_min, dim=(count * h, per_row), inputs=[smooth, search_radius, span],
                         outputs=[cost], device=device)
     return cost
