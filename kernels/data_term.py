@@ -168,7 +168,8 @@ def data_coefficients(
         coef[i, j, s] = c
         if s > 0:
             mask = half_plane_mask(phi)
-            if inside(view1, x1, y1):
+            # (t1's halves decide nothing when the view z-buffers do; t2's still feed the centre test)
+            if use_zbuf == 0 and inside(view1, x1, y1):
                 sums1, counts1, total1, count1 = add_residual(sums1, counts1, total1, count1, wp.abs(w1v - i1), mask)
             if inside(view2, x2, y2):
                 sums2, counts2, total2, count2 = add_residual(sums2, counts2, total2, count2, wp.abs(w2v - i1), mask)
@@ -183,8 +184,11 @@ def data_coefficients(
         in_j = False
     # a nearer point covers p at t2 (geometric test): no t2 view is trusted to see it
     hidden = hidden2[i, j] > 0.5
-    normal1 = half_plane_normal(wp.max(half1, 0))
-    normal2 = half_plane_normal(wp.max(half2, 0))
+    normal1 = wp.vec2(1.0, 0.0)
+    normal2 = wp.vec2(1.0, 0.0)
+    if use_zbuf == 0:
+        normal1 = half_plane_normal(wp.max(half1, 0))
+        normal2 = half_plane_normal(wp.max(half2, 0))
     # second pass: which rows are in, their steps σ̃ and the column sums
     colsum = wp.vec4(0.0)
     for s in range(phis.shape[0]):
