@@ -690,22 +690,23 @@ def disparity_cost(samples, phis, candidates, base, offset) -> np.ndarray:
     return out
 
 
-def box_mean(values, radius: int) -> np.ndarray:
-    """Mean of each slice of (K, h, w) over (2r+1)² windows, borders replicated."""
+def _box_windows(values, radius: int) -> np.ndarray:
+    """The (2r+1)² window around each pixel of each slice of (K, h, w), borders
+    replicated: (K, h, w, 2r+1, 2r+1)."""
     values = np.asarray(values, np.float64)
     side = 2 * radius + 1
     padded = np.pad(values, ((0, 0), (radius, radius), (radius, radius)), mode="edge")
-    win = np.lib.stride_tricks.sliding_window_view(padded, (side, side), axis=(1, 2))
-    return win.mean(axis=(-2, -1))
+    return np.lib.stride_tricks.sliding_window_view(padded, (side, side), axis=(1, 2))
+
+
+def box_mean(values, radius: int) -> np.ndarray:
+    """Mean of each slice of (K, h, w) over (2r+1)² windows, borders replicated."""
+    return _box_windows(values, radius).mean(axis=(-2, -1))
 
 
 def box_min(values, radius: int) -> np.ndarray:
     """Least value of each slice of (K, h, w) over (2r+1)² windows, borders replicated."""
-    values = np.asarray(values, np.float64)
-    side = 2 * radius + 1
-    padded = np.pad(values, ((0, 0), (radius, radius), (radius, radius)), mode="edge")
-    win = np.lib.stride_tricks.sliding_window_view(padded, (side, side), axis=(1, 2))
-    return win.min(axis=(-2, -1))
+    return _box_windows(values, radius).min(axis=(-2, -1))
 
 
 def parabola_vertex(cl, c0, cr):
