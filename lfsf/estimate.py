@@ -217,7 +217,8 @@ def _upsample_state(arrays: list[np.ndarray], size, scales, device: str) -> list
     return out
 
 
-def _windowed_cost(kernel, inputs, count: int, size, search_radius: int, device: str):
+def _windowed_cost(kernel, inputs, count: int, size, search_radius: int, device: str,
+                   columns: int | None = None):
     """Per-pixel matching costs of ``count`` candidates (a cost kernel of
     :mod:`lfsf.kernels.search`, which walks a row span per thread), averaged over
     (2r+1)² windows, and of those the best window that holds the pixel (shiftable
@@ -225,14 +226,17 @@ def _windowed_cost(kernel, inputs, count: int, size, search_radius: int, device:
     over the edge, and the nearer surface's texture, matched at its own disparity, makes
     that disparity win a pixel or two into the background; one of the windows beside
     it stays on the pixel's own side (a layered scene's δ1 MSE at one pixel from the
-    edge fell from 3.95 to 0.85, HCI antinous MSE×100 from 9.9 to 5.0)."""
+    edge fell from 3.95 to 0.85, HCI antinous MSE×100 from 9.9 to 5.0). ``columns``: how
+    many columns a thread of ``kernel`` walks (default: :func:`lfsf.device.row_span`'s)."""
     from lfsf.kernels import search
 
     wp = _device.warp()
     h, w = size
     cost = wp.empty((count, h, w), dtype=float, device=device)
     span, per_row = _device.row_span(device, w)
-    _device.launch_rows(kernel, dim=(count * h, per_row), inputs=[*inputs, span], outputs=[cost], device=device)
+    lanes = span if columns is None else columns
+    _device.launch_rows(kernel, dim=(count * h, -(-w // lanes)), inputs=[*inputs, lanes], outputs=[cost],
+                        device=device)
     if search_radius <= 0:
         return cost
     smooth = wp.empty_like(cost)
@@ -271,7 +275,8 @@ def _sweep(samples, phis, radius_used: float, disparity_range: float, search_rad
     shifts = wp.array(sweep_shifts(cands, phis.numpy()), dtype=wp.vec4, device=device)
     masks = wp.empty(n, dtype=vec8, device=device)
     _device.launch_rows(search.sample_half_planes, dim=n, inputs=[phis], outputs=[masks], device=device, bands=1)
-    smooth = _windowed_cost(search.sweep_cost, [samples, shifts, masks], len(cands), (h, w), search_radius, device)
+    half_kernel, visible_kernel, columns = search.sweep_kernels(device)
+    smooth = _windowed_cost(half_kernel, [samples, shifts, masks], len(cands), (h, w), search_radius, device, columns)
     best = wp.empty((h, w), dtype=float, device=device)
     best_cost = wp.empty((h, w), dtype=float, device=device)
     _device.launch_rows(search.select_disparity, dim=(h, w), inputs=[smooth, candidates], outputs=[best, best_cost],
@@ -279,8 +284,8 @@ def _sweep(samples, phis, radius_used: float, disparity_range: float, search_rad
     if visibility_margin is not None and n > 1:
         del smooth
         zbuf = _view_zbuffer(best.numpy(), None, phis, device)
-        smooth = _windowed_cost(search.sweep_cost_visible, [samples, shifts, candidates, zbuf, visibility_margin],
-                                len(cands), (h, w), search_radius, device)
+        smooth = _windowed_cost(visible_kernel, [samples, shifts, candidates, zbuf, visibility_margin],
+                                len(cands), (h, w), search_radius, device, columns)
         _device.launch_rows(search.select_disparity, dim=(h, w), inputs=[smooth, candidates],
                             outputs=[best, best_cost], device=device)
     return best.numpy()

@@ -112,10 +112,14 @@ def test_disparity_cost_matches_reference(device, span):
     assert not np.allclose(full, want)
 
 
-@pytest.mark.parametrize("span", [1, 4, 9])
-def test_sweep_cost_matches_reference(device, span):
+SWEEP_CASES = [("sweep_cost", 1), ("sweep_cost", 4), ("sweep_cost", 9), ("sweep_cost_pixel", 1)]
+
+
+@pytest.mark.parametrize("name, span", SWEEP_CASES)
+def test_sweep_cost_matches_reference(device, name, span):
     """The plane sweep's cost (constant shifts per candidate and sample) is disparity_cost
-    without a base disparity or a flow offset, borders and half-planes included."""
+    without a base disparity or a flow offset, borders and half-planes included, for
+    threads of several columns (CPU) and of one (the CUDA instance)."""
     from lfsf.estimate import sweep_shifts
     from lfsf.kernels import search
     from lfsf.kernels.common import vec8
@@ -130,7 +134,7 @@ def test_sweep_cost_matches_reference(device, span):
     launch(search.sample_half_planes, len(phis), [arr(phis, wp.vec2, device)], [masks], device)
     np.testing.assert_array_equal(masks.numpy().T, ref.half_plane_members(phis).astype(np.float32))
     cost = wp.zeros((len(candidates), h, w), dtype=float, device=device)
-    launch(search.sweep_cost, (len(candidates) * h, -(-w // span)),
+    launch(getattr(search, name), (len(candidates) * h, -(-w // span)),
            [arr(samples, float, device), arr(sweep_shifts(candidates, phis), wp.vec4, device), masks, span], [cost],
            device)
     got = cost.numpy()
@@ -174,8 +178,8 @@ def test_disparity_cost_visible_matches_reference(device, span):
     assert not np.allclose(everything, want)  # some samples were covered
 
 
-@pytest.mark.parametrize("span", [1, 4, 9])
-def test_sweep_cost_visible_matches_reference(device, span):
+@pytest.mark.parametrize("name, span", [(n.replace("sweep_cost", "sweep_cost_visible"), s) for n, s in SWEEP_CASES])
+def test_sweep_cost_visible_matches_reference(device, name, span):
     """The plane sweep's visibility cost is disparity_cost_visible without a base
     disparity or a flow offset."""
     from lfsf.estimate import sweep_shifts
@@ -188,7 +192,7 @@ def test_sweep_cost_visible_matches_reference(device, span):
     candidates = np.array([-3.0, -1.0, -0.3, 0.0, 0.45, 1.0, 1.2, 20.0], np.float32)
     zbuf = _random_zbuf(r, len(phis), h, w)
     cost = wp.zeros((len(candidates), h, w), dtype=float, device=device)
-    launch(search.sweep_cost_visible, (len(candidates) * h, -(-w // span)),
+    launch(getattr(search, name), (len(candidates) * h, -(-w // span)),
            [arr(samples, float, device), arr(sweep_shifts(candidates, phis), wp.vec4, device),
             arr(candidates, float, device), arr(zbuf, float, device), 0.25, span], [cost], device)
     got = cost.numpy()
