@@ -202,7 +202,7 @@ def _plane_sweep_kernels(lanes: int):
         k = r // h
         i = r - k * h
         j0 = c0 * span
-        n = wp.min(span, w - j0)
+        n = wp.min(wp.min(span, lanes), w - j0)  # (span ≤ lanes: columns beyond are left alone)
         sums = halves()
         counts = halves()
         for s in range(1, samples.shape[0]):
@@ -244,7 +244,7 @@ def _plane_sweep_kernels(lanes: int):
         k = r // h
         i = r - k * h
         j0 = c0 * span
-        n = wp.min(span, w - j0)
+        n = wp.min(wp.min(span, lanes), w - j0)  # (span ≤ lanes: columns beyond are left alone)
         limit = candidates[k] + margin
         total = row()
         count = row()
@@ -283,6 +283,15 @@ def sweep_kernels(device: str):
     return sweep_cost_pixel, sweep_cost_visible_pixel, 1
 
 
+@wp.func
+def window_column(values: wp.array3d(dtype=float), k: int, i: int, j: int):
+    """values[k] at rows i − 1, i, i + 1 of column j, clamped to the slice."""
+    h = values.shape[1]
+    w = values.shape[2]
+    jc = wp.clamp(j, 0, w - 1)
+    return wp.vec3(values[k, wp.max(i - 1, 0), jc], values[k, i, jc], values[k, wp.min(i + 1, h - 1), jc])
+
+
 @wp.kernel
 def box_sum(
     row0: int,
@@ -293,7 +302,9 @@ def box_sum(
     out: wp.array3d(dtype=float),
 ):
     """Mean of each slice over a (2r+1)² window, clamped at the borders. Launch over
-    (slices × rows, ⌈columns / span⌉) (:func:`lfsf.device.row_span`)."""
+    (slices × rows, ⌈columns / span⌉) (:func:`lfsf.device.row_span`). For r = 1 (the
+    default search radius) the 3×3 window slides along the row: three loads a pixel
+    instead of nine, the same sum in the same order."""
     r, c = wp.tid()
     r = r + row0
     h = values.shape[1]
@@ -302,12 +313,22 @@ def box_sum(
     i = r - k * h
     side = float(2 * radius + 1)
     j0 = c * span
-    for j in range(j0, wp.min(w, j0 + span)):
-        acc = float(0.0)
-        for dy in range(-radius, radius + 1):
-            for dx in range(-radius, radius + 1):
-                acc += values[k, wp.clamp(i + dy, 0, h - 1), wp.clamp(j + dx, 0, w - 1)]
-        out[k, i, j] = acc / (side * side)
+    if radius == 1:
+        left = window_column(values, k, i, j0 - 1)
+        mid = window_column(values, k, i, j0)
+        for j in range(j0, wp.min(w, j0 + span)):
+            right = window_column(values, k, i, j + 1)
+            acc = left[0] + mid[0] + right[0] + left[1] + mid[1] + right[1] + left[2] + mid[2] + right[2]
+            out[k, i, j] = acc / 9.0
+            left = mid
+            mid = right
+    else:
+        for j in range(j0, wp.min(w, j0 + span)):
+            acc = float(0.0)
+            for dy in range(-radius, radius + 1):
+                for dx in range(-radius, radius + 1):
+                    acc += values[k, wp.clamp(i + dy, 0, h - 1), wp.clamp(j + dx, 0, w - 1)]
+            out[k, i, j] = acc / (side * side)
 
 
 @wp.kernel
@@ -321,7 +342,8 @@ def box_min(
 ):
     """Least value of each slice over a (2r+1)² window, clamped at the borders: after
     :func:`box_sum`, the cost of the best of the windows that hold the pixel (shiftable
-    windows). Launch over (slices × rows, ⌈columns / span⌉)."""
+    windows). Launch over (slices × rows, ⌈columns / span⌉). For r = 1 the window
+    slides along the row, as in :func:`box_sum`."""
     r, c = wp.tid()
     r = r + row0
     h = values.shape[1]
@@ -329,12 +351,21 @@ def box_min(
     k = r // h
     i = r - k * h
     j0 = c * span
-    for j in range(j0, wp.min(w, j0 + span)):
-        m = values[k, i, j]
-        for dy in range(-radius, radius + 1):
-            for dx in range(-radius, radius + 1):
-                m = wp.min(m, values[k, wp.clamp(i + dy, 0, h - 1), wp.clamp(j + dx, 0, w - 1)])
-        out[k, i, j] = m
+    if radius == 1:
+        left = window_column(values, k, i, j0 - 1)
+        mid = window_column(values, k, i, j0)
+        for j in range(j0, wp.min(w, j0 + span)):
+            right = window_column(values, k, i, j + 1)
+            out[k, i, j] = wp.min(wp.min(wp.min(left), wp.min(mid)), wp.min(right))
+            left = mid
+            mid = right
+    else:
+        for j in range(j0, wp.min(w, j0 + span)):
+            m = values[k, i, j]
+            for dy in range(-radius, radius + 1):
+                for dx in range(-radius, radius + 1):
+                    m = wp.min(m, values[k, wp.clamp(i + dy, 0, h - 1), wp.clamp(j + dx, 0, w - 1)])
+            out[k, i, j] = m
 
 
 @wp.func
