@@ -22,6 +22,22 @@ def overload_unknowns(kernel, *names: str):
 
 
 @wp.func
+def clip(x: float, lo: float, hi: float):
+    """x clipped to [lo, hi] by two comparisons. ``wp.clamp`` on floats is IEEE
+    fmin/fmax (it turns NaN into a bound), which costs more on the CPU: a data step
+    written with this ran 28 % faster in isolation (17.7 → 12.8 ms, 640×480, 17
+    samples, 2 threads), ``dual_data_step`` itself 10–15 % (22.1 → 18.4–20.8 ms). A NaN
+    passes through."""
+    return wp.where(x > hi, hi, wp.where(x < lo, lo, x))
+
+
+@wp.func
+def at_least(x: float, lo: float):
+    """max(x, lo) by one comparison (see :func:`clip`)."""
+    return wp.where(x < lo, lo, x)
+
+
+@wp.func
 def to_vec4(x: wp.vec4):
     """The unknowns as (δ1, δ2, u, v)."""
     return x

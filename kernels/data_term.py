@@ -21,7 +21,7 @@ from typing import Any
 
 import warp as wp
 
-from .common import (HALF_PLANES, add_residual, bilinear_with_gradient, from_vec4, half_plane_mask, half_plane_normal,
+from .common import (HALF_PLANES, add_residual, clip, bilinear_with_gradient, from_vec4, half_plane_mask, half_plane_normal,
                      in_half_plane, inside, overload_unknowns, to_vec4, vec8, visible)
 
 wp.set_module_options({"enable_backward": False})
@@ -265,9 +265,9 @@ def dual_data_pixel(
         # clipped to ±λ_k: a row left out has σ̃_k = 0 and q̃_k = 0 (data_coefficients), so
         # it stays 0 without a test of its flag
         qs = q[i, j, s]
-        q1 = wp.clamp(qs[0] + c[9] * rho1, -lam[0], lam[0])
-        q2 = wp.clamp(qs[1] + c[10] * rho2, -lam[1], lam[1])
-        q3 = wp.clamp(qs[2] + c[11] * rho3, -lam[2], lam[2])
+        q1 = clip(qs[0] + c[9] * rho1, -lam[0], lam[0])
+        q2 = clip(qs[1] + c[10] * rho2, -lam[1], lam[1])
+        q3 = clip(qs[2] + c[11] * rho3, -lam[2], lam[2])
         q[i, j, s] = wp.vec3(q1, q2, q3)
         g += wp.vec4((q3 - q1) * a1, -(q2 + q3) * a3, q2 * a8 - q3 * a5, q2 * a9 - q3 * a6)
     data_grad[i, j] = from_vec4(g, unknowns)

@@ -8,6 +8,8 @@ on the CPU, where a thread per pixel costs more than the stencil; one pixel on C
 
 import warp as wp
 
+from .common import at_least
+
 wp.set_module_options({"enable_backward": False})
 
 
@@ -39,7 +41,7 @@ def rof_dual_step(
         if down:
             g[1] = u_bar[n, i + 1, j] - v
         q = p[n, i, j] + sigma * g
-        p[n, i, j] = q / wp.max(1.0, wp.length(q))
+        p[n, i, j] = q / at_least(wp.length(q), 1.0)
         v = right
 
 

@@ -19,7 +19,7 @@ from typing import Any
 
 import warp as wp
 
-from .common import overload_unknowns, pixel, to_vec4
+from .common import at_least, overload_unknowns, pixel, to_vec4
 
 wp.set_module_options({"enable_backward": False})
 
@@ -242,8 +242,9 @@ def tgv_dual_step(
         sy = zero
         sz = zero
         for k in range(len(xb)):
-            sy[k] = 1.0 / wp.max(1.0, wp.sqrt(n0[k] * n0[k] + n1[k] * n1[k]))
-            sz[k] = 1.0 / wp.max(1.0, wp.sqrt(m00[k] * m00[k] + m01[k] * m01[k] + m10[k] * m10[k] + m11[k] * m11[k]))
+            sy[k] = 1.0 / at_least(wp.sqrt(n0[k] * n0[k] + n1[k] * n1[k]), 1.0)
+            sz[k] = 1.0 / at_least(wp.sqrt(m00[k] * m00[k] + m01[k] * m01[k] + m10[k] * m10[k] + m11[k] * m11[k]),
+                                 1.0)
         y0[i, j] = wp.cw_mul(n0, sy)
         y1[i, j] = wp.cw_mul(n1, sy)
         z00[i, j] = wp.cw_mul(m00, sz)
