@@ -38,6 +38,12 @@ def at_least(x: float, lo: float):
 
 
 @wp.func
+def at_most(x: float, hi: float):
+    """min(x, hi) by one comparison (see :func:`clip`)."""
+    return wp.where(x > hi, hi, x)
+
+
+@wp.func
 def to_vec4(x: wp.vec4):
     """The unknowns as (δ1, δ2, u, v)."""
     return x
