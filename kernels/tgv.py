@@ -211,10 +211,11 @@ def tgv_dual_step(
     h = x_bar.shape[0]
     w = x_bar.shape[1]
     j0 = c * span
+    # the pixel's values, carried from the last pixel's right neighbour (loaded once)
+    xb = x_bar[i, j0]
+    wb0 = w0_bar[i, j0]
+    wb1 = w1_bar[i, j0]
     for j in range(j0, wp.min(w, j0 + span)):
-        xb = x_bar[i, j]
-        wb0 = w0_bar[i, j]
-        wb1 = w1_bar[i, j]
         zero = type(xb)(0.0)
         gx = zero
         gy = zero
@@ -222,10 +223,16 @@ def tgv_dual_step(
         dy0 = zero
         dx1 = zero
         dy1 = zero
+        xr = xb
+        wr0 = wb0
+        wr1 = wb1
         if j < w - 1:
-            gx = x_bar[i, j + 1] - xb
-            dx0 = w0_bar[i, j + 1] - wb0
-            dx1 = w1_bar[i, j + 1] - wb1
+            xr = x_bar[i, j + 1]
+            wr0 = w0_bar[i, j + 1]
+            wr1 = w1_bar[i, j + 1]
+            gx = xr - xb
+            dx0 = wr0 - wb0
+            dx1 = wr1 - wb1
         if i < h - 1:
             gy = x_bar[i + 1, j] - xb
             dy0 = w0_bar[i + 1, j] - wb0
@@ -251,6 +258,9 @@ def tgv_dual_step(
         z01[i, j] = wp.cw_mul(m01, sz)
         z10[i, j] = wp.cw_mul(m10, sz)
         z11[i, j] = wp.cw_mul(m11, sz)
+        xb = xr
+        wb0 = wr0
+        wb1 = wr1
 
 
 @wp.func
@@ -304,6 +314,8 @@ def tgv_primal_step(
     h = x.shape[0]
     w = x.shape[1]
     j0 = c * span
+    # Γy of the pixel to the left, carried from the last pixel (computed once)
+    l0, l1 = gamma_y(tensor1, tensor2, tensor3, y0, y1, i, wp.max(j0 - 1, 0))
     for j in range(j0, wp.min(w, j0 + span)):
         h0, h1 = gamma_y(tensor1, tensor2, tensor3, y0, y1, i, j)
         div_h = type(h0)(0.0)
@@ -314,7 +326,6 @@ def tgv_primal_step(
             div_z0 += z00[i, j]
             div_z1 += z10[i, j]
         if j > 0:
-            l0, l1 = gamma_y(tensor1, tensor2, tensor3, y0, y1, i, j - 1)
             div_h -= l0
             div_z0 -= z00[i, j - 1]
             div_z1 -= z10[i, j - 1]
@@ -339,6 +350,8 @@ def tgv_primal_step(
         x_bar[i, j] = 2.0 * x_new - x_old
         w0_bar[i, j] = 2.0 * w0_new - w0_old
         w1_bar[i, j] = 2.0 * w1_new - w1_old
+        l0 = h0
+        l1 = h1
 
 
 # the kernels on the unknowns, for vec4 (δ1, δ2, u, v) and vec2 (u, v; flow only)
