@@ -21,8 +21,8 @@ from typing import Any
 
 import warp as wp
 
-from .common import (HALF_PLANES, add_residual, clip, bilinear_with_gradient, from_vec4, half_plane_mask, half_plane_normal,
-                     in_half_plane, inside, overload_unknowns, to_vec4, vec8, visible)
+from .common import (HALF_PLANES, add_residual, bilinear_with_gradient, clip, from_vec4, half_plane_mask,
+                     half_plane_normal, in_half_plane, inside, overload_unknowns, to_vec4, vec8, visible)
 
 wp.set_module_options({"enable_backward": False})
 
