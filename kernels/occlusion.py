@@ -154,3 +154,69 @@ def splat_views(
             jj = j0 + dx
             if ii >= 0 and ii < h and jj >= 0 and jj < w:
                 wp.atomic_max(zbuf, s, ii, jj, d)
+
+
+@wp.kernel
+def depth_change_rows(
+    row0: int,
+    x: wp.array2d(dtype=wp.vec4),
+    hidden: wp.array2d(dtype=float),
+    sigma: float,
+    radius: int,
+    # outputs
+    sums: wp.array2d(dtype=wp.vec2),
+):
+    """First (horizontal) pass of :func:`fill_hidden_depth`: sums[p] = (Σ g·(δ2 − δ1),
+    Σ g) over the pixels q of p's row within ``radius`` that are not hidden at t2, with
+    the Gaussian weight g = exp(−d²/2σ²) of their distance d. Launch over (rows,
+    columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    w = x.shape[1]
+    acc = wp.vec2(0.0)
+    for dx in range(-radius, radius + 1):
+        jj = j + dx
+        if jj >= 0 and jj < w:
+            if hidden[i, jj] <= 0.5:
+                g = wp.exp(-float(dx * dx) / (2.0 * sigma * sigma))
+                v = x[i, jj]
+                acc += wp.vec2(g * (v[1] - v[0]), g)
+    sums[i, j] = acc
+
+
+@wp.kernel
+def fill_hidden_depth(
+    row0: int,
+    sums: wp.array2d(dtype=wp.vec2),
+    hidden: wp.array2d(dtype=float),
+    sigma: float,
+    radius: int,
+    # outputs
+    x: wp.array2d(dtype=wp.vec4),
+    x_bar: wp.array2d(dtype=wp.vec4),
+):
+    """Where p is hidden at t2 (``hidden``), no view sees the point at t2 and its δ2
+    comes from nothing but the regulariser, which there reaches over to the occluder.
+    Set δ2 = δ1 + D instead, with D the depth change δ2 − δ1 of the points around p
+    that are seen at t2, averaged with Gaussian weights (σ = ``sigma`` px, out to
+    ``radius``; a normalised convolution, the second, vertical pass over the row sums of
+    :func:`depth_change_rows`); D = 0 where none lies within the radius. The same in
+    x̄. Launch over (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    if hidden[i, j] > 0.5:
+        h = x.shape[0]
+        acc = wp.vec2(0.0)
+        for dy in range(-radius, radius + 1):
+            ii = i + dy
+            if ii >= 0 and ii < h:
+                acc += wp.exp(-float(dy * dy) / (2.0 * sigma * sigma)) * sums[ii, j]
+        change = float(0.0)
+        if acc[1] > 1.0e-6:
+            change = acc[0] / acc[1]
+        v = x[i, j]
+        v[1] = v[0] + change
+        x[i, j] = v
+        vb = x_bar[i, j]
+        vb[1] = v[1]
+        x_bar[i, j] = vb

@@ -597,6 +597,9 @@ def estimate_scene_flow(
             solver.median()
             lap("median")
             say(f"level {len(sizes) - level}/{len(sizes)} ({w}×{h}), warp {k + 1}/{params.warps}")
+        if level == 0:
+            solver.fill_hidden()  # δ2 of the points hidden at t2: once, at the end (Params.hidden_fill_sigma)
+            lap("iterate")
         x, w0, w1 = solver.state()
         if level > 0:
             fh, fw = sizes[level - 1]

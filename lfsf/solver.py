@@ -8,6 +8,8 @@ and filters (``median``) on request. :mod:`lfsf.estimate` drives it coarse to fi
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from lfsf import device as _device
@@ -101,6 +103,7 @@ class LevelSolver:
         self.view_zbuf1 = wp.zeros((views, h, w) if views > 1 else (1, 1, 1), dtype=float, device=device)
         self.view_zbuf2 = wp.zeros((views, h, w) if views > 1 else (1, 1, 1), dtype=float, device=device)
         self.hidden2 = wp.zeros((h, w), dtype=float, device=device)
+        self.depth_sums = wp.empty((h, w), dtype=wp.vec2, device=device)  # fill_hidden's row sums
         self.scratch1 = wp.zeros((h, w), dtype=float, device=device)
         self._iteration = None  # the recorded iteration (``iterate``)
         self._tensors()
@@ -237,6 +240,24 @@ class LevelSolver:
         self._launch(occlusion.hidden_at_t2, inputs=[self.x_hat, self.zbuf, margin], outputs=[self.scratch1])
         self._launch(occlusion.spread_hidden, inputs=[self.x_hat, self.scratch1, margin, int(self.params.occlusion_reach)],
                      outputs=[self.hidden2])
+
+    def fill_hidden(self) -> None:
+        """Where a point is hidden at t2 (``hidden2`` of the last linearisation), set δ2 =
+        δ1 plus the depth change of the points around it that are seen at t2
+        (:func:`lfsf.kernels.occlusion.fill_hidden_depth`; ``params.hidden_fill_sigma``, 0:
+        off). No view constrains δ2 there, and the regulariser alone reaches over to the
+        occluder's disparity. The estimator calls it once, after the finest level's last
+        warp."""
+        from lfsf.kernels import occlusion
+
+        sigma = self.params.hidden_fill_sigma
+        if sigma <= 0 or self.flow_only or self.params.occlusion_margin <= 0:
+            return
+        radius = int(math.ceil(3.0 * sigma))
+        self._launch(occlusion.depth_change_rows, inputs=[self.x, self.hidden2, sigma, radius],
+                     outputs=[self.depth_sums])
+        self._launch(occlusion.fill_hidden_depth, inputs=[self.depth_sums, self.hidden2, sigma, radius],
+                     outputs=[self.x, self.x_bar])
 
     def iterate(self, n: int) -> None:
         """n preconditioned primal–dual iterations (Chambolle & Pock 2011). The three

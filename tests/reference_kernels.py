@@ -818,6 +818,31 @@ def hidden_at_t2(x, margin, reach):
     return out
 
 
+def fill_hidden_depth(x, hidden, sigma, radius):
+    """x with δ2 = δ1 + D where ``hidden`` (kernels/occlusion.py fill_hidden_depth): D the
+    Gaussian-weighted mean of δ2 − δ1 over the pixels within ``radius`` (a square
+    window, clamped to the image) that are not hidden, weight exp(−(dx² + dy²)/2σ²);
+    D = 0 where no such pixel is. Explicit loops."""
+    x = np.asarray(x, np.float64).copy()
+    hidden = np.asarray(hidden) > 0.5
+    h, w = hidden.shape
+    diff = x[..., 1] - x[..., 0]
+    out = x.copy()
+    for i in range(h):
+        for j in range(w):
+            if not hidden[i, j]:
+                continue
+            num = den = 0.0
+            for yy in range(max(i - radius, 0), min(i + radius + 1, h)):
+                for xx in range(max(j - radius, 0), min(j + radius + 1, w)):
+                    if not hidden[yy, xx]:
+                        g = np.exp(-((yy - i) ** 2 + (xx - j) ** 2) / (2.0 * sigma * sigma))
+                        num += g * diff[yy, xx]
+                        den += g
+            out[i, j, 1] = x[i, j, 0] + (num / den if den > 1e-6 else 0.0)
+    return out
+
+
 # --- view z-buffers (kernels/occlusion.py splat_views, common.visible) ---------------------------
 
 

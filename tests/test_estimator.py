@@ -159,6 +159,26 @@ def test_joint_flow_beats_flow_only():
     assert epe["joint"] < 0.75 * epe["flow only"], epe
 
 
+def test_hidden_points_take_their_depth_change_from_their_neighbours():
+    """Where a point is hidden at t2 no view constrains δ2; with the fill
+    (``hidden_fill_sigma``) it is δ1 plus its visible neighbours' depth change, where
+    the regulariser alone reached over to the occluder. 'large_motion' (a still
+    background, δ2 = δ1 behind the mover): δ2 in the pixels hidden at t2 must be far
+    closer to the truth than without the fill (measured 0.52 against 4.2 MSE here)."""
+    from lfsf import synth
+
+    lf1, lf2, gt = synth.render_scene("large_motion", size=(128, 96), grid=9)
+    hidden = (gt["occluded"] > 0) & (gt["valid"] > 0)
+    hidden[:8] = hidden[-8:] = False
+    hidden[:, :8] = hidden[:, -8:] = False
+    assert hidden.sum() > 200
+    mse = {}
+    for sigma in (0.0, 4.0):
+        sf = estimate_scene_flow(lf1, lf2, Params.preset("fast").replace(hidden_fill_sigma=sigma), device="cpu")
+        mse[sigma] = float(np.mean((sf.disp2 - gt["disp2"])[hidden] ** 2))
+    assert mse[4.0] < 0.5 * mse[0.0], mse
+
+
 def test_median_radius_grows_with_levels_wider_than_320_pixels():
     from lfsf.solver import level_median_radius
 

@@ -1272,6 +1272,56 @@ def test_hidden_at_t2_matches_reference(device):
         assert reach > 0 or got[0, 0] == 0  # lands outside: hidden only by spreading
 
 
+def _fill_hidden(x, hidden, sigma, radius, device):
+    from lfsf.kernels import occlusion
+
+    h, w = hidden.shape
+    xa = arr(x, wp.vec4, device)
+    xb = arr(x + 5.0, wp.vec4, device)  # x̄: its δ2 is set where hidden, the rest kept
+    ha = arr(hidden, float, device)
+    sums = wp.zeros((h, w), dtype=wp.vec2, device=device)
+    launch(occlusion.depth_change_rows, (h, w), [xa, ha, float(sigma), int(radius)], [sums], device)
+    launch(occlusion.fill_hidden_depth, (h, w), [sums, ha, float(sigma), int(radius)], [xa, xb], device)
+    return xa.numpy(), xb.numpy()
+
+
+def test_fill_hidden_depth_matches_reference(device):
+    """δ2 = δ1 + the Gaussian-weighted depth change of the visible pixels nearby, where
+    hidden; every other value as it was (x and x̄)."""
+    r = rng(5)
+    h, w = 9, 13
+    x = r.uniform(-2, 2, (h, w, 4)).astype(np.float32)
+    hidden = (r.random((h, w)) < 0.3).astype(np.float32)
+    hidden[:, 9:] = 1.0  # a block wider than the radius: its middle column sees nothing
+    for sigma, radius in ((1.0, 2), (2.5, 3)):
+        got, got_bar = _fill_hidden(x, hidden, sigma, radius, device)
+        want = ref.fill_hidden_depth(x, hidden, sigma, radius)
+        close(got, want, atol=1e-5)
+        on = hidden > 0.5
+        np.testing.assert_array_equal(got[~on], x[~on])
+        np.testing.assert_array_equal(got[..., [0, 2, 3]], x[..., [0, 2, 3]])
+        np.testing.assert_array_equal(got_bar[..., 1][on], got[..., 1][on])
+        np.testing.assert_array_equal(got_bar[~on], x[~on] + 5.0)
+    # radius 2: column 11 is 3 px from the last visible column (8): δ2 = δ1 there
+    got, _ = _fill_hidden(x, hidden, 1.0, 2, device)
+    np.testing.assert_array_equal(got[:, 11, 1], x[:, 11, 0])
+
+
+def test_fill_hidden_depth_carries_the_background_motion_in_depth(device):
+    """A background receding by 0.3 (δ2 = δ1 − 0.3) partly hidden at t2: the hidden
+    points get the same change, whatever δ2 the iterations had left there (here the
+    occluder's)."""
+    h, w = 8, 12
+    x = np.zeros((h, w, 4), np.float32)
+    x[..., 0] = -1.0
+    x[..., 1] = -1.3
+    hidden = np.zeros((h, w), np.float32)
+    hidden[2:6, 4:8] = 1.0
+    x[2:6, 4:8, 1] = 1.0  # the occluder's disparity
+    got, _ = _fill_hidden(x, hidden, 2.0, 6, device)
+    close(got[..., 1], np.full((h, w), -1.3), atol=1e-6)
+
+
 def test_hidden_at_t2_finds_the_covered_background(device):
     """A near square (δ1 = 1) moving 3 px right over a still far background (δ1 = −1)
     covers the 3 background columns to its right, and nothing else; ``reach`` widens the
