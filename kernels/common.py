@@ -210,17 +210,40 @@ def add_residual(sums: vec8, counts: vec8, total: float, count: float, e: float,
     return sums + e * mask, counts + mask, total + e, count + 1.0
 
 
+#: A view z-buffer's values under one bilinear lookup that differ by more than this many
+#: times the occlusion margin mark a depth edge through the lookup (:func:`visible`).
+EDGE_JUMP = wp.constant(2.0)
+
+
 @wp.func
 def visible(zbuf: wp.array3d(dtype=float), s: int, x: float, y: float, disparity: float, margin: float):
-    """Sample s at (x, y) of its view sees the point of disparity δ = ``disparity``: no
-    point nearer by more than ``margin`` lands on the pixel nearest to (x, y), by the
-    view z-buffer ``zbuf[s]`` (:func:`lfsf.kernels.occlusion.splat_views`; clamped to the
-    image)."""
+    """Sample s at (x, y) of its view sees the point of disparity δ = ``disparity``, by the
+    view z-buffer ``zbuf[s]`` (:func:`lfsf.kernels.occlusion.splat_views`) at the pixels
+    that the bilinear lookup at (x, y) reads with non-zero weight (clamped to the image;
+    a whole coordinate reads one row or column): :func:`footprint_visible`."""
     h = zbuf.shape[1]
     w = zbuf.shape[2]
-    i = wp.clamp(int(wp.floor(y + 0.5)), 0, h - 1)
-    j = wp.clamp(int(wp.floor(x + 0.5)), 0, w - 1)
-    return zbuf[s, i, j] <= disparity + margin
+    fy = wp.floor(y)
+    fx = wp.floor(x)
+    i0 = wp.clamp(int(fy), 0, h - 1)
+    j0 = wp.clamp(int(fx), 0, w - 1)
+    i1 = wp.clamp(int(fy) + wp.where(y > fy, 1, 0), 0, h - 1)
+    j1 = wp.clamp(int(fx) + wp.where(x > fx, 1, 0), 0, w - 1)
+    return footprint_visible(zbuf[s, i0, j0], zbuf[s, i0, j1], zbuf[s, i1, j0], zbuf[s, i1, j1], disparity, margin)
+
+
+@wp.func
+def footprint_visible(a: float, b: float, c: float, d: float, disparity: float, margin: float):
+    """The decision of :func:`visible` from the z-buffer values a … d under a lookup.
+    Where they differ by more than EDGE_JUMP × margin, a depth edge runs through the
+    lookup: the sample is left out if any of them holds a point nearer than δ + margin
+    (a lookup that mixes in the nearer surface's pixels pulls the background's
+    disparity towards the foreground's). Elsewhere (one surface, perhaps slanted, whose
+    own neighbours are a little nearer) only if all of them do."""
+    hi = wp.max(wp.max(a, b), wp.max(c, d))
+    lo = wp.min(wp.min(a, b), wp.min(c, d))
+    covered = wp.where(hi - lo > EDGE_JUMP * margin, hi, lo)
+    return covered <= disparity + margin
 
 
 @wp.func

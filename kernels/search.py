@@ -19,7 +19,7 @@ takes the mean over the others.
 
 import warp as wp
 
-from .common import (HALF_PLANES, bilinear, half_plane_mask, half_plane_residuals, inside,
+from .common import (HALF_PLANES, bilinear, footprint_visible, half_plane_mask, half_plane_residuals, inside,
                      least_half_mean, vec8, visible)
 
 wp.set_module_options({"enable_backward": False})
@@ -234,8 +234,8 @@ def _plane_sweep_kernels(lanes: int):
         """:func:`disparity_cost_visible` of a plane sweep (no base disparity, no flow
         offset), with the constant shifts of :data:`sweep_cost`: the mean residual of the
         samples s ≥ 1 inside the image that no point nearer than δ_k + ``margin`` covers
-        (view z-buffers ``zbuf``, :func:`lfsf.kernels.common.visible`: the pixel nearest
-        to the warped position, here a constant shift too); 1 where none is. Launch over
+        (view z-buffers ``zbuf``, :func:`lfsf.kernels.common.visible`: the pixels the
+        lookup reads, here at a constant shift too); 1 where none is. Launch over
         (candidates × rows, ⌈columns / span⌉), span ≤ the kernel's lanes."""
         r, c0 = wp.tid()
         r = r + row0
@@ -245,17 +245,22 @@ def _plane_sweep_kernels(lanes: int):
         i = r - k * h
         j0 = c0 * span
         n = wp.min(wp.min(span, lanes), w - j0)  # (span ≤ lanes: columns beyond are left alone)
-        limit = candidates[k] + margin
+        d = candidates[k]
         total = row()
         count = row()
         for s in range(1, samples.shape[0]):
             sh = shifts[k, s]
             e, valid = shifted_residuals(samples, s, i, j0, n, sh)
-            yn = wp.clamp(i + int(sh[1]) + int(sh[3] >= 0.5), 0, h - 1)
-            xn = j0 + int(sh[0]) + int(sh[2] >= 0.5)
+            # the pixels the lookup reads with non-zero weight (visible): rows ya, yb
+            ya = wp.clamp(i + int(sh[1]), 0, h - 1)
+            yb = wp.clamp(i + int(sh[1]) + wp.where(sh[3] > 0.0, 1, 0), 0, h - 1)
+            xa = j0 + int(sh[0])
+            xb = xa + wp.where(sh[2] > 0.0, 1, 0)
             seen = row()
             for jj in range(n):
-                if zbuf[s, yn, wp.clamp(xn + jj, 0, w - 1)] <= limit:
+                ca = wp.clamp(xa + jj, 0, w - 1)
+                cb = wp.clamp(xb + jj, 0, w - 1)
+                if footprint_visible(zbuf[s, ya, ca], zbuf[s, ya, cb], zbuf[s, yb, ca], zbuf[s, yb, cb], d, margin):
                     seen[jj] = 1.0
             seen = wp.cw_mul(seen, valid)
             total = total + wp.cw_mul(seen, e)

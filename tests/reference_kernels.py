@@ -869,13 +869,29 @@ def splat_views(x, component: int, flow: bool, phis) -> np.ndarray:
     return zbuf
 
 
+#: See kernels/common.py EDGE_JUMP.
+EDGE_JUMP = 2.0
+
+
 def visible(zbuf_s, x, y, disparity, margin) -> np.ndarray:
-    """Sample position (x, y) of a view sees the point of disparity δ: the view's z-buffer
-    at the pixel nearest to (x, y) (clamped to the image) is at most δ + margin."""
+    """Sample position (x, y) of a view sees the point of disparity δ (kernels/common.py
+    visible): the view's z-buffer values at the pixels that (x, y)'s bilinear lookup
+    reads with non-zero weight (clamped to the image; a whole coordinate reads one row
+    or column) are compared with δ + margin: their largest where they differ by more
+    than EDGE_JUMP × margin (a depth edge), else their least."""
     h, w = zbuf_s.shape
-    i = np.clip(np.floor(np.asarray(y) + 0.5).astype(int), 0, h - 1)
-    j = np.clip(np.floor(np.asarray(x) + 0.5).astype(int), 0, w - 1)
-    return zbuf_s[i, j] <= np.asarray(disparity) + margin
+    x = np.asarray(x, np.float64)
+    y = np.asarray(y, np.float64)
+    fx, fy = np.floor(x), np.floor(y)
+    i0 = np.clip(fy.astype(int), 0, h - 1)
+    j0 = np.clip(fx.astype(int), 0, w - 1)
+    i1 = np.clip(fy.astype(int) + (y > fy), 0, h - 1)
+    j1 = np.clip(fx.astype(int) + (x > fx), 0, w - 1)
+    values = np.stack([zbuf_s[i0, j0], zbuf_s[i0, j1], zbuf_s[i1, j0], zbuf_s[i1, j1]])
+    hi, lo = values.max(0), values.min(0)
+    with np.errstate(invalid="ignore"):  # −inf − (−inf) where nothing landed: no edge, lo
+        covered = np.where(hi - lo > EDGE_JUMP * margin, hi, lo)
+    return covered <= np.asarray(disparity) + margin
 
 
 def disparity_cost_visible(samples, phis, candidates, base, offset, zbuf, margin) -> np.ndarray:

@@ -407,6 +407,42 @@ def test_splat_views_cover_the_background_behind_a_near_square():
                        x[..., 0], 0.25).all()  # the centre view sees every point
 
 
+def test_visible_asks_every_pixel_the_lookup_reads(device):
+    """A sample is hidden where a depth edge runs through its bilinear lookup and any of
+    the pixels it reads (non-zero weight) holds a nearer point, not only the pixel
+    nearest to it: at x = 2.3 the lookup reads columns 2 and 3, so a near point on column
+    3 hides it; at the whole x = 2 it reads column 2 alone. On one slanted surface (no
+    edge under the lookup) the least value decides: its own neighbours, a little nearer,
+    do not hide it. The kernel (through disparity_cost_visible) and the reference agree."""
+    from lfsf.kernels import search
+
+    h, w = 4, 6
+    edge = np.full((h, w), -1.0, np.float32)
+    edge[1, 3] = 2.0  # a near point on row 1, column 3
+    ramp = np.tile(0.3 * np.arange(w, dtype=np.float32), (h, 1))  # a slanted surface
+    cases = [(edge, 2.3, 1.0, 0.0, False), (edge, 2.0, 1.0, 0.0, True), (edge, 3.7, 1.0, 0.0, False),
+             (edge, 4.0, 1.0, 0.0, True), (edge, 2.3, 0.4, 0.0, False), (edge, 2.3, 2.0, 0.0, True),
+             (ramp, 2.5, 1.0, 0.6, True), (ramp, 2.5, 1.0, 0.3, False)]
+    for z, x, y, d, seen in cases:
+        assert bool(ref.visible(z, x, y, d, 0.25)) == seen, (x, y, d)
+    # the same decisions in the kernel: one side sample (φ = (−1, 0)) read at q = (x, y)
+    # from every pixel at disparity d; it matches the centre (cost 0) where it is seen,
+    # and the cost is 1 where no sample is left
+    samples = np.zeros((2, h, w), np.float32)
+    phis = np.array([(0.0, 0.0), (-1.0, 0.0)], np.float32)
+    for z, x, y, d, seen in cases:
+        zbuf = np.stack([np.full((h, w), -1e30, np.float32), z])
+        offset = np.zeros((h, w, 4), np.float32)
+        offset[..., 2] = x - d - np.arange(w)[None, :]  # q − δφ = (x, y)
+        offset[..., 3] = y - np.arange(h)[:, None]
+        cost = wp.zeros((1, h, w), dtype=float, device=device)
+        launch(search.disparity_cost_visible, (h, 1),
+               [arr(samples, float, device), arr(phis, wp.vec2, device), arr(np.array([d], np.float32), float, device),
+                arr(np.zeros((h, w), np.float32), float, device), arr(offset, wp.vec4, device),
+                arr(zbuf, float, device), 0.25, w], [cost], device)
+        np.testing.assert_array_equal(cost.numpy()[0], 0.0 if seen else 1.0, err_msg=f"{(x, y, d)}")
+
+
 def test_data_coefficients_with_view_zbuffers_match_reference(device):
     """With view z-buffers the samples a nearer point covers are left out, instead of the
     worse half: kernel and reference agree on every row, and the decision differs from
