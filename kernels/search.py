@@ -212,12 +212,11 @@ def _plane_sweep_kernels(lanes: int):
                 if mask[m] > 0.0:
                     sums[m] = sums[m] + e
                     counts[m] = counts[m] + valid
+        # per column: its eight half-plane sums and counts are a row of the transposes
+        sums_t = wp.transpose(sums)
+        counts_t = wp.transpose(counts)
         for jj in range(n):
-            c = float(1.0)  # least_half_mean of the column
-            for m in range(HALF_PLANES):
-                if counts[m, jj] > 0.0:
-                    c = wp.min(c, sums[m, jj] / counts[m, jj])
-            cost[k, i, j0 + jj] = c
+            cost[k, i, j0 + jj] = least_half_mean(sums_t[jj], counts_t[jj])
 
     @wp.kernel
     def sweep_cost_visible(
