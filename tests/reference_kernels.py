@@ -658,6 +658,16 @@ class LinearisedProblem:
 # --- discrete search (kernels/search.py) ---------------------------------------------------
 
 
+def _offset_points(samples, offset):
+    """q = p + (u, v) of ``offset`` (components 2, 3) at every pixel p, and the centre
+    view's value L(q, 0) there: (qx, qy, centre), float64."""
+    offset = np.asarray(offset, np.float64)
+    h, w = samples.shape[1:]
+    py, px = np.mgrid[0:h, 0:w].astype(np.float64)
+    qx, qy = px + offset[..., 2], py + offset[..., 3]
+    return qx, qy, bilinear(samples[0], qx, qy)
+
+
 def disparity_cost(samples, phis, candidates, base, offset) -> np.ndarray:
     """cost[k, p] = the least, over the 8 half-planes of samples (lines through φ = 0 at
     multiples of 45°), mean of |L(q − δ_k φ_s, φ_s) − L(q, 0)| over the samples s ≥ 1 of
@@ -666,12 +676,9 @@ def disparity_cost(samples, phis, candidates, base, offset) -> np.ndarray:
     has any. (K, h, w)."""
     samples = np.asarray(samples, np.float64)
     phis = np.asarray(phis, np.float64)
-    offset = np.asarray(offset, np.float64)
     members = half_plane_members(phis)  # (8, S) bool
     n, h, w = samples.shape
-    py, px = np.mgrid[0:h, 0:w].astype(np.float64)
-    qx, qy = px + offset[..., 2], py + offset[..., 3]
-    centre = bilinear(samples[0], qx, qy)
+    qx, qy, centre = _offset_points(samples, offset)
     out = np.zeros((len(candidates), h, w))
     for k, c in enumerate(np.asarray(candidates, np.float64)):
         d = c + np.asarray(base, np.float64)
@@ -900,11 +907,8 @@ def disparity_cost_visible(samples, phis, candidates, base, offset, zbuf, margin
     of ``offset``, δ_k = candidates[k] + base[p]; 1 where no sample is left. (K, h, w)."""
     samples = np.asarray(samples, np.float64)
     phis = np.asarray(phis, np.float64)
-    offset = np.asarray(offset, np.float64)
     n, h, w = samples.shape
-    py, px = np.mgrid[0:h, 0:w].astype(np.float64)
-    qx, qy = px + offset[..., 2], py + offset[..., 3]
-    centre = bilinear(samples[0], qx, qy)
+    qx, qy, centre = _offset_points(samples, offset)
     out = np.zeros((len(candidates), h, w))
     for k, c in enumerate(np.asarray(candidates, np.float64)):
         d = c + np.asarray(base, np.float64)
