@@ -90,15 +90,22 @@ def run_flow_search(centre1, centre2, half, radius, device, span=None):
 # --- against the references ----------------------------------------------------------------
 
 
-@pytest.mark.parametrize("span", [1, 4, 9])  # a pixel per thread (CUDA), part of a row, a whole row (CPU)
-def test_disparity_cost_matches_reference(device, span):
-    r = rng(1)
-    h, w = 7, 9
+def _cost_inputs(r, h, w):
+    """(phis, samples, candidates, base, offset) of the disparity-cost tests: five
+    samples, random views, base disparities and flow offsets (components 2, 3)."""
     phis = np.array([(0.0, 0.0), (1.0, 0.0), (-0.7, 0.7), (0.3, -1.4), (-1.5, -0.5)], np.float32)
     samples = r.random((len(phis), h, w)).astype(np.float32)
     candidates = np.array([-1.0, -0.3, 0.0, 0.45, 1.2], np.float32)
     base = r.uniform(-0.5, 0.5, (h, w)).astype(np.float32)
     offset = r.uniform(-1.5, 1.5, (h, w, 4)).astype(np.float32)
+    return phis, samples, candidates, base, offset
+
+
+@pytest.mark.parametrize("span", [1, 4, 9])  # a pixel per thread (CUDA), part of a row, a whole row (CPU)
+def test_disparity_cost_matches_reference(device, span):
+    r = rng(1)
+    h, w = 7, 9
+    phis, samples, candidates, base, offset = _cost_inputs(r, h, w)
     offset[..., :2] = 7.0  # components 0, 1 are not used
     offset[2, 3, 2:] = (30.0, 0.0)  # q far outside: no sample left, cost 1
     offset[5, 6, 2:] = (0.0, -0.4)
@@ -158,11 +165,7 @@ def test_disparity_cost_visible_matches_reference(device, span):
 
     r = rng(3)
     h, w = 7, 9
-    phis = np.array([(0.0, 0.0), (1.0, 0.0), (-0.7, 0.7), (0.3, -1.4), (-1.5, -0.5)], np.float32)
-    samples = r.random((len(phis), h, w)).astype(np.float32)
-    candidates = np.array([-1.0, -0.3, 0.0, 0.45, 1.2], np.float32)
-    base = r.uniform(-0.5, 0.5, (h, w)).astype(np.float32)
-    offset = r.uniform(-1.5, 1.5, (h, w, 4)).astype(np.float32)
+    phis, samples, candidates, base, offset = _cost_inputs(r, h, w)
     offset[2, 3, 2:] = (30.0, 0.0)  # q far outside: no sample left, cost 1
     zbuf = _random_zbuf(r, len(phis), h, w)
     cost = wp.zeros((len(candidates), h, w), dtype=float, device=device)
