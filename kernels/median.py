@@ -1,4 +1,13 @@
-"""Median filtering of the flow after each warp (Wedel et al. 2009), a stabiliser."""
+"""Median filtering of the flow after each warp (Wedel et al. 2009), a stabiliser, over the
+pixels of the window on the same surface as the centre pixel.
+
+A window that straddles a depth edge mixes the flows of two objects; the plain median then
+moves the edge of the faster one's flow inwards (on a rotating sphere, whose flow is
+steepest at its outline, by 1–2 px). With a tolerance τ > 0, only the window's pixels with
+|δ1(q) − δ1(p)| ≤ τ take part. Their median is that of the full window after the others
+are replaced by +BIG and −BIG in turn; where that leaves an even count, one of the others
+becomes the centre pixel's own value, so that ties go to it. τ = 0: every pixel takes
+part (the plain median)."""
 
 from typing import Any
 
@@ -12,6 +21,15 @@ wp.set_module_options({"enable_backward": False})
 #: Windows up to (2·3+1)² values are gathered into registers once per pixel and their
 #: median taken by a selection network; larger radii read the image for every comparison.
 LOCAL_RADIUS = wp.constant(3)
+#: Stands in for the window's pixels off the centre pixel's surface: +BIG and −BIG in turn
+#: leave the median of the others as it is.
+BIG = wp.constant(1.0e30)
+
+
+@wp.func
+def same_surface(d: float, d1: float, tolerance: float):
+    """Whether a pixel whose δ1 is d takes part in the median of a pixel whose δ1 is d1."""
+    return tolerance <= 0.0 or wp.abs(d - d1) <= tolerance
 
 
 @wp.func
@@ -32,49 +50,87 @@ def network_median(vals: vec49, radius: int):
 
 
 @wp.func
-def gathered_flow_median(x: wp.array2d(dtype=Any), i: int, j: int, radius: int):
-    """The medians of u and v (components 2, 3) over the window, as :func:`window_median`,
-    from the window's values gathered once into local vectors (radius ≤ LOCAL_RADIUS;
-    each pixel read once for both components)."""
+def gathered_flow_median(x: wp.array2d(dtype=Any), i: int, j: int, radius: int, tolerance: float):
+    """The medians of u and v (components 2, 3) over the window's pixels on the centre
+    pixel's surface (module docstring), from the window's values gathered once into local
+    vectors (radius ≤ LOCAL_RADIUS; each pixel read once for both components)."""
     h = x.shape[0]
     w = x.shape[1]
+    centre = to_vec4(x[i, j])
     us = vec49()
     vs = vec49()
     c = int(0)
+    others = int(0)
+    last = int(0)
     for dy in range(-radius, radius + 1):
         row = wp.clamp(i + dy, 0, h - 1)
         for dx in range(-radius, radius + 1):
             value = to_vec4(x[row, wp.clamp(j + dx, 0, w - 1)])
-            us[c] = value[2]
-            vs[c] = value[3]
+            if same_surface(value[0], centre[0], tolerance):
+                us[c] = value[2]
+                vs[c] = value[3]
+            else:
+                big = BIG
+                if others % 2 == 1:
+                    big = -BIG
+                us[c] = big
+                vs[c] = big
+                others += 1
+                last = c
             c += 1
+    if others % 2 == 1:  # the last stand-in was +BIG: the centre's own value instead
+        us[last] = centre[2]
+        vs[last] = centre[3]
     return network_median(us, radius), network_median(vs, radius)
 
 
 @wp.func
-def window_median(x: wp.array2d(dtype=Any), i: int, j: int, k: int, radius: int):
-    """Median of component k of x over the (2r+1)² window at (i, j), clamped at the borders.
+def window_median(x: wp.array2d(dtype=Any), i: int, j: int, k: int, radius: int, tolerance: float):
+    """Median of component k of x over the (2r+1)² window at (i, j), clamped at the borders,
+    over the pixels on the centre pixel's surface (module docstring; with the centre value
+    counted twice where their count is even).
 
     Rank selection: the value with fewer than m smaller and at least m+1 smaller-or-equal
     values, m = n//2, is the median (no sorting, no scratch memory)."""
     h = x.shape[0]
     w = x.shape[1]
     side = 2 * radius + 1
-    n = side * side
-    m = n // 2
-    result = to_vec4(x[i, j])[k]
-    for c in range(n):
-        vc = to_vec4(x[wp.clamp(i + c // side - radius, 0, h - 1), wp.clamp(j + c % side - radius, 0, w - 1)])[k]
-        less = int(0)
-        equal = int(0)
-        for d in range(n):
-            vd = to_vec4(x[wp.clamp(i + d // side - radius, 0, h - 1), wp.clamp(j + d % side - radius, 0, w - 1)])[k]
-            if vd < vc:
-                less += 1
-            elif vd == vc:
-                equal += 1
-        if less <= m and m < less + equal:
-            result = vc
+    n_window = side * side
+    centre = to_vec4(x[i, j])
+    d1 = centre[0]
+    n = int(0)
+    for c in range(n_window):
+        if same_surface(to_vec4(x[wp.clamp(i + c // side - radius, 0, h - 1), wp.clamp(j + c % side - radius, 0, w - 1)])[0],
+                        d1, tolerance):
+            n += 1
+    extra = 1 - n % 2  # the centre's value once more where the count is even
+    m = (n + extra) // 2
+    result = centre[k]
+    for c in range(n_window):
+        row = wp.clamp(i + c // side - radius, 0, h - 1)
+        col = wp.clamp(j + c % side - radius, 0, w - 1)
+        value = to_vec4(x[row, col])
+        if same_surface(value[0], d1, tolerance):
+            vc = value[k]
+            less = int(0)
+            equal = int(0)
+            if extra == 1:
+                if centre[k] < vc:
+                    less += 1
+                elif centre[k] == vc:
+                    equal += 1
+            for d in range(n_window):
+                rd = wp.clamp(i + d // side - radius, 0, h - 1)
+                cd = wp.clamp(j + d % side - radius, 0, w - 1)
+                other = to_vec4(x[rd, cd])
+                if same_surface(other[0], d1, tolerance):
+                    vd = other[k]
+                    if vd < vc:
+                        less += 1
+                    elif vd == vc:
+                        equal += 1
+            if less <= m and m < less + equal:
+                result = vc
     return result
 
 
@@ -83,21 +139,23 @@ def median_flow(
     row0: int,
     x: wp.array2d(dtype=Any),
     radius: int,
+    tolerance: float,
     # outputs
     out: wp.array2d(dtype=Any),
 ):
-    """out = x with u and v (components 2, 3) median-filtered over a (2r+1)² window;
+    """out = x with u and v (components 2, 3) median-filtered over the pixels of a (2r+1)²
+    window whose δ1 is within ``tolerance`` of the centre's (all of them where it is 0);
     δ1 and δ2 are copied. Launch over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0
     unknowns = x[i, j]
     v = to_vec4(unknowns)
     if radius <= LOCAL_RADIUS:
-        mu, mv = gathered_flow_median(x, i, j, radius)
+        mu, mv = gathered_flow_median(x, i, j, radius, tolerance)
         out[i, j] = from_vec4(wp.vec4(v[0], v[1], mu, mv), unknowns)
     else:
-        out[i, j] = from_vec4(wp.vec4(v[0], v[1], window_median(x, i, j, 2, radius), window_median(x, i, j, 3, radius)),
-                              unknowns)
+        out[i, j] = from_vec4(wp.vec4(v[0], v[1], window_median(x, i, j, 2, radius, tolerance),
+                                      window_median(x, i, j, 3, radius, tolerance)), unknowns)
 
 
 overload_unknowns(median_flow, "x", "out")

@@ -570,7 +570,8 @@ def estimate_scene_flow(
         tex, cen = levels[level]
         s1 = wp.clone(tex[:n_samples])
         s2 = wp.clone(tex[n_samples:])
-        solver = LevelSolver(s1, s2, wp.clone(cen[0]), wp.clone(cen[1]), wp_phis, wp_weights, params, dev)
+        solver = LevelSolver(s1, s2, wp.clone(cen[0]), wp.clone(cen[1]), wp_phis, wp_weights, params, dev,
+                             level_scale=w / width)
         if x is None and start is not None:
             scales = (w / width, w / width, w / width, h / height)  # δ1, δ2 and u with the width, v with the height
             x = np.stack([_resize_map(start[..., c], (h, w), scales[c], dev) for c in range(4)], -1)

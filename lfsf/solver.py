@@ -49,12 +49,14 @@ class LevelSolver:
     :data:`lfsf.kernels.common.UNKNOWNS`).
     """
 
-    def __init__(self, samples1, samples2, centre1, centre2, phis, weights, params, device: str):
+    def __init__(self, samples1, samples2, centre1, centre2, phis, weights, params, device: str,
+                 level_scale: float = 1.0):
         from lfsf.kernels import data_term, tgv
 
         wp = _device.warp()
         self.params = params
         self.device = device
+        self.level_scale = level_scale  # this level's width / the full width
         self.samples1, self.samples2 = samples1, samples2
         self.phis, self.weights = phis, weights
         n, h, w = samples1.shape
@@ -298,14 +300,17 @@ class LevelSolver:
         return level_median_radius(self.params.median_radius, self.shape[1])
 
     def median(self) -> None:
-        """Median-filter the flow (u, v) of x over a (2r+1)² window (r = :meth:`median_radius`)."""
+        """Median-filter the flow (u, v) of x over the pixels of a (2r+1)² window (r =
+        :meth:`median_radius`) whose δ1 is within ``params.median_tolerance`` (scaled to the
+        level) of the centre pixel's."""
         from lfsf.kernels import median
 
         wp = _device.warp()
         radius = self.median_radius()
         if radius <= 0:
             return
-        self._launch(median.median_flow, inputs=[self.x, radius], outputs=[self.scratch])
+        tolerance = self.params.median_tolerance * self.level_scale
+        self._launch(median.median_flow, inputs=[self.x, radius, tolerance], outputs=[self.scratch])
         wp.copy(self.x, self.scratch)
         wp.copy(self.x_bar, self.scratch)
 

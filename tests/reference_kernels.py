@@ -550,16 +550,30 @@ def tgv_primal_step(data_grad, y0, y1, z00, z01, z10, z11, tensor1, tensor2, tau
 # --- median (Wedel et al. 2009) ------------------------------------------------------------
 
 
-def median_flow(x: np.ndarray, radius: int) -> np.ndarray:
+def median_flow(x: np.ndarray, radius: int, tolerance: float = 0.0) -> np.ndarray:
     """u, v (components 2, 3) median-filtered over (2r+1)² windows with replicated
-    borders; δ1, δ2 copied."""
+    borders, over the window's pixels whose δ1 is within ``tolerance`` of the centre's
+    (all where it is 0), with the centre's value once more where their count is even;
+    δ1, δ2 copied."""
     x = np.asarray(x, np.float64)
     out = x.copy()
     side = 2 * radius + 1
+    h, w = x.shape[:2]
+
+    def windows(a):
+        padded = np.pad(a, radius, mode="edge")
+        return np.lib.stride_tricks.sliding_window_view(padded, (side, side)).reshape(h, w, -1)
+
+    d1 = windows(x[..., 0])
     for k in (2, 3):
-        padded = np.pad(x[..., k], radius, mode="edge")
-        windows = np.lib.stride_tricks.sliding_window_view(padded, (side, side))
-        out[..., k] = np.median(windows.reshape(*windows.shape[:2], -1), axis=-1)
+        values = windows(x[..., k])
+        for i in range(h):
+            for j in range(w):
+                keep = np.abs(d1[i, j] - x[i, j, 0]) <= tolerance if tolerance > 0 else np.ones(side * side, bool)
+                chosen = values[i, j][keep]
+                if chosen.size % 2 == 0:
+                    chosen = np.append(chosen, x[i, j, k])
+                out[i, j, k] = np.median(chosen)
     return out
 
 

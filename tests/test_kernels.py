@@ -1132,7 +1132,8 @@ def test_tgv_gradient_and_divergence_are_negative_adjoints(device):
 
 @UNKNOWNS
 @pytest.mark.parametrize("radius", [1, 2, 3, 4])  # 4: the path that reads the image per comparison
-def test_median_flow_matches_reference(radius, device, unknowns):
+@pytest.mark.parametrize("tolerance", [0.0, 0.6])
+def test_median_flow_matches_reference(radius, tolerance, device, unknowns):
     from lfsf.kernels import median
 
     h, w = 7, 9
@@ -1140,13 +1141,36 @@ def test_median_flow_matches_reference(radius, device, unknowns):
     x = r.standard_normal((h, w, 4)).astype(np.float32)
     x[..., 3] = np.round(x[..., 3] * 2) / 2  # many ties
     x[:3, :4, 2] = 0.25  # a constant patch: every value ties
+    if unknowns != "vec4":
+        x[..., :2] = 0  # flow only: δ1 reads as 0, every pixel takes part
     out = unknowns_zeros((h, w), unknowns, device)
-    launch(median.median_flow, (h, w), [unknowns_arr(x, unknowns, device), radius], [out], device)
+    launch(median.median_flow, (h, w), [unknowns_arr(x, unknowns, device), radius, tolerance], [out], device)
     got = out.numpy()
-    want = ref.median_flow(x, radius)
+    want = ref.median_flow(x, radius, tolerance)
     np.testing.assert_array_equal(got, flow_part(want, unknowns).astype(np.float32))
     if unknowns == "vec4":
         np.testing.assert_array_equal(got[..., :2], x[..., :2])
+
+
+def test_median_keeps_to_the_centre_pixels_surface(device):
+    """Across a depth edge, the median takes the flow of the centre pixel's own surface:
+    a near object (δ1 = 1) moving by 3 px whose window is mostly background (δ1 = −1,
+    moving by 1 px) keeps its 3 px with a tolerance, and loses it to the background's
+    1 px without one."""
+    from lfsf.kernels import median
+
+    h, w = 9, 9
+    x = np.zeros((h, w, 4), np.float32)
+    x[..., 0] = -1.0
+    x[..., 2] = 1.0
+    x[3:6, 3:6, 0] = 1.0  # a 3×3 near object, 9 of the centre's 25 window pixels
+    x[3:6, 3:6, 2] = 3.0
+    for tolerance, want in ((0.5, 3.0), (0.0, 1.0)):
+        out = unknowns_zeros((h, w), "vec4", device)
+        launch(median.median_flow, (h, w), [unknowns_arr(x, "vec4", device), 2, tolerance], [out], device)
+        got = out.numpy()
+        assert got[4, 4, 2] == want and got[3, 3, 2] == want
+        assert got[0, 0, 2] == 1.0  # the background keeps its own flow either way
 
 
 def test_median_networks_select_the_median_and_match_their_generator():
