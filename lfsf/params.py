@@ -28,7 +28,8 @@ class Params:
             the mean, the other side is left out of that pixel's stereo rows (0: off).
         visibility : geometric visibility of the side views (an addition to the paper,
             :mod:`lfsf.kernels.occlusion`): view z-buffers of the current disparities say
-            which samples a point nearer by more than ``occlusion_margin`` covers; those
+            which samples a point nearer by more than ``occlusion_margin`` covers (px per
+            view step at full resolution, scaled with the level in the data rows); those
             are left out of the data rows, of the plane sweep's second pass and of the
             fusion of searched values. False: the best-half test alone decides. Where the
             background has little texture, the best half favours the foreground's

@@ -1194,9 +1194,10 @@ def test_median_networks_select_the_median_and_match_their_generator():
 # --- solver energy -------------------------------------------------------------------------
 
 
-def _level_solver(size, grid, params, device):
+def _level_solver(size, grid, params, device, level_scale=1.0):
     """A LevelSolver for the finest level of a small synthetic pair, built as
-    lfsf.estimate does (sampling, texture split), started at x = 0."""
+    lfsf.estimate does (sampling, texture split), started at x = 0 (``level_scale``: as if
+    it were a coarser level of a larger image)."""
     from lfsf import synth
     from lfsf.estimate import _structure_texture
     from lfsf.kernels import sampling
@@ -1219,9 +1220,31 @@ def _level_solver(size, grid, params, device):
     centres = [wp.clone(s[0]) for s in stacks]
     textures = [_structure_texture(s, params, device) for s in stacks]
     solver = LevelSolver(textures[0], textures[1], centres[0], centres[1], wp_phis,
-                         arr(weights, wp.vec3, device), params, device)
+                         arr(weights, wp.vec3, device), params, device, level_scale=level_scale)
     solver.set_state(np.zeros((h, w, 4), np.float32))
     return solver
+
+
+def test_view_visibility_margin_scales_with_the_level(device):
+    """``occlusion_margin`` is in px per view step at full resolution, and disparities
+    shrink with the level: a step of 0.2 (level px per view step) hides no background
+    sample on the full-resolution level (margin 0.25) but does on a level of half the
+    width (margin 0.125)."""
+    from lfsf.params import Params
+
+    params = Params.preset("fast").replace(radius=2.0, rof_iterations=20)
+    x = np.zeros((30, 40, 4), np.float32)
+    x[10:20, 15:25, :2] = 0.2  # a near square, at t1 and t2
+    background = x[..., 0] == 0
+    kept = {}
+    for name, scale, state in (("flat", 1.0, np.zeros_like(x)), ("full", 1.0, x), ("half", 0.5, x)):
+        solver = _level_solver((40, 30), 5, params, device, level_scale=scale)
+        solver.set_state(state)
+        solver.linearise()
+        _, (w1, _, _) = solver.data_rows()
+        kept[name] = int((w1[:, background] > 0).sum())
+    assert kept["full"] == kept["flat"]
+    assert kept["half"] < kept["full"]
 
 
 def _linearised_problem(solver):
