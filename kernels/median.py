@@ -85,6 +85,24 @@ def gathered_flow_median(x: wp.array2d(dtype=Any), i: int, j: int, radius: int, 
 
 
 @wp.func
+def window_pixel(x: wp.array2d(dtype=Any), i: int, j: int, c: int, side: int, radius: int):
+    """The c-th pixel (row-major) of the side × side window at (i, j), clamped at the
+    borders, as (δ1, δ2, u, v)."""
+    row = wp.clamp(i + c // side - radius, 0, x.shape[0] - 1)
+    return to_vec4(x[row, wp.clamp(j + c % side - radius, 0, x.shape[1] - 1)])
+
+
+@wp.func
+def rank_count(v: float, vc: float, less: int, equal: int):
+    """The counts of values below and equal to vc, with v counted in."""
+    if v < vc:
+        return less + 1, equal
+    if v == vc:
+        return less, equal + 1
+    return less, equal
+
+
+@wp.func
 def window_median(x: wp.array2d(dtype=Any), i: int, j: int, k: int, radius: int, tolerance: float):
     """Median of component k of x over the (2r+1)² window at (i, j), clamped at the borders,
     over the pixels on the centre pixel's surface (module docstring; with the centre value
@@ -92,43 +110,29 @@ def window_median(x: wp.array2d(dtype=Any), i: int, j: int, k: int, radius: int,
 
     Rank selection: the value with fewer than m smaller and at least m+1 smaller-or-equal
     values, m = n//2, is the median (no sorting, no scratch memory)."""
-    h = x.shape[0]
-    w = x.shape[1]
     side = 2 * radius + 1
     n_window = side * side
     centre = to_vec4(x[i, j])
     d1 = centre[0]
     n = int(0)
     for c in range(n_window):
-        if same_surface(to_vec4(x[wp.clamp(i + c // side - radius, 0, h - 1), wp.clamp(j + c % side - radius, 0, w - 1)])[0],
-                        d1, tolerance):
+        if same_surface(window_pixel(x, i, j, c, side, radius)[0], d1, tolerance):
             n += 1
     extra = 1 - n % 2  # the centre's value once more where the count is even
     m = (n + extra) // 2
     result = centre[k]
     for c in range(n_window):
-        row = wp.clamp(i + c // side - radius, 0, h - 1)
-        col = wp.clamp(j + c % side - radius, 0, w - 1)
-        value = to_vec4(x[row, col])
+        value = window_pixel(x, i, j, c, side, radius)
         if same_surface(value[0], d1, tolerance):
             vc = value[k]
             less = int(0)
             equal = int(0)
             if extra == 1:
-                if centre[k] < vc:
-                    less += 1
-                elif centre[k] == vc:
-                    equal += 1
+                less, equal = rank_count(centre[k], vc, less, equal)
             for d in range(n_window):
-                rd = wp.clamp(i + d // side - radius, 0, h - 1)
-                cd = wp.clamp(j + d % side - radius, 0, w - 1)
-                other = to_vec4(x[rd, cd])
+                other = window_pixel(x, i, j, d, side, radius)
                 if same_surface(other[0], d1, tolerance):
-                    vd = other[k]
-                    if vd < vc:
-                        less += 1
-                    elif vd == vc:
-                        equal += 1
+                    less, equal = rank_count(other[k], vc, less, equal)
             if less <= m and m < less + equal:
                 result = vc
     return result
