@@ -87,8 +87,8 @@ class Params:
             whose δ1 is within τ of the centre pixel's take part in its median, so that a
             window across a depth edge does not mix two objects' flows (an addition; 0: all
             of them, Wedel et al.'s plain median; :mod:`lfsf.kernels.median`). It scales
-            with the level. 320×240 flow EPE (τ = 0 → 0.5): `paper` 0.067 → 0.061,
-            `large_motion` 0.104 → 0.058.
+            with the level. 320×240 flow EPE (τ = 0 → 0.5): `paper` 0.067 → 0.063,
+            `large_motion` 0.104 → 0.057 (README, Accuracy).
         eps : ε added to the preconditioners' denominators.
         step_ratio : c, the balance of primal and dual steps: every τ is multiplied and
             every σ divided by it. The preconditioners' convergence guarantee
@@ -229,7 +229,8 @@ class Params:
              "max_levels, rof_iterations and median_radius must be ≥ 0")
         need(self.warm_levels >= 0, f"warm_levels must be ≥ 0, got {self.warm_levels}")
         need(self.median_radius <= 3, f"median_radius must be at most 3, got {self.median_radius}")
-        need(math.isfinite(self.median_tolerance) and self.median_tolerance >= 0, f"median_tolerance must be ≥ 0, got {self.median_tolerance}")
+        need(math.isfinite(self.median_tolerance) and self.median_tolerance >= 0,
+             f"median_tolerance must be ≥ 0, got {self.median_tolerance}")
         need(math.isfinite(self.disparity_range) and self.disparity_range > 0,
              f"disparity_range must be positive, got {self.disparity_range}")
         need(0 <= self.search_radius <= 5, f"search_radius must be in 0…5, got {self.search_radius}")
