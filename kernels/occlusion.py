@@ -156,6 +156,12 @@ def splat_views(
                 wp.atomic_max(zbuf, s, ii, jj, d)
 
 
+@wp.func
+def gaussian_weight(d: int, sigma: float):
+    """exp(−d²/2σ²): the weight of a pixel d steps away in both passes of the fill."""
+    return wp.exp(-float(d * d) / (2.0 * sigma * sigma))
+
+
 @wp.kernel
 def depth_change_rows(
     row0: int,
@@ -178,7 +184,7 @@ def depth_change_rows(
         jj = j + dx
         if jj >= 0 and jj < w:
             if hidden[i, jj] <= 0.5:
-                g = wp.exp(-float(dx * dx) / (2.0 * sigma * sigma))
+                g = gaussian_weight(dx, sigma)
                 v = x[i, jj]
                 acc += wp.vec2(g * (v[1] - v[0]), g)
     sums[i, j] = acc
@@ -210,7 +216,7 @@ def fill_hidden_depth(
         for dy in range(-radius, radius + 1):
             ii = i + dy
             if ii >= 0 and ii < h:
-                acc += wp.exp(-float(dy * dy) / (2.0 * sigma * sigma)) * sums[ii, j]
+                acc += gaussian_weight(dy, sigma) * sums[ii, j]
         change = float(0.0)
         if acc[1] > 1.0e-6:
             change = acc[0] / acc[1]
