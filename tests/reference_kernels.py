@@ -411,8 +411,9 @@ def central_gradient(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def diffusion_tensor(img: np.ndarray, gamma: float, beta: float) -> np.ndarray:
-    """Γ = exp(−γ|∇I|^β) n nᵀ + n⊥ n⊥ᵀ as a (h, w, 2, 2) array; identity where ∇I = 0."""
-    gx, gy = central_gradient(img)
+    """Γ = exp(−γ|∇I|^β) n nᵀ + n⊥ n⊥ᵀ as a (h, w, 2, 2) array, ∇I by forward differences
+    (:func:`grad`); identity where ∇I = 0."""
+    gx, gy = grad(img)
     mag = np.hypot(gx, gy)
     flat = mag <= 1e-12
     safe = np.where(flat, 1.0, mag)
@@ -426,8 +427,9 @@ def joint_diffusion_tensor(img: np.ndarray, disparity: np.ndarray, weight: float
                            beta: float) -> np.ndarray:
     """Γ of the two-channel guide (I, weight·δ) as (h, w, 2, 2): n and m² the leading
     eigenvector and eigenvalue of ∇I∇Iᵀ + weight²∇δ∇δᵀ (numpy.linalg.eigh), Γ =
-    exp(−γ m^β) n nᵀ + n⊥ n⊥ᵀ; identity where both gradients vanish."""
-    gx, gy = central_gradient(img)
+    exp(−γ m^β) n nᵀ + n⊥ n⊥ᵀ; identity where both gradients vanish. ∇I by forward
+    differences (:func:`grad`), ∇δ by central ones."""
+    gx, gy = grad(img)
     dx, dy = central_gradient(disparity)
     dx, dy = weight * dx, weight * dy
     J = np.empty(gx.shape + (2, 2))
@@ -488,8 +490,9 @@ def per_unknown(tensor1: np.ndarray, tensor2: np.ndarray, k: int, tensor3: np.nd
 
 
 def tgv_preconditioner(data_colsum, tensor1, tensor2, alpha0, alpha1, eps, tensor3=None):
-    """τ_x, τ_w0, τ_w1, σ_y0, σ_y1 (each (h, w, 4)) from the exact abs row/column sums of
-    :func:`tgv_matrix` (data column sums added to τ_x), and σ_z (one per z row, (4, h, w, 4))."""
+    """τ_x, τ_w0, τ_w1, σ_y0 = σ_y1 (each (h, w, 4)) from the exact abs row/column sums of
+    :func:`tgv_matrix` (data column sums added to τ_x; σ_y from the larger of y's two
+    rows), and σ_z (one per z row, (4, h, w, 4))."""
     h, w = tensor1.shape[:2]
     out = {k: np.zeros((h, w, 4)) for k in ("tau_x", "tau_w0", "tau_w1", "sigma_y0", "sigma_y1")}
     zrows = np.zeros((4, h, w, 4))
@@ -500,8 +503,9 @@ def tgv_preconditioner(data_colsum, tensor1, tensor2, alpha0, alpha1, eps, tenso
         out["tau_x"][..., k] = 1.0 / (data_colsum[..., k] + col[0] + eps)
         out["tau_w0"][..., k] = 1.0 / (col[1] + eps)
         out["tau_w1"][..., k] = 1.0 / (col[2] + eps)
-        out["sigma_y0"][..., k] = 1.0 / (row[0] + eps)
-        out["sigma_y1"][..., k] = 1.0 / (row[1] + eps)
+        # both components of y(p) share the step of the larger row sum (the projection
+        # onto |y| ≤ 1 is the prox only in a metric that treats them alike)
+        out["sigma_y0"][..., k] = out["sigma_y1"][..., k] = 1.0 / (np.maximum(row[0], row[1]) + eps)
         zrows[..., k] = row[2:]
     return out, zrows
 

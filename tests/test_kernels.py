@@ -853,7 +853,7 @@ def test_dual_data_step_matches_reference(device, span, unknowns):
 
 def _image_with_flat_patch(seed, h=7, w=9, patch=(3, 4)):
     img = rng(seed).random((h, w)).astype(np.float32)
-    img[:patch[0], :patch[1]] = 0.4  # ∇I = 0 inside the patch (central differences, clamped)
+    img[:patch[0], :patch[1]] = 0.4  # ∇I = 0 inside the patch (but its last row and column)
     return img
 
 
@@ -875,7 +875,7 @@ def test_diffusion_tensor_matches_reference(gamma, beta, device):
     # identity where ∇I = 0
     close(got[:2, :3], np.broadcast_to([1.0, 0.0, 1.0], (2, 3, 3)))
     # symmetric positive definite, eigenvalues e = exp(−γ|∇I|^β) (along n) and 1
-    gx, gy = ref.central_gradient(img)
+    gx, gy = ref.grad(img)
     mag = np.hypot(gx, gy)
     e = np.exp(-gamma * mag**beta)
     mats = np.stack([got[..., 0], got[..., 1], got[..., 1], got[..., 2]], -1).reshape(*img.shape, 2, 2)
@@ -1305,22 +1305,22 @@ def test_level_solver_iterates_the_preconditioned_primal_dual(device, small_para
     assert abs(e_kernel - e_numpy) < 1e-4 * e_numpy, (e_kernel, e_numpy)
 
 
-def test_level_solver_reaches_the_minimum_of_the_linearised_energy(device, small_params):
+@pytest.mark.parametrize("visibility", [True, False])  # the view z-buffers' rows, or the best half's
+def test_level_solver_reaches_the_minimum_of_the_linearised_energy(device, small_params, visibility):
     """The preconditioned kernels and a plain scalar-step Chambolle–Pock in NumPy, on the
-    same linearised problem, end at nearly the same energy. (The problem is the one the
-    best-half occlusion test makes: with the view z-buffers' rows the float32 kernels
-    settle 0.24 % above NumPy's energy after 4000 iterations, where the test allows 0.2 %;
-    the iteration kernels are the same either way, and test_level_solver_iterates_the_
-    preconditioned_primal_dual checks them step by step.)"""
-    solver = _level_solver((14, 12), 3, small_params.replace(visibility=False), device)
+    same linearised problem, end at the same energy (within 10⁻⁴). Both components of
+    each y(p) must share one step: with σ_y0 ≠ σ_y1 (each row's own sum) the projection
+    onto |y| ≤ 1 is not the prox in the preconditioned metric, and the kernels settled
+    0.3 % above the minimum however long they ran (238.94 against 238.07 here)."""
+    solver = _level_solver((14, 12), 3, small_params.replace(visibility=visibility), device)
     solver.linearise()
     problem = _linearised_problem(solver)
     e_start = solver.energy()
-    solver.iterate(1000)
+    solver.iterate(2000)
     e_kernel = solver.energy()
-    e_numpy = problem.energy(*problem.solve(3000))
+    e_numpy = problem.energy(*problem.solve(12000))
     assert e_kernel < e_start
-    assert abs(e_kernel - e_numpy) < 2e-3 * e_numpy, (e_start, e_kernel, e_numpy)
+    assert abs(e_kernel - e_numpy) < 1e-4 * e_numpy, (e_start, e_kernel, e_numpy)
 
 
 # --- geometric occlusion at t2 -------------------------------------------------------------------
