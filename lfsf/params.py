@@ -67,7 +67,8 @@ class Params:
             took the synthetic gmean δ1 / δ2 / EPE from 0.0021 / 0.038 / 0.065 to
             0.0018 / 0.038 / 0.066 (α0 = 4: 0.0017 / 0.034 / 0.065, HCI 3.9, but
             `large_motion` δ2 0.431 at 160×120 against its bar of 0.419; α0 = 6: 0.388).
-        gamma, beta : γ, β of Γ = exp(−γ|∇I|^β) n nᵀ + n⊥ n⊥ᵀ.
+        gamma, beta : γ, β of Γ = exp(−γ|∇I|^β) n nᵀ + n⊥ n⊥ᵀ (∇I by forward differences,
+            as ∇ of the unknowns).
         flow_edge_weight : the flow's tensor Γ_uv is that of the two-channel guide (I1,
             c·δ̂1) with c this weight: depth edges, where objects at different depths
             move differently, let the flow jump too (an addition; 0: Γ_t1, the paper).

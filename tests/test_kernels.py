@@ -888,6 +888,19 @@ def test_diffusion_tensor_matches_reference(gamma, beta, device):
     close(np.einsum("...ij,...j->...i", mats, g), e[..., None] * g, atol=2e-5)
 
 
+def test_diffusion_tensor_frees_the_jump_across_the_image_edge_only(device):
+    """A vertical step edge between columns 3 and 4: Γ weighs the forward difference
+    x(p + e_x) − x(p), so it must be small (exp(−γ|∇I|^β) across the edge) at column 3
+    alone; at columns 2 and 4, whose forward differences do not cross the edge, Γ is the
+    identity (central differences made it small at both)."""
+    img = np.zeros((5, 8), np.float32)
+    img[:, 4:] = 1.0
+    got = _run_tensor(img, 10.0, 0.7, device)
+    close(got[:, 3], np.broadcast_to([np.exp(-10.0), 0.0, 1.0], (5, 3)), atol=1e-6)
+    for col in (0, 1, 2, 4, 5, 6, 7):
+        close(got[:, col], np.broadcast_to([1.0, 0.0, 1.0], (5, 3)))
+
+
 @pytest.mark.parametrize("weight", [0.0, 0.5, 3.0])
 def test_joint_diffusion_tensor_matches_reference(weight, device):
     """Γ of the guide (I, c·δ1): the eigen-decomposition by NumPy; with c = 0 it is the
