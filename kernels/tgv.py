@@ -19,7 +19,7 @@ from typing import Any
 
 import warp as wp
 
-from .common import at_least, forward_gradient, overload_unknowns, pixel, to_vec4
+from .common import at_least, forward_gradient, overload_unknowns, to_vec4
 
 wp.set_module_options({"enable_backward": False})
 
