@@ -148,13 +148,12 @@ def tgv_preconditioner(
     tau_x: wp.array2d(dtype=Any),
     tau_w0: wp.array2d(dtype=Any),
     tau_w1: wp.array2d(dtype=Any),
-    sigma_y0: wp.array2d(dtype=Any),
-    sigma_y1: wp.array2d(dtype=Any),
+    sigma_y: wp.array2d(dtype=Any),
 ):
     """Diagonal preconditioners of Pock & Chambolle (2011), α = 1: τ = 1/Σ_row|K| per
-    primal column (data part given), σ = 1/Σ_col|K| per TGV dual row, the larger sum of
-    the two rows of y(p) for both (σ_y0 = σ_y1; σ_z = 1/(2α0) is a constant), so that each
-    projection onto a ball is the proximal step in the preconditioned metric; then τ·c
+    primal column (data part given), σ = 1/Σ_col|K| per TGV dual row: σ_y from the larger
+    sum of the two rows of y(p), one step for both (σ_z = 1/(2α0) is a constant), so that
+    each projection onto a ball is the proximal step in the preconditioned metric; then τ·c
     and σ/c for the step ratio c (:class:`lfsf.Params` ``step_ratio``). Launch over
     (rows, columns)."""
     i, j = wp.tid()
@@ -189,9 +188,7 @@ def tgv_preconditioner(
     # one step for both components of y(p): its projection onto |y| ≤ 1 is the prox of the
     # dual only in a metric that treats them alike (σ_y0 ≠ σ_y1 made the iteration settle
     # above the minimum); the smaller of the two keeps Pock–Chambolle's bound
-    sigma = reciprocal(alpha1 * wp.max(row0_sum, row1_sum), eps) / step_ratio
-    sigma_y0[i, j] = sigma
-    sigma_y1[i, j] = sigma
+    sigma_y[i, j] = reciprocal(alpha1 * wp.max(row0_sum, row1_sum), eps) / step_ratio
 
 
 @wp.kernel
@@ -203,8 +200,7 @@ def tgv_dual_step(
     tensor1: wp.array2d(dtype=wp.vec3),
     tensor2: wp.array2d(dtype=wp.vec3),
     tensor3: wp.array2d(dtype=wp.vec3),
-    sigma_y0: wp.array2d(dtype=Any),
-    sigma_y1: wp.array2d(dtype=Any),
+    sigma_y: wp.array2d(dtype=Any),
     sigma_z: float,
     alpha0: float,
     alpha1: float,
@@ -252,8 +248,9 @@ def tgv_dual_step(
         r0 = gx - wb0
         r1 = gy - wb1
         g00, g01, g11 = tensor_per_unknown(tensor1[i, j], tensor2[i, j], tensor3[i, j], xb)
-        n0 = y0[i, j] + alpha1 * wp.cw_mul(sigma_y0[i, j], wp.cw_mul(g00, r0) + wp.cw_mul(g01, r1))
-        n1 = y1[i, j] + alpha1 * wp.cw_mul(sigma_y1[i, j], wp.cw_mul(g01, r0) + wp.cw_mul(g11, r1))
+        sy = sigma_y[i, j]
+        n0 = y0[i, j] + alpha1 * wp.cw_mul(sy, wp.cw_mul(g00, r0) + wp.cw_mul(g01, r1))
+        n1 = y1[i, j] + alpha1 * wp.cw_mul(sy, wp.cw_mul(g01, r0) + wp.cw_mul(g11, r1))
         m00 = z00[i, j] + (sigma_z * alpha0) * dx0
         m01 = z01[i, j] + (sigma_z * alpha0) * dy0
         m10 = z10[i, j] + (sigma_z * alpha0) * dx1
@@ -368,8 +365,8 @@ def tgv_primal_step(
 
 # the kernels on the unknowns, for vec4 (δ1, δ2, u, v) and vec2 (u, v; flow only)
 overload_unknowns(joint_diffusion_tensor, "x_hat")
-overload_unknowns(tgv_preconditioner, "data_colsum", "tau_x", "tau_w0", "tau_w1", "sigma_y0", "sigma_y1")
-overload_unknowns(tgv_dual_step, "x_bar", "w0_bar", "w1_bar", "sigma_y0", "sigma_y1", "y0", "y1", "z00", "z01",
+overload_unknowns(tgv_preconditioner, "data_colsum", "tau_x", "tau_w0", "tau_w1", "sigma_y")
+overload_unknowns(tgv_dual_step, "x_bar", "w0_bar", "w1_bar", "sigma_y", "y0", "y1", "z00", "z01",
                   "z10", "z11")
 overload_unknowns(tgv_primal_step, "data_grad", "y0", "y1", "z00", "z01", "z10", "z11", "tau_x", "tau_w0", "tau_w1",
                   "x", "w0", "w1", "x_bar", "w0_bar", "w1_bar")

@@ -182,7 +182,7 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
     y0, y1, z00, z01, z10, z11 = (v4(0.1) for _ in range(6))
     x, w0, w1 = v4(), v4(), v4()
     tau = [arr(rng.uniform(0.05, 0.5, (h, w, 4)), wp.vec4) for _ in range(3)]
-    sig = [arr(rng.uniform(0.05, 0.5, (h, w, 4)), wp.vec4) for _ in range(2)]
+    sigma_y = arr(rng.uniform(0.05, 0.5, (h, w, 4)), wp.vec4)
     cases = [
         # reads 4 neighbouring views per sample, writes the sample
         ("sample_subaperture", launch(sampling.sample_subaperture, [views, 9, 9, wp_phis, span], [sampled],
@@ -199,10 +199,10 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
         ("dual_data_step", launch(data_term.dual_data_step, [coef, weights, x_bar, x_hat, span], [q, data_grad],
                                   dim=(h, per_row)),
          f * h * w * (12 * s + 4 + 4 + 3 * s + 3 * s + 4)),
-        # reads x̄, w̄ (8), three tensors (9), σ_y (8) and the six duals (24); writes the duals (24)
-        ("tgv_dual_step", launch(tgv.tgv_dual_step, [x_bar, w0_bar, w1_bar, t1, t2, t3, sig[0], sig[1], 0.25, 2.0, 0.5,
+        # reads x̄, w̄ (8), three tensors (9), σ_y (4) and the six duals (24); writes the duals (24)
+        ("tgv_dual_step", launch(tgv.tgv_dual_step, [x_bar, w0_bar, w1_bar, t1, t2, t3, sigma_y, 0.25, 2.0, 0.5,
                                                      span], [y0, y1, z00, z01, z10, z11], dim=(h, per_row)),
-         f * h * w * (12 + 9 + 8 + 24 + 24)),
+         f * h * w * (12 + 9 + 4 + 24 + 24)),
         # reads Kᵀq (4), the duals (24), tensors (9), τ (12), x and w (12); writes x, w and their bars (24)
         ("tgv_primal_step", launch(tgv.tgv_primal_step,
                                    [data_grad, y0, y1, z00, z01, z10, z11, t1, t2, t3, tau[0], tau[1], tau[2], 2.0,

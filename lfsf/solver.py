@@ -96,7 +96,7 @@ class LevelSolver:
         self.z00, self.z01, self.z10, self.z11 = zeros4(), zeros4(), zeros4(), zeros4()
         # preconditioners
         self.tau_x, self.tau_w0, self.tau_w1 = zeros4(), zeros4(), zeros4()
-        self.sigma_y0, self.sigma_y1 = zeros4(), zeros4()
+        self.sigma_y = zeros4()  # one step for both components of y (tgv_preconditioner)
         self.scratch = zeros4()
         # geometric occlusion at t2: z-buffer of δ2 and the hidden mask
         self.zbuf = wp.zeros((h, w), dtype=float, device=device)
@@ -179,7 +179,7 @@ class LevelSolver:
         self._launch(tgv.tgv_preconditioner,
                      inputs=[self.data_colsum, self.tensor1, self.tensor2, self.tensor3, p.alpha0, p.alpha1, p.eps,
                              p.step_ratio],
-                     outputs=[self.tau_x, self.tau_w0, self.tau_w1, self.sigma_y0, self.sigma_y1])
+                     outputs=[self.tau_x, self.tau_w0, self.tau_w1, self.sigma_y])
 
     def _tensors(self) -> None:
         """Γ_t2 and Γ_uv at x̂, at the start of the level (``set_state``). Γ_t2 is the
@@ -297,7 +297,7 @@ class LevelSolver:
                    outputs=[self.q, self.data_grad]),
             record(tgv.tgv_dual_step,
                    inputs=[self.x_bar, self.w0_bar, self.w1_bar, self.tensor1, self.tensor2, self.tensor3,
-                           self.sigma_y0, self.sigma_y1, sigma_z, p.alpha0, p.alpha1, self.span],
+                           self.sigma_y, sigma_z, p.alpha0, p.alpha1, self.span],
                    outputs=[self.y0, self.y1, self.z00, self.z01, self.z10, self.z11]),
             record(tgv.tgv_primal_step,
                    inputs=[self.data_grad, self.y0, self.y1, self.z00, self.z01, self.z10, self.z11,

@@ -490,11 +490,11 @@ def per_unknown(tensor1: np.ndarray, tensor2: np.ndarray, k: int, tensor3: np.nd
 
 
 def tgv_preconditioner(data_colsum, tensor1, tensor2, alpha0, alpha1, eps, tensor3=None):
-    """τ_x, τ_w0, τ_w1, σ_y0 = σ_y1 (each (h, w, 4)) from the exact abs row/column sums of
+    """τ_x, τ_w0, τ_w1, σ_y (each (h, w, 4)) from the exact abs row/column sums of
     :func:`tgv_matrix` (data column sums added to τ_x; σ_y from the larger of y's two
     rows), and σ_z (one per z row, (4, h, w, 4))."""
     h, w = tensor1.shape[:2]
-    out = {k: np.zeros((h, w, 4)) for k in ("tau_x", "tau_w0", "tau_w1", "sigma_y0", "sigma_y1")}
+    out = {k: np.zeros((h, w, 4)) for k in ("tau_x", "tau_w0", "tau_w1", "sigma_y")}
     zrows = np.zeros((4, h, w, 4))
     for k in range(4):
         K = np.abs(tgv_matrix(per_unknown(tensor1, tensor2, k, tensor3), alpha0, alpha1))
@@ -505,7 +505,7 @@ def tgv_preconditioner(data_colsum, tensor1, tensor2, alpha0, alpha1, eps, tenso
         out["tau_w1"][..., k] = 1.0 / (col[2] + eps)
         # both components of y(p) share the step of the larger row sum (the projection
         # onto |y| ≤ 1 is the prox only in a metric that treats them alike)
-        out["sigma_y0"][..., k] = out["sigma_y1"][..., k] = 1.0 / (np.maximum(row[0], row[1]) + eps)
+        out["sigma_y"][..., k] = 1.0 / (np.maximum(row[0], row[1]) + eps)
         zrows[..., k] = row[2:]
     return out, zrows
 
@@ -515,7 +515,7 @@ def _pack(x, w0, w1, k):
     return np.concatenate([x[..., k].ravel(), w0[..., k].ravel(), w1[..., k].ravel()])
 
 
-def tgv_dual_step(x_bar, w0_bar, w1_bar, tensor1, tensor2, sigma_y0, sigma_y1, sigma_z, alpha0, alpha1,
+def tgv_dual_step(x_bar, w0_bar, w1_bar, tensor1, tensor2, sigma_y, sigma_z, alpha0, alpha1,
                   y0, y1, z00, z01, z10, z11, tensor3=None):
     """D ← proj(D + Σ K P̄) per unknown with K = :func:`tgv_matrix`: y = (y0, y1) onto
     |y| ≤ 1, z = (z00, z01, z10, z11) onto Frobenius norm ≤ 1. Returns the six new duals."""
@@ -524,7 +524,7 @@ def tgv_dual_step(x_bar, w0_bar, w1_bar, tensor1, tensor2, sigma_y0, sigma_y1, s
     for k in range(4):
         K = tgv_matrix(per_unknown(tensor1, tensor2, k, tensor3), alpha0, alpha1)
         kp = (K @ _pack(x_bar, w0_bar, w1_bar, k)).reshape(6, h, w)
-        steps = [sigma_y0[..., k], sigma_y1[..., k]] + [sigma_z] * 4
+        steps = [sigma_y[..., k]] * 2 + [sigma_z] * 4
         new = [duals[m][..., k] + steps[m] * kp[m] for m in range(6)]
         ny = np.maximum(1.0, np.hypot(new[0], new[1]))
         nz = np.maximum(1.0, np.sqrt(sum(a * a for a in new[2:])))
@@ -654,7 +654,7 @@ class LinearisedProblem:
             sigma = [step] * 7
             tau = [step] * 3
         else:
-            sigma = [steps["sigma_q"], steps["sigma_y0"], steps["sigma_y1"]] + [steps["sigma_z"]] * 4
+            sigma = [steps["sigma_q"], steps["sigma_y"], steps["sigma_y"]] + [steps["sigma_z"]] * 4
             tau = [steps["tau_x"], steps["tau_w0"], steps["tau_w1"]]
         P = [self.x_hat.copy(), np.zeros(shape), np.zeros(shape)]
         P_bar = [p.copy() for p in P]

@@ -117,7 +117,7 @@ def test_captured_loop_runs_its_steps_n_times_in_order(bands):
 
     start = fields()
     tensor = np.stack([np.ones((h, w)), np.zeros((h, w)), np.ones((h, w))], -1).astype(np.float32)
-    steps_ = {k: np.full((h, w, 4), 0.2, np.float32) for k in ("sy0", "sy1", "tx", "tw0", "tw1")}
+    steps_ = {k: np.full((h, w, 4), 0.2, np.float32) for k in ("sy", "tx", "tw0", "tw1")}
 
     def buffers():
         b = {k: wp.array(v, dtype=wp.vec4, device="cpu") for k, v in start.items()}
@@ -127,7 +127,7 @@ def test_captured_loop_runs_its_steps_n_times_in_order(bands):
         return b
 
     def args(b):
-        dual = ([b["x_bar"], b["w0_bar"], b["w1_bar"], b["t"], b["t"], b["t"], b["sy0"], b["sy1"], 0.25, 2.0, 0.5, w],
+        dual = ([b["x_bar"], b["w0_bar"], b["w1_bar"], b["t"], b["t"], b["t"], b["sy"], 0.25, 2.0, 0.5, w],
                 [b["y0"], b["y1"], b["z00"], b["z01"], b["z10"], b["z11"]])
         primal = ([b["grad"], b["y0"], b["y1"], b["z00"], b["z01"], b["z10"], b["z11"], b["t"], b["t"], b["t"],
                    b["tx"], b["tw0"], b["tw1"], 2.0, 0.5, w],

@@ -993,13 +993,13 @@ def test_tgv_preconditioner_is_abs_sums_of_K(device, unknowns, step_ratio):
     t1, t2, t3 = _tgv_setting(13, h, w)
     assert np.any(t1[..., 1] < 0) and np.any(t1[..., 1] > 0)
     data_colsum = rng(14).uniform(0.0, 3.0, (h, w, 4)).astype(np.float32)
-    outs = [unknowns_zeros((h, w), unknowns, device) for _ in range(5)]
+    outs = [unknowns_zeros((h, w), unknowns, device) for _ in range(4)]
     launch(tgv.tgv_preconditioner, (h, w),
            [unknowns_arr(data_colsum, unknowns, device), arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(t3, wp.vec3, device),
             alpha0, alpha1, eps, step_ratio], outs, device)
     want, zrows = ref.tgv_preconditioner(data_colsum.astype(np.float64), t1.astype(np.float64),
                                          t2.astype(np.float64), alpha0, alpha1, eps, t3.astype(np.float64))
-    for name, got in zip(("tau_x", "tau_w0", "tau_w1", "sigma_y0", "sigma_y1"), outs):
+    for name, got in zip(("tau_x", "tau_w0", "tau_w1", "sigma_y"), outs):
         scale = step_ratio if name.startswith("tau") else 1.0 / step_ratio
         np.testing.assert_allclose(got.numpy(), scale * flow_part(want[name], unknowns), rtol=1e-5, err_msg=name)
     # σ_z = 1/(2α0) (the solver's constant) is 1/row sum of every nonzero z row
@@ -1023,16 +1023,15 @@ def test_tgv_dual_step_matches_reference(device, span, unknowns):
     t1, t2, t3 = _tgv_setting(15, h, w)
     x_bar, w0_bar, w1_bar, y0, y1, z00, z01, z10, z11 = _tgv_fields(16, h, w, 0.5)
     r = rng(17)
-    sigma_y0 = r.uniform(0.1, 0.8, (h, w, 4)).astype(np.float32)
-    sigma_y1 = r.uniform(0.1, 0.8, (h, w, 4)).astype(np.float32)
+    sigma_y = r.uniform(0.1, 0.8, (h, w, 4)).astype(np.float32)
     sigma_z = 1.0 / (2.0 * alpha0)
     duals = [unknowns_arr(a, unknowns, device) for a in (y0, y1, z00, z01, z10, z11)]
     launch(tgv.tgv_dual_step, (h, -(-w // span)),
            [unknowns_arr(x_bar, unknowns, device), unknowns_arr(w0_bar, unknowns, device),
             unknowns_arr(w1_bar, unknowns, device), arr(t1, wp.vec3, device), arr(t2, wp.vec3, device),
-            arr(t3, wp.vec3, device), unknowns_arr(sigma_y0, unknowns, device), unknowns_arr(sigma_y1, unknowns, device),
+            arr(t3, wp.vec3, device), unknowns_arr(sigma_y, unknowns, device),
             sigma_z, alpha0, alpha1, span], duals, device)
-    want = ref.tgv_dual_step(x_bar, w0_bar, w1_bar, t1, t2, sigma_y0, sigma_y1, sigma_z, alpha0, alpha1,
+    want = ref.tgv_dual_step(x_bar, w0_bar, w1_bar, t1, t2, sigma_y, sigma_z, alpha0, alpha1,
                              y0, y1, z00, z01, z10, z11, t3)
     for name, got, exp in zip(("y0", "y1", "z00", "z01", "z10", "z11"), duals, want):
         np.testing.assert_allclose(got.numpy(), flow_part(exp, unknowns), rtol=1e-5, atol=1e-5, err_msg=name)
@@ -1091,7 +1090,7 @@ def test_tgv_gradient_and_divergence_are_negative_adjoints(device):
     launch(tgv.tgv_dual_step, (h, per_row),
            [arr(x, wp.vec4, device), arr(zeros, wp.vec4, device), arr(wf, wp.vec4, device),
             arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(t3, wp.vec3, device), arr(step * ones, wp.vec4, device),
-            arr(step * ones, wp.vec4, device), step, 1.0, alpha1, span], duals, device)
+            step, 1.0, alpha1, span], duals, device)
     ky0, ky1, gw00, gw01, gw10, gw11 = (d.numpy().astype(np.float64) / step for d in duals)
     # with w0 = 0, w1 = wf: z00, z01 = 0 and (z10, z11) = ∇wf
     close(gw00, 0.0)
