@@ -96,6 +96,9 @@ ProgressFn = Callable[[str], None]
 #: 0.134 / 1.269 / 0.143 → 0.273 / 0.189 / 1.136 / 0.168). A measured rule, not a law.
 FLOW_SEARCH_HALF = 12
 FLOW_SEARCH_WIDTH = 160
+#: Searched matches from t1 to t2 and back agree to within this many pixels (of the
+#: search's level) where both see the same point (:func:`_hidden_matches`).
+MATCH_TOLERANCE = 1.0
 #: A searched value replaces the current one only where its matching cost is lower by
 #: more than this factor: small differences are noise, and flipping on them would break
 #: the symmetry of the model (identical light fields must give δ1 = δ2 and zero flow).
@@ -389,6 +392,38 @@ def _flow_search(centre1, centre2, half: int, search_radius: int, device: str) -
     return best.numpy()
 
 
+def _hidden_matches(forward: np.ndarray, backward: np.ndarray, tolerance: float = MATCH_TOLERANCE) -> np.ndarray:
+    """Pixels of t1 whose searched match belongs to another point (bool (h, w)).
+
+    ``forward`` is the search from t1 to t2 (u(p): p ↦ q = p + u(p)), ``backward`` the
+    search from t2 to t1 on t2's grid. Pixel p is flagged where the backward search
+    from q leads to another pixel, p' = q + u_b(q) with |u(p) + u_b(q)| > ``tolerance``,
+    and that pixel leads back to q, |u_b(q) + u(p')| ≤ ``tolerance``. Two points cannot
+    both be seen at q; p' is, so p is hidden at t2, and what its search found is the
+    point that hides it. Only flags that fill a 2×2 block of pixels are kept: a single
+    flag is block matching's noise, hidden regions are areas."""
+    h, w = forward.shape[:2]
+    at_q = np.zeros((h, w, 4), np.float32)
+    at_q[..., 2:] = forward
+    back_at_q = np.stack([_sample_at_flow(backward[..., c], at_q) for c in (0, 1)], -1)
+    # for every pixel q of t2: does its backward match p' lead back to it?
+    at_p = np.zeros((h, w, 4), np.float32)
+    at_p[..., 2:] = backward
+    forward_at_p = np.stack([_sample_at_flow(forward[..., c], at_p) for c in (0, 1)], -1)
+    owned = (np.hypot(*np.moveaxis(backward + forward_at_p, -1, 0)) <= tolerance).astype(np.float32)
+    flagged = ((np.hypot(*np.moveaxis(forward + back_at_q, -1, 0)) > tolerance)
+               & (_sample_at_flow(owned, at_q) > 0.99))
+    return _keep_blocks(flagged)
+
+
+def _keep_blocks(mask: np.ndarray) -> np.ndarray:
+    """The pixels of ``mask`` that lie in at least one 2×2 block of set pixels (a
+    morphological opening by the 2×2 square)."""
+    block = np.zeros(np.add(mask.shape, 1), bool)
+    block[1:-1, 1:-1] = mask[:-1, :-1] & mask[1:, :-1] & mask[:-1, 1:] & mask[1:, 1:]
+    return block[:-1, :-1] | block[1:, :-1] | block[:-1, 1:] | block[1:, 1:]
+
+
 def _window_flow_cost(centre1, centre2, x: np.ndarray, search_radius: int, device: str) -> np.ndarray:
     from lfsf.kernels import search
 
@@ -400,13 +435,20 @@ def _window_flow_cost(centre1, centre2, x: np.ndarray, search_radius: int, devic
                           device).numpy()[0]
 
 
-def _fuse_flow(x: np.ndarray, centre1, centre2, found: np.ndarray, params: Params, device: str) -> np.ndarray:
-    """Per pixel, keep the flow or take the searched one, whichever matches better."""
+def _fuse_flow(x: np.ndarray, centre1, centre2, found: np.ndarray, params: Params, device: str,
+               hidden: np.ndarray | None = None) -> np.ndarray:
+    """Per pixel, keep the flow or take the searched one, whichever matches better; keep
+    it wherever ``hidden`` (bool (h, w)) says the point is hidden at t2. There no match
+    is the point's own: the search finds the occluder or whatever matches by chance,
+    which then matches better than the true flow and moves the point with its occluder,
+    where the geometric test of the later warps no longer sees it hidden."""
     cand = x.copy()
     cand[..., 2:] = found
     r = params.search_radius
     better = (_window_flow_cost(centre1, centre2, cand, r, device)
               < FUSION_MARGIN * _window_flow_cost(centre1, centre2, x, r, device))
+    if hidden is not None:
+        better &= ~hidden
     out = x.copy()
     out[better, 2:] = found[better]
     return out
@@ -558,8 +600,10 @@ def estimate_scene_flow(
         k = flow_search_level(sizes, params.flow_range)
         half = max(1, int(math.ceil(params.flow_range * sizes[k][1] / width)))
         tex = levels[k][0]
-        flow_found = (_flow_search(wp.clone(tex[0]), wp.clone(tex[n_samples]), half, params.search_radius, dev),
-                      sizes[k])
+        c1, c2 = wp.clone(tex[0]), wp.clone(tex[n_samples])
+        forward = _flow_search(c1, c2, half, params.search_radius, dev)
+        hidden = _hidden_matches(forward, _flow_search(c2, c1, half, params.search_radius, dev))
+        flow_found = (forward, hidden.astype(np.float32), sizes[k])
         lap("search")
     say(f"{width}×{height}, {rows}×{cols} views, {n_samples} samples (R = {radius:g}), "
         f"{len(sizes)} levels on {dev}")
@@ -578,10 +622,13 @@ def estimate_scene_flow(
         elif x is None:
             x = np.zeros((h, w, 4), np.float32)
         if flow_search:
-            found_flow, (search_h, search_w) = flow_found
+            found_flow, hidden, (search_h, search_w) = flow_found
             resized = np.stack([_resize_map(found_flow[..., 0], (h, w), w / search_w, dev),
                                 _resize_map(found_flow[..., 1], (h, w), h / search_h, dev)], -1)
-            x = _fuse_flow(x, s1[0], s2[0], resized, params, dev)
+            # not where the point is hidden at t2: by the searches (its match is another
+            # point's), or by the estimate so far (its flow comes from the regulariser)
+            hidden_here = (_resize_map(hidden, (h, w), 1.0, dev) > 0.01) | solver.hidden_at_t2(x)
+            x = _fuse_flow(x, s1[0], s2[0], resized, params, dev, hidden_here)
             lap("search")
         if search:
             scale = w / width

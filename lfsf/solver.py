@@ -254,6 +254,18 @@ class LevelSolver:
         self._launch(occlusion.spread_hidden, inputs=[self.x_hat, self.scratch1, margin, int(self.params.occlusion_reach)],
                      outputs=[self.hidden2])
 
+    def hidden_at_t2(self, x: np.ndarray) -> np.ndarray:
+        """Where the points of an estimate x (h, w, 4) are hidden at t2 by a nearer
+        point (:meth:`find_hidden`'s test at x̂ = x), as a bool (h, w) array. Leaves the
+        solver's state as it was but for x̂ and ``hidden2``, which :meth:`linearise`
+        sets afresh."""
+        wp = _device.warp()
+        if self.flow_only:
+            return np.zeros(self.shape, bool)
+        wp.copy(self.x_hat, wp.array(np.ascontiguousarray(x, np.float32), dtype=self.vec, device=self.device))
+        self.find_hidden()
+        return self.hidden2.numpy() > 0.5
+
     def fill_hidden(self) -> None:
         """Where a point is hidden at t2 (``hidden2`` of the last linearisation), set δ2 =
         δ1 plus the depth change of the points around it that are seen at t2

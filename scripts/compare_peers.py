@@ -31,6 +31,7 @@ Usage (from the repository root)::
     python scripts/compare_peers.py --real                 # + HCI antinous and Lytro
     python scripts/compare_peers.py --real --no-synth --methods peers
     python scripts/compare_peers.py --methods all --check  # exit 1 if a target fails
+    python scripts/compare_peers.py --random 8 --check     # + 8 scenes drawn at random
 
 ``--methods``: ``peers`` (peers only), ``lfsf`` (lfsf only; no bars), ``all`` (default:
 peers, and lfsf when ``lfsf.estimate_scene_flow`` exists, else a note). Exit status 1 if a
@@ -402,7 +403,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--size", nargs=2, type=int, default=[160, 120], metavar=("W", "H"),
                    help="size of the synthetic views (default 160 120)")
     p.add_argument("--grid", type=int, default=9, help="views per side (default 9)")
-    p.add_argument("--scenes", nargs="+", default=None, help="synthetic scenes (default: all)")
+    p.add_argument("--scenes", nargs="*", default=None,
+                   help="synthetic scenes: built-in names or random-N (default: the built-in ones; "
+                        "'--scenes' alone: none, e.g. with --random)")
+    p.add_argument("--random", type=int, default=0, metavar="N",
+                   help="add N scenes drawn at random (lfsf.synth.random_scene): random-SEED, from "
+                        "--random-from on")
+    p.add_argument("--random-from", type=int, default=0, metavar="SEED",
+                   help="first random scene's seed (default 0)")
     p.add_argument("--methods", choices=("all", "peers", "lfsf"), default="all",
                    help="peers, lfsf, or both (default; lfsf only when it exists)")
     p.add_argument("--real", action="store_true",
@@ -424,10 +432,18 @@ def main(argv=None) -> int:
         return 2
     from lfsf import synth
 
-    scenes = args.scenes or list(synth.list_scenes())
-    unknown = [s for s in scenes if s not in synth.list_scenes()]
+    scenes = list(synth.list_scenes() if args.scenes is None else args.scenes)
+    if args.random:
+        scenes += [f"{synth.RANDOM_PREFIX}{args.random_from + k}" for k in range(args.random)]
+    unknown = []
+    for name in scenes:
+        try:
+            synth.get_scene(name)
+        except ValueError:
+            unknown.append(name)
     if unknown:
-        print(f"error: unknown scene(s) {unknown}; known: {list(synth.list_scenes())}", file=sys.stderr)
+        print(f"error: unknown scene(s) {unknown}; known: {list(synth.list_scenes())} "
+              f"and {synth.RANDOM_PREFIX}N", file=sys.stderr)
         return 2
 
     use_peers = args.methods in ("all", "peers")

@@ -442,3 +442,59 @@ def test_block_matching_with_two_fractional_components_is_closer_than_whole_pixe
     wta_error = np.abs(shift - np.round(shift))
     med = np.median(np.abs(got - shift), axis=(0, 1))
     assert np.all(med < 0.8 * wta_error), (med, wta_error)
+
+
+def test_hidden_matches_flags_the_points_that_a_moving_square_covers():
+    """A square moving 4 px right over a still background covers the 4 columns right of
+    it at t2. The forward search of those points finds the square (q = p, taken at t2 by
+    the square's point p − 4, which the backward search leads to and which leads back);
+    they, and only they, are flagged."""
+    from lfsf.estimate import _hidden_matches
+
+    h, w = 24, 32
+    forward = np.zeros((h, w, 2), np.float32)
+    backward = np.zeros((h, w, 2), np.float32)
+    forward[8:16, 8:16, 0] = 4.0  # the square at t1, columns 8 … 15
+    backward[8:16, 12:20, 0] = -4.0  # the square at t2, columns 12 … 19
+    expected = np.zeros((h, w), bool)
+    expected[8:16, 16:20] = True
+    np.testing.assert_array_equal(_hidden_matches(forward, backward), expected)
+    # a stray pair of matches: (3, 25) finds (3, 21), which belongs to (3, 23) both ways,
+    # and (3, 21) itself is left without its own match; two lone flags, not an area
+    forward[3, 25] = (-4.0, 0.0)
+    forward[3, 23] = (-2.0, 0.0)
+    backward[3, 21] = (2.0, 0.0)
+    np.testing.assert_array_equal(_hidden_matches(forward, backward), expected)
+    # the same pair as a 2×2 block of them is an area, and is flagged
+    forward[3:5, 24:26] = (-4.0, 0.0)
+    forward[3:5, 22:24] = (-2.0, 0.0)
+    backward[3:5, 20:22] = (2.0, 0.0)
+    assert _hidden_matches(forward, backward)[3:5, 24:26].all()
+
+
+def test_hidden_matches_of_block_matching_find_the_covered_strip(device):
+    """Real searches, both ways, of a textured square moving 3 px right over a textured
+    background: the flags cover most of the covered strip (the 3 columns right of the
+    square), and lie nowhere else but next to the square's outline."""
+    from lfsf.estimate import _flow_search, _hidden_matches
+
+    h, w = 40, 48
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    back = wave_texture(5, 16, (0.4, 1.4), 0.05)
+    front = wave_texture(9, 16, (0.4, 1.4), 0.05)
+    inside = (yy >= 12) & (yy < 28) & (xx >= 14) & (xx < 26)
+    centre1 = np.where(inside, front(xx, yy), back(xx, yy)).astype(np.float32)
+    moved = (yy >= 12) & (yy < 28) & (xx >= 17) & (xx < 29)
+    centre2 = np.where(moved, front(xx - 3.0, yy), back(xx, yy)).astype(np.float32)
+    wp = D.warp()
+    c1 = wp.array(centre1, dtype=float, device=device)
+    c2 = wp.array(centre2, dtype=float, device=device)
+    flagged = _hidden_matches(_flow_search(c1, c2, 5, 1, device), _flow_search(c2, c1, 5, 1, device))
+    strip = np.zeros((h, w), bool)
+    strip[12:28, 26:29] = True
+    assert flagged[strip].mean() > 0.6, flagged[strip].mean()
+    # elsewhere only within 2 px of the square's outline (3×3 windows straddle it there)
+    outline = np.zeros((h, w), bool)
+    outline[10:30, 12:31] = True
+    outline[14:26, 19:24] = False  # the square's inside at both times, 2 px in
+    assert not flagged[~outline].any(), np.argwhere(flagged & ~outline)

@@ -113,6 +113,27 @@ def test_scene_catalogue():
         synth.render_scene("nope", size=(16, 16), grid=1)
 
 
+def test_random_scenes_are_reproducible_distinct_and_in_range():
+    a, b, c = synth.get_scene("random-3"), synth.random_scene(3), synth.random_scene(4)
+    assert a == b and a.name == "random-3"
+    assert a != c
+    for seed in range(12):
+        sc = synth.random_scene(seed)
+        assert 3 <= len(sc.objects) <= 5
+        for prim in sc.objects:
+            disparity = synth.FOCAL_BASELINE / prim.depth - synth.FOCAL_BASELINE / synth.ZERO_DISPARITY_DEPTH
+            assert -2.4 <= disparity <= 2.4, (seed, prim)
+            assert np.hypot(*prim.shift) <= 12.0
+            assert 0.08 <= prim.texture.contrast <= 0.5
+    _, _, gt = synth.render_scene("random-3", size=(32, 24), grid=3, supersample=1)
+    assert np.isfinite(gt["disp1"]).all() and gt["valid"].any()
+    for bad in ("random--1", "random-", "random-x"):
+        with pytest.raises(ValueError, match="unknown scene"):
+            synth.get_scene(bad)
+    with pytest.raises(ValueError, match="≥ 0"):
+        synth.random_scene(-1)
+
+
 def test_paper_scene_has_independent_motions_and_both_disparity_signs():
     _, _, gt = synth.render_scene("paper", size=(160, 120), grid=1)
     d = gt["disp1"][gt["valid"]]
