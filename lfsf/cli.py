@@ -55,6 +55,8 @@ def cmd_synth(args) -> int:
             raise ValueError("name a scene (lfsf synth SCENE --out DIR) or use --list")
         for name, text in synth.list_scenes().items():
             print(f"{name:<14} {text}")
+        print(f"{synth.RANDOM_PREFIX + 'N':<14} a scene drawn at random from seed N = 0, 1, … (the same N, "
+              "the same scene)")
         return 0
     if args.out is None:
         raise ValueError("--out DIR is required")

@@ -425,16 +425,16 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
-    if min(args.size) < 32:
-        print("error: --size must be at least 32 32", file=sys.stderr)
-        return 2
+def selected_scenes(args) -> list[str]:
+    """The synthetic scenes to run: ``--scenes`` (default the built-in ones), then
+    ``--random`` N scenes ``random-SEED`` from ``--random-from`` on. ValueError names any
+    that is not a scene."""
     from lfsf import synth
 
+    if args.random < 0 or args.random_from < 0:
+        raise ValueError("--random and --random-from must be ≥ 0")
     scenes = list(synth.list_scenes() if args.scenes is None else args.scenes)
-    if args.random:
-        scenes += [f"{synth.RANDOM_PREFIX}{args.random_from + k}" for k in range(args.random)]
+    scenes += [f"{synth.RANDOM_PREFIX}{args.random_from + k}" for k in range(args.random)]
     unknown = []
     for name in scenes:
         try:
@@ -442,8 +442,20 @@ def main(argv=None) -> int:
         except ValueError:
             unknown.append(name)
     if unknown:
-        print(f"error: unknown scene(s) {unknown}; known: {list(synth.list_scenes())} "
-              f"and {synth.RANDOM_PREFIX}N", file=sys.stderr)
+        raise ValueError(f"unknown scene(s) {unknown}; known: {list(synth.list_scenes())} "
+                         f"and {synth.RANDOM_PREFIX}N")
+    return scenes
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    if min(args.size) < 32:
+        print("error: --size must be at least 32 32", file=sys.stderr)
+        return 2
+    try:
+        scenes = selected_scenes(args)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 2
 
     use_peers = args.methods in ("all", "peers")

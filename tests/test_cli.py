@@ -31,8 +31,17 @@ def assert_clean_error(status, err, *needles):
 def test_synth_list():
     status, out, err = lfsf("synth", "--list")
     assert status == 0, err
-    for name in ("paper", "slanted", "large_motion", "weak_texture"):
+    for name in ("paper", "slanted", "large_motion", "weak_texture", "random-N"):
         assert name in out
+
+
+def test_synth_renders_a_random_scene_and_names_bad_ones(tmp_path):
+    status, _, err = lfsf("synth", "random-5", "--out", tmp_path / "r", "--size", 40, 30, "--grid", 3)
+    assert status == 0, err
+    with np.load(tmp_path / "r" / "gt.npz") as gt:
+        assert np.isfinite(gt["disp1"]).all() and gt["disp1"].shape == (30, 40)
+    status, _, err = lfsf("synth", "random-five", "--out", tmp_path / "x")
+    assert status == 2 and "random-N" in err and not (tmp_path / "x").exists(), err
 
 
 def test_synth_writes_pair_and_ground_truth(tmp_path):

@@ -1367,6 +1367,25 @@ def test_hidden_at_t2_matches_reference(device):
         assert reach > 0 or got[0, 0] == 0  # lands outside: hidden only by spreading
 
 
+def test_solver_hidden_at_t2_is_the_geometric_test_of_the_estimate_given(device):
+    """LevelSolver.hidden_at_t2(x) marks what :func:`ref.hidden_at_t2` marks for that x
+    (margin ``occlusion_margin``, spread ``occlusion_reach``), whatever the solver's own
+    state, and the next linearisation still tests the solver's own x̂."""
+    from lfsf.params import Params
+
+    params = Params.preset("fast")
+    solver = _level_solver((24, 18), 3, params, device)
+    h, w = solver.shape
+    x = np.zeros((h, w, 4), np.float32)
+    x[6:12, 6:12, 0] = x[6:12, 6:12, 1] = 1.5  # a nearer square moving 3 px right
+    x[6:12, 6:12, 2] = 3.0
+    want = ref.hidden_at_t2(x, params.occlusion_margin, params.occlusion_reach) > 0.5
+    assert want[6:12, 12:15].all() and want.sum() < h * w // 4
+    np.testing.assert_array_equal(solver.hidden_at_t2(x), want)
+    solver.linearise()  # the solver's x is 0: nothing hidden
+    assert not (solver.hidden2.numpy() > 0.5).any()
+
+
 def _fill_hidden(x, hidden, sigma, radius, device):
     from lfsf.kernels import occlusion
 

@@ -87,3 +87,30 @@ def test_disparity_at_t1_pixels_samples_at_p_plus_u(peers):
     out = peers.disparity_at_t1_pixels(ramp, u, v)
     inner = (slice(2, -2), slice(2, -4))
     assert np.allclose(out[inner], (ramp + 2.5 - 100.0)[inner], atol=1e-4)
+
+
+def _compare_peers_script():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "compare_peers.py"
+    spec = importlib.util.spec_from_file_location("compare_peers_script", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_compare_peers_selects_built_in_and_random_scenes(capsys):
+    script = _compare_peers_script()
+
+    def scenes(*argv):
+        return script.selected_scenes(script.build_parser().parse_args(list(argv)))
+
+    assert scenes() == ["paper", "slanted", "large_motion", "weak_texture"]
+    assert scenes("--random", "2") == ["paper", "slanted", "large_motion", "weak_texture", "random-0", "random-1"]
+    assert scenes("--scenes", "--random", "2", "--random-from", "7") == ["random-7", "random-8"]
+    assert scenes("--scenes", "slanted", "random-3") == ["slanted", "random-3"]
+    with pytest.raises(ValueError, match="random-N"):
+        scenes("--scenes", "paper", "randm-3")
+    assert script.main(["--scenes", "nope", "--methods", "peers"]) == 2
+    assert "unknown scene" in capsys.readouterr().err
