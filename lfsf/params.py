@@ -106,7 +106,9 @@ class Params:
         disparity_range : the sweep covers ±this many px per view step (full resolution).
         search_radius : the sweep's matching costs are averaged over (2r+1)² windows.
         flow_search : likewise for the flow, with a whole-pixel block-matching search of
-            the centre views on a coarse level, for motions too large for the pyramid.
+            the centre views on a coarse level, for motions too large for the pyramid;
+            not fused where the point is hidden at t2 (by the searches both ways, or
+            by the estimate so far).
         flow_range : the flow search covers ±this many px (full resolution).
     """
 
