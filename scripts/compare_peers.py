@@ -90,7 +90,9 @@ def lfsf_stereo(lf1, lf2, device):
 
 def lfsf_flow(lf1, lf2, device):
     """Flow only: M = 1 circle, the centre view alone, i.e. two-frame flow, comparable
-    with the TV-L1 peers. TODO(lead): confirm the preset."""
+    with the TV-L1 peers. The `paper` preset's schedule, as the joint run's, so that the
+    two differ only in the light field (the `flow` preset is the quick one, timed
+    against OpenCV by ``lfsf bench peers``)."""
     lfsf = _lfsf()
     params = lfsf.Params.preset("paper").replace(circles=1, samples=(1,))
     r = lfsf.estimate_scene_flow(lf1, lf2, params=params, device=device)
