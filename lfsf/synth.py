@@ -331,7 +331,7 @@ def get_scene(scene: str | Scene) -> Scene:
     the scene itself."""
     if isinstance(scene, Scene):
         return scene
-    if isinstance(scene, str) and scene.startswith(RANDOM_PREFIX) and scene[len(RANDOM_PREFIX):].isdigit():
+    if isinstance(scene, str) and scene.startswith(RANDOM_PREFIX) and scene[len(RANDOM_PREFIX):].isdecimal():
         return random_scene(int(scene[len(RANDOM_PREFIX):]))
     if scene not in SCENES:
         raise ValueError(f"unknown scene {scene!r}: the scenes are {', '.join(SCENES)} "

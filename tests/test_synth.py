@@ -127,7 +127,7 @@ def test_random_scenes_are_reproducible_distinct_and_in_range():
             assert 0.08 <= prim.texture.contrast <= 0.5
     _, _, gt = synth.render_scene("random-3", size=(32, 24), grid=3, supersample=1)
     assert np.isfinite(gt["disp1"]).all() and gt["valid"].any()
-    for bad in ("random--1", "random-", "random-x"):
+    for bad in ("random--1", "random-", "random-x", "random-²"):
         with pytest.raises(ValueError, match="unknown scene"):
             synth.get_scene(bad)
     with pytest.raises(ValueError, match="≥ 0"):
