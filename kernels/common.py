@@ -240,8 +240,9 @@ def footprint_visible(a: float, b: float, c: float, d: float, disparity: float, 
     (a lookup that mixes in the nearer surface's pixels pulls the background's
     disparity towards the foreground's). Elsewhere (one surface, perhaps slanted, whose
     own neighbours are a little nearer) only if all of them do."""
-    hi = wp.max(wp.max(a, b), wp.max(c, d))
-    lo = wp.min(wp.min(a, b), wp.min(c, d))
+    # (by comparisons, :func:`at_least`: data_coefficients 6 % faster than with wp.max)
+    hi = at_least(at_least(a, b), at_least(c, d))
+    lo = at_most(at_most(a, b), at_most(c, d))
     covered = wp.where(hi - lo > EDGE_JUMP * margin, hi, lo)
     return covered <= disparity + margin
 
