@@ -32,6 +32,7 @@ Usage (from the repository root)::
     python scripts/compare_peers.py --real --no-synth --methods peers
     python scripts/compare_peers.py --methods all --check  # exit 1 if a target fails
     python scripts/compare_peers.py --random 8 --check     # + 8 scenes drawn at random
+    python scripts/compare_peers.py --noise 0.01           # sensor noise on every view
 
 ``--methods``: ``peers`` (peers only), ``lfsf`` (lfsf only; no bars), ``all`` (default:
 peers, and lfsf when ``lfsf.estimate_scene_flow`` exists, else a note). Exit status 1 if a
@@ -47,6 +48,7 @@ import math
 import sys
 import time
 import traceback
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -159,6 +161,9 @@ def run_scene(name, args, use_peers, lfsf_runs, warm):
 
     lf1, lf2, gt = synth.render_scene(name, size=tuple(args.size), grid=args.grid,
                                       device=args.device)
+    if args.noise > 0:  # independent at t1 and t2, the same for every method
+        seed = zlib.crc32(name.encode())
+        lf1, lf2 = synth.add_noise(lf1, args.noise, seed), synth.add_noise(lf2, args.noise, seed + 1)
     valid = gt["valid"]
     occl = gt["occluded"]
     nonocc = valid & ~occl
@@ -413,6 +418,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "--random-from on")
     p.add_argument("--random-from", type=int, default=0, metavar="SEED",
                    help="first random scene's seed (default 0)")
+    p.add_argument("--noise", type=float, default=0.0, metavar="SIGMA",
+                   help="Gaussian noise of this standard deviation (intensities in [0, 1]) on every "
+                        "view of the synthetic scenes, independent at t1 and t2 (default 0)")
     p.add_argument("--methods", choices=("all", "peers", "lfsf"), default="all",
                    help="peers, lfsf, or both (default; lfsf only when it exists)")
     p.add_argument("--real", action="store_true",
@@ -453,6 +461,9 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     if min(args.size) < 32:
         print("error: --size must be at least 32 32", file=sys.stderr)
+        return 2
+    if not math.isfinite(args.noise) or args.noise < 0:
+        print(f"error: --noise must be a finite number ≥ 0, got {args.noise}", file=sys.stderr)
         return 2
     try:
         scenes = selected_scenes(args)

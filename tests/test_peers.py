@@ -114,3 +114,30 @@ def test_compare_peers_selects_built_in_and_random_scenes(capsys):
         scenes("--scenes", "paper", "randm-3")
     assert script.main(["--scenes", "nope", "--methods", "peers"]) == 2
     assert "unknown scene" in capsys.readouterr().err
+    assert script.main(["--noise", "-0.01", "--methods", "peers"]) == 2
+    assert "--noise" in capsys.readouterr().err
+
+
+def test_compare_peers_noise_reaches_every_method_reproducibly():
+    """``--noise`` hands every method the same noisy pair, independent at t1 and t2."""
+    from lfsf import synth
+
+    script = _compare_peers_script()
+    args = script.build_parser().parse_args(["--size", "48", "32", "--grid", "3", "--noise", "0.02"])
+    seen = []
+
+    def fake(lf1, lf2, device):
+        seen.append((lf1.views.copy(), lf2.views.copy()))
+        return {"u": np.zeros(lf1.centre.shape, np.float32), "v": np.zeros(lf1.centre.shape, np.float32)}
+
+    for _ in range(2):
+        rows = script.run_scene("weak_texture", args, False, {"fake": fake}, {"fake"})
+        assert rows[0]["method"] == "fake" and rows[0]["flow_epe"] is not None
+    clean1, clean2, _ = synth.render_scene("weak_texture", size=(48, 32), grid=3)
+    (a1, a2), (b1, b2) = seen
+    np.testing.assert_array_equal(a1, b1)
+    np.testing.assert_array_equal(a2, b2)
+    n1, n2 = a1 - clean1.views, a2 - clean2.views
+    inner = (clean1.views > 0.1) & (clean1.views < 0.9) & (clean2.views > 0.1) & (clean2.views < 0.9)
+    assert abs(n1[inner].std() - 0.02) < 0.002 and abs(n2[inner].std() - 0.02) < 0.002
+    assert abs(np.corrcoef(n1[inner], n2[inner])[0, 1]) < 0.1

@@ -134,6 +134,22 @@ def test_random_scenes_are_reproducible_distinct_and_in_range():
         synth.random_scene(-1)
 
 
+def test_add_noise_is_gaussian_reproducible_independent_and_clipped():
+    lf, _, _ = synth.render_scene("weak_texture", size=(64, 48), grid=3, supersample=1)
+    assert synth.add_noise(lf, 0.0) is lf
+    a, b, c = synth.add_noise(lf, 0.02, seed=5), synth.add_noise(lf, 0.02, seed=5), synth.add_noise(lf, 0.02, seed=6)
+    np.testing.assert_array_equal(a.views, b.views)
+    noise_a, noise_c = a.views - lf.views, c.views - lf.views
+    inner = (lf.views > 0.1) & (lf.views < 0.9)  # away from the clip
+    assert abs(noise_a[inner].std() - 0.02) < 0.001 and abs(noise_a[inner].mean()) < 0.001
+    assert abs(np.corrcoef(noise_a[inner], noise_c[inner])[0, 1]) < 0.05  # seeds give independent noise
+    assert a.views.min() >= 0.0 and a.views.max() <= 1.0 and a.views.dtype == np.float32
+    assert a.grid == lf.grid and a.meta["noise_sigma"] == 0.02 and "noise" in a.source
+    for bad in (-0.1, float("nan")):
+        with pytest.raises(ValueError, match="noise sigma"):
+            synth.add_noise(lf, bad)
+
+
 def test_paper_scene_has_independent_motions_and_both_disparity_signs():
     _, _, gt = synth.render_scene("paper", size=(160, 120), grid=1)
     d = gt["disp1"][gt["valid"]]
