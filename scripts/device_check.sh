@@ -1,0 +1,70 @@
+#!/usr/bin/env bash
+# The CUDA checks of issue 4 in one prepared run, for a session that is lent a GPU
+# machine (the `device` tool: a bare machine with Python 3.12, CUDA, NumPy, imageio,
+# scikit-image and pytest, but no warp-lang and no network).
+#
+# warp-lang (its wheel is 149 MB) is larger than the 64 MiB that one device call may
+# carry. So the Warp installed here travels as an xz tarball (about 98 MB) in two
+# halves, over two calls while the machine stays warm (30 s):
+#
+#   here:             bash scripts/device_check.sh prepare        # .whl/a/, .whl/b/ (ignored)
+#   device call 1:    bash scripts/device_check.sh stash          # carry [".whl/a"]
+#   device call 2, at once:
+#                     bash scripts/device_check.sh run "$OUT"     # carry [".whl/b"]
+#
+# `run` installs Warp and lfsf, then writes under OUT: nvidia-smi.txt, pytest.txt (the
+# kernel, search, device and estimator tests, on cpu and cuda:0), kernels.json/.txt
+# (`lfsf bench kernels`), pipeline.json/.txt (`lfsf bench pipeline`). It stops after
+# about 8 minutes; give the call a timeout of 540 s.
+set -u -o pipefail
+
+mode=${1:-}
+
+case "$mode" in
+prepare)
+    # Warp is pure Python around its own shared libraries: the package installed here
+    # runs on the device's Python 3.12 as it is
+    warp_dir=$(python3 -c "import warp, os; print(os.path.dirname(warp.__file__))") || exit 2
+    rm -rf .whl && mkdir -p .whl/a .whl/b
+    tar -C "$(dirname "$warp_dir")" --exclude='warp/examples' --exclude='warp/tests' --exclude='__pycache__' \
+        -cf - warp | xz -T2 -9 > .whl/warp.tar.xz || exit 2
+    half=$(( ($(stat -c %s .whl/warp.tar.xz) + 1) / 2 ))
+    split -b "$half" -d -a 1 .whl/warp.tar.xz .whl/part.
+    mv .whl/part.0 .whl/a/warp.part0
+    mv .whl/part.1 .whl/b/warp.part1
+    rm .whl/warp.tar.xz
+    ls -l .whl/a .whl/b
+    ;;
+stash)
+    # .whlstore/ is ignored and not carried, so the next call on the same warm machine finds it
+    mkdir -p .whlstore && cp .whl/a/warp.part0 .whlstore/ && ls -l .whlstore
+    ;;
+run)
+    out=${2:?usage: device_check.sh run OUT_DIR}
+    mkdir -p "$out"
+    export PYTHONUNBUFFERED=1
+    if ! python3 -c "import warp" 2>/dev/null; then
+        [ -f .whlstore/warp.part0 ] && [ -f .whl/b/warp.part1 ] || {
+            echo "error: no Warp here and not both halves of it (.whlstore/warp.part0 from 'stash', .whl/b from carry)" >&2
+            exit 2
+        }
+        mkdir -p /tmp/site
+        cat .whlstore/warp.part0 .whl/b/warp.part1 \
+            | python3 -c "import sys, tarfile; tarfile.open(fileobj=sys.stdin.buffer, mode='r|xz').extractall('/tmp/site')" \
+            || exit 2
+        export PYTHONPATH=/tmp/site${PYTHONPATH:+:$PYTHONPATH}
+    fi
+    python3 -m pip install -q --no-index --no-deps --no-build-isolation -e . || exit 2
+    (nvidia-smi; python3 -c "import warp as wp; wp.init(); print(wp.get_cuda_devices())") > "$out/nvidia-smi.txt" 2>&1
+    timeout 240 python3 -m pytest -q -p no:cacheprovider tests/test_kernels.py tests/test_search_kernels.py \
+        tests/test_device.py tests/test_estimator.py 2>&1 | tee "$out/pytest.txt" | tail -5
+    timeout 90 python3 -m lfsf bench kernels --device cuda:0 --repeats 50 --json "$out/kernels.json" 2>&1 \
+        | tee "$out/kernels.txt"
+    timeout 150 python3 -m lfsf bench pipeline --device cuda:0 --repeats 5 --json "$out/pipeline.json" 2>&1 \
+        | tee "$out/pipeline.txt"
+    ;;
+*)
+    echo "usage: device_check.sh prepare | stash | run OUT_DIR" >&2
+    exit 2
+    ;;
+esac
