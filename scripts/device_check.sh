@@ -12,7 +12,7 @@
 #   device call 2, at once:
 #                     bash scripts/device_check.sh run "$OUT"     # carry [".whl/b"]
 #
-# `run` installs Warp and lfsf, then writes under OUT: nvidia-smi.txt, pytest.txt (the
+# `run` unpacks Warp, puts this tree's lfsf on the path, then writes under OUT: nvidia-smi.txt, pytest.txt (the
 # kernel, search, device and estimator tests, on cpu and cuda:0), kernels.json/.txt
 # (`lfsf bench kernels`), pipeline.json/.txt (`lfsf bench pipeline`). It stops after
 # about 8 minutes; give the call a timeout of 540 s.
@@ -54,7 +54,10 @@ run)
             || exit 2
         export PYTHONPATH=/tmp/site${PYTHONPATH:+:$PYTHONPATH}
     fi
-    python3 -m pip install -q --no-index --no-deps --no-build-isolation -e . || exit 2
+    # lfsf from this tree, no install (pip would want to build): lfsf.kernels is kernels/
+    [ -e lfsf/kernels ] || ln -s ../kernels lfsf/kernels
+    export PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH}
+    python3 -c "import lfsf.kernels.tgv, lfsf.cli" || exit 2
     (nvidia-smi; python3 -c "import warp as wp; wp.init(); print(wp.get_cuda_devices())") > "$out/nvidia-smi.txt" 2>&1
     timeout 240 python3 -m pytest -q -p no:cacheprovider tests/test_kernels.py tests/test_search_kernels.py \
         tests/test_device.py tests/test_estimator.py 2>&1 | tee "$out/pytest.txt" | tail -5
