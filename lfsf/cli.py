@@ -70,14 +70,15 @@ def cmd_synth(args) -> int:
                    f"{args.frames} frames, on {device} …")
         t0 = time.perf_counter()
         paths = synth.write_sequence(args.scene, args.out, args.frames, size=(width, height), grid=args.grid,
-                                     supersample=args.supersample, colour=args.colour, device=device)
+                                     supersample=args.supersample, colour=args.colour, device=device,
+                                     noise=args.noise)
         _log(args, f"wrote {len(paths['frames'])} frames to {Path(args.out) / 'frames'} and the ground truth of "
                    f"each pair to {Path(args.out) / 'gt'} in {time.perf_counter() - t0:.1f} s")
         return 0
     _log(args, f"rendering '{args.scene}' at {width}×{height}, {args.grid}×{args.grid} views, t1 and t2, on {device} …")
     t0 = time.perf_counter()
     paths = synth.write_scene(args.scene, args.out, size=(width, height), grid=args.grid,
-                              supersample=args.supersample, colour=args.colour, device=device)
+                              supersample=args.supersample, colour=args.colour, device=device, noise=args.noise)
     _log(args, f"wrote {', '.join(str(p) for p in paths.values())} in {time.perf_counter() - t0:.1f} s")
     if args.preview:
         from lfsf.io import read_lightfield
@@ -308,6 +309,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", type=_positive, default=2, metavar="K",
                    help="K > 2: a sequence moving at a constant rate, DIR/frames/f000.npz … and the ground truth "
                         "of each pair DIR/gt/f000.npz … (default 2: DIR/lf1.npz, DIR/lf2.npz, DIR/gt.npz)")
+    p.add_argument("--noise", type=float, default=0.0, metavar="SIGMA",
+                   help="Gaussian sensor noise of this standard deviation (intensities in [0, 1]) on every "
+                        "view, independent per frame (default 0)")
     p.add_argument("--preview", action="store_true", help="also write DIR/preview.png of the ground truth")
     _device_options(p)
     p.set_defaults(func=cmd_synth)

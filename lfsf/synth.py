@@ -371,6 +371,14 @@ def render_scene(
     return lfs[0], lfs[1], gts[0]
 
 
+def _noise_sigma(sigma) -> float:
+    """A noise level as a float, or a ValueError naming the problem."""
+    sigma = float(sigma)
+    if not math.isfinite(sigma) or sigma < 0:
+        raise ValueError(f"noise sigma must be a finite number ≥ 0, got {sigma}")
+    return sigma
+
+
 def add_noise(lf, sigma: float, seed: int = 0):
     """``lf`` with independent Gaussian noise of standard deviation ``sigma`` (intensities
     in [0, 1]) on every pixel of every view, clipped to [0, 1]: a camera's sensor noise,
@@ -378,9 +386,7 @@ def add_noise(lf, sigma: float, seed: int = 0):
     independent. ``sigma`` 0 returns ``lf`` itself."""
     from lfsf.io import LightField
 
-    sigma = float(sigma)
-    if not math.isfinite(sigma) or sigma < 0:
-        raise ValueError(f"noise sigma must be a finite number ≥ 0, got {sigma}")
+    sigma = _noise_sigma(sigma)
     if sigma == 0:
         return lf
     rng = np.random.default_rng(seed)
@@ -472,16 +478,21 @@ def write_scene(
     supersample: int = 2,
     colour: bool = False,
     device: str | None = None,
+    noise: float = 0.0,
 ) -> dict[str, Path]:
     """Render a scene and write ``lf1.npz``, ``lf2.npz`` and ``gt.npz`` into ``out``.
 
-    Each file is written under a temporary name and renamed when complete. Returns the
-    paths written.
+    ``noise`` > 0 adds sensor noise of that standard deviation to every view
+    (:func:`add_noise`, independent at t1 and t2, seeds 0 and 1); the ground truth is the
+    scene's. Each file is written under a temporary name and renamed when complete.
+    Returns the paths written.
     """
     from lfsf._files import savez_atomic
     from lfsf.io import write_lightfield
 
+    noise = _noise_sigma(noise)  # a bad sigma: an error before any rendering
     lf1, lf2, gt = render_scene(scene, size=size, grid=grid, supersample=supersample, colour=colour, device=device)
+    lf1, lf2 = add_noise(lf1, noise, seed=0), add_noise(lf2, noise, seed=1)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     paths = {"lf1": out / "lf1.npz", "lf2": out / "lf2.npz", "gt": out / "gt.npz"}
@@ -502,15 +513,19 @@ def write_sequence(
     supersample: int = 2,
     colour: bool = False,
     device: str | None = None,
+    noise: float = 0.0,
 ) -> dict[str, list[Path]]:
     """Render :func:`render_sequence` and write the frames ``out/frames/f000.npz``, … (a
     folder ``lfsf batch`` reads as consecutive pairs) and each pair's ground truth
-    ``out/gt/f000.npz``, … (named after the pair's first frame), each atomically."""
+    ``out/gt/f000.npz``, … (named after the pair's first frame), each atomically.
+    ``noise`` > 0: sensor noise on every view, independent per frame (seed = frame)."""
     from lfsf._files import savez_atomic
     from lfsf.io import write_lightfield
 
+    noise = _noise_sigma(noise)  # a bad sigma: an error before any rendering
     lfs, gts = render_sequence(scene, frames, size=size, grid=grid, supersample=supersample, colour=colour,
                                device=device)
+    lfs = [add_noise(lf, noise, seed=k) for k, lf in enumerate(lfs)]
     out = Path(out)
     paths: dict[str, list[Path]] = {"frames": [], "gt": []}
     (out / "frames").mkdir(parents=True, exist_ok=True)

@@ -56,6 +56,22 @@ def test_synth_writes_pair_and_ground_truth(tmp_path):
         assert gt["valid"].dtype == bool and gt["occluded"].dtype == bool
 
 
+def test_synth_adds_sensor_noise_to_the_views_not_the_ground_truth(tmp_path):
+    args = ("--size", 40, 30, "--grid", 3)
+    assert lfsf("synth", "slanted", "--out", tmp_path / "clean", *args)[0] == 0
+    status, _, err = lfsf("synth", "slanted", "--out", tmp_path / "noisy", "--noise", 0.02, *args)
+    assert status == 0, err
+    clean = [io.read_lightfield(tmp_path / "clean" / f).views for f in ("lf1.npz", "lf2.npz")]
+    noisy = [io.read_lightfield(tmp_path / "noisy" / f).views for f in ("lf1.npz", "lf2.npz")]
+    n1, n2 = noisy[0] - clean[0], noisy[1] - clean[1]
+    assert 0.015 < n1.std() < 0.025 and 0.015 < n2.std() < 0.025
+    assert abs(np.corrcoef(n1.ravel(), n2.ravel())[0, 1]) < 0.1  # independent at t1 and t2
+    with np.load(tmp_path / "clean" / "gt.npz") as a, np.load(tmp_path / "noisy" / "gt.npz") as b:
+        np.testing.assert_array_equal(a["disp1"], b["disp1"])
+    status, _, err = lfsf("synth", "slanted", "--out", tmp_path / "bad", "--noise", -1, *args)
+    assert status == 2 and "noise" in err and not (tmp_path / "bad").exists(), err
+
+
 def test_eval_of_ground_truth_against_itself_is_zero(tmp_path):
     assert main(["synth", "paper", "--out", str(tmp_path), "--size", "48", "36", "--grid", "1", "--quiet"]) == 0
     status, out, err = lfsf("eval", tmp_path / "gt.npz", tmp_path / "gt.npz", "--json", tmp_path / "e.json")
