@@ -160,7 +160,7 @@ def data_coefficients(
     image, seen by the z-buffers, not hidden). The best halves and the centre test,
     which need all the samples, can only leave rows out; a second pass, only at the
     pixels where they do, recomputes the steps and column sums from the stored
-    coefficients. (Two passes at every pixel cost 1.1–1.6× the time, 640×480.)
+    coefficients. (Two passes at every pixel took 1.1–1.2× the time, 640×480.)
     """
     i, j = wp.tid()
     i = i + row0
