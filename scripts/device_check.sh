@@ -12,10 +12,10 @@
 #   device call 2, at once:
 #                     bash scripts/device_check.sh run "$OUT"     # carry [".whl/b"]
 #
-# `run` unpacks Warp, puts this tree's lfsf on the path, then writes under OUT: nvidia-smi.txt, pytest.txt (the
-# kernel, search, device and estimator tests, on cpu and cuda:0), kernels.json/.txt
-# (`lfsf bench kernels`), pipeline.json/.txt (`lfsf bench pipeline`). It stops after
-# about 8 minutes; give the call a timeout of 540 s.
+# `run` unpacks Warp, puts this tree's lfsf on the path, then writes under OUT:
+# nvidia-smi.txt, pytest.txt (the kernel, search, device and estimator tests, on cpu and
+# cuda:0), kernels.json/.txt (`lfsf bench kernels`), pipeline.json/.txt (`lfsf bench
+# pipeline`). It stops after about 8 minutes; give the call a timeout of 540 s.
 set -u -o pipefail
 
 mode=${1:-}
