@@ -88,19 +88,63 @@ def rof_primal_step(
         left = pc[0]
 
 
+@wp.func
+def reflect_index(i: int, size: int):
+    """(index, edge) of the odd reflection of index i about the image's first or last
+    pixel (edge −1 where i is inside)."""
+    if i < 0:
+        return -i, 0
+    if i > size - 1:
+        return 2 * (size - 1) - i, size - 1
+    return i, -1
+
+
+@wp.kernel
+def pad_odd(
+    row0: int,
+    f: wp.array3d(dtype=float),
+    pad: int,
+    # outputs
+    out: wp.array3d(dtype=float),
+):
+    """out = f padded by ``pad`` pixels on every side by odd (point) reflection about the
+    border pixels, f(−k) = 2 f(0) − f(k), axis after axis (NumPy's ``np.pad(f, pad,
+    "reflect", reflect_type="odd")``): a ramp runs on past the border instead of
+    stopping at it. ``pad`` < the image's height and width. Launch over (n × padded
+    rows, padded columns)."""
+    r, c = wp.tid()
+    r = r + row0
+    h = f.shape[1]
+    w = f.shape[2]
+    hp = out.shape[1]
+    n = r // hp
+    i, ei = reflect_index(r - n * hp - pad, h)
+    j, ej = reflect_index(c - pad, w)
+    v = f[n, i, j]
+    if ei >= 0 and ej >= 0:
+        v = 4.0 * f[n, ei, ej] - 2.0 * f[n, ei, j] - 2.0 * f[n, i, ej] + v
+    elif ei >= 0:
+        v = 2.0 * f[n, ei, j] - v
+    elif ej >= 0:
+        v = 2.0 * f[n, i, ej] - v
+    out[n, r - n * hp, c] = v
+
+
 @wp.kernel
 def texture_part(
     row0: int,
     f: wp.array3d(dtype=float),
     structure: wp.array3d(dtype=float),
     theta: float,
+    offset: int,
     # outputs
     texture: wp.array3d(dtype=float),
 ):
-    """texture = f − θ·structure."""
+    """texture = f − θ·structure, the structure read ``offset`` pixels down and right
+    (the margin of a padded structure image; 0 for none)."""
     r, j = wp.tid()
     r = r + row0
     h = f.shape[1]
     n = r // h
     i = r - n * h
-    texture[n, i, j] = f[n, i, j] - theta * structure[n, i, j]
+    texture[n, i, j] = f[n, i, j] - theta * structure[n, i + offset, j + offset]

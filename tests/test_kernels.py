@@ -155,8 +155,45 @@ def test_texture_part_matches_reference(device):
     f = r.random((n, h, w)).astype(np.float32)
     s = r.random((n, h, w)).astype(np.float32)
     out = wp.empty((n, h, w), dtype=float, device=device)
-    launch(rof.texture_part, (n * h, w), [arr(f, float, device), arr(s, float, device), 0.95], [out], device)
+    launch(rof.texture_part, (n * h, w), [arr(f, float, device), arr(s, float, device), 0.95, 0], [out], device)
     close(out.numpy(), f.astype(np.float64) - 0.95 * s)
+    # a padded structure image: read 2 px down and right
+    sp = r.random((n, h + 4, w + 4)).astype(np.float32)
+    launch(rof.texture_part, (n * h, w), [arr(f, float, device), arr(sp, float, device), 0.5, 2], [out], device)
+    close(out.numpy(), f.astype(np.float64) - 0.5 * sp[:, 2:-2, 2:-2])
+
+
+@pytest.mark.parametrize("pad", [1, 3, 6])
+def test_pad_odd_matches_numpy(device, pad):
+    from lfsf.kernels import rof
+
+    n, h, w = 2, 7, 9
+    f = rng(51).random((n, h, w)).astype(np.float32)
+    out = wp.empty((n, h + 2 * pad, w + 2 * pad), dtype=float, device=device)
+    launch(rof.pad_odd, (n * (h + 2 * pad), w + 2 * pad), [arr(f, float, device), pad], [out], device)
+    want = np.pad(f.astype(np.float64), ((0, 0), (pad, pad), (pad, pad)), mode="reflect", reflect_type="odd")
+    close(out.numpy(), want)
+
+
+def test_structure_texture_keeps_a_ramp_up_to_the_border(device):
+    """ROF of a linear ramp on the odd-reflected image is the ramp itself up to the border
+    (TV and fidelity both vanish on the continued ramp), so its texture part is (1 − θ)
+    times the ramp; with the Neumann boundary alone the ramp's ends flatten."""
+    from lfsf import estimate
+    from lfsf.params import Params
+
+    h, w = 24, 40
+    ramp = np.tile(0.01 * np.arange(w, dtype=np.float32), (h, 1))[None]
+    params = Params.preset("paper").replace(rof_iterations=300)
+    texture = estimate._structure_texture(arr(ramp, float, device), params, device).numpy()[0]
+    close(texture, (1.0 - params.texture_theta) * ramp[0], rtol=0, atol=2e-4)
+    old = estimate.ROF_PAD
+    try:
+        estimate.ROF_PAD = 0
+        flat = estimate._structure_texture(arr(ramp, float, device), params, device).numpy()[0]
+    finally:
+        estimate.ROF_PAD = old
+    assert np.abs(flat - (1.0 - params.texture_theta) * ramp[0]).max() > 0.01
 
 
 def _rof_kernel_solve(f, mu, iterations, device):
