@@ -156,73 +156,48 @@ def splat_views(
                 wp.atomic_max(zbuf, s, ii, jj, d)
 
 
-@wp.func
-def gaussian_weight(d: int, sigma: float):
-    """exp(−d²/2σ²): the weight of a pixel d steps away in both passes of the fill."""
-    return wp.exp(-float(d * d) / (2.0 * sigma * sigma))
-
-
 @wp.kernel
-def depth_change_rows(
+def fill_hidden_motion(
     row0: int,
-    x: wp.array2d(dtype=wp.vec4),
     hidden: wp.array2d(dtype=float),
     sigma: float,
-    radius: int,
-    # outputs
-    sums: wp.array2d(dtype=wp.vec2),
-):
-    """First (horizontal) pass of :func:`fill_hidden_depth`: sums[p] = (Σ g·(δ2 − δ1),
-    Σ g) over the pixels q of p's row within ``radius`` that are not hidden at t2, with
-    the Gaussian weight g = exp(−d²/2σ²) of their distance d. Launch over (rows,
-    columns)."""
-    i, j = wp.tid()
-    i = i + row0
-    w = x.shape[1]
-    acc = wp.vec2(0.0)
-    for dx in range(-radius, radius + 1):
-        jj = j + dx
-        if jj >= 0 and jj < w:
-            if hidden[i, jj] <= 0.5:
-                g = gaussian_weight(dx, sigma)
-                v = x[i, jj]
-                acc += wp.vec2(g * (v[1] - v[0]), g)
-    sums[i, j] = acc
-
-
-@wp.kernel
-def fill_hidden_depth(
-    row0: int,
-    sums: wp.array2d(dtype=wp.vec2),
-    hidden: wp.array2d(dtype=float),
-    sigma: float,
+    depth_sigma: float,
     radius: int,
     # outputs
     x: wp.array2d(dtype=wp.vec4),
     x_bar: wp.array2d(dtype=wp.vec4),
 ):
-    """Where p is hidden at t2 (``hidden``), no view sees the point at t2 and its δ2
-    comes from nothing but the regulariser, which there reaches over to the occluder.
-    Set δ2 = δ1 + D instead, with D the depth change δ2 − δ1 of the points around p
-    that are seen at t2, averaged with Gaussian weights (σ = ``sigma`` px, out to
-    ``radius``; a normalised convolution, the second, vertical pass over the row sums of
-    :func:`depth_change_rows`); D = 0 where none lies within the radius. The same in
-    x̄. Launch over (rows, columns)."""
+    """Where p is hidden at t2 (``hidden``), no view sees the point at t2: its δ2 and
+    flow come from nothing but the regulariser, which there reaches over to the
+    occluder. Give it the motion of the points of its own surface around it that are
+    seen at t2 instead: δ2 = δ1 + D and (u, v) = U, with D and U the weighted means of
+    δ2 − δ1 and (u, v) over the pixels q within ``radius`` (a square window) not hidden,
+    weight exp(−|q − p|²/2σ²) · exp(−(δ1(q) − δ1(p))²/2σ_d²) (σ = ``sigma`` px, σ_d =
+    ``depth_sigma`` px per view step; 0: no depth weight). The depth weight leaves out
+    the occluder, which is nearer. Where no such pixel is: D = 0, the flow unchanged.
+    The same in x̄. In place: only hidden pixels are written, only others read. Launch
+    over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0
     if hidden[i, j] > 0.5:
         h = x.shape[0]
-        acc = wp.vec2(0.0)
-        for dy in range(-radius, radius + 1):
-            ii = i + dy
-            if ii >= 0 and ii < h:
-                acc += gaussian_weight(dy, sigma) * sums[ii, j]
-        change = float(0.0)
-        if acc[1] > 1.0e-6:
-            change = acc[0] / acc[1]
+        w = x.shape[1]
         v = x[i, j]
-        v[1] = v[0] + change
+        inv_s = 1.0 / (2.0 * sigma * sigma)
+        inv_d = float(0.0)
+        if depth_sigma > 0.0:
+            inv_d = 1.0 / (2.0 * depth_sigma * depth_sigma)
+        acc = wp.vec4(0.0)  # Σ g·(δ2 − δ1), Σ g·u, Σ g·v, Σ g
+        for ii in range(wp.max(i - radius, 0), wp.min(i + radius + 1, h)):
+            for jj in range(wp.max(j - radius, 0), wp.min(j + radius + 1, w)):
+                if hidden[ii, jj] <= 0.5:
+                    q = x[ii, jj]
+                    dd = q[0] - v[0]
+                    g = wp.exp(-float((ii - i) * (ii - i) + (jj - j) * (jj - j)) * inv_s - dd * dd * inv_d)
+                    acc += g * wp.vec4(q[1] - q[0], q[2], q[3], 1.0)
+        v[1] = v[0]
+        if acc[3] > 1.0e-6:
+            v = wp.vec4(v[0], v[0] + acc[0] / acc[3], acc[1] / acc[3], acc[2] / acc[3])
         x[i, j] = v
         vb = x_bar[i, j]
-        vb[1] = v[1]
-        x_bar[i, j] = vb
+        x_bar[i, j] = wp.vec4(vb[0], v[1], v[2], v[3])

@@ -661,7 +661,7 @@ def estimate_scene_flow(
             lap("median")
             say(f"level {len(sizes) - level}/{len(sizes)} ({w}×{h}), warp {k + 1}/{params.warps}")
         if level == 0:
-            solver.fill_hidden()  # δ2 of the points hidden at t2: once, at the end (Params.hidden_fill_sigma)
+            solver.fill_hidden()  # δ2 and flow of the points hidden at t2: once, at the end (Params.hidden_fill_sigma)
             lap("iterate")
         x, w0, w1 = solver.state()
         if level > 0:

@@ -105,7 +105,6 @@ class LevelSolver:
         self.view_zbuf1 = wp.zeros((views, h, w) if views > 1 else (1, 1, 1), dtype=float, device=device)
         self.view_zbuf2 = wp.zeros((views, h, w) if views > 1 else (1, 1, 1), dtype=float, device=device)
         self.hidden2 = wp.zeros((h, w), dtype=float, device=device)
-        self.depth_sums = wp.empty((h, w), dtype=wp.vec2, device=device)  # fill_hidden's row sums
         self.scratch1 = wp.zeros((h, w), dtype=float, device=device)
         self._iteration = None  # the recorded iteration (``iterate``)
         self._tensors()
@@ -267,21 +266,21 @@ class LevelSolver:
         return self.hidden2.numpy() > 0.5
 
     def fill_hidden(self) -> None:
-        """Where a point is hidden at t2 (``hidden2`` of the last linearisation), set δ2 =
-        δ1 plus the depth change of the points around it that are seen at t2
-        (:func:`lfsf.kernels.occlusion.fill_hidden_depth`; ``params.hidden_fill_sigma``, 0:
-        off). No view constrains δ2 there, and the regulariser alone reaches over to the
-        occluder's disparity. The estimator calls it once, after the finest level's last
-        warp."""
+        """Where a point is hidden at t2 (``hidden2`` of the last linearisation), give it
+        the motion of the points of its own surface around it that are seen at t2: δ2 =
+        δ1 plus their depth change, (u, v) their flow
+        (:func:`lfsf.kernels.occlusion.fill_hidden_motion`; ``params.hidden_fill_sigma``,
+        0: off, and ``params.hidden_fill_depth``). No view constrains the point at t2,
+        and the regulariser alone reaches over to the occluder. The estimator calls it
+        once, after the finest level's last warp."""
         from lfsf.kernels import occlusion
 
         sigma = self.params.hidden_fill_sigma
         if sigma <= 0 or self.flow_only or self.params.occlusion_margin <= 0:
             return
         radius = int(math.ceil(3.0 * sigma))
-        self._launch(occlusion.depth_change_rows, inputs=[self.x, self.hidden2, sigma, radius],
-                     outputs=[self.depth_sums])
-        self._launch(occlusion.fill_hidden_depth, inputs=[self.depth_sums, self.hidden2, sigma, radius],
+        depth_sigma = self.params.hidden_fill_depth * self.level_scale
+        self._launch(occlusion.fill_hidden_motion, inputs=[self.hidden2, sigma, depth_sigma, radius],
                      outputs=[self.x, self.x_bar])
 
     def iterate(self, n: int) -> None:

@@ -1423,54 +1423,60 @@ def test_solver_hidden_at_t2_is_the_geometric_test_of_the_estimate_given(device)
     assert not (solver.hidden2.numpy() > 0.5).any()
 
 
-def _fill_hidden(x, hidden, sigma, radius, device):
+def _fill_hidden(x, hidden, sigma, radius, device, depth_sigma=0.0):
     from lfsf.kernels import occlusion
 
-    h, w = hidden.shape
     xa = arr(x, wp.vec4, device)
-    xb = arr(x + 5.0, wp.vec4, device)  # x̄: its δ2 is set where hidden, the rest kept
+    xb = arr(x + 5.0, wp.vec4, device)  # x̄: its δ2 and flow are set where hidden, the rest kept
     ha = arr(hidden, float, device)
-    sums = wp.zeros((h, w), dtype=wp.vec2, device=device)
-    launch(occlusion.depth_change_rows, (h, w), [xa, ha, float(sigma), int(radius)], [sums], device)
-    launch(occlusion.fill_hidden_depth, (h, w), [sums, ha, float(sigma), int(radius)], [xa, xb], device)
+    launch(occlusion.fill_hidden_motion, hidden.shape, [ha, float(sigma), float(depth_sigma), int(radius)], [xa, xb],
+           device)
     return xa.numpy(), xb.numpy()
 
 
-def test_fill_hidden_depth_matches_reference(device):
-    """δ2 = δ1 + the Gaussian-weighted depth change of the visible pixels nearby, where
-    hidden; every other value as it was (x and x̄)."""
+def test_fill_hidden_motion_matches_reference(device):
+    """δ2 = δ1 + the weighted depth change, (u, v) the weighted flow of the visible pixels
+    nearby, where hidden; every other value as it was (x and x̄), δ1 everywhere."""
     r = rng(5)
     h, w = 9, 13
     x = r.uniform(-2, 2, (h, w, 4)).astype(np.float32)
     hidden = (r.random((h, w)) < 0.3).astype(np.float32)
     hidden[:, 9:] = 1.0  # a block wider than the radius: its middle column sees nothing
-    for sigma, radius in ((1.0, 2), (2.5, 3)):
-        got, got_bar = _fill_hidden(x, hidden, sigma, radius, device)
-        want = ref.fill_hidden_depth(x, hidden, sigma, radius)
+    on = hidden > 0.5
+    for sigma, radius, depth_sigma in ((1.0, 2, 0.0), (2.5, 3, 0.0), (2.5, 3, 0.7)):
+        got, got_bar = _fill_hidden(x, hidden, sigma, radius, device, depth_sigma)
+        want = ref.fill_hidden_motion(x, hidden, sigma, depth_sigma, radius)
         close(got, want, atol=1e-5)
-        on = hidden > 0.5
         np.testing.assert_array_equal(got[~on], x[~on])
-        np.testing.assert_array_equal(got[..., [0, 2, 3]], x[..., [0, 2, 3]])
-        np.testing.assert_array_equal(got_bar[..., 1][on], got[..., 1][on])
+        np.testing.assert_array_equal(got[..., 0], x[..., 0])
+        np.testing.assert_array_equal(got_bar[..., 1:][on], got[..., 1:][on])
+        np.testing.assert_array_equal(got_bar[..., 0], x[..., 0] + 5.0)
         np.testing.assert_array_equal(got_bar[~on], x[~on] + 5.0)
-    # radius 2: column 11 is 3 px from the last visible column (8): δ2 = δ1 there
+    # radius 2: column 11 is 3 px from the last visible column (8): δ2 = δ1, flow kept
     got, _ = _fill_hidden(x, hidden, 1.0, 2, device)
     np.testing.assert_array_equal(got[:, 11, 1], x[:, 11, 0])
+    np.testing.assert_array_equal(got[:, 11, 2:], x[:, 11, 2:])
 
 
-def test_fill_hidden_depth_carries_the_background_motion_in_depth(device):
-    """A background receding by 0.3 (δ2 = δ1 − 0.3) partly hidden at t2: the hidden
-    points get the same change, whatever δ2 the iterations had left there (here the
-    occluder's)."""
-    h, w = 8, 12
+def test_fill_hidden_motion_carries_the_background_motion(device):
+    """A background receding by 0.3 (δ2 = δ1 − 0.3) and moving 2 px right, partly hidden
+    at t2 by a nearer occluder moving 5 px left: the hidden points get the background's
+    change and flow, whatever the iterations had left there (here the occluder's). The
+    occluder's visible pixels lie next to them, nearer than the background's: without
+    the depth weight their motion leaks in."""
+    h, w = 8, 16
     x = np.zeros((h, w, 4), np.float32)
-    x[..., 0] = -1.0
-    x[..., 1] = -1.3
+    x[..., 0], x[..., 1], x[..., 2] = -1.0, -1.3, 2.0
+    x[:, :4] = (1.0, 1.0, -5.0, 0.0)  # the occluder, visible
     hidden = np.zeros((h, w), np.float32)
-    hidden[2:6, 4:8] = 1.0
-    x[2:6, 4:8, 1] = 1.0  # the occluder's disparity
-    got, _ = _fill_hidden(x, hidden, 2.0, 6, device)
-    close(got[..., 1], np.full((h, w), -1.3), atol=1e-6)
+    hidden[:, 4:8] = 1.0
+    x[:, 4:8, 1:3] = (1.0, -5.0)  # the occluder's δ2 and flow reached over
+    got, _ = _fill_hidden(x, hidden, 2.0, 6, device, depth_sigma=0.1)
+    close(got[:, 4:, 1], np.full((h, w - 4), -1.3), atol=1e-6)
+    close(got[:, 4:, 2], np.full((h, w - 4), 2.0), atol=1e-6)
+    close(got[..., 3], np.zeros((h, w)), atol=1e-6)
+    mixed, _ = _fill_hidden(x, hidden, 2.0, 6, device)
+    assert (mixed[:, 4, 2] < 1.0).all()  # the occluder's −5 pulls the first hidden column
 
 
 def test_hidden_at_t2_finds_the_covered_background(device):
