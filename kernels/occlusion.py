@@ -160,6 +160,7 @@ def splat_views(
 def fill_hidden_motion(
     row0: int,
     hidden: wp.array2d(dtype=float),
+    flagged: wp.array2d(dtype=float),
     sigma: float,
     depth_sigma: float,
     radius: int,
@@ -174,12 +175,15 @@ def fill_hidden_motion(
     δ2 − δ1 and (u, v) over the pixels q within ``radius`` (a square window) not hidden,
     weight exp(−|q − p|²/2σ²) · exp(−(δ1(q) − δ1(p))²/2σ_d²) (σ = ``sigma`` px, σ_d =
     ``depth_sigma`` px per view step; 0: no depth weight). The depth weight leaves out
-    the occluder, which is nearer. Where no such pixel is: D = 0, the flow unchanged.
-    The same in x̄. In place: only hidden pixels are written, only others read. Launch
-    over (rows, columns)."""
+    the occluder, which is nearer. Where ``flagged`` (another test's suspects, e.g. the
+    searches') but not ``hidden``, only δ2 is set so, and flagged pixels are no source
+    of D. Where the weights sum to 1e-6 or less: D = 0, the flow unchanged. The same in
+    x̄. In place: only filled pixels are written, only others read. Launch over (rows,
+    columns)."""
     i, j = wp.tid()
     i = i + row0
-    if hidden[i, j] > 0.5:
+    is_hidden = hidden[i, j] > 0.5
+    if is_hidden or flagged[i, j] > 0.5:
         h = x.shape[0]
         w = x.shape[1]
         v = x[i, j]
@@ -187,17 +191,23 @@ def fill_hidden_motion(
         inv_d = float(0.0)
         if depth_sigma > 0.0:
             inv_d = 1.0 / (2.0 * depth_sigma * depth_sigma)
-        acc = wp.vec4(0.0)  # Σ g·(δ2 − δ1), Σ g·u, Σ g·v, Σ g
+        depth = wp.vec2(0.0)  # Σ g·(δ2 − δ1), Σ g over the pixels neither hidden nor flagged
+        flow = wp.vec3(0.0)  # Σ g·u, Σ g·v, Σ g over the pixels not hidden
         for ii in range(wp.max(i - radius, 0), wp.min(i + radius + 1, h)):
             for jj in range(wp.max(j - radius, 0), wp.min(j + radius + 1, w)):
                 if hidden[ii, jj] <= 0.5:
                     q = x[ii, jj]
                     dd = q[0] - v[0]
                     g = wp.exp(-float((ii - i) * (ii - i) + (jj - j) * (jj - j)) * inv_s - dd * dd * inv_d)
-                    acc += g * wp.vec4(q[1] - q[0], q[2], q[3], 1.0)
+                    flow += g * wp.vec3(q[2], q[3], 1.0)
+                    if flagged[ii, jj] <= 0.5:
+                        depth += g * wp.vec2(q[1] - q[0], 1.0)
         v[1] = v[0]
-        if acc[3] > 1.0e-6:
-            v = wp.vec4(v[0], v[0] + acc[0] / acc[3], acc[1] / acc[3], acc[2] / acc[3])
+        if depth[1] > 1.0e-6:
+            v[1] = v[0] + depth[0] / depth[1]
+        if is_hidden and flow[2] > 1.0e-6:
+            v[2] = flow[0] / flow[2]
+            v[3] = flow[1] / flow[2]
         x[i, j] = v
         vb = x_bar[i, j]
         x_bar[i, j] = wp.vec4(vb[0], v[1], v[2], v[3])

@@ -624,6 +624,7 @@ def estimate_scene_flow(
         f"{len(sizes)} levels on {dev}")
 
     x = w0 = w1 = None
+    hidden_here = None
     for level in range(len(sizes) - 1, -1, -1):
         h, w = sizes[level]
         tex, cen = levels[level]
@@ -661,7 +662,9 @@ def estimate_scene_flow(
             lap("median")
             say(f"level {len(sizes) - level}/{len(sizes)} ({w}×{h}), warp {k + 1}/{params.warps}")
         if level == 0:
-            solver.fill_hidden()  # δ2 and flow of the points hidden at t2: once, at the end (Params.hidden_fill_sigma)
+            # δ2 and flow of the points hidden at t2: once, at the end (Params.hidden_fill_sigma);
+            # δ2 also where the searches or the level's start found the point hidden
+            solver.fill_hidden(hidden_here)
             lap("iterate")
         x, w0, w1 = solver.state()
         if level > 0:

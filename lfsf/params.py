@@ -54,8 +54,11 @@ class Params:
         hidden_fill_depth : σ_d of that fill's depth weight exp(−(δ1(q) − δ1(p))²/2σ_d²),
             px per view step at full resolution; 0: none. It keeps the occluder, which is
             nearer, out of the mean. Without it the flow fill took the occluder's motion
-            (EPE 2.6–2.7× over 12 scenes); with it (σ = 8, σ_d = 0.1, ninth session) EPE
-            0.90× and δ2 0.88× at 160×120, 0.92× and 0.84× at 320×240 (geometric means).
+            (EPE 2.6–2.7× over 12 scenes). With it (σ = 8, σ_d = 0.1, ninth session;
+            geometric means over the scenes of ``compare_peers.py --random 8``, δ1
+            unchanged): EPE 0.90×, 0.92×, 0.91× at 160×120, 320×240, 640×480, δ2 0.72×,
+            0.64×, 0.70×; δ2 is also filled where the searches flag the point hidden
+            (:meth:`lfsf.solver.LevelSolver.fill_hidden`'s ``flagged``).
         texture_theta : θ of the structure–texture split T = I − θ·ROF(I); 0 disables it.
             Higher θ suits real data (HCI antinous BadPix 13.7 % at 0.85, 21.6 % at 0.5)
             but costs accuracy on brightness-constant scenes (``weak_texture`` flow EPE

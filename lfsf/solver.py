@@ -265,22 +265,31 @@ class LevelSolver:
         self.find_hidden()
         return self.hidden2.numpy() > 0.5
 
-    def fill_hidden(self) -> None:
+    def fill_hidden(self, flagged: np.ndarray | None = None) -> None:
         """Where a point is hidden at t2 (``hidden2`` of the last linearisation), give it
         the motion of the points of its own surface around it that are seen at t2: δ2 =
         δ1 plus their depth change, (u, v) their flow
         (:func:`lfsf.kernels.occlusion.fill_hidden_motion`; ``params.hidden_fill_sigma``,
         0: off, and ``params.hidden_fill_depth``). No view constrains the point at t2,
-        and the regulariser alone reaches over to the occluder. The estimator calls it
-        once, after the finest level's last warp."""
+        and the regulariser alone reaches over to the occluder. ``flagged`` (bool (h, w),
+        optional): points another test suspects hidden (the estimator's searches); their
+        δ2 is set the same way. The estimator calls it once, after the finest level's
+        last warp."""
         from lfsf.kernels import occlusion
 
+        wp = _device.warp()
         sigma = self.params.hidden_fill_sigma
         if sigma <= 0 or self.flow_only or self.params.occlusion_margin <= 0:
             return
         radius = int(math.ceil(3.0 * sigma))
         depth_sigma = self.params.hidden_fill_depth * self.level_scale
-        self._launch(occlusion.fill_hidden_motion, inputs=[self.hidden2, sigma, depth_sigma, radius],
+        if flagged is None:
+            self.scratch1.zero_()
+        else:
+            if flagged.shape != self.shape:
+                raise ValueError(f"flagged must be {self.shape}, got {flagged.shape}")
+            wp.copy(self.scratch1, wp.array(np.ascontiguousarray(flagged, np.float32), dtype=float, device=self.device))
+        self._launch(occlusion.fill_hidden_motion, inputs=[self.hidden2, self.scratch1, sigma, depth_sigma, radius],
                      outputs=[self.x, self.x_bar])
 
     def iterate(self, n: int) -> None:

@@ -843,36 +843,41 @@ def hidden_at_t2(x, margin, reach):
     return out
 
 
-def fill_hidden_motion(x, hidden, sigma, depth_sigma, radius):
+def fill_hidden_motion(x, hidden, sigma, depth_sigma, radius, flagged=None):
     """x with δ2 = δ1 + D and (u, v) = U where ``hidden`` (kernels/occlusion.py
     fill_hidden_motion): D and U the weighted means of δ2 − δ1 and (u, v) over the
     pixels within ``radius`` (a square window, clamped to the image) that are not
-    hidden, weight exp(−(dx² + dy²)/2σ²)·exp(−(δ1(q) − δ1(p))²/2σ_d²) (σ_d = 0: no depth
-    weight); D = 0 and the flow unchanged where the weights sum to 1e-6 or less.
-    Explicit loops."""
+    hidden (for D, nor ``flagged``), weight exp(−(dx² + dy²)/2σ²)·exp(−(δ1(q) −
+    δ1(p))²/2σ_d²) (σ_d = 0: no depth weight); D = 0 and the flow unchanged where the
+    weights sum to 1e-6 or less. Where flagged but not hidden, δ2 alone. Explicit loops."""
     x = np.asarray(x, np.float64).copy()
     hidden = np.asarray(hidden) > 0.5
+    flagged = np.zeros_like(hidden) if flagged is None else np.asarray(flagged) > 0.5
     h, w = hidden.shape
     diff = x[..., 1] - x[..., 0]
     out = x.copy()
     for i in range(h):
         for j in range(w):
-            if not hidden[i, j]:
+            if not (hidden[i, j] or flagged[i, j]):
                 continue
-            num = np.zeros(3)
-            den = 0.0
+            num_d = den_d = 0.0
+            num_f = np.zeros(2)
+            den_f = 0.0
             for yy in range(max(i - radius, 0), min(i + radius + 1, h)):
                 for xx in range(max(j - radius, 0), min(j + radius + 1, w)):
-                    if not hidden[yy, xx]:
-                        g = np.exp(-((yy - i) ** 2 + (xx - j) ** 2) / (2.0 * sigma * sigma))
-                        if depth_sigma > 0:
-                            g *= np.exp(-(x[yy, xx, 0] - x[i, j, 0]) ** 2 / (2.0 * depth_sigma ** 2))
-                        num += g * np.array([diff[yy, xx], x[yy, xx, 2], x[yy, xx, 3]])
-                        den += g
-            out[i, j, 1] = x[i, j, 0]
-            if den > 1e-6:
-                out[i, j, 1] += num[0] / den
-                out[i, j, 2:] = num[1:] / den
+                    if hidden[yy, xx]:
+                        continue
+                    g = np.exp(-((yy - i) ** 2 + (xx - j) ** 2) / (2.0 * sigma * sigma))
+                    if depth_sigma > 0:
+                        g *= np.exp(-(x[yy, xx, 0] - x[i, j, 0]) ** 2 / (2.0 * depth_sigma ** 2))
+                    num_f += g * x[yy, xx, 2:]
+                    den_f += g
+                    if not flagged[yy, xx]:
+                        num_d += g * diff[yy, xx]
+                        den_d += g
+            out[i, j, 1] = x[i, j, 0] + (num_d / den_d if den_d > 1e-6 else 0.0)
+            if hidden[i, j] and den_f > 1e-6:
+                out[i, j, 2:] = num_f / den_f
     return out
 
 

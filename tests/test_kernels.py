@@ -1423,14 +1423,15 @@ def test_solver_hidden_at_t2_is_the_geometric_test_of_the_estimate_given(device)
     assert not (solver.hidden2.numpy() > 0.5).any()
 
 
-def _fill_hidden(x, hidden, sigma, radius, device, depth_sigma=0.0):
+def _fill_hidden(x, hidden, sigma, radius, device, depth_sigma=0.0, flagged=None):
     from lfsf.kernels import occlusion
 
     xa = arr(x, wp.vec4, device)
     xb = arr(x + 5.0, wp.vec4, device)  # x̄: its δ2 and flow are set where hidden, the rest kept
     ha = arr(hidden, float, device)
-    launch(occlusion.fill_hidden_motion, hidden.shape, [ha, float(sigma), float(depth_sigma), int(radius)], [xa, xb],
-           device)
+    fa = arr(np.zeros_like(hidden) if flagged is None else flagged, float, device)
+    launch(occlusion.fill_hidden_motion, hidden.shape, [ha, fa, float(sigma), float(depth_sigma), int(radius)],
+           [xa, xb], device)
     return xa.numpy(), xb.numpy()
 
 
@@ -1456,6 +1457,19 @@ def test_fill_hidden_motion_matches_reference(device):
     got, _ = _fill_hidden(x, hidden, 1.0, 2, device)
     np.testing.assert_array_equal(got[:, 11, 1], x[:, 11, 0])
     np.testing.assert_array_equal(got[:, 11, 2:], x[:, 11, 2:])
+    # flagged points: δ2 alone, and they give no depth change
+    flagged = ((r.random((h, w)) < 0.3) & ~on).astype(np.float32)
+    flagged[0, 0] = 1.0
+    hidden[0, 0] = 1.0  # both
+    on = hidden > 0.5
+    got, got_bar = _fill_hidden(x, hidden, 2.5, 3, device, 0.7, flagged)
+    close(got, ref.fill_hidden_motion(x, hidden, 2.5, 0.7, 3, flagged), atol=1e-5)
+    only = (flagged > 0.5) & ~on
+    assert only.sum() > 5
+    np.testing.assert_array_equal(got[..., 2:][only], x[..., 2:][only])
+    assert np.abs(got[..., 1][only] - x[..., 1][only]).min() > 0
+    untouched = ~on & ~(flagged > 0.5)
+    np.testing.assert_array_equal(got[untouched], x[untouched])
 
 
 def test_fill_hidden_motion_carries_the_background_motion(device):
