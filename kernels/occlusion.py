@@ -178,8 +178,8 @@ def fill_hidden_motion(
     the occluder, which is nearer. Where ``flagged`` (another test's suspects, e.g. the
     searches') but not ``hidden``, only δ2 is set so, and flagged pixels are no source
     of D. Where the weights sum to 1e-6 or less: D = 0, the flow unchanged. The same in
-    x̄. In place: only filled pixels are written, only others read. Launch over (rows,
-    columns)."""
+    x̄. In place: a hidden pixel is written and never read; a flagged one is read only
+    for δ1 and the flow, which its write keeps. Launch over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0
     is_hidden = hidden[i, j] > 0.5

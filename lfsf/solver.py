@@ -277,7 +277,6 @@ class LevelSolver:
         last warp."""
         from lfsf.kernels import occlusion
 
-        wp = _device.warp()
         sigma = self.params.hidden_fill_sigma
         if sigma <= 0 or self.flow_only or self.params.occlusion_margin <= 0:
             return
@@ -288,7 +287,7 @@ class LevelSolver:
         else:
             if flagged.shape != self.shape:
                 raise ValueError(f"flagged must be {self.shape}, got {flagged.shape}")
-            wp.copy(self.scratch1, wp.array(np.ascontiguousarray(flagged, np.float32), dtype=float, device=self.device))
+            self.scratch1.assign(np.ascontiguousarray(flagged, np.float32))
         self._launch(occlusion.fill_hidden_motion, inputs=[self.hidden2, self.scratch1, sigma, depth_sigma, radius],
                      outputs=[self.x, self.x_bar])
 
