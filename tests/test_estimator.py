@@ -145,6 +145,25 @@ def test_accuracy_against_ground_truth_on_synthetic_scenes(scene):
     assert got["flow"]["epe"] < 0.25 * none["flow"]["epe"], (got["flow"], none["flow"])
 
 
+def test_estimate_does_not_depend_on_how_rows_are_split_among_threads(monkeypatch):
+    """Banded CPU launches must be free of races and of band-dependent arithmetic: one
+    band and three bands per launch give the same four maps, bit for bit. The warps
+    amplify last-bit differences into visible ones, so anything less than equality would
+    make results depend on the machine's core count. At 160×120 the finest level is
+    split (levels under lfsf.device.SMALL_IMAGE pixels run as one band)."""
+    from lfsf import device, synth
+
+    lf1, lf2, _gt = synth.render_scene("paper", size=(160, 120), grid=9)
+    assert 160 * 120 >= device.SMALL_IMAGE
+    maps = []
+    for threads in ("1", "3"):
+        monkeypatch.setenv(device.ENV_THREADS, threads)
+        sf = estimate_scene_flow(lf1, lf2, Params.preset("fast"), device="cpu")
+        maps.append(sf.as_dict())
+    for key, a in maps[0].items():
+        np.testing.assert_array_equal(a, maps[1][key], err_msg=key)
+
+
 def test_joint_flow_beats_flow_only():
     """The light field's depth order and depth edges (geometric occlusion, Γ_uv) are what
     the joint model has over optical flow of the centre views alone (circles = 1): on
