@@ -61,6 +61,20 @@ def test_known_shift_is_recovered():
     assert np.median(np.abs(interior(sf.v) + 0.8)) < 0.05
 
 
+@pytest.mark.parametrize("disp1, disp2, flow", [(3.8, 3.5, (18.0, -12.0)), (-3.8, -3.6, (-19.0, 8.0)),
+                                                (3.9, -3.9, (0.0, 19.5))])
+def test_the_issue_ranges_are_reached(disp1, disp2, flow):
+    """Disparities up to ±4 px per view step (±16 px at the outer circle, R = 4) and
+    flows up to 20 px, as issue 3 asks, on a plane with the exact shifts (9×9 views,
+    160×120): reached from a zero start by the searches and the pyramid."""
+    lf1, lf2 = shift_lightfields(h=120, w=160, grid=9, disp1=disp1, disp2=disp2, flow=flow)
+    sf = estimate_scene_flow(lf1, lf2, Params.preset("fast"), device="cpu")
+    assert np.median(np.abs(interior(sf.disp1, 12) - disp1)) < 0.03
+    assert np.median(np.abs(interior(sf.disp2, 12) - disp2)) < 0.03
+    assert np.median(np.abs(interior(sf.u, 12) - flow[0])) < 0.1
+    assert np.median(np.abs(interior(sf.v, 12) - flow[1])) < 0.1
+
+
 def test_identical_light_fields_give_zero_flow_and_equal_disparities():
     lf1, _ = shift_lightfields(disp1=-0.7)
     sf = estimate_scene_flow(lf1, lf1, QUICK, device="cpu")
