@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -13,6 +14,11 @@ import numpy as np
 @dataclass(frozen=True)
 class Params:
     """Every setting of the estimator (Heber & Pock, GCPR 2014; MODEL.md).
+
+    Types are checked, not guessed: a whole-number setting takes an int or a float with
+    no fraction (``warps = 3.0`` → 3), a real-valued one any finite int or float, a switch
+    exactly true or false (no strings, no 0/1), ``samples`` a list or tuple of whole
+    numbers; a bool is no number. Anything else raises ``ValueError`` naming the setting.
 
     Sampling of the light field (MODEL.md §2)
         circles : M, the number of sampling circles (radii r_i = R·i/(M−1)); M = 1 uses
@@ -162,7 +168,10 @@ class Params:
     flow_range: float = 24.0
 
     def __post_init__(self):
-        object.__setattr__(self, "samples", tuple(int(n) for n in self.samples))
+        for f in dataclasses.fields(self):
+            check = _TYPE_CHECKS.get(f.type)
+            if check is not None:
+                object.__setattr__(self, f.name, check(f.name, getattr(self, f.name)))
         self.validate()
 
     # --- construction ----------------------------------------------------------------------
@@ -173,10 +182,9 @@ class Params:
         ``fast``: fewer views and iterations; ``lytro``: the paper's Lytro setting
         (M = 2, N = (1, 16)); ``flow``: optical flow of the centre views alone (M = 1),
         quick."""
-        try:
-            return cls(**PRESETS[name])
-        except KeyError:
-            raise ValueError(f"unknown preset {name!r}: the presets are {', '.join(PRESETS)}") from None
+        if not isinstance(name, str) or name not in PRESETS:
+            raise ValueError(f"unknown preset {name!r}: the presets are {', '.join(PRESETS)}")
+        return cls(**PRESETS[name])
 
     def replace(self, **changes) -> "Params":
         """A copy with some settings changed (validated)."""
@@ -201,10 +209,13 @@ class Params:
             data = tomllib.loads(path.read_text())
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise ValueError(f"{path}: not valid TOML ({exc})") from None
-        data = dict(data.get("params", data))
+        data = data.get("params", data)
+        if not isinstance(data, dict):
+            raise ValueError(f"{path}: [params] must be a table of settings, got {data!r}")
+        data = dict(data)
         preset = data.pop("preset", None)
-        params = cls.preset(preset) if preset else (base or cls())
         try:
+            params = cls.preset(preset) if preset is not None else (base or cls())
             return params.replace(**data)
         except (ValueError, TypeError) as exc:
             raise ValueError(f"{path}: {exc}") from None
@@ -212,6 +223,9 @@ class Params:
     # --- derived ---------------------------------------------------------------------------
 
     def validate(self) -> None:
+        """Ranges of the settings (their types are checked on construction). The upper
+        bounds keep a mistyped value from hanging the estimator or exhausting memory; each
+        is far above what the presets and the measurements use."""
         def need(ok, message):
             if not ok:
                 raise ValueError(f"bad parameter: {message}")
@@ -219,38 +233,55 @@ class Params:
         need(self.circles >= 1, f"circles (M) must be at least 1, got {self.circles}")
         need(len(self.samples) == self.circles,
              f"samples (N_i) must give one count per circle: M = {self.circles}, N = {self.samples}")
-        need(self.samples[0] == 1, f"the first circle is the centre view: N_0 must be 1, got {self.samples[0]}")
-        need(all(n >= 1 for n in self.samples), f"every N_i must be at least 1, got {self.samples}")
+        need(self.samples[0] == 1,
+             f"samples: the first circle is the centre view, N_0 must be 1, got {self.samples[0]}")
+        need(all(n >= 1 for n in self.samples), f"samples: every N_i must be at least 1, got {self.samples}")
+        # every sample holds ~90 bytes per pixel in the solver (data-term rows, duals,
+        # z-buffers, both sample stacks): 256 samples take ~7 GB at 640×480
+        need(sum(self.samples) <= MAX_SAMPLES,
+             f"samples (N_i) may hold at most {MAX_SAMPLES} positions in all, got {sum(self.samples)}")
         need(self.radius > 0 or self.circles == 1, f"radius R must be positive, got {self.radius}")
         for name in ("lambda1", "lambda2", "lambda3", "alpha0", "alpha1", "gamma", "beta", "rof_weight", "eps"):
             value = getattr(self, name)
-            need(math.isfinite(value) and value >= 0, f"{name} must be a finite number ≥ 0, got {value}")
+            need(value >= 0, f"{name} must be a finite number ≥ 0, got {value}")
         need(self.alpha0 > 0 and self.alpha1 > 0, "alpha0 and alpha1 must be positive")
         need(self.rof_weight > 0, f"rof_weight (μ) must be positive, got {self.rof_weight}")
-        need(math.isfinite(self.step_ratio) and self.step_ratio > 0,
-             f"step_ratio must be positive, got {self.step_ratio}")
+        need(self.eps > 0, f"eps (ε) must be positive (the preconditioners divide by it), got {self.eps}")
+        need(self.step_ratio > 0, f"step_ratio must be positive, got {self.step_ratio}")
         need(self.flow_edge_weight >= 0, f"flow_edge_weight must be ≥ 0, got {self.flow_edge_weight}")
-        need(self.occlusion_reach >= 0, f"occlusion_reach must be ≥ 0, got {self.occlusion_reach}")
-        need(self.hidden_fill_sigma >= 0, f"hidden_fill_sigma must be ≥ 0, got {self.hidden_fill_sigma}")
+        # spread_hidden walks a (2r+1)² window per pixel, every warp
+        need(0 <= self.occlusion_reach <= MAX_OCCLUSION_REACH,
+             f"occlusion_reach must be in 0…{MAX_OCCLUSION_REACH} px, got {self.occlusion_reach}")
+        # fill_hidden_motion walks a (6σ+1)² window per hidden pixel
+        need(0 <= self.hidden_fill_sigma <= MAX_HIDDEN_FILL_SIGMA,
+             f"hidden_fill_sigma must be in [0, {MAX_HIDDEN_FILL_SIGMA:g}] px, got {self.hidden_fill_sigma}")
         need(self.hidden_fill_depth >= 0, f"hidden_fill_depth must be ≥ 0, got {self.hidden_fill_depth}")
         need(self.occlusion_margin >= 0, f"occlusion_margin must be ≥ 0, got {self.occlusion_margin}")
         need(0 <= self.occlusion_ratio < 1, f"occlusion_ratio must be in [0, 1), got {self.occlusion_ratio}")
-        need(math.isfinite(self.contrast) and self.contrast >= 0, f"contrast must be ≥ 0, got {self.contrast}")
+        need(self.contrast >= 0, f"contrast must be ≥ 0, got {self.contrast}")
         need(0 <= self.texture_theta <= 1, f"texture_theta (θ) must be in [0, 1], got {self.texture_theta}")
         need(0 < self.pyramid_scale < 1, f"pyramid_scale (η_s) must be in (0, 1), got {self.pyramid_scale}")
         need(self.min_size >= 4, f"min_size must be at least 4, got {self.min_size}")
-        for name in ("warps", "iterations"):
-            need(getattr(self, name) >= 1, f"{name} must be at least 1, got {getattr(self, name)}")
-        need(self.max_levels >= 0 and self.rof_iterations >= 0 and self.median_radius >= 0,
-             "max_levels, rof_iterations and median_radius must be ≥ 0")
+        # run time grows linearly with these; the presets use 3–5 warps of 20–100
+        # iterations and 30–60 ROF iterations
+        for name, most in (("warps", MAX_WARPS), ("iterations", MAX_ITERATIONS)):
+            value = getattr(self, name)
+            need(1 <= value <= most, f"{name} must be in 1…{most}, got {value}")
+        need(0 <= self.rof_iterations <= MAX_ITERATIONS,
+             f"rof_iterations must be in 0…{MAX_ITERATIONS}, got {self.rof_iterations}")
+        need(self.max_levels >= 0, f"max_levels must be ≥ 0, got {self.max_levels}")
         need(self.warm_levels >= 0, f"warm_levels must be ≥ 0, got {self.warm_levels}")
-        need(self.median_radius <= 3, f"median_radius must be at most 3, got {self.median_radius}")
-        need(math.isfinite(self.median_tolerance) and self.median_tolerance >= 0,
-             f"median_tolerance must be ≥ 0, got {self.median_tolerance}")
-        need(math.isfinite(self.disparity_range) and self.disparity_range > 0,
-             f"disparity_range must be positive, got {self.disparity_range}")
+        need(0 <= self.median_radius <= 3, f"median_radius must be in 0…3, got {self.median_radius}")
+        need(self.median_tolerance >= 0, f"median_tolerance must be ≥ 0, got {self.median_tolerance}")
+        # the sweep's cost volumes hold 4·R·range + 1 candidates per pixel (R = 4, ±32:
+        # 513, 1.3 GB at 640×480)
+        need(0 < self.disparity_range <= MAX_DISPARITY_RANGE,
+             f"disparity_range must be in (0, {MAX_DISPARITY_RANGE:g}] px per view step, got {self.disparity_range}")
         need(0 <= self.search_radius <= 5, f"search_radius must be in 0…5, got {self.search_radius}")
-        need(math.isfinite(self.flow_range) and self.flow_range > 0, f"flow_range must be positive, got {self.flow_range}")
+        # the block matching tries (2n+1)² shifts per pixel, n the range on the search
+        # level; past what the coarsest level can shrink, n grows with the range
+        need(0 < self.flow_range <= MAX_FLOW_RANGE,
+             f"flow_range must be in (0, {MAX_FLOW_RANGE:g}] px, got {self.flow_range}")
 
     def sample_offsets(self, grid: tuple[int, int]) -> tuple[np.ndarray, float]:
         """The angular offsets φ_ij = r_i (cos s_ij, sin s_ij) in view steps, centre first,
@@ -272,6 +303,66 @@ class Params:
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+
+# Upper bounds of the settings that size buffers or loops (:meth:`Params.validate`).
+MAX_SAMPLES = 256
+MAX_OCCLUSION_REACH = 32
+MAX_HIDDEN_FILL_SIGMA = 64.0
+MAX_WARPS = 1000
+MAX_ITERATIONS = 100_000
+MAX_DISPARITY_RANGE = 32.0
+MAX_FLOW_RANGE = 512.0
+
+
+def _bad(name: str, expected: str, value) -> ValueError:
+    return ValueError(f"bad parameter: {name} must be {expected}, got {value!r} ({type(value).__name__})")
+
+
+def _whole(name: str, value) -> int:
+    """An int setting: an int, or a float with no fraction (TOML's ``3.0``)."""
+    if isinstance(value, numbers.Real) and not isinstance(value, bool):
+        if isinstance(value, numbers.Integral):
+            return int(value)
+        number = float(value)
+        if number.is_integer():
+            return int(number)
+    raise _bad(name, "a whole number", value)
+
+
+def _real(name: str, value) -> float:
+    """A float setting: a finite int or float."""
+    if isinstance(value, numbers.Real) and not isinstance(value, bool):
+        try:
+            number = float(value)
+        except OverflowError:  # an int past float's range
+            number = math.inf
+        if math.isfinite(number):
+            return number
+    raise _bad(name, "a finite number", value)
+
+
+def _flag(name: str, value) -> bool:
+    """A switch: exactly true or false (a string such as "false" would read as true)."""
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    raise _bad(name, "true or false", value)
+
+
+def _counts(name: str, value) -> tuple[int, ...]:
+    """``samples``: a list or tuple of whole numbers (a string or one number is none)."""
+    if isinstance(value, np.ndarray) and value.ndim == 1:
+        value = value.tolist()
+    if isinstance(value, (list, tuple)):
+        try:
+            return tuple(_whole(name, n) for n in value)
+        except ValueError:
+            pass
+    raise _bad(name, "a list of whole numbers, one per circle", value)
+
+
+#: the check of each field's annotated type (``from __future__ import annotations``: names)
+_TYPE_CHECKS = {"int": _whole, "float": _real, "bool": _flag, "tuple[int, ...]": _counts}
 
 
 PRESETS: dict[str, dict] = {

@@ -1,0 +1,153 @@
+"""Params: bad settings end in a ValueError naming the setting; good ones keep their types."""
+
+import dataclasses
+import math
+import re
+
+import numpy as np
+import pytest
+
+from lfsf import Params
+from lfsf.params import PRESETS
+
+INT_FIELDS = [f.name for f in dataclasses.fields(Params) if f.type == "int"]
+FLOAT_FIELDS = [f.name for f in dataclasses.fields(Params) if f.type == "float"]
+BOOL_FIELDS = [f.name for f in dataclasses.fields(Params) if f.type == "bool"]
+
+
+def named(name):
+    """A pattern matching the setting's name as a word (``iterations``, not ``rof_iterations``)."""
+    return rf"(?<![\w]){re.escape(name)}(?![\w])"
+
+
+def assert_types(params):
+    for name in INT_FIELDS:
+        assert type(getattr(params, name)) is int, name
+    for name in FLOAT_FIELDS:
+        assert type(getattr(params, name)) is float, name
+    for name in BOOL_FIELDS:
+        assert type(getattr(params, name)) is bool, name
+    assert type(params.samples) is tuple and all(type(n) is int for n in params.samples)
+
+
+def test_the_field_lists_cover_every_setting():
+    assert len(INT_FIELDS) + len(FLOAT_FIELDS) + len(BOOL_FIELDS) + 1 == len(dataclasses.fields(Params))
+    assert {"warps", "iterations", "circles", "median_radius", "search_radius"} <= set(INT_FIELDS)
+    assert {"visibility", "flow_search", "disparity_search", "warp_tensor2"} <= set(BOOL_FIELDS)
+
+
+@pytest.mark.parametrize("name", list(PRESETS))
+def test_defaults_and_presets_validate_with_their_types(name):
+    params = Params.preset(name)
+    params.validate()
+    assert_types(params)
+    assert_types(Params())
+    assert Params.preset("paper") == Params()
+
+
+BAD = [
+    # int settings: fractions, bools, strings
+    ("warps", 1.5), ("warps", True), ("warps", "3"), ("iterations", 2.5), ("iterations", "100"),
+    ("circles", 1.5), ("rof_iterations", 0.5), ("median_radius", 1.5), ("search_radius", 1.5),
+    ("occlusion_reach", math.inf), ("min_size", math.nan), ("max_levels", None),
+    # switches: strings and numbers are not true/false
+    ("visibility", "false"), ("flow_search", "false"), ("disparity_search", 1), ("warp_tensor2", None),
+    ("visibility", 0),
+    # samples: a list of whole numbers
+    ("samples", "188"), ("samples", [1, 8.7, 8]), ("samples", 8), ("samples", None), ("samples", (1, "8", 8)),
+    ("samples", [1, True, 8]),
+    # float settings: real, finite, not bool
+    ("lambda3", "x"), ("lambda1", True), ("radius", None), ("hidden_fill_sigma", math.inf),
+    ("radius", math.nan), ("gamma", -math.inf), ("step_ratio", math.inf), ("flow_edge_weight", math.inf),
+    ("occlusion_margin", math.inf), ("hidden_fill_depth", math.inf), ("lambda2", 10 ** 400),
+    # ranges
+    ("eps", 0), ("eps", 0.0), ("eps", -1e-6),
+    # bounds on what sizes buffers and loops
+    ("occlusion_reach", 1000), ("flow_range", 1e6), ("disparity_range", 1e6), ("hidden_fill_sigma", 1000.0),
+    ("iterations", 10 ** 9), ("rof_iterations", 10 ** 9), ("warps", 10 ** 6), ("samples", (1, 8, 10_000)),
+]
+
+
+@pytest.mark.parametrize("name, value", BAD)
+def test_a_bad_setting_raises_a_value_error_naming_it(name, value):
+    with pytest.raises(ValueError, match=named(name)):
+        Params(**{name: value})
+    with pytest.raises(ValueError, match=named(name)):
+        Params.preset("fast").replace(**{name: value})
+
+
+@pytest.mark.parametrize("name", [n for n in INT_FIELDS if n != "circles"])
+def test_whole_number_floats_are_stored_as_ints(name):
+    value = getattr(Params(), name) + 1
+    params = Params(**{name: float(value)})
+    assert getattr(params, name) == value and type(getattr(params, name)) is int
+    assert params == Params(**{name: value})
+
+
+def test_samples_are_stored_as_a_tuple_of_ints():
+    params = Params.preset("fast").replace(circles=2.0, samples=[1.0, np.int64(12)])
+    assert params.circles == 2 and type(params.circles) is int
+    assert params.samples == (1, 12) and all(type(n) is int for n in params.samples)
+    assert Params(samples=np.array([1, 8, 8])).samples == (1, 8, 8)
+
+
+def test_ints_and_numpy_numbers_are_stored_as_floats_and_numpy_bools_as_bools():
+    params = Params(lambda3=20, radius=np.float32(2.5), visibility=np.bool_(False))
+    assert params.lambda3 == 20.0 and type(params.lambda3) is float
+    assert params.radius == 2.5 and type(params.radius) is float
+    assert params.visibility is False
+
+
+def test_the_bounds_themselves_are_accepted():
+    params = Params(disparity_range=32, flow_range=512, occlusion_reach=32, hidden_fill_sigma=64,
+                    samples=(1, 127, 128), iterations=100_000, rof_iterations=100_000, warps=1000)
+    assert params.disparity_range == 32.0 and params.samples == (1, 127, 128)
+    with pytest.raises(ValueError, match="samples"):
+        Params(samples=(1, 128, 128))
+
+
+def test_eps_must_be_positive():
+    with pytest.raises(ValueError, match=named("eps")):
+        Params(eps=0)
+    assert Params(eps=1e-12).eps == 1e-12
+
+
+@pytest.mark.parametrize("name", [[], None, 3, "slow"])
+def test_an_unknown_or_unhashable_preset_name_raises_a_value_error(name):
+    with pytest.raises(ValueError, match="unknown preset"):
+        Params.preset(name)
+
+
+@pytest.mark.parametrize("changes", [{"iterations": "100"}, {"samples": 8}])
+def test_replace_with_a_bad_type_raises_a_value_error(changes):
+    with pytest.raises(ValueError, match=named(next(iter(changes)))):
+        Params.preset("fast").replace(**changes)
+
+
+def test_a_toml_file_with_whole_number_floats_loads(tmp_path):
+    path = tmp_path / "run.toml"
+    path.write_text("warps = 3.0\niterations = 40.0\nlambda3 = 20\nsamples = [1, 8.0, 8]\nvisibility = false\n")
+    params = Params.from_toml(path)
+    assert params.warps == 3 and type(params.warps) is int
+    assert params.iterations == 40 and type(params.iterations) is int
+    assert params.lambda3 == 20.0 and type(params.lambda3) is float
+    assert params.samples == (1, 8, 8) and params.visibility is False
+
+
+@pytest.mark.parametrize("text, name", [('visibility = "false"\n', "visibility"), ("warps = 1.5\n", "warps"),
+                                        ('samples = "188"\n', "samples"), ("eps = 0\n", "eps"),
+                                        ("flow_range = inf\n", "flow_range"), ('preset = "slow"\n', "preset"),
+                                        ("preset = 3\n", "preset")])
+def test_a_bad_toml_setting_names_the_file_and_the_setting(tmp_path, text, name):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=named(name)) as info:
+        Params.from_toml(path)
+    assert str(info.value).startswith(f"{path}: ")
+
+
+def test_a_params_key_that_is_no_table_names_the_file(tmp_path):
+    path = tmp_path / "bad.toml"
+    path.write_text("params = 3\n")
+    with pytest.raises(ValueError, match=re.escape(str(path))):
+        Params.from_toml(path)
