@@ -11,7 +11,6 @@ of ``border`` pixels left out:
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +23,13 @@ HCI_BORDER = 15
 SYNTH_BORDER = 8
 
 
-def _mask(shape, valid, border: int) -> np.ndarray:
+def _mask(shape, valid, border: int, finite: np.ndarray) -> np.ndarray:
+    """Pixels to evaluate: ``valid`` (all if None) and ``finite``, less the border.
+
+    Raises ``ValueError`` for a negative border, and when no pixel is left, saying why.
+    """
+    if border < 0:
+        raise ValueError(f"the border must be 0 or more pixels, got {border}")
     mask = np.ones(shape, dtype=bool) if valid is None else np.asarray(valid, dtype=bool).copy()
     if mask.shape != tuple(shape):
         raise ValueError(f"valid mask has shape {mask.shape}, expected {tuple(shape)}")
@@ -33,13 +38,30 @@ def _mask(shape, valid, border: int) -> np.ndarray:
         mask[-border:, :] = False
         mask[:, :border] = False
         mask[:, -border:] = False
-    return mask
+    mask &= finite
+    if mask.any():
+        return mask
+    height, width = shape
+    inside = np.asarray(valid, dtype=bool) & finite if valid is not None else finite
+    if 2 * border >= min(height, width):
+        why = f"a border of {border} px leaves nothing of a {width}×{height} map"
+    elif valid is not None and not np.any(valid):
+        why = "the ground truth's 'valid' mask is all false"
+    elif not inside.any():
+        why = "the ground truth is NaN or infinite at every valid pixel"
+    else:
+        why = f"every valid, finite ground-truth pixel lies within the {border}-px border"
+    raise ValueError(f"no pixels left to evaluate: {why}")
 
 
 def _check_pair(name, est, ref):
-    if est.shape != ref.shape:
-        raise ValueError(f"{name}: the estimate is {est.shape[1]}×{est.shape[0]} but the ground truth is "
-                         f"{ref.shape[1]}×{ref.shape[0]}")
+    if est.ndim == ref.ndim == 2:
+        if est.shape != ref.shape:
+            raise ValueError(f"{name}: the estimate is {est.shape[1]}×{est.shape[0]} but the "
+                             f"ground truth is {ref.shape[1]}×{ref.shape[0]}")
+    else:
+        raise ValueError(f"{name}: expected 2-D maps, got an estimate of shape {est.shape} and "
+                         f"a ground truth of shape {ref.shape}")
 
 
 def disparity_errors(est, gt, valid=None, border: int = 0) -> dict[str, float]:
@@ -47,10 +69,8 @@ def disparity_errors(est, gt, valid=None, border: int = 0) -> dict[str, float]:
     est = np.asarray(est, dtype=np.float64)
     gt = np.asarray(gt, dtype=np.float64)
     _check_pair("disparity", est, gt)
-    m = _mask(gt.shape, valid, border) & np.isfinite(gt)
+    m = _mask(gt.shape, valid, border, np.isfinite(gt))
     n = int(m.sum())
-    if n == 0:
-        return {"mse": math.nan, "mse_x100": math.nan, "badpix_0.07": math.nan, "pixels": 0}
     err = est[m] - gt[m]
     err = np.where(np.isfinite(err), err, np.inf)  # a non-finite estimate counts as wrong
     sq = np.square(err)
@@ -68,10 +88,8 @@ def flow_errors(u, v, gt_u, gt_v, valid=None, border: int = 0) -> dict[str, floa
     u, v, gt_u, gt_v = (np.asarray(a, dtype=np.float64) for a in (u, v, gt_u, gt_v))
     _check_pair("flow", u, gt_u)
     _check_pair("flow", v, gt_v)
-    m = _mask(gt_u.shape, valid, border) & np.isfinite(gt_u) & np.isfinite(gt_v)
+    m = _mask(gt_u.shape, valid, border, np.isfinite(gt_u) & np.isfinite(gt_v))
     n = int(m.sum())
-    if n == 0:
-        return {"epe": math.nan, "mse_u": math.nan, "mse_v": math.nan, "pixels": 0}
     du = u[m] - gt_u[m]
     dv = v[m] - gt_v[m]
     du = np.where(np.isfinite(du), du, np.inf)
@@ -87,7 +105,10 @@ def flow_errors(u, v, gt_u, gt_v, valid=None, border: int = 0) -> dict[str, floa
 def evaluate(estimate: dict, gt: dict, border: int = SYNTH_BORDER) -> dict[str, dict[str, float]]:
     """Errors of an estimate (a mapping with some of ``disp1, disp2, u, v``) against a
     ground truth (the same keys, optional bool ``valid``). Only variables present in both
-    are evaluated; the flow needs both ``u`` and ``v``."""
+    are evaluated; the flow needs both ``u`` and ``v``.
+
+    Raises ``ValueError`` for maps of different sizes, a negative ``border``, or when the
+    border, the ``valid`` mask and non-finite ground truth leave no pixel to evaluate."""
     valid = gt.get("valid")
     out: dict[str, dict[str, float]] = {}
     for name in ("disp1", "disp2"):
@@ -115,7 +136,7 @@ def load_estimate(path: str | Path) -> dict[str, np.ndarray]:
         out: dict[str, np.ndarray] = {}
         for name in ("disp1", "disp2"):
             if (path / f"{name}.pfm").exists():
-                out[name] = io.read_pfm(path / f"{name}.pfm")
+                out[name] = _read_disparity_pfm(path / f"{name}.pfm")
         if (path / "flow.flo").exists():
             flow = io.read_flo(path / "flow.flo")
             out["u"], out["v"] = flow[..., 0], flow[..., 1]
@@ -126,7 +147,7 @@ def load_estimate(path: str | Path) -> dict[str, np.ndarray]:
     if suffix == ".npz":
         return _load_npz(path, VARIABLES)
     if suffix == ".pfm":
-        return {"disp1": io.read_pfm(path)}
+        return {"disp1": _read_disparity_pfm(path)}
     if suffix == ".flo":
         flow = io.read_flo(path)
         return {"u": flow[..., 0], "v": flow[..., 1]}
@@ -136,8 +157,6 @@ def load_estimate(path: str | Path) -> dict[str, np.ndarray]:
 def load_ground_truth(path: str | Path) -> tuple[dict[str, np.ndarray], int]:
     """Read ground truth: a ``gt.npz`` of ``lfsf synth`` or an HCI ``gt_disp_lowres.pfm``
     (disparity at t1 only). Returns the arrays and the default border for that kind."""
-    from lfsf import io
-
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")
@@ -148,18 +167,26 @@ def load_ground_truth(path: str | Path) -> tuple[dict[str, np.ndarray], int]:
         raise ValueError(f"{path}: no gt.npz or gt_disp_lowres.pfm in this folder")
     suffix = path.suffix.lower()
     if suffix == ".pfm":
-        return {"disp1": io.read_pfm(path)}, HCI_BORDER
+        return {"disp1": _read_disparity_pfm(path)}, HCI_BORDER
     if suffix == ".npz":
         return _load_npz(path, VARIABLES + ("valid", "occluded")), SYNTH_BORDER
     raise ValueError(f"{path}: not a ground truth (expected gt.npz or a .pfm disparity)")
 
 
+def _read_disparity_pfm(path: Path) -> np.ndarray:
+    from lfsf import io
+
+    disparity = io.read_pfm(path)
+    if disparity.ndim != 2:
+        raise ValueError(f"{path}: a colour PFM ('PF', {disparity.shape[2]} channels) where a "
+                         f"disparity map needs 1 channel ('Pf')")
+    return disparity
+
+
 def _load_npz(path: Path, keys) -> dict[str, np.ndarray]:
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            out = {k: np.asarray(z[k]) for k in keys if k in z.files}
-    except (OSError, ValueError, EOFError) as exc:
-        raise ValueError(f"{path}: not a readable .npz file ({exc})") from None
+    from lfsf import io
+
+    _, out = io._read_npz_arrays(path, keys)
     if not any(k in out for k in VARIABLES):
         raise ValueError(f"{path}: holds none of the keys {', '.join(VARIABLES)}")
     for k, a in out.items():

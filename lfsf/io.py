@@ -32,10 +32,12 @@ with the file's name.
 from __future__ import annotations
 
 import configparser
+import lzma
 import math
 import os
 import re
 import struct
+import tokenize
 import warnings
 import zipfile
 import zlib
@@ -236,7 +238,9 @@ def _to_unit_float32(array: np.ndarray) -> np.ndarray:
         scaled = array.astype(np.float32)
         scaled /= np.float32(np.iinfo(array.dtype).max)
         return scaled
-    return array.astype(np.float32, copy=False)
+    # values beyond float32's range become inf, which the caller reports as non-finite
+    with np.errstate(over="ignore"):
+        return array.astype(np.float32, copy=False)
 
 
 def _validated_views(views, source: str) -> np.ndarray:
@@ -326,15 +330,46 @@ def read_lightfield(path: str | os.PathLike) -> LightField:
 
 
 def _read_npz(path: Path) -> LightField:
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            keys = list(data.files)
-            views = data["views"] if "views" in keys else None
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
-        raise ValueError(f"{path}: cannot read as .npz ({err})") from err
-    if views is None:
+    keys, arrays = _read_npz_arrays(path, ("views",))
+    if "views" not in arrays:
         raise ValueError(f"{path}: expected an array under key 'views', found keys {keys}")
-    return LightField(views, source=str(path), meta={"layout": "npz"})
+    return LightField(arrays["views"], source=str(path), meta={"layout": "npz"})
+
+
+# A damaged .npz fails in the zip layer, in the decompressor (zlib for np.savez_compressed;
+# bz2 raises OSError) or in numpy's parsing of a member's .npy header.
+_NPZ_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, lzma.LZMAError,
+               NotImplementedError, SyntaxError, tokenize.TokenError)
+# What a zip archive starts with: a member's local header, or the end record of an empty one.
+_ZIP_MAGICS = (b"PK\x03\x04", b"PK\x05\x06")
+
+
+def _read_npz_arrays(path: Path, keys) -> tuple[list[str], dict[str, np.ndarray]]:
+    """The names in a ``.npz`` and those of its arrays named in ``keys``, read in full.
+
+    Also used by :mod:`lfsf.evaluate`. Any damage is a ``ValueError`` naming the file.
+    """
+    # Opened here, not by np.load, which leaves the file open when the zip is unreadable.
+    with open(path, "rb") as f:
+        head = f.read(4)
+        if not head:
+            raise ValueError(f"{path}: empty file (0 bytes), not a .npz")
+        if head not in _ZIP_MAGICS:
+            # np.load would try it as a .npy or a pickle and blame pickling
+            raise ValueError(f"{path}: not a valid .npz (zip) file: it starts with {head!r}, "
+                             f"expected {_ZIP_MAGICS[0]!r}")
+        f.seek(0)
+        try:
+            with np.load(f, allow_pickle=False) as data:
+                names = list(data.files)
+                # members are decompressed lazily, on access: read them inside the try
+                arrays = {k: np.asarray(data[k]) for k in keys if k in names}
+        except _NPZ_ERRORS as err:
+            kind = type(err).__name__
+            if type(err).__module__ != "builtins":
+                kind = f"{type(err).__module__}.{kind}"    # zlib.error, zipfile.BadZipFile
+            raise ValueError(f"{path}: cannot read as .npz ({kind}: {err})") from err
+    return names, arrays
 
 
 def _read_folder(folder: Path) -> LightField:
@@ -979,13 +1014,21 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
         raise ValueError(f"{path}: expected an image file, got a folder")
     with open(path, "rb") as f:
         head = f.read(26)
+    if not head:
+        raise ValueError(f"{path}: cannot read image: empty file (0 bytes)")
     if (len(head) == 26 and head.startswith(_PNG_SIGNATURE) and head[12:16] == b"IHDR"
             and head[24] == 16 and head[25] in (2, 4, 6)):
         return decode_png(path.read_bytes(), source=str(path))
     try:
         return np.asarray(iio.imread(path))
     except Exception as err:        # imageio/Pillow raise many kinds for a corrupt file
-        raise ValueError(f"{path}: cannot read image ({type(err).__name__}: {err})") from err
+        first_line = (str(err).strip().splitlines() or [""])[0]
+        if first_line.startswith("Could not find a backend"):
+            # imageio's multi-line advice to install a video plugin does not apply
+            reason = "no image format recognised"
+        else:
+            reason = f"{type(err).__name__}: {first_line}" if first_line else type(err).__name__
+        raise ValueError(f"{path}: cannot read image ({reason})") from err
 
 
 def write_png(path: str | os.PathLike, array) -> None:

@@ -1,6 +1,7 @@
 """Evaluation metrics against hand-computed values."""
 
 import math
+import struct
 
 import numpy as np
 import pytest
@@ -76,3 +77,52 @@ def test_hci_ground_truth_scores_itself_perfectly():
     noisy = E.evaluate({"disp1": gt["disp1"] + 0.1}, gt, border=border)
     assert noisy["disp1"]["badpix_0.07"] == pytest.approx(100.0)
     assert noisy["disp1"]["mse_x100"] == pytest.approx(1.0, rel=1e-4)
+
+
+def test_no_pixels_left_is_an_error_that_says_why():
+    gt = {"disp1": np.zeros((48, 64))}
+    with pytest.raises(ValueError, match="no pixels left to evaluate: a border of 100 px .* 64×48"):
+        E.evaluate({"disp1": np.zeros((48, 64))}, gt, border=100)
+    with pytest.raises(ValueError, match="no pixels left .* border of 8 px .* 16×16"):
+        E.evaluate({"disp1": np.zeros((16, 16))}, {"disp1": np.zeros((16, 16))})
+    gt["valid"] = np.zeros((48, 64), bool)
+    with pytest.raises(ValueError, match="no pixels left to evaluate: .*'valid' mask is all false"):
+        E.evaluate({"disp1": np.zeros((48, 64))}, gt)
+
+
+def test_negative_border_is_rejected():
+    with pytest.raises(ValueError, match="border must be 0 or more pixels, got -3"):
+        E.evaluate({"disp1": np.zeros((20, 20))}, {"disp1": np.zeros((20, 20))}, border=-3)
+
+
+def test_colour_pfm_is_not_a_disparity_map(tmp_path):
+    from lfsf import io
+
+    io.write_pfm(tmp_path / "rgb.pfm", np.zeros((48, 64, 3), np.float32))
+    (tmp_path / "r").mkdir()
+    io.write_pfm(tmp_path / "r" / "disp1.pfm", np.zeros((48, 64, 3), np.float32))
+    for load in (lambda: E.load_estimate(tmp_path / "rgb.pfm"), lambda: E.load_estimate(tmp_path / "r"),
+                 lambda: E.load_ground_truth(tmp_path / "rgb.pfm")):
+        with pytest.raises(ValueError, match=r"\.pfm: .*3 channels.* needs 1"):
+            load()
+
+
+def test_damaged_npz_results_and_ground_truth_name_the_file(tmp_path):
+    maps = {k: np.zeros((20, 20), np.float32) for k in E.VARIABLES}
+    np.savez_compressed(tmp_path / "sceneflow.npz", **maps)
+    whole = (tmp_path / "sceneflow.npz").read_bytes()
+    (tmp_path / "short.npz").write_bytes(whole[: len(whole) // 2])
+    (tmp_path / "text.npz").write_bytes(b"not a zip archive")
+    (tmp_path / "r").mkdir()
+    damaged = bytearray(whole)
+    name_length, extra_length = struct.unpack("<HH", damaged[26:30])
+    start = 30 + name_length + extra_length                 # the first member's deflate data
+    damaged[start:start + 2] = b"\xff\xff"                  # block type 0b11: invalid
+    (tmp_path / "r" / "sceneflow.npz").write_bytes(bytes(damaged))
+    for load in (E.load_estimate, lambda p: E.load_ground_truth(p)[0]):
+        with pytest.raises(ValueError, match="short.npz: cannot read as .npz"):
+            load(tmp_path / "short.npz")
+        with pytest.raises(ValueError, match=r"text.npz: not a valid .npz \(zip\) file"):
+            load(tmp_path / "text.npz")
+    with pytest.raises(ValueError, match=r"sceneflow.npz: cannot read as .npz \(zlib.error"):
+        E.load_estimate(tmp_path / "r")

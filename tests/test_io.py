@@ -12,6 +12,7 @@ import contextlib
 import io
 import signal
 import struct
+import warnings
 import zlib
 from pathlib import Path
 
@@ -807,6 +808,59 @@ def test_folder_with_only_views_npz(tmp_path):
     views = np.random.default_rng(15).random((3, 3, 2, 2)).astype(np.float32)
     np.savez(tmp_path / "dec" / "views.npz", views=views)
     np.testing.assert_array_equal(lio.read_lightfield(tmp_path / "dec").views, views)
+
+
+def _damaged_compressed_npz(path: Path, **arrays) -> None:
+    """A ``np.savez_compressed`` file whose first member's deflate stream starts with an
+    invalid block type (0b11), so that decompressing it fails in zlib, not in a CRC check."""
+    np.savez_compressed(path, **arrays)
+    data = bytearray(path.read_bytes())
+    assert data[:4] == b"PK\x03\x04" and struct.unpack("<H", data[8:10])[0] == 8   # deflated
+    name_length, extra_length = struct.unpack("<HH", data[26:30])
+    start = 30 + name_length + extra_length
+    data[start:start + 2] = b"\xff\xff"
+    path.write_bytes(bytes(data))
+
+
+def test_damaged_compressed_npz_names_the_file(tmp_path):
+    _damaged_compressed_npz(tmp_path / "views.npz", views=np.zeros((2, 2, 8, 8), np.float32))
+    with pytest.raises(ValueError, match=r"views.npz: cannot read as .npz \(zlib.error"):
+        lio.read_lightfield(tmp_path / "views.npz")
+
+
+def test_npz_that_is_not_a_zip_says_so(tmp_path):
+    (tmp_path / "text.npz").write_bytes(b"just some text, no zip archive\n")
+    np.save(tmp_path / "array.npy", np.zeros((1, 1, 2, 2), np.float32))
+    (tmp_path / "array.npy").rename(tmp_path / "array.npz")     # np.load gives an ndarray
+    for name in ("text.npz", "array.npz"):
+        with pytest.raises(ValueError, match=rf"{name}: not a valid .npz \(zip\) file") as info:
+            lio.read_lightfield(tmp_path / name)
+        assert "pickle" not in str(info.value)
+    (tmp_path / "empty.npz").write_bytes(b"")
+    with pytest.raises(ValueError, match="empty.npz: empty file"):
+        lio.read_lightfield(tmp_path / "empty.npz")
+
+
+def test_empty_view_png_is_one_line_naming_the_file(tmp_path):
+    _hci_folder(tmp_path / "hci", 2)
+    (tmp_path / "hci" / "input_Cam003.png").write_bytes(b"")
+    with pytest.raises(ValueError, match="input_Cam003.png: cannot read image: empty file") as info:
+        lio.read_lightfield(tmp_path / "hci")
+    assert "\n" not in str(info.value)
+    (tmp_path / "hci" / "input_Cam003.png").write_bytes(b"no image in here")
+    with pytest.raises(ValueError, match="input_Cam003.png: cannot read image") as info:
+        lio.read_lightfield(tmp_path / "hci")
+    assert "\n" not in str(info.value) and "pyav" not in str(info.value)
+
+
+def test_float64_views_beyond_float32_fail_without_an_overflow_warning(tmp_path):
+    views = np.full((2, 2, 3, 3), 0.5)
+    views[1, 0, 1, 1] = 1e300
+    np.savez(tmp_path / "huge.npz", views=views)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match=r"huge.npz: expected finite pixel values.*\(1, 0\)"):
+            lio.read_lightfield(tmp_path / "huge.npz")
 
 
 @pytest.mark.parametrize("colour", [True, False])
