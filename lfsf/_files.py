@@ -11,6 +11,44 @@ from pathlib import Path
 from typing import Iterator
 
 
+#: At most this many characters of a target's stem go into its temporary name.
+TEMP_STEM = 40
+
+
+def output_folder(path: str | os.PathLike, create: bool = True) -> Path:
+    """``path`` as a folder to write results into, made if missing (unless ``create`` is
+    false: then only what exists of it is checked): checked before any work, so that a
+    run does not end, after minutes, on an output it cannot write.
+
+    Raises
+    ------
+    ValueError
+        If ``path`` (or a folder above it) is a file, or the folder is not writable.
+    """
+    path = Path(path)
+    for part in (path, *path.parents):
+        if part.exists() and not part.is_dir():
+            raise ValueError(f"{path}: cannot write results there: {part} is a file, not a folder")
+    if create:
+        try:
+            path.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise ValueError(f"{path}: cannot make the output folder ({exc.strerror or exc})") from None
+    if path.exists() and not os.access(path, os.W_OK | os.X_OK):
+        raise ValueError(f"{path}: the output folder is not writable")
+    return path
+
+
+def output_file(path: str | os.PathLike) -> Path:
+    """``path`` as a file to write, checked before any work (nothing is made): not a
+    folder, and no file where its folder should be (:func:`output_folder`)."""
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{path}: is a folder, not a file to write")
+    output_folder(path.parent, create=False)
+    return path
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path in the target's folder; rename it onto ``path`` on success.
@@ -22,7 +60,8 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     suffix = path.suffix if suffix is None else suffix
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".part" + suffix, dir=path.parent)
+    # (the stem shortened: a target name near the 255-byte limit must still get a temporary one)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem[:TEMP_STEM]}.", suffix=".part" + suffix, dir=path.parent)
     os.close(fd)
     tmp_path = Path(tmp)
     try:

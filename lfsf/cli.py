@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 from lfsf._errors import BAD_INPUT_ERRORS
+from lfsf._files import output_file, output_folder
 
 EXIT_BAD_INPUT = 2
 
@@ -60,7 +61,10 @@ def cmd_synth(args) -> int:
         return 0
     if args.out is None:
         raise ValueError("--out DIR is required")
+    if args.frames < 2:
+        raise ValueError(f"--frames must be at least 2 (2: one pair), got {args.frames}")
     synth.get_scene(args.scene)  # unknown scene: clear error before any work
+    output_folder(args.out, create=False)
     device = resolve_device(args.device)
     width, height = args.size
     if args.frames > 2:
@@ -102,6 +106,8 @@ def cmd_eval(args) -> int:
     from lfsf._files import write_bytes_atomic
     from lfsf.evaluate import evaluate, format_table, load_estimate, load_ground_truth
 
+    if args.json:
+        output_file(args.json)
     estimate = load_estimate(args.result)
     gt, default_border = load_ground_truth(args.gt)
     border = default_border if args.border is None else args.border
@@ -113,8 +119,24 @@ def cmd_eval(args) -> int:
     print(format_table(errors))
     if args.json:
         report = {"result": str(args.result), "ground_truth": str(args.gt), "border": border, "errors": errors}
-        write_bytes_atomic(args.json, (json.dumps(report, indent=2) + "\n").encode())
+        write_bytes_atomic(args.json, _json_bytes(report))
     return 0
+
+
+def _json_bytes(obj) -> bytes:
+    """``obj`` as strict JSON (non-finite numbers, which JSON lacks, as null)."""
+    import math
+
+    def finite(x):
+        if isinstance(x, float) and not math.isfinite(x):
+            return None
+        if isinstance(x, dict):
+            return {k: finite(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [finite(v) for v in x]
+        return x
+
+    return (json.dumps(finite(obj), indent=2, allow_nan=False) + "\n").encode()
 
 
 # --- run and demo ----------------------------------------------------------------------------
@@ -157,6 +179,7 @@ def cmd_run(args) -> int:
 
     device = resolve_device(args.device)
     params = _params(args)
+    output_folder(args.out, create=False)  # before any work; made when the results are written
     lf1 = read_lightfield(args.lf1)
     lf2 = read_lightfield(args.lf2)
     check_pair(lf1, lf2)
@@ -179,7 +202,7 @@ def cmd_demo(args) -> int:
     device = resolve_device(args.device)
     params = _params(args)
     width, height = args.size
-    out = Path(args.out)
+    out = output_folder(args.out, create=False)
     print(f"lfsf demo: scene '{args.scene}', {width}×{height}, {args.grid}×{args.grid} views, preset "
           f"'{args.preset}', on {device}", flush=True)
     t0 = time.perf_counter()
@@ -207,6 +230,7 @@ def cmd_batch(args) -> int:
     from lfsf.device import resolve_device
 
     params = _params(args)
+    output_folder(args.out, create=False)  # made once there is a cluster to write into it
     if args.device and not args.scheduler:
         resolve_device(args.device)  # a device this machine lacks: one clear error before any work
     pairs = batch.pairs_from_sources(args.sources)
@@ -233,6 +257,7 @@ def cmd_decode(args) -> int:
     from lfsf.device import resolve_device
 
     device = resolve_device(args.device)
+    output_folder(args.out, create=False)
     t0 = time.perf_counter()
     lf, report = decode_files(args.raw, args.white, args.out, views=args.views, bayer=args.bayer,
                               flip=args.flip, device=device)
@@ -253,6 +278,8 @@ def cmd_bench(args) -> int:
     from lfsf.device import resolve_device
 
     device = resolve_device(args.device)
+    if args.json:
+        output_file(args.json)
     size = tuple(args.size) if args.size else None
     say = (lambda m: None) if args.quiet else (lambda m: _log(args, f"lfsf bench {args.kind}: {m}"))
     if args.kind == "pipeline":
@@ -264,7 +291,7 @@ def cmd_bench(args) -> int:
     print(bench.format_rows(args.kind, rows))
     print(f"peak RSS {bench.peak_rss_mb():.0f} MB; {_machine()}")
     if args.json:
-        write_bytes_atomic(args.json, (json.dumps(rows, indent=2) + "\n").encode())
+        write_bytes_atomic(args.json, _json_bytes(rows))
     return 0
 
 

@@ -80,6 +80,8 @@ def resolve_device(device: str | None = None) -> str:
     ValueError
         If the device named is not one Warp can use here.
     """
+    if device is not None and not isinstance(device, str):
+        raise ValueError(f"device must be a name such as 'cpu' or 'cuda:0', got {device!r}")
     name = device if device not in (None, "") else os.environ.get(ENV_DEVICE) or None
     wp = warp()
     devices = available_devices()

@@ -166,3 +166,59 @@ def test_corrupt_pfm_and_flo_are_rejected_with_the_file_name(tmp_path, name, con
     status, _, err = lfsf("eval", tmp_path / name, tmp_path / "g" / "gt.npz", "--json", tmp_path / "e.json")
     assert_clean_error(status, err, name)
     assert not (tmp_path / "e.json").exists()
+
+
+@pytest.mark.parametrize("args", [
+    ["run", "{tmp}/a.npz", "{tmp}/a.npz", "--out", "{tmp}/afile"],
+    ["run", "{tmp}/a.npz", "{tmp}/a.npz", "--out", "{tmp}/afile/r"],
+    ["synth", "paper", "--out", "{tmp}/afile", "--size", "16", "16", "--grid", "3"],
+    ["demo", "--out", "{tmp}/afile", "--size", "16", "16"],
+    ["eval", "{tmp}/r", "{tmp}/gt.npz", "--json", "{tmp}/afile/x.json"],
+    ["bench", "kernels", "--size", "16", "16", "--json", "{tmp}/afile/x.json"],
+])
+def test_an_output_under_a_file_is_a_clear_error_before_any_work(tmp_path, args):
+    np.savez(tmp_path / "a.npz", views=np.full((3, 3, 16, 16), 0.5, np.float32))
+    (tmp_path / "afile").write_text("not a folder")
+    status, out, err = lfsf(*[a.format(tmp=tmp_path) for a in args])
+    assert_clean_error(status, err, "afile", "not a folder")
+    assert "estimated" not in err and "rendered" not in out
+    assert (tmp_path / "afile").read_text() == "not a folder"
+
+
+def test_results_are_written_as_one_set_or_not_at_all(tmp_path):
+    """A result that cannot be written (here a folder holds its name) leaves none of the
+    others behind, and the message names it, not a temporary file."""
+    np.savez(tmp_path / "a.npz", views=np.full((3, 3, 16, 16), 0.5, np.float32))
+    (tmp_path / "r" / "disp2.png").mkdir(parents=True)
+    status, _, err = lfsf("run", tmp_path / "a.npz", tmp_path / "a.npz", "--out", tmp_path / "r", "--preset", "fast")
+    assert_clean_error(status, err, "disp2.png", "is a folder")
+    assert ".part" not in err
+    assert sorted(p.name for p in (tmp_path / "r").iterdir()) == ["disp2.png"]
+
+
+def test_output_names_near_the_length_limit_still_get_a_temporary_name(tmp_path):
+    from lfsf._files import write_bytes_atomic
+
+    target = tmp_path / ("x" * 245 + ".json")
+    write_bytes_atomic(target, b"{}")
+    assert target.read_bytes() == b"{}"
+    assert [p.name for p in tmp_path.iterdir()] == [target.name]
+
+
+def test_too_long_an_input_name_is_a_clear_error(tmp_path):
+    status, _, err = lfsf("run", tmp_path / ("y" * 300 + ".npz"), tmp_path / "b.npz", "--out", tmp_path / "r")
+    assert_clean_error(status, err, "too long")
+
+
+def test_synth_frames_must_make_a_pair(tmp_path):
+    status, _, err = lfsf("synth", "paper", "--out", tmp_path / "s", "--frames", "1", "--size", "16", "16")
+    assert_clean_error(status, err, "--frames", "at least 2")
+    assert not (tmp_path / "s").exists()
+
+
+def test_json_reports_are_strict_json():
+    from lfsf.cli import _json_bytes
+
+    text = _json_bytes({"errors": {"mse": float("nan"), "epe": float("inf"), "n": [1.5, float("-inf")]}}).decode()
+    assert json.loads(text, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}")) == {
+        "errors": {"mse": None, "epe": None, "n": [1.5, None]}}

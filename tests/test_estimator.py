@@ -130,6 +130,10 @@ def test_bad_inputs_raise():
     lf1, lf2 = shift_lightfields(h=16, w=16, grid=3)
     with pytest.raises(ValueError, match="unknown device"):
         estimate_scene_flow(lf1, lf2, QUICK, device="cuda:42")
+    with pytest.raises(ValueError, match="device must be a name"):
+        estimate_scene_flow(lf1, lf2, QUICK, device=1)
+    with pytest.raises(ValueError, match="init must be a SceneFlow or a dict"):
+        estimate_scene_flow(lf1, lf2, QUICK, init=np.zeros((16, 16, 4), np.float32))
     small = lfsf.LightField(np.zeros((3, 3, 16, 20), np.float32))
     with pytest.raises(ValueError, match="grid and view size"):
         estimate_scene_flow(lf1, small, QUICK)
@@ -245,3 +249,28 @@ def test_hci_antinous_stereo_has_no_foreground_halo():
     e = evaluate.disparity_errors(sf.disp1, gt, None, 15)
     assert e["mse_x100"] < 7.0, e
     assert e["badpix_0.07"] < 25.0, e
+
+
+@pytest.mark.parametrize("grid", [(1, 9), (9, 1), (1, 1)])
+def test_a_grid_without_room_for_the_circles_is_a_clear_error(grid):
+    """One row or one column of views gives the circles no radius: the disparities cannot
+    be estimated, which must be said rather than returned as zeros. The flow alone runs."""
+    lf1, lf2 = shift_lightfields(h=24, w=32, grid=9)
+    rows, cols = grid
+    cut = [lfsf.LightField(lf.views[4 - rows // 2:4 - rows // 2 + rows, 4 - cols // 2:4 - cols // 2 + cols],
+                           source="cut.npz") for lf in (lf1, lf2)]
+    with pytest.raises(ValueError, match=f"cut.npz: a {rows}×{cols} grid of views"):
+        estimate_scene_flow(*cut, QUICK, device="cpu")
+    sf = estimate_scene_flow(*cut, Params.preset("flow"), device="cpu")
+    assert np.median(np.abs(interior(sf.u) - 1.5)) < 0.1
+
+
+def test_light_fields_may_be_given_as_paths(tmp_path):
+    lf1, lf2 = shift_lightfields(h=24, w=32, grid=3)
+    np.savez(tmp_path / "lf1.npz", views=lf1.views)
+    np.savez(tmp_path / "lf2.npz", views=lf2.views)
+    by_path = estimate_scene_flow(tmp_path / "lf1.npz", str(tmp_path / "lf2.npz"), QUICK, device="cpu")
+    by_array = estimate_scene_flow(lf1, lf2, QUICK, device="cpu")
+    np.testing.assert_array_equal(by_path.u, by_array.u)
+    with pytest.raises(FileNotFoundError, match="missing.npz"):
+        estimate_scene_flow(tmp_path / "missing.npz", lf2, QUICK, device="cpu")
