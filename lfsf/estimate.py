@@ -115,6 +115,10 @@ ProgressFn = Callable[[str], None]
 #: 0.134 / 1.269 / 0.143 → 0.273 / 0.189 / 1.136 / 0.168). A measured rule, not a law.
 FLOW_SEARCH_HALF = 12
 FLOW_SEARCH_WIDTH = 160
+#: The flow search's largest half-width on its level: where the pyramid cannot bring the
+#: range down to this (``max_levels``), (2·64 + 1)² shifts per pixel would already take
+#: minutes at 640×480.
+MAX_FLOW_SEARCH_HALF = 64
 #: Searched matches from t1 to t2 and back agree to within this many pixels (of the
 #: search's level) where both see the same point (:func:`_hidden_matches`).
 MATCH_TOLERANCE = 1.0
@@ -644,6 +648,10 @@ def estimate_scene_flow(
     if flow_search:
         k = flow_search_level(sizes, params.flow_range)
         half = max(1, int(math.ceil(params.flow_range * sizes[k][1] / width)))
+        if half > MAX_FLOW_SEARCH_HALF:
+            raise ValueError(f"flow_range {params.flow_range:g} px needs a block search of ±{half} px on the "
+                             f"{sizes[k][1]}×{sizes[k][0]} level ({(2 * half + 1) ** 2} shifts per pixel; at most "
+                             f"±{MAX_FLOW_SEARCH_HALF}): lower flow_range, or allow more pyramid levels (max_levels)")
         tex = levels[k][0]
         c1, c2 = wp.clone(tex[0]), wp.clone(tex[n_samples])
         forward = _flow_search(c1, c2, half, params.search_radius, dev)

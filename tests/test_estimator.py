@@ -134,6 +134,9 @@ def test_bad_inputs_raise():
         estimate_scene_flow(lf1, lf2, QUICK, device=1)
     with pytest.raises(ValueError, match="init must be a SceneFlow or a dict"):
         estimate_scene_flow(lf1, lf2, QUICK, init=np.zeros((16, 16, 4), np.float32))
+    # one level: a 512-px range would be a block search of ±512 px at full resolution
+    with pytest.raises(ValueError, match="flow_range 512 px needs a block search"):
+        estimate_scene_flow(lf1, lf2, QUICK.replace(max_levels=1, flow_range=512), device="cpu")
     small = lfsf.LightField(np.zeros((3, 3, 16, 20), np.float32))
     with pytest.raises(ValueError, match="grid and view size"):
         estimate_scene_flow(lf1, small, QUICK)
