@@ -91,7 +91,7 @@ class Summary:
 
 # --- sources ----------------------------------------------------------------------------------
 
-def pairs_from_sources(sources: Sequence[str | os.PathLike]) -> list[Pair]:
+def pairs_from_sources(sources: Sequence[str | os.PathLike], out: str | os.PathLike | None = None) -> list[Pair]:
     """The pairs named by manifests and frame folders.
 
     A manifest is a CSV file with ``t1,t2[,name]`` per line (a header line ``t1,t2…`` is
@@ -99,23 +99,30 @@ def pairs_from_sources(sources: Sequence[str | os.PathLike]) -> list[Pair]:
     t1's stem). A folder holds one light field per frame (a sub-folder of views or a
     ``.npz``), sorted by name; consecutive frames make the pairs, named after their first
     frame, each the successor of the one before. Paths come back absolute: on a cluster,
-    every worker must see them under the same names (a shared file system).
+    every worker must see them under the same names (a shared file system). ``out``, the
+    batch's output folder, is no frame: where it lies inside a folder of frames it is
+    left out of that folder's frames (a re-run would take the results for a frame).
 
     Raises
     ------
     FileNotFoundError
         A source that does not exist.
     ValueError
-        A malformed manifest, a folder with fewer than two frames, two pairs with one name.
+        A malformed manifest, a folder with fewer than two frames, two pairs with one name,
+        ``out`` the folder of frames itself.
     """
     if not sources:
         raise ValueError("give at least one manifest CSV or folder of frames")
+    out = None if out is None else Path(out).absolute()
     pairs: list[Pair] = []
     for source in sources:
         path = Path(source).absolute()  # workers on other machines see the same names
         if not path.exists():
             raise FileNotFoundError(f"{path}: no such manifest or folder")
-        pairs.extend(_folder_pairs(path) if path.is_dir() else _manifest_pairs(path))
+        if path.is_dir() and out is not None and _within(path, out):
+            raise ValueError(f"{out}: the output folder must not be the folder of frames {path} itself (or "
+                             "inside one of its frames): the results would be read as frames")
+        pairs.extend(_folder_pairs(path, out) if path.is_dir() else _manifest_pairs(path))
     seen: dict[str, Pair] = {}
     for pair in pairs:
         if pair.name in seen:
@@ -148,9 +155,16 @@ def _manifest_pairs(path: Path) -> list[Pair]:
     return pairs
 
 
-def _folder_pairs(folder: Path) -> list[Pair]:
+def _within(path: Path, folder: Path) -> bool:
+    """``path`` is ``folder`` or lies inside it (absolute paths, compared as resolved)."""
+    path, folder = path.resolve(), folder.resolve()
+    return path == folder or folder in path.parents
+
+
+def _folder_pairs(folder: Path, out: Path | None = None) -> list[Pair]:
     frames = sorted(p for p in folder.iterdir()
-                    if not p.name.startswith(".") and (p.is_dir() or p.suffix.lower() in FRAME_SUFFIXES))
+                    if not p.name.startswith(".") and (p.is_dir() or p.suffix.lower() in FRAME_SUFFIXES)
+                    and not (out is not None and _within(out, p)))
     if len(frames) < 2:
         raise ValueError(f"{folder}: a folder of frames needs at least two light fields (sub-folders of views "
                          f"or .npz files), found {len(frames)}")
@@ -170,6 +184,34 @@ def _stem(path: Path) -> str:
 def is_complete(folder: Path) -> bool:
     """Whether ``folder`` holds a complete result."""
     return all((folder / name).is_file() for name in RESULT_FILES)
+
+
+def _holds_only_results(folder: Path) -> bool:
+    """Whether ``folder`` holds nothing but (some of) a result's files, so that an
+    incomplete result may be replaced without losing anything else."""
+    names = set(RESULT_FILES) | {"overview.png"}
+    return folder.is_dir() and all(p.is_file() and p.name in names for p in folder.iterdir())
+
+
+def check_outputs(pairs: Sequence[Pair], out: str | os.PathLike) -> None:
+    """Before any work: no pair's result folder ``out/NAME`` may be, or hold, a light
+    field that a pair reads (it would be replaced), and none may be a file.
+
+    Raises
+    ------
+    ValueError
+        Naming the result folder and the source it would replace.
+    """
+    out = Path(out).absolute()
+    sources = [Path(p).absolute() for pair in pairs for p in (pair.t1, pair.t2)]
+    for pair in pairs:
+        final = out / pair.name
+        for source in sources:
+            if _within(source, final):
+                raise ValueError(f"{final}: the results of pair {pair.name!r} would replace the light field "
+                                 f"{source}; choose another --out (or name the pair in the manifest)")
+        if final.exists() and not final.is_dir():
+            raise ValueError(f"{final}: the results of pair {pair.name!r} go into a folder there, but it is a file")
 
 
 def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = None,
@@ -203,6 +245,9 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
         sf = estimate_scene_flow(lf1, lf2, params, device=_worker_device(device), init=init)
         sf.save(tmp)
         if final.exists():  # an incomplete result left by hand or by an older version
+            if not _holds_only_results(final):
+                raise ValueError(f"{final}: holds files that are not results of lfsf ("
+                                 f"{', '.join(sorted(p.name for p in final.iterdir())[:5])}); not replaced")
             shutil.rmtree(final)
         os.replace(tmp, final)
         return Outcome(pair.name, "done", time.perf_counter() - t0, warm=init is not None)
@@ -309,6 +354,7 @@ def run_batch(
     out = Path(out).absolute()
     t0 = time.perf_counter()
     report = progress or (lambda outcome, finished, total: None)
+    check_outputs(pairs, out)
     check_dask(workers, scheduler)
     if scheduler is None and workers == 1 and not have_dask():
         out.mkdir(parents=True, exist_ok=True)

@@ -233,7 +233,8 @@ def cmd_batch(args) -> int:
     output_folder(args.out, create=False)  # made once there is a cluster to write into it
     if args.device and not args.scheduler:
         resolve_device(args.device)  # a device this machine lacks: one clear error before any work
-    pairs = batch.pairs_from_sources(args.sources)
+    pairs = batch.pairs_from_sources(args.sources, out=args.out)
+    batch.check_outputs(pairs, args.out)  # before the first line of the run
     batch.check_dask(args.workers, args.scheduler)  # before the first line of the run
     where = (f"the Dask scheduler at {args.scheduler}" if args.scheduler
              else f"a local Dask cluster of {args.workers} process{'es' if args.workers > 1 else ''}"

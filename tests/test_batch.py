@@ -331,3 +331,46 @@ def test_progress_bar_on_a_terminal_and_in_a_log():
     assert log[1] == "lfsf batch: pair b failed: b.npz: not a light field"
     assert log[2].startswith("lfsf batch: [3/3] c: skipped")
     assert streams["quiet"].getvalue() == "lfsf batch: pair b failed: b.npz: not a light field\n"
+
+
+# --- what a batch must never overwrite ---------------------------------------------------------
+
+def test_a_result_folder_that_would_replace_a_source_is_refused_before_any_work(frames, tmp_path):
+    """Frames stored as folders of views next to the output: pair 'frame1' would write
+    into the folder frame1 it reads. Refused up front, the views left as they were."""
+    from lfsf.io import read_lightfield
+
+    folder, _ = frames
+    for name, src in (("frame1", "f000.npz"), ("frame2", "f001.npz")):
+        write_lightfield(read_lightfield(folder / src), tmp_path / name / "views.npz")
+    manifest = _manifest(tmp_path / "pairs.csv", [("frame1", "frame2")])
+    before = sorted(p.name for p in (tmp_path / "frame1").iterdir())
+    status = main(["batch", str(manifest), "--out", str(tmp_path), "--workers", "1", "--preset", "fast", "--quiet"])
+    assert status == 2
+    assert sorted(p.name for p in (tmp_path / "frame1").iterdir()) == before == ["views.npz"]
+
+
+def test_an_incomplete_result_folder_with_other_files_is_not_replaced(frames, tmp_path, monkeypatch):
+    monkeypatch.setattr(batch, "have_dask", lambda: False)
+    folder, _ = frames
+    manifest = _manifest(tmp_path / "m.csv", [(folder / "f000.npz", folder / "f001.npz", "mine")])
+    (tmp_path / "out" / "mine").mkdir(parents=True)
+    (tmp_path / "out" / "mine" / "notes.txt").write_text("keep me")
+    summary = batch.run_batch(batch.pairs_from_sources([manifest]), tmp_path / "out", PARAMS, workers=1,
+                              device="cpu")
+    assert [o.status for o in summary.outcomes] == ["failed"] and "notes.txt" in summary.outcomes[0].reason
+    assert (tmp_path / "out" / "mine" / "notes.txt").read_text() == "keep me"
+
+
+def test_an_output_folder_inside_the_frames_is_not_a_frame(frames, tmp_path):
+    folder, _ = frames
+    local = tmp_path / "frames"
+    local.mkdir()
+    for p in folder.glob("*.npz"):
+        (local / p.name).write_bytes(p.read_bytes())
+    (local / "res").mkdir()
+    (local / "res" / "f000").mkdir()  # as a first run leaves it
+    names = [p.name for p in batch.pairs_from_sources([local], out=local / "res")]
+    assert names == ["f000", "f001", "f002"]
+    with pytest.raises(ValueError, match="must not be the folder of frames"):
+        batch.pairs_from_sources([local], out=local)
