@@ -372,8 +372,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--white", type=Path, required=True, help="white image of the same camera")
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--views", type=_positive, metavar="N",
-                   help="N×N views spanning one lens pitch (default: the largest odd N not above the pitch)")
-    p.add_argument("--bayer", type=str.upper, choices=("RGGB", "BGGR", "GRBG", "GBRG"),
+                   help="N×N views spanning one lens pitch, at most the pitch rounded up (default: the largest "
+                        "odd N not above the pitch)")
+    p.add_argument("--bayer", type=str.upper, choices=("RGGB", "BGGR", "GRBG", "GBRG", "NONE"),
+                   metavar="{RGGB,BGGR,GRBG,GBRG,none}",
                    help="Bayer pattern of a colour sensor (default: from the file's metadata; none: grey)")
     p.add_argument("--flip", action="store_true", help="negate the angular axes (optics that invert micro-images)")
     _device_options(p)

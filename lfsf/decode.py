@@ -45,6 +45,9 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
+import shutil
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -79,6 +82,10 @@ BAYER_PATTERNS = {
 #: 3280×3280 at 12 bit), by which a ``.raw`` file is told apart from other raw formats.
 _LYTRO_RAW_BYTES = {7728 * 5368 * 10 // 8: ("LYTRO-ILLUM-RAW", 1023.0, "GRBG"),
                     3280 * 3280 * 12 // 8: ("LYTRO-F01-RAW", 4095.0, "BGGR")}
+#: ``bayer`` for a grey (monochrome) sensor, overriding a pattern in the files' metadata.
+GREY = "none"
+#: Names of the views in the HCI layout, as :func:`lfsf.io.read_lightfield` finds them.
+_HCI_VIEW = re.compile(r"input_Cam\d+\.png", re.IGNORECASE)
 #: The white image's floor, as a fraction of its bright level, below which it is not
 #: trusted for devignetting (the dark gaps between micro-images).
 _WHITE_FLOOR = 0.02
@@ -235,6 +242,19 @@ def _bayer_name(text: str, source: str) -> str:
     return name
 
 
+def _bayer_option(text, source: str) -> str | None:
+    """``bayer`` as :func:`decode` takes it: None (the files' pattern), :data:`GREY` (any
+    case), or a key of :data:`BAYER_PATTERNS`."""
+    if text is None:
+        return None
+    if str(text).strip().lower() == GREY:
+        return GREY
+    if str(text).strip().upper() not in BAYER_PATTERNS:
+        raise ValueError(f"{source}: unknown Bayer pattern {text!r}; expected one of "
+                         f"{', '.join(BAYER_PATTERNS)}, or {GREY} for a grey sensor")
+    return str(text).strip().upper()
+
+
 def _find_key(tree, key):
     """The first value stored under ``key`` anywhere in nested dicts/lists, else None."""
     if isinstance(tree, dict):
@@ -320,7 +340,7 @@ def _read_rawpy(path: Path) -> RawImage:
     return RawImage(data, bayer, str(path))
 
 
-def read_raw(path: str | os.PathLike) -> RawImage:
+def read_raw(path: str | os.PathLike, *, role: str = "raw") -> RawImage:
     """Read a raw lenslet (or white) image.
 
     Parameters
@@ -330,6 +350,8 @@ def read_raw(path: str | os.PathLike) -> RawImage:
         Lytro ``.lfr``/``.lfp`` container (imageio's ``LYTRO-LFR``/``LYTRO-LFP``); a
         Lytro ``.raw`` (Illum or F01, told apart by size; metadata from the ``.txt`` or
         ``.json`` beside it); or any raw format rawpy reads.
+    role : str
+        What the image is (``"raw"``, ``"white"``), for the messages.
 
     Returns
     -------
@@ -350,9 +372,9 @@ def read_raw(path: str | os.PathLike) -> RawImage:
 
     path = Path(path)
     if not path.exists():
-        raise FileNotFoundError(f"{path}: no such raw image file")
+        raise FileNotFoundError(f"{path}: no such {role} image file")
     if not path.is_file():
-        raise ValueError(f"{path}: expected a raw image file, got a folder")
+        raise ValueError(f"{path}: expected a {role} image file, got a folder")
     suffix = path.suffix.lower()
     if suffix == ".lfr":
         return _read_lytro(path, "LYTRO-LFR", 1023.0, "GRBG")
@@ -764,10 +786,12 @@ def decode(raw, white, *, views: int | None = None, bayer: str | None = None, fl
         [0, 1], or integers scaled by their type's maximum).
     views : int, optional
         N, the views per side; N views span one lens pitch. Default: the largest odd
-        number not above the pitch (one view step ≥ one sensor pixel).
+        number not above the pitch (one view step ≥ one sensor pixel); at most the pitch
+        rounded up (more views than pixels across a micro-image only interpolate).
     bayer : str, optional
-        Bayer pattern of a colour sensor (a key of :data:`BAYER_PATTERNS`); default the
-        one the images carry; None for a monochrome sensor or an RGB image.
+        Bayer pattern of a colour sensor (a key of :data:`BAYER_PATTERNS`, any case), or
+        ``"none"`` for a grey sensor whatever the images' metadata say; default (None)
+        the pattern the images carry, else grey (also for an RGB image).
     flip : bool
         Negate the angular offsets, for optics that invert the micro-images.
     lattice : Lattice, optional
@@ -780,12 +804,14 @@ def decode(raw, white, *, views: int | None = None, bayer: str | None = None, fl
     LightField
         ``views[a, b, y, x]`` (grey) or ``[a, b, y, x, c]`` (colour), float32 clipped to
         [0, 1]; ``meta["lattice"]`` the :class:`Lattice`, ``meta["plane_origin"]`` the
-        lattice-plane position (u0, v0) of output pixel (0, 0), in pitches.
+        lattice-plane position (u0, v0) of output pixel (0, 0), in pitches;
+        ``meta["bayer"]`` the pattern used (None: grey or RGB).
 
     Raises
     ------
     ValueError
-        Images of different sizes, no lattice in the white image, a bad option.
+        Images of different sizes, no lattice in the white image, a bad option, more
+        views than the pitch allows.
     """
     from lfsf.io import LightField
     from lfsf.kernels import decode as K
@@ -800,7 +826,8 @@ def decode(raw, white, *, views: int | None = None, bayer: str | None = None, fl
     if (raw.data.ndim == 3) != (white.data.ndim == 3):
         raise ValueError(f"{raw.source}: one of raw and white ({white.source}) is RGB and the other a "
                          f"single plane; give both as mosaics or both as RGB")
-    pattern = bayer or raw.bayer or white.bayer
+    bayer = _bayer_option(bayer, raw.source)
+    pattern = None if bayer == GREY else bayer or raw.bayer or white.bayer
     if pattern is not None:
         pattern = _bayer_name(pattern, raw.source)
         if raw.data.ndim == 3:
@@ -810,6 +837,14 @@ def decode(raw, white, *, views: int | None = None, bayer: str | None = None, fl
     n = int(views) if views is not None else _default_views(lattice.pitch)
     if n < 1:
         raise ValueError(f"expected at least 1 view per side, got {views}")
+    # N views span one pitch: beyond the pixels across a micro-image they only interpolate,
+    # and the buffers below grow as N²: at this bound they hold about (N/pitch)² times the
+    # sensor's pixels per colour: about twice the images already read at most (pitch ≥ 3 px).
+    max_views = max(1, math.ceil(lattice.pitch))
+    if n > max_views:
+        raise ValueError(f"{raw.source}: expected at most {max_views} views per side at a lens pitch of "
+                         f"{lattice.pitch:.2f} px (N views span one pitch; more than the pixels across a "
+                         f"micro-image would only interpolate between them), got {n}")
     u0, v0, width, height, first_row, rows, first_col, cols = _output_grid(lattice, raw.data.shape[:2])
     if width < 2 or height < 2:
         raise ValueError(f"{raw.source}: the sensor holds too few whole micro-lenses at pitch "
@@ -850,39 +885,69 @@ def decode(raw, white, *, views: int | None = None, bayer: str | None = None, fl
         result.append(np.clip(out.numpy(), 0.0, 1.0).reshape(n, n, height, width))
     array = result[0] if len(result) == 1 else np.stack(result, -1)
     return LightField(array, source=raw.source,
-                      meta={"layout": "lenslet", "lattice": lattice, "plane_origin": (u0, v0), "flip": flip})
+                      meta={"layout": "lenslet", "lattice": lattice, "plane_origin": (u0, v0), "flip": flip,
+                            "bayer": pattern})
 
 
 def decode_files(raw_path, white_path, out, *, views: int | None = None, bayer: str | None = None,
                  flip: bool = False, device: str | None = None):
     """Read, decode and write: ``out`` in the HCI layout (16-bit PNGs), ``out/views.npz``
-    (key ``views``) and ``out/decode.json`` (the lattice and settings). Every file is
-    written atomically, and only once decoding has succeeded.
+    (key ``views``) and ``out/decode.json`` (the lattice and settings).
+
+    The outputs are checked before any work, and written as one set: into a temporary
+    folder inside ``out`` first, moved into place only once every one is complete
+    (``decode.json`` last), so a failure or an interruption leaves none of them — a
+    partial set of views would read as a smaller light field.
 
     Returns
     -------
     (LightField, dict)
         The decoded light field and the report written to ``decode.json``.
+
+    Raises
+    ------
+    FileNotFoundError
+        If RAW or WHITE does not exist.
+    ValueError
+        As :func:`read_raw` and :func:`decode`; if ``out`` is a file, one of the outputs'
+        names is a folder, or ``out`` holds views of another grid that these would mix
+        with (delete them first).
     """
-    from lfsf._files import savez_atomic, write_bytes_atomic
+    from lfsf._files import output_folder
     from lfsf.io import write_lightfield
 
+    out = output_folder(out, create=False)
+    if out.is_dir():
+        for entry in out.iterdir():
+            if entry.is_dir() and (entry.name in ("views.npz", "decode.json") or _HCI_VIEW.fullmatch(entry.name)):
+                raise ValueError(f"{entry}: is a folder; the decoded {entry.name} cannot be written there")
+    bayer = _bayer_option(bayer, "--bayer")
     raw = read_raw(raw_path)
-    white = read_raw(white_path)
-    if bayer is not None:
-        bayer = _bayer_name(bayer, "--bayer")
+    white = read_raw(white_path, role="white")
     lf = decode(raw, white, views=views, bayer=bayer, flip=flip, device=device)
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"{out}: expected an output folder, got a file")
-    write_lightfield(lf, out)
-    savez_atomic(out / "views.npz", views=lf.views)
     lattice = lf.meta["lattice"]
-    report = {"raw": str(raw_path), "white": str(white_path), "views": lf.grid[0],
-              "bayer": bayer or raw.bayer or white.bayer, "flip": flip,
-              "size": [lf.width, lf.height], "plane_origin": list(lf.meta["plane_origin"]),
+    report = {"raw": str(raw_path), "white": str(white_path), "views": lf.grid[0], "bayer": lf.meta["bayer"],
+              "flip": flip, "size": [lf.width, lf.height], "plane_origin": list(lf.meta["plane_origin"]),
               "lattice": lattice.as_dict()}
-    write_bytes_atomic(out / "decode.json", (json.dumps(report, indent=2) + "\n").encode())
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".lfsf-decode.", dir=out))
+    try:
+        write_lightfield(lf, tmp)
+        views_written = sorted(p.name for p in tmp.iterdir())
+        stale = sorted(p.name for p in out.iterdir() if _HCI_VIEW.fullmatch(p.name) and p.name not in views_written)
+        if stale:
+            shown = ", ".join(stale[:3]) + (f" and {len(stale) - 3} more" if len(stale) > 3 else "")
+            raise ValueError(f"{out}: already holds views that these would mix with ({shown}); "
+                             f"write to an empty folder")
+        with open(tmp / "views.npz", "wb") as f:
+            np.savez(f, views=lf.views)
+        (tmp / "decode.json").write_text(json.dumps(report, indent=2) + "\n")
+        # an earlier decode.json goes first: while the views are being replaced, none claims them
+        (out / "decode.json").unlink(missing_ok=True)
+        for name in (*views_written, "views.npz", "decode.json"):
+            os.replace(tmp / name, out / name)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
     return lf, report
 
 

@@ -445,3 +445,111 @@ def test_16_bit_tiff_decodes_like_the_png(lenslet_files, tmp_path):
     a = decode(png_raw, white, views=7, bayer="RGGB", device="cpu")
     b = decode(tif_raw, white, views=7, bayer="RGGB", device="cpu")
     np.testing.assert_array_equal(a.views, b.views)
+
+
+def _decode_argv(lenslet_files, out, *extra):
+    return ["decode", str(lenslet_files / "raw.png"), "--white", str(lenslet_files / "white.png"),
+            "--out", str(out), "--device", "cpu", "--quiet", *extra]
+
+
+def _leftovers(out):
+    """Views and hidden (temporary) entries in ``out``."""
+    return sorted(p.name for p in out.iterdir() if p.name.startswith((".", "input_Cam")))
+
+
+def test_interrupted_decode_writes_nothing(lenslet_files, tmp_path, monkeypatch, capsys):
+    """An interruption part-way through writing the views leaves no views, no views.npz
+    and no temporary files: a partial set of 25 of 49 views would read as a wrong 5×5
+    light field. An earlier complete decode in the folder is left as it was."""
+    import lfsf.io
+
+    real_write_png = lfsf.io.write_png
+    calls = []
+
+    def interrupted(path, image):
+        calls.append(path)
+        if len(calls) > 5:
+            raise KeyboardInterrupt
+        real_write_png(path, image)
+
+    monkeypatch.setattr(lfsf.io, "write_png", interrupted)
+    out = tmp_path / "views"
+    with pytest.raises(KeyboardInterrupt):
+        D.decode_files(lenslet_files / "raw.png", lenslet_files / "white.png", out, views=7, bayer="RGGB",
+                       device="cpu")
+    assert len(calls) > 5
+    assert not out.exists() or list(out.iterdir()) == []
+    calls.clear()
+    assert cli.main(_decode_argv(lenslet_files, out, "--views", "7")) == 130
+    assert not out.exists() or list(out.iterdir()) == []
+
+    monkeypatch.setattr(lfsf.io, "write_png", real_write_png)
+    assert cli.main(_decode_argv(lenslet_files, out, "--views", "7")) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert len(before) == 49 + 2
+    monkeypatch.setattr(lfsf.io, "write_png", interrupted)
+    calls.clear()
+    assert cli.main(_decode_argv(lenslet_files, out, "--views", "7", "--bayer", "none")) == 130
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    # the refusal to mix these views with an earlier decode's of another grid stays
+    monkeypatch.setattr(lfsf.io, "write_png", real_write_png)
+    capsys.readouterr()
+    _fails(_decode_argv(lenslet_files, out, "--views", "5"), capsys, str(out), "input_Cam025.png")
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+@pytest.mark.parametrize("name", ["views.npz", "decode.json", "input_Cam003.png"])
+def test_output_name_that_is_a_folder_fails_before_any_work(name, lenslet_files, tmp_path, capsys):
+    out = tmp_path / "views"
+    (out / name).mkdir(parents=True)
+    line = _fails(_decode_argv(lenslet_files, out, "--views", "7"), capsys, str(out / name))
+    assert "part" not in line
+    assert _leftovers(out) == ([name] if name.startswith("input") else [])
+    assert sorted(p.name for p in out.iterdir()) == [name]
+
+
+def test_bayer_none_means_grey(lenslet_files, tmp_path, capsys):
+    """``--bayer none`` (any case), as documented: a grey sensor, whatever the metadata say."""
+    out = tmp_path / "views"
+    assert cli.main(_decode_argv(lenslet_files, out, "--views", "7", "--bayer", "None")) == 0
+    lf = lfsf.read_lightfield(out / "views.npz")
+    assert lf.grid == (7, 7) and not lf.is_colour
+    assert json.loads((out / "decode.json").read_text())["bayer"] is None
+    raw = D.read_raw(lenslet_files / "raw.png")
+    white = D.read_raw(lenslet_files / "white.png")
+    tagged = D.RawImage(raw.data, "RGGB", raw.source)
+    assert decode(tagged, white, views=7, device="cpu").is_colour
+    grey = decode(tagged, white, views=7, bayer="NONE", device="cpu")
+    assert not grey.is_colour
+    np.testing.assert_array_equal(grey.views, lf.views)
+    with pytest.raises(ValueError, match="none"):
+        decode(raw, white, views=7, bayer="RGBG", device="cpu")
+
+
+def test_views_are_bounded_by_the_pitch(lenslet_files, tmp_path, capsys):
+    """N views span one lens pitch: more than the pixels across a micro-image (the pitch
+    rounded up) would only interpolate, and their number grows as N² (`--views 3000`
+    once asked for 87 GB). Such an N is a clear error before any work."""
+    lattice = Lattice.regular("rect", 9.4, 0.003, (4.2, 3.7))
+    raw, white = synthetic_lenslet(lambda u, v, xi, eta: 0.5 + 0.0 * u, lattice, (200, 150), views=5)
+    assert decode(raw, white, views=10, lattice=lattice, device="cpu").grid == (10, 10)
+    with pytest.raises(ValueError, match=r"at most 10 views .* 9\.40 px.* got 11"):
+        decode(raw, white, views=11, lattice=lattice, device="cpu")
+    with pytest.raises(ValueError, match="at least 1"):
+        decode(raw, white, views=0, lattice=lattice, device="cpu")
+    for n in ("12", "3000"):
+        out = tmp_path / f"views{n}"
+        _fails(_decode_argv(lenslet_files, out, "--views", n), capsys, "raw.png", "at most 11 views", f"got {n}")
+        assert not out.exists()
+
+
+def test_missing_white_is_named_as_the_white_image(lenslet_files, tmp_path, capsys):
+    missing = tmp_path / "missing_white.png"
+    with pytest.raises(FileNotFoundError, match="no such white image file"):
+        D.decode_files(lenslet_files / "raw.png", missing, tmp_path / "o")
+    line = _fails(["decode", str(lenslet_files / "raw.png"), "--white", str(missing), "--out", str(tmp_path / "o")],
+                  capsys, str(missing), "no such white image file")
+    assert "raw image" not in line
+    with pytest.raises(ValueError, match="expected a white image file, got a folder"):
+        D.decode_files(lenslet_files / "raw.png", tmp_path, tmp_path / "o")
+    assert not (tmp_path / "o").exists()
