@@ -126,6 +126,13 @@ MATCH_TOLERANCE = 1.0
 #: more than this factor: small differences are noise, and flipping on them would break
 #: the symmetry of the model (identical light fields must give δ1 = δ2 and zero flow).
 FUSION_MARGIN = 0.8
+#: Light fields whose joint intensity range spans less than this are stretched to [0, 1]
+#: before anything else (:func:`_intensity_stretch`); wider ones are used as they are.
+#: Every built-in and random scene spans more (the least: `random-0`, 0.22 at 80×60 and
+#: 0.27 at 640×480; HCI antinous 0.87, the Lytro data 1.0), so their estimates are
+#: unchanged. Stretching every scene spanning less than 0.5 instead measured worse
+#: (δ1 / δ2 / EPE 1.15 / 1.13 / 1.03× over the 10 such scenes at 160×120).
+MIN_INTENSITY_RANGE = 0.2
 #: The disparity sweep runs at full resolution: depth edges are where its value matters.
 SWEEP_LEVEL = 0
 #: ROF runs on each image padded by this many pixels of odd reflection (at most the
@@ -605,9 +612,12 @@ def estimate_scene_flow(
     wp_weights = wp.array(weights, dtype=wp.vec3, device=dev)
 
     # sub-aperture images at the sample offsets, both times: (S, H, W) each
+    offset, stretch = _intensity_stretch(lf1, lf2)
     stacks = []
     for lf in (lf1, lf2):
         grey = lf.grey().views.reshape(rows * cols, height, width)
+        if stretch != 1.0:
+            grey = (grey - np.float32(offset)) * np.float32(stretch)
         views = wp.array(np.ascontiguousarray(grey, dtype=np.float32), dtype=float, device=dev)
         out = wp.empty((n_samples, height, width), dtype=float, device=dev)
         span, per_row = _device.row_span(dev, width)
@@ -717,6 +727,24 @@ def estimate_scene_flow(
         disp1=x[..., 0].copy(), disp2=x[..., 1].copy(), u=x[..., 2].copy(), v=x[..., 3].copy(),
         params=params, radius=float(radius), device=dev, timings=timings,
     )
+
+
+def _intensity_stretch(lf1: LightField, lf2: LightField) -> tuple[float, float]:
+    """(offset, factor) taking the two light fields' joint intensity range to [0, 1]
+    where it spans less than MIN_INTENSITY_RANGE; (0, 1) otherwise (the views as they
+    are). The diffusion tensor Γ = exp(−γ|∇I|^β) and the ROF weight μ take intensities
+    in [0, 1]: 12-bit data stored in 16 bits (read as [0, 1/16]), or an underexposed
+    capture, would otherwise see almost no edges and an over-smoothed texture part.
+    ``paper`` at 128×96 with 7×7 views, BadPix(0.07) of δ1: 4.2 % as rendered; at 1/16
+    of its range, as 12-bit data in 16 bits, 15.8 % unstretched and 3.9 % stretched; in
+    [0.49, 0.51], 19.3 % and 4.0 %. Matching depends on differences only, so the
+    offset changes nothing else."""
+    lo = min(float(np.min(lf1.views)), float(np.min(lf2.views)))
+    hi = max(float(np.max(lf1.views)), float(np.max(lf2.views)))
+    span = hi - lo
+    if span <= 0.0 or span >= MIN_INTENSITY_RANGE:
+        return 0.0, 1.0
+    return lo, 1.0 / span
 
 
 def _check_init(init, height: int, width: int) -> np.ndarray | None:

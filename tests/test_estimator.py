@@ -277,3 +277,18 @@ def test_light_fields_may_be_given_as_paths(tmp_path):
     np.testing.assert_array_equal(by_path.u, by_array.u)
     with pytest.raises(FileNotFoundError, match="missing.npz"):
         estimate_scene_flow(tmp_path / "missing.npz", lf2, QUICK, device="cpu")
+
+
+def test_a_narrow_intensity_range_is_stretched_like_12_bit_data_in_16_bits():
+    """Views read as [0, 1/16] (12-bit data stored in 16 bits) estimate as well as the same
+    views at full range: Γ and the ROF weight take intensities in [0, 1]. Unstretched,
+    δ1's BadPix(0.07) on this scene is ~49 % against ~10 %."""
+    from lfsf import evaluate, synth
+
+    lf1, lf2, gt = synth.render_scene("paper", size=(96, 72), grid=5, device="cpu")
+    full = estimate_scene_flow(lf1, lf2, QUICK, device="cpu")
+    low = estimate_scene_flow(lfsf.LightField(lf1.views / 16), lfsf.LightField(lf2.views / 16), QUICK, device="cpu")
+    e_full = evaluate.evaluate(full.as_dict(), gt, border=8)
+    e_low = evaluate.evaluate(low.as_dict(), gt, border=8)
+    assert e_low["disp1"]["badpix_0.07"] < e_full["disp1"]["badpix_0.07"] + 2.0
+    assert e_low["flow"]["epe"] < 1.3 * e_full["flow"]["epe"]
