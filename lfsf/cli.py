@@ -282,6 +282,12 @@ def cmd_bench(args) -> int:
     if args.json:
         output_file(args.json)
     size = tuple(args.size) if args.size else None
+    if size and args.kind in ("pipeline", "peers"):
+        from lfsf.evaluate import SYNTH_BORDER
+
+        if min(size) <= 2 * SYNTH_BORDER:
+            raise ValueError(f"--size {size[0]} {size[1]}: the errors leave out a {SYNTH_BORDER}-px border; "
+                             f"give at least {2 * SYNTH_BORDER + 1} px each way")
     say = (lambda m: None) if args.quiet else (lambda m: _log(args, f"lfsf bench {args.kind}: {m}"))
     if args.kind == "pipeline":
         rows = bench.bench_pipeline(size or (640, 480), device, repeats=args.repeats or 3, progress=say)

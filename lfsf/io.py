@@ -311,8 +311,12 @@ def read_lightfield(path: str | os.PathLike) -> LightField:
     ValueError
         If the folder holds no recognisable views, the grid is incomplete or (HCI) not
         square, views differ in size, a file is corrupt, or ``path`` is a single image:
-        a raw lenslet image must first be decoded with ``lfsf decode``.
+        a raw lenslet image must first be decoded with ``lfsf decode``; or ``path`` is
+        no path at all (None, a number, an empty string).
     """
+    if not isinstance(path, (str, os.PathLike)) or not str(path).strip():
+        raise ValueError(f"read_lightfield needs the path of a light field (a folder of views or a .npz), "
+                         f"got {path!r}")
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such light field (file or folder)")

@@ -95,6 +95,7 @@ def test_eval_of_ground_truth_against_itself_is_zero(tmp_path):
         (["bench", "kernels", "--device", "quantum"], ["unknown device"]),
         (["bench", "everything"], ["invalid choice"]),
         (["bench", "pipeline", "--size", "4", "4"], ["at least 8"]),
+        (["bench", "pipeline", "--size", "16", "40"], ["at least 17 px"]),
     ],
 )
 def test_bad_input_is_one_clear_line_and_status_2(tmp_path, args, needles):

@@ -1002,3 +1002,9 @@ def test_lytro_views_follow_the_convention(lytro, view):
     disparity = lio.read_pfm(_data("lytro-illum-2067") / "epinet_disparity_estimate.pfm")
     right, wrong, unwarped = _warp_errors(lytro, disparity, 11, view)
     assert right < 0.6 * wrong and right < 0.6 * unwarped
+
+
+@pytest.mark.parametrize("path", [None, 3, "", "  "])
+def test_read_lightfield_needs_a_path(path):
+    with pytest.raises(ValueError, match="needs the path of a light field"):
+        lio.read_lightfield(path)
