@@ -133,6 +133,9 @@ FUSION_MARGIN = 0.8
 #: unchanged. Stretching every scene spanning less than 0.5 instead measured worse
 #: (δ1 / δ2 / EPE 1.15 / 1.13 / 1.03× over the 10 such scenes at 160×120).
 MIN_INTENSITY_RANGE = 0.2
+#: … and those spanning more than this (values far outside [0, 1]) are brought to [0, 1]
+#: too; noise or processing that leaves values a little outside [0, 1] does not count.
+MAX_INTENSITY_RANGE = 2.0
 #: The disparity sweep runs at full resolution: depth edges are where its value matters.
 SWEEP_LEVEL = 0
 #: ROF runs on each image padded by this many pixels of odd reflection (at most the
@@ -731,8 +734,9 @@ def estimate_scene_flow(
 
 def _intensity_stretch(lf1: LightField, lf2: LightField) -> tuple[float, float]:
     """(offset, factor) taking the two light fields' joint intensity range to [0, 1]
-    where it spans less than MIN_INTENSITY_RANGE; (0, 1) otherwise (the views as they
-    are). The diffusion tensor Γ = exp(−γ|∇I|^β) and the ROF weight μ take intensities
+    where it spans less than MIN_INTENSITY_RANGE or more than MAX_INTENSITY_RANGE (counts
+    given as floats, e.g. [0, 255]: δ1 BadPix 5.5 % against 4.2 %, EPE 0.096 against
+    0.077 on the scene below); (0, 1) otherwise (the views as they are). The diffusion tensor Γ = exp(−γ|∇I|^β) and the ROF weight μ take intensities
     in [0, 1]: 12-bit data stored in 16 bits (read as [0, 1/16]), or an underexposed
     capture, would otherwise see almost no edges and an over-smoothed texture part.
     ``paper`` at 128×96 with 7×7 views, BadPix(0.07) of δ1: 4.2 % as rendered; at 1/16
@@ -742,7 +746,7 @@ def _intensity_stretch(lf1: LightField, lf2: LightField) -> tuple[float, float]:
     lo = min(float(np.min(lf1.views)), float(np.min(lf2.views)))
     hi = max(float(np.max(lf1.views)), float(np.max(lf2.views)))
     span = hi - lo
-    if span <= 0.0 or span >= MIN_INTENSITY_RANGE:
+    if span <= 0.0 or MIN_INTENSITY_RANGE <= span <= MAX_INTENSITY_RANGE:
         return 0.0, 1.0
     return lo, 1.0 / span
 

@@ -292,3 +292,9 @@ def test_a_narrow_intensity_range_is_stretched_like_12_bit_data_in_16_bits():
     e_low = evaluate.evaluate(low.as_dict(), gt, border=8)
     assert e_low["disp1"]["badpix_0.07"] < e_full["disp1"]["badpix_0.07"] + 2.0
     assert e_low["flow"]["epe"] < 1.3 * e_full["flow"]["epe"]
+    # 8-bit counts given as floats, [0, 255], come back to [0, 1] the same way
+    counts = estimate_scene_flow(lfsf.LightField(lf1.views * 255), lfsf.LightField(lf2.views * 255), QUICK,
+                                 device="cpu")
+    e_counts = evaluate.evaluate(counts.as_dict(), gt, border=8)
+    assert e_counts["disp1"]["badpix_0.07"] < e_full["disp1"]["badpix_0.07"] + 2.0
+    assert e_counts["flow"]["epe"] < 1.3 * e_full["flow"]["epe"]
