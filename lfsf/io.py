@@ -679,7 +679,7 @@ def lenslet_to_views(raw, grid: tuple[int, int]) -> np.ndarray:
 
 # Magic, width, height and scale separated by any whitespace; the header ends with the
 # line break after the scale (trailing blanks allowed) or, failing that, one whitespace byte.
-_PFM_HEADER = re.compile(rb"(\S+)\s+(\S+)\s+(\S+)\s+(\S+)(?:[ \t\r]*\n|\s)")
+_PFM_HEADER = re.compile(rb"(\S+)\s+(\S+)\s+(\S+)\s+(\S+)\s")
 
 
 def _read_bytes(path: str | os.PathLike) -> bytes:
@@ -737,12 +737,20 @@ def read_pfm(path: str | os.PathLike) -> np.ndarray:
                          f"little-endian), got {scale_text!r}")
     channels = 3 if magic == b"PF" else 1
     count = width * height * channels
-    available = len(data) - header.end()
+    # The scale ends with one whitespace byte; writers that put more (a trailing space or
+    # "\r" before the "\n") are told apart from data that starts with such a byte by the
+    # data's size: the data are the file's last 4·count bytes where the bytes between are
+    # all whitespace.
+    start = header.end()
+    tail = len(data) - 4 * count
+    if tail > start and data[start:tail].isspace():
+        start = tail
+    available = len(data) - start
     if available < 4 * count:
         raise ValueError(f"{path}: truncated PFM data: expected {4 * count} bytes for "
                          f"{width}×{height}×{channels} float32, got {available}")
     dtype = "<f4" if scale < 0 else ">f4"
-    image = np.frombuffer(data, dtype=dtype, count=count, offset=header.end())
+    image = np.frombuffer(data, dtype=dtype, count=count, offset=start)
     image = image.reshape((height, width, 3) if channels == 3 else (height, width))
     return np.ascontiguousarray(image[::-1], dtype=np.float32)
 

@@ -1008,3 +1008,14 @@ def test_lytro_views_follow_the_convention(lytro, view):
 def test_read_lightfield_needs_a_path(path):
     with pytest.raises(ValueError, match="needs the path of a light field"):
         lio.read_lightfield(path)
+
+
+@pytest.mark.parametrize("end", [b"\n", b" ", b"\r\n", b"  \n", b"\t"])
+def test_pfm_header_end_and_data_that_starts_with_a_newline_byte(tmp_path, end):
+    """One whitespace byte ends the header (the spec); more (CRLF, trailing spaces) is
+    told apart from data whose first byte is itself whitespace (here 0x0a)."""
+    first = struct.unpack("<f", b"\n\x00\x80\x3f")[0]
+    a = np.array([[1, 2], [first, 4]], np.float32)
+    path = tmp_path / "h.pfm"
+    path.write_bytes(b"Pf\n2 2\n-1" + end + a[::-1].astype("<f4").tobytes())
+    np.testing.assert_array_equal(lio.read_pfm(path), a)
