@@ -219,7 +219,8 @@ def cmd_demo(args) -> int:
     sf.save(out, lf1.centre, lf2.centre)
     overview_figure(lf1.centre, lf2.centre, sf.disp1, sf.disp2, sf.u, sf.v, gt=gt, path=out / "overview.png",
                     title=f"lfsf demo: '{args.scene}' ({width}x{height}, {args.grid}x{args.grid} views)")
-    print(f"wrote {out / 'overview.png'} and the results (disp1.pfm, disp2.pfm, flow.flo, sceneflow.npz) to {out}")
+    print(f"wrote {out / 'overview.png'} and the results (disp1.pfm, disp2.pfm, flow.flo, sceneflow.npz, "
+          f"disp1.png, disp2.png, flow.png) to {out}")
     return 0
 
 

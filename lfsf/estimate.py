@@ -543,6 +543,9 @@ def estimate_scene_flow(
         Light fields at t1 and t2, same view grid and size (a path is read with
         :func:`lfsf.read_lightfield`); colour is matched as luma. The disparities need
         at least 2 rows and 2 columns of views (flow only, ``circles=1``, needs one).
+        Light fields whose joint intensity range spans less than 0.2 or more than 2
+        are stretched to [0, 1] first (e.g. 12-bit data stored in 16 bits, or counts
+        given as floats); the others are used as they are.
     params : Params, optional
         Settings (default: ``Params.preset("paper")``).
     device : str, optional
@@ -563,10 +566,10 @@ def estimate_scene_flow(
     Notes
     -----
     Special cases come from the same code: ``estimate_scene_flow(lf, lf)`` is stereo
-    (the flow comes out zero and δ2 = δ1, but at a few pixels of depth edges, where a
-    sample's rows drop out at one time and not the other: on ``paper`` at 160×120,
-    flows of up to 0.13 px at 1.5 % of the pixels and δ2 ≠ δ1 at 0.1 %), ``circles=1``
-    is optical flow of the centre views alone,
+    (the flow comes out within 0.01 px of zero and δ2 within 0.01 of δ1, but near depth
+    edges, where a sample's rows drop out at one time and not the other: on ``paper``
+    at 160×120, flows of up to 0.13 px at 1.5 % of the pixels and |δ2 − δ1| up to 1.6 at
+    0.1 %), ``circles=1`` is optical flow of the centre views alone,
     ``circles=2, samples=(1, 1)`` is two-view stereo plus flow.
 
     References
