@@ -374,3 +374,10 @@ def test_an_output_folder_inside_the_frames_is_not_a_frame(frames, tmp_path):
     assert names == ["f000", "f001", "f002"]
     with pytest.raises(ValueError, match="must not be the folder of frames"):
         batch.pairs_from_sources([local], out=local)
+
+
+def test_predict_next_is_public():
+    import lfsf
+    from lfsf.estimate import predict_next
+
+    assert lfsf.predict_next is predict_next and "predict_next" in dir(lfsf)
