@@ -19,7 +19,9 @@ image) at t2.
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -484,7 +486,8 @@ def write_scene(
 
     ``noise`` > 0 adds sensor noise of that standard deviation to every view
     (:func:`add_noise`, independent at t1 and t2, seeds 0 and 1); the ground truth is the
-    scene's. Each file is written under a temporary name and renamed when complete.
+    scene's. The three are written into a temporary folder and moved into place
+    together, so an interrupted write leaves none of them.
     Returns the paths written.
     """
     from lfsf._files import savez_atomic
@@ -494,13 +497,34 @@ def write_scene(
     lf1, lf2, gt = render_scene(scene, size=size, grid=grid, supersample=supersample, colour=colour, device=device)
     lf1, lf2 = add_noise(lf1, noise, seed=0), add_noise(lf2, noise, seed=1)
     out = Path(out)
+    names = {"lf1": "lf1.npz", "lf2": "lf2.npz", "gt": "gt.npz"}
+    with _file_set(out, names.values()) as tmp:
+        write_lightfield(lf1, tmp / names["lf1"])
+        write_lightfield(lf2, tmp / names["lf2"])
+        savez_atomic(tmp / names["gt"], compressed=True, scene=np.str_(get_scene(scene).name), **gt)
+    return {key: out / name for key, name in names.items()}
+
+
+@contextlib.contextmanager
+def _file_set(out: Path, names):
+    """A temporary folder inside ``out`` to write the files ``names`` (paths relative to
+    ``out``) into; on success they are moved into place together, so that an interrupted
+    write leaves none of them (a pair without its ground truth, a sequence cut short)."""
+    import shutil
+    import tempfile
+
     out.mkdir(parents=True, exist_ok=True)
-    paths = {"lf1": out / "lf1.npz", "lf2": out / "lf2.npz", "gt": out / "gt.npz"}
-    write_lightfield(lf1, paths["lf1"])
-    write_lightfield(lf2, paths["lf2"])
-    sc = get_scene(scene)
-    savez_atomic(paths["gt"], compressed=True, scene=np.str_(sc.name), **gt)
-    return paths
+    for name in names:
+        if (out / name).is_dir():
+            raise ValueError(f"{out / name}: is a folder; {name} cannot be written there")
+    tmp = Path(tempfile.mkdtemp(prefix=".lfsf-synth.", dir=out))
+    try:
+        yield tmp
+        for name in names:
+            (out / name).parent.mkdir(parents=True, exist_ok=True)
+            os.replace(tmp / name, out / name)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def write_sequence(
@@ -517,7 +541,8 @@ def write_sequence(
 ) -> dict[str, list[Path]]:
     """Render :func:`render_sequence` and write the frames ``out/frames/f000.npz``, … (a
     folder ``lfsf batch`` reads as consecutive pairs) and each pair's ground truth
-    ``out/gt/f000.npz``, … (named after the pair's first frame), each atomically.
+    ``out/gt/f000.npz``, … (named after the pair's first frame), all moved into place
+    together once written.
     ``noise`` > 0: sensor noise on every view, independent per frame (seed = frame)."""
     from lfsf._files import savez_atomic
     from lfsf.io import write_lightfield
@@ -527,14 +552,14 @@ def write_sequence(
                                device=device)
     lfs = [add_noise(lf, noise, seed=k) for k, lf in enumerate(lfs)]
     out = Path(out)
-    paths: dict[str, list[Path]] = {"frames": [], "gt": []}
-    (out / "frames").mkdir(parents=True, exist_ok=True)
-    (out / "gt").mkdir(parents=True, exist_ok=True)
+    frame_names = [f"frames/f{k:03d}.npz" for k in range(len(lfs))]
+    gt_names = [f"gt/f{k:03d}.npz" for k in range(len(gts))]
     name = get_scene(scene).name
-    for k, lf in enumerate(lfs):
-        paths["frames"].append(out / "frames" / f"f{k:03d}.npz")
-        write_lightfield(lf, paths["frames"][-1])
-    for k, gt in enumerate(gts):
-        paths["gt"].append(out / "gt" / f"f{k:03d}.npz")
-        savez_atomic(paths["gt"][-1], compressed=True, scene=np.str_(name), **gt)
-    return paths
+    with _file_set(out, frame_names + gt_names) as tmp:
+        (tmp / "frames").mkdir()
+        (tmp / "gt").mkdir()
+        for lf, frame in zip(lfs, frame_names):
+            write_lightfield(lf, tmp / frame)
+        for gt, gt_name in zip(gts, gt_names):
+            savez_atomic(tmp / gt_name, compressed=True, scene=np.str_(name), **gt)
+    return {"frames": [out / f for f in frame_names], "gt": [out / g for g in gt_names]}

@@ -205,3 +205,32 @@ def test_even_grid_is_centred_between_views():
     lf, _, gt = synth.render_scene("paper", size=(40, 30), grid=(2, 4), supersample=1)
     assert lf.views.shape == (2, 4, 30, 40)
     assert lf.grid == (2, 4)
+
+
+@pytest.mark.parametrize("frames", [2, 4])
+def test_an_interrupted_write_leaves_no_partial_set(tmp_path, monkeypatch, frames):
+    """A pair without its ground truth, or a sequence cut short, would be read as data:
+    the files of one `lfsf synth` are moved into place only when all are written."""
+    from lfsf import io
+
+    real = io.write_lightfield
+    calls = []
+
+    def flaky(lf, path):
+        calls.append(path)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(lf, path)
+
+    monkeypatch.setattr(io, "write_lightfield", flaky)
+    with pytest.raises(KeyboardInterrupt):
+        if frames == 2:
+            synth.write_scene("paper", tmp_path / "s", size=(16, 16), grid=3, device="cpu")
+        else:
+            synth.write_sequence("paper", tmp_path / "s", frames, size=(16, 16), grid=3, device="cpu")
+    left = sorted(str(p.relative_to(tmp_path / "s")) for p in (tmp_path / "s").rglob("*"))
+    assert left == [], left
+    monkeypatch.setattr(io, "write_lightfield", real)
+    paths = (synth.write_scene("paper", tmp_path / "s", size=(16, 16), grid=3, device="cpu") if frames == 2
+             else synth.write_sequence("paper", tmp_path / "s", frames, size=(16, 16), grid=3, device="cpu"))
+    assert all(p.is_file() for group in paths.values() for p in (group if isinstance(group, list) else [group]))
