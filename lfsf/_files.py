@@ -60,18 +60,21 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     suffix = path.suffix if suffix is None else suffix
-    # (the stem shortened: a target name near the 255-byte limit must still get a temporary one)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem[:TEMP_STEM]}.", suffix=".part" + suffix, dir=path.parent)
-    os.close(fd)
-    tmp_path = Path(tmp)
+    tmp_path = None
     try:
+        # (the stem shortened: a target name near the 255-byte limit must still get a
+        # temporary one; made inside the try, so that an interrupt right after leaves none)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem[:TEMP_STEM]}.", suffix=".part" + suffix, dir=path.parent)
+        tmp_path = Path(tmp)
+        os.close(fd)
         yield tmp_path
         # mkstemp makes the file private (0600); give it the mode a plain open() would.
         os.chmod(tmp_path, 0o666 & ~_umask())
         os.replace(tmp_path, path)
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            tmp_path.unlink()
+        if tmp_path is not None:
+            with contextlib.suppress(FileNotFoundError):
+                tmp_path.unlink()
         raise
 
 
@@ -94,3 +97,48 @@ def savez_atomic(path: str | os.PathLike, compressed: bool = False, **arrays) ->
     with atomic_path(path, suffix=".npz") as tmp:
         with open(tmp, "wb") as f:
             (np.savez_compressed if compressed else np.savez)(f, **arrays)
+
+
+@contextlib.contextmanager
+def interrupts_held():
+    """Hold Ctrl-C (SIGINT) back while the body runs, for the moves that put a set of
+    outputs in place: an interrupt between two of them would leave a mix of an old set
+    and a new one. A SIGINT that comes meanwhile is delivered when the body ends."""
+    import signal
+
+    try:
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    except (AttributeError, ValueError, OSError):  # pragma: no cover - no POSIX signal masks
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+@contextlib.contextmanager
+def file_set(out: Path, names):
+    """A temporary folder inside ``out`` to write the files ``names`` (paths relative to
+    ``out``) into; on success they are moved into place together, with Ctrl-C held back
+    meanwhile (:func:`interrupts_held`), so that a failure or an interrupt leaves either
+    none of them or all of them, never a mix with an earlier set. Existing folders in
+    their place are refused before anything is written."""
+    import shutil
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        if (out / name).is_dir():
+            raise ValueError(f"{out / name}: is a folder; {name} cannot be written there")
+    tmp = None
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=".lfsf-set.", dir=out))
+        yield tmp
+        with interrupts_held():
+            for name in names:
+                (out / name).parent.mkdir(parents=True, exist_ok=True)
+                os.replace(tmp / name, out / name)
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)

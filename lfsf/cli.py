@@ -185,8 +185,10 @@ def cmd_run(args) -> int:
     check_pair(lf1, lf2)
     progress = _Progress(args)
     t0 = time.perf_counter()
-    sf = estimate_scene_flow(lf1, lf2, params, device=device, progress=progress)
-    progress.done()
+    try:
+        sf = estimate_scene_flow(lf1, lf2, params, device=device, progress=progress)
+    finally:
+        progress.done()
     paths = sf.save(args.out, lf1.centre, lf2.centre)
     _log(args, f"estimated in {time.perf_counter() - t0:.1f} s on {device}; wrote {len(paths)} files to {args.out}")
     return 0
@@ -197,31 +199,38 @@ def cmd_demo(args) -> int:
     from lfsf.device import resolve_device
     from lfsf.estimate import estimate_scene_flow
     from lfsf.evaluate import SYNTH_BORDER, evaluate, format_table
-    from lfsf.viz import overview_figure
 
     device = resolve_device(args.device)
     params = _params(args)
     width, height = args.size
     out = output_folder(args.out, create=False)
-    print(f"lfsf demo: scene '{args.scene}', {width}×{height}, {args.grid}×{args.grid} views, preset "
-          f"'{args.preset}', on {device}", flush=True)
+    _say(args, f"lfsf demo: scene '{args.scene}', {width}×{height}, {args.grid}×{args.grid} views, preset "
+               f"'{args.preset}', on {device}")
     t0 = time.perf_counter()
     lf1, lf2, gt = synth.render_scene(args.scene, size=(width, height), grid=args.grid, device=device)
     t_render = time.perf_counter() - t0
     progress = _Progress(args)
     t0 = time.perf_counter()
-    sf = estimate_scene_flow(lf1, lf2, params, device=device, progress=progress)
-    progress.done()
+    try:
+        sf = estimate_scene_flow(lf1, lf2, params, device=device, progress=progress)
+    finally:
+        progress.done()
     t_est = time.perf_counter() - t0
     errors = evaluate(sf.as_dict(), gt, border=SYNTH_BORDER)
-    print(f"rendered in {t_render:.1f} s, estimated in {t_est:.1f} s")
-    print(format_table(errors))
-    sf.save(out, lf1.centre, lf2.centre)
-    overview_figure(lf1.centre, lf2.centre, sf.disp1, sf.disp2, sf.u, sf.v, gt=gt, path=out / "overview.png",
-                    title=f"lfsf demo: '{args.scene}' ({width}x{height}, {args.grid}x{args.grid} views)")
-    print(f"wrote {out / 'overview.png'} and the results (disp1.pfm, disp2.pfm, flow.flo, sceneflow.npz, "
-          f"disp1.png, disp2.png, flow.png) to {out}")
+    _say(args, f"rendered in {t_render:.1f} s, estimated in {t_est:.1f} s")
+    print(format_table(errors), flush=True)
+    # the overview with the ground truth and the errors, in the one set of results
+    sf.save(out, lf1.centre, lf2.centre, gt=gt,
+            title=f"lfsf demo: '{args.scene}' ({width}x{height}, {args.grid}x{args.grid} views)")
+    _say(args, f"wrote {out / 'overview.png'} and the results (disp1.pfm, disp2.pfm, flow.flo, sceneflow.npz, "
+               f"disp1.png, disp2.png, flow.png) to {out}")
     return 0
+
+
+def _say(args, message: str) -> None:
+    """A line of the demo's report on stdout (not with --quiet; the error table always)."""
+    if not getattr(args, "quiet", False):
+        print(message, flush=True)
 
 
 # --- batch ---------------------------------------------------------------------------------
@@ -444,12 +453,27 @@ def main(argv=None) -> int:
     prog = f"lfsf {args.command}"
     try:
         return int(args.func(args) or 0)
-    except BAD_INPUT_ERRORS as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
+    except BAD_INPUT_ERRORS as exc:
+        if _interrupted(exc):  # e.g. numpy's savez closing its zip file in a finally
+            print(f"{prog}: interrupted", file=sys.stderr)
+            return 130
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+
+
+def _interrupted(exc: BaseException) -> bool:
+    """Whether a KeyboardInterrupt lies behind ``exc`` (raised while handling it, or in a
+    ``finally`` that ran because of it)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 if __name__ == "__main__":  # pragma: no cover

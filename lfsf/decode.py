@@ -929,9 +929,12 @@ def decode_files(raw_path, white_path, out, *, views: int | None = None, bayer: 
     report = {"raw": str(raw_path), "white": str(white_path), "views": lf.grid[0], "bayer": lf.meta["bayer"],
               "flip": flip, "size": [lf.width, lf.height], "plane_origin": list(lf.meta["plane_origin"]),
               "lattice": lattice.as_dict()}
+    from lfsf._files import interrupts_held
+
     out.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".lfsf-decode.", dir=out))
+    tmp = None
     try:
+        tmp = Path(tempfile.mkdtemp(prefix=".lfsf-decode.", dir=out))
         write_lightfield(lf, tmp)
         views_written = sorted(p.name for p in tmp.iterdir())
         stale = sorted(p.name for p in out.iterdir() if _HCI_VIEW.fullmatch(p.name) and p.name not in views_written)
@@ -942,12 +945,15 @@ def decode_files(raw_path, white_path, out, *, views: int | None = None, bayer: 
         with open(tmp / "views.npz", "wb") as f:
             np.savez(f, views=lf.views)
         (tmp / "decode.json").write_text(json.dumps(report, indent=2) + "\n")
-        # an earlier decode.json goes first: while the views are being replaced, none claims them
-        (out / "decode.json").unlink(missing_ok=True)
-        for name in (*views_written, "views.npz", "decode.json"):
-            os.replace(tmp / name, out / name)
+        # an earlier decode.json goes first: while the views are being replaced, none claims
+        # them; Ctrl-C waits until the set is in place
+        with interrupts_held():
+            (out / "decode.json").unlink(missing_ok=True)
+            for name in (*views_written, "views.npz", "decode.json"):
+                os.replace(tmp / name, out / name)
     finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
     return lf, report
 
 

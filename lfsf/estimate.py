@@ -48,28 +48,23 @@ class SceneFlow:
     def as_dict(self) -> dict[str, np.ndarray]:
         return {"disp1": self.disp1, "disp2": self.disp2, "u": self.u, "v": self.v}
 
-    def save(self, out: str | Path, centre1=None, centre2=None) -> list[Path]:
+    def save(self, out: str | Path, centre1=None, centre2=None, gt=None, title: str | None = None) -> list[Path]:
         """Write ``disp1.pfm``, ``disp2.pfm``, ``flow.flo``, ``sceneflow.npz`` and the
         pictures ``disp1.png``, ``disp2.png``, ``flow.png`` (and ``overview.png`` when the
         centre views are given) into ``out``, as one set: all are written into a
         temporary folder inside ``out`` first and moved into place only when every one
-        is complete, so a failure leaves none of them (and no mix with an earlier run's)."""
+        is complete, so a failure or an interrupt leaves none of them (and no mix with an
+        earlier run's). ``gt`` and ``title`` go to the overview (:func:`lfsf.viz.overview_figure`)."""
         import json
-        import shutil
-        import tempfile
 
         from lfsf import io, viz
-        from lfsf._files import output_folder
+        from lfsf._files import file_set, output_folder
 
         out = output_folder(out)
         names = ["disp1.pfm", "disp2.pfm", "flow.flo", "sceneflow.npz", "disp1.png", "disp2.png", "flow.png"]
         if centre1 is not None and centre2 is not None:
             names.append("overview.png")
-        for name in names:
-            if (out / name).is_dir():
-                raise ValueError(f"{out / name}: is a folder; the result {name} cannot be written there")
-        tmp = Path(tempfile.mkdtemp(prefix=".lfsf-result.", dir=out))
-        try:
+        with file_set(out, names) as tmp:
             for name in ("disp1", "disp2"):
                 io.write_pfm(tmp / f"{name}.pfm", getattr(self, name))
             io.write_flo(tmp / "flow.flo", np.stack([self.u, self.v], -1))
@@ -82,12 +77,8 @@ class SceneFlow:
                 viz.save_png(tmp / f"{name}.png", viz.disparity_to_color(getattr(self, name), lo, hi))
             viz.save_png(tmp / "flow.png", viz.flow_to_color(self.u, self.v))
             if centre1 is not None and centre2 is not None:
-                viz.overview_figure(centre1, centre2, self.disp1, self.disp2, self.u, self.v,
-                                    path=tmp / "overview.png")
-            for name in names:
-                os.replace(tmp / name, out / name)
-        finally:
-            shutil.rmtree(tmp, ignore_errors=True)
+                viz.overview_figure(centre1, centre2, self.disp1, self.disp2, self.u, self.v, gt=gt,
+                                    path=tmp / "overview.png", title=title)
         return [out / name for name in names]
 
 

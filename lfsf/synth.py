@@ -19,9 +19,7 @@ image) at t2.
 
 from __future__ import annotations
 
-import contextlib
 import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -490,7 +488,7 @@ def write_scene(
     together, so an interrupted write leaves none of them.
     Returns the paths written.
     """
-    from lfsf._files import savez_atomic
+    from lfsf._files import file_set, savez_atomic
     from lfsf.io import write_lightfield
 
     noise = _noise_sigma(noise)  # a bad sigma: an error before any rendering
@@ -498,33 +496,12 @@ def write_scene(
     lf1, lf2 = add_noise(lf1, noise, seed=0), add_noise(lf2, noise, seed=1)
     out = Path(out)
     names = {"lf1": "lf1.npz", "lf2": "lf2.npz", "gt": "gt.npz"}
-    with _file_set(out, names.values()) as tmp:
+    with file_set(out, list(names.values())) as tmp:
         write_lightfield(lf1, tmp / names["lf1"])
         write_lightfield(lf2, tmp / names["lf2"])
         savez_atomic(tmp / names["gt"], compressed=True, scene=np.str_(get_scene(scene).name), **gt)
     return {key: out / name for key, name in names.items()}
 
-
-@contextlib.contextmanager
-def _file_set(out: Path, names):
-    """A temporary folder inside ``out`` to write the files ``names`` (paths relative to
-    ``out``) into; on success they are moved into place together, so that an interrupted
-    write leaves none of them (a pair without its ground truth, a sequence cut short)."""
-    import shutil
-    import tempfile
-
-    out.mkdir(parents=True, exist_ok=True)
-    for name in names:
-        if (out / name).is_dir():
-            raise ValueError(f"{out / name}: is a folder; {name} cannot be written there")
-    tmp = Path(tempfile.mkdtemp(prefix=".lfsf-synth.", dir=out))
-    try:
-        yield tmp
-        for name in names:
-            (out / name).parent.mkdir(parents=True, exist_ok=True)
-            os.replace(tmp / name, out / name)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def write_sequence(
@@ -544,7 +521,7 @@ def write_sequence(
     ``out/gt/f000.npz``, … (named after the pair's first frame), all moved into place
     together once written.
     ``noise`` > 0: sensor noise on every view, independent per frame (seed = frame)."""
-    from lfsf._files import savez_atomic
+    from lfsf._files import file_set, savez_atomic
     from lfsf.io import write_lightfield
 
     noise = _noise_sigma(noise)  # a bad sigma: an error before any rendering
@@ -555,7 +532,12 @@ def write_sequence(
     frame_names = [f"frames/f{k:03d}.npz" for k in range(len(lfs))]
     gt_names = [f"gt/f{k:03d}.npz" for k in range(len(gts))]
     name = get_scene(scene).name
-    with _file_set(out, frame_names + gt_names) as tmp:
+    earlier = sorted(p.name for p in (out / "frames").glob("f*.npz") if f"frames/{p.name}" not in frame_names)
+    if earlier:
+        raise ValueError(f"{out / 'frames'}: holds frames of an earlier sequence ({', '.join(earlier[:3])}"
+                         f"{' …' if len(earlier) > 3 else ''}) that a batch would pair with these; remove them "
+                         "or choose another --out")
+    with file_set(out, frame_names + gt_names) as tmp:
         (tmp / "frames").mkdir()
         (tmp / "gt").mkdir()
         for lf, frame in zip(lfs, frame_names):

@@ -223,3 +223,35 @@ def test_json_reports_are_strict_json():
     text = _json_bytes({"errors": {"mse": float("nan"), "epe": float("inf"), "n": [1.5, float("-inf")]}}).decode()
     assert json.loads(text, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}")) == {
         "errors": {"mse": None, "epe": None, "n": [1.5, None]}}
+
+
+def test_ctrl_c_is_held_back_while_a_set_of_outputs_moves_into_place():
+    import signal
+
+    from lfsf._files import interrupts_held
+
+    done = []
+    with pytest.raises(KeyboardInterrupt):
+        with interrupts_held():
+            os.kill(os.getpid(), signal.SIGINT)
+            done.append("the body ran to its end")
+    assert done
+
+
+def test_an_error_raised_while_interrupted_counts_as_the_interrupt(monkeypatch, capsys):
+    """numpy's savez closes its zip in a finally: Ctrl-C during a write surfaced as a
+    ValueError, reported as bad input (exit 2) instead of an interrupt (130)."""
+    import lfsf.cli as cli
+
+    def interrupted_write(args):
+        try:
+            raise KeyboardInterrupt
+        finally:
+            raise ValueError("Can't close the ZIP file while there is an open writing handle on it.")
+
+    monkeypatch.setattr(cli, "cmd_synth", interrupted_write)
+    parser = cli.build_parser()
+    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    parser._subparsers._group_actions[0].choices["synth"].set_defaults(func=interrupted_write)
+    assert cli.main(["synth", "paper", "--out", "x"]) == 130
+    assert "interrupted" in capsys.readouterr().err

@@ -62,6 +62,10 @@ def test_thread_count_from_environment(monkeypatch):
     monkeypatch.setenv(D.ENV_THREADS, "many")
     with pytest.raises(ValueError, match="LFSF_THREADS"):
         D.cpu_threads()
+    for bad in ("0", "-3", "1000"):
+        monkeypatch.setenv(D.ENV_THREADS, bad)
+        with pytest.raises(ValueError, match=r"LFSF_THREADS must be in 1…256"):
+            D.cpu_threads()
 
 
 def test_importing_lfsf_compiles_nothing_and_skips_warp():

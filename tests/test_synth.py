@@ -234,3 +234,10 @@ def test_an_interrupted_write_leaves_no_partial_set(tmp_path, monkeypatch, frame
     paths = (synth.write_scene("paper", tmp_path / "s", size=(16, 16), grid=3, device="cpu") if frames == 2
              else synth.write_sequence("paper", tmp_path / "s", frames, size=(16, 16), grid=3, device="cpu"))
     assert all(p.is_file() for group in paths.values() for p in (group if isinstance(group, list) else [group]))
+
+
+def test_a_sequence_over_an_earlier_longer_one_is_refused(tmp_path):
+    synth.write_sequence("paper", tmp_path / "s", 4, size=(16, 16), grid=3, device="cpu")
+    with pytest.raises(ValueError, match="f003.npz"):
+        synth.write_sequence("paper", tmp_path / "s", 3, size=(16, 16), grid=3, device="cpu")
+    assert len(list((tmp_path / "s" / "frames").glob("*.npz"))) == 4
