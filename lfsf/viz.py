@@ -369,6 +369,7 @@ def save_png(path: str | os.PathLike, img) -> None:
 # --------------------------------------------------------------------------- overview
 
 _MIN_PANEL_WIDTH = 240  # small inputs are upscaled (nearest) to at least this width
+_MAX_PANEL_HEIGHT = 2048  # … but not taller than this (or their own height, if taller)
 _FONT_SIZE = 13
 _PAD = 4
 _GAP = 8
@@ -519,7 +520,9 @@ def _fit_text(draw: ImageDraw.ImageDraw, text: str, font, width: int) -> str:
 def _compose(rows: list[list[_Panel]], title: str | None) -> np.ndarray:
     """Lay the panels out on a grid: header label, upscaled image, footer key."""
     h, w = rows[0][0].image.shape[:2]
-    s = max(1, math.ceil(_MIN_PANEL_WIDTH / w))
+    # narrow images are enlarged for the labels, but never past _MAX_PANEL_HEIGHT: a
+    # 3000×8 image would otherwise become a 360000-px-tall picture
+    s = max(1, min(math.ceil(_MIN_PANEL_WIDTH / w), _MAX_PANEL_HEIGHT // h))
     pw, ph = w * s, h * s
     font = _font()
     probe = ImageDraw.Draw(Image.new("RGB", (1, 1)))

@@ -284,3 +284,9 @@ def test_failing_write_leaves_no_partial_file(tmp_path, monkeypatch):
         viz.save_png(tmp_path / "new.png", np.zeros((4, 4), dtype=np.uint8))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.png"]
     assert target.read_bytes() == b"previous"
+
+
+def test_a_tall_narrow_image_is_not_enlarged_into_a_huge_picture():
+    c = np.random.default_rng(0).random((3000, 8)).astype(np.float32)
+    img = viz.overview_figure(c, c, c, c, c, c)
+    assert img.shape[0] < 3 * 3000 + 1000 and img.shape[1] < 1000
