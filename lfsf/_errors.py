@@ -6,3 +6,20 @@
 #: and a batch reports them as a failed pair's reason, both without a traceback. Every
 #: OSError names its file (``[Errno 36] File name too long: '…'``).
 BAD_INPUT_ERRORS = (ValueError, OSError)
+
+
+def run_script(main, argv=None) -> int:
+    """Run a script's ``main(argv)`` as the ``lfsf`` commands run: bad input (a
+    :data:`BAD_INPUT_ERRORS`) is one line on stderr and exit status 2, Ctrl-C status 130."""
+    import os
+    import sys
+
+    prog = os.path.basename(sys.argv[0]) or "script"
+    try:
+        return int(main(argv) or 0)
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130
+    except BAD_INPUT_ERRORS as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from lfsf import synth
+from lfsf._errors import run_script
 from lfsf._files import savez_atomic
 from lfsf.decode import Lattice, decode_files, synthetic_lenslet
 from lfsf.estimate import estimate_scene_flow
@@ -118,4 +119,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_script(main))

@@ -17,6 +17,8 @@ import statistics
 import time
 
 from lfsf import synth
+from lfsf._errors import run_script
+from lfsf._files import output_file, write_bytes_atomic
 from lfsf.estimate import estimate_scene_flow, predict_next
 from lfsf.evaluate import SYNTH_BORDER, evaluate
 from lfsf.params import Params
@@ -54,6 +56,15 @@ def main(argv=None) -> int:
     ap.add_argument("--device")
     ap.add_argument("--json")
     args = ap.parse_args(argv)
+    if args.frames < 3:
+        raise ValueError(f"--frames must be at least 3 (pair 0 is the cold start the others are compared with), "
+                         f"got {args.frames}")
+    if any(k < 0 for k in args.warm_levels):
+        raise ValueError(f"--warm-levels must be ≥ 0, got {args.warm_levels}")
+    synth.get_scene(args.scene)
+    Params.preset(args.preset)
+    if args.json:
+        output_file(args.json)  # before the runs, not after them
     rows = run(args.scene, args.frames, args.size, args.preset, args.warm_levels, args.device)
     print(f"\nmedians over pairs 1…{args.frames - 2} ({args.scene}, {args.size[0]}×{args.size[1]}, "
           f"preset {args.preset}):")
@@ -63,10 +74,9 @@ def main(argv=None) -> int:
         med = {k: statistics.median(r[k] for r in sel) for k in ("disp1_mse", "disp2_mse", "epe", "seconds")}
         print(f"{mode:<18} {med['disp1_mse']:8.4f} {med['disp2_mse']:8.4f} {med['epe']:7.3f} {med['seconds']:8.1f}")
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(rows, f, indent=2)
+        write_bytes_atomic(args.json, (json.dumps(rows, indent=2) + "\n").encode())
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_script(main))

@@ -25,6 +25,8 @@ import numpy as np
 
 import lfsf
 from lfsf import evaluate, synth
+from lfsf._errors import run_script
+from lfsf._files import output_file, write_bytes_atomic
 
 
 def parse_assignments(text: str) -> dict:
@@ -33,9 +35,18 @@ def parse_assignments(text: str) -> dict:
     if not text:
         return out
     for part in split_top(text):
-        key, _, value = part.partition("=")
-        out[key.strip()] = ast.literal_eval(value.strip())
+        key, eq, value = part.partition("=")
+        if not eq:
+            raise ValueError(f"expected key=value, got {part!r}")
+        out[key.strip()] = _literal(value)
     return out
+
+
+def _literal(text: str):
+    try:
+        return ast.literal_eval(text.strip())
+    except (ValueError, SyntaxError):
+        raise ValueError(f"not a Python literal: {text.strip()!r} (numbers, True/False, tuples)") from None
 
 
 def split_top(text: str, sep: str = ",") -> list[str]:
@@ -55,8 +66,10 @@ def split_top(text: str, sep: str = ",") -> list[str]:
 
 
 def parse_vary(text: str) -> tuple[str, list]:
-    key, _, values = text.partition("=")
-    return key.strip(), [ast.literal_eval(v.strip()) for v in split_top(values)]
+    key, eq, values = text.partition("=")
+    if not eq or not values.strip():
+        raise ValueError(f"--vary expects 'key=v1,v2,…', got {text!r}")
+    return key.strip(), [_literal(v) for v in split_top(values)]
 
 
 def score(params: lfsf.Params, data, device) -> dict:
@@ -88,9 +101,14 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default=None)
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
+    if args.json:
+        output_file(args.json)  # before the runs, not after them
 
     base = lfsf.Params.preset(args.preset).replace(**parse_assignments(args.base))
     varies = [parse_vary(v) for v in args.vary]
+    for key, values in varies:
+        for value in values:
+            base.replace(**{key: value})  # each value checked before any run
     settings: list[dict] = [{}]
     if args.cartesian and varies:
         keys = [k for k, _ in varies]
@@ -100,6 +118,8 @@ def main(argv=None) -> int:
             settings += [{key: v} for v in values if getattr(base, key) != v]
 
     scenes = args.scenes or list(synth.list_scenes())
+    for s in scenes:
+        synth.get_scene(s)
     data = {s: synth.render_scene(s, size=tuple(args.size), grid=args.views) for s in scenes}
     results = []
     header = "| setting | " + " | ".join(f"{s} δ1 / δ2 / EPE / s" for s in scenes) + " | gmean δ1 | gmean δ2 | gmean EPE |"
@@ -117,11 +137,10 @@ def main(argv=None) -> int:
         print(f"| {label} | {cells} | {g['disp1']:.4f} | {g['disp2']:.4f} | {g['epe']:.4f} |", flush=True)
         results.append({"change": change, "scenes": rows, "geomean": g})
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump({"base": args.base, "size": args.size, "views": args.views, "results": results}, f, indent=1,
-                      default=str)
+        report = {"base": args.base, "size": args.size, "views": args.views, "results": results}
+        write_bytes_atomic(args.json, (json.dumps(report, indent=1, default=str) + "\n").encode())
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_script(main))

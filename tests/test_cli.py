@@ -255,3 +255,16 @@ def test_an_error_raised_while_interrupted_counts_as_the_interrupt(monkeypatch, 
     parser._subparsers._group_actions[0].choices["synth"].set_defaults(func=interrupted_write)
     assert cli.main(["synth", "paper", "--out", "x"]) == 130
     assert "interrupted" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("script,args,needle", [
+    ("sweep.py", ["--vary", "warps"], "--vary expects"),
+    ("sweep.py", ["--vary", "warps=-1", "--scenes", "paper"], "warps must be in"),
+    ("sequence.py", ["--frames", "1"], "--frames must be at least 3"),
+    ("lenslet_example.py", ["{tmp}/x", "--preset", "slow"], "unknown preset 'slow'"),
+])
+def test_scripts_answer_bad_options_in_one_line(tmp_path, script, args, needle):
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    proc = subprocess.run([sys.executable, os.path.join(root, "scripts", script), *[a.format(tmp=tmp_path) for a in args]],
+                          capture_output=True, text=True, env={**os.environ, "LFSF_DEVICE": ""})
+    assert_clean_error(proc.returncode, proc.stderr, needle)
