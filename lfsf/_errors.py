@@ -21,5 +21,20 @@ def run_script(main, argv=None) -> int:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
     except BAD_INPUT_ERRORS as exc:
+        if interrupted(exc):
+            print(f"{prog}: interrupted", file=sys.stderr)
+            return 130
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
+
+
+def interrupted(exc: BaseException) -> bool:
+    """Whether a KeyboardInterrupt lies behind ``exc`` (raised while handling it, or in a
+    ``finally`` that ran because of it, as numpy's savez closing its zip file does)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False

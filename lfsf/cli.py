@@ -12,7 +12,7 @@ import sys
 import time
 from pathlib import Path
 
-from lfsf._errors import BAD_INPUT_ERRORS
+from lfsf._errors import BAD_INPUT_ERRORS, interrupted
 from lfsf._files import output_file, output_folder
 
 EXIT_BAD_INPUT = 2
@@ -457,23 +457,11 @@ def main(argv=None) -> int:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
     except BAD_INPUT_ERRORS as exc:
-        if _interrupted(exc):  # e.g. numpy's savez closing its zip file in a finally
+        if interrupted(exc):  # e.g. numpy's savez closing its zip file in a finally
             print(f"{prog}: interrupted", file=sys.stderr)
             return 130
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-
-
-def _interrupted(exc: BaseException) -> bool:
-    """Whether a KeyboardInterrupt lies behind ``exc`` (raised while handling it, or in a
-    ``finally`` that ran because of it)."""
-    seen = set()
-    while exc is not None and id(exc) not in seen:
-        if isinstance(exc, KeyboardInterrupt):
-            return True
-        seen.add(id(exc))
-        exc = exc.__cause__ or exc.__context__
-    return False
 
 
 if __name__ == "__main__":  # pragma: no cover
