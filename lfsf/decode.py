@@ -45,9 +45,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import re
-import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -84,8 +81,6 @@ _LYTRO_RAW_BYTES = {7728 * 5368 * 10 // 8: ("LYTRO-ILLUM-RAW", 1023.0, "GRBG"),
                     3280 * 3280 * 12 // 8: ("LYTRO-F01-RAW", 4095.0, "BGGR")}
 #: ``bayer`` for a grey (monochrome) sensor, overriding a pattern in the files' metadata.
 GREY = "none"
-#: Names of the views in the HCI layout, as :func:`lfsf.io.read_lightfield` finds them.
-_HCI_VIEW = re.compile(r"input_Cam\d+\.png", re.IGNORECASE)
 #: The white image's floor, as a fraction of its bright level, below which it is not
 #: trusted for devignetting (the dark gaps between micro-images).
 _WHITE_FLOOR = 0.02
@@ -913,13 +908,13 @@ def decode_files(raw_path, white_path, out, *, views: int | None = None, bayer: 
         names is a folder, or ``out`` holds views of another grid that these would mix
         with (delete them first).
     """
-    from lfsf._files import output_folder
-    from lfsf.io import write_lightfield
+    from lfsf._files import file_set, output_folder
+    from lfsf.io import _HCI_NAME, _refuse_mixed_views, _view_names, write_lightfield
 
     out = output_folder(out, create=False)
     if out.is_dir():
         for entry in out.iterdir():
-            if entry.is_dir() and (entry.name in ("views.npz", "decode.json") or _HCI_VIEW.fullmatch(entry.name)):
+            if entry.is_dir() and (entry.name in ("views.npz", "decode.json") or _HCI_NAME.fullmatch(entry.name)):
                 raise ValueError(f"{entry}: is a folder; the decoded {entry.name} cannot be written there")
     bayer = _bayer_option(bayer, "--bayer")
     raw = read_raw(raw_path)
@@ -929,31 +924,17 @@ def decode_files(raw_path, white_path, out, *, views: int | None = None, bayer: 
     report = {"raw": str(raw_path), "white": str(white_path), "views": lf.grid[0], "bayer": lf.meta["bayer"],
               "flip": flip, "size": [lf.width, lf.height], "plane_origin": list(lf.meta["plane_origin"]),
               "lattice": lattice.as_dict()}
-    from lfsf._files import interrupts_held
-
-    out.mkdir(parents=True, exist_ok=True)
-    tmp = None
-    try:
-        tmp = Path(tempfile.mkdtemp(prefix=".lfsf-decode.", dir=out))
+    rows, cols = lf.grid
+    views_written = _view_names("hci", rows, cols)
+    _refuse_mixed_views(out, views_written, "hci")
+    with file_set(out, [*views_written, "views.npz", "decode.json"]) as tmp:
         write_lightfield(lf, tmp)
-        views_written = sorted(p.name for p in tmp.iterdir())
-        stale = sorted(p.name for p in out.iterdir() if _HCI_VIEW.fullmatch(p.name) and p.name not in views_written)
-        if stale:
-            shown = ", ".join(stale[:3]) + (f" and {len(stale) - 3} more" if len(stale) > 3 else "")
-            raise ValueError(f"{out}: already holds views that these would mix with ({shown}); "
-                             f"write to an empty folder")
         with open(tmp / "views.npz", "wb") as f:
             np.savez(f, views=lf.views)
         (tmp / "decode.json").write_text(json.dumps(report, indent=2) + "\n")
-        # an earlier decode.json goes first: while the views are being replaced, none claims
-        # them; Ctrl-C waits until the set is in place
-        with interrupts_held():
-            (out / "decode.json").unlink(missing_ok=True)
-            for name in (*views_written, "views.npz", "decode.json"):
-                os.replace(tmp / name, out / name)
-    finally:
-        if tmp is not None:
-            shutil.rmtree(tmp, ignore_errors=True)
+        # an earlier decode.json goes first: while the views are being replaced (decode.json
+        # last), none claims them
+        (out / "decode.json").unlink(missing_ok=True)
     return lf, report
 
 

@@ -524,6 +524,19 @@ def _read_view_grid(files: list[list[Path]]) -> np.ndarray:
     return views
 
 
+def _refuse_mixed_views(folder: Path, names: list[str], layout: str) -> None:
+    """Raise ValueError if ``folder`` holds views of the layout other than ``names``
+    (:func:`_view_names`): writing these beside them would mix two light fields."""
+    if not folder.is_dir():
+        return
+    pattern = _HCI_NAME if layout == "hci" else _ROWCOL_NAME
+    ours = set(names)
+    stale = sorted(p.name for p in folder.iterdir() if pattern.fullmatch(p.name) and p.name not in ours)
+    if stale:
+        raise ValueError(f"{folder}: already holds views that these would mix with "
+                         f"({_listed(stale)}); write to an empty folder")
+
+
 def _view_names(layout: str, rows: int, cols: int) -> list[str]:
     """Row-major file names of a grid in the given layout."""
     if layout == "hci":
@@ -586,14 +599,7 @@ def write_lightfield(lf_or_views, path: str | os.PathLike, *, bit_depth: int = 1
         raise ValueError(f"{path}: the HCI layout needs a square grid, got {rows}×{cols}; "
                          f"use layout='rowcol' or a .npz")
     names = _view_names(layout, rows, cols)
-    if path.is_dir():
-        pattern = _HCI_NAME if layout == "hci" else _ROWCOL_NAME
-        ours = set(names)
-        stale = sorted(p.name for p in path.iterdir()
-                       if pattern.fullmatch(p.name) and p.name not in ours)
-        if stale:
-            raise ValueError(f"{path}: already holds views that these would mix with "
-                             f"({_listed(stale)}); write to an empty folder")
+    _refuse_mixed_views(path, names, layout)
     path.mkdir(parents=True, exist_ok=True)
     dtype = np.uint16 if bit_depth == 16 else np.uint8
     levels = np.float32(np.iinfo(dtype).max)
