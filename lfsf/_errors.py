@@ -8,24 +8,31 @@
 BAD_INPUT_ERRORS = (ValueError, OSError)
 
 
-def run_script(main, argv=None) -> int:
-    """Run a script's ``main(argv)`` as the ``lfsf`` commands run: bad input (a
-    :data:`BAD_INPUT_ERRORS`) is one line on stderr and exit status 2, Ctrl-C status 130."""
+#: Exit status of bad input, and of an interrupt (Ctrl-C).
+EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130
+
+
+def run_script(main, prog: str | None = None) -> int:
+    """Run ``main()`` (a script's, or an ``lfsf`` command's) and return its exit status:
+    bad input (a :data:`BAD_INPUT_ERRORS`) is one line ``PROG: error: …`` on stderr and
+    status 2, Ctrl-C ``PROG: interrupted`` and status 130. ``prog`` defaults to the
+    script's file name."""
     import os
     import sys
 
-    prog = os.path.basename(sys.argv[0]) or "script"
+    prog = prog or os.path.basename(sys.argv[0]) or "script"
     try:
-        return int(main(argv) or 0)
+        return int(main() or 0)
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     except BAD_INPUT_ERRORS as exc:
-        if interrupted(exc):
+        if interrupted(exc):  # e.g. numpy's savez closing its zip file in a finally
             print(f"{prog}: interrupted", file=sys.stderr)
-            return 130
+            return EXIT_INTERRUPTED
         print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
 
 
 def interrupted(exc: BaseException) -> bool:

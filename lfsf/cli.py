@@ -12,10 +12,8 @@ import sys
 import time
 from pathlib import Path
 
-from lfsf._errors import BAD_INPUT_ERRORS, interrupted
+from lfsf._errors import EXIT_BAD_INPUT, run_script
 from lfsf._files import output_file, output_folder
-
-EXIT_BAD_INPUT = 2
 
 
 class _Parser(argparse.ArgumentParser):
@@ -450,18 +448,7 @@ def main(argv=None) -> int:
     if args.command is None:
         parser.print_help(sys.stderr)
         return EXIT_BAD_INPUT
-    prog = f"lfsf {args.command}"
-    try:
-        return int(args.func(args) or 0)
-    except KeyboardInterrupt:
-        print(f"{prog}: interrupted", file=sys.stderr)
-        return 130
-    except BAD_INPUT_ERRORS as exc:
-        if interrupted(exc):  # e.g. numpy's savez closing its zip file in a finally
-            print(f"{prog}: interrupted", file=sys.stderr)
-            return 130
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    return run_script(lambda: args.func(args), prog=f"lfsf {args.command}")
 
 
 if __name__ == "__main__":  # pragma: no cover
