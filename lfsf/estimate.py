@@ -730,9 +730,10 @@ def _intensity_stretch(lf1: LightField, lf2: LightField) -> tuple[float, float]:
     """(offset, factor) taking the two light fields' joint intensity range to [0, 1]
     where it spans less than MIN_INTENSITY_RANGE or more than MAX_INTENSITY_RANGE (counts
     given as floats, e.g. [0, 255]: δ1 BadPix 5.5 % against 4.2 %, EPE 0.096 against
-    0.077 on the scene below); (0, 1) otherwise (the views as they are). The diffusion tensor Γ = exp(−γ|∇I|^β) and the ROF weight μ take intensities
-    in [0, 1]: 12-bit data stored in 16 bits (read as [0, 1/16]), or an underexposed
-    capture, would otherwise see almost no edges and an over-smoothed texture part.
+    0.077 on the scene below); (0, 1) otherwise (the views as they are). The diffusion
+    tensor Γ = exp(−γ|∇I|^β) and the ROF weight μ take intensities in [0, 1]: 12-bit
+    data stored in 16 bits (read as [0, 1/16]), or an underexposed capture, would
+    otherwise see almost no edges and an over-smoothed texture part.
     ``paper`` at 128×96 with 7×7 views, BadPix(0.07) of δ1: 4.2 % as rendered; at 1/16
     of its range, as 12-bit data in 16 bits, 15.8 % unstretched and 3.9 % stretched; in
     [0.49, 0.51], 19.3 % and 4.0 %. Matching depends on differences only, so the

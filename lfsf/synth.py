@@ -503,7 +503,6 @@ def write_scene(
     return {key: out / name for key, name in names.items()}
 
 
-
 def write_sequence(
     scene: str | Scene,
     out: str | Path,
