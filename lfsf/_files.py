@@ -103,18 +103,28 @@ def savez_atomic(path: str | os.PathLike, compressed: bool = False, **arrays) ->
 def interrupts_held():
     """Hold Ctrl-C (SIGINT) back while the body runs, for the moves that put a set of
     outputs in place: an interrupt between two of them would leave a mix of an old set
-    and a new one. A SIGINT that comes meanwhile is delivered when the body ends."""
-    import signal
+    and a new one. A SIGINT that comes meanwhile is delivered when the body ends.
 
-    try:
-        old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    except (AttributeError, ValueError, OSError):  # pragma: no cover - no POSIX signal masks
+    The SIGINT handler is swapped for one that only notes the signal. (Masking SIGINT
+    with ``pthread_sigmask`` is not enough: it masks the calling thread only, and the
+    kernel hands a process-wide SIGINT to any other thread, such as a worker of the
+    CPU launch pool, whose C handler then raises KeyboardInterrupt in the main thread
+    all the same.) Handlers can only be set from the main thread; elsewhere the body
+    runs unguarded, as Python delivers signals to the main thread only."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
+    caught = []
+    old = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        signal.signal(signal.SIGINT, old)
+        if caught and old not in (signal.SIG_IGN, None):
+            signal.raise_signal(signal.SIGINT)
 
 
 @contextlib.contextmanager
