@@ -39,7 +39,10 @@ class Params:
             are left out of the data rows, of the plane sweep's second pass and of the
             fusion of searched values. False: the best-half test alone decides. Where the
             background has little texture, the best half favours the foreground's
-            disparity there (HCI antinous MSE×100 19.8 with it alone).
+            disparity there (HCI antinous MSE×100 19.8 with it alone). Not used where
+            the side samples all lie on one side of the centre (two-view stereo,
+            ``samples=(1, 1)``): a point hidden from them all keeps no data, and wrong
+            near values grow from there (:func:`lfsf.estimate.one_sided`).
         occlusion_margin, occlusion_reach : geometric occlusion at t2 (an addition to
             the paper, :mod:`lfsf.kernels.occlusion`): a point counts as hidden in the t2
             centre view where a point nearer by more than ``occlusion_margin`` px per
