@@ -43,7 +43,7 @@ from lfsf._files import write_bytes_atomic
 RESULT_FILES = ("disp1.pfm", "disp2.pfm", "flow.flo", "sceneflow.npz", "disp1.png", "disp2.png", "flow.png")
 #: Light-field files a frame folder may hold (besides sub-folders of views).
 FRAME_SUFFIXES = (".npz",)
-INSTALL_HINT = "pip install 'lfsf[batch]' (or: pip install 'dask[distributed]')"
+INSTALL_HINT = "pip install -e '.[batch]' in the lfsf checkout (or: pip install 'dask[distributed]')"
 
 
 @dataclass(frozen=True)

@@ -620,7 +620,7 @@ def estimate_scene_flow(
     if params.circles > 1 and radius <= 0:
         raise ValueError(f"{lf1.source}: a {rows}×{cols} grid of views leaves no room for the sampling circles "
                          f"(M = {params.circles}): the disparities need at least 2 rows and 2 columns of views; "
-                         "for the flow of the centre views alone, use circles = 1 (preset 'flow')")
+                         "for the flow of the centre views alone, use --preset flow (or circles = 1 with samples = [1])")
     requested = params
     if params.visibility and one_sided(phis):
         params = params.replace(visibility=False)

@@ -277,7 +277,7 @@ def test_cli_exit_status_1_when_a_pair_fails_and_2_for_bad_input(frames, tmp_pat
     assert main(["batch", str(tmp_path / "nowhere"), "--out", str(out)]) == 2
     assert "nowhere: no such manifest or folder" in capsys.readouterr().err
     assert main(["batch", str(manifest), "--out", str(out), "--workers", "2"]) == 2
-    assert "pip install 'lfsf[batch]'" in capsys.readouterr().err
+    assert "pip install -e '.[batch]'" in capsys.readouterr().err
 
 
 @needs_dask
