@@ -90,6 +90,33 @@ def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> None:
         tmp.write_bytes(data)
 
 
+def json_bytes(obj, indent: int = 2, default=None) -> bytes:
+    """``obj`` as strict JSON text with a final newline: NaN and ±inf, which JSON lacks
+    (``json`` would write ``NaN``, ``Infinity``, which strict readers refuse), as null;
+    numpy floats as floats. ``default`` as :func:`json.dumps` takes it."""
+    import json
+    import math
+
+    import numpy as np
+
+    def finite(x):
+        if isinstance(x, (float, np.floating)):
+            x = float(x)
+            return x if math.isfinite(x) else None
+        if isinstance(x, dict):
+            return {k: finite(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [finite(v) for v in x]
+        return x
+
+    return (json.dumps(finite(obj), indent=indent, allow_nan=False, default=default) + "\n").encode()
+
+
+def write_json_atomic(path: str | os.PathLike, obj, indent: int = 2, default=None) -> None:
+    """Write ``obj`` to ``path`` as strict JSON (:func:`json_bytes`), atomically."""
+    write_bytes_atomic(path, json_bytes(obj, indent=indent, default=default))
+
+
 def savez_atomic(path: str | os.PathLike, compressed: bool = False, **arrays) -> None:
     """``np.savez`` (or ``savez_compressed``) to ``path`` atomically."""
     import numpy as np

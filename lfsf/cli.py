@@ -7,7 +7,6 @@ status 2, never a traceback; every file is written under a temporary name and re
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -101,7 +100,7 @@ def cmd_synth(args) -> int:
 # --- eval ----------------------------------------------------------------------------------
 
 def cmd_eval(args) -> int:
-    from lfsf._files import write_bytes_atomic
+    from lfsf._files import write_json_atomic
     from lfsf.evaluate import evaluate, format_table, load_estimate, load_ground_truth
 
     if args.json:
@@ -117,24 +116,8 @@ def cmd_eval(args) -> int:
     print(format_table(errors))
     if args.json:
         report = {"result": str(args.result), "ground_truth": str(args.gt), "border": border, "errors": errors}
-        write_bytes_atomic(args.json, _json_bytes(report))
+        write_json_atomic(args.json, report)
     return 0
-
-
-def _json_bytes(obj) -> bytes:
-    """``obj`` as strict JSON (non-finite numbers, which JSON lacks, as null)."""
-    import math
-
-    def finite(x):
-        if isinstance(x, float) and not math.isfinite(x):
-            return None
-        if isinstance(x, dict):
-            return {k: finite(v) for k, v in x.items()}
-        if isinstance(x, (list, tuple)):
-            return [finite(v) for v in x]
-        return x
-
-    return (json.dumps(finite(obj), indent=2, allow_nan=False) + "\n").encode()
 
 
 # --- run and demo ----------------------------------------------------------------------------
@@ -283,7 +266,7 @@ def cmd_decode(args) -> int:
 
 def cmd_bench(args) -> int:
     from lfsf import bench
-    from lfsf._files import write_bytes_atomic
+    from lfsf._files import write_json_atomic
     from lfsf.device import resolve_device
 
     device = resolve_device(args.device)
@@ -306,7 +289,7 @@ def cmd_bench(args) -> int:
     print(bench.format_rows(args.kind, rows))
     print(f"peak RSS {bench.peak_rss_mb():.0f} MB; {_machine()}")
     if args.json:
-        write_bytes_atomic(args.json, _json_bytes(rows))
+        write_json_atomic(args.json, rows)
     return 0
 
 

@@ -46,7 +46,6 @@ checked; 2 for bad arguments.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -61,6 +60,7 @@ ROOT = HERE.parent
 DEFAULT_DATA = ROOT.parent / "shared" / "data"
 
 from lfsf import peers  # noqa: E402  (the peer wrappers)
+from lfsf._files import write_json_atomic  # noqa: E402
 
 SYNTH_BORDER = 8
 HCI_BORDER = 15
@@ -539,7 +539,7 @@ def main(argv=None) -> int:
         doc = {"args": {k: v for k, v in vars(args).items()}, "versions": peers.versions(),
                "opencv_tvl1_parameters": peers.opencv_tvl1_parameters() if use_peers else None,
                "notes": notes, "rows": rows, "bars": bars, "targets": targets}
-        Path(args.json).write_text(json.dumps(doc, indent=1, default=float))
+        write_json_atomic(args.json, doc, indent=1, default=float)
         print(f"wrote {args.json}", file=sys.stderr)
 
     failed = [r for r in rows if r.get("error")]

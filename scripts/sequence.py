@@ -12,13 +12,12 @@ pair has no predecessor, so it is the same in every mode and left out of the med
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import time
 
 from lfsf import synth
 from lfsf._errors import run_script
-from lfsf._files import output_file, write_bytes_atomic
+from lfsf._files import output_file, write_json_atomic
 from lfsf.estimate import estimate_scene_flow, predict_next
 from lfsf.evaluate import SYNTH_BORDER, evaluate
 from lfsf.params import Params
@@ -74,7 +73,7 @@ def main(argv=None) -> int:
         med = {k: statistics.median(r[k] for r in sel) for k in ("disp1_mse", "disp2_mse", "epe", "seconds")}
         print(f"{mode:<18} {med['disp1_mse']:8.4f} {med['disp2_mse']:8.4f} {med['epe']:7.3f} {med['seconds']:8.1f}")
     if args.json:
-        write_bytes_atomic(args.json, (json.dumps(rows, indent=2) + "\n").encode())
+        write_json_atomic(args.json, rows)
     return 0
 
 

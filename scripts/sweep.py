@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import ast
 import itertools
-import json
 import math
 import sys
 import time
@@ -26,7 +25,7 @@ import numpy as np
 import lfsf
 from lfsf import evaluate, synth
 from lfsf._errors import run_script
-from lfsf._files import output_file, write_bytes_atomic
+from lfsf._files import output_file, write_json_atomic
 
 
 def parse_assignments(text: str) -> dict:
@@ -138,7 +137,7 @@ def main(argv=None) -> int:
         results.append({"change": change, "scenes": rows, "geomean": g})
     if args.json:
         report = {"base": args.base, "size": args.size, "views": args.views, "results": results}
-        write_bytes_atomic(args.json, (json.dumps(report, indent=1, default=str) + "\n").encode())
+        write_json_atomic(args.json, report, indent=1, default=str)
     return 0
 
 

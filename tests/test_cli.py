@@ -218,9 +218,9 @@ def test_synth_frames_must_make_a_pair(tmp_path):
 
 
 def test_json_reports_are_strict_json():
-    from lfsf.cli import _json_bytes
+    from lfsf._files import json_bytes
 
-    text = _json_bytes({"errors": {"mse": float("nan"), "epe": float("inf"), "n": [1.5, float("-inf")]}}).decode()
+    text = json_bytes({"errors": {"mse": float("nan"), "epe": float("inf"), "n": [1.5, float("-inf")]}}).decode()
     assert json.loads(text, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}")) == {
         "errors": {"mse": None, "epe": None, "n": [1.5, None]}}
 
