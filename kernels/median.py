@@ -163,3 +163,122 @@ def median_flow(
 
 
 overload_unknowns(median_flow, "x", "out")
+
+
+#: Colour spread floor of :func:`guided_median_edges`' separation test (intensities in
+#: [0, 1]): two groups of flat colour are not told apart by less than this.
+SEPARATION_FLOOR = wp.constant(0.01)
+
+
+@wp.func
+def group_split(values: vec49, colours: wp.array2d(dtype=wp.vec3), i: int, j: int, radius: int, split: float,
+                separation: float):
+    """Whether the window's pixels above ``split`` and those below it differ in colour by
+    more than ``separation`` times the spread of colour within each group (RMS of their
+    distances to the group's mean, the two groups' mean squares averaged, at least
+    SEPARATION_FLOOR)."""
+    h = colours.shape[0]
+    w = colours.shape[1]
+    n_near = float(0.0)
+    n_far = float(0.0)
+    sum_near = wp.vec3(0.0)
+    sum_far = wp.vec3(0.0)
+    sq_near = float(0.0)
+    sq_far = float(0.0)
+    c = int(0)
+    for dy in range(-radius, radius + 1):
+        row = wp.clamp(i + dy, 0, h - 1)
+        for dx in range(-radius, radius + 1):
+            colour = colours[row, wp.clamp(j + dx, 0, w - 1)]
+            if values[c] >= split:
+                n_near += 1.0
+                sum_near += colour
+                sq_near += wp.dot(colour, colour)
+            else:
+                n_far += 1.0
+                sum_far += colour
+                sq_far += wp.dot(colour, colour)
+            c += 1
+    apart = False
+    if n_near > 0.0 and n_far > 0.0:
+        mean_near = sum_near / n_near
+        mean_far = sum_far / n_far
+        spread = 0.5 * (wp.max(sq_near / n_near - wp.dot(mean_near, mean_near), 0.0)
+                        + wp.max(sq_far / n_far - wp.dot(mean_far, mean_far), 0.0))
+        gap = mean_near - mean_far
+        apart = wp.dot(gap, gap) > separation * separation * (spread + SEPARATION_FLOOR * SEPARATION_FLOOR)
+    return apart
+
+
+@wp.func
+def guided_median_at(x: wp.array2d(dtype=wp.vec4), colours: wp.array2d(dtype=wp.vec3), i: int, j: int, k: int,
+                     radius: int, colour_sigma: float, jump: float, separation: float):
+    """Component k of x at (i, j) after :func:`guided_median_edges`' step."""
+    h = x.shape[0]
+    w = x.shape[1]
+    own = x[i, j][k]
+    centre = colours[i, j]
+    values = vec49()
+    weights = vec49()
+    lo = own
+    hi = own
+    total = float(0.0)
+    inv_c = 1.0 / (2.0 * colour_sigma * colour_sigma)
+    inv_s = 1.0 / (2.0 * float(radius * radius))
+    c = int(0)
+    for dy in range(-radius, radius + 1):
+        row = wp.clamp(i + dy, 0, h - 1)
+        for dx in range(-radius, radius + 1):
+            col = wp.clamp(j + dx, 0, w - 1)
+            v = x[row, col][k]
+            gap = colours[row, col] - centre
+            g = wp.exp(-wp.dot(gap, gap) * inv_c - float(dy * dy + dx * dx) * inv_s)
+            values[c] = v
+            weights[c] = g
+            total += g
+            lo = wp.min(lo, v)
+            hi = wp.max(hi, v)
+            c += 1
+    result = own
+    if hi - lo > jump and group_split(values, colours, i, j, radius, 0.5 * (lo + hi), separation):
+        # the weighted median: the least value with at least half the weight at or below it
+        result = hi
+        for a in range(c):
+            va = values[a]
+            if va < result:
+                below = float(0.0)
+                for b in range(c):
+                    if values[b] <= va:
+                        below += weights[b]
+                if below >= 0.5 * total:
+                    result = va
+    return result
+
+
+@wp.kernel
+def guided_median_edges(
+    row0: int,
+    x: wp.array2d(dtype=wp.vec4),
+    colours: wp.array2d(dtype=wp.vec3),
+    radius: int,
+    colour_sigma: float,
+    jump: float,
+    separation: float,
+    # outputs
+    out: wp.array2d(dtype=wp.vec4),
+):
+    """δ1 and δ2 (components 0, 1) of x snapped to the colour edges of the t1 centre view
+    where they jump: each takes, at its own depth edges, the median of its (2r+1)² window
+    (r ≤ LOCAL_RADIUS, clamped at the borders) weighted by exp(−|c(q) − c(p)|²/2σ_c² −
+    |q − p|²/2r²), c the colour. A step at a depth edge is taken where the window's
+    values span more than ``jump`` and the colours of its two depth groups (above and
+    below the middle of that span) are apart (:func:`group_split`, ``separation``);
+    elsewhere the value is kept. Where the surfaces' colours do not differ (the same
+    texture in front and behind) the colours cannot place the edge, and a weighted median
+    would move it by the window's majority. The flow (components 2, 3) is copied.
+    Launch over (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    v = x[i, j]
+    out[i, j] = wp.vec4(guided_median_at(x, colours, i, j, 0, radius, colour_sigma, jump, separation),
+                        guided_median_at(x, colours, i, j, 1, radius, colour_sigma, jump, separation), v[2], v[3])

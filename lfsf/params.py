@@ -110,6 +110,15 @@ class Params:
             of them, Wedel et al.'s plain median; :mod:`lfsf.kernels.median`). It scales
             with the level. 320×240 flow EPE (τ = 0 → 0.5): `paper` 0.067 → 0.063,
             `large_motion` 0.104 → 0.057 (README, Accuracy).
+        colour_median_radius : r of the last step on colour light fields (an addition;
+            0: off; grey input never takes it): δ1 and δ2 are snapped to the colour
+            edges of the t1 centre view where they jump, by the median of their (2r+1)²
+            window weighted by colour likeness (:func:`lfsf.kernels.median.guided_median_edges`).
+            The estimate spreads the nearer surface over the farther one by a pixel or
+            two where their luma matches; their colours often differ. At most 3.
+        colour_median_separation : κ of that step: it acts only where the colours of
+            the window's two depth groups are apart by more than κ times their spread
+            (where both surfaces have the same texture, colour cannot place the edge).
         eps : ε added to the preconditioners' denominators.
         step_ratio : c, the balance of primal and dual steps: every τ is multiplied and
             every σ divided by it. The preconditioners' convergence guarantee
@@ -161,6 +170,8 @@ class Params:
     iterations: int = 100
     median_radius: int = 2
     median_tolerance: float = 0.5
+    colour_median_radius: int = 3
+    colour_median_separation: float = 1.5
     eps: float = 1e-6
     step_ratio: float = 1.0
     warm_levels: int = 0
@@ -276,6 +287,10 @@ class Params:
         need(self.warm_levels >= 0, f"warm_levels must be ≥ 0, got {self.warm_levels}")
         need(0 <= self.median_radius <= 3, f"median_radius must be in 0…3, got {self.median_radius}")
         need(self.median_tolerance >= 0, f"median_tolerance must be ≥ 0, got {self.median_tolerance}")
+        need(0 <= self.colour_median_radius <= 3,
+             f"colour_median_radius must be in 0…3, got {self.colour_median_radius}")
+        need(self.colour_median_separation >= 0,
+             f"colour_median_separation must be ≥ 0, got {self.colour_median_separation}")
         # the sweep's cost volumes hold 4·R·range + 1 candidates per pixel (R = 4, ±32:
         # 513, 1.3 GB at 640×480)
         need(0 < self.disparity_range <= MAX_DISPARITY_RANGE,

@@ -581,6 +581,45 @@ def median_flow(x: np.ndarray, radius: int, tolerance: float = 0.0) -> np.ndarra
     return out
 
 
+def guided_median_edges(x: np.ndarray, colours: np.ndarray, radius: int, colour_sigma: float, jump: float,
+                        separation: float, floor: float = 0.01) -> np.ndarray:
+    """δ1 and δ2 of x (h, w, 4) snapped to the colour edges (kernels/median.py
+    guided_median_edges): per component, over the (2r+1)² window clamped at the borders,
+    where max − min > ``jump`` and the colours (h, w, 3) of the values ≥ the middle of
+    that range and of those below it have means apart by more than ``separation`` ×
+    √(mean of the two groups' mean squared distances to their means + floor²), the
+    median weighted by exp(−|Δc|²/2σ_c² − |Δp|²/2r²) (sort, cumulative sum, first value
+    with half of the weight at or below it); elsewhere the value as it was. Explicit loops."""
+    x = np.asarray(x, np.float64)
+    colours = np.asarray(colours, np.float64)
+    h, w = x.shape[:2]
+    out = x.copy()
+    for i in range(h):
+        for j in range(w):
+            rows = [min(max(i + dy, 0), h - 1) for dy in range(-radius, radius + 1) for _ in range(-radius, radius + 1)]
+            cols = [min(max(j + dx, 0), w - 1) for _ in range(-radius, radius + 1) for dx in range(-radius, radius + 1)]
+            offsets = [(dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)]
+            cw = colours[rows, cols]
+            wt = np.array([math.exp(-np.sum((c - colours[i, j]) ** 2) / (2 * colour_sigma ** 2)
+                                    - (dy * dy + dx * dx) / (2.0 * radius * radius)) for c, (dy, dx) in zip(cw, offsets)])
+            for k in (0, 1):
+                v = x[rows, cols, k]
+                lo, hi = v.min(), v.max()
+                if hi - lo <= jump:
+                    continue
+                near = v >= 0.5 * (lo + hi)
+                if near.all() or not near.any():
+                    continue
+                m_near, m_far = cw[near].mean(0), cw[~near].mean(0)
+                spread = 0.5 * (np.mean(np.sum((cw[near] - m_near) ** 2, 1)) + np.mean(np.sum((cw[~near] - m_far) ** 2, 1)))
+                if np.sum((m_near - m_far) ** 2) <= separation ** 2 * (spread + floor ** 2):
+                    continue
+                order = np.argsort(v, kind="stable")
+                cum = np.cumsum(wt[order])
+                out[i, j, k] = v[order][np.argmax(cum >= 0.5 * cum[-1])]
+    return out
+
+
 # --- the linearised problem of one warp (MODEL.md §3–§5) -----------------------------------
 
 

@@ -229,6 +229,32 @@ def test_joint_flow_beats_flow_only():
     assert epe["joint"] < 0.75 * epe["flow only"], epe
 
 
+def test_colour_edges_sharpen_the_disparities_of_colour_light_fields():
+    """Colour light fields: the last step (``colour_median_radius``) snaps δ1 and δ2 to
+    the colour edges of the t1 centre view, where the luma-only estimate spreads the
+    nearer surface. Against the same run without it, over three scenes at 96×72 (summed
+    MSE, measured 0.78× for δ1 and 0.83× for δ2), both must fall by a tenth; the flow is
+    the same bit for bit, and grey input (the same scenes' luma) never takes the step."""
+    from lfsf import evaluate, synth
+
+    on, off = np.zeros(2), np.zeros(2)
+    for name in ("random-2", "random-5", "random-7"):
+        lf1, lf2, gt = synth.render_scene(name, size=(96, 72), colour=True)
+        runs = {}
+        for label, kw in (("on", {}), ("off", {"colour_median_radius": 0})):
+            runs[label] = estimate_scene_flow(lf1, lf2, Params.preset("fast").replace(**kw), device="cpu")
+        for total, sf in ((on, runs["on"]), (off, runs["off"])):
+            e = evaluate.evaluate(sf.as_dict(), gt, border=8)
+            total += (e["disp1"]["mse"], e["disp2"]["mse"])
+        np.testing.assert_array_equal(runs["on"].u, runs["off"].u)
+        np.testing.assert_array_equal(runs["on"].v, runs["off"].v)
+        if name == "random-5":
+            grey = estimate_scene_flow(lf1.grey(), lf2.grey(), Params.preset("fast"), device="cpu")
+            np.testing.assert_array_equal(grey.disp1, runs["off"].disp1)
+            np.testing.assert_array_equal(grey.disp2, runs["off"].disp2)
+    assert on[0] < 0.9 * off[0] and on[1] < 0.9 * off[1], (on, off)
+
+
 def test_hidden_points_take_their_motion_from_their_own_surface():
     """Where a point is hidden at t2 no view constrains δ2 or the flow; with the fill
     (``hidden_fill_sigma``, ``hidden_fill_depth``) they are δ1 plus the depth change and

@@ -1201,6 +1201,54 @@ def test_median_flow_matches_reference(radius, tolerance, device, unknowns):
         np.testing.assert_array_equal(got[..., :2], x[..., :2])
 
 
+@pytest.mark.parametrize("radius", [1, 2, 3])
+def test_guided_median_edges_matches_reference(radius, device):
+    """δ1 and δ2 take the colour-weighted median at their depth edges where the colours
+    of the two depth groups differ, and keep their values elsewhere; the flow is copied."""
+    from lfsf.kernels import median
+
+    h, w = 14, 12
+    r = rng(31)
+    x = r.standard_normal((h, w, 4)).astype(np.float32) * 0.1
+    x[:, 6:, 0] += 2.0  # a depth edge in δ1 down the middle, and a blob in δ2
+    x[2:6, 3:8, 1] += 1.5
+    colours = r.uniform(0.33, 0.37, (h, w, 3)).astype(np.float32)
+    colours[:, 5:] += np.float32([0.3, 0.0, -0.2])  # the colour edge one column off the depth edge
+    colours[7:, :, :] = 0.35  # bottom rows: one colour on both sides of the depth edge
+    out = arr(np.zeros((h, w, 4)), wp_vec4(), device)
+    for sigma, jump, separation in ((0.05, 0.5, 1.0), (0.2, 0.5, 2.0), (0.05, 5.0, 1.0)):
+        launch(median.guided_median_edges, (h, w), [arr(x, wp_vec4(), device), arr(colours, wp_vec3(), device),
+                                                    radius, sigma, jump, separation], [out], device)
+        got = out.numpy()
+        want = ref.guided_median_edges(x, colours, radius, sigma, jump, separation)
+        close(got, want, atol=1e-6)
+        np.testing.assert_array_equal(got[..., 2:], x[..., 2:])
+        if jump > 4.0:  # no window spans more than the jump: nothing moves
+            np.testing.assert_array_equal(got, x)
+    # the colour edge wins: column 5 (δ1 near 0, colour of the right side) takes the right's δ1
+    # (a 3×3 window weighs its own column most, and keeps it)
+    launch(median.guided_median_edges, (h, w), [arr(x, wp_vec4(), device), arr(colours, wp_vec3(), device),
+                                                radius, 0.05, 0.5, 1.0], [out], device)
+    got = out.numpy()
+    if radius > 1:
+        assert (got[:7 - radius, 5, 0] > 1.5).all(), got[:7 - radius, 5, 0]
+    # where the colours do not separate the depth groups (bottom rows), δ1 stays as it was
+    np.testing.assert_array_equal(got[7 + radius:, :, 0], x[7 + radius:, :, 0])
+    assert np.abs(got[7 + radius:, 5:7, 0] - x[7 + radius:, 5:7, 0]).max() == 0
+
+
+def wp_vec3():
+    from lfsf.device import warp
+
+    return warp().vec3
+
+
+def wp_vec4():
+    from lfsf.device import warp
+
+    return warp().vec4
+
+
 def test_median_keeps_to_the_centre_pixels_surface(device):
     """Across a depth edge, the median takes the flow of the centre pixel's own surface:
     a near object (δ1 = 1) moving by 3 px whose window is mostly background (δ1 = −1,

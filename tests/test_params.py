@@ -62,6 +62,8 @@ BAD = [
     ("occlusion_margin", math.inf), ("hidden_fill_depth", math.inf), ("lambda2", 10 ** 400),
     # ranges
     ("eps", 0), ("eps", 0.0), ("eps", -1e-6),
+    ("colour_median_radius", 4), ("colour_median_radius", -1), ("colour_median_radius", 2.5),
+    ("colour_median_separation", -0.5), ("colour_median_separation", math.nan),
     # bounds on what sizes buffers and loops
     ("occlusion_reach", 1000), ("flow_range", 1e6), ("disparity_range", 1e6), ("hidden_fill_sigma", 1000.0),
     ("iterations", 10 ** 9), ("rof_iterations", 10 ** 9), ("warps", 10 ** 6), ("samples", (1, 8, 10_000)),
@@ -78,7 +80,8 @@ def test_a_bad_setting_raises_a_value_error_naming_it(name, value):
 
 @pytest.mark.parametrize("name", [n for n in INT_FIELDS if n != "circles"])
 def test_whole_number_floats_are_stored_as_ints(name):
-    value = getattr(Params(), name) + 1
+    default = getattr(Params(), name)
+    value = default - 1 if default > 0 else default + 1  # a default may be its field's maximum
     params = Params(**{name: float(value)})
     assert getattr(params, name) == value and type(getattr(params, name)) is int
     assert params == Params(**{name: value})
