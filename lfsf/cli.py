@@ -11,7 +11,7 @@ import sys
 import time
 from pathlib import Path
 
-from lfsf._errors import EXIT_BAD_INPUT, run_script
+from lfsf._errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, run_script
 from lfsf._files import output_file, output_folder
 
 
@@ -426,8 +426,14 @@ def _version() -> str:
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    # Ctrl-C while the parser is being built is 'interrupted' and 130 as later, not a
+    # traceback (only Python's own start-up and this module's small imports come before)
+    try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+    except KeyboardInterrupt:
+        print("lfsf: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     if args.command is None:
         parser.print_help(sys.stderr)
         return EXIT_BAD_INPUT

@@ -253,6 +253,20 @@ def test_ctrl_c_is_held_back_while_a_set_of_outputs_moves_into_place():
         stop.set()
 
 
+def test_ctrl_c_while_the_parser_is_built_is_an_interrupt(monkeypatch, capsys):
+    """Ctrl-C in the first moments, while the commands' parser is built, exits 130 with
+    one line, as later, not with a traceback."""
+    import lfsf.cli as cli
+
+    def interrupted_build():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "build_parser", interrupted_build)
+    assert cli.main(["demo"]) == 130
+    err = capsys.readouterr().err
+    assert err.strip() == "lfsf: interrupted", err
+
+
 def test_an_error_raised_while_interrupted_counts_as_the_interrupt(monkeypatch, capsys):
     """numpy's savez closes its zip in a finally: Ctrl-C during a write surfaced as a
     ValueError, reported as bad input (exit 2) instead of an interrupt (130)."""
