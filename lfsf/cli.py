@@ -185,10 +185,12 @@ def cmd_demo(args) -> int:
     params = _params(args)
     width, height = args.size
     out = output_folder(args.out, create=False)
-    _say(args, f"lfsf demo: scene '{args.scene}', {width}×{height}, {args.grid}×{args.grid} views, preset "
+    _say(args, f"lfsf demo: scene '{args.scene}', {width}×{height}, {args.grid}×{args.grid} "
+               f"{'RGB ' if args.colour else ''}views, preset "
                f"'{args.preset}', on {device}")
     t0 = time.perf_counter()
-    lf1, lf2, gt = synth.render_scene(args.scene, size=(width, height), grid=args.grid, device=device)
+    lf1, lf2, gt = synth.render_scene(args.scene, size=(width, height), grid=args.grid, colour=args.colour,
+                                      device=device)
     t_render = time.perf_counter() - t0
     progress = _Progress(args)
     t0 = time.perf_counter()
@@ -385,6 +387,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--size", nargs=2, type=_size, metavar=("W", "H"), default=(320, 240),
                    help="view size (default 320 240)")
     p.add_argument("--grid", type=_positive, default=9, metavar="N", help="N×N views (default 9)")
+    p.add_argument("--colour", action="store_true",
+                   help="RGB views (default grey): the estimate then also snaps δ1 and δ2 to the colour edges "
+                        "(Params.colour_median_radius)")
     p.add_argument("--out", type=Path, default=Path("lfsf-demo"), help="output folder (default ./lfsf-demo)")
     _estimator_options(p)
     p.set_defaults(func=cmd_demo)

@@ -35,6 +35,17 @@ def test_synth_list():
         assert name in out
 
 
+def test_demo_in_colour_estimates_rgb_views_and_writes_the_overview(tmp_path):
+    """``lfsf demo --colour``: RGB views (the estimate then takes the colour-edge step),
+    the error table of all four variables and the overview picture."""
+    status, out, err = lfsf("demo", "--colour", "--size", 64, 48, "--preset", "fast", "--out", tmp_path / "d")
+    assert status == 0, err
+    assert "RGB views" in err + out
+    for name in ("disp1", "disp2", "flow"):
+        assert name in out
+    assert (tmp_path / "d" / "overview.png").stat().st_size > 1000
+
+
 def test_synth_renders_a_random_scene_and_names_bad_ones(tmp_path):
     status, _, err = lfsf("synth", "random-5", "--out", tmp_path / "r", "--size", 40, 30, "--grid", 3)
     assert status == 0, err
