@@ -121,6 +121,7 @@ def splat_views(
     component: int,
     flow: int,
     phis: wp.array(dtype=wp.vec2),
+    span: int,
     # outputs
     zbuf: wp.array3d(dtype=float),
 ):
@@ -129,31 +130,35 @@ def splat_views(
     2, 3), has t among its bilinear neighbours of non-zero weight (so a sample read within
     a pixel of a nearer point's position counts as covered; a point at a whole position,
     such as every point in the centre view, covers its own pixel only). ``zbuf`` must be filled with EMPTY first.
-    Uses atomics only within a view's z-buffer: launch over (samples, rows, columns),
-    in bands of whole samples (``row0`` is the first sample), which never meet."""
-    s, i, j = wp.tid()
+    Uses atomics only within a view's z-buffer: launch over (samples, rows, ⌈columns /
+    span⌉), each thread walking ``span`` points of a row (:func:`lfsf.device.row_span`:
+    whole rows on the CPU, 62 against 82 ms a pass at 640×480 with 17 views; one point on
+    CUDA), in bands of whole samples (``row0`` is the first sample), which never meet."""
+    s, i, c = wp.tid()
     s = s + row0
     h = zbuf.shape[1]
     w = zbuf.shape[2]
-    v = x[i, j]
-    d = v[component]
     phi = phis[s]
-    px = float(j) - d * phi[0]
-    py = float(i) - d * phi[1]
-    if flow != 0:
-        px = px + v[2]
-        py = py + v[3]
-    j0 = int(wp.floor(px))
-    i0 = int(wp.floor(py))
-    # the neighbours of non-zero bilinear weight: a whole coordinate covers one pixel
-    dxs = wp.where(px > float(j0), 2, 1)
-    dys = wp.where(py > float(i0), 2, 1)
-    for dy in range(dys):
-        for dx in range(dxs):
-            ii = i0 + dy
-            jj = j0 + dx
-            if ii >= 0 and ii < h and jj >= 0 and jj < w:
-                wp.atomic_max(zbuf, s, ii, jj, d)
+    j_start = c * span
+    for j in range(j_start, wp.min(x.shape[1], j_start + span)):
+        v = x[i, j]
+        d = v[component]
+        px = float(j) - d * phi[0]
+        py = float(i) - d * phi[1]
+        if flow != 0:
+            px = px + v[2]
+            py = py + v[3]
+        j0 = int(wp.floor(px))
+        i0 = int(wp.floor(py))
+        # the neighbours of non-zero bilinear weight: a whole coordinate covers one pixel
+        dxs = wp.where(px > float(j0), 2, 1)
+        dys = wp.where(py > float(i0), 2, 1)
+        for dy in range(dys):
+            for dx in range(dxs):
+                ii = i0 + dy
+                jj = j0 + dx
+                if ii >= 0 and ii < h and jj >= 0 and jj < w:
+                    wp.atomic_max(zbuf, s, ii, jj, d)
 
 
 @wp.kernel

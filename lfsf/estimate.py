@@ -375,8 +375,9 @@ def _view_zbuffer(disparity: np.ndarray, flow: np.ndarray | None, phis, device: 
         x[..., 2:] = flow
     n = phis.shape[0]
     zbuf = wp.full((n, h, w), occlusion.EMPTY, dtype=float, device=device)
-    _device.launch_rows(occlusion.splat_views, dim=(n, h, w),
-                        inputs=[wp.array(x, dtype=wp.vec4, device=device), 0, 0 if flow is None else 1, phis],
+    span, per_row = _device.row_span(device, w)
+    _device.launch_rows(occlusion.splat_views, dim=(n, h, per_row),
+                        inputs=[wp.array(x, dtype=wp.vec4, device=device), 0, 0 if flow is None else 1, phis, span],
                         outputs=[zbuf], device=device)  # bands of whole samples: the atomics never meet
     return zbuf
 

@@ -221,8 +221,8 @@ class LevelSolver:
         n, h, w = self.view_zbuf1.shape
         for zbuf, component in ((self.view_zbuf1, 0), (self.view_zbuf2, 1)):
             zbuf.fill_(occlusion.EMPTY)
-            _device.launch_rows(occlusion.splat_views, dim=(n, h, w),
-                                inputs=[self.x_hat, component, component, self.phis], outputs=[zbuf],
+            _device.launch_rows(occlusion.splat_views, dim=(n, h, self.per_row),
+                                inputs=[self.x_hat, component, component, self.phis, self.span], outputs=[zbuf],
                                 device=self.device)  # bands of whole samples: the atomics never meet
         return 1
 

@@ -399,21 +399,24 @@ def test_data_coefficients_centre_view_alone_keeps_its_flow_row(device):
     assert not details["centre_occluded"].any()
 
 
-def _splat_views(x, component, flow, phis, device):
+def _splat_views(x, component, flow, phis, device, span=1):
+    """``splat_views`` with each thread walking ``span`` points of a row (the last thread
+    of a row fewer where the width is not a multiple)."""
     from lfsf.kernels import occlusion
 
     h, w = x.shape[:2]
     zbuf = wp.full((len(phis), h, w), occlusion.EMPTY, dtype=float, device=device)
-    launch(occlusion.splat_views, (len(phis), h, w), [arr(x, wp.vec4, device), component, flow,
-                                                      arr(phis, wp.vec2, device)], [zbuf], device)
+    launch(occlusion.splat_views, (len(phis), h, -(-w // span)), [arr(x, wp.vec4, device), component, flow,
+                                                                  arr(phis, wp.vec2, device), span], [zbuf], device)
     return zbuf.numpy()
 
 
 @pytest.mark.parametrize("flow", [0, 1])
 def test_splat_views_matches_reference(device, flow):
     samples1, samples2, phis, weights, x_hat = _data_inputs(21)
-    for component in (0, 1):
-        got = _splat_views(x_hat, component, flow, phis, device)
+    width = x_hat.shape[1]
+    for component, span in ((0, 1), (1, 1), (0, 4), (1, width)):  # one point, a part or a whole row a thread
+        got = _splat_views(x_hat, component, flow, phis, device, span)
         want = ref.splat_views(x_hat, component, bool(flow), phis)
         np.testing.assert_array_equal(np.isinf(want), got < -1e29)  # EMPTY where nothing lands
         np.testing.assert_array_equal(np.where(np.isinf(want), 0.0, want), np.where(got < -1e29, 0.0, got))
