@@ -282,3 +282,45 @@ def guided_median_edges(
     v = x[i, j]
     out[i, j] = wp.vec4(guided_median_at(x, colours, i, j, 0, radius, colour_sigma, jump, separation),
                         guided_median_at(x, colours, i, j, 1, radius, colour_sigma, jump, separation), v[2], v[3])
+
+
+@wp.kernel
+def median_depth_change(
+    row0: int,
+    x: wp.array2d(dtype=wp.vec4),
+    radius: int,
+    tolerance: float,
+    # outputs
+    out: wp.array2d(dtype=wp.vec4),
+):
+    """δ2 = δ1 + the median of the depth change D = δ2 − δ1 over the pixels of the
+    (2r+1)² window (r ≤ LOCAL_RADIUS, clamped at the borders) whose δ1 is within
+    ``tolerance`` of the centre pixel's (all where it is 0): the motion in depth of one
+    surface, taken from its own pixels as the flow's median is (module docstring, the
+    same rule for ties). δ1 and the flow are copied. Launch over (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    h = x.shape[0]
+    w = x.shape[1]
+    centre = x[i, j]
+    values = vec49()
+    c = int(0)
+    others = int(0)
+    last = int(0)
+    for dy in range(-radius, radius + 1):
+        row = wp.clamp(i + dy, 0, h - 1)
+        for dx in range(-radius, radius + 1):
+            value = x[row, wp.clamp(j + dx, 0, w - 1)]
+            if same_surface(value[0], centre[0], tolerance):
+                values[c] = value[1] - value[0]
+            else:
+                big = BIG
+                if others % 2 == 1:
+                    big = -BIG
+                values[c] = big
+                others += 1
+                last = c
+            c += 1
+    if others % 2 == 1:  # the last stand-in was +BIG: the centre's own change instead
+        values[last] = centre[1] - centre[0]
+    out[i, j] = wp.vec4(centre[0], centre[0] + network_median(values, radius), centre[2], centre[3])

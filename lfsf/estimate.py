@@ -752,6 +752,9 @@ def estimate_scene_flow(
             x, = _upsample_state([x], (fh, fw), (sd, sd, sx, sy), dev)
             w0, w1 = _upsample_state([w0, w1], (fh, fw), (1.0, 1.0, 1.0, 1.0), dev)
         lap("upsample")
+    if params.depth_change_radius > 0 and n_samples > 1:
+        x = _depth_change_median(x, params, dev)
+        lap("median")
     if colour is not None:
         x = _colour_edges(x, colour, params, dev)
         lap("median")
@@ -780,6 +783,22 @@ def _centre_colour(lf: LightField, offset: float, stretch: float) -> np.ndarray 
     if stretch != 1.0:
         out = (out - np.float32(offset)) * np.float32(stretch)
     return out
+
+
+def _depth_change_median(x: np.ndarray, params: Params, device: str) -> np.ndarray:
+    """δ2 = δ1 + the median of δ2 − δ1 over its own surface (``Params.depth_change_radius``,
+    :func:`lfsf.kernels.median.median_depth_change`), at full resolution."""
+    from lfsf.kernels import median
+    from lfsf.solver import level_median_radius
+
+    wp = _device.warp()
+    h, w = x.shape[:2]
+    out = wp.empty((h, w), dtype=wp.vec4, device=device)
+    _device.launch_rows(median.median_depth_change, dim=(h, w),
+                        inputs=[wp.array(np.ascontiguousarray(x, np.float32), dtype=wp.vec4, device=device),
+                                level_median_radius(params.depth_change_radius, w), params.median_tolerance],
+                        outputs=[out], device=device)
+    return out.numpy()
 
 
 def _colour_edges(x: np.ndarray, colour: np.ndarray, params: Params, device: str) -> np.ndarray:

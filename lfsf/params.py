@@ -110,6 +110,12 @@ class Params:
             of them, Wedel et al.'s plain median; :mod:`lfsf.kernels.median`). It scales
             with the level. 320×240 flow EPE (τ = 0 → 0.5): `paper` 0.067 → 0.063,
             `large_motion` 0.104 → 0.057 (README, Accuracy).
+        depth_change_radius : r of a median of the depth change D = δ2 − δ1 at the end
+            (an addition; 0: off): δ2 = δ1 + the median of D over the (2r+1)² window's
+            pixels whose δ1 is within ``median_tolerance`` of the centre's, its own
+            surface's motion in depth. δ1 is the better determined of the two, and a
+            surface's D varies slowly. The radius grows with the width as
+            ``median_radius``'s does, up to 3.
         colour_median_radius : r of the last step on colour light fields (an addition;
             0: off; grey input never takes it): δ1 and δ2 are snapped to the colour
             edges of the t1 centre view where they jump, by the median of their (2r+1)²
@@ -170,6 +176,7 @@ class Params:
     iterations: int = 100
     median_radius: int = 2
     median_tolerance: float = 0.5
+    depth_change_radius: int = 2
     colour_median_radius: int = 3
     colour_median_separation: float = 1.5
     eps: float = 1e-6
@@ -287,6 +294,8 @@ class Params:
         need(self.warm_levels >= 0, f"warm_levels must be ≥ 0, got {self.warm_levels}")
         need(0 <= self.median_radius <= 3, f"median_radius must be in 0…3, got {self.median_radius}")
         need(self.median_tolerance >= 0, f"median_tolerance must be ≥ 0, got {self.median_tolerance}")
+        need(0 <= self.depth_change_radius <= 3,
+             f"depth_change_radius must be in 0…3, got {self.depth_change_radius}")
         need(0 <= self.colour_median_radius <= 3,
              f"colour_median_radius must be in 0…3, got {self.colour_median_radius}")
         need(self.colour_median_separation >= 0,

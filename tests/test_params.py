@@ -63,6 +63,7 @@ BAD = [
     # ranges
     ("eps", 0), ("eps", 0.0), ("eps", -1e-6),
     ("colour_median_radius", 4), ("colour_median_radius", -1), ("colour_median_radius", 2.5),
+    ("depth_change_radius", 4), ("depth_change_radius", -1),
     ("colour_median_separation", -0.5), ("colour_median_separation", math.nan),
     # bounds on what sizes buffers and loops
     ("occlusion_reach", 1000), ("flow_range", 1e6), ("disparity_range", 1e6), ("hidden_fill_sigma", 1000.0),

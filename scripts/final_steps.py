@@ -1,21 +1,26 @@
 #!/usr/bin/env python
-"""The colour-edge step (``Params.colour_median_radius``) measured on colour renderings.
+"""The estimator's last steps, each measured against the same run without it.
 
-Each synthetic scene is rendered in RGB and estimated twice with the same settings, with
-the step (the default) and without it (``colour_median_radius = 0``). The step acts once,
-at the end, on δ1 and δ2, so the two runs share everything before it and their
-difference is the step's alone (the flow is the same bit for bit). Errors by
-``lfsf.evaluate`` over valid pixels without an 8-px border; the table gives both runs'
-δ1 and δ2 MSE, their ratios, and the geometric means of the ratios.
+``--step colour``: the colour-edge step (``Params.colour_median_radius``), on RGB
+renderings. ``--step depth``: the median of the depth change δ2 − δ1 over one surface
+(``Params.depth_change_radius``), on grey renderings (RGB with ``--colour``).
+
+Each synthetic scene is estimated twice with the same settings, with the step (the
+default) and without it (its radius 0). The steps act once, at the end, on δ1 and δ2,
+so the two runs share everything before them and their difference is the step's alone
+(the flow is the same bit for bit). Errors by ``lfsf.evaluate`` over valid pixels
+without an 8-px border; the table gives both runs' δ1 and δ2 MSE, their ratios, and the
+geometric means of the ratios.
 
 Usage (from the repository root)::
 
-    python scripts/colour_edges.py                                   # built-in scenes, 160×120
-    python scripts/colour_edges.py --scenes --random 16 --random-from 48
-    python scripts/colour_edges.py --size 320 240 --json colour.json
+    python scripts/final_steps.py --step colour                      # built-in scenes, 160×120
+    python scripts/final_steps.py --step depth --scenes --random 16 --random-from 48
+    python scripts/final_steps.py --step depth --size 320 240 --json depth.json
 
 Exit status 2 for bad arguments.
 """
+
 
 from __future__ import annotations
 
@@ -32,10 +37,15 @@ sys.path.insert(0, str(HERE))
 
 from compare_peers import selected_scenes  # noqa: E402  (the same scene selection)
 
+#: --step: (the setting that switches it off, whether the scenes are rendered in RGB)
+STEPS = {"colour": ("colour_median_radius", True), "depth": ("depth_change_radius", False)}
+
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--step", choices=sorted(STEPS), required=True, help="which step to measure")
+    p.add_argument("--colour", action="store_true", help="RGB renderings (always for --step colour)")
     p.add_argument("--size", nargs=2, type=int, default=[160, 120], metavar=("W", "H"),
                    help="size of the views (default 160 120)")
     p.add_argument("--grid", type=int, default=9, help="views per side (default 9)")
@@ -59,8 +69,10 @@ def main(argv=None) -> int:
     try:
         scenes = selected_scenes(args)
         params = lfsf.Params.preset(args.preset)
-        if params.colour_median_radius <= 0:
-            raise ValueError(f"preset {args.preset!r} has the step off (colour_median_radius = 0)")
+        setting, colour = STEPS[args.step]
+        colour = colour or args.colour
+        if getattr(params, setting) <= 0:
+            raise ValueError(f"preset {args.preset!r} has the step off ({setting} = 0)")
         if min(args.size) < 8 or args.grid < 2:
             raise ValueError("--size needs at least 8×8 pixels and --grid at least 2 views per side")
     except ValueError as err:
@@ -69,11 +81,11 @@ def main(argv=None) -> int:
     print("| scene | δ1 MSE with / without | ratio | δ2 MSE with / without | ratio | seconds |")
     print("|---|---|---:|---|---:|---:|")
     for name in scenes:
-        lf1, lf2, gt = synth.render_scene(name, size=tuple(args.size), grid=args.grid, colour=True,
+        lf1, lf2, gt = synth.render_scene(name, size=tuple(args.size), grid=args.grid, colour=colour,
                                           device=args.device)
         errors = {}
         t0 = time.perf_counter()
-        for label, settings in (("with", params), ("without", params.replace(colour_median_radius=0))):
+        for label, settings in (("with", params), ("without", params.replace(**{setting: 0}))):
             sf = lfsf.estimate_scene_flow(lf1, lf2, settings, device=args.device)
             e = evaluate.evaluate(sf.as_dict(), gt)
             errors[label] = (e["disp1"]["mse"], e["disp2"]["mse"], e["flow"]["epe"])
@@ -97,8 +109,8 @@ def main(argv=None) -> int:
             print(f"{key}: geometric mean {s['geometric_mean']:.3f}, worse on {s['worse']} of {s['scenes']}, "
                   f"at most {s['max']:.3f}")
     if args.json:
-        write_json_atomic(args.json, {"size": args.size, "grid": args.grid, "preset": args.preset, "rows": rows,
-                                      "summary": summary})
+        write_json_atomic(args.json, {"step": args.step, "setting": setting, "colour": colour, "size": args.size,
+                                      "grid": args.grid, "preset": args.preset, "rows": rows, "summary": summary})
     return 0
 
 
