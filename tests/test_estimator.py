@@ -229,6 +229,25 @@ def test_joint_flow_beats_flow_only():
     assert epe["joint"] < 0.75 * epe["flow only"], epe
 
 
+def test_the_depth_change_median_brings_delta2_closer_to_the_truth():
+    """δ2 = δ1 + the median of δ2 − δ1 over the window's pixels on the same surface
+    (``depth_change_radius``), at the end: against the same runs without it, over three
+    scenes at 96×72 (summed δ2 MSE, measured 0.59×), δ2 must fall by a quarter; δ1 and
+    the flow are the same bit for bit."""
+    from lfsf import evaluate, synth
+
+    on = off = 0.0
+    for name in ("paper", "large_motion", "random-2"):
+        lf1, lf2, gt = synth.render_scene(name, size=(96, 72))
+        runs = [estimate_scene_flow(lf1, lf2, Params.preset("fast").replace(depth_change_radius=k), device="cpu")
+                for k in (2, 0)]
+        on += evaluate.evaluate(runs[0].as_dict(), gt, border=8)["disp2"]["mse"]
+        off += evaluate.evaluate(runs[1].as_dict(), gt, border=8)["disp2"]["mse"]
+        for key in ("disp1", "u", "v"):
+            np.testing.assert_array_equal(getattr(runs[0], key), getattr(runs[1], key))
+    assert on < 0.75 * off, (on, off)
+
+
 def test_colour_edges_sharpen_the_disparities_of_colour_light_fields():
     """Colour light fields: the last step (``colour_median_radius``) snaps δ1 and δ2 to
     the colour edges of the t1 centre view, where the luma-only estimate spreads the
