@@ -786,19 +786,26 @@ def _centre_colour(lf: LightField, offset: float, stretch: float) -> np.ndarray 
 
 
 def _depth_change_median(x: np.ndarray, params: Params, device: str) -> np.ndarray:
-    """δ2 = δ1 + the median of δ2 − δ1 over its own surface (``Params.depth_change_radius``,
-    :func:`lfsf.kernels.median.median_depth_change`), at full resolution."""
+    """δ2 = δ1 + the median of δ2 − δ1 over its own surface (``Params.depth_change_radius``),
+    at full resolution: the flow's median over one surface
+    (:func:`lfsf.kernels.median.median_flow`, the same window, tolerance and ties) run on
+    the depth change put in the flow's place."""
     from lfsf.kernels import median
     from lfsf.solver import level_median_radius
 
     wp = _device.warp()
     h, w = x.shape[:2]
+    x = np.asarray(x, np.float32)
+    guide = x.copy()
+    guide[..., 2] = guide[..., 3] = x[..., 1] - x[..., 0]
     out = wp.empty((h, w), dtype=wp.vec4, device=device)
-    _device.launch_rows(median.median_depth_change, dim=(h, w),
-                        inputs=[wp.array(np.ascontiguousarray(x, np.float32), dtype=wp.vec4, device=device),
+    _device.launch_rows(median.median_flow, dim=(h, w),
+                        inputs=[wp.array(guide, dtype=wp.vec4, device=device),
                                 level_median_radius(params.depth_change_radius, w), params.median_tolerance],
                         outputs=[out], device=device)
-    return out.numpy()
+    result = x.copy()
+    result[..., 1] = x[..., 0] + out.numpy()[..., 2]
+    return result
 
 
 def _colour_edges(x: np.ndarray, colour: np.ndarray, params: Params, device: str) -> np.ndarray:

@@ -581,18 +581,6 @@ def median_flow(x: np.ndarray, radius: int, tolerance: float = 0.0) -> np.ndarra
     return out
 
 
-def median_depth_change(x: np.ndarray, radius: int, tolerance: float = 0.0) -> np.ndarray:
-    """δ2 = δ1 + the median of D = δ2 − δ1 over (2r+1)² windows with replicated borders,
-    over the window's pixels whose δ1 is within ``tolerance`` of the centre's (all where it
-    is 0), with the centre's D once more where their count is even; δ1, u, v copied."""
-    x = np.asarray(x, np.float64)
-    change = x.copy()
-    change[..., 2] = x[..., 1] - x[..., 0]  # D in a flow slot, for median_flow
-    out = x.copy()
-    out[..., 1] = x[..., 0] + median_flow(change, radius, tolerance)[..., 2]
-    return out
-
-
 def guided_median_edges(x: np.ndarray, colours: np.ndarray, radius: int, colour_sigma: float, jump: float,
                         separation: float, floor: float = 0.01) -> np.ndarray:
     """δ1 and δ2 of x (h, w, 4) snapped to the colour edges (kernels/median.py

@@ -1204,24 +1204,6 @@ def test_median_flow_matches_reference(radius, tolerance, device, unknowns):
         np.testing.assert_array_equal(got[..., :2], x[..., :2])
 
 
-@pytest.mark.parametrize("radius, tolerance", [(1, 0.0), (2, 0.5), (3, 0.5), (3, 0.0)])
-def test_median_depth_change_matches_reference(radius, tolerance, device):
-    """δ2 − δ1 takes the median over the window's pixels on the centre's surface; δ1
-    and the flow are copied."""
-    from lfsf.kernels import median
-
-    h, w = 8, 11
-    r = rng(41)
-    x = r.standard_normal((h, w, 4)).astype(np.float32)
-    x[:, 5:, 0] += 3.0  # two surfaces
-    x[..., 1] = x[..., 0] + np.round(r.standard_normal((h, w)) * 2) / 4  # depth changes with ties
-    out = arr(np.zeros((h, w, 4)), wp.vec4, device)
-    launch(median.median_depth_change, (h, w), [arr(x, wp.vec4, device), radius, tolerance], [out], device)
-    got = out.numpy()
-    close(got, ref.median_depth_change(x, radius, tolerance), atol=1e-6)
-    np.testing.assert_array_equal(got[..., [0, 2, 3]], x[..., [0, 2, 3]])
-
-
 @pytest.mark.parametrize("radius", [1, 2, 3])
 def test_guided_median_edges_matches_reference(radius, device):
     """δ1 and δ2 take the colour-weighted median at their depth edges where the colours
