@@ -744,6 +744,10 @@ def estimate_scene_flow(
             # δ2 also where the searches or the level's start found the point hidden
             solver.fill_hidden(hidden_here)
             lap("iterate")
+            # the flow's median once more: the fill set the hidden points' flow after the
+            # last warp's median (160×120: EPE 0.978× over 63 scenes, none worse)
+            solver.median()
+            lap("median")
         x, w0, w1 = solver.state()
         if level > 0:
             fh, fw = sizes[level - 1]
