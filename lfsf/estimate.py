@@ -770,20 +770,11 @@ def estimate_scene_flow(
 
 
 def _centre_colour(lf: LightField, offset: float, stretch: float) -> np.ndarray | None:
-    """The RGB centre view of a colour light field, (H, W, 3) float32, interpolated between
-    the four views around the grid's centre as the samples are
-    (:func:`lfsf.kernels.sampling.sample_subaperture`) and stretched as the luma is; None
-    for grey light fields."""
+    """The RGB centre view of a colour light field (:attr:`LightField.centre`), float32
+    (H, W, 3), stretched as the luma is; None for grey light fields."""
     if not lf.is_colour:
         return None
-    rows, cols = lf.grid
-    a, b = 0.5 * (rows - 1), 0.5 * (cols - 1)
-    a0, b0 = min(int(a), max(rows - 2, 0)), min(int(b), max(cols - 2, 0))
-    out = np.zeros((lf.height, lf.width, 3), np.float32)
-    for da, wa in ((0, 1.0 - (a - a0)), (1, a - a0)):
-        for db, wb in ((0, 1.0 - (b - b0)), (1, b - b0)):
-            if wa * wb > 0:
-                out += np.float32(wa * wb) * lf.views[a0 + da, b0 + db, ..., :3].astype(np.float32)
+    out = np.asarray(lf.centre, np.float32)
     if stretch != 1.0:
         out = (out - np.float32(offset)) * np.float32(stretch)
     return out
