@@ -217,30 +217,35 @@ def guided_median_at(x: wp.array2d(dtype=wp.vec4), colours: wp.array2d(dtype=wp.
     h = x.shape[0]
     w = x.shape[1]
     own = x[i, j][k]
-    centre = colours[i, j]
     values = vec49()
-    weights = vec49()
     lo = own
     hi = own
-    total = float(0.0)
-    inv_c = 1.0 / (2.0 * colour_sigma * colour_sigma)
-    inv_s = 1.0 / (2.0 * float(radius * radius))
     c = int(0)
     for dy in range(-radius, radius + 1):
         row = wp.clamp(i + dy, 0, h - 1)
         for dx in range(-radius, radius + 1):
-            col = wp.clamp(j + dx, 0, w - 1)
-            v = x[row, col][k]
-            gap = colours[row, col] - centre
-            g = wp.exp(-wp.dot(gap, gap) * inv_c - float(dy * dy + dx * dx) * inv_s)
+            v = x[row, wp.clamp(j + dx, 0, w - 1)][k]
             values[c] = v
-            weights[c] = g
-            total += g
             lo = wp.min(lo, v)
             hi = wp.max(hi, v)
             c += 1
     result = own
     if hi - lo > jump and group_split(values, colours, i, j, radius, 0.5 * (lo + hi), separation):
+        # the colour weights, only at the depth edges that pass (most pixels do not)
+        centre = colours[i, j]
+        inv_c = 1.0 / (2.0 * colour_sigma * colour_sigma)
+        inv_s = 1.0 / (2.0 * float(radius * radius))
+        weights = vec49()
+        total = float(0.0)
+        c = int(0)
+        for dy in range(-radius, radius + 1):
+            row = wp.clamp(i + dy, 0, h - 1)
+            for dx in range(-radius, radius + 1):
+                gap = colours[row, wp.clamp(j + dx, 0, w - 1)] - centre
+                g = wp.exp(-wp.dot(gap, gap) * inv_c - float(dy * dy + dx * dx) * inv_s)
+                weights[c] = g
+                total += g
+                c += 1
         # the weighted median: the least value with at least half the weight at or below it
         result = hi
         for a in range(c):
