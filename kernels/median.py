@@ -174,9 +174,10 @@ SEPARATION_FLOOR = wp.constant(0.01)
 def group_split(values: vec49, colours: wp.array2d(dtype=wp.vec3), i: int, j: int, radius: int, split: float,
                 separation: float):
     """Whether the window's pixels above ``split`` and those below it differ in colour by
-    more than ``separation`` times the spread of colour within each group (RMS of their
-    distances to the group's mean, the two groups' mean squares averaged, at least
-    SEPARATION_FLOOR)."""
+    more than ``separation`` times the spread of colour within the groups: |m_near −
+    m_far|² > κ² (s² + SEPARATION_FLOOR²), with m the groups' mean colours and s² the mean
+    of the two groups' mean squared distances to their means (the floor keeps two flat
+    groups from passing on a tiny difference)."""
     h = colours.shape[0]
     w = colours.shape[1]
     n_near = float(0.0)
@@ -280,10 +281,15 @@ def guided_median_edges(
     below the middle of that span) are apart (:func:`group_split`, ``separation``);
     elsewhere the value is kept. Where the surfaces' colours do not differ (the same
     texture in front and behind) the colours cannot place the edge, and a weighted median
-    would move it by the window's majority. The flow (components 2, 3) is copied.
-    Launch over (rows, columns)."""
+    would move it by the window's majority. The flow (components 2, 3) is copied, and so
+    is all of x where r < 1 (an r above LOCAL_RADIUS is taken as LOCAL_RADIUS: the window's
+    buffer holds no more). Launch over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0
     v = x[i, j]
-    out[i, j] = wp.vec4(guided_median_at(x, colours, i, j, 0, radius, colour_sigma, jump, separation),
-                        guided_median_at(x, colours, i, j, 1, radius, colour_sigma, jump, separation), v[2], v[3])
+    r = wp.min(radius, LOCAL_RADIUS)
+    if r < 1:
+        out[i, j] = v
+    else:
+        out[i, j] = wp.vec4(guided_median_at(x, colours, i, j, 0, r, colour_sigma, jump, separation),
+                            guided_median_at(x, colours, i, j, 1, r, colour_sigma, jump, separation), v[2], v[3])

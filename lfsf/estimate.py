@@ -139,10 +139,14 @@ ROF_PAD = 16
 
 #: σ_c of the colour weights of the last step on colour light fields
 #: (``Params.colour_median_radius``), intensities in [0, 1]: HCI antinous MSE×100 2.32
-#: (σ_c = 0.01), 2.33 (0.02), 2.41 (0.05); README, Accuracy.
+#: (σ_c = 0.01), 2.33 (0.02), 2.41 (0.05); docs/accuracy.md.
 COLOUR_SIGMA = 0.01
 #: That step looks at windows whose δ spans more than this (px per view step).
 COLOUR_JUMP = 0.3
+#: … and is skipped for a colour light field whose channels are within this of each other
+#: (intensities in [0, 1]; an 8-bit step is 0.0039) at 99 % of the centre view's pixels:
+#: a grey light field stored as RGB.
+GREY_CHROMA = 0.004
 
 
 def one_sided(phis) -> bool:
@@ -560,7 +564,9 @@ def estimate_scene_flow(
     ----------
     lf1, lf2 : LightField, array [a, b, y, x] / [a, b, y, x, c], or path
         Light fields at t1 and t2, same view grid and size (a path is read with
-        :func:`lfsf.read_lightfield`); colour is matched as luma. The disparities need
+        :func:`lfsf.read_lightfield`); colour is matched as luma, and at the end the t1
+        centre view's colours place δ1's and δ2's depth edges
+        (``Params.colour_median_radius``). The disparities need
         at least 2 rows and 2 columns of views (flow only, ``circles=1``, needs one).
         Light fields whose joint intensity range spans less than 0.2 or more than 2
         are stretched to [0, 1] first (e.g. 12-bit data stored in 16 bits, or counts
@@ -744,8 +750,11 @@ def estimate_scene_flow(
             # δ2 also where the searches or the level's start found the point hidden
             solver.fill_hidden(hidden_here)
             lap("iterate")
-            # the flow's median once more: the fill set the hidden points' flow after the
-            # last warp's median (160×120: EPE 0.978× over 63 scenes, none worse)
+            # the flow's median once more, after the fill set the hidden points' flow (the
+            # last warp's median came before it). It runs whether or not the fill changed
+            # anything: flow only, or with hidden_fill_sigma = 0, it is a second pass of the
+            # median (160×120: EPE 0.978× over 63 scenes, none worse; flow only, `paper` at
+            # 320×240, 0.162 → 0.151)
             solver.median()
             lap("median")
         x, w0, w1 = solver.state()
@@ -771,10 +780,16 @@ def estimate_scene_flow(
 
 def _centre_colour(lf: LightField, offset: float, stretch: float) -> np.ndarray | None:
     """The RGB centre view of a colour light field (:attr:`LightField.centre`), float32
-    (H, W, 3), stretched as the luma is; None for grey light fields."""
+    (H, W, 3), stretched as the luma is; None for grey light fields, and for grey ones
+    stored as RGB: where 99 % of the pixels have channels within GREY_CHROMA of each
+    other, the colour step would see the luma alone, which it does not improve (grey
+    copies of `weak_texture` at 64×48, `fast`: δ1 MSE 0.0044 → 0.0098 with the step)."""
     if not lf.is_colour:
         return None
     out = np.asarray(lf.centre, np.float32)
+    chroma = np.ptp(out, axis=-1)
+    if float(np.percentile(chroma, 99)) <= GREY_CHROMA:
+        return None
     if stretch != 1.0:
         out = (out - np.float32(offset)) * np.float32(stretch)
     return out

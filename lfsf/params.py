@@ -72,7 +72,7 @@ class Params:
             Higher θ suits real data (HCI antinous BadPix 13.7 % at 0.85, 21.6 % at 0.5)
             but costs accuracy on brightness-constant scenes (``weak_texture`` flow EPE
             0.108 at 0.85, 0.071 at 0.5, 320×240); 0.5 is the measured compromise
-            (README, Accuracy).
+            (docs/accuracy.md).
         rof_weight : μ, the ROF fidelity weight (min Σ|∇u| + 1/(2μ) Σ(u − f)²).
         rof_iterations : iterations of the (accelerated) primal–dual ROF solve.
         contrast : the matched images (texture parts) are scaled by one factor so that the
@@ -109,15 +109,16 @@ class Params:
             window across a depth edge does not mix two objects' flows (an addition; 0: all
             of them, Wedel et al.'s plain median; :mod:`lfsf.kernels.median`). It scales
             with the level. 320×240 flow EPE (τ = 0 → 0.5): `paper` 0.067 → 0.063,
-            `large_motion` 0.104 → 0.057 (README, Accuracy).
+            `large_motion` 0.104 → 0.057 (docs/accuracy.md).
         depth_change_radius : r of a median of the depth change D = δ2 − δ1 at the end
             (an addition; 0: off): δ2 = δ1 + the median of D over the (2r+1)² window's
-            pixels whose δ1 is within ``median_tolerance`` of the centre's, its own
-            surface's motion in depth. δ1 is the better determined of the two, and a
-            surface's D varies slowly. The radius grows with the width as
+            pixels whose δ1 is within ``median_tolerance`` of the centre's (all of them
+            with a tolerance of 0), its own surface's motion in depth. δ1 is the better
+            determined of the two, and a surface's D varies slowly. The radius grows with the width as
             ``median_radius``'s does, up to 3.
         colour_median_radius : r of the last step on colour light fields (an addition;
-            0: off; grey input never takes it): δ1 and δ2 are snapped to the colour
+            0: off; grey input never takes it, nor grey views stored as RGB, see
+            ``lfsf.estimate.GREY_CHROMA``): δ1 and δ2 are snapped to the colour
             edges of the t1 centre view where they jump, by the median of their (2r+1)²
             window weighted by colour likeness (:func:`lfsf.kernels.median.guided_median_edges`).
             The estimate spreads the nearer surface over the farther one by a pixel or
@@ -397,7 +398,7 @@ PRESETS: dict[str, dict] = {
     "fast": {"circles": 2, "samples": (1, 8), "warps": 3, "iterations": 30, "rof_iterations": 30},
     "lytro": {"circles": 2, "samples": (1, 16)},
     # optical flow of the centre views alone (M = 1): 3 warps of 20 iterations, with
-    # steps balanced towards the duals (README, Benchmarks: a lower EPE than OpenCV's
+    # steps balanced towards the duals (docs/benchmarks.md: a lower EPE than OpenCV's
     # DualTVL1 on every synthetic scene at 640×480, and faster on `paper`; 30
     # iterations cost a quarter more time for 1–3 % of EPE)
     "flow": {"circles": 1, "samples": (1,), "warps": 3, "iterations": 20, "rof_iterations": 30,

@@ -232,7 +232,7 @@ class LevelSolver:
         figure, times the level's scale, as the disparities themselves scale. Unscaled, a
         coarse level let a jump of 0.25·2^k full-resolution px pass unseen; scaled, HCI
         antinous MSE×100 went 3.26 → 2.99 and the Lytro scene 0.0132 → 0.0129 px, with
-        the synthetic scenes within their spread (README, Accuracy)."""
+        the synthetic scenes within their spread (docs/accuracy.md)."""
         return self.params.occlusion_margin * self.level_scale
 
     def find_hidden(self) -> None:

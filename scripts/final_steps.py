@@ -73,8 +73,9 @@ def main(argv=None) -> int:
         colour = colour or args.colour
         if getattr(params, setting) <= 0:
             raise ValueError(f"preset {args.preset!r} has the step off ({setting} = 0)")
-        if min(args.size) < 8 or args.grid < 2:
-            raise ValueError("--size needs at least 8×8 pixels and --grid at least 2 views per side")
+        # (the errors leave out an 8-px border: smaller views leave nothing to evaluate)
+        if min(args.size) < 32 or args.grid < 2:
+            raise ValueError("--size needs at least 32×32 pixels and --grid at least 2 views per side")
     except ValueError as err:
         parser.error(str(err))  # exit status 2
     rows = []

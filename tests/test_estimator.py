@@ -232,7 +232,7 @@ def test_joint_flow_beats_flow_only():
 def test_the_flow_median_runs_once_more_after_the_final_fill(monkeypatch):
     """The final fill sets the hidden points' flow after the last warp's median; the
     flow's median then runs once more, on the finest level, after the fill (paired EPE
-    0.974× on 16 scenes at 160×120, README)."""
+    0.974× on 16 scenes at 160×120, docs/accuracy.md)."""
     from lfsf import synth
     from lfsf.solver import LevelSolver
 
@@ -274,7 +274,8 @@ def test_colour_edges_sharpen_the_disparities_of_colour_light_fields():
     the colour edges of the t1 centre view, where the luma-only estimate spreads the
     nearer surface. Against the same run without it, over three scenes at 96×72 (summed
     MSE, measured 0.78× for δ1 and 0.83× for δ2), both must fall by a tenth; the flow is
-    the same bit for bit, and grey input (the same scenes' luma) never takes the step."""
+    the same bit for bit, and grey input (the same scenes' luma, also stored as RGB) never
+    takes the step."""
     from lfsf import evaluate, synth
 
     on, off = np.zeros(2), np.zeros(2)
@@ -292,6 +293,12 @@ def test_colour_edges_sharpen_the_disparities_of_colour_light_fields():
             grey = estimate_scene_flow(lf1.grey(), lf2.grey(), Params.preset("fast"), device="cpu")
             np.testing.assert_array_equal(grey.disp1, runs["off"].disp1)
             np.testing.assert_array_equal(grey.disp2, runs["off"].disp2)
+            # nor grey views stored as RGB (R = G = B), where it would see the luma alone
+            as_rgb = [lfsf.LightField(np.repeat(lf.grey().views[..., None], 3, axis=-1)) for lf in (lf1, lf2)]
+            same = [estimate_scene_flow(*as_rgb, Params.preset("fast").replace(**kw), device="cpu")
+                    for kw in ({}, {"colour_median_radius": 0})]
+            np.testing.assert_array_equal(same[0].disp1, same[1].disp1)
+            np.testing.assert_array_equal(same[0].disp2, same[1].disp2)
     assert on[0] < 0.9 * off[0] and on[1] < 0.9 * off[1], (on, off)
 
 
@@ -335,8 +342,7 @@ def test_hci_antinous_stereo_has_no_foreground_halo():
     both t1 and t2 with the default preset: the bust's disparity must not spread over
     the dark, nearly textureless wall behind it. With the best-half occlusion test alone
     and centred matching windows it did (MSE×100 19.8, 94 % of it within 16 px outside
-    the bust); view z-buffers and shiftable windows give 5.0, and α0 = 6 3.6 (README,
-    Accuracy). The issue's target is 2.0."""
+    the bust); view z-buffers and shiftable windows give 5.0, and α0 = 6 3.6 (docs/accuracy.md). The issue's target is 2.0."""
     from conftest import data_path
 
     from lfsf import evaluate, io

@@ -1240,6 +1240,31 @@ def test_guided_median_edges_matches_reference(radius, device):
     assert np.abs(got[7 + radius:, 5:7, 0] - x[7 + radius:, 5:7, 0]).max() == 0
 
 
+def test_guided_median_edges_radius_outside_its_window_buffer(device):
+    """r < 1 copies x; r above LOCAL_RADIUS (the window buffer's) is taken as LOCAL_RADIUS
+    instead of writing past the buffer."""
+    from lfsf.kernels import median
+
+    h, w = 12, 10
+    r = rng(32)
+    x = r.standard_normal((h, w, 4)).astype(np.float32) * 0.1
+    x[:, 5:, 0] += 2.0
+    colours = r.uniform(0.33, 0.37, (h, w, 3)).astype(np.float32)
+    colours[:, 4:] += np.float32([0.3, 0.0, -0.2])
+    most = int(median.LOCAL_RADIUS)
+
+    def run(radius):
+        out = arr(np.zeros((h, w, 4)), wp_vec4(), device)
+        launch(median.guided_median_edges, (h, w), [arr(x, wp_vec4(), device), arr(colours, wp_vec3(), device),
+                                                    radius, 0.05, 0.5, 1.0], [out], device)
+        return out.numpy()
+
+    np.testing.assert_array_equal(run(0), x)
+    at_most = run(most)
+    assert not np.array_equal(at_most, x)  # the step acts here
+    np.testing.assert_array_equal(run(most + 2), at_most)
+
+
 def wp_vec3():
     from lfsf.device import warp
 
