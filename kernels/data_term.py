@@ -9,8 +9,14 @@ W1 = L(p − δ̂1 φ, φ, t1), W2 = L(p + û − δ̂2 φ, φ, t2) and J2 = L(p
 
 with Δx = x − x̂. The unknowns are packed per pixel as vec4 (δ1, δ2, u, v), or as vec2
 (u, v) for flow only (:data:`lfsf.kernels.common.UNKNOWNS`). Each sample's
-coefficients are stored as ``vec12`` = (A1 … A9, σ̃1, σ̃2, σ̃3), pixel-major (``coef[i, j,
-s]``: what one pixel's iteration reads is contiguous). The row weight w_k is λ_k (divided
+coefficients are the twelve values (A1 … A9, σ̃1, σ̃2, σ̃3), and its scaled duals three.
+Both are stored in *lanes*: a row's pixels in groups of L consecutive ones (L =
+:data:`DATA_LANES` on the CPU, 1 on CUDA), and for each group, sample and value the L
+pixels' values side by side, ``coef[i, j // L, (12 s + k) L + j % L]`` (a float array, as
+:func:`data_coefficients` writes it; the same memory as L-vectors ``[i, j // L, 12 s + k]``,
+as :data:`dual_data_step` reads it). With L = 1 this is pixel-major: what one pixel's
+iteration reads is contiguous. With L = 8 the iteration works on 8 pixels at once in
+vector registers. The row weight w_k is λ_k (divided
 by the sample count) or 0 where the row is left out (a warped position leaves the image,
 an occlusion); σ̃_k = w_k² / ((w_k Σ|row k| + ε) c) is the dual step of the scaled dual
 q̃_k = w_k q_k ∈ [−w_k, w_k] (c: the step ratio, :class:`lfsf.Params` ``step_ratio``),
@@ -21,12 +27,20 @@ from typing import Any
 
 import warp as wp
 
-from .common import (HALF_PLANES, add_residual, bilinear_with_gradient, clip, from_vec4, half_plane_mask,
+from .common import (HALF_PLANES, add_residual, bilinear_with_gradient, from_vec4, half_plane_mask,
                      half_plane_normal, in_half_plane, inside, overload_unknowns, to_vec4, vec8, visible)
 
 wp.set_module_options({"enable_backward": False})
 
 vec12 = wp.types.vector(length=12, dtype=wp.float32)
+#: Pixels per group of the data term's storage on the CPU (see the module's docstring):
+#: the dual step then runs 8 pixels at once in vector registers, 0.69× the time of one
+#: pixel at a time (640×480, 17 samples, medians of 8 rounds; bit-identical results).
+#: CUDA takes 1 (a thread per pixel).
+DATA_LANES = 8
+#: Values stored per sample: the coefficients (A1 … A9, σ̃1 … σ̃3) and the scaled duals.
+COEFFICIENTS = 12
+DUALS = 3
 #: An occlusion must also raise the mean residual by this much (intensities in [0, 1]):
 #: in weak texture, ratios of tiny residuals are noise.
 OCCLUSION_FLOOR = wp.constant(0.01)
@@ -101,11 +115,31 @@ def row_steps(c: vec12, lam: wp.vec3, in_1: bool, in_2: bool, in_j: bool, eps: f
 
 
 @wp.func
-def keep_duals(q: wp.array3d(dtype=wp.vec3), i: int, j: int, s: int, wt: wp.vec3):
+def load_coefficients(coef: wp.array3d(dtype=float), i: int, g: int, lane: int, lanes: int, s: int):
+    """The twelve stored values of sample s at the pixel in lane ``lane`` of group g of
+    row i (column g · L + lane; lane storage, module docstring)."""
+    at = COEFFICIENTS * s * lanes + lane
+    c = vec12()
+    for k in range(COEFFICIENTS):
+        c[k] = coef[i, g, at + k * lanes]
+    return c
+
+
+@wp.func
+def store_coefficients(coef: wp.array3d(dtype=float), i: int, g: int, lane: int, lanes: int, s: int, c: vec12):
+    """Store the twelve values of sample s at that pixel."""
+    at = COEFFICIENTS * s * lanes + lane
+    for k in range(COEFFICIENTS):
+        coef[i, g, at + k * lanes] = c[k]
+
+
+@wp.func
+def keep_duals(q: wp.array3d(dtype=float), i: int, g: int, lane: int, lanes: int, s: int, wt: wp.vec3):
     """The scaled duals of the rows left out (w_k = 0) set to 0, the others kept."""
-    qs = q[i, j, s]
-    q[i, j, s] = wp.vec3(wp.where(wt[0] > 0.0, qs[0], 0.0), wp.where(wt[1] > 0.0, qs[1], 0.0),
-                         wp.where(wt[2] > 0.0, qs[2], 0.0))
+    at = DUALS * s * lanes + lane
+    for k in range(DUALS):
+        if wt[k] <= 0.0:
+            q[i, g, at + k * lanes] = 0.0
 
 
 @wp.kernel
@@ -124,14 +158,16 @@ def data_coefficients(
     zbuf2: wp.array3d(dtype=float),
     margin: float,
     use_zbuf: int,
+    lanes: int,
     # outputs
-    coef: wp.array3d(dtype=vec12),
+    coef: wp.array3d(dtype=float),
     data_colsum: wp.array2d(dtype=Any),
-    q: wp.array3d(dtype=wp.vec3),
+    q: wp.array3d(dtype=float),
 ):
     """Coefficients A1…A9 and dual steps σ̃1…σ̃3 of every sample at the linearisation
     point x̂ (``coef[i, j, s]``; σ̃ divided by the step ratio c), and the column sums
-    Σ|K| of the data rows for each unknown (the data part of the preconditioner τ). The
+    Σ|K| of the data rows for each unknown (the data part of the preconditioner τ), ``coef``
+    and ``q`` in lane storage of ``lanes`` pixels a group (module docstring). The
     scaled duals q̃ of the rows left out are set to 0 (the others kept):
     :func:`dual_data_step` then needs no row flags, since a row with σ̃ = 0 and q̃ = 0
     stays at 0.
@@ -164,6 +200,8 @@ def data_coefficients(
     """
     i, j = wp.tid()
     i = i + row0
+    g = j // lanes  # where the pixel's values are stored
+    lane = j - g * lanes
     unknowns = x_hat[i, j]
     xh = to_vec4(unknowns)
     px = float(j)
@@ -226,8 +264,8 @@ def data_coefficients(
         in_1 = ins1 and seen1
         in_2 = ins2 and seen2 and (s > 0 or in_j0) and not hidden
         c, wt, part = row_steps(c, weights[s], in_1, in_2, in_j0, eps, step_ratio)
-        coef[i, j, s] = c
-        keep_duals(q, i, j, s, wt)
+        store_coefficients(coef, i, g, lane, lanes, s, c)
+        keep_duals(q, i, g, lane, lanes, s, wt)
         colsum += part
     # Both light fields are tested against the point's appearance at t1, I1(p): at t2
     # the centre view itself may be the occluded one (the point moved behind something)
@@ -261,80 +299,132 @@ def data_coefficients(
                 seen2 = keeps(half2, normal2, phi)
             in_1 = inside(samples1[s], x1, y1) and seen1
             in_2 = inside(samples2[s], x2, y2) and seen2 and (s > 0 or in_j) and not hidden
-            c, wt, part = row_steps(coef[i, j, s], weights[s], in_1, in_2, in_j, eps, step_ratio)
-            coef[i, j, s] = c
-            keep_duals(q, i, j, s, wt)
+            c, wt, part = row_steps(load_coefficients(coef, i, g, lane, lanes, s), weights[s], in_1, in_2, in_j,
+                                    eps, step_ratio)
+            store_coefficients(coef, i, g, lane, lanes, s, c)
+            keep_duals(q, i, g, lane, lanes, s, wt)
             colsum += part
     data_colsum[i, j] = from_vec4(colsum, unknowns)
 
 
-@wp.func
-def dual_data_pixel(
-    coef: wp.array3d(dtype=vec12),
-    weights: wp.array(dtype=wp.vec3),
-    x_bar: wp.array2d(dtype=Any),
-    x_hat: wp.array2d(dtype=Any),
-    q: wp.array3d(dtype=wp.vec3),
-    data_grad: wp.array2d(dtype=Any),
-    i: int,
-    j: int,
-):
-    """The dual data step at pixel (i, j) (see :func:`dual_data_step`)."""
-    unknowns = x_hat[i, j]
-    d = to_vec4(x_bar[i, j]) - to_vec4(unknowns)
-    g = wp.vec4(0.0)
-    for s in range(coef.shape[2]):
-        c = coef[i, j, s]
-        lam = weights[s]
-        a1 = c[0]
-        a3 = c[2]
-        a5 = c[4]
-        a6 = c[5]
-        a8 = c[7]
-        a9 = c[8]
-        rho1 = c[1] - a1 * d[0]
-        rho2 = c[3] - a3 * d[1] + a8 * d[2] + a9 * d[3]
-        rho3 = c[6] + a1 * d[0] - a3 * d[1] - a5 * d[2] - a6 * d[3]
-        # clipped to ±λ_k: a row left out has σ̃_k = 0 and q̃_k = 0 (data_coefficients), so
-        # it stays 0 without a test of its flag
-        qs = q[i, j, s]
-        q1 = clip(qs[0] + c[9] * rho1, -lam[0], lam[0])
-        q2 = clip(qs[1] + c[10] * rho2, -lam[1], lam[1])
-        q3 = clip(qs[2] + c[11] * rho3, -lam[2], lam[2])
-        q[i, j, s] = wp.vec3(q1, q2, q3)
-        g += wp.vec4((q3 - q1) * a1, -(q2 + q3) * a3, q2 * a8 - q3 * a5, q2 * a9 - q3 * a6)
-    data_grad[i, j] = from_vec4(g, unknowns)
+_LANE_TYPES: dict = {}
 
 
-@wp.kernel
-def dual_data_step(
-    row0: int,
-    coef: wp.array3d(dtype=vec12),
-    weights: wp.array(dtype=wp.vec3),
-    x_bar: wp.array2d(dtype=Any),
-    x_hat: wp.array2d(dtype=Any),
-    span: int,
-    # outputs
-    q: wp.array3d(dtype=wp.vec3),
-    data_grad: wp.array2d(dtype=Any),
-):
-    """Dual ascent on the data rows, fused with the primal gradient Kᵀq of the data term.
+def lane_type(lanes: int):
+    """The vector type of ``lanes`` floats that :data:`dual_data_step` reads the lane
+    storage as (one type per length, shared with the kernels)."""
+    if lanes not in _LANE_TYPES:
+        _LANE_TYPES[lanes] = wp.types.vector(length=lanes, dtype=wp.float32)
+    return _LANE_TYPES[lanes]
 
-    With the scaled duals q̃_k = w_k q_k (``q[i, j, s]``):
-    q̃_k ← clip(q̃_k + σ̃_k ρ_k(x̄), −w_k, w_k), σ̃_k = w_k σ_k and σ_k = 1 / (w_k Σ|row k| + ε)
-    the diagonal preconditioner; then ``data_grad`` = Σ_s Kᵀ q for (δ1, δ2, u, v). This
-    is q_k ← clip(q_k + σ_k w_k ρ_k, −1, 1) of the unscaled duals, without a division.
-    Rows left out (w_k = 0) must have q̃_k = 0, as :func:`data_coefficients` leaves them:
-    the clip is to ±λ_k, and σ̃_k = 0 keeps them at 0. Launch over (rows, ⌈columns /
-    span⌉): each thread walks ``span`` pixels of a row (:func:`lfsf.device.row_span`).
-    """
-    i, c0 = wp.tid()
-    i = i + row0
-    j0 = c0 * span
-    for j in range(j0, wp.min(x_bar.shape[1], j0 + span)):
-        dual_data_pixel(coef, weights, x_bar, x_hat, q, data_grad, i, j)
+
+def _dual_data_kernel(lanes: int):
+    """:data:`dual_data_step` for groups of ``lanes`` pixels (the lane storage of the
+    module docstring)."""
+    row = lane_type(lanes)
+
+    @wp.kernel
+    def dual_data_step(
+        row0: int,
+        coef: wp.array3d(dtype=row),
+        weights: wp.array(dtype=wp.vec3),
+        x_bar: wp.array2d(dtype=Any),
+        x_hat: wp.array2d(dtype=Any),
+        groups: int,
+        # outputs
+        q: wp.array3d(dtype=row),
+        data_grad: wp.array2d(dtype=Any),
+    ):
+        """Dual ascent on the data rows, fused with the primal gradient Kᵀq of the data term.
+
+        With the scaled duals q̃_k = w_k q_k (``q``):
+        q̃_k ← clip(q̃_k + σ̃_k ρ_k(x̄), −w_k, w_k), σ̃_k = w_k σ_k and σ_k = 1 / (w_k Σ|row k| + ε)
+        the diagonal preconditioner; then ``data_grad`` = Σ_s Kᵀ q for (δ1, δ2, u, v). This
+        is q_k ← clip(q_k + σ_k w_k ρ_k, −1, 1) of the unscaled duals, without a division.
+        Rows left out (w_k = 0) must have q̃_k = 0, as :func:`data_coefficients` leaves them:
+        the clip is to ±λ_k, and σ̃_k = 0 keeps them at 0.
+
+        ``coef`` and ``q`` are the lane storage (module docstring) seen as L-vectors, (rows,
+        groups, 12 S) and (rows, groups, 3 S): every operation acts on the L pixels of a
+        group at once, each pixel's arithmetic the same as alone. Launch over (rows,
+        ⌈groups per row / ``groups``⌉): each thread walks ``groups`` groups of a row."""
+        i, c0 = wp.tid()
+        i = i + row0
+        w = x_bar.shape[1]
+        n = weights.shape[0]
+        g0 = c0 * groups
+        for g in range(g0, wp.min(coef.shape[1], g0 + groups)):
+            # the L pixels' x̄ − x̂ per unknown (pixels past the row's end repeat the last; their
+            # coefficients are 0, and their gradient is not stored)
+            d0 = row()
+            d1 = row()
+            d2 = row()
+            d3 = row()
+            for k in range(lanes):
+                j = wp.min(g * lanes + k, w - 1)
+                d = to_vec4(x_bar[i, j]) - to_vec4(x_hat[i, j])
+                d0[k] = d[0]
+                d1[k] = d[1]
+                d2[k] = d[2]
+                d3[k] = d[3]
+            s0 = row()
+            s1 = row()
+            s2 = row()
+            s3 = row()
+            for s in range(n):
+                b = COEFFICIENTS * s
+                a1 = coef[i, g, b + 0]
+                a3 = coef[i, g, b + 2]
+                a5 = coef[i, g, b + 4]
+                a6 = coef[i, g, b + 5]
+                a8 = coef[i, g, b + 7]
+                a9 = coef[i, g, b + 8]
+                rho1 = coef[i, g, b + 1] - wp.cw_mul(a1, d0)
+                rho2 = coef[i, g, b + 3] - wp.cw_mul(a3, d1) + wp.cw_mul(a8, d2) + wp.cw_mul(a9, d3)
+                rho3 = coef[i, g, b + 6] + wp.cw_mul(a1, d0) - wp.cw_mul(a3, d1) - wp.cw_mul(a5, d2) - wp.cw_mul(a6, d3)
+                # clipped to ±λ_k: a row left out has σ̃_k = 0 and q̃_k = 0 (data_coefficients), so
+                # it stays 0 without a test of its flag
+                lam = weights[s]
+                top1 = row(lam[0])
+                top2 = row(lam[1])
+                top3 = row(lam[2])
+                e = DUALS * s
+                q1 = wp.min(wp.max(q[i, g, e] + wp.cw_mul(coef[i, g, b + 9], rho1), -top1), top1)
+                q2 = wp.min(wp.max(q[i, g, e + 1] + wp.cw_mul(coef[i, g, b + 10], rho2), -top2), top2)
+                q3 = wp.min(wp.max(q[i, g, e + 2] + wp.cw_mul(coef[i, g, b + 11], rho3), -top3), top3)
+                q[i, g, e] = q1
+                q[i, g, e + 1] = q2
+                q[i, g, e + 2] = q3
+                s0 += wp.cw_mul(q3 - q1, a1)
+                s1 += wp.cw_mul(-(q2 + q3), a3)
+                s2 += wp.cw_mul(q2, a8) - wp.cw_mul(q3, a5)
+                s3 += wp.cw_mul(q2, a9) - wp.cw_mul(q3, a6)
+            for k in range(lanes):
+                j = g * lanes + k
+                if j < w:
+                    data_grad[i, j] = from_vec4(wp.vec4(s0[k], s1[k], s2[k], s3[k]), x_hat[i, j])
+
+    return dual_data_step
+
+
+#: The dual step on groups of :data:`DATA_LANES` pixels (the CPU) …
+dual_data_step = _dual_data_kernel(DATA_LANES)
+#: … and on single pixels (CUDA).
+dual_data_step_pixel = _dual_data_kernel(1)
+
+
+def data_lanes(device) -> int:
+    """Pixels per group of the data term's storage on ``device``: :data:`DATA_LANES` on
+    the CPU, 1 on CUDA."""
+    return DATA_LANES if str(device).startswith("cpu") else 1
+
+
+def dual_data_kernel(lanes: int):
+    """The dual step for storage of ``lanes`` pixels a group."""
+    return {DATA_LANES: dual_data_step, 1: dual_data_step_pixel}[lanes]
 
 
 # the kernels on the unknowns, for vec4 (δ1, δ2, u, v) and vec2 (u, v; flow only)
 overload_unknowns(data_coefficients, "x_hat", "data_colsum")
 overload_unknowns(dual_data_step, "x_bar", "x_hat", "data_grad")
+overload_unknowns(dual_data_step_pixel, "x_bar", "x_hat", "data_grad")

@@ -163,7 +163,13 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
     # view z-buffers (the default, Params.visibility): a nearer point somewhere in each view
     zbuf1 = arr(rng.uniform(-3, 1, (s, h, w)), float)
     zbuf2 = arr(rng.uniform(-3, 1, (s, h, w)), float)
-    coef = wp.empty((h, w, s), dtype=data_term.vec12, device=dev)
+    # the data term's lane storage, as the solver allocates it
+    from lfsf.solver import lane_storage
+
+    lanes = data_term.data_lanes(dev)
+    coef_store, coef = lane_storage(h, w, s, data_term.COEFFICIENTS, lanes, dev)
+    q_store, q = lane_storage(h, w, s, data_term.DUALS, lanes, dev)
+    groups, group_threads = _device.row_span(dev, coef.shape[1])
     colsum = wp.empty((h, w), dtype=wp.vec4, device=dev)
     sampled = wp.empty((s, h, w), dtype=float, device=dev)
 
@@ -176,7 +182,6 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
         return arr(t, wp.vec3)
 
     t1, t2, t3 = tensor(), tensor(), tensor()
-    q = wp.zeros((h, w, s), dtype=wp.vec3, device=dev)
     data_grad = v4()
     x_bar, w0_bar, w1_bar = v4(), v4(), v4()
     y0, y1, z00, z01, z10, z11 = (v4(0.1) for _ in range(6))
@@ -193,11 +198,11 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
         # zeroed)
         ("data_coefficients", launch(data_term.data_coefficients,
                                      [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros, 1e-6, 1.0, zbuf1, zbuf2,
-                                      0.25, 1], [coef, colsum, q]),
+                                      0.25, 1, lanes], [coef_store, colsum, q_store]),
          f * h * w * (2 * s + 4 + 1 + 2 * s + 12 * s + 4 + 6 * s)),
         # reads the coefficients, x̄, x̂ and q; writes q and Kᵀq (the S weights stay in cache)
-        ("dual_data_step", launch(data_term.dual_data_step, [coef, weights, x_bar, x_hat, span], [q, data_grad],
-                                  dim=(h, per_row)),
+        ("dual_data_step", launch(data_term.dual_data_kernel(lanes), [coef, weights, x_bar, x_hat, groups],
+                                  [q, data_grad], dim=(h, group_threads)),
          f * h * w * (12 * s + 4 + 4 + 3 * s + 3 * s + 4)),
         # reads x̄, w̄ (8), three tensors (9), σ_y (4) and the six duals (24); writes the duals (24)
         ("tgv_dual_step", launch(tgv.tgv_dual_step, [x_bar, w0_bar, w1_bar, t1, t2, t3, sigma_y, 0.25, 2.0, 0.5,

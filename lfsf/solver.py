@@ -83,9 +83,12 @@ class LevelSolver:
             self.tensor3 = wp.empty((h, w), dtype=wp.vec3, device=device)
         self.warped2 = wp.empty((h, w), dtype=float, device=device)
 
-        # data term: coefficients per pixel and sample, the scaled duals q̃, and Kᵀq
-        self.coef = wp.empty((h, w, n), dtype=data_term.vec12, device=device)  # written by linearise
-        self.q = wp.empty((h, w, n), dtype=wp.vec3, device=device)  # zeroed by set_state, rows left out by linearise
+        # data term: coefficients per pixel and sample, the scaled duals q̃ (both in lane
+        # storage, lfsf.kernels.data_term; ``*_store`` as floats, the others the same memory
+        # as vectors of ``lanes``), and Kᵀq
+        self.lanes = data_term.data_lanes(device)
+        self.coef_store, self.coef = lane_storage(h, w, n, data_term.COEFFICIENTS, self.lanes, device)
+        self.q_store, self.q = lane_storage(h, w, n, data_term.DUALS, self.lanes, device)  # zeroed by set_state
         self.data_colsum = zeros4()
         self.data_grad = zeros4()
         # primal: x = (δ1, δ2, u, v) (flow only: (u, v)), w = (w0, w1), their over-relaxed copies, x̂
@@ -136,7 +139,7 @@ class LevelSolver:
             src = wp.array(arr, dtype=self.vec, device=self.device)
             wp.copy(getattr(self, name), src)
             wp.copy(getattr(self, name + "_bar"), src)
-        for dual in (self.q, self.y0, self.y1, self.z00, self.z01, self.z10, self.z11):
+        for dual in (self.q_store, self.y0, self.y1, self.z00, self.z01, self.z10, self.z11):
             dual.zero_()
         wp.copy(self.x_hat, self.x)
         self._tensors()
@@ -173,8 +176,8 @@ class LevelSolver:
         self._launch(data_term.data_coefficients,
                      inputs=[self.samples1, self.samples2, self.phis, self.weights, self.x_hat, p.occlusion_ratio,
                              self.hidden2, p.eps, p.step_ratio, self.view_zbuf1, self.view_zbuf2,
-                             self.view_margin(), use_zbuf],
-                     outputs=[self.coef, self.data_colsum, self.q])
+                             self.view_margin(), use_zbuf, self.lanes],
+                     outputs=[self.coef_store, self.data_colsum, self.q_store])
         self._launch(tgv.tgv_preconditioner,
                      inputs=[self.data_colsum, self.tensor1, self.tensor2, self.tensor3, p.alpha0, p.alpha1, p.eps,
                              p.step_ratio],
@@ -306,14 +309,15 @@ class LevelSolver:
         sigma_z = 1.0 / (2.0 * p.alpha0 * p.step_ratio)
         dim = (self.shape[0], self.per_row)
 
-        def record(kernel, inputs, outputs):
+        def record(kernel, inputs, outputs, dim=dim):
             return _device.RecordedRows(kernel, dim, inputs=inputs, outputs=outputs, device=self.device,
                                         bands=self.bands)
 
+        groups, per_row = _device.row_span(self.device, self.coef.shape[1])  # groups of lanes per thread
         return [
-            record(data_term.dual_data_step,
-                   inputs=[self.coef, self.weights, self.x_bar, self.x_hat, self.span],
-                   outputs=[self.q, self.data_grad]),
+            record(data_term.dual_data_kernel(self.lanes),
+                   inputs=[self.coef, self.weights, self.x_bar, self.x_hat, groups],
+                   outputs=[self.q, self.data_grad], dim=(self.shape[0], per_row)),
             record(tgv.tgv_dual_step,
                    inputs=[self.x_bar, self.w0_bar, self.w1_bar, self.tensor1, self.tensor2, self.tensor3,
                            self.sigma_y, sigma_z, p.alpha0, p.alpha1, self.span],
@@ -350,7 +354,7 @@ class LevelSolver:
         """The linearised data rows as NumPy arrays, sample-major: A1…A9 as (9, S, h, w)
         and the row weights w1…w3 as (3, S, h, w) (λ_k of the sample where the row is in,
         else 0). For tests and diagnostics, not the hot path."""
-        c = self.coef.numpy().astype(np.float64)  # (h, w, S, 12), pixel-major
+        c = from_lanes(self.coef_store.numpy(), self.shape[1], self.lanes, 12).astype(np.float64)  # (h, w, S, 12)
         a = np.moveaxis(c[..., :9], (3, 2), (0, 1))
         lam = self.weights.numpy().astype(np.float64)  # (S, 3)
         on = np.moveaxis(c[..., 9:] > 0, (3, 2), (0, 1))
@@ -378,6 +382,39 @@ class LevelSolver:
         dx1, dy1 = forward_gradient(w1)
         second = float(np.sum(np.sqrt(dx0**2 + dy0**2 + dx1**2 + dy1**2)))
         return data + p.alpha1 * first + p.alpha0 * second
+
+
+def lane_storage(h: int, w: int, n: int, values: int, lanes: int, device: str):
+    """Zeroed lane storage (:mod:`lfsf.kernels.data_term`) of ``values`` floats per sample
+    for n samples of an (h, w) level: the float array (h, ⌈w / L⌉, n · values · L) and
+    the same memory as vectors of L (h, ⌈w / L⌉, n · values). Keep the first alive while
+    the second is used: the second does not own its memory."""
+    from lfsf.kernels import data_term
+
+    wp = _device.warp()
+    groups = -(-int(w) // lanes)
+    store = wp.zeros((h, groups, n * values * lanes), dtype=float, device=device)
+    view = wp.array(ptr=store.ptr, dtype=data_term.lane_type(lanes), shape=(h, groups, n * values), device=device,
+                    capacity=store.capacity)
+    return store, view
+
+
+def from_lanes(a: np.ndarray, w: int, lanes: int, values: int) -> np.ndarray:
+    """Lane storage (h, groups, n · values · L) as (h, w, n, values)."""
+    h, groups, size = a.shape
+    n = size // (values * lanes)
+    return a.reshape(h, groups, n, values, lanes).transpose(0, 1, 4, 2, 3).reshape(h, groups * lanes, n, values)[:, :w]
+
+
+def to_lanes(a: np.ndarray, lanes: int) -> np.ndarray:
+    """(h, w, n, values) as lane storage (h, ⌈w / L⌉, n · values · L), float32, zero past
+    the row's end."""
+    h, w, n, values = a.shape
+    groups = -(-w // lanes)
+    padded = np.zeros((h, groups * lanes, n, values), np.float32)
+    padded[:, :w] = a
+    return np.ascontiguousarray(padded.reshape(h, groups, lanes, n, values).transpose(0, 1, 3, 4, 2)
+                                .reshape(h, groups, n * values * lanes))
 
 
 def level_median_radius(radius: int, width: int) -> int:

@@ -327,21 +327,29 @@ def _run_data_coefficients_raw(samples1, samples2, phis, weights, x_hat, device,
     hidden2 = np.zeros((h, w), np.float32) if hidden2 is None else hidden2
     no_zbuf = np.zeros((1, 1, 1), np.float32)
     z1, z2 = (no_zbuf, no_zbuf) if zbufs is None else zbufs
-    coef = wp.zeros((h, w, s), dtype=data_term.vec12, device=device)
-    colsum = wp.zeros((h, w), dtype=wp.vec4, device=device)
-    q_before = rng(99).uniform(-1.0, 1.0, (h, w, s, 3)).astype(np.float32)  # the duals of the last warp
-    q = arr(q_before, wp.vec3, device)
-    launch(data_term.data_coefficients, (h, w),
-           [arr(samples1, float, device), arr(samples2, float, device), arr(phis, wp.vec2, device),
-            arr(weights, wp.vec3, device), arr(x_hat, wp.vec4, device), float(occlusion_ratio),
-            arr(hidden2, float, device), DATA_EPS, 1.0, arr(z1, float, device), arr(z2, float, device),
-            VIEW_MARGIN, 0 if zbufs is None else 1],
-           [coef, colsum, q], device)
-    # pixel-major in the solver; sample-major (S, h, w, 12) here, as the reference
-    got = coef.numpy()
-    # the duals of rows left out are zeroed, the others kept as they were
-    np.testing.assert_array_equal(q.numpy(), np.where(got[..., 9:] > 0, q_before, 0.0))
-    return got.transpose(2, 0, 1, 3).astype(np.float64), colsum.numpy().astype(np.float64)
+    from lfsf.solver import from_lanes
+
+    results = []
+    for lanes in (data_term.data_lanes(device), 1):  # the device's storage, and a pixel's values together
+        coef, _ = _lane_buffer(np.zeros((h, w, s, data_term.COEFFICIENTS), np.float32), device, lanes)
+        colsum = wp.zeros((h, w), dtype=wp.vec4, device=device)
+        q_before = rng(99).uniform(-1.0, 1.0, (h, w, s, 3)).astype(np.float32)  # the duals of the last warp
+        q, _ = _lane_buffer(q_before, device, lanes)
+        launch(data_term.data_coefficients, (h, w),
+               [arr(samples1, float, device), arr(samples2, float, device), arr(phis, wp.vec2, device),
+                arr(weights, wp.vec3, device), arr(x_hat, wp.vec4, device), float(occlusion_ratio),
+                arr(hidden2, float, device), DATA_EPS, 1.0, arr(z1, float, device), arr(z2, float, device),
+                VIEW_MARGIN, 0 if zbufs is None else 1, lanes],
+               [coef, colsum, q], device)
+        got = from_lanes(coef.numpy(), w, lanes, data_term.COEFFICIENTS)  # (h, w, S, 12)
+        # the duals of rows left out are zeroed, the others kept as they were
+        np.testing.assert_array_equal(from_lanes(q.numpy(), w, lanes, 3), np.where(got[..., 9:] > 0, q_before, 0.0))
+        results.append((got, colsum.numpy()))
+    (got, colsum), (got_1, colsum_1) = results
+    np.testing.assert_array_equal(got, got_1)  # the same values, however stored
+    np.testing.assert_array_equal(colsum, colsum_1)
+    # sample-major (S, h, w, 12) here, as the reference
+    return got.transpose(2, 0, 1, 3).astype(np.float64), colsum.astype(np.float64)
 
 
 DATA_EPS = 1e-6
@@ -840,12 +848,25 @@ def test_data_linearisation_is_first_order_accurate(device):
                 f"ρ{part + 1} w.r.t. {names[k]}: |linearised − exact| = {err:.3g}, |exact change| = {scale:.3g}")
 
 
+def _lane_buffer(values: np.ndarray, device, lanes: int):
+    """(h, w, S, k) values in the data term's lane storage: (float store, vector view)."""
+    from lfsf.solver import lane_storage, to_lanes
+
+    h, w, n, k = values.shape
+    store, view = lane_storage(h, w, n, k, lanes, device)
+    store.assign(to_lanes(values, lanes))
+    return store, view
+
+
+# a pixel per thread (CUDA), a row of single pixels, groups of 8 pixels one or two a thread,
+# and a whole row of them (the CPU); 9 columns leave 7 lanes of the second group empty
 @UNKNOWNS
-@pytest.mark.parametrize("span", [1, 4, 9])  # a pixel per thread (CUDA), part of a row, a whole row (CPU)
-def test_dual_data_step_matches_reference(device, span, unknowns):
+@pytest.mark.parametrize("lanes, groups", [(1, 1), (1, 9), (8, 1), (8, 2)])
+def test_dual_data_step_matches_reference(device, lanes, groups, unknowns):
     """The kernel's scaled duals q̃ = w q against the reference's q, and Kᵀq. On vec2
     (flow only) δ1, δ2 are 0 and Kᵀq has the flow's components."""
     from lfsf.kernels import data_term
+    from lfsf.solver import from_lanes
 
     r = rng(11)
     s, h, w = 3, 7, 9
@@ -861,15 +882,16 @@ def test_dual_data_step_matches_reference(device, span, unknowns):
     if unknowns == "vec2":
         x_bar[..., :2] = x_hat[..., :2] = 0.0
     q = r.uniform(-1, 1, (3, s, h, w))
-    q_wp = arr((W * q).transpose(2, 3, 1, 0), wp.vec3, device)
+    _, coef_wp = _lane_buffer(coef, device, lanes)
+    q_store, q_wp = _lane_buffer((W * q).transpose(2, 3, 1, 0).astype(np.float32), device, lanes)
     grad_wp = unknowns_zeros((h, w), unknowns, device)
-    launch(data_term.dual_data_step, (h, -(-w // span)),
-           [arr(coef, data_term.vec12, device), arr(lam, wp.vec3, device), unknowns_arr(x_bar, unknowns, device),
-            unknowns_arr(x_hat, unknowns, device), span],
+    launch(data_term.dual_data_kernel(lanes), (h, -(-coef_wp.shape[1] // groups)),
+           [coef_wp, arr(lam, wp.vec3, device), unknowns_arr(x_bar, unknowns, device),
+            unknowns_arr(x_hat, unknowns, device), groups],
            [q_wp, grad_wp], device)
     want_q, want_grad = ref.dual_data_step(A, W, q, x_bar, x_hat, DATA_EPS)
     want_grad = flow_part(want_grad, unknowns)
-    got_q = q_wp.numpy().astype(np.float64).transpose(3, 2, 0, 1)  # q̃, (3, S, h, w)
+    got_q = from_lanes(q_store.numpy(), w, lanes, 3).astype(np.float64).transpose(3, 2, 0, 1)  # q̃, (3, S, h, w)
     close(got_q, W * want_q, atol=1e-4)
     close(grad_wp.numpy(), want_grad, atol=1e-4)
     assert np.any(np.abs(want_q) == 1.0) and np.any(np.abs(want_q) < 1.0)  # clipping exercised
