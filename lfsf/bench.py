@@ -169,6 +169,8 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
     lanes = data_term.data_lanes(dev)
     coef_store, coef = lane_storage(h, w, s, data_term.COEFFICIENTS, lanes, dev)
     q_store, q = lane_storage(h, w, s, data_term.DUALS, lanes, dev)
+    coef_store.zero_()  # (uninitialised where the lanes fill the rows; data_coefficients writes them too)
+    q_store.zero_()
     groups, group_threads = _device.row_span(dev, coef.shape[1])
     colsum = wp.empty((h, w), dtype=wp.vec4, device=dev)
     sampled = wp.empty((s, h, w), dtype=float, device=dev)

@@ -89,6 +89,7 @@ class LevelSolver:
         self.lanes = data_term.data_lanes(device)
         self.coef_store, self.coef = lane_storage(h, w, n, data_term.COEFFICIENTS, self.lanes, device)
         self.q_store, self.q = lane_storage(h, w, n, data_term.DUALS, self.lanes, device)  # zeroed by set_state
+        # (the coefficients are written by linearise, the duals zeroed by set_state)
         self.data_colsum = zeros4()
         self.data_grad = zeros4()
         # primal: x = (δ1, δ2, u, v) (flow only: (u, v)), w = (w0, w1), their over-relaxed copies, x̂
@@ -385,15 +386,18 @@ class LevelSolver:
 
 
 def lane_storage(h: int, w: int, n: int, values: int, lanes: int, device: str):
-    """Zeroed lane storage (:mod:`lfsf.kernels.data_term`) of ``values`` floats per sample
-    for n samples of an (h, w) level: the float array (h, ⌈w / L⌉, n · values · L) and
-    the same memory as vectors of L (h, ⌈w / L⌉, n · values). Keep the first alive while
-    the second is used: the second does not own its memory."""
+    """Lane storage (:mod:`lfsf.kernels.data_term`) of ``values`` floats per sample for n
+    samples of an (h, w) level: the float array (h, ⌈w / L⌉, n · values · L) and the
+    same memory as vectors of L (h, ⌈w / L⌉, n · values). Keep the first alive while the
+    second is used: the second does not own its memory. Uninitialised where every lane
+    holds a pixel (the kernels write every pixel's values); zeroed where lanes run past
+    the row's end (zeroing 300 MB at 640×480 took a noticeable part of a second)."""
     from lfsf.kernels import data_term
 
     wp = _device.warp()
     groups = -(-int(w) // lanes)
-    store = wp.zeros((h, groups, n * values * lanes), dtype=float, device=device)
+    alloc = wp.empty if groups * lanes == w else wp.zeros
+    store = alloc((h, groups, n * values * lanes), dtype=float, device=device)
     view = wp.array(ptr=store.ptr, dtype=data_term.lane_type(lanes), shape=(h, groups, n * values), device=device,
                     capacity=store.capacity)
     return store, view
