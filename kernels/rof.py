@@ -4,7 +4,10 @@ decomposition of Wedel et al. (2009): the texture part of an image f is
 
 Images are stacks [n, y, x]. The steps run over (n × rows, ⌈columns / span⌉): each thread
 walks ``span`` consecutive pixels of a row (:func:`lfsf.device.row_span`: the whole row
-on the CPU, where a thread per pixel costs more than the stencil; one pixel on CUDA)."""
+on the CPU, where a thread per pixel costs more than the stencil; one pixel on CUDA).
+On the CPU the estimator runs their *lanes* versions, which take a row's pixels in
+groups of 8 as Warp vectors (SIMD code): the same arithmetic per pixel, 0.54–0.58× the
+time (34 images of 672×512)."""
 
 import warp as wp
 
@@ -148,3 +151,108 @@ def texture_part(
     n = r // h
     i = r - n * h
     texture[n, i, j] = f[n, i, j] - theta * structure[n, i + offset, j + offset]
+
+
+#: Pixels per group of the ROF steps that work on groups of a row at once (the CPU):
+#: :data:`rof_dual_lanes`, :data:`rof_primal_lanes`.
+ROF_LANES = 8
+rof_lane = wp.types.vector(length=ROF_LANES, dtype=wp.float32)
+
+
+@wp.kernel
+def rof_dual_lanes(
+    row0: int,
+    u_bar: wp.array3d(dtype=rof_lane),
+    width: int,
+    sigma: float,
+    # outputs
+    px: wp.array3d(dtype=rof_lane),
+    py: wp.array3d(dtype=rof_lane),
+):
+    """:func:`rof_dual_step` on groups of :data:`ROF_LANES` pixels of a row at once (SIMD
+    code on the CPU), the same arithmetic per pixel: images as (n, rows, groups) vectors,
+    a row's pixel j in lane j % L of group j // L, ``width`` pixels a row (lanes past it
+    are left out of every pixel's stencil), p as its x and y parts. Launch over (n ×
+    rows, 1): a thread walks a row."""
+    r, c = wp.tid()
+    r = r + row0
+    h = u_bar.shape[1]
+    groups = u_bar.shape[2]
+    n = r // h
+    i = r - n * h
+    down = i < h - 1
+    v = u_bar[n, i, 0]
+    for g in range(groups):
+        nxt = v
+        if g + 1 < groups:
+            nxt = u_bar[n, i, g + 1]
+        # forward differences: the right neighbour of lane k is lane k + 1, of the last lane
+        # the next group's first
+        gx = rof_lane()
+        for k in range(ROF_LANES - 1):
+            gx[k] = v[k + 1] - v[k]
+        gx[ROF_LANES - 1] = nxt[0] - v[ROF_LANES - 1]
+        if (g + 1) * ROF_LANES > width - 1:  # the row's last pixel has none (Neumann)
+            for k in range(ROF_LANES):
+                if g * ROF_LANES + k >= width - 1:
+                    gx[k] = 0.0
+        gy = rof_lane()
+        if down:
+            gy = u_bar[n, i + 1, g] - v
+        qx = px[n, i, g] + sigma * gx
+        qy = py[n, i, g] + sigma * gy
+        d = rof_lane()
+        for k in range(ROF_LANES):
+            d[k] = at_least(wp.sqrt(qx[k] * qx[k] + qy[k] * qy[k]), 1.0)
+        px[n, i, g] = wp.cw_div(qx, d)
+        py[n, i, g] = wp.cw_div(qy, d)
+        v = nxt
+
+
+@wp.kernel
+def rof_primal_lanes(
+    row0: int,
+    f: wp.array3d(dtype=rof_lane),
+    px: wp.array3d(dtype=rof_lane),
+    py: wp.array3d(dtype=rof_lane),
+    width: int,
+    tau: float,
+    mu: float,
+    relax: float,
+    # outputs
+    u: wp.array3d(dtype=rof_lane),
+    u_bar: wp.array3d(dtype=rof_lane),
+):
+    """:func:`rof_primal_step` on groups of :data:`ROF_LANES` pixels of a row at once, as
+    :data:`rof_dual_lanes`. Launch over (n × rows, 1)."""
+    r, c = wp.tid()
+    r = r + row0
+    h = f.shape[1]
+    groups = f.shape[2]
+    n = r // h
+    i = r - n * h
+    k = tau / mu
+    last = float(0.0)  # p_x of the pixel left of the group (0 at the border)
+    for g in range(groups):
+        pxc = px[n, i, g]
+        pyc = py[n, i, g]
+        left = rof_lane()
+        left[0] = last
+        for l in range(1, ROF_LANES):
+            left[l] = pxc[l - 1]
+        div = -left
+        if (g + 1) * ROF_LANES <= width - 1:
+            div = div + pxc
+        else:  # the row's last pixel has no p_x of its own (Neumann)
+            for l in range(ROF_LANES):
+                if g * ROF_LANES + l < width - 1:
+                    div[l] = div[l] + pxc[l]
+        if i < h - 1:
+            div = div + pyc
+        if i > 0:
+            div = div - py[n, i - 1, g]
+        old = u[n, i, g]
+        new = wp.cw_div(old + tau * div + k * f[n, i, g], rof_lane(1.0 + k))
+        u[n, i, g] = new
+        u_bar[n, i, g] = new + relax * (new - old)
+        last = pxc[ROF_LANES - 1]

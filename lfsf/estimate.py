@@ -193,7 +193,7 @@ def pyramid_sizes(height: int, width: int, params: Params) -> list[tuple[int, in
     return sizes
 
 
-def rof_denoise(stack, mu: float, iterations: int, device: str):
+def rof_denoise(stack, mu: float, iterations: int, device: str, width: int | None = None):
     """u = argmin Σ|∇u| + 1/(2μ) Σ(u − f)² of every image f of a (n, h, w) stack, by
     ``iterations`` steps of the accelerated primal–dual algorithm (Chambolle & Pock 2011,
     Alg. 2): the fidelity is 1/μ-strongly convex, so after each step τ shrinks and σ grows
@@ -201,24 +201,65 @@ def rof_denoise(stack, mu: float, iterations: int, device: str):
     converge as 1/N. Unconverged, the structure part blurs strong edges, and their halo
     in the texture part moves with the nearer surface: the foreground's disparity then
     spreads over the background (``weak_texture`` δ1 MSE 0.041 with 60 fixed steps,
-    0.014 with 60 accelerated ones, stereo at 320×240)."""
+    0.014 with 60 accelerated ones, stereo at 320×240).
+
+    ``width``: the images' width, where the stack's rows are longer (default: w). On the
+    CPU the steps take a row's pixels in groups of :data:`lfsf.kernels.rof.ROF_LANES`
+    (the same arithmetic per pixel), in rows of a multiple of it (:func:`_rof_rows`); the
+    lanes past ``width`` are left out of every stencil. A stack of other rows is copied
+    into such rows first (and u copied back). Returns u with the stack's shape."""
     from lfsf.kernels import rof
 
     wp = _device.warp()
     n, h, w = stack.shape
-    span, per_row = _device.row_span(device, w)
+    width = w if width is None else int(width)
+    lanes = str(device).startswith("cpu")
+    if lanes and w % rof.ROF_LANES:
+        if width != w:
+            raise ValueError(f"rof_denoise: rows of {w} values hold images {width} wide")
+        rows = wp.zeros((n, h, _rof_rows(w, device)), dtype=float, device=device)
+        _device.launch_rows(rof.pad_odd, dim=(n * h, w), inputs=[stack, 0], outputs=[rows], device=device)
+        u = rof_denoise(rows, mu, iterations, device, width=w)
+        return wp.array(np.ascontiguousarray(u.numpy()[..., :w]), dtype=float, device=device)
     u = wp.clone(stack)
     u_bar = wp.clone(stack)
-    p = wp.zeros((n, h, w), dtype=wp.vec2, device=device)
     tau = sigma = 1.0 / math.sqrt(8.0)
+    if lanes:
+        groups = w // rof.ROF_LANES
+
+        def as_lanes(a):
+            return wp.array(ptr=a.ptr, dtype=rof.rof_lane, shape=(n, h, groups), device=a.device, capacity=a.capacity)
+
+        f8, u8, ub8 = as_lanes(stack), as_lanes(u), as_lanes(u_bar)
+        px = wp.zeros((n, h, groups), dtype=rof.rof_lane, device=device)
+        py = wp.zeros((n, h, groups), dtype=rof.rof_lane, device=device)
+    else:
+        if width != w:
+            raise ValueError(f"rof_denoise on {device} takes whole rows (width {width}, rows of {w})")
+        span, per_row = _device.row_span(device, w)
+        p = wp.zeros((n, h, w), dtype=wp.vec2, device=device)
     for _ in range(iterations):
-        _device.launch_rows(rof.rof_dual_step, dim=(n * h, per_row), inputs=[u_bar, sigma, span], outputs=[p],
-                            device=device)
         relax = 1.0 / math.sqrt(1.0 + 2.0 * tau / mu)
-        _device.launch_rows(rof.rof_primal_step, dim=(n * h, per_row), inputs=[stack, p, tau, mu, relax, span],
-                            outputs=[u, u_bar], device=device)
+        if lanes:
+            _device.launch_rows(rof.rof_dual_lanes, dim=(n * h, 1), inputs=[ub8, width, sigma], outputs=[px, py],
+                                device=device)
+            _device.launch_rows(rof.rof_primal_lanes, dim=(n * h, 1), inputs=[f8, px, py, width, tau, mu, relax],
+                                outputs=[u8, ub8], device=device)
+        else:
+            _device.launch_rows(rof.rof_dual_step, dim=(n * h, per_row), inputs=[u_bar, sigma, span], outputs=[p],
+                                device=device)
+            _device.launch_rows(rof.rof_primal_step, dim=(n * h, per_row), inputs=[stack, p, tau, mu, relax, span],
+                                outputs=[u, u_bar], device=device)
         tau, sigma = relax * tau, sigma / relax
     return u
+
+
+def _rof_rows(width: int, device: str) -> int:
+    """The length of the rows that :func:`rof_denoise` takes images ``width`` wide in: a
+    multiple of :data:`lfsf.kernels.rof.ROF_LANES` on the CPU, ``width`` on CUDA."""
+    from lfsf.kernels import rof
+
+    return -(-width // rof.ROF_LANES) * rof.ROF_LANES if str(device).startswith("cpu") else width
 
 
 def _structure_texture(stack, params: Params, device: str):
@@ -231,12 +272,14 @@ def _structure_texture(stack, params: Params, device: str):
         return stack
     n, h, w = stack.shape
     pad = max(0, min(ROF_PAD, h - 1, w - 1))
+    hp, wp_ = h + 2 * pad, w + 2 * pad
+    rows = _rof_rows(wp_, device)
     padded = stack
-    if pad:
-        padded = wp.empty((n, h + 2 * pad, w + 2 * pad), dtype=float, device=device)
-        _device.launch_rows(rof.pad_odd, dim=(n * (h + 2 * pad), w + 2 * pad), inputs=[stack, pad], outputs=[padded],
-                            device=device)
-    u = rof_denoise(padded, params.rof_weight, params.rof_iterations, device)
+    if pad or rows != w:
+        # (zeros: the lanes past the padded width must hold numbers)
+        padded = (wp.zeros if rows != wp_ else wp.empty)((n, hp, rows), dtype=float, device=device)
+        _device.launch_rows(rof.pad_odd, dim=(n * hp, wp_), inputs=[stack, pad], outputs=[padded], device=device)
+    u = rof_denoise(padded, params.rof_weight, params.rof_iterations, device, width=wp_)
     del padded
     texture = wp.empty_like(stack)
     _device.launch_rows(rof.texture_part, dim=(n * h, w), inputs=[stack, u, params.texture_theta, pad],

@@ -147,6 +147,79 @@ def test_rof_primal_step_matches_reference(device, span, relax):
     close(ub_wp.numpy(), want_ub)
 
 
+def _rof_lanes(a: np.ndarray, rows: int) -> np.ndarray:
+    """(n, h, w) images in rows of ``rows`` values (zeros past w), as (n, h, rows / 8, 8)."""
+    n, h, w = a.shape
+    out = np.zeros((n, h, rows), np.float32)
+    out[..., :w] = a
+    return out.reshape(n, h, rows // 8, 8)
+
+
+@pytest.mark.parametrize("w, rows", [(9, 16), (16, 16), (5, 8)])  # lanes past the row's end, none, most
+def test_rof_lanes_steps_match_reference(device, w, rows):
+    """The ROF steps on groups of 8 pixels (the CPU's) against the reference, with rows
+    longer than the images: the lanes past the width take no part in any stencil."""
+    from lfsf.kernels import rof
+
+    assert rof.ROF_LANES == 8
+    r = rng(5)
+    n, h = 2, 7
+    u_bar = r.random((n, h, w)).astype(np.float32)
+    p = (r.standard_normal((n, h, w, 2)) * 0.6).astype(np.float32)
+    sigma = 0.9
+    lanes = (rows // 8, 8)
+    px = arr(_rof_lanes(p[..., 0], rows), rof.rof_lane, device)
+    py = arr(_rof_lanes(p[..., 1], rows), rof.rof_lane, device)
+    garbage = _rof_lanes(u_bar, rows)
+    garbage.reshape(n, h, rows)[..., w:] = 7.0  # whatever lies past the width is not read
+    launch(rof.rof_dual_lanes, (n * h, 1), [arr(garbage, rof.rof_lane, device), w, sigma], [px, py], device)
+    got = np.stack([px.numpy().reshape(n, h, rows)[..., :w], py.numpy().reshape(n, h, rows)[..., :w]], -1)
+    close(got, ref.rof_dual_step(u_bar, p, sigma))
+
+    f = r.random((n, h, w)).astype(np.float32)
+    u = r.random((n, h, w)).astype(np.float32)
+    p = (r.standard_normal((n, h, w, 2)) * 0.5).astype(np.float32)
+    tau, mu, relax = 0.3, 0.125, 0.4
+    px_np = _rof_lanes(p[..., 0], rows)
+    px_np.reshape(n, h, rows)[..., w:] = 5.0  # p past the width is not read either
+    u_wp = arr(_rof_lanes(u, rows), rof.rof_lane, device)
+    ub_wp = wp.zeros((n, h, *lanes[:1]), dtype=rof.rof_lane, device=device)
+    launch(rof.rof_primal_lanes, (n * h, 1), [arr(_rof_lanes(f, rows), rof.rof_lane, device),
+                                              arr(px_np, rof.rof_lane, device),
+                                              arr(_rof_lanes(p[..., 1], rows), rof.rof_lane, device), w, tau, mu,
+                                              relax], [u_wp, ub_wp], device)
+    want_u, want_ub = ref.rof_primal_step(f, p, u, tau, mu, relax)
+    close(u_wp.numpy().reshape(n, h, rows)[..., :w], want_u)
+    close(ub_wp.numpy().reshape(n, h, rows)[..., :w], want_ub)
+
+
+def test_rof_denoise_is_the_same_on_groups_of_pixels():
+    """The estimator's ROF on the CPU (groups of 8 pixels a step, rows padded to a multiple
+    of 8) gives the same structure part, bit for bit, as the one-pixel steps (CUDA's)."""
+    from lfsf import estimate
+    from lfsf.kernels import rof
+
+    r = rng(6)
+    n, h, w = 3, 11, 21
+    f = r.random((n, h, w)).astype(np.float32)
+    rows = estimate._rof_rows(w, "cpu")
+    assert rows == 24
+    u = estimate.rof_denoise(arr(_rof_lanes(f, rows).reshape(n, h, rows), float, "cpu"), 0.1, 12, "cpu", width=w)
+    # the one-pixel steps, as on CUDA
+    u1, ub1 = arr(f, float, "cpu"), arr(f, float, "cpu")
+    p = wp.zeros((n, h, w), dtype=wp.vec2, device="cpu")
+    tau = sigma = 1.0 / np.sqrt(8.0)
+    for _ in range(12):
+        relax = 1.0 / np.sqrt(1.0 + 2.0 * tau / 0.1)
+        launch(rof.rof_dual_step, (n * h, w), [ub1, float(sigma), 1], [p], "cpu")
+        launch(rof.rof_primal_step, (n * h, w), [arr(f, float, "cpu"), p, float(tau), 0.1, float(relax), 1],
+               [u1, ub1], "cpu")
+        tau, sigma = relax * tau, sigma / relax
+    np.testing.assert_array_equal(u.numpy()[..., :w], u1.numpy())
+    # a stack of rows 21 long is copied into rows of 24 and back
+    np.testing.assert_array_equal(estimate.rof_denoise(arr(f, float, "cpu"), 0.1, 12, "cpu").numpy(), u1.numpy())
+
+
 def test_texture_part_matches_reference(device):
     from lfsf.kernels import rof
 
