@@ -165,7 +165,8 @@ def data_coefficients(
     q: wp.array3d(dtype=float),
 ):
     """Coefficients A1…A9 and dual steps σ̃1…σ̃3 of every sample at the linearisation
-    point x̂ (``coef[i, j, s]``; σ̃ divided by the step ratio c), and the column sums
+    point x̂ (``coef``, lane storage: the values of sample s at pixel (i, j) at ``coef[i, j //
+    L, (12 s + k) L + j % L]``, k = 0 … 11; σ̃ divided by the step ratio c), and the column sums
     Σ|K| of the data rows for each unknown (the data part of the preconditioner τ), ``coef``
     and ``q`` in lane storage of ``lanes`` pixels a group (module docstring). The
     scaled duals q̃ of the rows left out are set to 0 (the others kept):
@@ -342,7 +343,8 @@ def _dual_data_kernel(lanes: int):
         the diagonal preconditioner; then ``data_grad`` = Σ_s Kᵀ q for (δ1, δ2, u, v). This
         is q_k ← clip(q_k + σ_k w_k ρ_k, −1, 1) of the unscaled duals, without a division.
         Rows left out (w_k = 0) must have q̃_k = 0, as :func:`data_coefficients` leaves them:
-        the clip is to ±λ_k, and σ̃_k = 0 keeps them at 0.
+        the clip is to ±λ_k, and σ̃_k = 0 keeps them at 0. The clip is vector min/max: a
+        NaN (which no valid input leads to) becomes −λ_k rather than passing through.
 
         ``coef`` and ``q`` are the lane storage (module docstring) seen as L-vectors, (rows,
         groups, 12 S) and (rows, groups, 3 S): every operation acts on the L pixels of a

@@ -206,20 +206,21 @@ def rof_denoise(stack, mu: float, iterations: int, device: str, width: int | Non
     ``width``: the images' width, where the stack's rows are longer (default: w). On the
     CPU the steps take a row's pixels in groups of :data:`lfsf.kernels.rof.ROF_LANES`
     (the same arithmetic per pixel), in rows of a multiple of it (:func:`_rof_rows`); the
-    lanes past ``width`` are left out of every stencil. A stack of other rows is copied
-    into such rows first (and u copied back). Returns u with the stack's shape."""
+    lanes past ``width`` are left out of every stencil. A stack of other rows, or one
+    that is not a contiguous float32 array (the steps read it as vectors of 8), is
+    copied into such rows first (and u copied back). Returns u with the stack's shape."""
     from lfsf.kernels import rof
 
     wp = _device.warp()
     n, h, w = stack.shape
     width = w if width is None else int(width)
+    if not 1 <= width <= w:
+        raise ValueError(f"rof_denoise: images {width} wide in rows of {w} values")
     lanes = str(device).startswith("cpu")
-    if lanes and w % rof.ROF_LANES:
-        if width != w:
-            raise ValueError(f"rof_denoise: rows of {w} values hold images {width} wide")
+    if lanes and (w % rof.ROF_LANES or not stack.is_contiguous or stack.dtype != wp.float32):
         rows = wp.zeros((n, h, _rof_rows(w, device)), dtype=float, device=device)
         _device.launch_rows(rof.pad_odd, dim=(n * h, w), inputs=[stack, 0], outputs=[rows], device=device)
-        u = rof_denoise(rows, mu, iterations, device, width=w)
+        u = rof_denoise(rows, mu, iterations, device, width=width)
         return wp.array(np.ascontiguousarray(u.numpy()[..., :w]), dtype=float, device=device)
     u = wp.clone(stack)
     u_bar = wp.clone(stack)
@@ -228,7 +229,9 @@ def rof_denoise(stack, mu: float, iterations: int, device: str, width: int | Non
         groups = w // rof.ROF_LANES
 
         def as_lanes(a):
-            return wp.array(ptr=a.ptr, dtype=rof.rof_lane, shape=(n, h, groups), device=a.device, capacity=a.capacity)
+            view = wp.array(ptr=a.ptr, dtype=rof.rof_lane, shape=(n, h, groups), device=a.device, capacity=a.capacity)
+            view._ref = a  # (the view does not own the memory)
+            return view
 
         f8, u8, ub8 = as_lanes(stack), as_lanes(u), as_lanes(u_bar)
         px = wp.zeros((n, h, groups), dtype=rof.rof_lane, device=device)
@@ -276,7 +279,7 @@ def _structure_texture(stack, params: Params, device: str):
     rows = _rof_rows(wp_, device)
     padded = stack
     if pad or rows != w:
-        # (zeros: the lanes past the padded width must hold numbers)
+        # (zeros past the padded width: no stencil reads them, but no garbage either)
         padded = (wp.zeros if rows != wp_ else wp.empty)((n, hp, rows), dtype=float, device=device)
         _device.launch_rows(rof.pad_odd, dim=(n * hp, wp_), inputs=[stack, pad], outputs=[padded], device=device)
     u = rof_denoise(padded, params.rof_weight, params.rof_iterations, device, width=wp_)

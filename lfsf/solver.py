@@ -389,9 +389,11 @@ def lane_storage(h: int, w: int, n: int, values: int, lanes: int, device: str):
     """Lane storage (:mod:`lfsf.kernels.data_term`) of ``values`` floats per sample for n
     samples of an (h, w) level: the float array (h, ⌈w / L⌉, n · values · L) and the
     same memory as vectors of L (h, ⌈w / L⌉, n · values). Keep the first alive while the
-    second is used: the second does not own its memory. Uninitialised where every lane
-    holds a pixel (the kernels write every pixel's values); zeroed where lanes run past
-    the row's end (zeroing 300 MB at 640×480 took a noticeable part of a second)."""
+    second is used: the second holds a reference to the first (``_ref``, as Warp's own
+    views do). Uninitialised where every lane holds a pixel (``data_coefficients``
+    writes every pixel's coefficients, ``set_state`` zeroes the duals); zeroed where
+    lanes run past the row's end, which no kernel writes (zeroing 300 MB at 640×480
+    took 1.3 s of the solvers' set-up)."""
     from lfsf.kernels import data_term
 
     wp = _device.warp()
@@ -400,6 +402,7 @@ def lane_storage(h: int, w: int, n: int, values: int, lanes: int, device: str):
     store = alloc((h, groups, n * values * lanes), dtype=float, device=device)
     view = wp.array(ptr=store.ptr, dtype=data_term.lane_type(lanes), shape=(h, groups, n * values), device=device,
                     capacity=store.capacity)
+    view._ref = store  # the view does not own the memory: keep its owner alive with it
     return store, view
 
 
@@ -407,7 +410,8 @@ def from_lanes(a: np.ndarray, w: int, lanes: int, values: int) -> np.ndarray:
     """Lane storage (h, groups, n · values · L) as (h, w, n, values)."""
     h, groups, size = a.shape
     n = size // (values * lanes)
-    return a.reshape(h, groups, n, values, lanes).transpose(0, 1, 4, 2, 3).reshape(h, groups * lanes, n, values)[:, :w]
+    return np.ascontiguousarray(
+        a.reshape(h, groups, n, values, lanes).transpose(0, 1, 4, 2, 3).reshape(h, groups * lanes, n, values)[:, :w])
 
 
 def to_lanes(a: np.ndarray, lanes: int) -> np.ndarray:

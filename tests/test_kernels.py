@@ -218,6 +218,15 @@ def test_rof_denoise_is_the_same_on_groups_of_pixels():
     np.testing.assert_array_equal(u.numpy()[..., :w], u1.numpy())
     # a stack of rows 21 long is copied into rows of 24 and back
     np.testing.assert_array_equal(estimate.rof_denoise(arr(f, float, "cpu"), 0.1, 12, "cpu").numpy(), u1.numpy())
+    # … and so is one that is not contiguous, even with rows of a multiple of 8
+    wide = np.zeros((n, h, 2 * rows), np.float32)
+    wide[..., :w] = f
+    part = arr(wide, float, "cpu")[:, :, :rows]
+    assert not part.is_contiguous
+    got = estimate.rof_denoise(part, 0.1, 12, "cpu", width=w).numpy()
+    np.testing.assert_array_equal(got[..., :w], u1.numpy())
+    with pytest.raises(ValueError, match="wide"):
+        estimate.rof_denoise(arr(_rof_lanes(f, rows).reshape(n, h, rows), float, "cpu"), 0.1, 1, "cpu", width=rows + 1)
 
 
 def test_texture_part_matches_reference(device):
@@ -929,6 +938,22 @@ def _lane_buffer(values: np.ndarray, device, lanes: int):
     store, view = lane_storage(h, w, n, k, lanes, device)
     store.assign(to_lanes(values, lanes))
     return store, view
+
+
+def test_lane_storage_views_keep_their_memory_alive():
+    """The vector view of the data term's lane storage outlives the float array it was
+    made from (the solver's recorded launches hold only views)."""
+    import gc
+
+    from lfsf.solver import from_lanes, lane_storage, to_lanes
+
+    store, view = lane_storage(3, 10, 2, 3, 8, "cpu")
+    values = rng(7).standard_normal((3, 10, 2, 3)).astype(np.float32)
+    store.assign(to_lanes(values, 8))
+    del store
+    gc.collect()
+    _junk = [np.ones(1 << 16) for _ in range(64)]  # reuse freed memory, were it freed
+    np.testing.assert_array_equal(from_lanes(view.numpy().reshape(3, 2, -1), 10, 8, 3), values)
 
 
 # a pixel per thread (CUDA), a row of single pixels, groups of 8 pixels one or two a thread,
