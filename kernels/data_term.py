@@ -10,13 +10,16 @@ W1 = L(p − δ̂1 φ, φ, t1), W2 = L(p + û − δ̂2 φ, φ, t2) and J2 = L(p
 with Δx = x − x̂. The unknowns are packed per pixel as vec4 (δ1, δ2, u, v), or as vec2
 (u, v) for flow only (:data:`lfsf.kernels.common.UNKNOWNS`). Each sample's
 coefficients are the twelve values (A1 … A9, σ̃1, σ̃2, σ̃3), and its scaled duals three.
-Both are stored in *lanes*: a row's pixels in groups of L consecutive ones (L =
-:data:`DATA_LANES` on the CPU, 1 on CUDA), and for each group, sample and value the L
-pixels' values side by side, ``coef[i, j // L, (12 s + k) L + j % L]`` (a float array, as
-:func:`data_coefficients` writes it; the same memory as L-vectors ``[i, j // L, 12 s + k]``,
-as :data:`dual_data_step` reads it). With L = 1 this is pixel-major: what one pixel's
-iteration reads is contiguous. With L = 8 the iteration works on 8 pixels at once in
-vector registers. The row weight w_k is λ_k (divided
+A8 and A9 are ∇J2 − (A5, A6), with ∇J2 the pixel's own (the same for every sample), so
+ten values a sample are stored, (A1 … A7, σ̃1, σ̃2, σ̃3), and ∇J2 once a pixel; A8 and A9
+are rebuilt from them, bit for bit (one float subtraction either way). They are stored
+in *lanes*: a row's pixels in groups of L consecutive ones (L = :data:`DATA_LANES` on
+the CPU, 1 on CUDA), and for each group, sample and value the L pixels' values side by
+side, ``coef[i, j // L, (10 s + k) L + j % L]`` (a float array, as
+:func:`data_coefficients` writes it; the same memory as L-vectors ``[i, j // L, 10 s + k]``,
+as :data:`dual_data_step` reads it), and ∇J2 as ``grad_j2[i, j // L, k L + j % L]``, k =
+0, 1. With L = 1 this is pixel-major: what one pixel's iteration reads is contiguous.
+With L = 8 the iteration works on 8 pixels at once in vector registers. The row weight w_k is λ_k (divided
 by the sample count) or 0 where the row is left out (a warped position leaves the image,
 an occlusion); σ̃_k = w_k² / ((w_k Σ|row k| + ε) c) is the dual step of the scaled dual
 q̃_k = w_k q_k ∈ [−w_k, w_k] (c: the step ratio, :class:`lfsf.Params` ``step_ratio``),
@@ -38,9 +41,13 @@ vec12 = wp.types.vector(length=12, dtype=wp.float32)
 #: pixel at a time (640×480, 17 samples, medians of 8 rounds; bit-identical results).
 #: CUDA takes 1 (a thread per pixel).
 DATA_LANES = 8
-#: Values stored per sample: the coefficients (A1 … A9, σ̃1 … σ̃3) and the scaled duals.
-COEFFICIENTS = 12
+#: Values stored per sample: the coefficients (A1 … A7, σ̃1 … σ̃3; A8, A9 rebuilt from
+#: ∇J2, stored once a pixel) and the scaled duals. Ten instead of twelve: the dual step,
+#: bound by memory since it runs 8 pixels at once, 0.89× the time (medians of 8 rounds).
+COEFFICIENTS = 10
 DUALS = 3
+#: The stored values' places in the twelve (A1 … A9, σ̃1 … σ̃3): all but A8 and A9 (7, 8).
+STORED = wp.constant(wp.types.vector(length=10, dtype=wp.int32)(0, 1, 2, 3, 4, 5, 6, 9, 10, 11))
 #: An occlusion must also raise the mean residual by this much (intensities in [0, 1]):
 #: in weak texture, ratios of tiny residuals are noise.
 OCCLUSION_FLOOR = wp.constant(0.01)
@@ -115,22 +122,27 @@ def row_steps(c: vec12, lam: wp.vec3, in_1: bool, in_2: bool, in_j: bool, eps: f
 
 
 @wp.func
-def load_coefficients(coef: wp.array3d(dtype=float), i: int, g: int, lane: int, lanes: int, s: int):
-    """The twelve stored values of sample s at the pixel in lane ``lane`` of group g of
-    row i (column g · L + lane; lane storage, module docstring)."""
+def load_coefficients(coef: wp.array3d(dtype=float), grad_j2: wp.array3d(dtype=float), i: int, g: int, lane: int,
+                      lanes: int, s: int):
+    """The twelve values of sample s at the pixel in lane ``lane`` of group g of row i
+    (column g · L + lane; lane storage, module docstring): the ten stored, and A8, A9 =
+    ∇J2 − (A5, A6)."""
     at = COEFFICIENTS * s * lanes + lane
     c = vec12()
     for k in range(COEFFICIENTS):
-        c[k] = coef[i, g, at + k * lanes]
+        c[STORED[k]] = coef[i, g, at + k * lanes]
+    c[7] = grad_j2[i, g, lane] - c[4]
+    c[8] = grad_j2[i, g, lanes + lane] - c[5]
     return c
 
 
 @wp.func
 def store_coefficients(coef: wp.array3d(dtype=float), i: int, g: int, lane: int, lanes: int, s: int, c: vec12):
-    """Store the twelve values of sample s at that pixel."""
+    """Store the ten values of sample s at that pixel that are not rebuilt (all but A8,
+    A9)."""
     at = COEFFICIENTS * s * lanes + lane
     for k in range(COEFFICIENTS):
-        coef[i, g, at + k * lanes] = c[k]
+        coef[i, g, at + k * lanes] = c[STORED[k]]
 
 
 @wp.func
@@ -161,14 +173,16 @@ def data_coefficients(
     lanes: int,
     # outputs
     coef: wp.array3d(dtype=float),
+    grad_j2: wp.array3d(dtype=float),
     data_colsum: wp.array2d(dtype=Any),
     q: wp.array3d(dtype=float),
 ):
     """Coefficients A1…A9 and dual steps σ̃1…σ̃3 of every sample at the linearisation
     point x̂ (``coef``, lane storage: the values of sample s at pixel (i, j) at ``coef[i, j //
     L, (12 s + k) L + j % L]``, k = 0 … 11; σ̃ divided by the step ratio c), and the column sums
-    Σ|K| of the data rows for each unknown (the data part of the preconditioner τ), ``coef``
-    and ``q`` in lane storage of ``lanes`` pixels a group (module docstring). The
+    Σ|K| of the data rows for each unknown (the data part of the preconditioner τ), ``coef``,
+    ``grad_j2`` (∇J2) and ``q`` in lane storage of ``lanes`` pixels a group (module
+    docstring). The
     scaled duals q̃ of the rows left out are set to 0 (the others kept):
     :func:`dual_data_step` then needs no row flags, since a row with σ̃ = 0 and q̃ = 0
     stays at 0.
@@ -212,6 +226,8 @@ def data_coefficients(
     yj = py + xh[3]
     centre2 = samples2[0]
     j2, gj = bilinear_with_gradient(centre2, xj, yj)
+    grad_j2[i, g, lane] = gj[0]
+    grad_j2[i, g, lanes + lane] = gj[1]
     in_j0 = inside(centre2, xj, yj)
     hidden = hidden2[i, j] > 0.5
     sums1 = vec8()
@@ -300,8 +316,8 @@ def data_coefficients(
                 seen2 = keeps(half2, normal2, phi)
             in_1 = inside(samples1[s], x1, y1) and seen1
             in_2 = inside(samples2[s], x2, y2) and seen2 and (s > 0 or in_j) and not hidden
-            c, wt, part = row_steps(load_coefficients(coef, i, g, lane, lanes, s), weights[s], in_1, in_2, in_j,
-                                    eps, step_ratio)
+            c, wt, part = row_steps(load_coefficients(coef, grad_j2, i, g, lane, lanes, s), weights[s], in_1, in_2,
+                                    in_j, eps, step_ratio)
             store_coefficients(coef, i, g, lane, lanes, s, c)
             keep_duals(q, i, g, lane, lanes, s, wt)
             colsum += part
@@ -329,6 +345,7 @@ def _dual_data_kernel(lanes: int):
         row0: int,
         coef: wp.array3d(dtype=row),
         weights: wp.array(dtype=wp.vec3),
+        grad_j2: wp.array3d(dtype=row),
         x_bar: wp.array2d(dtype=Any),
         x_hat: wp.array2d(dtype=Any),
         groups: int,
@@ -346,8 +363,9 @@ def _dual_data_kernel(lanes: int):
         the clip is to ±λ_k, and σ̃_k = 0 keeps them at 0. The clip is vector min/max: a
         NaN (which no valid input leads to) becomes −λ_k rather than passing through.
 
-        ``coef`` and ``q`` are the lane storage (module docstring) seen as L-vectors, (rows,
-        groups, 12 S) and (rows, groups, 3 S): every operation acts on the L pixels of a
+        ``coef``, ``grad_j2`` and ``q`` are the lane storage (module docstring) seen as
+        L-vectors, (rows, groups, 10 S), (rows, groups, 2) and (rows, groups, 3 S); A8, A9 =
+        ∇J2 − (A5, A6) are rebuilt per sample. Every operation acts on the L pixels of a
         group at once, each pixel's arithmetic the same as alone. Launch over (rows,
         ⌈groups per row / ``groups``⌉): each thread walks ``groups`` groups of a row."""
         i, c0 = wp.tid()
@@ -369,6 +387,8 @@ def _dual_data_kernel(lanes: int):
                 d1[k] = d[1]
                 d2[k] = d[2]
                 d3[k] = d[3]
+            gjx = grad_j2[i, g, 0]
+            gjy = grad_j2[i, g, 1]
             s0 = row()
             s1 = row()
             s2 = row()
@@ -379,8 +399,8 @@ def _dual_data_kernel(lanes: int):
                 a3 = coef[i, g, b + 2]
                 a5 = coef[i, g, b + 4]
                 a6 = coef[i, g, b + 5]
-                a8 = coef[i, g, b + 7]
-                a9 = coef[i, g, b + 8]
+                a8 = gjx - a5
+                a9 = gjy - a6
                 rho1 = coef[i, g, b + 1] - wp.cw_mul(a1, d0)
                 rho2 = coef[i, g, b + 3] - wp.cw_mul(a3, d1) + wp.cw_mul(a8, d2) + wp.cw_mul(a9, d3)
                 rho3 = coef[i, g, b + 6] + wp.cw_mul(a1, d0) - wp.cw_mul(a3, d1) - wp.cw_mul(a5, d2) - wp.cw_mul(a6, d3)
@@ -391,9 +411,9 @@ def _dual_data_kernel(lanes: int):
                 top2 = row(lam[1])
                 top3 = row(lam[2])
                 e = DUALS * s
-                q1 = wp.min(wp.max(q[i, g, e] + wp.cw_mul(coef[i, g, b + 9], rho1), -top1), top1)
-                q2 = wp.min(wp.max(q[i, g, e + 1] + wp.cw_mul(coef[i, g, b + 10], rho2), -top2), top2)
-                q3 = wp.min(wp.max(q[i, g, e + 2] + wp.cw_mul(coef[i, g, b + 11], rho3), -top3), top3)
+                q1 = wp.min(wp.max(q[i, g, e] + wp.cw_mul(coef[i, g, b + 7], rho1), -top1), top1)
+                q2 = wp.min(wp.max(q[i, g, e + 1] + wp.cw_mul(coef[i, g, b + 8], rho2), -top2), top2)
+                q3 = wp.min(wp.max(q[i, g, e + 2] + wp.cw_mul(coef[i, g, b + 9], rho3), -top3), top3)
                 q[i, g, e] = q1
                 q[i, g, e + 1] = q2
                 q[i, g, e + 2] = q3

@@ -169,6 +169,8 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
     lanes = data_term.data_lanes(dev)
     coef_store, coef = lane_storage(h, w, s, data_term.COEFFICIENTS, lanes, dev)
     q_store, q = lane_storage(h, w, s, data_term.DUALS, lanes, dev)
+    grad_j2_store, grad_j2 = lane_storage(h, w, 1, 2, lanes, dev)
+    grad_j2_store.zero_()
     coef_store.zero_()  # (uninitialised where the lanes fill the rows; data_coefficients writes them too)
     q_store.zero_()
     groups, group_threads = _device.row_span(dev, coef.shape[1])
@@ -196,16 +198,16 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
                                              dim=(s * h, per_row)),
          f * h * w * s * 5),
         # reads both sample stacks, x̂, the hidden mask and a value of each view z-buffer per sample; writes
-        # 12 coefficients per sample and the column sums; reads and writes q (the duals of rows left out are
-        # zeroed)
+        # 10 coefficients per sample, ∇J2 (2) and the column sums; reads and writes q (the duals of rows left
+        # out are zeroed)
         ("data_coefficients", launch(data_term.data_coefficients,
                                      [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros, 1e-6, 1.0, zbuf1, zbuf2,
-                                      0.25, 1, lanes], [coef_store, colsum, q_store]),
-         f * h * w * (2 * s + 4 + 1 + 2 * s + 12 * s + 4 + 6 * s)),
-        # reads the coefficients, x̄, x̂ and q; writes q and Kᵀq (the S weights stay in cache)
-        ("dual_data_step", launch(data_term.dual_data_kernel(lanes), [coef, weights, x_bar, x_hat, groups],
+                                      0.25, 1, lanes], [coef_store, grad_j2_store, colsum, q_store]),
+         f * h * w * (2 * s + 4 + 1 + 2 * s + data_term.COEFFICIENTS * s + 2 + 4 + 6 * s)),
+        # reads the coefficients, ∇J2 (2), x̄, x̂ and q; writes q and Kᵀq (the S weights stay in cache)
+        ("dual_data_step", launch(data_term.dual_data_kernel(lanes), [coef, weights, grad_j2, x_bar, x_hat, groups],
                                   [q, data_grad], dim=(h, group_threads)),
-         f * h * w * (12 * s + 4 + 4 + 3 * s + 3 * s + 4)),
+         f * h * w * (data_term.COEFFICIENTS * s + 2 + 4 + 4 + 3 * s + 3 * s + 4)),
         # reads x̄, w̄ (8), three tensors (9), σ_y (4) and the six duals (24); writes the duals (24)
         ("tgv_dual_step", launch(tgv.tgv_dual_step, [x_bar, w0_bar, w1_bar, t1, t2, t3, sigma_y, 0.25, 2.0, 0.5,
                                                      span], [y0, y1, z00, z01, z10, z11], dim=(h, per_row)),

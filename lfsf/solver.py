@@ -88,6 +88,7 @@ class LevelSolver:
         # as vectors of ``lanes``), and Kᵀq
         self.lanes = data_term.data_lanes(device)
         self.coef_store, self.coef = lane_storage(h, w, n, data_term.COEFFICIENTS, self.lanes, device)
+        self.grad_j2_store, self.grad_j2 = lane_storage(h, w, 1, 2, self.lanes, device)  # ∇J2 (A8, A9 from it)
         self.q_store, self.q = lane_storage(h, w, n, data_term.DUALS, self.lanes, device)  # zeroed by set_state
         # (the coefficients are written by linearise, the duals zeroed by set_state)
         self.data_colsum = zeros4()
@@ -178,7 +179,7 @@ class LevelSolver:
                      inputs=[self.samples1, self.samples2, self.phis, self.weights, self.x_hat, p.occlusion_ratio,
                              self.hidden2, p.eps, p.step_ratio, self.view_zbuf1, self.view_zbuf2,
                              self.view_margin(), use_zbuf, self.lanes],
-                     outputs=[self.coef_store, self.data_colsum, self.q_store])
+                     outputs=[self.coef_store, self.grad_j2_store, self.data_colsum, self.q_store])
         self._launch(tgv.tgv_preconditioner,
                      inputs=[self.data_colsum, self.tensor1, self.tensor2, self.tensor3, p.alpha0, p.alpha1, p.eps,
                              p.step_ratio],
@@ -317,7 +318,7 @@ class LevelSolver:
         groups, per_row = _device.row_span(self.device, self.coef.shape[1])  # groups of lanes per thread
         return [
             record(data_term.dual_data_kernel(self.lanes),
-                   inputs=[self.coef, self.weights, self.x_bar, self.x_hat, groups],
+                   inputs=[self.coef, self.weights, self.grad_j2, self.x_bar, self.x_hat, groups],
                    outputs=[self.q, self.data_grad], dim=(self.shape[0], per_row)),
             record(tgv.tgv_dual_step,
                    inputs=[self.x_bar, self.w0_bar, self.w1_bar, self.tensor1, self.tensor2, self.tensor3,
@@ -355,7 +356,9 @@ class LevelSolver:
         """The linearised data rows as NumPy arrays, sample-major: A1…A9 as (9, S, h, w)
         and the row weights w1…w3 as (3, S, h, w) (λ_k of the sample where the row is in,
         else 0). For tests and diagnostics, not the hot path."""
-        c = from_lanes(self.coef_store.numpy(), self.shape[1], self.lanes, 12).astype(np.float64)  # (h, w, S, 12)
+        c = unpack_coefficients(from_lanes(self.coef_store.numpy(), self.shape[1], self.lanes, 10),
+                                from_lanes(self.grad_j2_store.numpy(), self.shape[1], self.lanes, 2)[:, :, 0])
+        c = c.astype(np.float64)  # (h, w, S, 12)
         a = np.moveaxis(c[..., :9], (3, 2), (0, 1))
         lam = self.weights.numpy().astype(np.float64)  # (S, 3)
         on = np.moveaxis(c[..., 9:] > 0, (3, 2), (0, 1))
@@ -412,6 +415,32 @@ def from_lanes(a: np.ndarray, w: int, lanes: int, values: int) -> np.ndarray:
     n = size // (values * lanes)
     return np.ascontiguousarray(
         a.reshape(h, groups, n, values, lanes).transpose(0, 1, 4, 2, 3).reshape(h, groups * lanes, n, values)[:, :w])
+
+
+#: The places of the stored ten values in the twelve coefficients (A1 … A9, σ̃1 … σ̃3):
+#: all but A8 and A9 (lfsf.kernels.data_term.STORED).
+STORED = (0, 1, 2, 3, 4, 5, 6, 9, 10, 11)
+
+
+def unpack_coefficients(stored: np.ndarray, grad_j2: np.ndarray) -> np.ndarray:
+    """The twelve coefficients (…, S, 12) from the ten stored (…, S, 10) and ∇J2 (…, 2)
+    of each pixel, A8, A9 = ∇J2 − (A5, A6) in float32 as the kernels rebuild them."""
+    stored = np.asarray(stored, np.float32)
+    out = np.zeros(stored.shape[:-1] + (12,), np.float32)
+    out[..., STORED] = stored
+    g = np.asarray(grad_j2, np.float32)[..., None, :]
+    out[..., 7] = g[..., 0] - stored[..., 4]
+    out[..., 8] = g[..., 1] - stored[..., 5]
+    return out
+
+
+def pack_coefficients(coef: np.ndarray, grad_j2: np.ndarray) -> np.ndarray:
+    """The ten stored values (…, S, 10) of twelve coefficients (…, S, 12) whose A8, A9
+    are ∇J2 − (A5, A6) (checked, in float32)."""
+    coef = np.asarray(coef, np.float32)
+    if not np.array_equal(unpack_coefficients(coef[..., STORED], grad_j2), coef):
+        raise ValueError("A8, A9 are not ∇J2 − (A5, A6)")
+    return np.ascontiguousarray(coef[..., STORED])
 
 
 def to_lanes(a: np.ndarray, lanes: int) -> np.ndarray:

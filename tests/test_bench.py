@@ -25,13 +25,13 @@ def test_time_repeated_warms_up_then_times_each_run():
 
 
 def test_kernel_cases_count_the_bytes_of_their_arrays():
-    """The bytes a data-term step must move: coefficients (12 floats per sample), q read
-    and written (3 + 3), x̄, x̂ and Kᵀq (4 each) per pixel; a TGV dual step's: x̄, w̄ (12),
+    """The bytes a data-term step must move: coefficients (10 floats per sample), q read
+    and written (3 + 3), ∇J2 (2), x̄, x̂ and Kᵀq (4 each) per pixel; a TGV dual step's: x̄, w̄ (12),
     three tensors (9), σ_y (4), the six duals read and written (24 + 24)."""
     cases = {name: nbytes for name, _run, nbytes in bench.kernel_cases((20, 10), "cpu")}  # 17 samples
     assert set(cases) == {"sample_subaperture", "data_coefficients", "dual_data_step", "tgv_dual_step",
                           "tgv_primal_step"}
-    assert cases["dual_data_step"] == 4 * 200 * (12 * 17 + 6 * 17 + 12)
+    assert cases["dual_data_step"] == 4 * 200 * (10 * 17 + 6 * 17 + 2 + 12)
     assert cases["tgv_dual_step"] == 4 * 200 * 73
 
 

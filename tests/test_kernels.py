@@ -409,11 +409,12 @@ def _run_data_coefficients_raw(samples1, samples2, phis, weights, x_hat, device,
     hidden2 = np.zeros((h, w), np.float32) if hidden2 is None else hidden2
     no_zbuf = np.zeros((1, 1, 1), np.float32)
     z1, z2 = (no_zbuf, no_zbuf) if zbufs is None else zbufs
-    from lfsf.solver import from_lanes
+    from lfsf.solver import from_lanes, unpack_coefficients
 
     results = []
     for lanes in (data_term.data_lanes(device), 1):  # the device's storage, and a pixel's values together
         coef, _ = _lane_buffer(np.zeros((h, w, s, data_term.COEFFICIENTS), np.float32), device, lanes)
+        grad_j2, _ = _lane_buffer(np.zeros((h, w, 1, 2), np.float32), device, lanes)
         colsum = wp.zeros((h, w), dtype=wp.vec4, device=device)
         q_before = rng(99).uniform(-1.0, 1.0, (h, w, s, 3)).astype(np.float32)  # the duals of the last warp
         q, _ = _lane_buffer(q_before, device, lanes)
@@ -422,8 +423,10 @@ def _run_data_coefficients_raw(samples1, samples2, phis, weights, x_hat, device,
                 arr(weights, wp.vec3, device), arr(x_hat, wp.vec4, device), float(occlusion_ratio),
                 arr(hidden2, float, device), DATA_EPS, 1.0, arr(z1, float, device), arr(z2, float, device),
                 VIEW_MARGIN, 0 if zbufs is None else 1, lanes],
-               [coef, colsum, q], device)
-        got = from_lanes(coef.numpy(), w, lanes, data_term.COEFFICIENTS)  # (h, w, S, 12)
+               [coef, grad_j2, colsum, q], device)
+        # (h, w, S, 12): the ten stored, A8 and A9 rebuilt from ∇J2 as the kernels do
+        got = unpack_coefficients(from_lanes(coef.numpy(), w, lanes, data_term.COEFFICIENTS),
+                                  from_lanes(grad_j2.numpy(), w, lanes, 2)[:, :, 0])
         # the duals of rows left out are zeroed, the others kept as they were
         np.testing.assert_array_equal(from_lanes(q.numpy(), w, lanes, 3), np.where(got[..., 9:] > 0, q_before, 0.0))
         results.append((got, colsum.numpy()))
@@ -964,27 +967,31 @@ def test_dual_data_step_matches_reference(device, lanes, groups, unknowns):
     """The kernel's scaled duals q̃ = w q against the reference's q, and Kᵀq. On vec2
     (flow only) δ1, δ2 are 0 and Kᵀq has the flow's components."""
     from lfsf.kernels import data_term
-    from lfsf.solver import from_lanes
+    from lfsf.solver import from_lanes, pack_coefficients
 
     r = rng(11)
     s, h, w = 3, 7, 9
-    A = r.standard_normal((9, s, h, w))
+    A = r.standard_normal((9, s, h, w)).astype(np.float32)
+    grad_j2 = r.standard_normal((h, w, 2)).astype(np.float32)  # ∇J2: A8, A9 = ∇J2 − (A5, A6), as stored
+    A[7] = grad_j2[None, :, :, 0] - A[4]
+    A[8] = grad_j2[None, :, :, 1] - A[5]
     lam = r.uniform(0.2, 1.5, (s, 3)).astype(np.float32)  # λ_k of each sample
     W = lam.T[:, :, None, None] * (r.random((3, s, h, w)) > 0.2)
-    A = A.astype(np.float32).astype(np.float64)  # the float32 values the kernel sees
+    A = A.astype(np.float64)  # the float32 values the kernel sees
     W = W.astype(np.float32).astype(np.float64)
     sigma = _dual_steps(A, W)
-    coef = np.concatenate([A, sigma]).transpose(2, 3, 1, 0).astype(np.float32)  # (h, w, S, 12)
+    coef = pack_coefficients(np.concatenate([A, sigma]).transpose(2, 3, 1, 0).astype(np.float32), grad_j2)
     x_bar = r.standard_normal((h, w, 4)).astype(np.float32)
     x_hat = r.standard_normal((h, w, 4)).astype(np.float32)
     if unknowns == "vec2":
         x_bar[..., :2] = x_hat[..., :2] = 0.0
     q = r.uniform(-1, 1, (3, s, h, w))
     _, coef_wp = _lane_buffer(coef, device, lanes)
+    _, grad_j2_wp = _lane_buffer(grad_j2[:, :, None, :], device, lanes)
     q_store, q_wp = _lane_buffer((W * q).transpose(2, 3, 1, 0).astype(np.float32), device, lanes)
     grad_wp = unknowns_zeros((h, w), unknowns, device)
     launch(data_term.dual_data_kernel(lanes), (h, -(-coef_wp.shape[1] // groups)),
-           [coef_wp, arr(lam, wp.vec3, device), unknowns_arr(x_bar, unknowns, device),
+           [coef_wp, arr(lam, wp.vec3, device), grad_j2_wp, unknowns_arr(x_bar, unknowns, device),
             unknowns_arr(x_hat, unknowns, device), groups],
            [q_wp, grad_wp], device)
     want_q, want_grad = ref.dual_data_step(A, W, q, x_bar, x_hat, DATA_EPS)
