@@ -212,11 +212,17 @@ def _plane_sweep_kernels(lanes: int):
                 if mask[m] > 0.0:
                     sums[m] = sums[m] + e
                     counts[m] = counts[m] + valid
-        # per column: its eight half-plane sums and counts are a row of the transposes
-        sums_t = wp.transpose(sums)
-        counts_t = wp.transpose(counts)
+        # per column, :func:`least_half_mean` of its eight half-plane sums and counts: the
+        # half-planes in the outer loop and the columns in the inner one, which the compiler
+        # turns into vector code (the same operations per column, in the same order)
+        best = row(1.0)
+        for m in range(HALF_PLANES):
+            sm = sums[m]
+            cm = counts[m]
+            for jj in range(lanes):
+                best[jj] = wp.where(cm[jj] > 0.0, wp.min(best[jj], sm[jj] / cm[jj]), best[jj])
         for jj in range(n):
-            cost[k, i, j0 + jj] = least_half_mean(sums_t[jj], counts_t[jj])
+            cost[k, i, j0 + jj] = best[jj]
 
     @wp.kernel
     def sweep_cost_visible(
@@ -255,12 +261,14 @@ def _plane_sweep_kernels(lanes: int):
             yb = wp.clamp(i + int(sh[1]) + wp.where(sh[3] > 0.0, 1, 0), 0, h - 1)
             xa = j0 + int(sh[0])
             xb = xa + wp.where(sh[2] > 0.0, 1, 0)
+            # every lane, without a branch (vector code); those past the n columns, whose
+            # reads are clamped, are zeroed by ``valid``
             seen = row()
-            for jj in range(n):
+            for jj in range(lanes):
                 ca = wp.clamp(xa + jj, 0, w - 1)
                 cb = wp.clamp(xb + jj, 0, w - 1)
-                if footprint_visible(zbuf[s, ya, ca], zbuf[s, ya, cb], zbuf[s, yb, ca], zbuf[s, yb, cb], d, margin):
-                    seen[jj] = 1.0
+                seen[jj] = wp.where(footprint_visible(zbuf[s, ya, ca], zbuf[s, ya, cb], zbuf[s, yb, ca],
+                                                      zbuf[s, yb, cb], d, margin), 1.0, 0.0)
             seen = wp.cw_mul(seen, valid)
             total = total + wp.cw_mul(seen, e)
             count = count + seen
