@@ -189,8 +189,8 @@ def rof_dual_lanes(
         # forward differences: the right neighbour of lane k is lane k + 1, of the last lane
         # the next group's first
         gx = rof_lane()
-        for k in range(ROF_LANES - 1):
-            gx[k] = v[k + 1] - v[k]
+        for k in range(1, ROF_LANES):  # (constant bounds: Warp unrolls the loop; ROF_LANES − 1 it would not)
+            gx[k - 1] = v[k] - v[k - 1]
         gx[ROF_LANES - 1] = nxt[0] - v[ROF_LANES - 1]
         if (g + 1) * ROF_LANES > width - 1:  # the row's last pixel has none (Neumann)
             for k in range(ROF_LANES):
