@@ -178,12 +178,12 @@ def data_coefficients(
     q: wp.array3d(dtype=float),
 ):
     """Coefficients A1…A9 and dual steps σ̃1…σ̃3 of every sample at the linearisation
-    point x̂ (``coef``, lane storage: the values of sample s at pixel (i, j) at ``coef[i, j //
-    L, (12 s + k) L + j % L]``, k = 0 … 11; σ̃ divided by the step ratio c), and the column sums
-    Σ|K| of the data rows for each unknown (the data part of the preconditioner τ), ``coef``,
-    ``grad_j2`` (∇J2) and ``q`` in lane storage of ``lanes`` pixels a group (module
-    docstring). The
-    scaled duals q̃ of the rows left out are set to 0 (the others kept):
+    point x̂ (σ̃ divided by the step ratio c), and the column sums Σ|K| of the data rows for
+    each unknown (the data part of the preconditioner τ). ``coef``, ``grad_j2`` and ``q``
+    are lane storage of ``lanes`` pixels a group (module docstring): the ten stored values
+    of sample s at pixel (i, j) at ``coef[i, j // L, (10 s + k) L + j % L]``, k = 0 … 9
+    (A1 … A7, σ̃1 … σ̃3), and ∇J2, from which A8 and A9 are rebuilt. The scaled duals q̃
+    of the rows left out are set to 0 (the others kept):
     :func:`dual_data_step` then needs no row flags, since a row with σ̃ = 0 and q̃ = 0
     stays at 0.
 
