@@ -22,25 +22,27 @@ def overload_unknowns(kernel, *names: str):
 
 
 @wp.func
-def clip(x: float, lo: float, hi: float):
-    """x clipped to [lo, hi] by two comparisons. ``wp.clamp`` on floats is IEEE
-    fmin/fmax (it turns NaN into a bound), which costs more on the CPU: a data step
-    written with this ran 28 % faster in isolation (17.7 → 12.8 ms, 640×480, 17
-    samples, 2 threads), ``dual_data_step`` itself 10–15 % (22.1 → 18.4–20.8 ms). A NaN
-    passes through."""
-    return wp.where(x > hi, hi, wp.where(x < lo, lo, x))
-
-
-@wp.func
 def at_least(x: float, lo: float):
-    """max(x, lo) by one comparison (see :func:`clip`)."""
+    """max(x, lo) by one comparison. ``wp.max`` on floats is IEEE fmax (it turns NaN into
+    the bound), which costs more in scalar CPU code; a NaN passes through this."""
     return wp.where(x < lo, lo, x)
 
 
 @wp.func
 def at_most(x: float, hi: float):
-    """min(x, hi) by one comparison (see :func:`clip`)."""
+    """min(x, hi) by one comparison (see :func:`at_least`)."""
     return wp.where(x > hi, hi, x)
+
+
+_LANE_VECTORS: dict = {}
+
+
+def lane_vector(lanes: int):
+    """The vector type of ``lanes`` floats that the kernels working on groups of pixels
+    at once use (the data term's dual step, ROF's lanes steps): one type per length."""
+    if lanes not in _LANE_VECTORS:
+        _LANE_VECTORS[lanes] = wp.types.vector(length=lanes, dtype=wp.float32)
+    return _LANE_VECTORS[lanes]
 
 
 @wp.func

@@ -30,7 +30,7 @@ from typing import Any
 
 import warp as wp
 
-from .common import (HALF_PLANES, add_residual, bilinear_with_gradient, from_vec4, half_plane_mask,
+from .common import (HALF_PLANES, add_residual, bilinear_with_gradient, from_vec4, half_plane_mask, lane_vector,
                      half_plane_normal, in_half_plane, inside, overload_unknowns, to_vec4, vec8, visible)
 
 wp.set_module_options({"enable_backward": False})
@@ -47,7 +47,8 @@ DATA_LANES = 8
 COEFFICIENTS = 10
 DUALS = 3
 #: The stored values' places in the twelve (A1 … A9, σ̃1 … σ̃3): all but A8 and A9 (7, 8).
-STORED = wp.constant(wp.types.vector(length=10, dtype=wp.int32)(0, 1, 2, 3, 4, 5, 6, 9, 10, 11))
+STORED_VALUES = (0, 1, 2, 3, 4, 5, 6, 9, 10, 11)
+STORED = wp.constant(wp.types.vector(length=COEFFICIENTS, dtype=wp.int32)(*STORED_VALUES))
 #: An occlusion must also raise the mean residual by this much (intensities in [0, 1]):
 #: in weak texture, ratios of tiny residuals are noise.
 OCCLUSION_FLOOR = wp.constant(0.01)
@@ -324,21 +325,10 @@ def data_coefficients(
     data_colsum[i, j] = from_vec4(colsum, unknowns)
 
 
-_LANE_TYPES: dict = {}
-
-
-def lane_type(lanes: int):
-    """The vector type of ``lanes`` floats that :data:`dual_data_step` reads the lane
-    storage as (one type per length, shared with the kernels)."""
-    if lanes not in _LANE_TYPES:
-        _LANE_TYPES[lanes] = wp.types.vector(length=lanes, dtype=wp.float32)
-    return _LANE_TYPES[lanes]
-
-
 def _dual_data_kernel(lanes: int):
     """:data:`dual_data_step` for groups of ``lanes`` pixels (the lane storage of the
     module docstring)."""
-    row = lane_type(lanes)
+    row = lane_vector(lanes)
 
     @wp.kernel
     def dual_data_step(

@@ -11,7 +11,7 @@ time (34 images of 672×512)."""
 
 import warp as wp
 
-from .common import at_least
+from .common import at_least, lane_vector
 
 wp.set_module_options({"enable_backward": False})
 
@@ -156,7 +156,7 @@ def texture_part(
 #: Pixels per group of the ROF steps that work on groups of a row at once (the CPU):
 #: :data:`rof_dual_lanes`, :data:`rof_primal_lanes`.
 ROF_LANES = 8
-rof_lane = wp.types.vector(length=ROF_LANES, dtype=wp.float32)
+rof_lane = lane_vector(ROF_LANES)
 
 
 @wp.kernel

@@ -143,6 +143,17 @@ def _ensure_loaded(kernel, device) -> None:
             _loaded.add(key)
 
 
+def vector_view(array, dtype, shape):
+    """The memory of a contiguous Warp ``array`` seen as an array of ``dtype`` (e.g. the
+    vectors of several floats that the lanes kernels read) with ``shape``. The view does
+    not own the memory; it holds a reference to ``array`` (``_ref``, as Warp's own views
+    do), so the memory lives as long as either."""
+    wp = warp()
+    view = wp.array(ptr=array.ptr, dtype=dtype, shape=shape, device=array.device, capacity=array.capacity)
+    view._ref = array
+    return view
+
+
 class RecordedRows:
     """A :func:`launch_rows` call recorded once (arguments packed, ``wp.Launch`` objects
     per band) and replayed by calling it: for launches repeated with the same arrays and

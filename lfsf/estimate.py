@@ -228,12 +228,7 @@ def rof_denoise(stack, mu: float, iterations: int, device: str, width: int | Non
     if lanes:
         groups = w // rof.ROF_LANES
 
-        def as_lanes(a):
-            view = wp.array(ptr=a.ptr, dtype=rof.rof_lane, shape=(n, h, groups), device=a.device, capacity=a.capacity)
-            view._ref = a  # (the view does not own the memory)
-            return view
-
-        f8, u8, ub8 = as_lanes(stack), as_lanes(u), as_lanes(u_bar)
+        f8, u8, ub8 = (_device.vector_view(a, rof.rof_lane, (n, h, groups)) for a in (stack, u, u_bar))
         px = wp.zeros((n, h, groups), dtype=rof.rof_lane, device=device)
         py = wp.zeros((n, h, groups), dtype=rof.rof_lane, device=device)
     else:

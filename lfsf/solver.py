@@ -90,7 +90,6 @@ class LevelSolver:
         self.coef_store, self.coef = lane_storage(h, w, n, data_term.COEFFICIENTS, self.lanes, device)
         self.grad_j2_store, self.grad_j2 = lane_storage(h, w, 1, 2, self.lanes, device)  # ∇J2 (A8, A9 from it)
         self.q_store, self.q = lane_storage(h, w, n, data_term.DUALS, self.lanes, device)  # zeroed by set_state
-        # (the coefficients are written by linearise, the duals zeroed by set_state)
         self.data_colsum = zeros4()
         self.data_grad = zeros4()
         # primal: x = (δ1, δ2, u, v) (flow only: (u, v)), w = (w0, w1), their over-relaxed copies, x̂
@@ -356,7 +355,9 @@ class LevelSolver:
         """The linearised data rows as NumPy arrays, sample-major: A1…A9 as (9, S, h, w)
         and the row weights w1…w3 as (3, S, h, w) (λ_k of the sample where the row is in,
         else 0). For tests and diagnostics, not the hot path."""
-        c = unpack_coefficients(from_lanes(self.coef_store.numpy(), self.shape[1], self.lanes, 10),
+        from lfsf.kernels import data_term
+
+        c = unpack_coefficients(from_lanes(self.coef_store.numpy(), self.shape[1], self.lanes, data_term.COEFFICIENTS),
                                 from_lanes(self.grad_j2_store.numpy(), self.shape[1], self.lanes, 2)[:, :, 0])
         c = c.astype(np.float64)  # (h, w, S, 12)
         a = np.moveaxis(c[..., :9], (3, 2), (0, 1))
@@ -392,21 +393,18 @@ def lane_storage(h: int, w: int, n: int, values: int, lanes: int, device: str):
     """Lane storage (:mod:`lfsf.kernels.data_term`) of ``values`` floats per sample for n
     samples of an (h, w) level: the float array (h, ⌈w / L⌉, n · values · L) and the
     same memory as vectors of L (h, ⌈w / L⌉, n · values). Keep the first alive while the
-    second is used: the second holds a reference to the first (``_ref``, as Warp's own
-    views do). Uninitialised where every lane holds a pixel (``data_coefficients``
+    second is used: the second holds a reference to the first
+    (:func:`lfsf.device.vector_view`). Uninitialised where every lane holds a pixel (``data_coefficients``
     writes every pixel's coefficients, ``set_state`` zeroes the duals); zeroed where
     lanes run past the row's end, which no kernel writes (zeroing 300 MB at 640×480
     took 1.3 s of the solvers' set-up)."""
-    from lfsf.kernels import data_term
+    from lfsf.kernels.common import lane_vector
 
     wp = _device.warp()
     groups = -(-int(w) // lanes)
     alloc = wp.empty if groups * lanes == w else wp.zeros
     store = alloc((h, groups, n * values * lanes), dtype=float, device=device)
-    view = wp.array(ptr=store.ptr, dtype=data_term.lane_type(lanes), shape=(h, groups, n * values), device=device,
-                    capacity=store.capacity)
-    view._ref = store  # the view does not own the memory: keep its owner alive with it
-    return store, view
+    return store, _device.vector_view(store, lane_vector(lanes), (h, groups, n * values))
 
 
 def from_lanes(a: np.ndarray, w: int, lanes: int, values: int) -> np.ndarray:
@@ -417,9 +415,12 @@ def from_lanes(a: np.ndarray, w: int, lanes: int, values: int) -> np.ndarray:
         a.reshape(h, groups, n, values, lanes).transpose(0, 1, 4, 2, 3).reshape(h, groups * lanes, n, values)[:, :w])
 
 
-#: The places of the stored ten values in the twelve coefficients (A1 … A9, σ̃1 … σ̃3):
-#: all but A8 and A9 (lfsf.kernels.data_term.STORED).
-STORED = (0, 1, 2, 3, 4, 5, 6, 9, 10, 11)
+def _stored() -> list[int]:
+    """The places of the stored values in the twelve coefficients (A1 … A9, σ̃1 … σ̃3):
+    all but A8 and A9 (:data:`lfsf.kernels.data_term.STORED_VALUES`)."""
+    from lfsf.kernels import data_term
+
+    return list(data_term.STORED_VALUES)
 
 
 def unpack_coefficients(stored: np.ndarray, grad_j2: np.ndarray) -> np.ndarray:
@@ -427,7 +428,7 @@ def unpack_coefficients(stored: np.ndarray, grad_j2: np.ndarray) -> np.ndarray:
     of each pixel, A8, A9 = ∇J2 − (A5, A6) in float32 as the kernels rebuild them."""
     stored = np.asarray(stored, np.float32)
     out = np.zeros(stored.shape[:-1] + (12,), np.float32)
-    out[..., STORED] = stored
+    out[..., _stored()] = stored
     g = np.asarray(grad_j2, np.float32)[..., None, :]
     out[..., 7] = g[..., 0] - stored[..., 4]
     out[..., 8] = g[..., 1] - stored[..., 5]
@@ -438,9 +439,10 @@ def pack_coefficients(coef: np.ndarray, grad_j2: np.ndarray) -> np.ndarray:
     """The ten stored values (…, S, 10) of twelve coefficients (…, S, 12) whose A8, A9
     are ∇J2 − (A5, A6) (checked, in float32)."""
     coef = np.asarray(coef, np.float32)
-    if not np.array_equal(unpack_coefficients(coef[..., STORED], grad_j2), coef):
+    stored = np.ascontiguousarray(coef[..., _stored()])
+    if not np.array_equal(unpack_coefficients(stored, grad_j2), coef):
         raise ValueError("A8, A9 are not ∇J2 − (A5, A6)")
-    return np.ascontiguousarray(coef[..., STORED])
+    return stored
 
 
 def to_lanes(a: np.ndarray, lanes: int) -> np.ndarray:
