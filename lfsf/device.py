@@ -123,7 +123,8 @@ def cpu_threads() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def _thread_pool() -> ThreadPoolExecutor:
+def thread_pool() -> ThreadPoolExecutor:
+    """The pool of :func:`cpu_threads` threads that banded CPU launches run on (made once)."""
     global _pool
     with _init_lock:
         if _pool is None:
@@ -183,7 +184,7 @@ class RecordedRows:
         if self.single:
             self.launches[0].launch()
             return
-        pool = _thread_pool()
+        pool = thread_pool()
         for f in [pool.submit(launch.launch) for launch in self.launches]:
             f.result()
 
@@ -278,7 +279,7 @@ def launch_rows(
         wp.launch(kernel=kernel, dim=dims, inputs=[0, *inputs], outputs=list(outputs), device=dev)
         return
     _ensure_loaded(kernel, dev)
-    pool = _thread_pool()
+    pool = thread_pool()
     futures = [
         pool.submit(
             wp.launch,

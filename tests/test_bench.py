@@ -44,6 +44,23 @@ def test_bench_kernels_rows():
         assert r["fraction_of_memcpy"] == pytest.approx(r["gbytes_per_s"] / r["memcpy_gbytes_per_s"], rel=0.01, abs=1e-3)
 
 
+def test_copy_references_copy_every_element(monkeypatch):
+    """The copies that the kernels' bandwidth is measured against (one ``wp.copy``, and
+    one per row band on the CPU's threads) each copy the whole array."""
+    from lfsf import device
+
+    monkeypatch.setenv("LFSF_THREADS", "2")
+    wp = device.warp()
+    n = 1001
+    src = wp.array(np.arange(n, dtype=np.float32), dtype=float, device="cpu")
+    names = list(bench._copies(4 * n, "cpu", src=src))
+    assert names == ["wp.copy", "wp.copy in 2 bands"]
+    for name in names:
+        dst = wp.zeros(n, dtype=float, device="cpu")
+        bench._copies(4 * n, "cpu", src=src, dst=dst)[name]()
+        assert np.array_equal(dst.numpy(), src.numpy()), name
+
+
 def test_bench_pipeline_reports_stages_memory_and_the_estimators_errors():
     from lfsf import synth
     from lfsf.estimate import estimate_scene_flow
