@@ -165,12 +165,22 @@ def _plane_sweep_kernels(lanes: int):
             y1 = wp.min(y0 + 1, h - 1)
             lo = wp.max(0, -(j0 + a))
             hi = wp.min(n, w - 1 - (j0 + a))  # x0 ≤ w − 2: x0 + 1 is a column
-            for jj in range(lo, hi):
-                x0 = j0 + jj + a
-                top = gx * samples[s, y0, x0] + fx * samples[s, y0, x0 + 1]
-                bottom = gx * samples[s, y1, x0] + fx * samples[s, y1, x0 + 1]
-                e[jj] = wp.abs(gy * top + fy * bottom - samples[0, i, j0 + jj])
-                valid[jj] = 1.0
+            if lo == 0 and hi == lanes:
+                # every lane inside: the same loop over a constant range, which the
+                # compiler turns into vector code
+                for jj in range(lanes):
+                    x0 = j0 + jj + a
+                    top = gx * samples[s, y0, x0] + fx * samples[s, y0, x0 + 1]
+                    bottom = gx * samples[s, y1, x0] + fx * samples[s, y1, x0 + 1]
+                    e[jj] = wp.abs(gy * top + fy * bottom - samples[0, i, j0 + jj])
+                valid = row(1.0)
+            else:
+                for jj in range(lo, hi):
+                    x0 = j0 + jj + a
+                    top = gx * samples[s, y0, x0] + fx * samples[s, y0, x0 + 1]
+                    bottom = gx * samples[s, y1, x0] + fx * samples[s, y1, x0 + 1]
+                    e[jj] = wp.abs(gy * top + fy * bottom - samples[0, i, j0 + jj])
+                    valid[jj] = 1.0
             # x0 = w − 1 exactly (no fraction): the last column
             last = w - 1 - (j0 + a)
             if fx == 0.0 and last >= 0 and last < n:
@@ -264,11 +274,18 @@ def _plane_sweep_kernels(lanes: int):
             # every lane, without a branch (vector code); those past the n columns, whose
             # reads are clamped, are zeroed by ``valid``
             seen = row()
-            for jj in range(lanes):
-                ca = wp.clamp(xa + jj, 0, w - 1)
-                cb = wp.clamp(xb + jj, 0, w - 1)
-                seen[jj] = wp.where(footprint_visible(zbuf[s, ya, ca], zbuf[s, ya, cb], zbuf[s, yb, ca],
-                                                      zbuf[s, yb, cb], d, margin), 1.0, 0.0)
+            if xa >= 0 and xb + lanes <= w:
+                # no column to clamp: the reads are consecutive in every lane
+                for jj in range(lanes):
+                    seen[jj] = wp.where(footprint_visible(zbuf[s, ya, xa + jj], zbuf[s, ya, xb + jj],
+                                                          zbuf[s, yb, xa + jj], zbuf[s, yb, xb + jj], d, margin),
+                                        1.0, 0.0)
+            else:
+                for jj in range(lanes):
+                    ca = wp.clamp(xa + jj, 0, w - 1)
+                    cb = wp.clamp(xb + jj, 0, w - 1)
+                    seen[jj] = wp.where(footprint_visible(zbuf[s, ya, ca], zbuf[s, ya, cb], zbuf[s, yb, ca],
+                                                          zbuf[s, yb, cb], d, margin), 1.0, 0.0)
             seen = wp.cw_mul(seen, valid)
             total = total + wp.cw_mul(seen, e)
             count = count + seen

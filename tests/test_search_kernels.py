@@ -119,7 +119,14 @@ def test_disparity_cost_matches_reference(device, span):
     assert not np.allclose(full, want)
 
 
-SWEEP_CASES = [("sweep_cost", 1), ("sweep_cost", 4), ("sweep_cost", 9), ("sweep_cost_pixel", 1)]
+#: (kernel, columns a thread): 64, the CPU's SWEEP_LANES, on a wider image whose middle
+#: threads have every lane inside (the kernels' vector path) and whose outer ones do not
+SWEEP_CASES = [("sweep_cost", 1), ("sweep_cost", 4), ("sweep_cost", 9), ("sweep_cost", 64), ("sweep_cost_pixel", 1)]
+
+
+def _sweep_size(span):
+    """(h, w) of the sweep tests: 7×9, or 5×150 for threads of 64 columns."""
+    return (7, 9) if span < 64 else (5, 150)
 
 
 @pytest.mark.parametrize("name, span", SWEEP_CASES)
@@ -132,11 +139,11 @@ def test_sweep_cost_matches_reference(device, name, span):
     from lfsf.kernels.common import vec8
 
     r = rng(11)
-    h, w = 7, 9
+    h, w = _sweep_size(span)
     phis = np.array([(0.0, 0.0), (1.0, 0.0), (-0.7, 0.7), (0.3, -1.4), (-1.5, -0.5), (0.0, 2.0)], np.float32)
     samples = r.random((len(phis), h, w)).astype(np.float32)
     # whole-pixel shifts (onto the last column/row exactly), fractions, far outside
-    candidates = np.array([-3.0, -1.0, -0.3, 0.0, 0.45, 1.0, 1.2, 20.0], np.float32)
+    candidates = np.array([-3.0, -1.0, -0.3, 0.0, 0.45, 1.0, 1.2, 20.0 * w / 9], np.float32)
     masks = wp.empty(len(phis), dtype=vec8, device=device)
     launch(search.sample_half_planes, len(phis), [arr(phis, wp.vec2, device)], [masks], device)
     np.testing.assert_array_equal(masks.numpy().T, ref.half_plane_members(phis).astype(np.float32))
@@ -189,10 +196,10 @@ def test_sweep_cost_visible_matches_reference(device, name, span):
     from lfsf.kernels import search
 
     r = rng(12)
-    h, w = 7, 9
+    h, w = _sweep_size(span)
     phis = np.array([(0.0, 0.0), (1.0, 0.0), (-0.7, 0.7), (0.3, -1.4), (-1.5, -0.5), (0.0, 2.0)], np.float32)
     samples = r.random((len(phis), h, w)).astype(np.float32)
-    candidates = np.array([-3.0, -1.0, -0.3, 0.0, 0.45, 1.0, 1.2, 20.0], np.float32)
+    candidates = np.array([-3.0, -1.0, -0.3, 0.0, 0.45, 1.0, 1.2, 20.0 * w / 9], np.float32)
     zbuf = _random_zbuf(r, len(phis), h, w)
     cost = wp.zeros((len(candidates), h, w), dtype=float, device=device)
     launch(getattr(search, name), (len(candidates) * h, -(-w // span)),
