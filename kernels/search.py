@@ -130,6 +130,16 @@ def sample_half_planes(
     masks[s] = half_plane_mask(phis[s])
 
 
+@wp.func
+def contiguous_row(a: wp.array3d(dtype=float), s: int, i: int, j: int, n: int):
+    """a[s, i, j : j + n] as a 1-D array of its own, for an ``a`` stored contiguously (C
+    order): its element stride is then a constant of the code (4 bytes) instead of the
+    array's run-time stride, and a loop over it reads consecutive floats in vector
+    loads instead of gathers."""
+    offset = ((wp.int64(s) * wp.int64(a.shape[1]) + wp.int64(i)) * wp.int64(a.shape[2]) + wp.int64(j)) * wp.int64(4)
+    return wp.array(ptr=a.ptr + wp.uint64(offset), shape=(n,), dtype=float)
+
+
 #: Columns one thread of the plane-sweep kernels walks on the CPU (:data:`sweep_cost`);
 #: on CUDA a thread takes one pixel (:data:`sweep_cost_pixel`).
 SWEEP_LANES = 64
@@ -168,11 +178,13 @@ def _plane_sweep_kernels(lanes: int):
             if lo == 0 and hi == lanes:
                 # every lane inside: the same loop over a constant range, which the
                 # compiler turns into vector code
+                r0 = contiguous_row(samples, s, y0, j0 + a, lanes + 1)
+                r1 = contiguous_row(samples, s, y1, j0 + a, lanes + 1)
+                c = contiguous_row(samples, 0, i, j0, lanes)
                 for jj in range(lanes):
-                    x0 = j0 + jj + a
-                    top = gx * samples[s, y0, x0] + fx * samples[s, y0, x0 + 1]
-                    bottom = gx * samples[s, y1, x0] + fx * samples[s, y1, x0 + 1]
-                    e[jj] = wp.abs(gy * top + fy * bottom - samples[0, i, j0 + jj])
+                    top = gx * r0[jj] + fx * r0[jj + 1]
+                    bottom = gx * r1[jj] + fx * r1[jj + 1]
+                    e[jj] = wp.abs(gy * top + fy * bottom - c[jj])
                 valid = row(1.0)
             else:
                 for jj in range(lo, hi):
@@ -203,8 +215,9 @@ def _plane_sweep_kernels(lanes: int):
         + (f, g) with whole (a, b) and fractions (f, g) ∈ [0, 1) given per candidate and
         sample as ``shifts[k, s]`` = (a, b, f, g), and the half-planes holding φ_s as
         ``masks[s]`` (:func:`lfsf.kernels.common.half_plane_mask`). The bilinear weights
-        are then the same for every pixel. Launch over (candidates × rows, ⌈columns /
-        span⌉), span ≤ the kernel's lanes."""
+        are then the same for every pixel. ``samples`` must be stored contiguously
+        (:func:`contiguous_row`). Launch over (candidates × rows, ⌈columns / span⌉),
+        span ≤ the kernel's lanes."""
         r, c0 = wp.tid()
         r = r + row0
         h = cost.shape[1]
@@ -250,7 +263,8 @@ def _plane_sweep_kernels(lanes: int):
         offset), with the constant shifts of :data:`sweep_cost`: the mean residual of the
         samples s ≥ 1 inside the image that no point nearer than δ_k + ``margin`` covers
         (view z-buffers ``zbuf``, :func:`lfsf.kernels.common.visible`: the pixels the
-        lookup reads, here at a constant shift too); 1 where none is. Launch over
+        lookup reads, here at a constant shift too); 1 where none is. ``samples`` and
+        ``zbuf`` must be stored contiguously (:func:`contiguous_row`). Launch over
         (candidates × rows, ⌈columns / span⌉), span ≤ the kernel's lanes."""
         r, c0 = wp.tid()
         r = r + row0
@@ -276,9 +290,11 @@ def _plane_sweep_kernels(lanes: int):
             seen = row()
             if xa >= 0 and xb + lanes <= w:
                 # no column to clamp: the reads are consecutive in every lane
+                za = contiguous_row(zbuf, s, ya, xa, lanes + 1)
+                zb = contiguous_row(zbuf, s, yb, xa, lanes + 1)
+                dx = xb - xa
                 for jj in range(lanes):
-                    seen[jj] = wp.where(footprint_visible(zbuf[s, ya, xa + jj], zbuf[s, ya, xb + jj],
-                                                          zbuf[s, yb, xa + jj], zbuf[s, yb, xb + jj], d, margin),
+                    seen[jj] = wp.where(footprint_visible(za[jj], za[jj + dx], zb[jj], zb[jj + dx], d, margin),
                                         1.0, 0.0)
             else:
                 for jj in range(lanes):

@@ -384,6 +384,8 @@ def _sweep(samples, phis, radius_used: float, disparity_range: float, search_rad
 
     wp = _device.warp()
     n, h, w = samples.shape
+    if not samples.is_contiguous:  # (the sweep kernels read rows of it as contiguous floats)
+        samples = wp.clone(samples)
     step = 0.5 / max(radius_used, 1e-6)
     count = int(math.ceil(disparity_range / step))
     cands = np.arange(-count, count + 1, dtype=np.float32) * np.float32(step)
