@@ -46,6 +46,15 @@ def lane_vector(lanes: int):
 
 
 @wp.func
+def float_run(ptr: wp.uint64, offset: wp.int64, n: int):
+    """The n floats from float ``offset`` of the memory at ``ptr`` (an array's ``ptr``,
+    stored contiguously) as a 1-D array of its own. Its stride is a constant of the code
+    (4 bytes), where an array argument's is read at run time: a loop over it reads
+    consecutive floats in vector loads where it would otherwise gather them."""
+    return wp.array(ptr=ptr + wp.uint64(offset * wp.int64(4)), shape=(n,), dtype=float)
+
+
+@wp.func
 def to_vec4(x: wp.vec4):
     """The unknowns as (δ1, δ2, u, v)."""
     return x

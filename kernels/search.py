@@ -19,7 +19,7 @@ takes the mean over the others.
 
 import warp as wp
 
-from .common import (HALF_PLANES, bilinear, footprint_visible, half_plane_mask, half_plane_residuals, inside,
+from .common import (HALF_PLANES, bilinear, float_run, footprint_visible, half_plane_mask, half_plane_residuals, inside,
                      least_half_mean, vec8, visible)
 
 wp.set_module_options({"enable_backward": False})
@@ -132,12 +132,9 @@ def sample_half_planes(
 
 @wp.func
 def contiguous_row(a: wp.array3d(dtype=float), s: int, i: int, j: int, n: int):
-    """a[s, i, j : j + n] as a 1-D array of its own, for an ``a`` stored contiguously (C
-    order): its element stride is then a constant of the code (4 bytes) instead of the
-    array's run-time stride, and a loop over it reads consecutive floats in vector
-    loads instead of gathers."""
-    offset = ((wp.int64(s) * wp.int64(a.shape[1]) + wp.int64(i)) * wp.int64(a.shape[2]) + wp.int64(j)) * wp.int64(4)
-    return wp.array(ptr=a.ptr + wp.uint64(offset), shape=(n,), dtype=float)
+    """a[s, i, j : j + n] as a 1-D array of constant stride (:func:`float_run`), for an
+    ``a`` stored contiguously (C order)."""
+    return float_run(a.ptr, (wp.int64(s) * wp.int64(a.shape[1]) + wp.int64(i)) * wp.int64(a.shape[2]) + wp.int64(j), n)
 
 
 #: Columns one thread of the plane-sweep kernels walks on the CPU (:data:`sweep_cost`);

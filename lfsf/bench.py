@@ -203,6 +203,9 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
         return arr(t, wp.vec3)
 
     t1, t2, t3 = tensor(), tensor(), tensor()
+    # Γ's entries per unknown, as the solver expands them for the TGV steps
+    gammas = [wp.empty((h, w), dtype=wp.vec4, device=dev) for _ in range(3)]
+    _device.launch_rows(tgv.expand_tensor, dim=(h, w), inputs=[t1, t2, t3], outputs=gammas, device=dev)
     data_grad = v4()
     x_bar, w0_bar, w1_bar = v4(), v4(), v4()
     y0, y1, z00, z01, z10, z11 = (v4(0.1) for _ in range(6))
@@ -225,13 +228,15 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
         ("dual_data_step", launch(data_term.dual_data_kernel(lanes), [coef, weights, grad_j2, x_bar, x_hat, groups],
                                   [q, data_grad], dim=(h, group_threads)),
          f * h * w * (data_term.COEFFICIENTS * s + 2 + 4 + 4 + 3 * s + 3 * s + 4)),
-        # reads x̄, w̄ (8), three tensors (9), σ_y (4) and the six duals (24); writes the duals (24)
-        ("tgv_dual_step", launch(tgv.tgv_dual_step, [x_bar, w0_bar, w1_bar, t1, t2, t3, sigma_y, 0.25, 2.0, 0.5,
+        # reads x̄, w̄ (12), the three tensors (9: it reads them as Γ's entries per unknown, 12, but is
+        # credited with the 9 it must move), σ_y (4) and the six duals (24); writes the duals (24)
+        ("tgv_dual_step", launch(tgv.tgv_dual_step, [x_bar, w0_bar, w1_bar, *gammas, sigma_y, 0.25, 2.0, 0.5,
                                                      span], [y0, y1, z00, z01, z10, z11], dim=(h, per_row)),
          f * h * w * (12 + 9 + 4 + 24 + 24)),
-        # reads Kᵀq (4), the duals (24), tensors (9), τ (12), x and w (12); writes x, w and their bars (24)
+        # reads Kᵀq (4), the duals (24), the tensors (9, as above), τ (12), x and w (12); writes x, w and their
+        # bars (24)
         ("tgv_primal_step", launch(tgv.tgv_primal_step,
-                                   [data_grad, y0, y1, z00, z01, z10, z11, t1, t2, t3, tau[0], tau[1], tau[2], 2.0,
+                                   [data_grad, y0, y1, z00, z01, z10, z11, *gammas, tau[0], tau[1], tau[2], 2.0,
                                     0.5, span], [x, w0, w1, x_bar, w0_bar, w1_bar], dim=(h, per_row)),
          f * h * w * (4 + 24 + 9 + 12 + 12 + 24)),
     ]

@@ -82,6 +82,8 @@ class LevelSolver:
             self.tensor2 = wp.empty((h, w), dtype=wp.vec3, device=device)
             self.tensor3 = wp.empty((h, w), dtype=wp.vec3, device=device)
         self.warped2 = wp.empty((h, w), dtype=float, device=device)
+        # Γ's entries (Γ00, Γ01, Γ11) per unknown, as the TGV steps read them (_expand_tensors)
+        self.tensor_entries = tuple(wp.empty((h, w), dtype=self.vec, device=device) for _ in range(3))
 
         # data term: coefficients per pixel and sample, the scaled duals q̃ (both in lane
         # storage, lfsf.kernels.data_term; ``*_store`` as floats, the others the same memory
@@ -112,6 +114,7 @@ class LevelSolver:
         self.scratch1 = wp.zeros((h, w), dtype=float, device=device)
         self._iteration = None  # the recorded iteration (``iterate``)
         self._tensors()
+        self._expand_tensors()  # (flow only: Γ_t1 for all, set once)
 
     def _launch(self, kernel, inputs, outputs):
         _device.launch_rows(kernel, dim=self.shape, inputs=inputs, outputs=outputs, device=self.device,
@@ -213,6 +216,16 @@ class LevelSolver:
             return
         self._launch(tgv.joint_diffusion_tensor, inputs=[self.centre1, self.x_hat, p.flow_edge_weight, p.gamma,
                                                          p.beta], outputs=[self.tensor3])
+        self._expand_tensors()
+
+    def _expand_tensors(self) -> None:
+        """Γ's entries per unknown (``self.tensor_entries``) from the three tensors, after they change
+        (:data:`lfsf.kernels.tgv.expand_tensor`): the TGV steps read them as the unknowns'
+        vectors, contiguous like the unknowns."""
+        from lfsf.kernels import tgv
+
+        self._launch(tgv.expand_tensor, inputs=[self.tensor1, self.tensor2, self.tensor3],
+                     outputs=list(self.tensor_entries))
 
     def find_visible(self) -> int:
         """The view z-buffers of x̂ (``params.visibility``): of δ̂1 at p (t1) and of δ̂2
@@ -320,13 +333,12 @@ class LevelSolver:
                    inputs=[self.coef, self.weights, self.grad_j2, self.x_bar, self.x_hat, groups],
                    outputs=[self.q, self.data_grad], dim=(self.shape[0], per_row)),
             record(tgv.tgv_dual_step,
-                   inputs=[self.x_bar, self.w0_bar, self.w1_bar, self.tensor1, self.tensor2, self.tensor3,
-                           self.sigma_y, sigma_z, p.alpha0, p.alpha1, self.span],
+                   inputs=[self.x_bar, self.w0_bar, self.w1_bar, *self.tensor_entries, self.sigma_y, sigma_z,
+                           p.alpha0, p.alpha1, self.span],
                    outputs=[self.y0, self.y1, self.z00, self.z01, self.z10, self.z11]),
             record(tgv.tgv_primal_step,
                    inputs=[self.data_grad, self.y0, self.y1, self.z00, self.z01, self.z10, self.z11,
-                           self.tensor1, self.tensor2, self.tensor3, self.tau_x, self.tau_w0,
-                           self.tau_w1, p.alpha0, p.alpha1, self.span],
+                           *self.tensor_entries, self.tau_x, self.tau_w0, self.tau_w1, p.alpha0, p.alpha1, self.span],
                    outputs=[self.x, self.w0, self.w1, self.x_bar, self.w0_bar, self.w1_bar]),
         ]
 

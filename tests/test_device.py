@@ -127,13 +127,15 @@ def test_captured_loop_runs_its_steps_n_times_in_order(bands):
         b = {k: wp.array(v, dtype=wp.vec4, device="cpu") for k, v in start.items()}
         b.update({k + "_bar": wp.array(start[k], dtype=wp.vec4, device="cpu") for k in ("x", "w0", "w1")})
         b.update({k: wp.array(v, dtype=wp.vec4, device="cpu") for k, v in steps_.items()})
-        b["t"] = wp.array(tensor, dtype=wp.vec3, device="cpu")
+        t = wp.array(tensor, dtype=wp.vec3, device="cpu")
+        b["g"] = [wp.empty((h, w), dtype=wp.vec4, device="cpu") for _ in range(3)]
+        D.launch_rows(tgv.expand_tensor, dim=(h, w), inputs=[t, t, t], outputs=b["g"], device="cpu")
         return b
 
     def args(b):
-        dual = ([b["x_bar"], b["w0_bar"], b["w1_bar"], b["t"], b["t"], b["t"], b["sy"], 0.25, 2.0, 0.5, w],
+        dual = ([b["x_bar"], b["w0_bar"], b["w1_bar"], *b["g"], b["sy"], 0.25, 2.0, 0.5, w],
                 [b["y0"], b["y1"], b["z00"], b["z01"], b["z10"], b["z11"]])
-        primal = ([b["grad"], b["y0"], b["y1"], b["z00"], b["z01"], b["z10"], b["z11"], b["t"], b["t"], b["t"],
+        primal = ([b["grad"], b["y0"], b["y1"], b["z00"], b["z01"], b["z10"], b["z11"], *b["g"],
                    b["tx"], b["tw0"], b["tw1"], 2.0, 0.5, w],
                   [b["x"], b["w0"], b["w1"], b["x_bar"], b["w0_bar"], b["w1_bar"]])
         return [(tgv.tgv_dual_step, *dual), (tgv.tgv_primal_step, *primal)]

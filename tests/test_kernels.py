@@ -1180,12 +1180,32 @@ def _tgv_fields(seed, h, w, scale=1.0):
     return [(scale * r.standard_normal((h, w, 4))).astype(np.float32) for _ in range(9)]
 
 
-@UNKNOWNS
-@pytest.mark.parametrize("span", [1, 2, 5])  # a pixel per thread (CUDA), part of a row, a whole row (CPU)
-def test_tgv_dual_step_matches_reference(device, span, unknowns):
+def _tensor_entries(t1, t2, t3, unknowns, device):
+    """Γ00, Γ01, Γ11 per unknown, as the TGV steps take them, made by expand_tensor and
+    checked against the reference's Γ of each unknown."""
     from lfsf.kernels import tgv
 
-    h, w = 4, 5
+    h, w = t1.shape[:2]
+    out = [unknowns_zeros((h, w), unknowns, device) for _ in range(3)]
+    launch(tgv.expand_tensor, (h, w), [arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(t3, wp.vec3, device)],
+           out, device)
+    want = np.stack([ref.per_unknown(t1, t2, k, t3) for k in range(4)], -2)  # (h, w, 4 unknowns, 3 entries)
+    for e, got in enumerate(out):
+        np.testing.assert_array_equal(got.numpy(), flow_part(want[..., e], unknowns))
+    return out
+
+
+#: (rows, columns, columns a thread) of the TGV step tests: a pixel per thread (CUDA),
+#: part of a row, a whole row (CPU); and rows wide enough for the steps' vector path
+#: (TGV_FLOATS floats at once: 8 pixels of vec4, 16 of vec2), whole and in parts.
+TGV_SPANS = pytest.mark.parametrize("h, w, span", [(4, 5, 1), (4, 5, 2), (4, 5, 5), (5, 41, 41), (5, 41, 19)])
+
+
+@UNKNOWNS
+@TGV_SPANS
+def test_tgv_dual_step_matches_reference(device, h, w, span, unknowns):
+    from lfsf.kernels import tgv
+
     alpha0, alpha1 = 2.0, 0.7
     t1, t2, t3 = _tgv_setting(15, h, w)
     x_bar, w0_bar, w1_bar, y0, y1, z00, z01, z10, z11 = _tgv_fields(16, h, w, 0.5)
@@ -1195,8 +1215,8 @@ def test_tgv_dual_step_matches_reference(device, span, unknowns):
     duals = [unknowns_arr(a, unknowns, device) for a in (y0, y1, z00, z01, z10, z11)]
     launch(tgv.tgv_dual_step, (h, -(-w // span)),
            [unknowns_arr(x_bar, unknowns, device), unknowns_arr(w0_bar, unknowns, device),
-            unknowns_arr(w1_bar, unknowns, device), arr(t1, wp.vec3, device), arr(t2, wp.vec3, device),
-            arr(t3, wp.vec3, device), unknowns_arr(sigma_y, unknowns, device),
+            unknowns_arr(w1_bar, unknowns, device), *_tensor_entries(t1, t2, t3, unknowns, device),
+            unknowns_arr(sigma_y, unknowns, device),
             sigma_z, alpha0, alpha1, span], duals, device)
     want = ref.tgv_dual_step(x_bar, w0_bar, w1_bar, t1, t2, sigma_y, sigma_z, alpha0, alpha1,
                              y0, y1, z00, z01, z10, z11, t3)
@@ -1210,11 +1230,10 @@ def test_tgv_dual_step_matches_reference(device, span, unknowns):
 
 
 @UNKNOWNS
-@pytest.mark.parametrize("span", [1, 2, 5])
-def test_tgv_primal_step_matches_reference(device, span, unknowns):
+@TGV_SPANS
+def test_tgv_primal_step_matches_reference(device, h, w, span, unknowns):
     from lfsf.kernels import tgv
 
-    h, w = 4, 5
     alpha0, alpha1 = 2.0, 0.7
     t1, t2, t3 = _tgv_setting(18, h, w)
     x, w0, w1, y0, y1, z00, z01, z10, z11 = _tgv_fields(19, h, w, 0.5)
@@ -1226,7 +1245,7 @@ def test_tgv_primal_step_matches_reference(device, span, unknowns):
     launch(tgv.tgv_primal_step, (h, -(-w // span)),
            [unknowns_arr(data_grad, unknowns, device)]
            + [unknowns_arr(a, unknowns, device) for a in (y0, y1, z00, z01, z10, z11)]
-           + [arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(t3, wp.vec3, device)]
+           + _tensor_entries(t1, t2, t3, unknowns, device)
            + [unknowns_arr(a, unknowns, device) for a in (tau_x, tau_w0, tau_w1)] + [alpha0, alpha1, span],
            prim + bars, device)
     want = ref.tgv_primal_step(data_grad, y0, y1, z00, z01, z10, z11, t1, t2, tau_x, tau_w0, tau_w1,
@@ -1256,7 +1275,7 @@ def test_tgv_gradient_and_divergence_are_negative_adjoints(device):
     span, per_row = D.row_span(device, w)
     launch(tgv.tgv_dual_step, (h, per_row),
            [arr(x, wp.vec4, device), arr(zeros, wp.vec4, device), arr(wf, wp.vec4, device),
-            arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(t3, wp.vec3, device), arr(step * ones, wp.vec4, device),
+            *_tensor_entries(t1, t2, t3, "vec4", device), arr(step * ones, wp.vec4, device),
             step, 1.0, alpha1, span], duals, device)
     ky0, ky1, gw00, gw01, gw10, gw11 = (d.numpy().astype(np.float64) / step for d in duals)
     # with w0 = 0, w1 = wf: z00, z01 = 0 and (z10, z11) = ∇wf
@@ -1274,7 +1293,7 @@ def test_tgv_gradient_and_divergence_are_negative_adjoints(device):
     launch(tgv.tgv_primal_step, (h, per_row),
            [arr(zeros, wp.vec4, device), arr(y0, wp.vec4, device), arr(y1, wp.vec4, device),
             arr(z0, wp.vec4, device), arr(z1, wp.vec4, device), arr(zeros, wp.vec4, device),
-            arr(zeros, wp.vec4, device), arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(t3, wp.vec3, device),
+            arr(zeros, wp.vec4, device), *_tensor_entries(t1, t2, t3, "vec4", device),
             arr(ones, wp.vec4, device), arr(ones, wp.vec4, device), arr(ones, wp.vec4, device), 1.0, alpha1, span],
            prim + bars, device)
     div_gy = prim[0].numpy().astype(np.float64) - x        # α1 div(Γy)
