@@ -20,7 +20,7 @@ takes the mean over the others.
 import warp as wp
 
 from .common import (HALF_PLANES, bilinear, float_run, footprint_visible, half_plane_mask, half_plane_residuals, inside,
-                     least_half_mean, vec8, visible)
+                     lane_vector, least_half_mean, vec8, visible)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -334,6 +334,34 @@ def window_column(values: wp.array3d(dtype=float), k: int, i: int, j: int):
     return wp.vec3(values[k, wp.max(i - 1, 0), jc], values[k, i, jc], values[k, wp.min(i + 1, h - 1), jc])
 
 
+#: Columns the window filters take at once where the window needs no clamped column: the
+#: same sums in the same order over a constant range, which the compiler turns into
+#: vector code (the rows must be stored contiguously, :func:`float_run`).
+BOX_LANES = 32
+box_row = lane_vector(BOX_LANES)
+
+
+@wp.func
+def window_runs(values: wp.array3d(dtype=float), k: int, i: int, j: int):
+    """Rows i − 1, i, i + 1 of slice k (clamped to the slice) from column j − 1, BOX_LANES
+    + 2 floats each (:func:`float_run`)."""
+    h = values.shape[1]
+    w = values.shape[2]
+    top = (wp.int64(k) * wp.int64(h) + wp.int64(wp.max(i - 1, 0))) * wp.int64(w) + wp.int64(j - 1)
+    mid = (wp.int64(k) * wp.int64(h) + wp.int64(i)) * wp.int64(w) + wp.int64(j - 1)
+    low = (wp.int64(k) * wp.int64(h) + wp.int64(wp.min(i + 1, h - 1))) * wp.int64(w) + wp.int64(j - 1)
+    n = BOX_LANES + 2
+    return float_run(values.ptr, top, n), float_run(values.ptr, mid, n), float_run(values.ptr, low, n)
+
+
+@wp.func
+def store_box_row(out: wp.array3d(dtype=float), k: int, i: int, j: int, v: box_row):
+    at = (wp.int64(k) * wp.int64(out.shape[1]) + wp.int64(i)) * wp.int64(out.shape[2]) + wp.int64(j)
+    run = float_run(out.ptr, at, BOX_LANES)
+    for jj in range(BOX_LANES):
+        run[jj] = v[jj]
+
+
 @wp.kernel
 def box_sum(
     row0: int,
@@ -345,8 +373,9 @@ def box_sum(
 ):
     """Mean of each slice over a (2r+1)² window, clamped at the borders. Launch over
     (slices × rows, ⌈columns / span⌉) (:func:`lfsf.device.row_span`). For r = 1 (the
-    default search radius) the 3×3 window slides along the row: three loads a pixel
-    instead of nine, the same sum in the same order."""
+    default search radius) a thread takes BOX_LANES columns at once where no column of
+    their windows is clamped (vector code; ``values`` and ``out`` stored contiguously),
+    the sum in the same order as pixel by pixel."""
     r, c = wp.tid()
     r = r + row0
     h = values.shape[1]
@@ -356,14 +385,25 @@ def box_sum(
     side = float(2 * radius + 1)
     j0 = c * span
     if radius == 1:
-        left = window_column(values, k, i, j0 - 1)
-        mid = window_column(values, k, i, j0)
-        for j in range(j0, wp.min(w, j0 + span)):
-            right = window_column(values, k, i, j + 1)
-            acc = left[0] + mid[0] + right[0] + left[1] + mid[1] + right[1] + left[2] + mid[2] + right[2]
-            out[k, i, j] = acc / 9.0
-            left = mid
-            mid = right
+        end = wp.min(w, j0 + span)
+        j = j0
+        while j < end:
+            if j >= 1 and j + BOX_LANES <= end and j + BOX_LANES <= w - 1:
+                # BOX_LANES columns at once, as vectors: the same sums in the same order
+                a, b, d = window_runs(values, k, i, j)
+                v = box_row()
+                for jj in range(BOX_LANES):
+                    v[jj] = (a[jj] + a[jj + 1] + a[jj + 2] + b[jj] + b[jj + 1] + b[jj + 2] + d[jj] + d[jj + 1]
+                             + d[jj + 2]) / 9.0
+                store_box_row(out, k, i, j, v)
+                j += BOX_LANES
+            else:
+                left = window_column(values, k, i, j - 1)
+                mid = window_column(values, k, i, j)
+                right = window_column(values, k, i, j + 1)
+                acc = left[0] + mid[0] + right[0] + left[1] + mid[1] + right[1] + left[2] + mid[2] + right[2]
+                out[k, i, j] = acc / 9.0
+                j += 1
     else:
         for j in range(j0, wp.min(w, j0 + span)):
             acc = float(0.0)
@@ -384,8 +424,8 @@ def box_min(
 ):
     """Least value of each slice over a (2r+1)² window, clamped at the borders: after
     :func:`box_sum`, the cost of the best of the windows that hold the pixel (shiftable
-    windows). Launch over (slices × rows, ⌈columns / span⌉). For r = 1 the window
-    slides along the row, as in :func:`box_sum`."""
+    windows). Launch over (slices × rows, ⌈columns / span⌉). For r = 1, BOX_LANES
+    columns at once where they fit, as in :func:`box_sum`."""
     r, c = wp.tid()
     r = r + row0
     h = values.shape[1]
@@ -394,13 +434,25 @@ def box_min(
     i = r - k * h
     j0 = c * span
     if radius == 1:
-        left = window_column(values, k, i, j0 - 1)
-        mid = window_column(values, k, i, j0)
-        for j in range(j0, wp.min(w, j0 + span)):
-            right = window_column(values, k, i, j + 1)
-            out[k, i, j] = wp.min(wp.min(wp.min(left), wp.min(mid)), wp.min(right))
-            left = mid
-            mid = right
+        end = wp.min(w, j0 + span)
+        j = j0
+        while j < end:
+            if j >= 1 and j + BOX_LANES <= end and j + BOX_LANES <= w - 1:
+                # BOX_LANES columns at once, as vectors: the same minima in the same order
+                a, b, d = window_runs(values, k, i, j)
+                v = box_row()
+                for jj in range(BOX_LANES):
+                    v[jj] = wp.min(wp.min(wp.min(wp.vec3(a[jj], b[jj], d[jj])), wp.min(wp.vec3(a[jj + 1], b[jj + 1],
+                                                                                              d[jj + 1]))),
+                                   wp.min(wp.vec3(a[jj + 2], b[jj + 2], d[jj + 2])))
+                store_box_row(out, k, i, j, v)
+                j += BOX_LANES
+            else:
+                left = window_column(values, k, i, j - 1)
+                mid = window_column(values, k, i, j)
+                right = window_column(values, k, i, j + 1)
+                out[k, i, j] = wp.min(wp.min(wp.min(left), wp.min(mid)), wp.min(right))
+                j += 1
     else:
         for j in range(j0, wp.min(w, j0 + span)):
             m = values[k, i, j]

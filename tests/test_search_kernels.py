@@ -231,26 +231,34 @@ def test_disparity_cost_of_an_exact_light_field_is_zero_at_the_true_disparity(de
     assert np.all(got[[0, 1, 3]][:, interior[0], interior[1]] > 0)
 
 
-@pytest.mark.parametrize("span", [1, 4, 6])  # a pixel per thread (CUDA), part of a row, a whole row (CPU)
+#: (columns, columns a thread) of the window filters' tests: a pixel per thread (CUDA),
+#: part of a row, a whole row (CPU); and rows wide enough for their vector runs
+#: (BOX_LANES columns at once), whole and in parts.
+BOX_SPANS = pytest.mark.parametrize("w, span", [(6, 1), (6, 4), (6, 6), (75, 75), (75, 40)])
+
+
+@BOX_SPANS
 @pytest.mark.parametrize("radius", [0, 1, 2])
-def test_box_sum_matches_reference(radius, span, device):
-    values = rng(3).random((3, 4, 6)).astype(np.float32)
+def test_box_sum_matches_reference(radius, w, span, device):
+    values = rng(3).random((3, 4, w)).astype(np.float32)
     got = run_box_sum(values, radius, device, span)
     close(got, ref.box_mean(values, radius))
+    # threads of many columns (vector runs) sum as a thread per pixel does, bit for bit
+    np.testing.assert_array_equal(got, run_box_sum(values, radius, device, 1))
     if radius == 0:
         np.testing.assert_array_equal(got, values)
     # a constant is kept, borders included (the window is clamped, the mean stays a mean)
-    close(run_box_sum(np.full((1, 4, 6), 0.3, np.float32), radius, device), 0.3)
+    close(run_box_sum(np.full((1, 4, w), 0.3, np.float32), radius, device, span), 0.3)
 
 
-@pytest.mark.parametrize("span", [1, 4, 6])
+@BOX_SPANS
 @pytest.mark.parametrize("radius", [0, 1, 2])
-def test_box_min_matches_reference(radius, span, device):
+def test_box_min_matches_reference(radius, w, span, device):
     from lfsf.kernels import search
 
-    values = rng(4).random((3, 5, 6)).astype(np.float32)
-    out = wp.zeros((3, 5, 6), dtype=float, device=device)
-    launch(search.box_min, (3 * 5, -(-6 // span)), [arr(values, float, device), radius, span], [out], device)
+    values = rng(4).random((3, 5, w)).astype(np.float32)
+    out = wp.zeros((3, 5, w), dtype=float, device=device)
+    launch(search.box_min, (3 * 5, -(-w // span)), [arr(values, float, device), radius, span], [out], device)
     np.testing.assert_array_equal(out.numpy(), ref.box_min(values, radius).astype(np.float32))
     if radius == 0:
         np.testing.assert_array_equal(out.numpy(), values)
