@@ -355,6 +355,19 @@ def window_runs(values: wp.array3d(dtype=float), k: int, i: int, j: int):
 
 
 @wp.func
+def box_run_fits(j: int, end: int, w: int):
+    """BOX_LANES columns from column j lie before ``end`` (the thread's span) and no column
+    of their 3×3 windows is clamped."""
+    return j >= 1 and j + BOX_LANES <= end and j + BOX_LANES <= w - 1
+
+
+@wp.func
+def window_columns(values: wp.array3d(dtype=float), k: int, i: int, j: int):
+    """:func:`window_column` at columns j − 1, j and j + 1."""
+    return window_column(values, k, i, j - 1), window_column(values, k, i, j), window_column(values, k, i, j + 1)
+
+
+@wp.func
 def store_box_row(out: wp.array3d(dtype=float), k: int, i: int, j: int, v: box_row):
     at = (wp.int64(k) * wp.int64(out.shape[1]) + wp.int64(i)) * wp.int64(out.shape[2]) + wp.int64(j)
     run = float_run(out.ptr, at, BOX_LANES)
@@ -388,7 +401,7 @@ def box_sum(
         end = wp.min(w, j0 + span)
         j = j0
         while j < end:
-            if j >= 1 and j + BOX_LANES <= end and j + BOX_LANES <= w - 1:
+            if box_run_fits(j, end, w):
                 # BOX_LANES columns at once, as vectors: the same sums in the same order
                 a, b, d = window_runs(values, k, i, j)
                 v = box_row()
@@ -398,9 +411,7 @@ def box_sum(
                 store_box_row(out, k, i, j, v)
                 j += BOX_LANES
             else:
-                left = window_column(values, k, i, j - 1)
-                mid = window_column(values, k, i, j)
-                right = window_column(values, k, i, j + 1)
+                left, mid, right = window_columns(values, k, i, j)
                 acc = left[0] + mid[0] + right[0] + left[1] + mid[1] + right[1] + left[2] + mid[2] + right[2]
                 out[k, i, j] = acc / 9.0
                 j += 1
@@ -437,7 +448,7 @@ def box_min(
         end = wp.min(w, j0 + span)
         j = j0
         while j < end:
-            if j >= 1 and j + BOX_LANES <= end and j + BOX_LANES <= w - 1:
+            if box_run_fits(j, end, w):
                 # BOX_LANES columns at once, as vectors: the same minima in the same order
                 a, b, d = window_runs(values, k, i, j)
                 v = box_row()
@@ -448,9 +459,7 @@ def box_min(
                 store_box_row(out, k, i, j, v)
                 j += BOX_LANES
             else:
-                left = window_column(values, k, i, j - 1)
-                mid = window_column(values, k, i, j)
-                right = window_column(values, k, i, j + 1)
+                left, mid, right = window_columns(values, k, i, j)
                 out[k, i, j] = wp.min(wp.min(wp.min(left), wp.min(mid)), wp.min(right))
                 j += 1
     else:
