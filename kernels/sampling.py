@@ -28,8 +28,9 @@ def sample_subaperture(
     clamped to it. Launch over (samples × rows, ⌈columns / span⌉): each thread walks
     ``span`` pixels of a row (:func:`lfsf.device.row_span`), with the four views and
     their weights found once. ``views`` and ``samples`` must be stored contiguously (C
-    order; their rows are read and written as runs of constant stride, which the
-    compiler turns into vector code: 0.82–0.87× the time at 640×480 with 17 samples)."""
+    order, views of the samples' height and width): their rows are read and written as
+    runs of constant stride, which the compiler turns into vector code (0.82–0.87× the
+    time at 640×480 with 17 samples)."""
     r, c = wp.tid()
     r = r + row0
     height = samples.shape[1]

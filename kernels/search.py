@@ -387,8 +387,8 @@ def box_sum(
     """Mean of each slice over a (2r+1)² window, clamped at the borders. Launch over
     (slices × rows, ⌈columns / span⌉) (:func:`lfsf.device.row_span`). For r = 1 (the
     default search radius) a thread takes BOX_LANES columns at once where no column of
-    their windows is clamped (vector code; ``values`` and ``out`` stored contiguously),
-    the sum in the same order as pixel by pixel."""
+    their windows is clamped (vector code; ``values`` and ``out`` must be stored
+    contiguously, with the same shape), the sum in the same order as pixel by pixel."""
     r, c = wp.tid()
     r = r + row0
     h = values.shape[1]
@@ -436,7 +436,8 @@ def box_min(
     """Least value of each slice over a (2r+1)² window, clamped at the borders: after
     :func:`box_sum`, the cost of the best of the windows that hold the pixel (shiftable
     windows). Launch over (slices × rows, ⌈columns / span⌉). For r = 1, BOX_LANES
-    columns at once where they fit, as in :func:`box_sum`."""
+    columns at once where they fit, as in :func:`box_sum`: ``values`` and ``out`` must be
+    stored contiguously, with the same shape."""
     r, c = wp.tid()
     r = r + row0
     h = values.shape[1]

@@ -283,111 +283,6 @@ def dual_step_floats(x_bar: Any, w0_bar: Any, w1_bar: Any, g00: Any, g01: Any, g
     store_floats(z11.ptr, at, wp.cw_mul(m11, kz))
 
 
-@wp.kernel
-def tgv_dual_step(
-    row0: int,
-    x_bar: wp.array2d(dtype=Any),
-    w0_bar: wp.array2d(dtype=Any),
-    w1_bar: wp.array2d(dtype=Any),
-    g00: wp.array2d(dtype=Any),
-    g01: wp.array2d(dtype=Any),
-    g11: wp.array2d(dtype=Any),
-    sigma_y: wp.array2d(dtype=Any),
-    sigma_z: float,
-    alpha0: float,
-    alpha1: float,
-    span: int,
-    # outputs
-    y0: wp.array2d(dtype=Any),
-    y1: wp.array2d(dtype=Any),
-    z00: wp.array2d(dtype=Any),
-    z01: wp.array2d(dtype=Any),
-    z10: wp.array2d(dtype=Any),
-    z11: wp.array2d(dtype=Any),
-):
-    """y ← proj(y + σ_y α1 Γ(∇x̄ − w̄)),  z ← proj(z + σ_z α0 ∇w̄), with Γ per unknown
-    (``g00``, ``g01``, ``g11``: :data:`expand_tensor`). Launch over (rows, ⌈columns /
-    span⌉): a thread walks ``span`` pixels of a row. Where a thread's span holds them, it
-    takes TGV_FLOATS floats of every array at once (8 pixels of vec4 unknowns) whose
-    right neighbours are all in the row, as vectors (SIMD code on the CPU), with the
-    same arithmetic per float; the arrays must then be stored contiguously. At the last
-    row the row below is the row itself, whose differences are exactly 0, as the
-    pixel-by-pixel code's are."""
-    i, c = wp.tid()
-    i = i + row0
-    h = x_bar.shape[0]
-    w = x_bar.shape[1]
-    j0 = c * span
-    end = wp.min(w, j0 + span)
-    xb = x_bar[i, j0]
-    k = len(xb)  # floats per pixel
-    chunk = int(TGV_FLOATS) // int(k)  # pixels per vector
-    down = wp.min(i + 1, h - 1)
-    sza = sigma_z * alpha0
-    j = j0
-    while j + chunk <= end and j + chunk <= w - 1:
-        at = (wp.int64(i) * wp.int64(w) + wp.int64(j)) * wp.int64(k)
-        dual_step_floats(x_bar, w0_bar, w1_bar, g00, g01, g11, sigma_y, sza, alpha1, at, at + wp.int64(k),
-                         (wp.int64(down) * wp.int64(w) + wp.int64(j)) * wp.int64(k), y0, y1, z00, z01, z10, z11)
-        j += chunk
-    # the rest pixel by pixel, each one's values carried from the last pixel's right
-    # neighbour (loaded once)
-    if j < end:
-        xb = x_bar[i, j]
-        wb0 = w0_bar[i, j]
-        wb1 = w1_bar[i, j]
-    while j < end:
-        zero = type(xb)(0.0)
-        gx = zero
-        gy = zero
-        dx0 = zero
-        dy0 = zero
-        dx1 = zero
-        dy1 = zero
-        xr = xb
-        wr0 = wb0
-        wr1 = wb1
-        if j < w - 1:
-            xr = x_bar[i, j + 1]
-            wr0 = w0_bar[i, j + 1]
-            wr1 = w1_bar[i, j + 1]
-            gx = xr - xb
-            dx0 = wr0 - wb0
-            dx1 = wr1 - wb1
-        if i < h - 1:
-            gy = x_bar[i + 1, j] - xb
-            dy0 = w0_bar[i + 1, j] - wb0
-            dy1 = w1_bar[i + 1, j] - wb1
-        r0 = gx - wb0
-        r1 = gy - wb1
-        a00 = g00[i, j]
-        a01 = g01[i, j]
-        a11 = g11[i, j]
-        sy = sigma_y[i, j]
-        n0 = y0[i, j] + alpha1 * wp.cw_mul(sy, wp.cw_mul(a00, r0) + wp.cw_mul(a01, r1))
-        n1 = y1[i, j] + alpha1 * wp.cw_mul(sy, wp.cw_mul(a01, r0) + wp.cw_mul(a11, r1))
-        m00 = z00[i, j] + sza * dx0
-        m01 = z01[i, j] + sza * dy0
-        m10 = z10[i, j] + sza * dx1
-        m11 = z11[i, j] + sza * dy1
-        sy = zero
-        sz = zero
-        for q in range(len(xb)):
-            sy[q] = 1.0 / at_least(wp.sqrt(n0[q] * n0[q] + n1[q] * n1[q]), 1.0)
-            sz[q] = 1.0 / at_least(wp.sqrt(m00[q] * m00[q] + m01[q] * m01[q] + m10[q] * m10[q] + m11[q] * m11[q]),
-                                 1.0)
-        y0[i, j] = wp.cw_mul(n0, sy)
-        y1[i, j] = wp.cw_mul(n1, sy)
-        z00[i, j] = wp.cw_mul(m00, sz)
-        z01[i, j] = wp.cw_mul(m01, sz)
-        z10[i, j] = wp.cw_mul(m10, sz)
-        z11[i, j] = wp.cw_mul(m11, sz)
-        xb = xr
-        wb0 = wr0
-        wb1 = wr1
-        j += 1
-
-
 @wp.func
 def gamma_y(
     g00: wp.array2d(dtype=Any),
@@ -456,103 +351,233 @@ def primal_step_floats(data_grad: Any, y0: Any, y1: Any, z00: Any, z01: Any, z10
     store_floats(w1_bar.ptr, at, 2.0 * w1_new - w1_old)
 
 
-@wp.kernel
-def tgv_primal_step(
-    row0: int,
-    data_grad: wp.array2d(dtype=Any),
-    y0: wp.array2d(dtype=Any),
-    y1: wp.array2d(dtype=Any),
-    z00: wp.array2d(dtype=Any),
-    z01: wp.array2d(dtype=Any),
-    z10: wp.array2d(dtype=Any),
-    z11: wp.array2d(dtype=Any),
-    g00: wp.array2d(dtype=Any),
-    g01: wp.array2d(dtype=Any),
-    g11: wp.array2d(dtype=Any),
-    tau_x: wp.array2d(dtype=Any),
-    tau_w0: wp.array2d(dtype=Any),
-    tau_w1: wp.array2d(dtype=Any),
-    alpha0: float,
-    alpha1: float,
-    span: int,
-    # outputs
-    x: wp.array2d(dtype=Any),
-    w0: wp.array2d(dtype=Any),
-    w1: wp.array2d(dtype=Any),
-    x_bar: wp.array2d(dtype=Any),
-    w0_bar: wp.array2d(dtype=Any),
-    w1_bar: wp.array2d(dtype=Any),
-):
-    """x ← x − τ_x (Kᵀq − α1 div(Γy)),  w ← w − τ_w (−α1 Γy − α0 div z), then the
-    over-relaxation x̄ = 2x_new − x_old (likewise w̄), with Γ per unknown (``g00``,
-    ``g01``, ``g11``: :data:`expand_tensor`). Launch over (rows, ⌈columns / span⌉): a
-    thread walks ``span`` pixels of a row, TGV_FLOATS floats at once where they fit
-    (pixels with both row neighbours; see :data:`tgv_dual_step`)."""
-    i, c = wp.tid()
-    i = i + row0
-    h = x.shape[0]
-    w = x.shape[1]
-    j0 = c * span
-    end = wp.min(w, j0 + span)
-    k = len(x[i, j0])  # floats per pixel
-    chunk = int(TGV_FLOATS) // int(k)  # pixels per vector
-    row_at = wp.int64(i) * wp.int64(w)
-    above_at = wp.int64(wp.max(i - 1, 0)) * wp.int64(w)
-    j = j0
-    # Γy of the pixel to the left, carried from the last pixel (computed once)
-    l0, l1 = gamma_y(g00, g01, g11, y0, y1, i, wp.max(j0 - 1, 0))
-    while j < end:
-        if j >= 1 and j + chunk <= end and j + chunk <= w - 1:
-            at = (row_at + wp.int64(j)) * wp.int64(k)
-            primal_step_floats(data_grad, y0, y1, z00, z01, z10, z11, g00, g01, g11, tau_x, tau_w0, tau_w1, alpha0,
-                               alpha1, at, at - wp.int64(k), (above_at + wp.int64(j)) * wp.int64(k), i < h - 1,
-                               i > 0, x, w0, w1, x_bar, w0_bar, w1_bar)
-            j += chunk
-            l0, l1 = gamma_y(g00, g01, g11, y0, y1, i, j - 1)
-        else:
-            h0, h1 = gamma_y(g00, g01, g11, y0, y1, i, j)
-            div_h = type(h0)(0.0)
-            div_z0 = div_h
-            div_z1 = div_h
+def _tgv_steps(vector: bool):
+    """The TGV dual and primal steps, with the vector path (``vector``: the CPU's, where a
+    thread walks a row) or without it (CUDA, a thread per pixel: there the path would
+    never run, but its code would still take registers, 124 → 255 with spills for the dual
+    step on sm_90)."""
+
+    @wp.kernel
+    def tgv_dual_step(
+        row0: int,
+        x_bar: wp.array2d(dtype=Any),
+        w0_bar: wp.array2d(dtype=Any),
+        w1_bar: wp.array2d(dtype=Any),
+        g00: wp.array2d(dtype=Any),
+        g01: wp.array2d(dtype=Any),
+        g11: wp.array2d(dtype=Any),
+        sigma_y: wp.array2d(dtype=Any),
+        sigma_z: float,
+        alpha0: float,
+        alpha1: float,
+        span: int,
+        # outputs
+        y0: wp.array2d(dtype=Any),
+        y1: wp.array2d(dtype=Any),
+        z00: wp.array2d(dtype=Any),
+        z01: wp.array2d(dtype=Any),
+        z10: wp.array2d(dtype=Any),
+        z11: wp.array2d(dtype=Any),
+    ):
+        """y ← proj(y + σ_y α1 Γ(∇x̄ − w̄)),  z ← proj(z + σ_z α0 ∇w̄), with Γ per unknown
+        (``g00``, ``g01``, ``g11``: :data:`expand_tensor`). Launch over (rows, ⌈columns /
+        span⌉): a thread walks ``span`` pixels of a row. Where a thread's span holds them, it
+        takes TGV_FLOATS floats of every array at once (8 pixels of vec4 unknowns) whose
+        right neighbours are all in the row, as vectors (SIMD code on the CPU), with the
+        same arithmetic per float; the arrays must then be stored contiguously, all of
+        the same shape (offsets are taken from ``x_bar``'s). At the last
+        row the row below is the row itself, whose differences are exactly 0, as the
+        pixel-by-pixel code's are."""
+        i, c = wp.tid()
+        i = i + row0
+        h = x_bar.shape[0]
+        w = x_bar.shape[1]
+        j0 = c * span
+        end = wp.min(w, j0 + span)
+        xb = x_bar[i, j0]
+        k = len(xb)  # floats per pixel
+        chunk = int(TGV_FLOATS) // int(k)  # pixels per vector
+        down = wp.min(i + 1, h - 1)
+        sza = sigma_z * alpha0
+        j = j0
+        if wp.static(vector):
+            while j + chunk <= end and j + chunk <= w - 1:
+                at = (wp.int64(i) * wp.int64(w) + wp.int64(j)) * wp.int64(k)
+                dual_step_floats(x_bar, w0_bar, w1_bar, g00, g01, g11, sigma_y, sza, alpha1, at, at + wp.int64(k),
+                                 (wp.int64(down) * wp.int64(w) + wp.int64(j)) * wp.int64(k), y0, y1, z00, z01, z10, z11)
+                j += chunk
+        # the rest pixel by pixel, each one's values carried from the last pixel's right
+        # neighbour (loaded once)
+        if j < end:
+            xb = x_bar[i, j]
+            wb0 = w0_bar[i, j]
+            wb1 = w1_bar[i, j]
+        while j < end:
+            zero = type(xb)(0.0)
+            gx = zero
+            gy = zero
+            dx0 = zero
+            dy0 = zero
+            dx1 = zero
+            dy1 = zero
+            xr = xb
+            wr0 = wb0
+            wr1 = wb1
             if j < w - 1:
-                div_h += h0
-                div_z0 += z00[i, j]
-                div_z1 += z10[i, j]
-            if j > 0:
-                div_h -= l0
-                div_z0 -= z00[i, j - 1]
-                div_z1 -= z10[i, j - 1]
+                xr = x_bar[i, j + 1]
+                wr0 = w0_bar[i, j + 1]
+                wr1 = w1_bar[i, j + 1]
+                gx = xr - xb
+                dx0 = wr0 - wb0
+                dx1 = wr1 - wb1
             if i < h - 1:
-                div_h += h1
-                div_z0 += z01[i, j]
-                div_z1 += z11[i, j]
-            if i > 0:
-                u0, u1 = gamma_y(g00, g01, g11, y0, y1, i - 1, j)
-                div_h -= u1
-                div_z0 -= z01[i - 1, j]
-                div_z1 -= z11[i - 1, j]
-            x_old = x[i, j]
-            w0_old = w0[i, j]
-            w1_old = w1[i, j]
-            x_new = x_old - wp.cw_mul(tau_x[i, j], data_grad[i, j] - alpha1 * div_h)
-            w0_new = w0_old + wp.cw_mul(tau_w0[i, j], alpha1 * h0 + alpha0 * div_z0)
-            w1_new = w1_old + wp.cw_mul(tau_w1[i, j], alpha1 * h1 + alpha0 * div_z1)
-            x[i, j] = x_new
-            w0[i, j] = w0_new
-            w1[i, j] = w1_new
-            x_bar[i, j] = 2.0 * x_new - x_old
-            w0_bar[i, j] = 2.0 * w0_new - w0_old
-            w1_bar[i, j] = 2.0 * w1_new - w1_old
-            l0 = h0
-            l1 = h1
+                gy = x_bar[i + 1, j] - xb
+                dy0 = w0_bar[i + 1, j] - wb0
+                dy1 = w1_bar[i + 1, j] - wb1
+            r0 = gx - wb0
+            r1 = gy - wb1
+            a00 = g00[i, j]
+            a01 = g01[i, j]
+            a11 = g11[i, j]
+            sy = sigma_y[i, j]
+            n0 = y0[i, j] + alpha1 * wp.cw_mul(sy, wp.cw_mul(a00, r0) + wp.cw_mul(a01, r1))
+            n1 = y1[i, j] + alpha1 * wp.cw_mul(sy, wp.cw_mul(a01, r0) + wp.cw_mul(a11, r1))
+            m00 = z00[i, j] + sza * dx0
+            m01 = z01[i, j] + sza * dy0
+            m10 = z10[i, j] + sza * dx1
+            m11 = z11[i, j] + sza * dy1
+            sy = zero
+            sz = zero
+            for q in range(len(xb)):
+                sy[q] = 1.0 / at_least(wp.sqrt(n0[q] * n0[q] + n1[q] * n1[q]), 1.0)
+                sz[q] = 1.0 / at_least(wp.sqrt(m00[q] * m00[q] + m01[q] * m01[q] + m10[q] * m10[q] + m11[q] * m11[q]),
+                                     1.0)
+            y0[i, j] = wp.cw_mul(n0, sy)
+            y1[i, j] = wp.cw_mul(n1, sy)
+            z00[i, j] = wp.cw_mul(m00, sz)
+            z01[i, j] = wp.cw_mul(m01, sz)
+            z10[i, j] = wp.cw_mul(m10, sz)
+            z11[i, j] = wp.cw_mul(m11, sz)
+            xb = xr
+            wb0 = wr0
+            wb1 = wr1
             j += 1
+
+    @wp.kernel
+    def tgv_primal_step(
+        row0: int,
+        data_grad: wp.array2d(dtype=Any),
+        y0: wp.array2d(dtype=Any),
+        y1: wp.array2d(dtype=Any),
+        z00: wp.array2d(dtype=Any),
+        z01: wp.array2d(dtype=Any),
+        z10: wp.array2d(dtype=Any),
+        z11: wp.array2d(dtype=Any),
+        g00: wp.array2d(dtype=Any),
+        g01: wp.array2d(dtype=Any),
+        g11: wp.array2d(dtype=Any),
+        tau_x: wp.array2d(dtype=Any),
+        tau_w0: wp.array2d(dtype=Any),
+        tau_w1: wp.array2d(dtype=Any),
+        alpha0: float,
+        alpha1: float,
+        span: int,
+        # outputs
+        x: wp.array2d(dtype=Any),
+        w0: wp.array2d(dtype=Any),
+        w1: wp.array2d(dtype=Any),
+        x_bar: wp.array2d(dtype=Any),
+        w0_bar: wp.array2d(dtype=Any),
+        w1_bar: wp.array2d(dtype=Any),
+    ):
+        """x ← x − τ_x (Kᵀq − α1 div(Γy)),  w ← w − τ_w (−α1 Γy − α0 div z), then the
+        over-relaxation x̄ = 2x_new − x_old (likewise w̄), with Γ per unknown (``g00``,
+        ``g01``, ``g11``: :data:`expand_tensor`). Launch over (rows, ⌈columns / span⌉): a
+        thread walks ``span`` pixels of a row, TGV_FLOATS floats at once where they fit
+        (pixels with both row neighbours; see :data:`tgv_dual_step`), the arrays then
+        stored contiguously, all of ``x``'s shape."""
+        i, c = wp.tid()
+        i = i + row0
+        h = x.shape[0]
+        w = x.shape[1]
+        j0 = c * span
+        end = wp.min(w, j0 + span)
+        k = len(x[i, j0])  # floats per pixel
+        chunk = int(TGV_FLOATS) // int(k)  # pixels per vector
+        row_at = wp.int64(i) * wp.int64(w)
+        above_at = wp.int64(wp.max(i - 1, 0)) * wp.int64(w)
+        j = j0
+        # Γy of the pixel to the left, carried from the last pixel (computed once)
+        l0, l1 = gamma_y(g00, g01, g11, y0, y1, i, wp.max(j0 - 1, 0))
+        while j < end:
+            if wp.static(vector) and j >= 1 and j + chunk <= end and j + chunk <= w - 1:
+                at = (row_at + wp.int64(j)) * wp.int64(k)
+                primal_step_floats(data_grad, y0, y1, z00, z01, z10, z11, g00, g01, g11, tau_x, tau_w0, tau_w1, alpha0,
+                                   alpha1, at, at - wp.int64(k), (above_at + wp.int64(j)) * wp.int64(k), i < h - 1,
+                                   i > 0, x, w0, w1, x_bar, w0_bar, w1_bar)
+                j += chunk
+                l0, l1 = gamma_y(g00, g01, g11, y0, y1, i, j - 1)
+            else:
+                h0, h1 = gamma_y(g00, g01, g11, y0, y1, i, j)
+                div_h = type(h0)(0.0)
+                div_z0 = div_h
+                div_z1 = div_h
+                if j < w - 1:
+                    div_h += h0
+                    div_z0 += z00[i, j]
+                    div_z1 += z10[i, j]
+                if j > 0:
+                    div_h -= l0
+                    div_z0 -= z00[i, j - 1]
+                    div_z1 -= z10[i, j - 1]
+                if i < h - 1:
+                    div_h += h1
+                    div_z0 += z01[i, j]
+                    div_z1 += z11[i, j]
+                if i > 0:
+                    u0, u1 = gamma_y(g00, g01, g11, y0, y1, i - 1, j)
+                    div_h -= u1
+                    div_z0 -= z01[i - 1, j]
+                    div_z1 -= z11[i - 1, j]
+                x_old = x[i, j]
+                w0_old = w0[i, j]
+                w1_old = w1[i, j]
+                x_new = x_old - wp.cw_mul(tau_x[i, j], data_grad[i, j] - alpha1 * div_h)
+                w0_new = w0_old + wp.cw_mul(tau_w0[i, j], alpha1 * h0 + alpha0 * div_z0)
+                w1_new = w1_old + wp.cw_mul(tau_w1[i, j], alpha1 * h1 + alpha0 * div_z1)
+                x[i, j] = x_new
+                w0[i, j] = w0_new
+                w1[i, j] = w1_new
+                x_bar[i, j] = 2.0 * x_new - x_old
+                w0_bar[i, j] = 2.0 * w0_new - w0_old
+                w1_bar[i, j] = 2.0 * w1_new - w1_old
+                l0 = h0
+                l1 = h1
+                j += 1
+
+    return tgv_dual_step, tgv_primal_step
+
+
+#: The TGV steps with their vector path (the CPU) …
+tgv_dual_step, tgv_primal_step = _tgv_steps(True)
+#: … and pixel by pixel only (CUDA).
+tgv_dual_step_pixel, tgv_primal_step_pixel = _tgv_steps(False)
+
+
+def tgv_kernels(device: str):
+    """(dual step, primal step) for a device: with the vector path on the CPU, pixel by
+    pixel on CUDA."""
+    if str(device).startswith("cpu"):
+        return tgv_dual_step, tgv_primal_step
+    return tgv_dual_step_pixel, tgv_primal_step_pixel
 
 
 # the kernels on the unknowns, for vec4 (δ1, δ2, u, v) and vec2 (u, v; flow only)
 overload_unknowns(joint_diffusion_tensor, "x_hat")
 overload_unknowns(tgv_preconditioner, "data_colsum", "tau_x", "tau_w0", "tau_w1", "sigma_y")
 overload_unknowns(expand_tensor, "g00", "g01", "g11")
-overload_unknowns(tgv_dual_step, "x_bar", "w0_bar", "w1_bar", "g00", "g01", "g11", "sigma_y", "y0", "y1", "z00",
-                  "z01", "z10", "z11")
-overload_unknowns(tgv_primal_step, "data_grad", "y0", "y1", "z00", "z01", "z10", "z11", "g00", "g01", "g11", "tau_x",
-                  "tau_w0", "tau_w1", "x", "w0", "w1", "x_bar", "w0_bar", "w1_bar")
+for _dual, _primal in ((tgv_dual_step, tgv_primal_step), (tgv_dual_step_pixel, tgv_primal_step_pixel)):
+    overload_unknowns(_dual, "x_bar", "w0_bar", "w1_bar", "g00", "g01", "g11", "sigma_y", "y0", "y1", "z00", "z01",
+                      "z10", "z11")
+    overload_unknowns(_primal, "data_grad", "y0", "y1", "z00", "z01", "z10", "z11", "g00", "g01", "g11", "tau_x",
+                      "tau_w0", "tau_w1", "x", "w0", "w1", "x_bar", "w0_bar", "w1_bar")

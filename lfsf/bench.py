@@ -126,10 +126,9 @@ def _copies(nbytes: int, dev: str, src=None, dst=None) -> dict[str, Callable[[],
     to 55 GB/s (read + write counted) where one ``wp.copy`` ran at 30–40. ``src`` and
     ``dst``: the float arrays to copy between (default: new ones of ``nbytes``)."""
     wp = _device.warp()
-    n = max(1, nbytes // 4)
-    src = wp.zeros(n, dtype=float, device=dev) if src is None else src
-    dst = wp.empty(n, dtype=float, device=dev) if dst is None else dst
+    src = wp.zeros(max(1, nbytes // 4), dtype=float, device=dev) if src is None else src
     n = src.size
+    dst = wp.empty(n, dtype=float, device=dev) if dst is None else dst
     copies = {"wp.copy": lambda: wp.copy(dst, src)}
     threads = 1 if wp.get_device(dev).is_cuda else _device.cpu_threads()
     if threads > 1 and n >= threads:
@@ -230,12 +229,12 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
          f * h * w * (data_term.COEFFICIENTS * s + 2 + 4 + 4 + 3 * s + 3 * s + 4)),
         # reads x̄, w̄ (12), the three tensors (9: it reads them as Γ's entries per unknown, 12, but is
         # credited with the 9 it must move), σ_y (4) and the six duals (24); writes the duals (24)
-        ("tgv_dual_step", launch(tgv.tgv_dual_step, [x_bar, w0_bar, w1_bar, *gammas, sigma_y, 0.25, 2.0, 0.5,
+        ("tgv_dual_step", launch(tgv.tgv_kernels(dev)[0], [x_bar, w0_bar, w1_bar, *gammas, sigma_y, 0.25, 2.0, 0.5,
                                                      span], [y0, y1, z00, z01, z10, z11], dim=(h, per_row)),
          f * h * w * (12 + 9 + 4 + 24 + 24)),
         # reads Kᵀq (4), the duals (24), the tensors (9, as above), τ (12), x and w (12); writes x, w and their
         # bars (24)
-        ("tgv_primal_step", launch(tgv.tgv_primal_step,
+        ("tgv_primal_step", launch(tgv.tgv_kernels(dev)[1],
                                    [data_grad, y0, y1, z00, z01, z10, z11, *gammas, tau[0], tau[1], tau[2], 2.0,
                                     0.5, span], [x, w0, w1, x_bar, w0_bar, w1_bar], dim=(h, per_row)),
          f * h * w * (4 + 24 + 9 + 12 + 12 + 24)),

@@ -328,15 +328,16 @@ class LevelSolver:
                                         bands=self.bands)
 
         groups, per_row = _device.row_span(self.device, self.coef.shape[1])  # groups of lanes per thread
+        dual_step, primal_step = tgv.tgv_kernels(self.device)
         return [
             record(data_term.dual_data_kernel(self.lanes),
                    inputs=[self.coef, self.weights, self.grad_j2, self.x_bar, self.x_hat, groups],
                    outputs=[self.q, self.data_grad], dim=(self.shape[0], per_row)),
-            record(tgv.tgv_dual_step,
+            record(dual_step,
                    inputs=[self.x_bar, self.w0_bar, self.w1_bar, *self.tensor_entries, self.sigma_y, sigma_z,
                            p.alpha0, p.alpha1, self.span],
                    outputs=[self.y0, self.y1, self.z00, self.z01, self.z10, self.z11]),
-            record(tgv.tgv_primal_step,
+            record(primal_step,
                    inputs=[self.data_grad, self.y0, self.y1, self.z00, self.z01, self.z10, self.z11,
                            *self.tensor_entries, self.tau_x, self.tau_w0, self.tau_w1, p.alpha0, p.alpha1, self.span],
                    outputs=[self.x, self.w0, self.w1, self.x_bar, self.w0_bar, self.w1_bar]),

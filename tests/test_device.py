@@ -138,7 +138,8 @@ def test_captured_loop_runs_its_steps_n_times_in_order(bands):
         primal = ([b["grad"], b["y0"], b["y1"], b["z00"], b["z01"], b["z10"], b["z11"], *b["g"],
                    b["tx"], b["tw0"], b["tw1"], 2.0, 0.5, w],
                   [b["x"], b["w0"], b["w1"], b["x_bar"], b["w0_bar"], b["w1_bar"]])
-        return [(tgv.tgv_dual_step, *dual), (tgv.tgv_primal_step, *primal)]
+        dual_step, primal_step = tgv.tgv_kernels("cpu")
+        return [(dual_step, *dual), (primal_step, *primal)]
 
     plain, replayed = buffers(), buffers()
     for _ in range(3):

@@ -1213,7 +1213,7 @@ def test_tgv_dual_step_matches_reference(device, h, w, span, unknowns):
     sigma_y = r.uniform(0.1, 0.8, (h, w, 4)).astype(np.float32)
     sigma_z = 1.0 / (2.0 * alpha0)
     duals = [unknowns_arr(a, unknowns, device) for a in (y0, y1, z00, z01, z10, z11)]
-    launch(tgv.tgv_dual_step, (h, -(-w // span)),
+    launch(tgv.tgv_kernels(device)[0], (h, -(-w // span)),
            [unknowns_arr(x_bar, unknowns, device), unknowns_arr(w0_bar, unknowns, device),
             unknowns_arr(w1_bar, unknowns, device), *_tensor_entries(t1, t2, t3, unknowns, device),
             unknowns_arr(sigma_y, unknowns, device),
@@ -1242,7 +1242,7 @@ def test_tgv_primal_step_matches_reference(device, h, w, span, unknowns):
     tau_x, tau_w0, tau_w1 = (r.uniform(0.05, 0.5, (h, w, 4)).astype(np.float32) for _ in range(3))
     prim = [unknowns_arr(a, unknowns, device) for a in (x, w0, w1)]
     bars = [unknowns_zeros((h, w), unknowns, device) for _ in range(3)]
-    launch(tgv.tgv_primal_step, (h, -(-w // span)),
+    launch(tgv.tgv_kernels(device)[1], (h, -(-w // span)),
            [unknowns_arr(data_grad, unknowns, device)]
            + [unknowns_arr(a, unknowns, device) for a in (y0, y1, z00, z01, z10, z11)]
            + _tensor_entries(t1, t2, t3, unknowns, device)
@@ -1252,6 +1252,35 @@ def test_tgv_primal_step_matches_reference(device, h, w, span, unknowns):
                                alpha0, alpha1, x, w0, w1, t3)
     for name, got, exp in zip(("x", "w0", "w1", "x_bar", "w0_bar", "w1_bar"), prim + bars, want):
         np.testing.assert_allclose(got.numpy(), flow_part(exp, unknowns), rtol=1e-5, atol=1e-5, err_msg=name)
+
+
+@UNKNOWNS
+@pytest.mark.parametrize("h, w, span", [(5, 41, 41), (5, 41, 19), (1, 40, 40), (3, 19, 19)])
+def test_tgv_steps_vector_path_equals_pixel_by_pixel(h, w, span, unknowns):
+    """On the CPU the TGV steps take 32 floats at once where they fit (the vector path);
+    their CUDA instances go pixel by pixel. Both give the same bits, steps chained over a
+    few iterations (here both on the CPU)."""
+    from lfsf.kernels import tgv
+
+    t1, t2, t3 = _tgv_setting(30, h, w)
+    fields = _tgv_fields(31, h, w, 0.5)
+    r = rng(32)
+    data_grad = r.standard_normal((h, w, 4)).astype(np.float32)
+    steps_ = [r.uniform(0.05, 0.5, (h, w, 4)).astype(np.float32) for _ in range(4)]
+    runs = []
+    for dual, primal in ((tgv.tgv_dual_step, tgv.tgv_primal_step), (tgv.tgv_dual_step_pixel, tgv.tgv_primal_step_pixel)):
+        g = _tensor_entries(t1, t2, t3, unknowns, "cpu")
+        x, w0, w1, y0, y1, z00, z01, z10, z11 = (unknowns_arr(a, unknowns, "cpu") for a in fields)
+        bars = [unknowns_arr(a, unknowns, "cpu") for a in fields[:3]]
+        sy, tx, tw0, tw1 = (unknowns_arr(a, unknowns, "cpu") for a in steps_)
+        for _ in range(3):
+            launch(dual, (h, -(-w // span)), [*bars, *g, sy, 0.25, 2.0, 0.5, span], [y0, y1, z00, z01, z10, z11], "cpu")
+            launch(primal, (h, -(-w // span)),
+                   [unknowns_arr(data_grad, unknowns, "cpu"), y0, y1, z00, z01, z10, z11, *g, tx, tw0, tw1, 2.0, 0.5,
+                    span], [x, w0, w1, *bars], "cpu")
+        runs.append([a.numpy() for a in (x, w0, w1, y0, y1, z00, z01, z10, z11, *bars)])
+    for got, want in zip(*runs):
+        np.testing.assert_array_equal(got.view(np.uint32), want.view(np.uint32))
 
 
 def test_tgv_gradient_and_divergence_are_negative_adjoints(device):
@@ -1273,7 +1302,7 @@ def test_tgv_gradient_and_divergence_are_negative_adjoints(device):
     step = 1e-2
     duals = [wp.zeros((h, w), dtype=wp.vec4, device=device) for _ in range(6)]
     span, per_row = D.row_span(device, w)
-    launch(tgv.tgv_dual_step, (h, per_row),
+    launch(tgv.tgv_kernels(device)[0], (h, per_row),
            [arr(x, wp.vec4, device), arr(zeros, wp.vec4, device), arr(wf, wp.vec4, device),
             *_tensor_entries(t1, t2, t3, "vec4", device), arr(step * ones, wp.vec4, device),
             step, 1.0, alpha1, span], duals, device)
@@ -1290,7 +1319,7 @@ def test_tgv_gradient_and_divergence_are_negative_adjoints(device):
     y0, y1, z0, z1 = (r.standard_normal((h, w, 4)).astype(np.float32) for _ in range(4))
     prim = [arr(x, wp.vec4, device), arr(zeros, wp.vec4, device), arr(zeros, wp.vec4, device)]
     bars = [wp.zeros((h, w), dtype=wp.vec4, device=device) for _ in range(3)]
-    launch(tgv.tgv_primal_step, (h, per_row),
+    launch(tgv.tgv_kernels(device)[1], (h, per_row),
            [arr(zeros, wp.vec4, device), arr(y0, wp.vec4, device), arr(y1, wp.vec4, device),
             arr(z0, wp.vec4, device), arr(z1, wp.vec4, device), arr(zeros, wp.vec4, device),
             arr(zeros, wp.vec4, device), *_tensor_entries(t1, t2, t3, "vec4", device),
