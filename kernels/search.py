@@ -375,101 +375,122 @@ def store_box_row(out: wp.array3d(dtype=float), k: int, i: int, j: int, v: box_r
         run[jj] = v[jj]
 
 
-@wp.kernel
-def box_sum(
-    row0: int,
-    values: wp.array3d(dtype=float),
-    radius: int,
-    span: int,
-    # outputs
-    out: wp.array3d(dtype=float),
-):
-    """Mean of each slice over a (2r+1)² window, clamped at the borders. Launch over
-    (slices × rows, ⌈columns / span⌉) (:func:`lfsf.device.row_span`). For r = 1 (the
-    default search radius) a thread takes BOX_LANES columns at once where no column of
-    their windows is clamped (vector code; ``values`` and ``out`` must be stored
-    contiguously, with the same shape), the sum in the same order as pixel by pixel."""
-    r, c = wp.tid()
-    r = r + row0
-    h = values.shape[1]
-    w = values.shape[2]
-    k = r // h
-    i = r - k * h
-    side = float(2 * radius + 1)
-    j0 = c * span
-    if radius == 1:
-        end = wp.min(w, j0 + span)
-        j = j0
-        while j < end:
-            if box_run_fits(j, end, w):
-                # BOX_LANES columns at once, as vectors: the same sums in the same order
-                a, b, d = window_runs(values, k, i, j)
-                v = box_row()
-                for jj in range(BOX_LANES):
-                    v[jj] = (a[jj] + a[jj + 1] + a[jj + 2] + b[jj] + b[jj + 1] + b[jj + 2] + d[jj] + d[jj + 1]
-                             + d[jj + 2]) / 9.0
-                store_box_row(out, k, i, j, v)
-                j += BOX_LANES
-            else:
-                left, mid, right = window_columns(values, k, i, j)
-                acc = left[0] + mid[0] + right[0] + left[1] + mid[1] + right[1] + left[2] + mid[2] + right[2]
-                out[k, i, j] = acc / 9.0
-                j += 1
-    else:
-        for j in range(j0, wp.min(w, j0 + span)):
-            acc = float(0.0)
-            for dy in range(-radius, radius + 1):
-                for dx in range(-radius, radius + 1):
-                    acc += values[k, wp.clamp(i + dy, 0, h - 1), wp.clamp(j + dx, 0, w - 1)]
-            out[k, i, j] = acc / (side * side)
+def _box_kernels(vector: bool):
+    """:data:`box_sum` and :data:`box_min`, with the runs of BOX_LANES columns as vector
+    code (``vector``: the CPU's, where a thread walks a row) or pixel by pixel only (CUDA,
+    a thread per pixel, where the runs never fit but their code would take registers)."""
+
+    @wp.kernel
+    def box_sum(
+        row0: int,
+        values: wp.array3d(dtype=float),
+        radius: int,
+        span: int,
+        # outputs
+        out: wp.array3d(dtype=float),
+    ):
+        """Mean of each slice over a (2r+1)² window, clamped at the borders. Launch over
+        (slices × rows, ⌈columns / span⌉) (:func:`lfsf.device.row_span`). For r = 1 (the
+        default search radius) a thread takes BOX_LANES columns at once where no column of
+        their windows is clamped (vector code; ``values`` and ``out`` must be stored
+        contiguously, with the same shape), the sum in the same order as pixel by pixel."""
+        r, c = wp.tid()
+        r = r + row0
+        h = values.shape[1]
+        w = values.shape[2]
+        k = r // h
+        i = r - k * h
+        side = float(2 * radius + 1)
+        j0 = c * span
+        if radius == 1:
+            end = wp.min(w, j0 + span)
+            j = j0
+            while j < end:
+                if wp.static(vector) and box_run_fits(j, end, w):
+                    # BOX_LANES columns at once, as vectors: the same sums in the same order
+                    a, b, d = window_runs(values, k, i, j)
+                    v = box_row()
+                    for jj in range(BOX_LANES):
+                        v[jj] = (a[jj] + a[jj + 1] + a[jj + 2] + b[jj] + b[jj + 1] + b[jj + 2] + d[jj] + d[jj + 1]
+                                 + d[jj + 2]) / 9.0
+                    store_box_row(out, k, i, j, v)
+                    j += BOX_LANES
+                else:
+                    left, mid, right = window_columns(values, k, i, j)
+                    acc = left[0] + mid[0] + right[0] + left[1] + mid[1] + right[1] + left[2] + mid[2] + right[2]
+                    out[k, i, j] = acc / 9.0
+                    j += 1
+        else:
+            for j in range(j0, wp.min(w, j0 + span)):
+                acc = float(0.0)
+                for dy in range(-radius, radius + 1):
+                    for dx in range(-radius, radius + 1):
+                        acc += values[k, wp.clamp(i + dy, 0, h - 1), wp.clamp(j + dx, 0, w - 1)]
+                out[k, i, j] = acc / (side * side)
 
 
-@wp.kernel
-def box_min(
-    row0: int,
-    values: wp.array3d(dtype=float),
-    radius: int,
-    span: int,
-    # outputs
-    out: wp.array3d(dtype=float),
-):
-    """Least value of each slice over a (2r+1)² window, clamped at the borders: after
-    :func:`box_sum`, the cost of the best of the windows that hold the pixel (shiftable
-    windows). Launch over (slices × rows, ⌈columns / span⌉). For r = 1, BOX_LANES
-    columns at once where they fit, as in :func:`box_sum`: ``values`` and ``out`` must be
-    stored contiguously, with the same shape."""
-    r, c = wp.tid()
-    r = r + row0
-    h = values.shape[1]
-    w = values.shape[2]
-    k = r // h
-    i = r - k * h
-    j0 = c * span
-    if radius == 1:
-        end = wp.min(w, j0 + span)
-        j = j0
-        while j < end:
-            if box_run_fits(j, end, w):
-                # BOX_LANES columns at once, as vectors: the same minima in the same order
-                a, b, d = window_runs(values, k, i, j)
-                v = box_row()
-                for jj in range(BOX_LANES):
-                    v[jj] = wp.min(wp.min(wp.min(wp.vec3(a[jj], b[jj], d[jj])), wp.min(wp.vec3(a[jj + 1], b[jj + 1],
-                                                                                              d[jj + 1]))),
-                                   wp.min(wp.vec3(a[jj + 2], b[jj + 2], d[jj + 2])))
-                store_box_row(out, k, i, j, v)
-                j += BOX_LANES
-            else:
-                left, mid, right = window_columns(values, k, i, j)
-                out[k, i, j] = wp.min(wp.min(wp.min(left), wp.min(mid)), wp.min(right))
-                j += 1
-    else:
-        for j in range(j0, wp.min(w, j0 + span)):
-            m = values[k, i, j]
-            for dy in range(-radius, radius + 1):
-                for dx in range(-radius, radius + 1):
-                    m = wp.min(m, values[k, wp.clamp(i + dy, 0, h - 1), wp.clamp(j + dx, 0, w - 1)])
-            out[k, i, j] = m
+    @wp.kernel
+    def box_min(
+        row0: int,
+        values: wp.array3d(dtype=float),
+        radius: int,
+        span: int,
+        # outputs
+        out: wp.array3d(dtype=float),
+    ):
+        """Least value of each slice over a (2r+1)² window, clamped at the borders: after
+        :func:`box_sum`, the cost of the best of the windows that hold the pixel (shiftable
+        windows). Launch over (slices × rows, ⌈columns / span⌉). For r = 1, BOX_LANES
+        columns at once where they fit, as in :func:`box_sum`: ``values`` and ``out`` must be
+        stored contiguously, with the same shape."""
+        r, c = wp.tid()
+        r = r + row0
+        h = values.shape[1]
+        w = values.shape[2]
+        k = r // h
+        i = r - k * h
+        j0 = c * span
+        if radius == 1:
+            end = wp.min(w, j0 + span)
+            j = j0
+            while j < end:
+                if wp.static(vector) and box_run_fits(j, end, w):
+                    # BOX_LANES columns at once, as vectors: the same minima in the same order
+                    a, b, d = window_runs(values, k, i, j)
+                    v = box_row()
+                    for jj in range(BOX_LANES):
+                        v[jj] = wp.min(wp.min(wp.min(wp.vec3(a[jj], b[jj], d[jj])), wp.min(wp.vec3(a[jj + 1], b[jj + 1],
+                                                                                                  d[jj + 1]))),
+                                       wp.min(wp.vec3(a[jj + 2], b[jj + 2], d[jj + 2])))
+                    store_box_row(out, k, i, j, v)
+                    j += BOX_LANES
+                else:
+                    left, mid, right = window_columns(values, k, i, j)
+                    out[k, i, j] = wp.min(wp.min(wp.min(left), wp.min(mid)), wp.min(right))
+                    j += 1
+        else:
+            for j in range(j0, wp.min(w, j0 + span)):
+                m = values[k, i, j]
+                for dy in range(-radius, radius + 1):
+                    for dx in range(-radius, radius + 1):
+                        m = wp.min(m, values[k, wp.clamp(i + dy, 0, h - 1), wp.clamp(j + dx, 0, w - 1)])
+                out[k, i, j] = m
+
+    return box_sum, box_min
+
+
+#: The window filters with their vector runs (the CPU) …
+box_sum, box_min = _box_kernels(True)
+#: … and pixel by pixel only (CUDA).
+box_sum_pixel, box_min_pixel = _box_kernels(False)
+
+
+def box_kernels(device: str):
+    """(:data:`box_sum`, :data:`box_min`) for a device: with vector runs on the CPU, pixel
+    by pixel on CUDA."""
+    if str(device).startswith("cpu"):
+        return box_sum, box_min
+    return box_sum_pixel, box_min_pixel
 
 
 @wp.func

@@ -356,9 +356,10 @@ def _windowed_cost(kernel, inputs, count: int, size, search_radius: int, device:
     if search_radius <= 0:
         return cost
     smooth = wp.empty_like(cost)
-    _device.launch_rows(search.box_sum, dim=(count * h, per_row), inputs=[cost, search_radius, span],
+    box_sum, box_min = search.box_kernels(device)
+    _device.launch_rows(box_sum, dim=(count * h, per_row), inputs=[cost, search_radius, span],
                         outputs=[smooth], device=device)
-    _device.launch_rows(search.box_min, dim=(count * h, per_row), inputs=[smooth, search_radius, span],
+    _device.launch_rows(box_min, dim=(count * h, per_row), inputs=[smooth, search_radius, span],
                         outputs=[cost], device=device)
     return cost
 

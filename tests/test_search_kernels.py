@@ -38,14 +38,16 @@ def run_disparity_cost(samples, phis, candidates, base, offset, device, span=Non
     return cost.numpy()
 
 
-def run_box_sum(values, radius, device, span=None):
-    """``span`` pixels of a row per thread (default: the device's, lfsf.device.row_span)."""
+def run_box_sum(values, radius, device, span=None, pixel=False):
+    """``span`` pixels of a row per thread (default: the device's, lfsf.device.row_span);
+    ``pixel``: the instance without vector runs (CUDA's)."""
     from lfsf.kernels import search
 
     k, h, w = values.shape
     span = D.row_span(device, w)[0] if span is None else span
     out = wp.zeros((k, h, w), dtype=float, device=device)
-    launch(search.box_sum, (k * h, -(-w // span)), [arr(values, float, device), radius, span], [out], device)
+    kernel = search.box_sum_pixel if pixel else search.box_sum
+    launch(kernel, (k * h, -(-w // span)), [arr(values, float, device), radius, span], [out], device)
     return out.numpy()
 
 
@@ -243,8 +245,10 @@ def test_box_sum_matches_reference(radius, w, span, device):
     values = rng(3).random((3, 4, w)).astype(np.float32)
     got = run_box_sum(values, radius, device, span)
     close(got, ref.box_mean(values, radius))
-    # threads of many columns (vector runs) sum as a thread per pixel does, bit for bit
+    # threads of many columns (vector runs) sum as a thread per pixel does, bit for bit, and
+    # as the instance without vector runs (CUDA's) does
     np.testing.assert_array_equal(got, run_box_sum(values, radius, device, 1))
+    np.testing.assert_array_equal(got, run_box_sum(values, radius, device, span, pixel=True))
     if radius == 0:
         np.testing.assert_array_equal(got, values)
     # a constant is kept, borders included (the window is clamped, the mean stays a mean)
@@ -260,6 +264,9 @@ def test_box_min_matches_reference(radius, w, span, device):
     out = wp.zeros((3, 5, w), dtype=float, device=device)
     launch(search.box_min, (3 * 5, -(-w // span)), [arr(values, float, device), radius, span], [out], device)
     np.testing.assert_array_equal(out.numpy(), ref.box_min(values, radius).astype(np.float32))
+    plain = wp.zeros((3, 5, w), dtype=float, device=device)  # the instance without vector runs (CUDA's)
+    launch(search.box_min_pixel, (3 * 5, -(-w // span)), [arr(values, float, device), radius, span], [plain], device)
+    np.testing.assert_array_equal(plain.numpy(), out.numpy())
     if radius == 0:
         np.testing.assert_array_equal(out.numpy(), values)
 
