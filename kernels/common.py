@@ -55,6 +55,13 @@ def float_run(ptr: wp.uint64, offset: wp.int64, n: int):
 
 
 @wp.func
+def contiguous_row(a: wp.array3d(dtype=float), s: int, i: int, j: int, n: int):
+    """a[s, i, j : j + n] as a 1-D array of constant stride (:func:`float_run`), for an
+    ``a`` stored contiguously (C order)."""
+    return float_run(a.ptr, (wp.int64(s) * wp.int64(a.shape[1]) + wp.int64(i)) * wp.int64(a.shape[2]) + wp.int64(j), n)
+
+
+@wp.func
 def to_vec4(x: wp.vec4):
     """The unknowns as (δ1, δ2, u, v)."""
     return x

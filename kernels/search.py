@@ -19,8 +19,8 @@ takes the mean over the others.
 
 import warp as wp
 
-from .common import (HALF_PLANES, bilinear, float_run, footprint_visible, half_plane_mask, half_plane_residuals, inside,
-                     lane_vector, least_half_mean, vec8, visible)
+from .common import (HALF_PLANES, bilinear, contiguous_row, footprint_visible, half_plane_mask, half_plane_residuals,
+                     inside, lane_vector, least_half_mean, vec8, visible)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -128,13 +128,6 @@ def sample_half_planes(
     Launch over the samples."""
     s = wp.tid() + row0
     masks[s] = half_plane_mask(phis[s])
-
-
-@wp.func
-def contiguous_row(a: wp.array3d(dtype=float), s: int, i: int, j: int, n: int):
-    """a[s, i, j : j + n] as a 1-D array of constant stride (:func:`float_run`), for an
-    ``a`` stored contiguously (C order)."""
-    return float_run(a.ptr, (wp.int64(s) * wp.int64(a.shape[1]) + wp.int64(i)) * wp.int64(a.shape[2]) + wp.int64(j), n)
 
 
 #: Columns one thread of the plane-sweep kernels walks on the CPU (:data:`sweep_cost`);
@@ -336,7 +329,7 @@ def window_column(values: wp.array3d(dtype=float), k: int, i: int, j: int):
 
 #: Columns the window filters take at once where the window needs no clamped column: the
 #: same sums in the same order over a constant range, which the compiler turns into
-#: vector code (the rows must be stored contiguously, :func:`float_run`).
+#: vector code (the rows must be stored contiguously, :func:`contiguous_row`).
 BOX_LANES = 32
 box_row = lane_vector(BOX_LANES)
 
@@ -344,14 +337,10 @@ box_row = lane_vector(BOX_LANES)
 @wp.func
 def window_runs(values: wp.array3d(dtype=float), k: int, i: int, j: int):
     """Rows i − 1, i, i + 1 of slice k (clamped to the slice) from column j − 1, BOX_LANES
-    + 2 floats each (:func:`float_run`)."""
-    h = values.shape[1]
-    w = values.shape[2]
-    top = (wp.int64(k) * wp.int64(h) + wp.int64(wp.max(i - 1, 0))) * wp.int64(w) + wp.int64(j - 1)
-    mid = (wp.int64(k) * wp.int64(h) + wp.int64(i)) * wp.int64(w) + wp.int64(j - 1)
-    low = (wp.int64(k) * wp.int64(h) + wp.int64(wp.min(i + 1, h - 1))) * wp.int64(w) + wp.int64(j - 1)
+    + 2 floats each (:func:`contiguous_row`)."""
     n = BOX_LANES + 2
-    return float_run(values.ptr, top, n), float_run(values.ptr, mid, n), float_run(values.ptr, low, n)
+    return (contiguous_row(values, k, wp.max(i - 1, 0), j - 1, n), contiguous_row(values, k, i, j - 1, n),
+            contiguous_row(values, k, wp.min(i + 1, values.shape[1] - 1), j - 1, n))
 
 
 @wp.func
@@ -369,8 +358,7 @@ def window_columns(values: wp.array3d(dtype=float), k: int, i: int, j: int):
 
 @wp.func
 def store_box_row(out: wp.array3d(dtype=float), k: int, i: int, j: int, v: box_row):
-    at = (wp.int64(k) * wp.int64(out.shape[1]) + wp.int64(i)) * wp.int64(out.shape[2]) + wp.int64(j)
-    run = float_run(out.ptr, at, BOX_LANES)
+    run = contiguous_row(out, k, i, j, BOX_LANES)
     for jj in range(BOX_LANES):
         run[jj] = v[jj]
 

@@ -113,8 +113,9 @@ class LevelSolver:
         self.hidden2 = wp.zeros((h, w), dtype=float, device=device)
         self.scratch1 = wp.zeros((h, w), dtype=float, device=device)
         self._iteration = None  # the recorded iteration (``iterate``)
-        self._tensors()
-        self._expand_tensors()  # (flow only: Γ_t1 for all, set once)
+        self._tensors()  # (expands Γ's entries, except flow only:)
+        if self.flow_only:
+            self._expand_tensors()  # Γ_t1 for all three, set once
 
     def _launch(self, kernel, inputs, outputs):
         _device.launch_rows(kernel, dim=self.shape, inputs=inputs, outputs=outputs, device=self.device,
