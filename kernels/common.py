@@ -122,6 +122,25 @@ def bilinear_gradient(img: wp.array2d(dtype=float), x: float, y: float):
 
 
 @wp.func
+def bilinear_taps(a0: float, a1: float, a2: float, a3: float, b0: float, b1: float, b2: float, b3: float, u0: float,
+                  u1: float, d0: float, d1: float, fx: float, fy: float):
+    """:func:`bilinear_with_gradient`'s value and gradient (∂x, ∂y) away from the borders,
+    at (j + fx, i + fy), from the twelve pixels its five lookups read: rows i and i + 1
+    over columns j − 1 … j + 2 (a0 … a3, b0 … b3), rows i − 1 (u0, u1) and i + 2 (d0, d1)
+    over j, j + 1."""
+    gx = 1.0 - fx
+    gy = 1.0 - fy
+    top = gx * a1 + fx * a2
+    bottom = gx * b1 + fx * b2
+    value = gy * top + fy * bottom
+    left = gy * (gx * a0 + fx * a1) + fy * (gx * b0 + fx * b1)
+    right = gy * (gx * a2 + fx * a3) + fy * (gx * b2 + fx * b3)
+    up = gy * (gx * u0 + fx * u1) + fy * top
+    down = gy * bottom + fy * (gx * d0 + fx * d1)
+    return value, 0.5 * (right - left), 0.5 * (down - up)
+
+
+@wp.func
 def bilinear_with_gradient(img: wp.array2d(dtype=float), x: float, y: float):
     """(:func:`bilinear`, :func:`bilinear_gradient`) at (x, y) in one: away from the
     borders the five lookups share their weights and twelve pixels; within a pixel of
@@ -133,27 +152,11 @@ def bilinear_with_gradient(img: wp.array2d(dtype=float), x: float, y: float):
     if x >= 1.0 and y >= 1.0 and x < float(w - 2) and y < float(h - 2):
         j = int(x)
         i = int(y)
-        fx = x - float(j)
-        fy = y - float(i)
-        gx = 1.0 - fx
-        gy = 1.0 - fy
         # rows i and i + 1 over columns j − 1 … j + 2; rows i − 1 and i + 2 over j, j + 1
-        a0 = img[i, j - 1]
-        a1 = img[i, j]
-        a2 = img[i, j + 1]
-        a3 = img[i, j + 2]
-        b0 = img[i + 1, j - 1]
-        b1 = img[i + 1, j]
-        b2 = img[i + 1, j + 1]
-        b3 = img[i + 1, j + 2]
-        top = gx * a1 + fx * a2
-        bottom = gx * b1 + fx * b2
-        value = gy * top + fy * bottom
-        left = gy * (gx * a0 + fx * a1) + fy * (gx * b0 + fx * b1)
-        right = gy * (gx * a2 + fx * a3) + fy * (gx * b2 + fx * b3)
-        up = gy * (gx * img[i - 1, j] + fx * img[i - 1, j + 1]) + fy * top
-        down = gy * bottom + fy * (gx * img[i + 2, j] + fx * img[i + 2, j + 1])
-        g = wp.vec2(0.5 * (right - left), 0.5 * (down - up))
+        value, gx, gy = bilinear_taps(img[i, j - 1], img[i, j], img[i, j + 1], img[i, j + 2], img[i + 1, j - 1],
+                                      img[i + 1, j], img[i + 1, j + 1], img[i + 1, j + 2], img[i - 1, j],
+                                      img[i - 1, j + 1], img[i + 2, j], img[i + 2, j + 1], x - float(j), y - float(i))
+        g = wp.vec2(gx, gy)
     else:
         value = bilinear(img, x, y)
         g = bilinear_gradient(img, x, y)
@@ -234,19 +237,26 @@ EDGE_JUMP = wp.constant(2.0)
 
 
 @wp.func
-def visible(zbuf: wp.array3d(dtype=float), s: int, x: float, y: float, disparity: float, margin: float):
-    """Sample s at (x, y) of its view sees the point of disparity δ = ``disparity``, by the
-    view z-buffer ``zbuf[s]`` (:func:`lfsf.kernels.occlusion.splat_views`) at the pixels
-    that the bilinear lookup at (x, y) reads with non-zero weight (clamped to the image;
-    a whole coordinate reads one row or column): :func:`footprint_visible`."""
-    h = zbuf.shape[1]
-    w = zbuf.shape[2]
+def footprint(x: float, y: float, h: int, w: int):
+    """The rows i0, i1 and columns j0, j1 of the pixels that a bilinear lookup at (x, y) of
+    an h × w image reads with non-zero weight, clamped to the image (a whole coordinate
+    reads one row or column: i1 = i0, j1 = j0)."""
     fy = wp.floor(y)
     fx = wp.floor(x)
     i0 = wp.clamp(int(fy), 0, h - 1)
     j0 = wp.clamp(int(fx), 0, w - 1)
     i1 = wp.clamp(int(fy) + wp.where(y > fy, 1, 0), 0, h - 1)
     j1 = wp.clamp(int(fx) + wp.where(x > fx, 1, 0), 0, w - 1)
+    return i0, j0, i1, j1
+
+
+@wp.func
+def visible(zbuf: wp.array3d(dtype=float), s: int, x: float, y: float, disparity: float, margin: float):
+    """Sample s at (x, y) of its view sees the point of disparity δ = ``disparity``, by the
+    view z-buffer ``zbuf[s]`` (:func:`lfsf.kernels.occlusion.splat_views`) at the pixels
+    that the bilinear lookup at (x, y) reads with non-zero weight (clamped to the image;
+    a whole coordinate reads one row or column): :func:`footprint_visible`."""
+    i0, j0, i1, j1 = footprint(x, y, zbuf.shape[1], zbuf.shape[2])
     return footprint_visible(zbuf[s, i0, j0], zbuf[s, i0, j1], zbuf[s, i1, j0], zbuf[s, i1, j1], disparity, margin)
 
 

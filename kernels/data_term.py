@@ -155,14 +155,57 @@ def keep_duals(q: wp.array3d(dtype=float), i: int, g: int, lane: int, lanes: int
             q[i, g, at + k * lanes] = 0.0
 
 
-@wp.kernel
-def data_coefficients(
-    row0: int,
+@wp.func
+def second_pass(i: int, j: int, g: int, lane: int, lanes: int, xh: wp.vec4, half1: int, half2: int, in_j: bool,
+                hidden: bool, samples1: wp.array3d(dtype=float), samples2: wp.array3d(dtype=float),
+                phis: wp.array(dtype=wp.vec2), weights: wp.array(dtype=wp.vec3), eps: float, step_ratio: float,
+                zbuf1: wp.array3d(dtype=float), zbuf2: wp.array3d(dtype=float), margin: float, use_zbuf: int,
+                coef: wp.array3d(dtype=float), grad_j2: wp.array3d(dtype=float), q: wp.array3d(dtype=float)):
+    """The second pass of :func:`data_coefficients` at pixel (i, j), stored in lane
+    ``lane`` of group g: the rows that the tests of all the samples keep (the best
+    halves ``half1``, ``half2``; the centre view at t2, ``in_j``), their steps σ̃ again
+    from the stored coefficients, and the duals of the rows left out zeroed. Returns
+    the column sums."""
+    px = float(j)
+    py = float(i)
+    xj = px + xh[2]
+    yj = py + xh[3]
+    normal1 = half_plane_normal(wp.max(half1, 0))
+    normal2 = half_plane_normal(wp.max(half2, 0))
+    colsum = wp.vec4(0.0)
+    for s in range(phis.shape[0]):
+        phi = phis[s]
+        x1 = px - xh[0] * phi[0]
+        y1 = py - xh[0] * phi[1]
+        x2 = xj - xh[1] * phi[0]
+        y2 = yj - xh[1] * phi[1]
+        seen1 = bool(False)
+        seen2 = bool(False)
+        if use_zbuf != 0:
+            seen1 = visible(zbuf1, s, x1, y1, xh[0], margin)
+            seen2 = visible(zbuf2, s, x2, y2, xh[1], margin)
+        else:
+            seen1 = keeps(half1, normal1, phi)
+            seen2 = keeps(half2, normal2, phi)
+        in_1 = inside(samples1[s], x1, y1) and seen1
+        in_2 = inside(samples2[s], x2, y2) and seen2 and (s > 0 or in_j) and not hidden
+        c, wt, part = row_steps(load_coefficients(coef, grad_j2, i, g, lane, lanes, s), weights[s], in_1, in_2,
+                                in_j, eps, step_ratio)
+        store_coefficients(coef, i, g, lane, lanes, s, c)
+        keep_duals(q, i, g, lane, lanes, s, wt)
+        colsum += part
+    return colsum
+
+
+@wp.func
+def pixel_coefficients(
+    i: int,
+    j: int,
     samples1: wp.array3d(dtype=float),
     samples2: wp.array3d(dtype=float),
     phis: wp.array(dtype=wp.vec2),
     weights: wp.array(dtype=wp.vec3),
-    x_hat: wp.array2d(dtype=Any),
+    x_hat: Any,
     occlusion_ratio: float,
     hidden2: wp.array2d(dtype=float),
     eps: float,
@@ -172,50 +215,12 @@ def data_coefficients(
     margin: float,
     use_zbuf: int,
     lanes: int,
-    # outputs
     coef: wp.array3d(dtype=float),
     grad_j2: wp.array3d(dtype=float),
-    data_colsum: wp.array2d(dtype=Any),
+    data_colsum: Any,
     q: wp.array3d(dtype=float),
 ):
-    """Coefficients A1…A9 and dual steps σ̃1…σ̃3 of every sample at the linearisation
-    point x̂ (σ̃ divided by the step ratio c), and the column sums Σ|K| of the data rows for
-    each unknown (the data part of the preconditioner τ). ``coef``, ``grad_j2`` and ``q``
-    are lane storage of ``lanes`` pixels a group (module docstring): the ten stored values
-    of sample s at pixel (i, j) at ``coef[i, j // L, (10 s + k) L + j % L]``, k = 0 … 9
-    (A1 … A7, σ̃1 … σ̃3), and ∇J2, from which A8 and A9 are rebuilt. The scaled duals q̃
-    of the rows left out are set to 0 (the others kept):
-    :func:`dual_data_step` then needs no row flags, since a row with σ̃ = 0 and q̃ = 0
-    stays at 0.
-
-    ``samples1[s]``, ``samples2[s]``: (texture part of) the sub-aperture image at φ_s at
-    t1 and t2; sample 0 must be the centre view (φ = 0). ``weights[s]`` = (λ1, λ2, λ3)
-    for that sample. Where one side of the samples matches much worse than the other
-    (``occlusion_ratio``, see :func:`best_half`; 0 disables), the samples of the worse
-    side are left out of that light field's rows: near a depth edge the occluder hides
-    the point in the views on its side. Both light fields are tested against the point's
-    appearance at t1, I1(p); where the centre view at t2 is itself occluded (|I1 − J2|
-    above CENTRE_OCCLUSION_FACTOR times the visible t2 samples' residual, plus the
-    floor), every t2 stereo row and the centre's flow row are left out. Where ``hidden2``
-    says a nearer point covers the point at t2 (the geometric test of
-    :mod:`lfsf.kernels.occlusion`; zeros to skip it), every row involving t2 is left out
-    (w2 = w3 = 0 for all samples): its δ2 and flow come from the regulariser alone, which
-    measured better than trusting the side views there. With ``use_zbuf`` 1, which side
-    views see the point is asked of the view z-buffers instead of the best half:
-    ``zbuf1`` of δ̂1 at p, ``zbuf2`` of δ̂2 at p + û (:func:`lfsf.kernels.occlusion.splat_views`);
-    a sample is left out where a point nearer by more than ``margin`` covers its warped
-    position (:func:`lfsf.kernels.common.visible`). The best halves still give the
-    residual of the t2 samples for the test of the centre view at t2. Launch over (rows,
-    columns).
-
-    One pass over the samples takes every row that the sample's own tests keep (in the
-    image, seen by the z-buffers, not hidden). The best halves and the centre test,
-    which need all the samples, can only leave rows out; a second pass, only at the
-    pixels where they do, recomputes the steps and column sums from the stored
-    coefficients. (Two passes at every pixel took 1.1–1.2× the time, 640×480.)
-    """
-    i, j = wp.tid()
-    i = i + row0
+    """:func:`data_coefficients` at pixel (i, j)."""
     g = j // lanes  # where the pixel's values are stored
     lane = j - g * lanes
     unknowns = x_hat[i, j]
@@ -298,31 +303,73 @@ def data_coefficients(
     # second pass, where the tests of all the samples leave rows out: the rows in, their
     # steps σ̃ and the column sums again
     if (use_zbuf == 0 and (half1 >= 0 or half2 >= 0)) or (in_j0 and not in_j):
-        normal1 = half_plane_normal(wp.max(half1, 0))
-        normal2 = half_plane_normal(wp.max(half2, 0))
-        colsum = wp.vec4(0.0)
-        for s in range(phis.shape[0]):
-            phi = phis[s]
-            x1 = px - xh[0] * phi[0]
-            y1 = py - xh[0] * phi[1]
-            x2 = xj - xh[1] * phi[0]
-            y2 = yj - xh[1] * phi[1]
-            seen1 = bool(False)
-            seen2 = bool(False)
-            if use_zbuf != 0:
-                seen1 = visible(zbuf1, s, x1, y1, xh[0], margin)
-                seen2 = visible(zbuf2, s, x2, y2, xh[1], margin)
-            else:
-                seen1 = keeps(half1, normal1, phi)
-                seen2 = keeps(half2, normal2, phi)
-            in_1 = inside(samples1[s], x1, y1) and seen1
-            in_2 = inside(samples2[s], x2, y2) and seen2 and (s > 0 or in_j) and not hidden
-            c, wt, part = row_steps(load_coefficients(coef, grad_j2, i, g, lane, lanes, s), weights[s], in_1, in_2,
-                                    in_j, eps, step_ratio)
-            store_coefficients(coef, i, g, lane, lanes, s, c)
-            keep_duals(q, i, g, lane, lanes, s, wt)
-            colsum += part
+        colsum = second_pass(i, j, g, lane, lanes, xh, half1, half2, in_j, hidden, samples1, samples2, phis, weights,
+                             eps, step_ratio, zbuf1, zbuf2, margin, use_zbuf, coef, grad_j2, q)
     data_colsum[i, j] = from_vec4(colsum, unknowns)
+
+
+@wp.kernel
+def data_coefficients(
+    row0: int,
+    samples1: wp.array3d(dtype=float),
+    samples2: wp.array3d(dtype=float),
+    phis: wp.array(dtype=wp.vec2),
+    weights: wp.array(dtype=wp.vec3),
+    x_hat: wp.array2d(dtype=Any),
+    occlusion_ratio: float,
+    hidden2: wp.array2d(dtype=float),
+    eps: float,
+    step_ratio: float,
+    zbuf1: wp.array3d(dtype=float),
+    zbuf2: wp.array3d(dtype=float),
+    margin: float,
+    use_zbuf: int,
+    lanes: int,
+    # outputs
+    coef: wp.array3d(dtype=float),
+    grad_j2: wp.array3d(dtype=float),
+    data_colsum: wp.array2d(dtype=Any),
+    q: wp.array3d(dtype=float),
+):
+    """Coefficients A1…A9 and dual steps σ̃1…σ̃3 of every sample at the linearisation
+    point x̂ (σ̃ divided by the step ratio c), and the column sums Σ|K| of the data rows for
+    each unknown (the data part of the preconditioner τ). ``coef``, ``grad_j2`` and ``q``
+    are lane storage of ``lanes`` pixels a group (module docstring): the ten stored values
+    of sample s at pixel (i, j) at ``coef[i, j // L, (10 s + k) L + j % L]``, k = 0 … 9
+    (A1 … A7, σ̃1 … σ̃3), and ∇J2, from which A8 and A9 are rebuilt. The scaled duals q̃
+    of the rows left out are set to 0 (the others kept):
+    :func:`dual_data_step` then needs no row flags, since a row with σ̃ = 0 and q̃ = 0
+    stays at 0.
+
+    ``samples1[s]``, ``samples2[s]``: (texture part of) the sub-aperture image at φ_s at
+    t1 and t2; sample 0 must be the centre view (φ = 0). ``weights[s]`` = (λ1, λ2, λ3)
+    for that sample. Where one side of the samples matches much worse than the other
+    (``occlusion_ratio``, see :func:`best_half`; 0 disables), the samples of the worse
+    side are left out of that light field's rows: near a depth edge the occluder hides
+    the point in the views on its side. Both light fields are tested against the point's
+    appearance at t1, I1(p); where the centre view at t2 is itself occluded (|I1 − J2|
+    above CENTRE_OCCLUSION_FACTOR times the visible t2 samples' residual, plus the
+    floor), every t2 stereo row and the centre's flow row are left out. Where ``hidden2``
+    says a nearer point covers the point at t2 (the geometric test of
+    :mod:`lfsf.kernels.occlusion`; zeros to skip it), every row involving t2 is left out
+    (w2 = w3 = 0 for all samples): its δ2 and flow come from the regulariser alone, which
+    measured better than trusting the side views there. With ``use_zbuf`` 1, which side
+    views see the point is asked of the view z-buffers instead of the best half:
+    ``zbuf1`` of δ̂1 at p, ``zbuf2`` of δ̂2 at p + û (:func:`lfsf.kernels.occlusion.splat_views`);
+    a sample is left out where a point nearer by more than ``margin`` covers its warped
+    position (:func:`lfsf.kernels.common.visible`). The best halves still give the
+    residual of the t2 samples for the test of the centre view at t2. Launch over (rows,
+    columns).
+
+    One pass over the samples takes every row that the sample's own tests keep (in the
+    image, seen by the z-buffers, not hidden). The best halves and the centre test,
+    which need all the samples, can only leave rows out; a second pass, only at the
+    pixels where they do, recomputes the steps and column sums from the stored
+    coefficients. (Two passes at every pixel took 1.1–1.2× the time, 640×480.)
+    """
+    i, j = wp.tid()
+    pixel_coefficients(i + row0, j, samples1, samples2, phis, weights, x_hat, occlusion_ratio, hidden2, eps,
+                       step_ratio, zbuf1, zbuf2, margin, use_zbuf, lanes, coef, grad_j2, data_colsum, q)
 
 
 def _dual_data_kernel(lanes: int):

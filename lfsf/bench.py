@@ -147,7 +147,7 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
     """(name, launch, bytes it must move) of the hot kernels on inputs of the paper's
     setting: its sampled views (17 on a 9×9 grid) of ``size``; the unknowns and
     coefficients at realistic values, so that branches go as they do in a real run."""
-    from lfsf.kernels import data_term, sampling, tgv
+    from lfsf.kernels import data_groups, data_term, sampling, tgv
     from lfsf.params import Params
 
     wp = _device.warp()
@@ -190,6 +190,7 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
     coef_store.zero_()  # (uninitialised where the lanes fill the rows; data_coefficients writes them too)
     q_store.zero_()
     groups, group_threads = _device.row_span(dev, coef.shape[1])
+    coefficients, coefficient_columns = data_groups.coefficients_kernel(dev, w, lanes)
     colsum = wp.empty((h, w), dtype=wp.vec4, device=dev)
     sampled = wp.empty((s, h, w), dtype=float, device=dev)
 
@@ -219,9 +220,9 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
         # reads both sample stacks, x̂, the hidden mask and a value of each view z-buffer per sample; writes
         # 10 coefficients per sample, ∇J2 (2) and the column sums; reads and writes q (the duals of rows left
         # out are zeroed)
-        ("data_coefficients", launch(data_term.data_coefficients,
-                                     [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros, 1e-6, 1.0, zbuf1, zbuf2,
-                                      0.25, 1, lanes], [coef_store, grad_j2_store, colsum, q_store]),
+        ("data_coefficients", launch(coefficients, [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros, 1e-6, 1.0,
+                                                    zbuf1, zbuf2, 0.25, 1, lanes],
+                                     [coef_store, grad_j2_store, colsum, q_store], dim=(h, coefficient_columns)),
          f * h * w * (2 * s + 4 + 1 + 2 * s + data_term.COEFFICIENTS * s + 2 + 4 + 6 * s)),
         # reads the coefficients, ∇J2 (2), x̄, x̂ and q; writes q and Kᵀq (the S weights stay in cache)
         ("dual_data_step", launch(data_term.dual_data_kernel(lanes), [coef, weights, grad_j2, x_bar, x_hat, groups],

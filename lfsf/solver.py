@@ -167,7 +167,7 @@ class LevelSolver:
     def linearise(self) -> None:
         """Linearise the data term at the current x (x̂ ← x): coefficients A1…A9 of every
         sample, then the diagonal preconditioners τ, σ."""
-        from lfsf.kernels import data_term, tgv
+        from lfsf.kernels import data_groups, tgv
 
         wp = _device.warp()
         p = self.params
@@ -178,11 +178,13 @@ class LevelSolver:
         self.find_hidden()
         use_zbuf = self.find_visible()
         self._flow_tensor()
-        self._launch(data_term.data_coefficients,
-                     inputs=[self.samples1, self.samples2, self.phis, self.weights, self.x_hat, p.occlusion_ratio,
-                             self.hidden2, p.eps, p.step_ratio, self.view_zbuf1, self.view_zbuf2,
-                             self.view_margin(), use_zbuf, self.lanes],
-                     outputs=[self.coef_store, self.grad_j2_store, self.data_colsum, self.q_store])
+        kernel, columns = data_groups.coefficients_kernel(self.device, self.shape[1], self.lanes)
+        _device.launch_rows(kernel, dim=(self.shape[0], columns),
+                            inputs=[self.samples1, self.samples2, self.phis, self.weights, self.x_hat,
+                                    p.occlusion_ratio, self.hidden2, p.eps, p.step_ratio, self.view_zbuf1,
+                                    self.view_zbuf2, self.view_margin(), use_zbuf, self.lanes],
+                            outputs=[self.coef_store, self.grad_j2_store, self.data_colsum, self.q_store],
+                            device=self.device, bands=self.bands)
         self._launch(tgv.tgv_preconditioner,
                      inputs=[self.data_colsum, self.tensor1, self.tensor2, self.tensor3, p.alpha0, p.alpha1, p.eps,
                              p.step_ratio],

@@ -403,7 +403,7 @@ def _run_data_coefficients_raw(samples1, samples2, phis, weights, x_hat, device,
     """The kernel's output as it is: (A1…A9, σ̃1…σ̃3) per sample, as (S, h, w, 12).
     ``zbufs``: (Z1, Z2) view z-buffers (S, h, w) to decide visibility by (margin
     VIEW_MARGIN), else the best half."""
-    from lfsf.kernels import data_term
+    from lfsf.kernels import data_groups, data_term
 
     s, h, w = samples1.shape
     hidden2 = np.zeros((h, w), np.float32) if hidden2 is None else hidden2
@@ -412,13 +412,17 @@ def _run_data_coefficients_raw(samples1, samples2, phis, weights, x_hat, device,
     from lfsf.solver import from_lanes, unpack_coefficients
 
     results = []
-    for lanes in (data_term.data_lanes(device), 1):  # the device's storage, and a pixel's values together
+    # the device's kernel and storage (on the CPU, groups of 8 pixels in vector code), and the
+    # kernel of a thread per pixel with a pixel's values together
+    for lanes in (data_term.data_lanes(device), 1):
+        kernel, columns = (data_groups.coefficients_kernel(device, w, lanes) if lanes > 1
+                           else (data_term.data_coefficients, w))
         coef, _ = _lane_buffer(np.zeros((h, w, s, data_term.COEFFICIENTS), np.float32), device, lanes)
         grad_j2, _ = _lane_buffer(np.zeros((h, w, 1, 2), np.float32), device, lanes)
         colsum = wp.zeros((h, w), dtype=wp.vec4, device=device)
         q_before = rng(99).uniform(-1.0, 1.0, (h, w, s, 3)).astype(np.float32)  # the duals of the last warp
         q, _ = _lane_buffer(q_before, device, lanes)
-        launch(data_term.data_coefficients, (h, w),
+        launch(kernel, (h, columns),
                [arr(samples1, float, device), arr(samples2, float, device), arr(phis, wp.vec2, device),
                 arr(weights, wp.vec3, device), arr(x_hat, wp.vec4, device), float(occlusion_ratio),
                 arr(hidden2, float, device), DATA_EPS, 1.0, arr(z1, float, device), arr(z2, float, device),
@@ -616,6 +620,56 @@ def test_data_coefficients_match_reference(device):
     close(coef[0, ..., 3], 0.0)
     close(coef[0, ..., 0], 0.0)
     close(coef[0, ..., 2], 0.0)
+
+
+@UNKNOWNS
+@pytest.mark.parametrize("h, w", [(11, 37), (4, 16), (3, 8), (7, 45)])
+@pytest.mark.parametrize("use_zbuf, ratio", [(0, 0.0), (0, 0.7), (1, 0.0), (1, 0.7)])
+def test_data_coefficients_groups_equal_pixel_by_pixel(h, w, use_zbuf, ratio, unknowns):
+    """On the CPU the coefficients run a group of 8 pixels at once in vector code
+    (:data:`lfsf.kernels.data_groups.data_coefficients_groups`); groups cut by the row's
+    end, and views of fewer than 4 rows, pixel by pixel. Every output (coefficients, ∇J2,
+    column sums, duals) has the same bits as the kernel of a thread per pixel, the same
+    lane storage: with warps that leave the image and lookups within a pixel of the
+    border, hidden points, both occlusion tests, and flow only."""
+    from lfsf.kernels import data_groups, data_term
+    from lfsf.params import Params
+
+    r = rng(40 + w)
+    phis, _radius = Params.preset("paper").sample_offsets((9, 9))
+    phis = np.asarray(phis, np.float32)
+    if unknowns == "vec2":
+        phis = phis[:1]
+    n = len(phis)
+    samples1, samples2 = (r.random((n, h, w)).astype(np.float32) for _ in range(2))
+    weights = np.tile(np.float32([10.0 / n, 10.0 / n, 30.0 / n]), (n, 1))
+    x_hat = np.concatenate([r.uniform(-1.0, 1.0, (h, w, 1)) + r.uniform(-0.2, 0.2, (h, w, 2)),
+                            r.uniform(-2.0, 2.0, (h, w, 2))], -1).astype(np.float32)
+    x_hat[0, 0] = (3.0, -4.0, 0.3, 0.2)  # warps that leave the image
+    x_hat[min(3, h - 1), min(4, w - 1)] = (0.1, 0.2, 20.0, 0.0)
+    x_in = arr(x_hat, wp.vec4, "cpu") if unknowns == "vec4" else arr(x_hat[..., 2:], wp.vec2, "cpu")
+    hidden2 = (r.random((h, w)) > 0.9).astype(np.float32)
+    zbufs = [r.uniform(-3.0, 1.0, (n, h, w)).astype(np.float32) for _ in range(2)]
+    q_before = r.uniform(-1.0, 1.0, (h, w, n, 3)).astype(np.float32)
+    lanes = data_term.DATA_LANES
+    runs = []
+    for kernel, columns in (data_groups.coefficients_kernel("cpu", w, lanes), (data_term.data_coefficients, w)):
+        coef, _ = _lane_buffer(np.full((h, w, n, data_term.COEFFICIENTS), 7.0, np.float32), "cpu", lanes)
+        grad_j2, _ = _lane_buffer(np.full((h, w, 1, 2), 7.0, np.float32), "cpu", lanes)
+        q, _ = _lane_buffer(q_before, "cpu", lanes)
+        colsum = wp.zeros((h, w), dtype=getattr(wp, unknowns), device="cpu")
+        launch(kernel, (h, columns),
+               [arr(samples1, float, "cpu"), arr(samples2, float, "cpu"), arr(phis, wp.vec2, "cpu"),
+                arr(weights, wp.vec3, "cpu"), x_in, ratio, arr(hidden2, float, "cpu"), DATA_EPS, 1.0,
+                arr(zbufs[0], float, "cpu"), arr(zbufs[1], float, "cpu"), VIEW_MARGIN, use_zbuf, lanes],
+               [coef, grad_j2, colsum, q], "cpu")
+        runs.append([a.numpy() for a in (coef, grad_j2, colsum, q)])
+    assert data_groups.coefficients_kernel("cpu", w, lanes)[0] is data_groups.data_coefficients_groups
+    for name, got, want in zip(("coef", "grad_j2", "colsum", "q"), *runs):
+        np.testing.assert_array_equal(got.view(np.uint32), want.view(np.uint32), err_msg=name)
+    # the inputs reach what they are meant to: rows left out, duals zeroed, both kinds of group
+    coef_got = runs[0][0]
+    assert np.any(coef_got == 0.0) and np.any(runs[0][3] == 0.0) and np.any(runs[0][3] != 0.0)
 
 
 # --- data term: occlusion handling ------------------------------------------------------------

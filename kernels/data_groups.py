@@ -1,0 +1,380 @@
+"""The data term's coefficients on the CPU, a group of pixels at once
+(:data:`data_coefficients_groups`).
+
+:func:`lfsf.kernels.data_term.data_coefficients` runs a thread per pixel. Here a thread
+takes the :data:`~lfsf.kernels.data_term.DATA_LANES` pixels of one group of the lane
+storage (the data term's module docstring) and computes what each sample's own tests
+decide for all of them in loops over the lanes, which the CPU compiler turns into
+vector code: the lookups at per-pixel positions as gathers, the coefficients, the dual
+steps and the stores of the group's contiguous values. Each pixel's arithmetic is the
+per-pixel kernel's, operation for operation, so the results are the same bit for bit.
+What needs the tests of all the samples (the best halves, the centre view at t2, the
+second pass) runs pixel by pixel, as there.
+
+Loops over a constant range stay loops in this module (``max_unroll`` 1): the compiler
+vectorises a loop over the lanes, where Warp's unrolled copy of it becomes scalar code.
+"""
+
+from typing import Any
+
+import warp as wp
+
+from . import data_term
+from .common import (HALF_PLANES, bilinear, bilinear_gradient, bilinear_taps, contiguous_row, float_run, footprint,
+                     footprint_visible, from_vec4, half_plane_mask, inside, lane_vector, overload_unknowns, to_vec4)
+from .data_term import (CENTRE_OCCLUSION_FACTOR, COEFFICIENTS, DATA_LANES, DUALS, OCCLUSION_FLOOR,
+                        pixel_coefficients, second_pass)
+
+wp.set_module_options({"enable_backward": False, "max_unroll": 1})
+
+#: A value for each pixel of a group.
+lanes_f = lane_vector(DATA_LANES)
+#: Per-half-plane sums of a group: [half-plane, lane].
+half_lanes = wp.types.matrix(shape=(HALF_PLANES, DATA_LANES), dtype=wp.float32)
+
+
+@wp.func
+def lookup_lanes(img: wp.array2d(dtype=float), run: wp.array(dtype=float), x: lanes_f, y: lanes_f):
+    """:func:`lfsf.kernels.common.bilinear_with_gradient` of ``img`` (its memory as the
+    1-D ``run``) at the group's positions: (values, ∂x, ∂y). Every lane takes the
+    interior formula at once (lanes outside the interior at a safe position), then the
+    lanes within a pixel of a border, if any, the clamped functions."""
+    h = img.shape[0]
+    w = img.shape[1]
+    value = lanes_f()
+    gx_out = lanes_f()
+    gy_out = lanes_f()
+    border = int(0)
+    for f in range(DATA_LANES):
+        interior = x[f] >= 1.0 and y[f] >= 1.0 and x[f] < float(w - 2) and y[f] < float(h - 2)
+        xf = wp.where(interior, x[f], 1.0)
+        yf = wp.where(interior, y[f], 1.0)
+        j = int(xf)
+        i = int(yf)
+        o = i * w + j
+        v, gx, gy = bilinear_taps(run[o - 1], run[o], run[o + 1], run[o + 2], run[o + w - 1], run[o + w],
+                                  run[o + w + 1], run[o + w + 2], run[o - w], run[o - w + 1], run[o + 2 * w],
+                                  run[o + 2 * w + 1], xf - float(j), yf - float(i))
+        value[f] = v
+        gx_out[f] = gx
+        gy_out[f] = gy
+        border += wp.where(interior, 0, 1)
+    if border > 0:
+        for f in range(DATA_LANES):
+            if not (x[f] >= 1.0 and y[f] >= 1.0 and x[f] < float(w - 2) and y[f] < float(h - 2)):
+                value[f] = bilinear(img, x[f], y[f])
+                g = bilinear_gradient(img, x[f], y[f])
+                gx_out[f] = g[0]
+                gy_out[f] = g[1]
+    return value, gx_out, gy_out
+
+
+@wp.func
+def store_lanes(ptr: wp.uint64, at: wp.int64, v: lanes_f):
+    """The group's values v to floats ``at`` … of the memory at ``ptr``."""
+    run = float_run(ptr, at, DATA_LANES)
+    for f in range(DATA_LANES):
+        run[f] = v[f]
+
+
+@wp.func
+def zero_left_out(ptr: wp.uint64, at: wp.int64, wt: lanes_f):
+    """The scaled duals at floats ``at`` … set to 0 where the row weight w_k is 0."""
+    run = float_run(ptr, at, DATA_LANES)
+    for f in range(DATA_LANES):
+        run[f] = wp.where(wt[f] <= 0.0, 0.0, run[f])
+
+
+@wp.func
+def visible_run(zbuf: wp.array(dtype=float), h: int, w: int, x: float, y: float, disparity: float, margin: float):
+    """:func:`lfsf.kernels.common.visible` on one view z-buffer of h × w, stored as the
+    1-D ``zbuf``."""
+    i0, j0, i1, j1 = footprint(x, y, h, w)
+    return footprint_visible(zbuf[i0 * w + j0], zbuf[i0 * w + j1], zbuf[i1 * w + j0], zbuf[i1 * w + j1], disparity,
+                             margin)
+
+
+@wp.func
+def best_half_lanes(sums: half_lanes, counts: half_lanes, total: lanes_f, count: lanes_f, ratio: float):
+    """:func:`lfsf.kernels.data_term.best_half` of every lane, operation for operation:
+    (the best half's index as a float, −1 for none; the mean residual kept)."""
+    best = lanes_f()
+    best_mean = lanes_f()
+    mean_all = lanes_f()
+    for f in range(DATA_LANES):
+        mean_all[f] = wp.where(count[f] > 0.0, total[f] / count[f], 0.0)
+        best_mean[f] = mean_all[f]
+        best[f] = -1.0
+    for m in range(HALF_PLANES):
+        for f in range(DATA_LANES):
+            mean_m = sums[m, f] / counts[m, f]
+            better = counts[m, f] > 0.0 and mean_m < best_mean[f]
+            best_mean[f] = wp.where(better, mean_m, best_mean[f])
+            best[f] = wp.where(better, float(m), best[f])
+    kept = lanes_f()
+    for f in range(DATA_LANES):
+        tested = count[f] > 0.0 and ratio > 0.0
+        rejected = best_mean[f] >= ratio * mean_all[f] or mean_all[f] - best_mean[f] < OCCLUSION_FLOOR
+        found = tested and not rejected
+        best[f] = wp.where(found, best[f], -1.0)
+        kept[f] = wp.where(found, best_mean[f], mean_all[f])
+    return best, kept
+
+
+@wp.func
+def group_coefficients(
+    i: int,
+    g: int,
+    samples1: wp.array3d(dtype=float),
+    samples2: wp.array3d(dtype=float),
+    phis: wp.array(dtype=wp.vec2),
+    weights: wp.array(dtype=wp.vec3),
+    x_hat: Any,
+    occlusion_ratio: float,
+    hidden2: wp.array2d(dtype=float),
+    eps: float,
+    step_ratio: float,
+    zbuf1: wp.array3d(dtype=float),
+    zbuf2: wp.array3d(dtype=float),
+    margin: float,
+    use_zbuf: int,
+    coef: wp.array3d(dtype=float),
+    grad_j2: wp.array3d(dtype=float),
+    data_colsum: Any,
+    q: wp.array3d(dtype=float),
+):
+    """:func:`lfsf.kernels.data_term.data_coefficients` at the DATA_LANES pixels of group
+    g of row i, all inside the row (the storage's lanes = DATA_LANES)."""
+    lanes = DATA_LANES
+    h = samples1.shape[1]
+    w = samples1.shape[2]
+    plane = wp.int64(h) * wp.int64(w)
+    j0 = g * lanes
+    d1 = lanes_f()
+    d2 = lanes_f()
+    px = lanes_f()
+    py = lanes_f()
+    xj = lanes_f()
+    yj = lanes_f()
+    hid = lanes_f()
+    i1_run = contiguous_row(samples1, 0, i, j0, lanes)
+    i1 = lanes_f()
+    for f in range(DATA_LANES):
+        xh = to_vec4(x_hat[i, j0 + f])
+        d1[f] = xh[0]
+        d2[f] = xh[1]
+        px[f] = float(j0 + f)
+        py[f] = float(i)
+        xj[f] = px[f] + xh[2]
+        yj[f] = py[f] + xh[3]
+        i1[f] = i1_run[f]
+        hid[f] = wp.where(hidden2[i, j0 + f] > 0.5, 1.0, 0.0)
+    centre2 = samples2[0]
+    j2, gjx, gjy = lookup_lanes(centre2, float_run(samples2.ptr, wp.int64(0), h * w), xj, yj)
+    grad_run = float_run(grad_j2.ptr, (wp.int64(i) * wp.int64(grad_j2.shape[1]) + wp.int64(g))
+                         * wp.int64(grad_j2.shape[2]), 2 * lanes)
+    in_j0 = lanes_f()
+    halves2 = lanes_f()
+    any_halves = int(0)
+    for f in range(DATA_LANES):
+        grad_run[f] = gjx[f]
+        grad_run[lanes + f] = gjy[f]
+        in_j0[f] = wp.where(inside(centre2, xj[f], yj[f]), 1.0, 0.0)
+        # (as the per-pixel kernel: the t2 halves decide something only through the centre test)
+        halves = use_zbuf == 0 or (occlusion_ratio > 0.0 and wp.abs(i1[f] - j2[f]) > OCCLUSION_FLOOR)
+        halves2[f] = wp.where(halves, 1.0, 0.0)
+        any_halves += wp.where(halves, 1, 0)
+    sums1 = half_lanes()
+    counts1 = half_lanes()
+    sums2 = half_lanes()
+    counts2 = half_lanes()
+    total1 = lanes_f()
+    count1 = lanes_f()
+    total2 = lanes_f()
+    count2 = lanes_f()
+    cs0 = lanes_f()
+    cs1 = lanes_f()
+    cs2 = lanes_f()
+    cs3 = lanes_f()
+    keep1 = lanes_f()
+    keep2 = lanes_f()
+    coef_at = (wp.int64(i) * wp.int64(coef.shape[1]) + wp.int64(g)) * wp.int64(coef.shape[2])
+    q_at = (wp.int64(i) * wp.int64(q.shape[1]) + wp.int64(g)) * wp.int64(q.shape[2])
+    for s in range(phis.shape[0]):
+        phi = phis[s]
+        lam = weights[s]
+        view1 = samples1[s]
+        view2 = samples2[s]
+        x1 = px - d1 * phi[0]
+        y1 = py - d1 * phi[1]
+        x2 = xj - d2 * phi[0]
+        y2 = yj - d2 * phi[1]
+        w1v, g1x, g1y = lookup_lanes(view1, float_run(samples1.ptr, wp.int64(s) * plane, h * w), x1, y1)
+        w2v, g2x, g2y = lookup_lanes(view2, float_run(samples2.ptr, wp.int64(s) * plane, h * w), x2, y2)
+        # residuals against the point's appearance at t1, per half of the samples (where needed)
+        if s > 0 and any_halves > 0:
+            mask = half_plane_mask(phi)
+            for f in range(DATA_LANES):
+                if halves2[f] > 0.0:
+                    # (common.add_residual, in place)
+                    if use_zbuf == 0 and inside(view1, x1[f], y1[f]):
+                        e = wp.abs(w1v[f] - i1[f])
+                        for k in range(HALF_PLANES):
+                            sums1[k, f] = sums1[k, f] + e * mask[k]
+                            counts1[k, f] = counts1[k, f] + mask[k]
+                        total1[f] = total1[f] + e
+                        count1[f] = count1[f] + 1.0
+                    if inside(view2, x2[f], y2[f]):
+                        e = wp.abs(w2v[f] - i1[f])
+                        for k in range(HALF_PLANES):
+                            sums2[k, f] = sums2[k, f] + e * mask[k]
+                            counts2[k, f] = counts2[k, f] + mask[k]
+                        total2[f] = total2[f] + e
+                        count2[f] = count2[f] + 1.0
+        # the rows that this sample's own tests keep: in the view and, with the view
+        # z-buffers, seen (as common.visible, on the sample's z-buffers as 1-D runs)
+        zrun1 = float_run(zbuf1.ptr, wp.int64(s) * plane, h * w)
+        zrun2 = float_run(zbuf2.ptr, wp.int64(s) * plane, h * w)
+        for f in range(DATA_LANES):
+            seen1 = bool(True)
+            seen2 = bool(True)
+            if use_zbuf != 0:
+                seen1 = visible_run(zrun1, h, w, x1[f], y1[f], d1[f], margin)
+                seen2 = visible_run(zrun2, h, w, x2[f], y2[f], d2[f], margin)
+            in_1 = inside(view1, x1[f], y1[f]) and seen1
+            in_2 = inside(view2, x2[f], y2[f]) and seen2 and (s > 0 or in_j0[f] > 0.0) and hid[f] == 0.0
+            keep1[f] = wp.where(in_1, 1.0, 0.0)
+            keep2[f] = wp.where(in_2, 1.0, 0.0)
+        # the coefficients, the steps σ̃ (data_term.row_steps, operation for operation), the
+        # stored values (data_term.STORED) and the duals of the rows left out. (Stores in
+        # loops of their own: the compiler vectorises a loop that writes to one run.)
+        c0 = lanes_f()
+        c2 = lanes_f()
+        sig1 = lanes_f()
+        sig2 = lanes_f()
+        sig3 = lanes_f()
+        wt1_f = lanes_f()
+        wt2_f = lanes_f()
+        wt3_f = lanes_f()
+        for f in range(DATA_LANES):
+            c0[f] = -(phi[0] * g1x[f] + phi[1] * g1y[f])
+            c2[f] = -(phi[0] * g2x[f] + phi[1] * g2y[f])
+            a1 = wp.abs(c0[f])
+            a3 = wp.abs(c2[f])
+            a5 = wp.abs(g2x[f])
+            a6 = wp.abs(g2y[f])
+            a8 = wp.abs(gjx[f] - g2x[f])
+            a9 = wp.abs(gjy[f] - g2y[f])
+            in_1 = keep1[f] > 0.0
+            in_2 = keep2[f] > 0.0
+            wt1 = wp.where(in_1, lam[0], 0.0)
+            wt2 = wp.where(in_2 and in_j0[f] > 0.0, lam[1], 0.0)
+            wt3 = wp.where(in_1 and in_2, lam[2], 0.0)
+            sig1[f] = wt1 * wt1 / ((wt1 * a1 + eps) * step_ratio)
+            sig2[f] = wt2 * wt2 / ((wt2 * (a3 + a8 + a9) + eps) * step_ratio)
+            sig3[f] = wt3 * wt3 / ((wt3 * (a1 + a3 + a5 + a6) + eps) * step_ratio)
+            cs0[f] = cs0[f] + (wt1 + wt3) * a1
+            cs1[f] = cs1[f] + (wt2 + wt3) * a3
+            cs2[f] = cs2[f] + (wt2 * a8 + wt3 * a5)
+            cs3[f] = cs3[f] + (wt2 * a9 + wt3 * a6)
+            wt1_f[f] = wt1
+            wt2_f[f] = wt2
+            wt3_f[f] = wt3
+        at = coef_at + wp.int64(COEFFICIENTS * s * lanes)
+        store_lanes(coef.ptr, at, c0)
+        store_lanes(coef.ptr, at + wp.int64(lanes), i1 - w1v)
+        store_lanes(coef.ptr, at + wp.int64(2 * lanes), c2)
+        store_lanes(coef.ptr, at + wp.int64(3 * lanes), j2 - w2v)
+        store_lanes(coef.ptr, at + wp.int64(4 * lanes), g2x)
+        store_lanes(coef.ptr, at + wp.int64(5 * lanes), g2y)
+        store_lanes(coef.ptr, at + wp.int64(6 * lanes), w1v - w2v)
+        store_lanes(coef.ptr, at + wp.int64(7 * lanes), sig1)
+        store_lanes(coef.ptr, at + wp.int64(8 * lanes), sig2)
+        store_lanes(coef.ptr, at + wp.int64(9 * lanes), sig3)
+        qa = q_at + wp.int64(DUALS * s * lanes)
+        zero_left_out(q.ptr, qa, wt1_f)
+        zero_left_out(q.ptr, qa + wp.int64(lanes), wt2_f)
+        zero_left_out(q.ptr, qa + wp.int64(2 * lanes), wt3_f)
+    # the tests of all the samples (data_term.pixel_coefficients): the best halves and the
+    # centre view at t2, for every lane at once; the second pass, where needed, pixel by pixel
+    half1, kept1 = best_half_lanes(sums1, counts1, total1, count1, occlusion_ratio)
+    half2, kept2 = best_half_lanes(sums2, counts2, total2, count2, occlusion_ratio)
+    in_j = lanes_f()
+    again = lanes_f()
+    any_again = int(0)
+    for f in range(DATA_LANES):
+        centre_hidden = (occlusion_ratio > 0.0 and count2[f] > 0.0
+                         and wp.abs(i1[f] - j2[f]) > CENTRE_OCCLUSION_FACTOR * kept2[f] + OCCLUSION_FLOOR)
+        in_j[f] = wp.where(centre_hidden, 0.0, in_j0[f])
+        second = (use_zbuf == 0 and (half1[f] >= 0.0 or half2[f] >= 0.0)) or (in_j0[f] > 0.0 and centre_hidden)
+        again[f] = wp.where(second, 1.0, 0.0)
+        any_again += wp.where(second, 1, 0)
+    if any_again > 0:
+        for f in range(DATA_LANES):
+            if again[f] > 0.0:
+                colsum = second_pass(i, j0 + f, g, f, lanes, to_vec4(x_hat[i, j0 + f]), int(half1[f]), int(half2[f]),
+                                     in_j[f] > 0.0, hid[f] > 0.0, samples1, samples2, phis, weights, eps,
+                                     step_ratio, zbuf1, zbuf2, margin, use_zbuf, coef, grad_j2, q)
+                cs0[f] = colsum[0]
+                cs1[f] = colsum[1]
+                cs2[f] = colsum[2]
+                cs3[f] = colsum[3]
+    for f in range(DATA_LANES):
+        j = j0 + f
+        data_colsum[i, j] = from_vec4(wp.vec4(cs0[f], cs1[f], cs2[f], cs3[f]), x_hat[i, j])
+
+
+@wp.kernel
+def data_coefficients_groups(
+    row0: int,
+    samples1: wp.array3d(dtype=float),
+    samples2: wp.array3d(dtype=float),
+    phis: wp.array(dtype=wp.vec2),
+    weights: wp.array(dtype=wp.vec3),
+    x_hat: wp.array2d(dtype=Any),
+    occlusion_ratio: float,
+    hidden2: wp.array2d(dtype=float),
+    eps: float,
+    step_ratio: float,
+    zbuf1: wp.array3d(dtype=float),
+    zbuf2: wp.array3d(dtype=float),
+    margin: float,
+    use_zbuf: int,
+    lanes: int,
+    # outputs
+    coef: wp.array3d(dtype=float),
+    grad_j2: wp.array3d(dtype=float),
+    data_colsum: wp.array2d(dtype=Any),
+    q: wp.array3d(dtype=float),
+):
+    """:func:`lfsf.kernels.data_term.data_coefficients` (same arguments, same results bit
+    for bit), a thread per group of ``lanes`` pixels: launch over (rows, ⌈columns /
+    lanes⌉). A group of DATA_LANES pixels inside the row, on views of at least 4 rows,
+    runs as vector code (:func:`group_coefficients`); other groups pixel by pixel. The
+    sample stacks, the view z-buffers and the lane storage must be stored contiguously."""
+    i, g = wp.tid()
+    i = i + row0
+    h = samples1.shape[1]
+    w = samples1.shape[2]
+    j0 = g * lanes
+    if lanes == DATA_LANES and j0 + lanes <= w and h >= 4:
+        group_coefficients(i, g, samples1, samples2, phis, weights, x_hat, occlusion_ratio, hidden2, eps, step_ratio,
+                           zbuf1, zbuf2, margin, use_zbuf, coef, grad_j2, data_colsum, q)
+    else:
+        for j in range(j0, wp.min(j0 + lanes, w)):
+            pixel_coefficients(i, j, samples1, samples2, phis, weights, x_hat, occlusion_ratio, hidden2, eps,
+                               step_ratio, zbuf1, zbuf2, margin, use_zbuf, lanes, coef, grad_j2, data_colsum, q)
+
+
+overload_unknowns(data_coefficients_groups, "x_hat", "data_colsum")
+
+
+def coefficients_kernel(device, width: int, lanes: int):
+    """The data coefficients' kernel for ``device`` and the columns to launch it over,
+    (kernel, columns), with rows as the first dimension: on the CPU
+    :data:`data_coefficients_groups` over ⌈width / lanes⌉ groups, on CUDA the per-pixel
+    :func:`lfsf.kernels.data_term.data_coefficients` over ``width`` (a thread per pixel,
+    where the vector code would only take registers). Same arguments, same results."""
+    if str(device).startswith("cpu"):
+        return data_coefficients_groups, -(-int(width) // int(lanes))
+    return data_term.data_coefficients, int(width)
