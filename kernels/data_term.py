@@ -366,6 +366,11 @@ def data_coefficients(
     which need all the samples, can only leave rows out; a second pass, only at the
     pixels where they do, recomputes the steps and column sums from the stored
     coefficients. (Two passes at every pixel took 1.1–1.2× the time, 640×480.)
+
+    A thread per pixel: CUDA's kernel. On the CPU
+    :data:`lfsf.kernels.data_groups.data_coefficients_groups` gives the same results a
+    group of DATA_LANES pixels at once (:func:`lfsf.kernels.data_groups.coefficients_kernel`
+    picks one).
     """
     i, j = wp.tid()
     pixel_coefficients(i + row0, j, samples1, samples2, phis, weights, x_hat, occlusion_ratio, hidden2, eps,
