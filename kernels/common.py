@@ -122,6 +122,13 @@ def bilinear_gradient(img: wp.array2d(dtype=float), x: float, y: float):
 
 
 @wp.func
+def interior(x: float, y: float, h: int, w: int):
+    """(x, y) lies a pixel or more inside an h × w image, where
+    :func:`bilinear_with_gradient` reads its twelve pixels without clamping."""
+    return x >= 1.0 and y >= 1.0 and x < float(w - 2) and y < float(h - 2)
+
+
+@wp.func
 def bilinear_taps(a0: float, a1: float, a2: float, a3: float, b0: float, b1: float, b2: float, b3: float, u0: float,
                   u1: float, d0: float, d1: float, fx: float, fy: float):
     """:func:`bilinear_with_gradient`'s value and gradient (∂x, ∂y) away from the borders,
@@ -149,7 +156,7 @@ def bilinear_with_gradient(img: wp.array2d(dtype=float), x: float, y: float):
     w = img.shape[1]
     value = float(0.0)
     g = wp.vec2(0.0)
-    if x >= 1.0 and y >= 1.0 and x < float(w - 2) and y < float(h - 2):
+    if interior(x, y, h, w):
         j = int(x)
         i = int(y)
         # rows i and i + 1 over columns j − 1 … j + 2; rows i − 1 and i + 2 over j, j + 1

@@ -7,9 +7,10 @@ storage (the data term's module docstring) and computes what each sample's own t
 decide for all of them in loops over the lanes, which the CPU compiler turns into
 vector code: the lookups at per-pixel positions as gathers, the coefficients, the dual
 steps and the stores of the group's contiguous values. Each pixel's arithmetic is the
-per-pixel kernel's, operation for operation, so the results are the same bit for bit.
-What needs the tests of all the samples (the best halves, the centre view at t2, the
-second pass) runs pixel by pixel, as there.
+per-pixel kernel's, operation for operation, so the results are the same bit for bit
+(for finite inputs; where a NaN comes out, its sign bit may differ). What needs the
+tests of all the samples, the best halves and the centre view at t2, also runs for all
+the lanes at once; the second pass, where a pixel needs it, pixel by pixel.
 
 Loops over a constant range stay loops in this module (``max_unroll`` 1): the compiler
 vectorises a loop over the lanes, where Warp's unrolled copy of it becomes scalar code.
@@ -21,7 +22,8 @@ import warp as wp
 
 from . import data_term
 from .common import (HALF_PLANES, bilinear, bilinear_gradient, bilinear_taps, contiguous_row, float_run, footprint,
-                     footprint_visible, from_vec4, half_plane_mask, inside, lane_vector, overload_unknowns, to_vec4)
+                     footprint_visible, from_vec4, half_plane_mask, inside, interior, lane_vector, overload_unknowns,
+                     to_vec4)
 from .data_term import (CENTRE_OCCLUSION_FACTOR, COEFFICIENTS, DATA_LANES, DUALS, OCCLUSION_FLOOR,
                         pixel_coefficients, second_pass)
 
@@ -37,8 +39,9 @@ half_lanes = wp.types.matrix(shape=(HALF_PLANES, DATA_LANES), dtype=wp.float32)
 def lookup_lanes(img: wp.array2d(dtype=float), run: wp.array(dtype=float), x: lanes_f, y: lanes_f):
     """:func:`lfsf.kernels.common.bilinear_with_gradient` of ``img`` (its memory as the
     1-D ``run``) at the group's positions: (values, ∂x, ∂y). Every lane takes the
-    interior formula at once (lanes outside the interior at a safe position), then the
-    lanes within a pixel of a border, if any, the clamped functions."""
+    interior formula at once (lanes outside the interior read at the safe position (1, 1),
+    so the image needs at least 4 rows and 4 columns), then the lanes within a pixel of
+    a border, if any, the clamped functions."""
     h = img.shape[0]
     w = img.shape[1]
     value = lanes_f()
@@ -46,9 +49,9 @@ def lookup_lanes(img: wp.array2d(dtype=float), run: wp.array(dtype=float), x: la
     gy_out = lanes_f()
     border = int(0)
     for f in range(DATA_LANES):
-        interior = x[f] >= 1.0 and y[f] >= 1.0 and x[f] < float(w - 2) and y[f] < float(h - 2)
-        xf = wp.where(interior, x[f], 1.0)
-        yf = wp.where(interior, y[f], 1.0)
+        inner = interior(x[f], y[f], h, w)
+        xf = wp.where(inner, x[f], 1.0)
+        yf = wp.where(inner, y[f], 1.0)
         j = int(xf)
         i = int(yf)
         o = i * w + j
@@ -58,10 +61,10 @@ def lookup_lanes(img: wp.array2d(dtype=float), run: wp.array(dtype=float), x: la
         value[f] = v
         gx_out[f] = gx
         gy_out[f] = gy
-        border += wp.where(interior, 0, 1)
+        border += wp.where(inner, 0, 1)
     if border > 0:
         for f in range(DATA_LANES):
-            if not (x[f] >= 1.0 and y[f] >= 1.0 and x[f] < float(w - 2) and y[f] < float(h - 2)):
+            if not interior(x[f], y[f], h, w):
                 value[f] = bilinear(img, x[f], y[f])
                 g = bilinear_gradient(img, x[f], y[f])
                 gx_out[f] = g[0]
@@ -351,7 +354,8 @@ def data_coefficients_groups(
     for bit), a thread per group of ``lanes`` pixels: launch over (rows, ⌈columns /
     lanes⌉). A group of DATA_LANES pixels inside the row, on views of at least 4 rows,
     runs as vector code (:func:`group_coefficients`); other groups pixel by pixel. The
-    sample stacks, the view z-buffers and the lane storage must be stored contiguously."""
+    sample stacks, the view z-buffers (when ``use_zbuf``) and the lane storage must be
+    stored contiguously, and the z-buffers must have the sample stacks' shape."""
     i, g = wp.tid()
     i = i + row0
     h = samples1.shape[1]

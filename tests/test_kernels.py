@@ -647,6 +647,11 @@ def test_data_coefficients_groups_equal_pixel_by_pixel(h, w, use_zbuf, ratio, un
                             r.uniform(-2.0, 2.0, (h, w, 2))], -1).astype(np.float32)
     x_hat[0, 0] = (3.0, -4.0, 0.3, 0.2)  # warps that leave the image
     x_hat[min(3, h - 1), min(4, w - 1)] = (0.1, 0.2, 20.0, 0.0)
+    # lookups exactly on the bounds of the unclamped interior (x = 1, w − 2; y = 1, h − 2)
+    # and on whole pixels (δ = 0 in every view)
+    for j, (x, y) in enumerate([(1.0, 1.0), (w - 2.0, h - 2.0), (1.0, h - 2.0), (w - 2.0, 1.0), (0.0, 0.0)]):
+        i = (2 * j + 1) % h
+        x_hat[i, j] = (0.0, 0.0, x - j, y - i)
     x_in = arr(x_hat, wp.vec4, "cpu") if unknowns == "vec4" else arr(x_hat[..., 2:], wp.vec2, "cpu")
     hidden2 = (r.random((h, w)) > 0.9).astype(np.float32)
     zbufs = [r.uniform(-3.0, 1.0, (n, h, w)).astype(np.float32) for _ in range(2)]
