@@ -373,12 +373,14 @@ def data_coefficients_groups(
 overload_unknowns(data_coefficients_groups, "x_hat", "data_colsum")
 
 
-def coefficients_kernel(device, width: int, lanes: int):
-    """The data coefficients' kernel for ``device`` and the columns to launch it over,
-    (kernel, columns), with rows as the first dimension: on the CPU
-    :data:`data_coefficients_groups` over ⌈width / lanes⌉ groups, on CUDA the per-pixel
-    :func:`lfsf.kernels.data_term.data_coefficients` over ``width`` (a thread per pixel,
-    where the vector code would only take registers). Same arguments, same results."""
-    if str(device).startswith("cpu"):
+def coefficients_kernel(width: int, lanes: int):
+    """The data coefficients' kernel for lane storage of ``lanes`` pixels a group
+    (:func:`lfsf.kernels.data_term.data_lanes` of the device) and the columns to launch it
+    over, (kernel, columns), with rows as the first dimension: for groups (the CPU's
+    storage) :data:`data_coefficients_groups` over ⌈width / lanes⌉ groups; for single
+    pixels (CUDA's) the per-pixel :func:`lfsf.kernels.data_term.data_coefficients` over
+    ``width``, a thread per pixel, where the vector code would only take registers. Same
+    arguments, same results."""
+    if lanes > 1:
         return data_coefficients_groups, -(-int(width) // int(lanes))
     return data_term.data_coefficients, int(width)

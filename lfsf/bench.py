@@ -190,7 +190,7 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
     coef_store.zero_()  # (uninitialised where the lanes fill the rows; data_coefficients writes them too)
     q_store.zero_()
     groups, group_threads = _device.row_span(dev, coef.shape[1])
-    coefficients, coefficient_columns = data_groups.coefficients_kernel(dev, w, lanes)
+    coefficients, coefficient_columns = data_groups.coefficients_kernel(w, lanes)
     colsum = wp.empty((h, w), dtype=wp.vec4, device=dev)
     sampled = wp.empty((s, h, w), dtype=float, device=dev)
 

@@ -178,7 +178,7 @@ class LevelSolver:
         self.find_hidden()
         use_zbuf = self.find_visible()
         self._flow_tensor()
-        kernel, columns = data_groups.coefficients_kernel(self.device, self.shape[1], self.lanes)
+        kernel, columns = data_groups.coefficients_kernel(self.shape[1], self.lanes)
         _device.launch_rows(kernel, dim=(self.shape[0], columns),
                             inputs=[self.samples1, self.samples2, self.phis, self.weights, self.x_hat,
                                     p.occlusion_ratio, self.hidden2, p.eps, p.step_ratio, self.view_zbuf1,

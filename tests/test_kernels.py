@@ -415,8 +415,7 @@ def _run_data_coefficients_raw(samples1, samples2, phis, weights, x_hat, device,
     # the device's kernel and storage (on the CPU, groups of 8 pixels in vector code), and the
     # kernel of a thread per pixel with a pixel's values together
     for lanes in (data_term.data_lanes(device), 1):
-        kernel, columns = (data_groups.coefficients_kernel(device, w, lanes) if lanes > 1
-                           else (data_term.data_coefficients, w))
+        kernel, columns = data_groups.coefficients_kernel(w, lanes)
         coef, _ = _lane_buffer(np.zeros((h, w, s, data_term.COEFFICIENTS), np.float32), device, lanes)
         grad_j2, _ = _lane_buffer(np.zeros((h, w, 1, 2), np.float32), device, lanes)
         colsum = wp.zeros((h, w), dtype=wp.vec4, device=device)
@@ -658,7 +657,7 @@ def test_data_coefficients_groups_equal_pixel_by_pixel(h, w, use_zbuf, ratio, un
     q_before = r.uniform(-1.0, 1.0, (h, w, n, 3)).astype(np.float32)
     lanes = data_term.DATA_LANES
     runs = []
-    for kernel, columns in (data_groups.coefficients_kernel("cpu", w, lanes), (data_term.data_coefficients, w)):
+    for kernel, columns in (data_groups.coefficients_kernel(w, lanes), data_groups.coefficients_kernel(w, 1)):
         coef, _ = _lane_buffer(np.full((h, w, n, data_term.COEFFICIENTS), 7.0, np.float32), "cpu", lanes)
         grad_j2, _ = _lane_buffer(np.full((h, w, 1, 2), 7.0, np.float32), "cpu", lanes)
         q, _ = _lane_buffer(q_before, "cpu", lanes)
@@ -669,7 +668,8 @@ def test_data_coefficients_groups_equal_pixel_by_pixel(h, w, use_zbuf, ratio, un
                 arr(zbufs[0], float, "cpu"), arr(zbufs[1], float, "cpu"), VIEW_MARGIN, use_zbuf, lanes],
                [coef, grad_j2, colsum, q], "cpu")
         runs.append([a.numpy() for a in (coef, grad_j2, colsum, q)])
-    assert data_groups.coefficients_kernel("cpu", w, lanes)[0] is data_groups.data_coefficients_groups
+    assert data_groups.coefficients_kernel(w, lanes)[0] is data_groups.data_coefficients_groups
+    assert data_groups.coefficients_kernel(w, 1)[0] is data_term.data_coefficients
     for name, got, want in zip(("coef", "grad_j2", "colsum", "q"), *runs):
         np.testing.assert_array_equal(got.view(np.uint32), want.view(np.uint32), err_msg=name)
     # the inputs reach what they are meant to: rows left out, duals zeroed, both kinds of group
