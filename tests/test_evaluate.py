@@ -126,3 +126,28 @@ def test_damaged_npz_results_and_ground_truth_name_the_file(tmp_path):
             load(tmp_path / "text.npz")
     with pytest.raises(ValueError, match=r"sceneflow.npz: cannot read as .npz \(zlib.error"):
         E.load_estimate(tmp_path / "r")
+
+
+def test_hci_breakdown_parts_add_up_to_lfsf_eval():
+    """scripts/hci_breakdown.py: its regions and the rest add up to the total, which is
+    ``lfsf eval``'s MSE×100 with the benchmark's 15-px border; the part off by more than
+    1 holds exactly those pixels."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parent.parent / "scripts" / "hci_breakdown.py"
+    spec = importlib.util.spec_from_file_location("hci_breakdown", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    rng = np.random.default_rng(3)
+    truth = rng.uniform(-3, 3, (512, 512)).astype(np.float32)
+    estimate = truth + rng.normal(0, 0.3, truth.shape).astype(np.float32)
+    estimate[300, 300] += 5.0   # in the rest, off by more than 1
+    estimate[5, 5] += 50.0      # in the border: counted nowhere
+    parts = module.breakdown(estimate, truth)
+    assert parts["wedge"] + parts["floor"] + parts["head"] + parts["rest"] == pytest.approx(parts["total"], rel=1e-9)
+    reference = E.disparity_errors(estimate[15:-15, 15:-15], truth[15:-15, 15:-15])
+    assert parts["total"] == pytest.approx(reference["mse_x100"], rel=1e-5)
+    assert parts["badpix_0.07"] == pytest.approx(reference["badpix_0.07"], rel=1e-9)
+    error = (estimate - truth).astype(np.float64)[15:-15, 15:-15]
+    assert parts["off_by_more_than_1"] == pytest.approx(100 * np.sum(error[np.abs(error) > 1] ** 2) / error.size)
