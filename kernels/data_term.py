@@ -30,6 +30,8 @@ from typing import Any
 
 import warp as wp
 
+from lfsf.device import is_cpu
+
 from .common import (HALF_PLANES, add_residual, bilinear_with_gradient, from_vec4, half_plane_mask, lane_vector,
                      half_plane_normal, in_half_plane, inside, overload_unknowns, to_vec4, vec8, visible)
 
@@ -480,7 +482,7 @@ dual_data_step_pixel = _dual_data_kernel(1)
 def data_lanes(device) -> int:
     """Pixels per group of the data term's storage on ``device``: :data:`DATA_LANES` on
     the CPU, 1 on CUDA."""
-    return DATA_LANES if str(device).startswith("cpu") else 1
+    return DATA_LANES if is_cpu(device) else 1
 
 
 def dual_data_kernel(lanes: int):

@@ -19,6 +19,8 @@ takes the mean over the others.
 
 import warp as wp
 
+from lfsf.device import is_cpu
+
 from .common import (HALF_PLANES, bilinear, contiguous_row, footprint_visible, half_plane_mask, half_plane_residuals,
                      inside, lane_vector, least_half_mean, vec8, visible)
 
@@ -313,7 +315,7 @@ sweep_cost_pixel, sweep_cost_visible_pixel = _plane_sweep_kernels(1)
 def sweep_kernels(device: str):
     """(half-plane kernel, visibility kernel, columns per thread) of the plane sweep for a
     device: :data:`SWEEP_LANES` columns on the CPU, one on CUDA."""
-    if str(device).startswith("cpu"):
+    if is_cpu(device):
         return sweep_cost, sweep_cost_visible, SWEEP_LANES
     return sweep_cost_pixel, sweep_cost_visible_pixel, 1
 
@@ -476,7 +478,7 @@ box_sum_pixel, box_min_pixel = _box_kernels(False)
 def box_kernels(device: str):
     """(:data:`box_sum`, :data:`box_min`) for a device: with vector runs on the CPU, pixel
     by pixel on CUDA."""
-    if str(device).startswith("cpu"):
+    if is_cpu(device):
         return box_sum, box_min
     return box_sum_pixel, box_min_pixel
 

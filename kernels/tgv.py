@@ -25,6 +25,8 @@ from typing import Any
 
 import warp as wp
 
+from lfsf.device import is_cpu
+
 from .common import at_least, float_run, forward_gradient, lane_vector, overload_unknowns, to_vec4
 
 wp.set_module_options({"enable_backward": False})
@@ -567,7 +569,7 @@ tgv_dual_step_pixel, tgv_primal_step_pixel = _tgv_steps(False)
 def tgv_kernels(device: str):
     """(dual step, primal step) for a device: with the vector path on the CPU, pixel by
     pixel on CUDA."""
-    if str(device).startswith("cpu"):
+    if is_cpu(device):
         return tgv_dual_step, tgv_primal_step
     return tgv_dual_step_pixel, tgv_primal_step_pixel
 

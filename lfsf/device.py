@@ -235,11 +235,18 @@ class CapturedLoop:
 SMALL_IMAGE = 1 << 14
 
 
+def is_cpu(device) -> bool:
+    """Whether ``device`` (a name such as ``cpu`` or ``cuda:0``, or a Warp device) is the
+    CPU: the kernels that take groups of pixels in vector registers, or walk whole rows
+    per thread, run there; CUDA takes a thread per pixel."""
+    return str(device).startswith("cpu")
+
+
 def row_span(device: str, width: int) -> tuple[int, int]:
     """(span, threads per row) for kernels that walk ``span`` pixels of a row per thread:
     the whole row on the CPU, where one thread per pixel costs more than a light stencil
     (ROF: 2.5× slower measured), one pixel on CUDA."""
-    span = max(1, int(width)) if str(device).startswith("cpu") else 1
+    span = max(1, int(width)) if is_cpu(device) else 1
     return span, -(-int(width) // span)
 
 

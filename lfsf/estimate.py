@@ -216,7 +216,7 @@ def rof_denoise(stack, mu: float, iterations: int, device: str, width: int | Non
     width = w if width is None else int(width)
     if not 1 <= width <= w:
         raise ValueError(f"rof_denoise: images {width} wide in rows of {w} values")
-    lanes = str(device).startswith("cpu")
+    lanes = _device.is_cpu(device)
     if lanes and (w % rof.ROF_LANES or not stack.is_contiguous or stack.dtype != wp.float32):
         rows = wp.zeros((n, h, _rof_rows(w, device)), dtype=float, device=device)
         _device.launch_rows(rof.pad_odd, dim=(n * h, w), inputs=[stack, 0], outputs=[rows], device=device)
@@ -257,7 +257,7 @@ def _rof_rows(width: int, device: str) -> int:
     multiple of :data:`lfsf.kernels.rof.ROF_LANES` on the CPU, ``width`` on CUDA."""
     from lfsf.kernels import rof
 
-    return -(-width // rof.ROF_LANES) * rof.ROF_LANES if str(device).startswith("cpu") else width
+    return -(-width // rof.ROF_LANES) * rof.ROF_LANES if _device.is_cpu(device) else width
 
 
 def _structure_texture(stack, params: Params, device: str):
