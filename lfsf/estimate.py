@@ -751,7 +751,7 @@ def estimate_scene_flow(
     say(f"{width}×{height}, {rows}×{cols} views, {n_samples} samples (R = {radius:g}), "
         f"{len(sizes)} levels on {dev}")
 
-    x = w0 = w1 = None
+    x = w0 = w1 = duals = None
     hidden_here = None
     for level in range(len(sizes) - 1, -1, -1):
         h, w = sizes[level]
@@ -780,6 +780,8 @@ def estimate_scene_flow(
                                   _resize_map(found[1], (h, w), scale, dev), params, dev)
             lap("search")
         solver.set_state(x, w0, w1)
+        if duals is not None:
+            solver.carry_disparity_duals(duals)
         lap("setup")
         for k in range(params.warps):
             solver.linearise()
@@ -808,6 +810,9 @@ def estimate_scene_flow(
             sd = 0.5 * (sx + sy)
             x, = _upsample_state([x], (fh, fw), (sd, sd, sx, sy), dev)
             w0, w1 = _upsample_state([w0, w1], (fh, fw), (1.0, 1.0, 1.0, 1.0), dev)
+            if params.carry_duals and n_samples > 1:
+                # the disparities' TGV duals go on to the finer level (Params.carry_duals)
+                duals = _upsample_state(solver.tgv_duals(), (fh, fw), (1.0, 1.0, 1.0, 1.0), dev)
         lap("upsample")
     if params.depth_change_radius > 0 and n_samples > 1:
         x = _depth_change_median(x, params, dev)

@@ -149,6 +149,28 @@ class LevelSolver:
         wp.copy(self.x_hat, self.x)
         self._tensors()
 
+    def tgv_duals(self) -> list[np.ndarray]:
+        """The TGV duals (y0, y1, z00, z01, z10, z11) as numpy arrays of shape (h, w, 4),
+        the unknowns' components (δ1, δ2, u, v) last (flow only: (h, w, 2), (u, v))."""
+        return [getattr(self, name).numpy() for name in TGV_DUALS]
+
+    def carry_disparity_duals(self, duals: list[np.ndarray]) -> None:
+        """Set the (δ1, δ2) parts of the TGV duals from ``duals`` (as :meth:`tgv_duals`
+        gives them, of this level's size: the coarser level's, upsampled); the flow's
+        parts stay as they are (0 after :meth:`set_state`). Flow only: nothing to set.
+        ``params.carry_duals``."""
+        if self.flow_only:
+            return
+        wp = _device.warp()
+        h, w = self.shape
+        for name, given in zip(TGV_DUALS, duals):
+            if given.shape != (h, w, 4):
+                raise ValueError(f"{name} must have shape {(h, w, 4)}, got {given.shape}")
+            target = getattr(self, name)
+            merged = target.numpy()
+            merged[..., :2] = given[..., :2]
+            wp.copy(target, wp.array(merged, dtype=self.vec, device=self.device))
+
     def state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(x, w0, w1) as numpy arrays of shape (h, w, 4)."""
         return self._full("x", self.x), self._full("w0", self.w0), self._full("w1", self.w1)
@@ -403,6 +425,10 @@ class LevelSolver:
         dx1, dy1 = forward_gradient(w1)
         second = float(np.sum(np.sqrt(dx0**2 + dy0**2 + dx1**2 + dy1**2)))
         return data + p.alpha1 * first + p.alpha0 * second
+
+
+#: The TGV duals' buffers: y for ∇x − w (two components), z for ∇w (four).
+TGV_DUALS = ("y0", "y1", "z00", "z01", "z10", "z11")
 
 
 def lane_storage(h: int, w: int, n: int, values: int, lanes: int, device: str):

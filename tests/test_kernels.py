@@ -1584,6 +1584,33 @@ def _level_solver(size, grid, params, device, level_scale=1.0):
     return solver
 
 
+def test_carried_duals_set_the_disparity_parts_and_leave_the_flow_at_zero(device):
+    """``carry_disparity_duals`` (Params.carry_duals): after set_state every TGV dual is
+    0; carried, the (δ1, δ2) parts of each become the given ones and the flow's stay 0.
+    A dual of another level's size is an error, and flow only has nothing to carry."""
+    from lfsf.params import Params
+
+    params = Params.preset("fast").replace(rof_iterations=10)
+    solver = _level_solver((32, 24), 5, params, device)
+    h, w = solver.shape
+    solver.linearise()
+    solver.iterate(10)
+    assert any(np.any(d != 0) for d in solver.tgv_duals())
+    solver.set_state(np.zeros((h, w, 4), np.float32))
+    assert all(np.all(d == 0) for d in solver.tgv_duals())
+    rng = np.random.default_rng(5)
+    given = [rng.normal(size=(h, w, 4)).astype(np.float32) for _ in range(6)]
+    solver.carry_disparity_duals(given)
+    for got, want in zip(solver.tgv_duals(), given):
+        np.testing.assert_array_equal(got[..., :2], want[..., :2])
+        assert np.all(got[..., 2:] == 0)
+    with pytest.raises(ValueError, match="y0 must have shape"):
+        solver.carry_disparity_duals([d[:-1] for d in given])
+    flow = _level_solver((32, 24), 5, Params.preset("flow").replace(rof_iterations=10), device)
+    flow.carry_disparity_duals(given)
+    assert all(np.all(d == 0) for d in flow.tgv_duals())
+
+
 def test_view_visibility_margin_scales_with_the_level(device):
     """``occlusion_margin`` is in px per view step at full resolution, and disparities
     shrink with the level: a step of 0.2 (level px per view step) hides no background
