@@ -655,7 +655,7 @@ def estimate_scene_flow(
 
     def lap(name):
         nonlocal clock
-        if _device_is_cuda(dev):
+        if not _device.is_cpu(dev):
             wp.synchronize_device(dev)
         now = time.perf_counter()
         timings[name] = timings.get(name, 0.0) + now - clock
@@ -966,6 +966,3 @@ def _stack2(images, device):
         wp.copy(out, img, dest_offset=k * h * w, count=h * w)
     return out
 
-
-def _device_is_cuda(name: str) -> bool:
-    return name.startswith("cuda")
