@@ -239,13 +239,17 @@ def test_json_reports_are_strict_json():
 def test_ctrl_c_is_held_back_while_a_set_of_outputs_moves_into_place():
     """Also with other threads alive (the CPU launch pool's workers): the kernel may hand a
     process-wide SIGINT to any thread that does not mask it, so masking it in the main
-    thread alone let about one interrupt in twenty through (a CI run caught it)."""
+    thread alone let about one interrupt in twenty through (a CI run caught it). Python's
+    own handler is installed for the test: a process started in the background by a
+    non-interactive shell (``pytest &``) inherits SIGINT ignored, which the held-back
+    interrupt rightly respects."""
     import signal
     import threading
     import time
 
     from lfsf._files import interrupts_held
 
+    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
     stop = threading.Event()
     others = [threading.Thread(target=stop.wait, daemon=True) for _ in range(4)]
     for thread in others:
@@ -268,6 +272,7 @@ def test_ctrl_c_is_held_back_while_a_set_of_outputs_moves_into_place():
         assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
     finally:
         stop.set()
+        signal.signal(signal.SIGINT, inherited)
 
 
 def test_ctrl_c_while_the_parser_is_built_is_an_interrupt(monkeypatch, capsys):
