@@ -73,14 +73,11 @@ def image_gradient(image: wp.array2d(dtype=float), i: int, j: int):
 
 
 @wp.func
-def tensor_from_gradients(g: wp.vec2, d: wp.vec2, gamma: float, beta: float):
-    """Γ = exp(−γ m^β) n nᵀ + n⊥ n⊥ᵀ as (Γ00, Γ01, Γ11) for a two-channel guide with
-    gradients g and d: n and m² are the leading eigenvector and eigenvalue of g gᵀ + d dᵀ
-    (Di Zenzo's edge of a multi-channel image; with d = 0, n = g/|g| and m = |g|).
-    Identity where both vanish."""
-    a = g[0] * g[0] + d[0] * d[0]
-    b = g[0] * g[1] + d[0] * d[1]
-    c = g[1] * g[1] + d[1] * d[1]
+def tensor_from_structure(a: float, b: float, c: float, gamma: float, beta: float):
+    """Γ = exp(−γ m^β) n nᵀ + n⊥ n⊥ᵀ as (Γ00, Γ01, Γ11) for the structure tensor
+    [[a, b], [b, c]] = Σ_k g_k g_kᵀ of a guide's channel gradients g_k: n and m² are its
+    leading eigenvector and eigenvalue (Di Zenzo's edge of a multi-channel image; one
+    channel: n = g/|g| and m = |g|). Identity where it vanishes."""
     half = 0.5 * (a - c)
     root = wp.sqrt(half * half + b * b)
     lam = 0.5 * (a + c) + root
@@ -101,6 +98,14 @@ def tensor_from_gradients(g: wp.vec2, d: wp.vec2, gamma: float, beta: float):
     return t
 
 
+@wp.func
+def tensor_from_gradients(g: wp.vec2, d: wp.vec2, gamma: float, beta: float):
+    """:func:`tensor_from_structure` of a two-channel guide with gradients g and d
+    (with d = 0, Γ of g alone)."""
+    return tensor_from_structure(g[0] * g[0] + d[0] * d[0], g[0] * g[1] + d[0] * d[1],
+                                 g[1] * g[1] + d[1] * d[1], gamma, beta)
+
+
 @wp.kernel
 def diffusion_tensor(
     row0: int,
@@ -116,6 +121,41 @@ def diffusion_tensor(
     i, j = wp.tid()
     i = i + row0
     tensor[i, j] = tensor_from_gradients(image_gradient(image, i, j), wp.vec2(0.0), gamma, beta)
+
+
+@wp.func
+def colour_structure(image: wp.array3d(dtype=float), i: int, j: int):
+    """(a, b, c) of the structure tensor [[a, b], [b, c]] of a colour image (3, h, w):
+    the mean over the channels of g gᵀ, g their forward differences (:func:`image_gradient`)."""
+    a = float(0.0)
+    b = float(0.0)
+    c = float(0.0)
+    for k in range(3):
+        g = image_gradient(image[k], i, j)
+        a += g[0] * g[0]
+        b += g[0] * g[1]
+        c += g[1] * g[1]
+    third = 1.0 / 3.0
+    return wp.vec3(third * a, third * b, third * c)
+
+
+@wp.kernel
+def colour_diffusion_tensor(
+    row0: int,
+    image: wp.array3d(dtype=float),
+    gamma: float,
+    beta: float,
+    # outputs
+    tensor: wp.array2d(dtype=wp.vec3),
+):
+    """Γ of a colour image, ``image`` (3, h, w) as channel planes (:func:`colour_structure`):
+    a grey image (R = G = B = I) gives :func:`diffusion_tensor`'s Γ of I, while an edge
+    between colours of equal brightness, which the grey view does not see, stops the
+    diffusion too. Launch over (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    m = colour_structure(image, i, j)
+    tensor[i, j] = tensor_from_structure(m[0], m[1], m[2], gamma, beta)
 
 
 @wp.kernel

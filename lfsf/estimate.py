@@ -705,7 +705,8 @@ def estimate_scene_flow(
         stacks.append(out)
         del views
     lap("sampling")
-    colour = _centre_colour(lf1, offset, stretch) if params.colour_median_radius > 0 and n_samples > 1 else None
+    colour = (_centre_colour(lf1, offset, stretch)
+              if (params.colour_median_radius > 0 or params.colour_tensor) and n_samples > 1 else None)
     centres = [wp.clone(s[0]) for s in stacks]
     both = wp.empty((2 * n_samples, height, width), dtype=float, device=dev)
     wp.copy(both, stacks[0], dest_offset=0, count=n_samples * height * width)
@@ -718,10 +719,14 @@ def estimate_scene_flow(
     start = _check_init(init, height, width)
     if start is not None and params.warm_levels:
         sizes = sizes[:params.warm_levels]
-    levels = [(texture, _stack2(centres, dev))]
+    # the t1 centre view's colour planes for Γ_t1 (Params.colour_tensor), on every level
+    planes = (wp.array(np.ascontiguousarray(np.moveaxis(colour, -1, 0)), dtype=float, device=dev)
+              if colour is not None and params.colour_tensor else None)
+    levels = [(texture, _stack2(centres, dev), planes)]
     for size in sizes[1:]:
-        tex, cen = levels[-1]
-        levels.append((_downsample(tex, size, dev), _downsample(cen, size, dev)))
+        tex, cen, col = levels[-1]
+        levels.append((_downsample(tex, size, dev), _downsample(cen, size, dev),
+                       None if col is None else _downsample(col, size, dev)))
     lap("pyramid")
     search = params.disparity_search and n_samples > 1
     if search:
@@ -755,11 +760,11 @@ def estimate_scene_flow(
     hidden_here = None
     for level in range(len(sizes) - 1, -1, -1):
         h, w = sizes[level]
-        tex, cen = levels[level]
+        tex, cen, col = levels[level]
         s1 = wp.clone(tex[:n_samples])
         s2 = wp.clone(tex[n_samples:])
         solver = LevelSolver(s1, s2, wp.clone(cen[0]), wp.clone(cen[1]), wp_phis, wp_weights, params, dev,
-                             level_scale=w / width)
+                             level_scale=w / width, colour1=col)
         if x is None and start is not None:
             scales = (w / width, w / width, w / width, h / height)  # δ1, δ2 and u with the width, v with the height
             x = np.stack([_resize_map(start[..., c], (h, w), scales[c], dev) for c in range(4)], -1)
@@ -817,7 +822,7 @@ def estimate_scene_flow(
     if params.depth_change_radius > 0 and n_samples > 1:
         x = _depth_change_median(x, params, dev)
         lap("median")
-    if colour is not None:
+    if colour is not None and params.colour_median_radius > 0:
         x = _colour_edges(x, colour, params, dev)
         lap("median")
 

@@ -38,6 +38,10 @@ class LevelSolver:
         (λ1, λ2, λ3) per sample, already divided by the sample count.
     params : lfsf.Params
     device : str
+    colour1 : wp.array3d of float, shape (3, h, w), optional
+        The t1 centre view in colour (R, G, B planes): Γ_t1 is then Di Zenzo's tensor of
+        the three channels (:func:`lfsf.kernels.tgv.colour_diffusion_tensor`) instead of
+        the grey ``centre1``'s (``Params.colour_tensor``).
 
     Call ``set_state`` and then ``linearise`` before ``iterate``: the data term's buffers
     are allocated uninitialised and filled there.
@@ -50,7 +54,7 @@ class LevelSolver:
     """
 
     def __init__(self, samples1, samples2, centre1, centre2, phis, weights, params, device: str,
-                 level_scale: float = 1.0):
+                 level_scale: float = 1.0, colour1=None):
         from lfsf.kernels import data_term, tgv
 
         wp = _device.warp()
@@ -74,7 +78,11 @@ class LevelSolver:
         # flow (set at each linearisation, see _tensors)
         self.centre1, self.centre2 = centre1, centre2
         self.tensor1 = wp.empty((h, w), dtype=wp.vec3, device=device)
-        self._launch(tgv.diffusion_tensor, inputs=[centre1, params.gamma, params.beta], outputs=[self.tensor1])
+        if colour1 is not None and not self.flow_only:
+            self._launch(tgv.colour_diffusion_tensor, inputs=[colour1, params.gamma, params.beta],
+                         outputs=[self.tensor1])
+        else:
+            self._launch(tgv.diffusion_tensor, inputs=[centre1, params.gamma, params.beta], outputs=[self.tensor1])
         if self.flow_only:
             # Γ_uv of a zero δ̂1 is Γ_t1, and no δ is iterated: one tensor for all three
             self.tensor2 = self.tensor3 = self.tensor1

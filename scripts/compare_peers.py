@@ -36,6 +36,7 @@ Usage (from the repository root)::
     python scripts/compare_peers.py --methods all --check  # exit 1 if a target fails
     python scripts/compare_peers.py --random 8 --check     # + 8 scenes drawn at random
     python scripts/compare_peers.py --noise 0.01           # sensor noise on every view
+    python scripts/compare_peers.py --colour               # RGB views (the peers: their luma)
 
 ``--methods``: ``peers`` (peers only), ``lfsf`` (lfsf only; no bars), ``all`` (default:
 peers, and lfsf when ``lfsf.estimate_scene_flow`` exists, else a note). Exit status 1 if a
@@ -173,7 +174,7 @@ def run_scene(name, args, use_peers, lfsf_runs, warm):
     """Rows of one synthetic scene."""
     from lfsf import evaluate, synth
 
-    lf1, lf2, gt = synth.render_scene(name, size=tuple(args.size), grid=args.grid,
+    lf1, lf2, gt = synth.render_scene(name, size=tuple(args.size), grid=args.grid, colour=args.colour,
                                       device=args.device)
     if args.noise > 0:  # independent at t1 and t2, the same for every method
         seed = zlib.crc32(name.encode())
@@ -191,7 +192,9 @@ def run_scene(name, args, use_peers, lfsf_runs, warm):
 
     rows = []
     if use_peers:
-        c1, c2 = lf1.centre, lf2.centre
+        # the peers take grey views (their luma, for --colour); lfsf the light fields as rendered
+        g1, g2 = lf1.grey(), lf2.grey()
+        c1, c2 = g1.centre, g2.centre
         flows = {}
         for method, fn in (("opencv-tvl1", peers.opencv_tvl1), ("skimage-tvl1", peers.skimage_tvl1)):
             try:
@@ -202,8 +205,8 @@ def run_scene(name, args, use_peers, lfsf_runs, warm):
             except Exception as exc:
                 rows.append(_row("synthetic", name, method, error=_error_text(exc)))
         try:
-            d1, s1 = peers.timed(peers.plenpy_disparity, lf1.views)
-            d2map, s2 = peers.timed(peers.plenpy_disparity, lf2.views)
+            d1, s1 = peers.timed(peers.plenpy_disparity, g1.views)
+            d2map, s2 = peers.timed(peers.plenpy_disparity, g2.views)
             d2 = peers.disparity_at_t1_pixels(d2map, gt["u"], gt["v"])
             rows.append(_row("synthetic", name, "plenpy", disp1=d_err(d1, "disp1"),
                              disp2=d_err(d2, "disp2"), seconds=s1 + s2,
@@ -433,6 +436,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "--random-from on")
     p.add_argument("--random-from", type=int, default=0, metavar="SEED",
                    help="first random scene's seed (default 0)")
+    p.add_argument("--colour", action="store_true",
+                   help="RGB views (default grey); the peers get their luma, lfsf the colour")
     p.add_argument("--noise", type=float, default=0.0, metavar="SIGMA",
                    help="Gaussian noise of this standard deviation (intensities in [0, 1]) on every "
                         "view of the synthetic scenes, independent at t1 and t2 (default 0)")
@@ -518,7 +523,7 @@ def main(argv=None) -> int:
     bars, targets = bars_and_targets(rows)
     w, h = args.size
     if not args.no_synth:
-        print(f"## Synthetic scenes, {w}×{h}, {args.grid}×{args.grid} views "
+        print(f"## Synthetic scenes, {w}×{h}, {args.grid}×{args.grid} {'RGB ' if args.colour else ''}views "
               f"(valid pixels, {SYNTH_BORDER}-px border)\n")
         print(synth_table(rows))
         if use_peers:

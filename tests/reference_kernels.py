@@ -447,6 +447,28 @@ def joint_diffusion_tensor(img: np.ndarray, disparity: np.ndarray, weight: float
     return t
 
 
+def colour_diffusion_tensor(img: np.ndarray, gamma: float, beta: float) -> np.ndarray:
+    """Γ of a colour image (h, w, 3) as (h, w, 2, 2): n and m² the leading eigenvector and
+    eigenvalue of the channels' mean ∇I∇Iᵀ (numpy.linalg.eigh; Di Zenzo), Γ =
+    exp(−γ m^β) n nᵀ + n⊥ n⊥ᵀ; identity where every channel's gradient vanishes. ∇I by
+    forward differences (:func:`grad`)."""
+    J = np.zeros(img.shape[:2] + (2, 2))
+    for k in range(img.shape[2]):
+        gx, gy = grad(img[..., k])
+        J[..., 0, 0] += gx * gx / 3.0
+        J[..., 0, 1] += gx * gy / 3.0
+        J[..., 1, 1] += gy * gy / 3.0
+    J[..., 1, 0] = J[..., 0, 1]
+    lam, vec = np.linalg.eigh(J)
+    m = np.sqrt(np.maximum(lam[..., 1], 0.0))
+    n = vec[..., :, 1]
+    nperp = np.stack([-n[..., 1], n[..., 0]], -1)
+    e = np.exp(-gamma * m**beta)
+    t = e[..., None, None] * n[..., :, None] * n[..., None, :] + nperp[..., :, None] * nperp[..., None, :]
+    t[lam[..., 1] <= 1e-24] = np.eye(2)
+    return t
+
+
 def tensor_components(t: np.ndarray) -> np.ndarray:
     """(h, w, 2, 2) → (h, w, 3) = (Γ00, Γ01, Γ11), the layout of the kernels."""
     return np.stack([t[..., 0, 0], t[..., 0, 1], t[..., 1, 1]], -1)

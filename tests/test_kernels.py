@@ -1154,6 +1154,52 @@ def test_joint_diffusion_tensor_matches_reference(weight, device):
     close(out2.numpy(), _run_tensor(img, 5.0, 0.7, device), atol=1e-6)
 
 
+def _run_colour_tensor(planes, gamma, beta, device):
+    from lfsf.kernels import tgv
+
+    _, h, w = planes.shape
+    out = wp.zeros((h, w), dtype=wp.vec3, device=device)
+    launch(tgv.colour_diffusion_tensor, (h, w), [arr(np.ascontiguousarray(planes), float, device), gamma, beta],
+           [out], device)
+    return out.numpy().astype(np.float64)
+
+
+def test_colour_diffusion_tensor_matches_reference(device):
+    """Γ of a colour image (Di Zenzo): the eigen-decomposition of the channels' mean ∇I∇Iᵀ
+    by NumPy; identity where all three channels are flat."""
+    h, w = 7, 9
+    img = np.stack([_image_with_flat_patch(40 + k, h, w) for k in range(3)], -1)
+    got = _run_colour_tensor(np.moveaxis(img, -1, 0), 5.0, 0.7, device)
+    close(got, ref.tensor_components(ref.colour_diffusion_tensor(img, 5.0, 0.7)), atol=2e-5)
+    close(got[:2, :3], np.broadcast_to([1.0, 0.0, 1.0], (2, 3, 3)), atol=1e-6)
+
+
+def test_colour_diffusion_tensor_of_a_grey_image_is_the_grey_tensor(device):
+    """R = G = B = I gives :func:`diffusion_tensor`'s Γ of I (the channel mean keeps the
+    gradient's size), so grey content behaves as before."""
+    img = _image_with_flat_patch(44)
+    got = _run_colour_tensor(np.stack([img] * 3), 5.0, 0.7, device)
+    close(got, _run_tensor(img, 5.0, 0.7, device), atol=1e-6)
+
+
+def test_colour_diffusion_tensor_sees_an_edge_of_equal_brightness(device):
+    """Red beside green of the same luma: the grey tensor is the identity everywhere, the
+    colour tensor stops the diffusion across the edge (columns 3 → 4) alone."""
+    h, w = 5, 8
+    img = np.zeros((h, w, 3), np.float32)
+    img[:, :4] = (0.6, 0.3, 0.3)
+    img[:, 4:] = (0.3, 0.6 * 0.299 / 0.587 + 0.3 - 0.3 * 0.299 / 0.587, 0.3)
+    luma = img @ np.array([0.299, 0.587, 0.114], np.float32)
+    assert np.ptp(luma) < 1e-6
+    grey = np.full((h, w), luma.mean(), np.float32)  # the luma, without float32's rounding
+    close(_run_tensor(grey, 10.0, 0.7, device), np.broadcast_to([1.0, 0.0, 1.0], (h, w, 3)), atol=1e-6)
+    got = _run_colour_tensor(np.moveaxis(img, -1, 0), 10.0, 0.7, device)
+    m = np.sqrt(np.sum((img[0, 4] - img[0, 3]) ** 2) / 3.0)
+    close(got[:, 3], np.broadcast_to([np.exp(-10.0 * m**0.7), 0.0, 1.0], (h, 3)), atol=1e-6)
+    for col in (0, 1, 2, 4, 5, 6, 7):
+        close(got[:, col], np.broadcast_to([1.0, 0.0, 1.0], (h, 3)), atol=1e-6)
+
+
 @UNKNOWNS
 def test_warp_by_flow_matches_reference(device, unknowns):
     from lfsf.kernels import sampling
