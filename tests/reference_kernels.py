@@ -423,6 +423,20 @@ def diffusion_tensor(img: np.ndarray, gamma: float, beta: float) -> np.ndarray:
     return e[..., None, None] * n[..., :, None] * n[..., None, :] + nperp[..., :, None] * nperp[..., None, :]
 
 
+def _tensor_from_structure(J: np.ndarray, gamma: float, beta: float) -> np.ndarray:
+    """Γ = exp(−γ m^β) n nᵀ + n⊥ n⊥ᵀ (h, w, 2, 2) of a structure tensor J (h, w, 2, 2): n
+    and m² its leading eigenvector and eigenvalue (numpy.linalg.eigh); identity where J
+    vanishes."""
+    lam, vec = np.linalg.eigh(J)
+    m = np.sqrt(np.maximum(lam[..., 1], 0.0))
+    n = vec[..., :, 1]
+    nperp = np.stack([-n[..., 1], n[..., 0]], -1)
+    e = np.exp(-gamma * m**beta)
+    t = e[..., None, None] * n[..., :, None] * n[..., None, :] + nperp[..., :, None] * nperp[..., None, :]
+    t[lam[..., 1] <= 1e-24] = np.eye(2)
+    return t
+
+
 def joint_diffusion_tensor(img: np.ndarray, disparity: np.ndarray, weight: float, gamma: float,
                            beta: float) -> np.ndarray:
     """Γ of the two-channel guide (I, weight·δ) as (h, w, 2, 2): n and m² the leading
@@ -436,15 +450,7 @@ def joint_diffusion_tensor(img: np.ndarray, disparity: np.ndarray, weight: float
     J[..., 0, 0] = gx * gx + dx * dx
     J[..., 0, 1] = J[..., 1, 0] = gx * gy + dx * dy
     J[..., 1, 1] = gy * gy + dy * dy
-    lam, vec = np.linalg.eigh(J)
-    m = np.sqrt(np.maximum(lam[..., 1], 0.0))
-    n = vec[..., :, 1]
-    nperp = np.stack([-n[..., 1], n[..., 0]], -1)
-    e = np.exp(-gamma * m**beta)
-    t = e[..., None, None] * n[..., :, None] * n[..., None, :] + nperp[..., :, None] * nperp[..., None, :]
-    flat = lam[..., 1] <= 1e-24
-    t[flat] = np.eye(2)
-    return t
+    return _tensor_from_structure(J, gamma, beta)
 
 
 def colour_diffusion_tensor(img: np.ndarray, gamma: float, beta: float) -> np.ndarray:
@@ -459,14 +465,7 @@ def colour_diffusion_tensor(img: np.ndarray, gamma: float, beta: float) -> np.nd
         J[..., 0, 1] += gx * gy / 3.0
         J[..., 1, 1] += gy * gy / 3.0
     J[..., 1, 0] = J[..., 0, 1]
-    lam, vec = np.linalg.eigh(J)
-    m = np.sqrt(np.maximum(lam[..., 1], 0.0))
-    n = vec[..., :, 1]
-    nperp = np.stack([-n[..., 1], n[..., 0]], -1)
-    e = np.exp(-gamma * m**beta)
-    t = e[..., None, None] * n[..., :, None] * n[..., None, :] + nperp[..., :, None] * nperp[..., None, :]
-    t[lam[..., 1] <= 1e-24] = np.eye(2)
-    return t
+    return _tensor_from_structure(J, gamma, beta)
 
 
 def tensor_components(t: np.ndarray) -> np.ndarray:
