@@ -388,7 +388,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="view size (default 320 240)")
     p.add_argument("--grid", type=_positive, default=9, metavar="N", help="N×N views (default 9)")
     p.add_argument("--colour", action="store_true",
-                   help="RGB views (default grey): the estimate then also snaps δ1 and δ2 to the colour edges "
+                   help="RGB views (default grey): the estimate then also takes δ1's diffusion tensor from the "
+                        "colours (Params.colour_tensor) and snaps δ1 and δ2 to the colour edges "
                         "(Params.colour_median_radius)")
     p.add_argument("--out", type=Path, default=Path("lfsf-demo"), help="output folder (default ./lfsf-demo)")
     _estimator_options(p)

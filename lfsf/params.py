@@ -90,8 +90,9 @@ class Params:
         gamma, beta : γ, β of Γ = exp(−γ|∇I|^β) n nᵀ + n⊥ n⊥ᵀ (∇I by forward differences,
             as ∇ of the unknowns).
         flow_edge_weight : the flow's tensor Γ_uv is that of the two-channel guide (I1,
-            c·δ̂1) with c this weight: depth edges, where objects at different depths
-            move differently, let the flow jump too (an addition; 0: Γ_t1, the paper).
+            c·δ̂1) with c this weight, I1 the t1 centre view's luma: depth edges, where
+            objects at different depths move differently, let the flow jump too (an
+            addition; 0: the luma's Γ_t1, the paper's).
         warp_tensor2 : Γ_t2 (for δ2, a map on the t1 grid) from the t2 centre view
             warped onto the t1 grid by the current flow, I2(p + û), so that its edges
             are where δ2's are (False: the view as it is).
@@ -101,9 +102,11 @@ class Params:
             the paper; grey input, and grey views stored as RGB, always take the luma's).
             Edges between colours of like brightness then stop δ1's diffusion too. HCI
             antinous MSE×100 1.998 → 1.915; colour synthetic scenes (paired, gmean
-            δ1 / δ2 / EPE) 0.83 / 0.84 / 0.99 at 160×120 (`random-8…23`) and 0.83 /
-            0.99 / 1.01 at 320×240 (built-in and `random-0…3`). Colour in Γ_t2 and Γ_uv
-            as well made δ2 worse (docs/accuracy.md).
+            δ1 / δ2 / EPE) 0.99 / 1.03 / 1.05 at 160×120 on the built-in ones and
+            `random-0…7` (`large_motion` EPE 0.230 → 0.330), 0.83 / 0.84 / 0.99 on
+            `random-8…23`, 0.83 / 0.99 / 1.01 at 320×240 (built-in and `random-0…3`).
+            Γ_t2 (δ2) and Γ_uv (the flow) stay the luma's: colour there as well made
+            δ2 worse (docs/accuracy.md).
     Optimisation (§5, §6)
         pyramid_scale : η_s, the size ratio between pyramid levels.
         min_size : the coarsest level's shorter side is at least this many pixels.

@@ -78,6 +78,9 @@ class LevelSolver:
         # flow (set at each linearisation, see _tensors)
         self.centre1, self.centre2 = centre1, centre2
         self.tensor1 = wp.empty((h, w), dtype=wp.vec3, device=device)
+        if colour1 is not None and tuple(colour1.shape) != (3, h, w):
+            raise ValueError(f"colour1 must be (3, {h}, {w}) (R, G, B planes of the level), "
+                             f"got {tuple(colour1.shape)}")
         if colour1 is not None and not self.flow_only:
             self._launch(tgv.colour_diffusion_tensor, inputs=[colour1, params.gamma, params.beta],
                          outputs=[self.tensor1])

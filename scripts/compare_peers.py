@@ -228,7 +228,8 @@ def run_scene(name, args, use_peers, lfsf_runs, warm):
     for method, fn in lfsf_runs.items():
         try:
             if method not in warm:  # compile kernels etc. outside the timing
-                w1, w2, _ = synth.render_scene(name, size=(48, 32), grid=args.grid, device=args.device)
+                w1, w2, _ = synth.render_scene(name, size=(48, 32), grid=args.grid, colour=args.colour,
+                                               device=args.device)
                 fn(w1, w2, args.device)
                 warm.add(method)
             out, s = peers.timed(fn, lf1, lf2, args.device)

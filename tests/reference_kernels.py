@@ -459,11 +459,12 @@ def colour_diffusion_tensor(img: np.ndarray, gamma: float, beta: float) -> np.nd
     exp(−γ m^β) n nᵀ + n⊥ n⊥ᵀ; identity where every channel's gradient vanishes. ∇I by
     forward differences (:func:`grad`)."""
     J = np.zeros(img.shape[:2] + (2, 2))
-    for k in range(img.shape[2]):
+    channels = img.shape[2]
+    for k in range(channels):
         gx, gy = grad(img[..., k])
-        J[..., 0, 0] += gx * gx / 3.0
-        J[..., 0, 1] += gx * gy / 3.0
-        J[..., 1, 1] += gy * gy / 3.0
+        J[..., 0, 0] += gx * gx / channels
+        J[..., 0, 1] += gx * gy / channels
+        J[..., 1, 1] += gy * gy / channels
     J[..., 1, 0] = J[..., 0, 1]
     return _tensor_from_structure(J, gamma, beta)
 
