@@ -48,6 +48,11 @@ def shift_lightfields(h=48, w=64, grid=5, disp1=0.6, disp2=0.4, flow=(1.5, -0.8)
 QUICK = Params.preset("fast").replace(iterations=80, warps=4, median_radius=1)
 
 
+def grey_as_rgb(lf, factor=1.0):
+    """``lf``'s luma stored as RGB (R = G = B), times ``factor``."""
+    return lfsf.LightField(np.repeat(lf.grey().views[..., None], 3, axis=-1) * factor)
+
+
 def interior(a, b=6):
     return a[b:-b, b:-b]
 
@@ -315,7 +320,7 @@ def test_colour_edges_sharpen_the_disparities_of_colour_light_fields():
             np.testing.assert_array_equal(grey.disp1, runs["off"].disp1)
             np.testing.assert_array_equal(grey.disp2, runs["off"].disp2)
             # nor grey views stored as RGB (R = G = B), where it would see the luma alone
-            as_rgb = [lfsf.LightField(np.repeat(lf.grey().views[..., None], 3, axis=-1)) for lf in (lf1, lf2)]
+            as_rgb = [grey_as_rgb(lf) for lf in (lf1, lf2)]
             same = [estimate_scene_flow(*as_rgb, fast.replace(**kw), device="cpu")
                     for kw in ({}, {"colour_median_radius": 0})]
             np.testing.assert_array_equal(same[0].disp1, same[1].disp1)
@@ -337,7 +342,7 @@ def test_colour_tensor_acts_on_the_disparities_of_colour_light_fields_only():
 
     on, off = pair((lf1, lf2), quick)
     assert not np.array_equal(on.disp1, off.disp1)
-    as_rgb = [lfsf.LightField(np.repeat(lf.grey().views[..., None], 3, axis=-1)) for lf in (lf1, lf2)]
+    as_rgb = [grey_as_rgb(lf) for lf in (lf1, lf2)]
     for runs in (pair(as_rgb, quick), pair((lf1, lf2), Params.preset("flow").replace(warps=2, iterations=20))):
         for name in ("disp1", "disp2", "u", "v"):
             np.testing.assert_array_equal(getattr(runs[0], name), getattr(runs[1], name))
@@ -363,7 +368,7 @@ def test_grey_test_of_colour_views_reads_the_same_at_any_intensity_scale():
     hi = max(lf1.views.max(), lf2.views.max())
     np.testing.assert_allclose(scaled, (full - lo) / (hi - lo), atol=1e-5)  # the full range's, stretched
     for factor in (1.0, 1.0 / 64.0):
-        grey = [lfsf.LightField(np.repeat(lf.grey().views[..., None], 3, axis=-1) * factor) for lf in (lf1, lf2)]
+        grey = [grey_as_rgb(lf, factor) for lf in (lf1, lf2)]
         assert estimate._centre_colour(grey[0], *estimate._intensity_stretch(*grey)) is None
 
 
