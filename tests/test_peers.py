@@ -141,3 +141,23 @@ def test_compare_peers_noise_reaches_every_method_reproducibly():
     inner = (clean1.views > 0.1) & (clean1.views < 0.9) & (clean2.views > 0.1) & (clean2.views < 0.9)
     assert abs(n1[inner].std() - 0.02) < 0.002 and abs(n2[inner].std() - 0.02) < 0.002
     assert abs(np.corrcoef(n1[inner], n2[inner])[0, 1]) < 0.1
+
+
+def test_compare_peers_occlusion_table_compares_the_points_seen_at_t2():
+    """A missed flow bar is broken down over the points seen at t2: the joint run's and
+    the peers' EPE there, against the same rule (½ of the better peer)."""
+    script = _compare_peers_script()
+
+    def row(scene, method, epe, seen):
+        return script._row("synthetic", scene, method, flow={"epe": epe}, flow_nonoccluded={"epe": seen})
+
+    rows = [row("a", "opencv-tvl1", 0.20, 0.10), row("a", "skimage-tvl1", 0.30, 0.08), row("a", "lfsf", 0.15, 0.03),
+            row("b", "opencv-tvl1", 0.20, 0.10), row("b", "skimage-tvl1", 0.30, 0.08), row("b", "lfsf", 0.15, 0.05),
+            row("c", "opencv-tvl1", 0.20, 0.10), row("c", "skimage-tvl1", 0.30, 0.08), row("c", "lfsf", 0.05, 0.05)]
+    _bars, targets = script.bars_and_targets(rows)
+    table = script.occlusion_table(rows, targets)
+    lines = table.splitlines()[2:]
+    assert [line.split("|")[1].strip() for line in lines] == ["a", "b"]  # c meets its bar
+    assert lines[0].endswith("| 0.1 / 0.04 | pass |")  # 0.03 ≤ ½ · min(0.10, 0.08)
+    assert lines[1].endswith("| 0.1 / 0.04 | FAIL |")
+    assert script.occlusion_table(rows[6:], script.bars_and_targets(rows[6:])[1]) is None
