@@ -7,6 +7,12 @@ of ``border`` pixels left out:
 * disparity: MSE×100 and BadPix(0.07) — the share (in %) of pixels whose absolute error
   exceeds 0.07 px per view step — as the HCI 4D light-field benchmark defines them;
 * flow: mean end-point error (EPE), ``mean(sqrt((u − u*)² + (v − v*)²))``.
+
+Where the ground truth marks the points hidden at t2 (``occluded``, as ``lfsf synth``
+writes it), δ2 and the flow are also scored over the points seen at t2 as well
+(``disp2_noc``, ``flow_noc``; "noc" as in KITTI's non-occluded figures): of a point the
+t2 frame hides, no view at t2 shows the motion, so the two sets tell apart the errors
+of matching and of filling in.
 """
 
 from __future__ import annotations
@@ -119,6 +125,18 @@ def evaluate(estimate: dict, gt: dict, border: int = SYNTH_BORDER) -> dict[str, 
     if not out:
         raise ValueError("the estimate and the ground truth have no variable in common "
                          f"(estimate: {sorted(estimate)}, ground truth: {sorted(gt)})")
+    occluded = gt.get("occluded")
+    if occluded is not None and ("disp2" in out or "flow" in out):
+        seen = ~np.asarray(occluded, dtype=bool)
+        if valid is not None:
+            seen &= np.asarray(valid, dtype=bool)
+        try:
+            if "disp2" in out:
+                out["disp2_noc"] = disparity_errors(estimate["disp2"], gt["disp2"], seen, border)
+            if "flow" in out:
+                out["flow_noc"] = flow_errors(estimate["u"], estimate["v"], gt["u"], gt["v"], seen, border)
+        except ValueError:  # every point evaluated is hidden at t2: nothing to add
+            out.pop("disp2_noc", None)
     return out
 
 
@@ -199,11 +217,16 @@ def format_table(errors: dict[str, dict[str, float]]) -> str:
     """A small fixed-width table of :func:`evaluate`'s result."""
     lines = [f"{'variable':<8} {'MSE':>10} {'MSE×100':>9} {'BadPix.07':>9} {'EPE':>8} {'pixels':>8}"]
     for name, e in errors.items():
-        if name == "flow":
+        if name == "flow_noc":
+            lines.append(f"{'flow noc':<8} {'':>10} {'':>9} {'':>9} {e['epe']:>8.4f} {e['pixels']:>8d}")
+        elif name == "flow":
             lines.append(f"{'u':<8} {e['mse_u']:>10.5f} {'':>9} {'':>9} {'':>8} {e['pixels']:>8d}")
             lines.append(f"{'v':<8} {e['mse_v']:>10.5f} {'':>9} {'':>9} {'':>8} {e['pixels']:>8d}")
             lines.append(f"{'flow':<8} {'':>10} {'':>9} {'':>9} {e['epe']:>8.4f} {e['pixels']:>8d}")
         else:
-            lines.append(f"{name:<8} {e['mse']:>10.5f} {e['mse_x100']:>9.3f} {e['badpix_0.07']:>8.2f}% "
+            label = name.replace("_noc", " noc")
+            lines.append(f"{label:<9} {e['mse']:>9.5f} {e['mse_x100']:>9.3f} {e['badpix_0.07']:>8.2f}% "
                          f"{'':>8} {e['pixels']:>8d}")
+    if any(name.endswith("_noc") for name in errors):
+        lines.append("noc: the points seen at t2 as well (the ground truth's 'occluded' left out)")
     return "\n".join(lines)

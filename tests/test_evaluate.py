@@ -54,6 +54,37 @@ def test_flow_end_point_error_by_hand():
     assert e["mse_v"] == pytest.approx(16 / 6)
 
 
+def test_points_hidden_at_t2_are_also_left_out_in_the_noc_rows():
+    """With an ``occluded`` mask, δ2 and the flow are scored twice: over every valid pixel
+    and over those seen at t2 as well; δ1 and ground truth without the mask only once."""
+    z = np.zeros((4, 5))
+    occluded = np.zeros((4, 5), bool)
+    occluded[0, :2] = True
+    valid = np.ones((4, 5), bool)
+    valid[3, 4] = False
+    u = z.copy()
+    u[0, 0] = 3.0  # wrong where hidden: counts in "flow" only
+    u[1, 1] = 1.0  # wrong where seen: counts in both
+    u[3, 4] = 9.0  # not valid: in neither
+    disp2 = z.copy()
+    disp2[0, 1] = 0.5
+    gt = {"disp1": z, "disp2": z, "u": z, "v": z, "valid": valid, "occluded": occluded}
+    est = {"disp1": disp2, "disp2": disp2, "u": u, "v": z}
+    out = E.evaluate(est, gt, border=0)
+    assert out["flow"]["epe"] == pytest.approx(4 / 19) and out["flow"]["pixels"] == 19
+    assert out["flow_noc"]["epe"] == pytest.approx(1 / 17) and out["flow_noc"]["pixels"] == 17
+    assert out["disp2"]["mse"] == pytest.approx(0.25 / 19)
+    assert out["disp2_noc"]["mse"] == 0.0
+    assert "disp1_noc" not in out
+    table = E.format_table(out)
+    assert "flow noc" in table and "disp2 noc" in table and "'occluded' left out" in table
+    gt.pop("occluded")
+    assert set(E.evaluate(est, gt, border=0)) == {"disp1", "disp2", "flow"}
+    # every evaluated point hidden at t2: nothing to add, no error
+    gt["occluded"] = np.ones((4, 5), bool)
+    assert set(E.evaluate(est, gt, border=0)) == {"disp1", "disp2", "flow"}
+
+
 def test_evaluate_uses_common_variables_and_rejects_disjoint_ones():
     gt = {"disp1": np.zeros((20, 20)), "u": np.zeros((20, 20)), "v": np.zeros((20, 20))}
     out = E.evaluate({"disp1": np.zeros((20, 20))}, gt, border=0)
