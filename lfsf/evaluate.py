@@ -111,7 +111,9 @@ def flow_errors(u, v, gt_u, gt_v, valid=None, border: int = 0) -> dict[str, floa
 def evaluate(estimate: dict, gt: dict, border: int = SYNTH_BORDER) -> dict[str, dict[str, float]]:
     """Errors of an estimate (a mapping with some of ``disp1, disp2, u, v``) against a
     ground truth (the same keys, optional bool ``valid``). Only variables present in both
-    are evaluated; the flow needs both ``u`` and ``v``.
+    are evaluated; the flow needs both ``u`` and ``v``. With an ``occluded`` mask in the
+    ground truth, ``disp2_noc`` and ``flow_noc`` score δ2 and the flow again over the
+    points seen at t2 as well.
 
     Raises ``ValueError`` for maps of different sizes, a negative ``border``, or when the
     border, the ``valid`` mask and non-finite ground truth leave no pixel to evaluate."""
@@ -130,13 +132,14 @@ def evaluate(estimate: dict, gt: dict, border: int = SYNTH_BORDER) -> dict[str, 
         seen = ~np.asarray(occluded, dtype=bool)
         if valid is not None:
             seen &= np.asarray(valid, dtype=bool)
-        try:
-            if "disp2" in out:
-                out["disp2_noc"] = disparity_errors(estimate["disp2"], gt["disp2"], seen, border)
-            if "flow" in out:
-                out["flow_noc"] = flow_errors(estimate["u"], estimate["v"], gt["u"], gt["v"], seen, border)
-        except ValueError:  # every point evaluated is hidden at t2: nothing to add
-            out.pop("disp2_noc", None)
+        scores = {"disp2_noc": lambda: disparity_errors(estimate["disp2"], gt["disp2"], seen, border),
+                  "flow_noc": lambda: flow_errors(estimate["u"], estimate["v"], gt["u"], gt["v"], seen, border)}
+        for key, score in scores.items():
+            if key[:-4] in out:
+                try:
+                    out[key] = score()
+                except ValueError:  # every point evaluated is hidden at t2: nothing to add
+                    pass
     return out
 
 
