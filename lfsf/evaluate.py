@@ -129,7 +129,11 @@ def evaluate(estimate: dict, gt: dict, border: int = SYNTH_BORDER) -> dict[str, 
                          f"(estimate: {sorted(estimate)}, ground truth: {sorted(gt)})")
     occluded = gt.get("occluded")
     if occluded is not None and ("disp2" in out or "flow" in out):
-        seen = ~np.asarray(occluded, dtype=bool)
+        occluded = np.asarray(occluded, dtype=bool)
+        shape = np.shape(gt["disp2"] if "disp2" in out else gt["u"])
+        if occluded.shape != tuple(shape):
+            raise ValueError(f"occluded mask has shape {occluded.shape}, expected {tuple(shape)}")
+        seen = ~occluded
         if valid is not None:
             seen &= np.asarray(valid, dtype=bool)
         scores = {"disp2_noc": lambda: disparity_errors(estimate["disp2"], gt["disp2"], seen, border),
@@ -217,18 +221,21 @@ def _load_npz(path: Path, keys) -> dict[str, np.ndarray]:
 
 
 def format_table(errors: dict[str, dict[str, float]]) -> str:
-    """A small fixed-width table of :func:`evaluate`'s result."""
-    lines = [f"{'variable':<8} {'MSE':>10} {'MSE×100':>9} {'BadPix.07':>9} {'EPE':>8} {'pixels':>8}"]
-    for name, e in errors.items():
+    """A small fixed-width table of :func:`evaluate`'s result (a ``noc`` row, where there
+    is one, right under its variable's)."""
+    lines = [f"{'variable':<9} {'MSE':>10} {'MSE×100':>9} {'BadPix.07':>9} {'EPE':>8} {'pixels':>8}"]
+    order = [n for base in ("disp1", "disp2", "flow") for n in (base, base + "_noc") if n in errors]
+    for name in order + [n for n in errors if n not in order]:
+        e = errors[name]
         if name == "flow_noc":
-            lines.append(f"{'flow noc':<8} {'':>10} {'':>9} {'':>9} {e['epe']:>8.4f} {e['pixels']:>8d}")
+            lines.append(f"{'flow noc':<9} {'':>10} {'':>9} {'':>9} {e['epe']:>8.4f} {e['pixels']:>8d}")
         elif name == "flow":
-            lines.append(f"{'u':<8} {e['mse_u']:>10.5f} {'':>9} {'':>9} {'':>8} {e['pixels']:>8d}")
-            lines.append(f"{'v':<8} {e['mse_v']:>10.5f} {'':>9} {'':>9} {'':>8} {e['pixels']:>8d}")
-            lines.append(f"{'flow':<8} {'':>10} {'':>9} {'':>9} {e['epe']:>8.4f} {e['pixels']:>8d}")
+            lines.append(f"{'u':<9} {e['mse_u']:>10.5f} {'':>9} {'':>9} {'':>8} {e['pixels']:>8d}")
+            lines.append(f"{'v':<9} {e['mse_v']:>10.5f} {'':>9} {'':>9} {'':>8} {e['pixels']:>8d}")
+            lines.append(f"{'flow':<9} {'':>10} {'':>9} {'':>9} {e['epe']:>8.4f} {e['pixels']:>8d}")
         else:
             label = name.replace("_noc", " noc")
-            lines.append(f"{label:<9} {e['mse']:>9.5f} {e['mse_x100']:>9.3f} {e['badpix_0.07']:>8.2f}% "
+            lines.append(f"{label:<9} {e['mse']:>10.5f} {e['mse_x100']:>9.3f} {e['badpix_0.07']:>8.2f}% "
                          f"{'':>8} {e['pixels']:>8d}")
     if any(name.endswith("_noc") for name in errors):
         lines.append("noc: the points seen at t2 as well (the ground truth's 'occluded' left out)")

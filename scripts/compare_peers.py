@@ -190,6 +190,13 @@ def run_scene(name, args, use_peers, lfsf_runs, warm):
     def f_err(u, v, mask=valid):
         return evaluate.flow_errors(u, v, gt["u"], gt["v"], mask, b)
 
+    def seen_at_t2(score, *args):
+        """``score`` over the points seen at t2 as well; None where there is none."""
+        try:
+            return score(*args, nonocc)
+        except ValueError:
+            return None
+
     rows = []
     if use_peers:
         # the peers take grey views (their luma, for --colour); lfsf the light fields as rendered
@@ -240,9 +247,9 @@ def run_scene(name, args, use_peers, lfsf_runs, warm):
                 disp2=d_err(out["disp2"], "disp2") if "disp2" in out else None,
                 flow=f_err(out["u"], out["v"]) if "u" in out and "v" in out else None,
                 # the same over the points seen at t2 as well (what :func:`occlusion_table` reads)
-                disp1_nonoccluded=d_err(out["disp1"], "disp1", nonocc) if "disp1" in out else None,
-                disp2_nonoccluded=d_err(out["disp2"], "disp2", nonocc) if "disp2" in out else None,
-                flow_nonoccluded=f_err(out["u"], out["v"], nonocc) if "u" in out and "v" in out else None,
+                disp1_nonoccluded=seen_at_t2(d_err, out["disp1"], "disp1") if "disp1" in out else None,
+                disp2_nonoccluded=seen_at_t2(d_err, out["disp2"], "disp2") if "disp2" in out else None,
+                flow_nonoccluded=seen_at_t2(f_err, out["u"], out["v"]) if "u" in out and "v" in out else None,
                 nonfinite=_nonfinite(*out.values())))
         except Exception as exc:
             if args.verbose:
@@ -427,7 +434,8 @@ def occlusion_table(rows, targets) -> str | None:
         joint = by["lfsf"]["detail"].get("flow_nonoccluded", {}).get("epe")
         peer = [by[m]["detail"]["flow_nonoccluded"]["epe"] for m in ("opencv-tvl1", "skimage-tvl1")
                 if m in by and "flow_nonoccluded" in by[m]["detail"]]
-        best_all = min(by[m]["flow_epe"] for m in ("opencv-tvl1", "skimage-tvl1") if m in by)
+        best_all = min(by[m]["flow_epe"] for m in ("opencv-tvl1", "skimage-tvl1")
+                       if m in by and by[m]["flow_epe"] is not None)
         bar = 0.5 * min(peer) if peer else None
         status = "–" if joint is None or bar is None else ("pass" if joint <= bar else "FAIL")
         out.append(f"| {scene} | {_fmt(by['lfsf']['flow_epe'])} / {_fmt(joint)} | {_fmt(0.5 * best_all)} / "

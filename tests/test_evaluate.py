@@ -76,8 +76,13 @@ def test_points_hidden_at_t2_are_also_left_out_in_the_noc_rows():
     assert out["disp2"]["mse"] == pytest.approx(0.25 / 19)
     assert out["disp2_noc"]["mse"] == 0.0
     assert "disp1_noc" not in out
-    table = E.format_table(out)
-    assert "flow noc" in table and "disp2 noc" in table and "'occluded' left out" in table
+    table = E.format_table(out).splitlines()
+    assert [line.split("  ")[0] for line in table[1:-1]] == ["disp1", "disp2", "disp2 noc", "u", "v", "flow",
+                                                             "flow noc"]
+    assert len({len(line) for line in table[:-1]}) == 1  # the columns line up
+    assert "'occluded' left out" in table[-1]
+    with pytest.raises(ValueError, match="occluded mask has shape"):
+        E.evaluate(est, {**gt, "occluded": occluded[:, :4]}, border=0)
     gt.pop("occluded")
     assert set(E.evaluate(est, gt, border=0)) == {"disp1", "disp2", "flow"}
     # every evaluated point hidden at t2: nothing to add, no error

@@ -158,6 +158,9 @@ def test_compare_peers_occlusion_table_compares_the_points_seen_at_t2():
     table = script.occlusion_table(rows, targets)
     lines = table.splitlines()[2:]
     assert [line.split("|")[1].strip() for line in lines] == ["a", "b"]  # c meets its bar
-    assert lines[0].endswith("| 0.1 / 0.04 | pass |")  # 0.03 ≤ ½ · min(0.10, 0.08)
-    assert lines[1].endswith("| 0.1 / 0.04 | FAIL |")
+    assert lines[0] == "| a | 0.15 / 0.03 | 0.1 / 0.04 | pass |"  # 0.03 ≤ ½ · min(0.10, 0.08)
+    assert lines[1] == "| b | 0.15 / 0.05 | 0.1 / 0.04 | FAIL |"
+    # no figure over the points seen at t2 (e.g. none is): no verdict
+    rows[5]["detail"].pop("flow_nonoccluded")
+    assert script.occlusion_table(rows, targets).splitlines()[3] == "| b | 0.15 / – | 0.1 / 0.04 | – |"
     assert script.occlusion_table(rows[6:], script.bars_and_targets(rows[6:])[1]) is None
