@@ -91,6 +91,11 @@ def test_eval_of_ground_truth_against_itself_is_zero(tmp_path):
     assert report["errors"]["disp1"]["mse"] == 0.0
     assert report["errors"]["flow"]["epe"] == 0.0
     assert "flow" in out and "disp2" in out
+    # the synthetic ground truth marks the points hidden at t2: scored again without them
+    with np.load(tmp_path / "gt.npz") as gt:
+        seen = int((gt["valid"] & ~gt["occluded"])[8:-8, 8:-8].sum())
+    assert report["errors"]["flow_noc"]["epe"] == 0.0 and report["errors"]["flow_noc"]["pixels"] == seen
+    assert report["errors"]["disp2_noc"]["pixels"] == seen and "flow noc" in out
 
 
 @pytest.mark.parametrize(
