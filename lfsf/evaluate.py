@@ -136,12 +136,10 @@ def evaluate(estimate: dict, gt: dict, border: int = SYNTH_BORDER) -> dict[str, 
         seen = ~occluded
         if valid is not None:
             seen &= np.asarray(valid, dtype=bool)
-        scores = {"disp2_noc": lambda: disparity_errors(estimate["disp2"], gt["disp2"], seen, border),
-                  "flow_noc": lambda: flow_errors(estimate["u"], estimate["v"], gt["u"], gt["v"], seen, border)}
-        for key, score in scores.items():
-            if key[:-4] in out:
+        for name, score, maps in (("disp2", disparity_errors, ("disp2",)), ("flow", flow_errors, ("u", "v"))):
+            if name in out:
                 try:
-                    out[key] = score()
+                    out[name + "_noc"] = score(*(estimate[k] for k in maps), *(gt[k] for k in maps), seen, border)
                 except ValueError:  # every point evaluated is hidden at t2: nothing to add
                     pass
     return out
