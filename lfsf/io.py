@@ -176,14 +176,7 @@ class LightField:
         size the centre lies half-way between the two middle views, and bilinear
         interpolation there is their mean: the result is the mean of 2 or 4 views.
         """
-        rows, cols = self.grid
-        a_lo, a_hi = (rows - 1) // 2, rows // 2
-        b_lo, b_hi = (cols - 1) // 2, cols // 2
-        if a_lo == a_hi and b_lo == b_hi:
-            return self.views[a_lo, b_lo]
-        middle = self.views[a_lo:a_hi + 1, b_lo:b_hi + 1]
-        count = middle.shape[0] * middle.shape[1]
-        return middle.sum(axis=(0, 1), dtype=np.float32) / np.float32(count)
+        return centre_view(self.views)
 
     def grey(self) -> "LightField":
         """The luma light field, ITU-R BT.601 weights (0.299, 0.587, 0.114).
@@ -210,6 +203,18 @@ class LightField:
         if not (0 <= a < rows and 0 <= b < cols):
             raise IndexError(f"{self.source}: view ({a}, {b}) is outside the {rows}×{cols} grid")
         return self.views[a, b]
+
+
+def centre_view(views: np.ndarray) -> np.ndarray:
+    """The centre view of views [a, b, y, x(, c)]: :attr:`LightField.centre`."""
+    rows, cols = views.shape[:2]
+    a_lo, a_hi = (rows - 1) // 2, rows // 2
+    b_lo, b_hi = (cols - 1) // 2, cols // 2
+    if a_lo == a_hi and b_lo == b_hi:
+        return views[a_lo, b_lo]
+    middle = views[a_lo:a_hi + 1, b_lo:b_hi + 1]
+    count = middle.shape[0] * middle.shape[1]
+    return middle.sum(axis=(0, 1), dtype=np.float32) / np.float32(count)
 
 
 def check_pair(lf1: LightField, lf2: LightField) -> None:

@@ -36,6 +36,8 @@ Usage (from the repository root)::
     python scripts/compare_peers.py --methods all --check  # exit 1 if a target fails
     python scripts/compare_peers.py --random 8 --check     # + 8 scenes drawn at random
     python scripts/compare_peers.py --noise 0.01           # sensor noise on every view
+    python scripts/compare_peers.py --exposure 0.9 0.03    # t2 at another exposure
+    python scripts/compare_peers.py --config my.toml       # lfsf with other settings
     python scripts/compare_peers.py --colour               # RGB views (the peers: their luma)
 
 ``--methods``: ``peers`` (peers only), ``lfsf`` (lfsf only; no bars), ``all`` (default:
@@ -81,16 +83,26 @@ def _lfsf():
     return lfsf
 
 
+#: The settings every lfsf run starts from: the `paper` preset, or ``--config FILE.toml``.
+SETTINGS = {"params": None}
+
+
+def lfsf_params(**changes):
+    """The lfsf runs' settings (``SETTINGS``, default the `paper` preset), with ``changes``."""
+    base = SETTINGS["params"] or _lfsf().Params.preset("paper")
+    return base.replace(**changes) if changes else base
+
+
 def lfsf_joint(lf1, lf2, device):
     """The method itself: joint δ1, δ2, u, v from both light fields."""
-    r = _lfsf().estimate_scene_flow(lf1, lf2, params=None, device=device)
+    r = _lfsf().estimate_scene_flow(lf1, lf2, params=lfsf_params(), device=device)
     return {"disp1": r.disp1, "disp2": r.disp2, "u": r.u, "v": r.v}
 
 
 def lfsf_stereo(lf1, lf2, device):
     """Stereo only: the t1 light field twice (no motion); its δ1 is a pure light-field
     disparity, comparable with plenpy's."""
-    r = _lfsf().estimate_scene_flow(lf1, lf1, params=None, device=device)
+    r = _lfsf().estimate_scene_flow(lf1, lf1, params=lfsf_params(), device=device)
     return {"disp1": r.disp1}
 
 
@@ -100,7 +112,7 @@ def lfsf_flow(lf1, lf2, device):
     two differ only in the light field (the `flow` preset is the quick one, timed
     against OpenCV by ``lfsf bench peers``)."""
     lfsf = _lfsf()
-    params = lfsf.Params.preset("paper").replace(circles=1, samples=(1,))
+    params = lfsf_params(circles=1, samples=(1,))
     r = lfsf.estimate_scene_flow(lf1, lf2, params=params, device=device)
     return {"u": r.u, "v": r.v}
 
@@ -111,7 +123,7 @@ def lfsf_two_view(lf1, lf2, device):
     scene flow from a stereo pair, with the `paper` preset otherwise. What the light
     field's 17 samples buy over a stereo rig."""
     lfsf = _lfsf()
-    params = lfsf.Params.preset("paper").replace(circles=2, samples=(1, 1))
+    params = lfsf_params(circles=2, samples=(1, 1))
     r = lfsf.estimate_scene_flow(lf1, lf2, params=params, device=device)
     return {"disp1": r.disp1, "disp2": r.disp2, "u": r.u, "v": r.v}
 
@@ -176,6 +188,10 @@ def run_scene(name, args, use_peers, lfsf_runs, warm):
 
     lf1, lf2, gt = synth.render_scene(name, size=tuple(args.size), grid=args.grid, colour=args.colour,
                                       device=args.device)
+    if args.exposure is not None:  # t2 captured at another exposure, clipped as a sensor would
+        gain, shift = args.exposure
+        lf2 = type(lf2)(np.clip(lf2.views * np.float32(gain) + np.float32(shift), 0.0, 1.0).astype(np.float32),
+                        source=lf2.source, meta=lf2.meta)
     if args.noise > 0:  # independent at t1 and t2, the same for every method
         seed = zlib.crc32(name.encode())
         lf1, lf2 = synth.add_noise(lf1, args.noise, seed), synth.add_noise(lf2, args.noise, seed + 1)
@@ -478,6 +494,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--noise", type=float, default=0.0, metavar="SIGMA",
                    help="Gaussian noise of this standard deviation (intensities in [0, 1]) on every "
                         "view of the synthetic scenes, independent at t1 and t2 (default 0)")
+    p.add_argument("--exposure", type=float, nargs=2, default=None, metavar=("GAIN", "OFFSET"),
+                   help="t2's views at another exposure, clip(GAIN·L2 + OFFSET, 0, 1), for every "
+                        "method (default: the same exposure)")
+    p.add_argument("--config", metavar="FILE.toml",
+                   help="settings for every lfsf run, as `lfsf run --config` reads them (default: the "
+                        "`paper` preset), e.g. `match_exposure = false`")
     p.add_argument("--methods", choices=("all", "peers", "lfsf"), default="all",
                    help="peers, lfsf, or both (default; lfsf only when it exists)")
     p.add_argument("--real", action="store_true",
@@ -522,6 +544,16 @@ def main(argv=None) -> int:
     if not math.isfinite(args.noise) or args.noise < 0:
         print(f"error: --noise must be a finite number ≥ 0, got {args.noise}", file=sys.stderr)
         return 2
+    if args.exposure is not None and not (all(map(math.isfinite, args.exposure)) and args.exposure[0] > 0):
+        print(f"error: --exposure needs a finite GAIN > 0 and a finite OFFSET, got {args.exposure}", file=sys.stderr)
+        return 2
+    SETTINGS["params"] = None
+    if args.config is not None:
+        try:
+            SETTINGS["params"] = _lfsf().Params.from_toml(args.config, base=_lfsf().Params.preset("paper"))
+        except (OSError, ValueError) as exc:
+            print(f"error: --config: {exc}", file=sys.stderr)
+            return 2
     try:
         scenes = selected_scenes(args)
     except ValueError as exc:

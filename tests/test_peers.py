@@ -164,3 +164,55 @@ def test_compare_peers_occlusion_table_compares_the_points_seen_at_t2():
     rows[5]["detail"].pop("flow_nonoccluded")
     assert script.occlusion_table(rows, targets).splitlines()[3] == "| b | 0.15 / – | 0.1 / 0.04 | – |"
     assert script.occlusion_table(rows[6:], script.bars_and_targets(rows[6:])[1]) is None
+
+
+def test_compare_peers_exposure_changes_t2_for_every_method(capsys):
+    """``--exposure GAIN OFFSET`` hands every method t2 at another exposure,
+    clip(GAIN·L2 + OFFSET, 0, 1), and t1 as rendered; a GAIN ≤ 0 is refused."""
+    from lfsf import synth
+
+    script = _compare_peers_script()
+    args = script.build_parser().parse_args(["--size", "48", "32", "--grid", "3", "--exposure", "1.2", "-0.05"])
+    seen = []
+
+    def fake(lf1, lf2, device):
+        seen.append((lf1.views.copy(), lf2.views.copy()))
+        return {"u": np.zeros(lf1.centre.shape, np.float32), "v": np.zeros(lf1.centre.shape, np.float32)}
+
+    script.run_scene("paper", args, False, {"fake": fake}, {"fake"})
+    clean1, clean2, _ = synth.render_scene("paper", size=(48, 32), grid=3)
+    (a1, a2), = seen
+    np.testing.assert_array_equal(a1, clean1.views)
+    np.testing.assert_allclose(a2, np.clip(clean2.views * 1.2 - 0.05, 0.0, 1.0), atol=1e-6)
+    assert script.main(["--exposure", "0", "0.1", "--methods", "peers"]) == 2
+    assert "--exposure" in capsys.readouterr().err
+
+
+def test_compare_peers_config_sets_every_lfsf_run(tmp_path, monkeypatch, capsys):
+    """``--config FILE.toml`` sets the settings of every lfsf run (over the `paper`
+    preset; the flow-only and two-view runs keep their own circles); a missing file or an
+    unknown setting is refused with exit status 2."""
+    import lfsf
+
+    script = _compare_peers_script()
+    config = tmp_path / "m.toml"
+    config.write_text("match_exposure = false\nwarps = 2\n")
+    seen = []
+
+    def fake(lf1, lf2, params=None, device=None):
+        seen.append(params)
+        raise RuntimeError("stop here")
+
+    monkeypatch.setattr(lfsf, "estimate_scene_flow", fake)
+    args = ["--size", "48", "32", "--grid", "3", "--scenes", "paper", "--methods", "lfsf", "--config", str(config)]
+    script.main(args)
+    capsys.readouterr()
+    assert len(seen) == 4  # joint, stereo only, flow only, two-view
+    assert all(p.match_exposure is False and p.warps == 2 for p in seen)
+    assert sorted(p.circles for p in seen) == [1, 2, 3, 3]
+    assert script.main(args[:-1] + [str(tmp_path / "none.toml")]) == 2
+    assert "--config" in capsys.readouterr().err
+    config.write_text("no_such_setting = 1\n")
+    assert script.main(args) == 2
+    assert "no_such_setting" in capsys.readouterr().err
+    script.SETTINGS["params"] = None
