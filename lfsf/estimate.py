@@ -34,6 +34,10 @@ class SceneFlow:
         The sampling radius R used (limited to the view grid).
     timings : dict
         Seconds per stage.
+    exposure : (g, b) or None
+        Where t2's views were matched to t1's exposure (``Params.match_exposure``): they
+        were replaced by g·L2 + b (intensities after any stretch to [0, 1]); None where
+        they were used as given.
     """
 
     disp1: np.ndarray
@@ -44,6 +48,7 @@ class SceneFlow:
     radius: float
     device: str
     timings: dict = field(default_factory=dict)
+    exposure: tuple[float, float] | None = None
 
     def as_dict(self) -> dict[str, np.ndarray]:
         return {"disp1": self.disp1, "disp2": self.disp2, "u": self.u, "v": self.v}
@@ -69,7 +74,7 @@ class SceneFlow:
                 io.write_pfm(tmp / f"{name}.pfm", getattr(self, name))
             io.write_flo(tmp / "flow.flo", np.stack([self.u, self.v], -1))
             meta = {"params": self.params.as_dict(), "radius_used": self.radius, "device": self.device,
-                    "timings": self.timings}
+                    "timings": self.timings, "exposure": self.exposure}
             with open(tmp / "sceneflow.npz", "wb") as f:
                 np.savez_compressed(f, **self.as_dict(), params=np.str_(json.dumps(meta)))
             lo, hi = _colour_range(self.disp1, self.disp2)
@@ -717,12 +722,14 @@ def estimate_scene_flow(
     greys = [lf.grey().views.reshape(rows * cols, height, width) for lf in (lf1, lf2)]
     if stretch != 1.0:
         greys = [(grey - np.float32(offset)) * np.float32(stretch) for grey in greys]
+    exposure = None
     if params.match_exposure:
         grey_centres = [centre_view(g.reshape(rows, cols, height, width)) for g in greys]
         if not np.array_equal(*grey_centres):
             gain, shift, change = _exposure_change(*grey_centres, dev)
             if change > EXPOSURE_CHANGE:
                 greys[1] = (greys[1] * np.float32(gain) + np.float32(shift)).astype(np.float32)
+                exposure = (gain, shift)
                 say(f"exposure: t2 matched to t1 by I ↦ {gain:.4f}·I {shift:+.4f} (it moved the intensities "
                     f"by up to {100 * change:.1f} % of their range)")
         lap("exposure")
@@ -859,7 +866,7 @@ def estimate_scene_flow(
 
     return SceneFlow(
         disp1=x[..., 0].copy(), disp2=x[..., 1].copy(), u=x[..., 2].copy(), v=x[..., 3].copy(),
-        params=requested, radius=float(radius), device=dev, timings=timings,
+        params=requested, radius=float(radius), device=dev, timings=timings, exposure=exposure,
     )
 
 

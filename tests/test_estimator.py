@@ -532,17 +532,21 @@ def test_a_change_of_exposure_at_t2_is_undone():
 
     lf1, lf2, gt = synth.render_scene("paper", size=(96, 72), grid=9)
     darker = lfsf.LightField((lf2.views * 0.9 + 0.03).astype(np.float32))
-    epe, said = {}, {}
+    epe, said, applied = {}, {}, {}
     for name, second, match in (("same", lf2, True), ("darker", darker, True), ("not matched", darker, False)):
         lines = []
         sf = estimate_scene_flow(lf1, second, Params.preset("fast").replace(match_exposure=match), device="cpu",
                                  progress=lines.append)
         epe[name] = evaluate.evaluate(sf.as_dict(), gt, border=8)["flow"]["epe"]
         said[name] = [line for line in lines if line.startswith("exposure")]
+        applied[name] = sf.exposure
     assert epe["darker"] < 1.25 * epe["same"], epe
     assert epe["not matched"] > 2.0 * epe["darker"], epe
     assert said["same"] == [] and said["not matched"] == []
     assert len(said["darker"]) == 1 and "1.11" in said["darker"][0], said  # 1 / 0.9
+    assert applied["same"] is None and applied["not matched"] is None
+    gain, shift = applied["darker"]
+    assert abs(gain - 1 / 0.9) < 0.01 and abs(shift + 0.03 / 0.9) < 0.005, applied
 
 
 def test_the_exposure_fit_recovers_a_known_gain_and_offset():
