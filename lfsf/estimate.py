@@ -138,8 +138,18 @@ MAX_INTENSITY_RANGE = 2.0
 #: fitted map I ↦ g·I + b moves the t2 centre view's 5th or 95th percentile intensity by
 #: more than this fraction of the two centre views' joint range (:func:`_exposure_change`).
 EXPOSURE_CHANGE = 0.004
-#: The exposure pilot (flow only) runs on centre views box-averaged to at most this width.
-EXPOSURE_WIDTH = 160
+#: The exposure pilot (flow only) runs on centre views box-averaged to at most this many
+#: pixels along their longer side …
+EXPOSURE_SIZE = 160
+#: … and not at all on views whose longer side is shorter than this: at 64×48 the fit
+#: read changes of up to 1.5 % on pairs of one exposure, at 96×72 up to 0.5 %.
+EXPOSURE_MIN_SIZE = 120
+#: The fit is refused where its two one-way slopes disagree, their product (r² for least
+#: squares) below this: on pairs of one exposure it was ≥ 0.998, and far below on
+#: mostly flat, noisy images, where both slopes fall towards 0.
+EXPOSURE_AGREEMENT = 0.9
+#: … or where the gain it finds lies outside [1 / this, this].
+EXPOSURE_MAX_GAIN = 2.0
 #: The pilot's structure–texture θ: with 0.95, 5 % of the structure stays in the matched
 #: images, so its flow follows the texture and not the brightness.
 EXPOSURE_THETA = 0.95
@@ -723,7 +733,8 @@ def estimate_scene_flow(
     if stretch != 1.0:
         greys = [(grey - np.float32(offset)) * np.float32(stretch) for grey in greys]
     exposure = None
-    if params.match_exposure:
+    if params.match_exposure and max(height, width) >= EXPOSURE_MIN_SIZE:
+        lap("sampling")
         grey_centres = [centre_view(g.reshape(rows, cols, height, width)) for g in greys]
         if not np.array_equal(*grey_centres):
             gain, shift, change = _exposure_change(*grey_centres, dev)
@@ -732,10 +743,12 @@ def estimate_scene_flow(
                 exposure = (gain, shift)
                 say(f"exposure: t2 matched to t1 by I ↦ {gain:.4f}·I {shift:+.4f} (it moved the intensities "
                     f"by up to {100 * change:.1f} % of their range)")
+        del grey_centres  # (a view of the t2 views: they would stay in memory)
         lap("exposure")
     stacks = []
-    for grey in greys:
-        views = wp.array(np.ascontiguousarray(grey, dtype=np.float32), dtype=float, device=dev)
+    for t in range(2):
+        views = wp.array(np.ascontiguousarray(greys[t], dtype=np.float32), dtype=float, device=dev)
+        greys[t] = None  # one grey light field on the host at a time, as before
         out = wp.empty((n_samples, height, width), dtype=float, device=dev)
         span, per_row = _device.row_span(dev, width)
         _device.launch_rows(sampling.sample_subaperture, dim=(n_samples * height, per_row),
@@ -996,12 +1009,15 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str) -> t
     (``Params.match_exposure``), from the grey centre views.
 
     A flow-only pilot (the ``flow`` preset with θ = EXPOSURE_THETA) on the views
-    box-averaged to at most EXPOSURE_WIDTH px wide gives the correspondences p ↔ p + u.
+    box-averaged to at most EXPOSURE_SIZE px along their longer side gives the
+    correspondences p ↔ p + u.
     Over them, on the two views blurred by EXPOSURE_BLUR, L1 fits (iteratively
     reweighted least squares) of I1 on I2(p + u) and of I2(p + u) on I1 give g as the
     geometric mean of their slopes, and b is the weighted median of I1 − g·I2(p + u).
-    Each pixel is weighted by 1 / (1 + (|∇I1| / median |∇I1|)²): on flat pixels a flow
-    error changes the compared value least. Pixels within 2 px of the border, whose
+    Each pixel is weighted by 1 / (1 + (|∇I1| / s)²), s the 75th percentile of |∇I1|: on
+    flat pixels a flow error changes the compared value least. The fit is refused where
+    the two slopes disagree (EXPOSURE_AGREEMENT) or the gain is implausible
+    (EXPOSURE_MAX_GAIN). Pixels within 2 px of the border, whose
     match leaves the image, or whose value at either time lies within 2 % of the range's
     ends (clipped) take no part. ``change`` is the largest of |g·x + b − x| over the 5th and 95th
     percentiles x of I2, over the joint range of the two views; (1, 0, 0) when there
@@ -1010,7 +1026,7 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str) -> t
     span = max(float(centre1.max()), float(centre2.max())) - lo
     if not np.isfinite(span) or span <= 0.0:
         return 1.0, 0.0, 0.0
-    factor = max(1, -(-centre1.shape[1] // EXPOSURE_WIDTH))
+    factor = max(1, -(-max(centre1.shape[:2]) // EXPOSURE_SIZE))
     a, b = _box_down(centre1, factor), _box_down(centre2, factor)
     h, w = a.shape
     if min(h, w) < 8:
@@ -1036,15 +1052,20 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str) -> t
         return 1.0, 0.0, 0.0
     gy, gx = np.gradient(a)
     grad = np.hypot(gx, gy)
-    weight = (1.0 / (1.0 + (grad / (float(np.median(grad)) + 1e-12)) ** 2))[keep]
+    # the scale: the 75th percentile of |∇I1| over the pixels fitted, so that where most of
+    # the image is flat (a sky, a wall) its textured part still counts
+    scale = float(np.percentile(grad[keep], 75.0)) + 1e-12
+    weight = (1.0 / (1.0 + (grad / scale) ** 2))[keep]
     x, y = warped[keep], a[keep]
     # both ways, y on x and x on y, and g their geometric mean: noise, and the pilot's
     # errors, in the values regressed on bias a one-way fit's slope towards 0 (with sensor
     # noise of σ = 0.01 it read up to 0.58 % changes on brightness-constant scenes; 0.19 %)
     fits = [_l1_line(x, y, weight, span), _l1_line(y, x, weight, span)]
-    if any(fit is None or not fit[0] > 0.0 for fit in fits):
+    if any(fit is None or not fit[0] > 0.0 for fit in fits) or fits[0][0] * fits[1][0] < EXPOSURE_AGREEMENT:
         return 1.0, 0.0, 0.0
     gain = math.sqrt(fits[0][0] / fits[1][0])
+    if not 1.0 / EXPOSURE_MAX_GAIN <= gain <= EXPOSURE_MAX_GAIN:
+        return 1.0, 0.0, 0.0
     shift = _weighted_median(y - gain * x, weight)
     ends = np.percentile(centre2, [5.0, 95.0])
     change = max(abs(gain * float(q) + shift - float(q)) for q in ends) / span

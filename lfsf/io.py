@@ -53,6 +53,7 @@ from lfsf._files import savez_atomic, write_bytes_atomic
 __all__ = [
     "BT601_LUMA",
     "LightField",
+    "centre_view",
     "check_pair",
     "read_lightfield",
     "write_lightfield",

@@ -79,11 +79,14 @@ class Params:
             t1 centre view's mean absolute image gradient is this (0: no scaling); λ is
             then independent of the scene's contrast.
         match_exposure : undo a change of exposure between the two captures (an addition
-            to the paper). A flow-only pilot on the centre views at ≤ 160 px wide, with
-            θ = 0.95 (robust to brightness changes), gives correspondences; an L1 fit over
-            them, weighted to flat pixels, gives I1(p) ≈ g·I2(p + u) + b. Where that moves
-            the t2 intensities by more than EXPOSURE_CHANGE (0.4 % of the range) the t2
-            views are replaced by g·L2 + b before anything else; below it nothing changes.
+            to the paper). A flow-only pilot on the grey centre views, box-averaged to at
+            most 160 px along the longer side, with θ = 0.95 (robust to brightness
+            changes), gives correspondences; an L1 fit over them, both ways and weighted
+            to flat pixels, gives I1(p) ≈ g·I2(p + u) + b. Where that moves the t2
+            intensities by more than EXPOSURE_CHANGE (0.4 % of the range), t2's grey views
+            (after any stretch to [0, 1]) become g·L2 + b before they are sampled; below it
+            nothing changes (:func:`lfsf.estimate._exposure_change`). Views shorter than
+            120 px along the longer side skip it: the pilot is too small to tell there.
             With θ = 0.5 half the structure stays in the matched images, so a gain of 0.99
             on t2 alone took `paper`'s flow EPE 0.067 → 0.094 and 0.95 to 0.34 (160×120).
     Regulariser: image-driven TGV² (§4)

@@ -49,6 +49,7 @@ checked; 2 for bad arguments.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 import time
@@ -191,7 +192,7 @@ def run_scene(name, args, use_peers, lfsf_runs, warm):
     if args.exposure is not None:  # t2 captured at another exposure, clipped as a sensor would
         gain, shift = args.exposure
         lf2 = type(lf2)(np.clip(lf2.views * np.float32(gain) + np.float32(shift), 0.0, 1.0).astype(np.float32),
-                        source=lf2.source, meta=lf2.meta)
+                        source=f"{lf2.source}, exposure {gain:g}·L2 {shift:+g}", meta=lf2.meta)
     if args.noise > 0:  # independent at t1 and t2, the same for every method
         seed = zlib.crc32(name.encode())
         lf1, lf2 = synth.add_noise(lf1, args.noise, seed), synth.add_noise(lf2, args.noise, seed + 1)
@@ -495,8 +496,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="Gaussian noise of this standard deviation (intensities in [0, 1]) on every "
                         "view of the synthetic scenes, independent at t1 and t2 (default 0)")
     p.add_argument("--exposure", type=float, nargs=2, default=None, metavar=("GAIN", "OFFSET"),
-                   help="t2's views at another exposure, clip(GAIN·L2 + OFFSET, 0, 1), for every "
-                        "method (default: the same exposure)")
+                   help="t2's views of the synthetic scenes at another exposure, clip(GAIN·L2 + "
+                        "OFFSET, 0, 1), for every method (default: the same exposure; the real data "
+                        "are stereo, one light field twice)")
     p.add_argument("--config", metavar="FILE.toml",
                    help="settings for every lfsf run, as `lfsf run --config` reads them (default: the "
                         "`paper` preset), e.g. `match_exposure = false`")
@@ -592,8 +594,11 @@ def main(argv=None) -> int:
     bars, targets = bars_and_targets(rows)
     w, h = args.size
     if not args.no_synth:
+        inputs = "".join([f", noise σ = {args.noise:g}" if args.noise > 0 else "",
+                          f", t2 at clip({args.exposure[0]:g}·L2 {args.exposure[1]:+g})" if args.exposure else "",
+                          f", lfsf settings from {args.config}" if args.config else ""])
         print(f"## Synthetic scenes, {w}×{h}, {args.grid}×{args.grid} {'RGB ' if args.colour else ''}views "
-              f"(valid pixels, {SYNTH_BORDER}-px border)\n")
+              f"(valid pixels, {SYNTH_BORDER}-px border{inputs})\n")
         print(synth_table(rows))
         if use_peers:
             print("\n### Bars lfsf must meet (½ of the best peer)\n")
@@ -614,7 +619,8 @@ def main(argv=None) -> int:
     print("\nversions: " + ", ".join(f"{k} {v}" for k, v in peers.versions().items()))
 
     if args.json:
-        doc = {"args": {k: v for k, v in vars(args).items()}, "versions": peers.versions(),
+        settings = dataclasses.asdict(lfsf_params()) if args.methods in ("all", "lfsf") and lfsf_runs else None
+        doc = {"args": {k: v for k, v in vars(args).items()}, "lfsf_params": settings, "versions": peers.versions(),
                "opencv_tvl1_parameters": peers.opencv_tvl1_parameters() if use_peers else None,
                "notes": notes, "rows": rows, "bars": bars, "targets": targets}
         write_json_atomic(args.json, doc, indent=1, default=float)
