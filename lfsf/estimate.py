@@ -145,8 +145,9 @@ EXPOSURE_SIZE = 160
 #: read changes of up to 1.5 % on pairs of one exposure, at 96×72 up to 0.5 %.
 EXPOSURE_MIN_SIZE = 120
 #: The fit is refused where its two one-way slopes disagree, their product (r² for least
-#: squares) below this: on pairs of one exposure it was ≥ 0.998, and far below on
-#: mostly flat, noisy images, where both slopes fall towards 0.
+#: squares) below this: on 16 pairs of one exposure at 160×120 it was 0.974 or more
+#: (median 0.998; with and without noise of σ = 0.02), and far below on mostly flat,
+#: noisy images, where both slopes fall towards 0.
 EXPOSURE_AGREEMENT = 0.9
 #: … or where the gain it finds lies outside [1 / this, this].
 EXPOSURE_MAX_GAIN = 2.0
