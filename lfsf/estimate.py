@@ -14,7 +14,7 @@ from typing import Callable
 import numpy as np
 
 from lfsf import device as _device
-from lfsf.io import LightField, centre_view, check_pair, read_lightfield
+from lfsf.io import BT601_LUMA, LightField, centre_view, check_pair, read_lightfield
 from lfsf.params import Params
 
 
@@ -138,8 +138,8 @@ MAX_INTENSITY_RANGE = 2.0
 #: fitted map I ↦ g·I + b moves the t2 centre view's 5th or 95th percentile intensity by
 #: more than this fraction of the two centre views' joint range (:func:`_exposure_change`).
 EXPOSURE_CHANGE = 0.004
-#: The exposure pilot (flow only) runs on centre views box-averaged to at most this many
-#: pixels along their longer side …
+#: The exposure pilot (flow only) runs on centre views box-averaged by the largest whole
+#: factor that leaves at least this many pixels along their longer side (160–319) …
 EXPOSURE_SIZE = 160
 #: … and not at all on views whose longer side is shorter than this: at 64×48 the fit
 #: read changes of up to 1.5 % on pairs of one exposure, at 96×72 up to 0.5 %.
@@ -730,26 +730,30 @@ def estimate_scene_flow(
 
     # sub-aperture images at the sample offsets, both times: (S, H, W) each
     offset, stretch = _intensity_stretch(lf1, lf2)
-    greys = [lf.grey().views.reshape(rows * cols, height, width) for lf in (lf1, lf2)]
-    if stretch != 1.0:
-        greys = [(grey - np.float32(offset)) * np.float32(stretch) for grey in greys]
+
+    def stretched(grey: np.ndarray) -> np.ndarray:
+        return (grey - np.float32(offset)) * np.float32(stretch) if stretch != 1.0 else grey
+
     exposure = None
     if params.match_exposure and max(height, width) >= EXPOSURE_MIN_SIZE:
-        lap("sampling")
-        grey_centres = [centre_view(g.reshape(rows, cols, height, width)) for g in greys]
+        # the grey centre views alone (luma is linear: the luma of the centre is the centre of the luma)
+        grey_centres = [stretched(_luma(centre_view(lf.views))) for lf in (lf1, lf2)]
         if not np.array_equal(*grey_centres):
             gain, shift, change = _exposure_change(*grey_centres, dev)
             if change > EXPOSURE_CHANGE:
-                greys[1] = (greys[1] * np.float32(gain) + np.float32(shift)).astype(np.float32)
                 exposure = (gain, shift)
                 say(f"exposure: t2 matched to t1 by I ↦ {gain:.4f}·I {shift:+.4f} (it moved the intensities "
                     f"by up to {100 * change:.1f} % of their range)")
-        del grey_centres  # (a view of the t2 views: they would stay in memory)
         lap("exposure")
     stacks = []
-    for t in range(2):
-        views = wp.array(np.ascontiguousarray(greys[t], dtype=np.float32), dtype=float, device=dev)
-        greys[t] = None  # one grey light field on the host at a time, as before
+    for t, lf in enumerate((lf1, lf2)):
+        # one grey light field on the host at a time; the caller's views are never written
+        grey = stretched(lf.grey().views.reshape(rows * cols, height, width))
+        if t == 1 and exposure is not None:
+            grey = grey * np.float32(exposure[0])
+            grey += np.float32(exposure[1])
+        views = wp.array(np.ascontiguousarray(grey, dtype=np.float32), dtype=float, device=dev)
+        del grey
         out = wp.empty((n_samples, height, width), dtype=float, device=dev)
         span, per_row = _device.row_span(dev, width)
         _device.launch_rows(sampling.sample_subaperture, dim=(n_samples * height, per_row),
@@ -962,6 +966,12 @@ def _intensity_stretch(lf1: LightField, lf2: LightField) -> tuple[float, float]:
     return lo, 1.0 / span
 
 
+def _luma(image: np.ndarray) -> np.ndarray:
+    """An (H, W) grey image, or the BT.601 luma of an (H, W, 3) colour one (as
+    :meth:`lfsf.io.LightField.grey`)."""
+    return image @ np.asarray(BT601_LUMA, dtype=np.float32) if image.ndim == 3 else image
+
+
 def _box_down(image: np.ndarray, factor: int) -> np.ndarray:
     """Means over factor × factor blocks (the last partial rows and columns dropped)."""
     if factor <= 1:
@@ -1010,24 +1020,28 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str) -> t
     (``Params.match_exposure``), from the grey centre views.
 
     A flow-only pilot (the ``flow`` preset with θ = EXPOSURE_THETA) on the views
-    box-averaged to at most EXPOSURE_SIZE px along their longer side gives the
-    correspondences p ↔ p + u.
+    box-averaged by the largest whole factor that leaves at least EXPOSURE_SIZE px along
+    their longer side gives the correspondences p ↔ p + u.
     Over them, on the two views blurred by EXPOSURE_BLUR, L1 fits (iteratively
     reweighted least squares) of I1 on I2(p + u) and of I2(p + u) on I1 give g as the
     geometric mean of their slopes, and b is the weighted median of I1 − g·I2(p + u).
-    Each pixel is weighted by 1 / (1 + (|∇I1| / s)²), s the 75th percentile of |∇I1|: on
-    flat pixels a flow error changes the compared value least. The fit is refused where
-    the two slopes disagree (EXPOSURE_AGREEMENT) or the gain is implausible
-    (EXPOSURE_MAX_GAIN). Pixels within 2 px of the border, whose
-    match leaves the image, or whose value at either time lies within 2 % of the range's
-    ends (clipped) take no part. ``change`` is the largest of |g·x + b − x| over the 5th and 95th
-    percentiles x of I2, over the joint range of the two views; (1, 0, 0) when there
-    is too little to fit."""
+    Each pixel is weighted by 1 / (1 + (|∇I1| / s)²), s the 75th percentile of |∇I1| (at
+    least 0.1 % of the range): on flat pixels a flow error changes the compared value
+    least. The fit is refused where the two slopes disagree (EXPOSURE_AGREEMENT) or the
+    gain is implausible (EXPOSURE_MAX_GAIN). Pixels within 2 px of the border, whose match
+    leaves the image, or that the blur mixes with values within 2 % of the ends of the
+    range at either time (clipped) take no part. ``change`` is the largest of
+    |g·x + b − x| over the 5th and 95th percentiles x of I2, as a fraction of the two
+    views' joint range (from the 0.1th to the 99.9th percentile); (1, 0, 0) when there is
+    too little to fit."""
     lo = min(float(centre1.min()), float(centre2.min()))
-    span = max(float(centre1.max()), float(centre2.max())) - lo
-    if not np.isfinite(span) or span <= 0.0:
+    hi = max(float(centre1.max()), float(centre2.max()))
+    # the range that `change` is a fraction of: robust to a few hot or dead pixels
+    span = float(max(np.percentile(centre1, 99.9), np.percentile(centre2, 99.9))
+                 - min(np.percentile(centre1, 0.1), np.percentile(centre2, 0.1)))
+    if not np.isfinite(span) or span <= 0.0 or not hi > lo:
         return 1.0, 0.0, 0.0
-    factor = max(1, -(-max(centre1.shape[:2]) // EXPOSURE_SIZE))
+    factor = max(1, max(centre1.shape[:2]) // EXPOSURE_SIZE)  # (down: the pilot never below 160 px)
     a, b = _box_down(centre1, factor), _box_down(centre2, factor)
     h, w = a.shape
     if min(h, w) < 8:
@@ -1035,6 +1049,9 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str) -> t
     pilot = Params.preset("flow").replace(texture_theta=EXPOSURE_THETA, match_exposure=False)
     flow = estimate_scene_flow(a[None, None].astype(np.float32), b[None, None].astype(np.float32), pilot,
                                device=device)
+    # clipped pixels (within 2 % of the ends of the values), and those the blur mixes them into
+    edge = 0.02 * (hi - lo)
+    clipped = [_blur(((img <= lo + edge) | (img >= hi - edge)).astype(np.float64), EXPOSURE_BLUR) for img in (a, b)]
     a, b = _blur(a, EXPOSURE_BLUR), _blur(b, EXPOSURE_BLUR)
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
     x_at, y_at = xx + flow.u, yy + flow.v
@@ -1044,18 +1061,20 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str) -> t
     x0 = np.clip(np.floor(x_at).astype(np.int64), 0, w - 2)
     y0 = np.clip(np.floor(y_at).astype(np.int64), 0, h - 2)
     fx, fy = x_at - x0, y_at - y0
-    warped = ((1 - fy) * ((1 - fx) * b[y0, x0] + fx * b[y0, x0 + 1])
-              + fy * ((1 - fx) * b[y0 + 1, x0] + fx * b[y0 + 1, x0 + 1]))
-    edge = 0.02 * span
-    for img in (a, warped):
-        keep &= (img > lo + edge) & (img < lo + span - edge)
+
+    def at_flow(img):
+        return ((1 - fy) * ((1 - fx) * img[y0, x0] + fx * img[y0, x0 + 1])
+                + fy * ((1 - fx) * img[y0 + 1, x0] + fx * img[y0 + 1, x0 + 1]))
+
+    warped = at_flow(b)
+    keep &= (clipped[0] < 0.01) & (at_flow(clipped[1]) < 0.01)
     if keep.sum() < 64:
         return 1.0, 0.0, 0.0
     gy, gx = np.gradient(a)
     grad = np.hypot(gx, gy)
     # the scale: the 75th percentile of |∇I1| over the pixels fitted, so that where most of
     # the image is flat (a sky, a wall) its textured part still counts
-    scale = float(np.percentile(grad[keep], 75.0)) + 1e-12
+    scale = max(float(np.percentile(grad[keep], 75.0)), 1e-3 * span)  # (an exactly flat image has 0)
     weight = (1.0 / (1.0 + (grad / scale) ** 2))[keep]
     x, y = warped[keep], a[keep]
     # both ways, y on x and x on y, and g their geometric mean: noise, and the pilot's

@@ -79,8 +79,8 @@ class Params:
             t1 centre view's mean absolute image gradient is this (0: no scaling); λ is
             then independent of the scene's contrast.
         match_exposure : undo a change of exposure between the two captures (an addition
-            to the paper). A flow-only pilot on the grey centre views, box-averaged to at
-            most 160 px along the longer side, with θ = 0.95 (robust to brightness
+            to the paper). A flow-only pilot on the grey centre views, box-averaged to
+            160–319 px along the longer side, with θ = 0.95 (robust to brightness
             changes), gives correspondences; an L1 fit over them, both ways and weighted
             to flat pixels, gives I1(p) ≈ g·I2(p + u) + b. Where that moves the t2
             intensities by more than EXPOSURE_CHANGE (0.4 % of the range), t2's grey views
