@@ -14,7 +14,7 @@ from typing import Callable
 import numpy as np
 
 from lfsf import device as _device
-from lfsf.io import BT601_LUMA, LightField, centre_view, check_pair, read_lightfield
+from lfsf.io import LightField, centre_view, check_pair, luma, read_lightfield
 from lfsf.params import Params
 
 
@@ -499,12 +499,12 @@ def _resize_map(image: np.ndarray, size, scale: float, device: str) -> np.ndarra
     return out * np.float32(scale)
 
 
-def _sample_at_flow(image: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """image(p + (u, v)) by bilinear interpolation, clamped (NumPy; once per level)."""
+def _bilinear(image: np.ndarray, px: np.ndarray, py: np.ndarray) -> np.ndarray:
+    """image at the real positions (px, py) by bilinear interpolation, clamped to the
+    image (NumPy; the arithmetic in the inputs' precision)."""
     h, w = image.shape
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-    px = np.clip(xx + x[..., 2], 0, w - 1)
-    py = np.clip(yy + x[..., 3], 0, h - 1)
+    px = np.clip(px, 0, w - 1)
+    py = np.clip(py, 0, h - 1)
     x0 = np.minimum(px.astype(np.int64), max(w - 2, 0))
     y0 = np.minimum(py.astype(np.int64), max(h - 2, 0))
     x1 = np.minimum(x0 + 1, w - 1)
@@ -512,7 +512,14 @@ def _sample_at_flow(image: np.ndarray, x: np.ndarray) -> np.ndarray:
     fx, fy = px - x0, py - y0
     top = (1 - fx) * image[y0, x0] + fx * image[y0, x1]
     bottom = (1 - fx) * image[y1, x0] + fx * image[y1, x1]
-    return ((1 - fy) * top + fy * bottom).astype(np.float32)
+    return (1 - fy) * top + fy * bottom
+
+
+def _sample_at_flow(image: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """image(p + (u, v)) by bilinear interpolation, clamped (NumPy; once per level)."""
+    h, w = image.shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    return _bilinear(image, xx + x[..., 2], yy + x[..., 3]).astype(np.float32)
 
 
 def flow_search_level(sizes: list[tuple[int, int]], flow_range: float) -> int:
@@ -737,7 +744,8 @@ def estimate_scene_flow(
     exposure = None
     if params.match_exposure and max(height, width) >= EXPOSURE_MIN_SIZE:
         # the grey centre views alone (luma is linear: the luma of the centre is the centre of the luma)
-        grey_centres = [stretched(_luma(centre_view(lf.views))) for lf in (lf1, lf2)]
+        grey_centres = [stretched(luma(centre_view(lf.views)) if lf.is_colour else centre_view(lf.views))
+                        for lf in (lf1, lf2)]
         if not np.array_equal(*grey_centres):
             gain, shift, change = _exposure_change(*grey_centres, dev)
             if change > EXPOSURE_CHANGE:
@@ -966,12 +974,6 @@ def _intensity_stretch(lf1: LightField, lf2: LightField) -> tuple[float, float]:
     return lo, 1.0 / span
 
 
-def _luma(image: np.ndarray) -> np.ndarray:
-    """An (H, W) grey image, or the BT.601 luma of an (H, W, 3) colour one (as
-    :meth:`lfsf.io.LightField.grey`)."""
-    return image @ np.asarray(BT601_LUMA, dtype=np.float32) if image.ndim == 3 else image
-
-
 def _box_down(image: np.ndarray, factor: int) -> np.ndarray:
     """Means over factor × factor blocks (the last partial rows and columns dropped)."""
     if factor <= 1:
@@ -1058,16 +1060,8 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str) -> t
     keep = (x_at >= 0) & (x_at <= w - 1) & (y_at >= 0) & (y_at <= h - 1)
     keep[:2] = keep[-2:] = False
     keep[:, :2] = keep[:, -2:] = False
-    x0 = np.clip(np.floor(x_at).astype(np.int64), 0, w - 2)
-    y0 = np.clip(np.floor(y_at).astype(np.int64), 0, h - 2)
-    fx, fy = x_at - x0, y_at - y0
-
-    def at_flow(img):
-        return ((1 - fy) * ((1 - fx) * img[y0, x0] + fx * img[y0, x0 + 1])
-                + fy * ((1 - fx) * img[y0 + 1, x0] + fx * img[y0 + 1, x0 + 1]))
-
-    warped = at_flow(b)
-    keep &= (clipped[0] < 0.01) & (at_flow(clipped[1]) < 0.01)
+    warped = _bilinear(b, x_at, y_at)
+    keep &= (clipped[0] < 0.01) & (_bilinear(clipped[1], x_at, y_at) < 0.01)
     if keep.sum() < 64:
         return 1.0, 0.0, 0.0
     gy, gx = np.gradient(a)

@@ -54,6 +54,7 @@ __all__ = [
     "BT601_LUMA",
     "LightField",
     "centre_view",
+    "luma",
     "check_pair",
     "read_lightfield",
     "write_lightfield",
@@ -189,8 +190,7 @@ class LightField:
         """
         if not self.is_colour:
             return self
-        luma = self.views @ np.asarray(BT601_LUMA, dtype=np.float32)
-        return LightField(luma, source=self.source, meta=self.meta)
+        return LightField(luma(self.views), source=self.source, meta=self.meta)
 
     def view(self, a: int, b: int) -> np.ndarray:
         """The view in grid row ``a``, column ``b`` (0-based; not a copy).
@@ -204,6 +204,11 @@ class LightField:
         if not (0 <= a < rows and 0 <= b < cols):
             raise IndexError(f"{self.source}: view ({a}, {b}) is outside the {rows}×{cols} grid")
         return self.views[a, b]
+
+
+def luma(rgb: np.ndarray) -> np.ndarray:
+    """The ITU-R BT.601 luma of RGB values (…, 3), float32: :meth:`LightField.grey`."""
+    return rgb @ np.asarray(BT601_LUMA, dtype=np.float32)
 
 
 def centre_view(views: np.ndarray) -> np.ndarray:
