@@ -9,6 +9,8 @@ camera). Pixel (row i, column j) has its centre at image coordinates (x, y) = (j
 
 Textures are solid: a function of the hit point in the object's own frame, so they move
 with the object. The noise is our own integer-hash value noise, identical on CPU and CUDA.
+An object may instead carry an image (a photograph, say) projected along the axis of its
+local frame that faces the hit point most, repeated mirrored beyond its edges.
 """
 
 import warp as wp
@@ -41,7 +43,9 @@ class SceneObject:
     ``size``: plane patch (half width, half height, unused) in its local z = 0 plane;
     sphere (radius, unused, unused); box (three half extents). Texture: value noise of the
     local point times ``tex_freq`` (features per world unit), ``tex_mean ± tex_contrast``,
-    tinted by ``colour``.
+    tinted by ``colour``; or, where ``tex_image`` ≥ 0, that image of the render's image
+    stack (its top-left ``tex_height`` × ``tex_width`` pixels, RGB), ``tex_scale`` image
+    pixels per world unit, its centre at the local origin, tinted by ``colour``.
     """
 
     kind: int
@@ -53,6 +57,10 @@ class SceneObject:
     tex_mean: float
     tex_contrast: float
     colour: wp.vec3
+    tex_image: int
+    tex_scale: float
+    tex_width: int
+    tex_height: int
 
 
 @wp.func
@@ -113,6 +121,51 @@ def texture_value(obj: SceneObject, local: wp.vec3):
     p = rot * p
     blob = wp.smoothstep(-0.08, 0.08, value_noise(p * 0.61, obj.tex_seed + 53)) - 0.5
     return wp.clamp(obj.tex_mean + obj.tex_contrast * (n + 0.8 * blob), 0.0, 1.0)
+
+
+@wp.func
+def mirror(x: float, n: int):
+    """Coordinate ``x`` folded into [0, n − 1] by mirrored repetition (n ≥ 2)."""
+    period = 2.0 * float(n - 1)
+    t = x - period * wp.floor(x / period)
+    return wp.where(t > float(n - 1), period - t, t)
+
+
+@wp.func
+def image_value(images: wp.array4d(dtype=float), obj: SceneObject, local: wp.vec3):
+    """RGB of the object's image texture at a local point: the image lies in the plane of
+    the two local axes other than the one along which the point lies furthest out (relative
+    to the box's half extents; a plane's own z for a plane patch), bilinear, mirrored."""
+    a = int(0)
+    b = int(1)
+    if obj.kind != KIND_PLANE:
+        q = local
+        if obj.kind == KIND_BOX:
+            q = wp.cw_div(local, obj.size)
+        qx = wp.abs(q[0])
+        qy = wp.abs(q[1])
+        qz = wp.abs(q[2])
+        if qx >= qy and qx >= qz:
+            a = 1
+            b = 2
+        elif qy >= qz:
+            a = 0
+            b = 2
+    w = obj.tex_width
+    h = obj.tex_height
+    x = mirror(local[a] * obj.tex_scale + 0.5 * float(w - 1), w)
+    y = mirror(local[b] * obj.tex_scale + 0.5 * float(h - 1), h)
+    j0 = wp.min(int(x), w - 2)
+    i0 = wp.min(int(y), h - 2)
+    fx = x - float(j0)
+    fy = y - float(i0)
+    k = obj.tex_image
+    out = wp.vec3(0.0)
+    for c in range(3):
+        top = (1.0 - fx) * images[k, i0, j0, c] + fx * images[k, i0, j0 + 1, c]
+        bottom = (1.0 - fx) * images[k, i0 + 1, j0, c] + fx * images[k, i0 + 1, j0 + 1, c]
+        out[c] = (1.0 - fy) * top + fy * bottom
+    return out
 
 
 @wp.func
@@ -198,6 +251,7 @@ def render_views(
     centre_row: float,
     centre_col: float,
     supersample: int,
+    images: wp.array4d(dtype=float),
     # outputs
     views: wp.array4d(dtype=float),
 ):
@@ -205,6 +259,8 @@ def render_views(
 
     Launch over (views × rows, columns); ``views`` is [view, y, x, channel] with view =
     a·cols + b; one channel writes the BT.601 luma of the colour, three write RGB.
+    ``images`` [image, y, x, RGB] holds the objects' image textures (any array of that
+    rank where no object has one).
     """
     i, x = wp.tid()
     i = i + row0
@@ -225,7 +281,10 @@ def render_views(
             k, t, local = trace(objects, origin, direction)
             if k >= 0:
                 obj = objects[k]
-                acc = acc + texture_value(obj, local) * obj.colour
+                if obj.tex_image >= 0:
+                    acc = acc + wp.cw_mul(image_value(images, obj, local), obj.colour)
+                else:
+                    acc = acc + texture_value(obj, local) * obj.colour
             else:
                 acc = acc + wp.vec3(0.5)
     colour = acc * (inv * inv)

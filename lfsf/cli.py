@@ -60,7 +60,11 @@ def cmd_synth(args) -> int:
         raise ValueError("--out DIR is required")
     if args.frames < 2:
         raise ValueError(f"--frames must be at least 2 (2: one pair), got {args.frames}")
-    synth.get_scene(args.scene)  # unknown scene: clear error before any work
+    scene = synth.get_scene(args.scene)  # unknown scene: clear error before any work
+    images = None
+    if args.images is not None:  # photographs on the objects, drawn by a seed of the scene's name
+        images = synth.load_images(args.images)
+        scene = synth.with_images(scene, len(images), seed=args.image_seed)
     output_folder(args.out, create=False)
     device = resolve_device(args.device)
     width, height = args.size
@@ -70,16 +74,17 @@ def cmd_synth(args) -> int:
         _log(args, f"rendering '{args.scene}' at {width}×{height}, {args.grid}×{args.grid} views, "
                    f"{args.frames} frames, on {device} …")
         t0 = time.perf_counter()
-        paths = synth.write_sequence(args.scene, args.out, args.frames, size=(width, height), grid=args.grid,
+        paths = synth.write_sequence(scene, args.out, args.frames, size=(width, height), grid=args.grid,
                                      supersample=args.supersample, colour=args.colour, device=device,
-                                     noise=args.noise)
+                                     noise=args.noise, images=images)
         _log(args, f"wrote {len(paths['frames'])} frames to {Path(args.out) / 'frames'} and the ground truth of "
                    f"each pair to {Path(args.out) / 'gt'} in {time.perf_counter() - t0:.1f} s")
         return 0
     _log(args, f"rendering '{args.scene}' at {width}×{height}, {args.grid}×{args.grid} views, t1 and t2, on {device} …")
     t0 = time.perf_counter()
-    paths = synth.write_scene(args.scene, args.out, size=(width, height), grid=args.grid,
-                              supersample=args.supersample, colour=args.colour, device=device, noise=args.noise)
+    paths = synth.write_scene(scene, args.out, size=(width, height), grid=args.grid,
+                              supersample=args.supersample, colour=args.colour, device=device, noise=args.noise,
+                              images=images)
     _log(args, f"wrote {', '.join(str(p) for p in paths.values())} in {time.perf_counter() - t0:.1f} s")
     if args.preview:
         from lfsf.io import read_lightfield
@@ -339,6 +344,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--noise", type=float, default=0.0, metavar="SIGMA",
                    help="Gaussian sensor noise of this standard deviation (intensities in [0, 1]) on every "
                         "view, independent per frame (default 0)")
+    p.add_argument("--images", type=Path, metavar="FOLDER",
+                   help="photographs instead of the solid textures: every object shows one of FOLDER's images "
+                        "(PNG, JPEG, TIFF), drawn with --image-seed; the geometry and ground truth stay the scene's")
+    p.add_argument("--image-seed", type=int, default=0, metavar="N",
+                   help="the draw of --images' image and scale per object (default 0)")
     p.add_argument("--preview", action="store_true", help="also write DIR/preview.png of the ground truth")
     _device_options(p)
     p.set_defaults(func=cmd_synth)

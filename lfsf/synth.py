@@ -43,13 +43,21 @@ MIN_TEXTURE_PERIOD = 10.0
 @dataclass(frozen=True)
 class Texture:
     """Solid value-noise texture: feature ``period`` in pixels (at the object's depth in a
-    640-pixel-wide image), grey level ``mean ± contrast``, RGB tint ``colour``."""
+    640-pixel-wide image), grey level ``mean ± contrast``, RGB tint ``colour``.
+
+    With ``image`` ≥ 0 the object shows instead that image of the ``images`` given to
+    :func:`render_scene` (a photograph, say; :func:`with_images`), tinted by ``colour``:
+    its width spans ``image_span`` pixels of a 640-pixel-wide image at the object's depth,
+    and it repeats mirrored beyond its edges. ``period``, ``mean``, ``contrast`` and
+    ``seed`` are then unused."""
 
     period: float = 16.0
     mean: float = 0.5
     contrast: float = 0.45
     colour: tuple[float, float, float] = (1.0, 1.0, 1.0)
     seed: int = 0
+    image: int = -1
+    image_span: float = 320.0
 
 
 @dataclass(frozen=True)
@@ -200,6 +208,60 @@ def random_scene(seed: int) -> Scene:
                  tuple(objects))
 
 
+def with_images(scene: str | Scene, count: int, seed: int = 0, span=(200.0, 800.0),
+                backdrop_span=(800.0, 1600.0)) -> Scene:
+    """``scene`` with every object showing one of ``count`` images instead of its solid
+    texture (:class:`Texture`; give the images to :func:`render_scene`): the image and the
+    width it spans (uniform in ``span``, pixels of a 640-pixel-wide image at the object's
+    depth; in ``backdrop_span`` for a plane as wide as the image or wider) drawn
+    reproducibly from ``seed``, the objects untinted. The geometry, the motion and so the
+    ground truth are the scene's."""
+    sc = get_scene(scene)
+    if int(count) < 1:
+        raise ValueError(f"with_images needs at least one image, got {count}")
+    if int(seed) < 0:
+        raise ValueError(f"with_images: the seed must be ≥ 0, got {seed}")
+    rng = np.random.default_rng([0x1A6E5, int(seed)])
+    objects = []
+    for prim in sc.objects:
+        backdrop = prim.kind == "plane" and prim.size[0] >= 0.5
+        texture = Texture(colour=(1.0, 1.0, 1.0), image=int(rng.integers(0, int(count))),
+                          image_span=float(rng.uniform(*(backdrop_span if backdrop else span))))
+        objects.append(Primitive(prim.kind, prim.at, prim.depth, prim.size, texture, tilt=prim.tilt,
+                                 shift=prim.shift, approach=prim.approach, spin=prim.spin))
+    return Scene(f"{sc.name}+images", f"{sc.description}, showing images", tuple(objects))
+
+
+#: File suffixes that :func:`load_images` reads from a folder.
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
+
+
+def load_images(folder: str | Path) -> list[np.ndarray]:
+    """The images of a folder (PNG, JPEG, TIFF; sorted by name) as float32 arrays in
+    [0, 1], (h, w) or (h, w, 3) (alpha dropped), for :func:`with_images`. ValueError
+    names a folder without images or a file that is not one."""
+    from lfsf.io import read_image
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder}: no such folder of images")
+    files = sorted(f for f in folder.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES)
+    if not files:
+        raise ValueError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)}) in the folder")
+    out = []
+    for f in files:
+        a = read_image(f)
+        if a.dtype.kind not in "uif" or a.ndim not in (2, 3) or (a.ndim == 3 and a.shape[2] not in (1, 2, 3, 4)):
+            raise ValueError(f"{f}: not a grey or colour image (shape {a.shape}, {a.dtype})")
+        a = a.astype(np.float32) / (np.iinfo(a.dtype).max if a.dtype.kind in "ui" else 1.0)
+        if a.ndim == 3:
+            a = a[..., 0] if a.shape[2] <= 2 else a[..., :3]  # (no alpha)
+        if min(a.shape[:2]) < 2 or not np.all(np.isfinite(a)):
+            raise ValueError(f"{f}: an image texture needs at least 2×2 finite pixels")
+        out.append(np.clip(a, 0.0, 1.0))
+    return out
+
+
 def _rotation(degrees) -> np.ndarray:
     """Rotation matrix of successive rotations about x, y, z (degrees)."""
     ax, ay, az = np.deg2rad(np.asarray(degrees, dtype=np.float64))
@@ -274,12 +336,15 @@ def _object_poses(prim: Primitive, cam: CameraArray, times=(0, 1)):
 _KINDS = {"plane": 0, "sphere": 1, "box": 2}
 
 
-def _scene_arrays(scene: Scene, cam: CameraArray, device: str, times=(0, 1)):
-    """Warp arrays of SceneObject, one per frame of ``times`` (default t1 and t2)."""
+def _scene_arrays(scene: Scene, cam: CameraArray, device: str, times=(0, 1), images=None):
+    """Warp arrays of SceneObject, one per frame of ``times`` (default t1 and t2);
+    ``images`` as :func:`_check_images` returns them, for the image textures."""
     import warp as wp
 
     from lfsf.kernels import render
 
+    image_shapes = [a.shape[:2] for a in images or ()]
+    slot = 0
     per_time = tuple([] for _ in times)
     for prim in scene.objects:
         if prim.kind not in _KINDS:
@@ -296,8 +361,72 @@ def _scene_arrays(scene: Scene, cam: CameraArray, device: str, times=(0, 1)):
             obj.tex_mean = float(prim.texture.mean)
             obj.tex_contrast = float(prim.texture.contrast)
             obj.colour = wp.vec3(*prim.texture.colour)
+            obj.tex_image = -1
+            obj.tex_scale = 0.0
+            obj.tex_width = 0
+            obj.tex_height = 0
             out.append(obj)
+        if prim.texture.image >= 0:  # its own slot of the image stack (_image_stack, same order)
+            h, w = image_shapes[prim.texture.image]
+            scale = w / (_image_span_px(prim.texture, cam) * prim.depth / cam.focal)
+            for objs in per_time:
+                objs[-1].tex_image = slot
+                objs[-1].tex_scale = float(scale)
+                objs[-1].tex_width = int(w)
+                objs[-1].tex_height = int(h)
+            slot += 1
     return tuple(wp.array(objs, dtype=render.SceneObject, device=device) for objs in per_time)
+
+
+def _image_span_px(texture: Texture, cam: CameraArray) -> float:
+    """The pixels that an image texture's width spans at the object's depth at t1."""
+    return texture.image_span * cam.width / REFERENCE_WIDTH
+
+
+def _check_images(scene: Scene, images) -> list[np.ndarray]:
+    """The images as float32 (h, w, 3) arrays in [0, 1] (grey ones repeated), checked
+    against the scene's image textures."""
+    out = []
+    for k, img in enumerate(images or ()):
+        a = np.asarray(img, dtype=np.float32)
+        if a.ndim == 2:
+            a = np.repeat(a[..., None], 3, axis=2)
+        if a.ndim != 3 or a.shape[2] != 3 or min(a.shape[:2]) < 2:
+            raise ValueError(f"image {k}: an image texture must be (h, w) or (h, w, 3) with h, w ≥ 2, "
+                             f"got shape {np.shape(img)}")
+        if not np.all(np.isfinite(a)) or a.min() < 0.0 or a.max() > 1.0:
+            raise ValueError(f"image {k}: an image texture's values must be finite and in [0, 1]")
+        out.append(a)
+    for prim in scene.objects:
+        if prim.texture.image >= len(out):
+            raise ValueError(f"scene {scene.name!r}: a {prim.kind} shows image {prim.texture.image}, but "
+                             f"{len(out)} image(s) were given")
+    return out
+
+
+def _image_stack(scene: Scene, cam: CameraArray, images: list[np.ndarray], device: str):
+    """The render's image stack [slot, y, x, RGB]: for each object with an image texture,
+    in the scene's order, its image blurred against aliasing (a Gaussian of half the
+    image pixels per rendered pixel, where the image is seen shrunk); a 1×1×1×3 array
+    where no object has one."""
+    from lfsf.estimate import _blur  # (the exposure fit's separable Gaussian)
+    wp = _device.warp()
+    chosen = []
+    for prim in scene.objects:
+        if prim.texture.image >= 0:
+            img = images[prim.texture.image]
+            shrink = img.shape[1] / _image_span_px(prim.texture, cam)
+            if shrink > 1.0:
+                img = np.stack([_blur(img[..., c], 0.5 * shrink) for c in range(3)], axis=-1)
+            chosen.append(img.astype(np.float32))
+    if not chosen:
+        return wp.zeros((1, 1, 1, 3), dtype=float, device=device)
+    h = max(a.shape[0] for a in chosen)
+    w = max(a.shape[1] for a in chosen)
+    stack = np.zeros((len(chosen), h, w, 3), np.float32)
+    for k, a in enumerate(chosen):
+        stack[k, :a.shape[0], :a.shape[1]] = a
+    return wp.array(stack, dtype=float, device=device)
 
 
 def _warp_camera(cam: CameraArray):
@@ -347,6 +476,7 @@ def render_scene(
     supersample: int = 2,
     colour: bool = False,
     device: str | None = None,
+    images=None,
 ):
     """Render a light-field pair of a scene and its exact ground truth.
 
@@ -358,6 +488,8 @@ def render_scene(
     supersample : rays per pixel along each axis (box-filtered)
     colour : RGB views if true, else grey (BT.601 luma of the same colours)
     device : Warp device (default as :func:`lfsf.device.resolve_device`)
+    images : the images that the scene's image textures name (:class:`Texture`), each
+        (h, w) or (h, w, 3) with values in [0, 1]
 
     Returns
     -------
@@ -367,7 +499,7 @@ def render_scene(
         (``focal``, ``baseline``, ``shift``)
     """
     lfs, gts = render_sequence(scene, 2, size=size, grid=grid, supersample=supersample, colour=colour,
-                               device=device)
+                               device=device, images=images)
     return lfs[0], lfs[1], gts[0]
 
 
@@ -404,6 +536,7 @@ def render_sequence(
     supersample: int = 2,
     colour: bool = False,
     device: str | None = None,
+    images=None,
 ):
     """Render ``frames`` light fields of a scene moving at a constant rate, and the exact
     ground truth of each consecutive pair.
@@ -432,7 +565,9 @@ def render_sequence(
     dev = _device.resolve_device(device)
     cam = CameraArray.for_size(width, height)
     wcam = _warp_camera(cam)
-    objects = _scene_arrays(sc, cam, dev, times=range(int(frames)))
+    images = _check_images(sc, images)
+    objects = _scene_arrays(sc, cam, dev, times=range(int(frames)), images=images)
+    image_stack = _image_stack(sc, cam, images, dev)
     channels = 3 if colour else 1
 
     lfs = []
@@ -441,7 +576,7 @@ def render_sequence(
         _device.launch_rows(
             render.render_views,
             dim=(rows * cols * height, width),
-            inputs=[wcam, objs, cols, (rows - 1) / 2.0, (cols - 1) / 2.0, int(supersample)],
+            inputs=[wcam, objs, cols, (rows - 1) / 2.0, (cols - 1) / 2.0, int(supersample), image_stack],
             outputs=[views],
             device=dev,
         )
@@ -479,6 +614,7 @@ def write_scene(
     colour: bool = False,
     device: str | None = None,
     noise: float = 0.0,
+    images=None,
 ) -> dict[str, Path]:
     """Render a scene and write ``lf1.npz``, ``lf2.npz`` and ``gt.npz`` into ``out``.
 
@@ -492,7 +628,8 @@ def write_scene(
     from lfsf.io import write_lightfield
 
     noise = _noise_sigma(noise)  # a bad sigma: an error before any rendering
-    lf1, lf2, gt = render_scene(scene, size=size, grid=grid, supersample=supersample, colour=colour, device=device)
+    lf1, lf2, gt = render_scene(scene, size=size, grid=grid, supersample=supersample, colour=colour, device=device,
+                                images=images)
     lf1, lf2 = add_noise(lf1, noise, seed=0), add_noise(lf2, noise, seed=1)
     out = Path(out)
     names = {"lf1": "lf1.npz", "lf2": "lf2.npz", "gt": "gt.npz"}
@@ -514,6 +651,7 @@ def write_sequence(
     colour: bool = False,
     device: str | None = None,
     noise: float = 0.0,
+    images=None,
 ) -> dict[str, list[Path]]:
     """Render :func:`render_sequence` and write the frames ``out/frames/f000.npz``, … (a
     folder ``lfsf batch`` reads as consecutive pairs) and each pair's ground truth
@@ -525,7 +663,7 @@ def write_sequence(
 
     noise = _noise_sigma(noise)  # a bad sigma: an error before any rendering
     lfs, gts = render_sequence(scene, frames, size=size, grid=grid, supersample=supersample, colour=colour,
-                               device=device)
+                               device=device, images=images)
     lfs = [add_noise(lf, noise, seed=k) for k, lf in enumerate(lfs)]
     out = Path(out)
     frame_names = [f"frames/f{k:03d}.npz" for k in range(len(lfs))]

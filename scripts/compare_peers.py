@@ -39,6 +39,7 @@ Usage (from the repository root)::
     python scripts/compare_peers.py --exposure 0.9 0.03    # t2 at another exposure
     python scripts/compare_peers.py --config my.toml       # lfsf with other settings
     python scripts/compare_peers.py --colour               # RGB views (the peers: their luma)
+    python scripts/compare_peers.py --images skimage       # photographs on the objects
 
 ``--methods``: ``peers`` (peers only), ``lfsf`` (lfsf only; no bars), ``all`` (default:
 peers, and lfsf when ``lfsf.estimate_scene_flow`` exists, else a note). Exit status 1 if a
@@ -187,8 +188,12 @@ def run_scene(name, args, use_peers, lfsf_runs, warm):
     """Rows of one synthetic scene."""
     from lfsf import evaluate, synth
 
-    lf1, lf2, gt = synth.render_scene(name, size=tuple(args.size), grid=args.grid, colour=args.colour,
-                                      device=args.device)
+    scene, images = name, None
+    if args.images is not None:  # the scene's geometry and motion, photographs for textures
+        images = IMAGES["list"]
+        scene = synth.with_images(name, len(images), seed=zlib.crc32(name.encode()))
+    lf1, lf2, gt = synth.render_scene(scene, size=tuple(args.size), grid=args.grid, colour=args.colour,
+                                      device=args.device, images=images)
     if args.exposure is not None:  # t2 captured at another exposure, clipped as a sensor would
         gain, shift = args.exposure
         lf2 = type(lf2)(np.clip(lf2.views * np.float32(gain) + np.float32(shift), 0.0, 1.0).astype(np.float32),
@@ -499,6 +504,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="t2's views of the synthetic scenes at another exposure, clip(GAIN·L2 + "
                         "OFFSET, 0, 1), for every method (default: the same exposure; the real data "
                         "are stereo, one light field twice)")
+    p.add_argument("--images", metavar="SOURCE",
+                   help="photographs instead of the scenes' solid textures, each object showing one drawn "
+                        "from SOURCE: 'skimage' (scikit-image's sample photographs) or a folder of PNG, JPEG "
+                        "or TIFF files (synth.with_images; the geometry and ground truth are the scene's)")
     p.add_argument("--config", metavar="FILE.toml",
                    help="settings for every lfsf run, as `lfsf run --config` reads them (default: the "
                         "`paper` preset), e.g. `match_exposure = false`")
@@ -514,6 +523,30 @@ def build_parser() -> argparse.ArgumentParser:
                    help="exit 1 unless every lfsf target is checked and passes")
     p.add_argument("--verbose", action="store_true", help="print tracebacks of failing methods")
     return p
+
+
+#: The photographs of ``--images`` (loaded once, by :func:`load_images`).
+IMAGES: dict = {"list": None}
+#: scikit-image's sample photographs and textures that ``--images skimage`` uses.
+SKIMAGE_IMAGES = ("astronaut", "coffee", "chelsea", "rocket", "camera", "brick", "grass", "gravel", "coins",
+                  "moon")
+
+
+def load_images(source: str) -> list[np.ndarray]:
+    """The photographs of ``--images``: float (h, w[, 3]) arrays in [0, 1]: scikit-image's
+    samples for ``skimage``, else the images of a folder (:func:`lfsf.synth.load_images`,
+    whose errors name the folder or file)."""
+    if source != "skimage":
+        from lfsf import synth
+
+        return synth.load_images(source)
+    import skimage.data
+
+    out = []
+    for name in SKIMAGE_IMAGES:
+        a = np.asarray(getattr(skimage.data, name)())
+        out.append(a.astype(np.float32) / 255.0 if a.dtype == np.uint8 else np.clip(a.astype(np.float32), 0, 1))
+    return out
 
 
 def selected_scenes(args) -> list[str]:
@@ -558,7 +591,8 @@ def main(argv=None) -> int:
             return 2
     try:
         scenes = selected_scenes(args)
-    except ValueError as exc:
+        IMAGES["list"] = load_images(args.images) if args.images is not None else None
+    except (OSError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
 
@@ -596,7 +630,8 @@ def main(argv=None) -> int:
     if not args.no_synth:
         inputs = "".join([f", noise σ = {args.noise:g}" if args.noise > 0 else "",
                           f", t2 at clip({args.exposure[0]:g}·L2 {args.exposure[1]:+g})" if args.exposure else "",
-                          f", lfsf settings from {args.config}" if args.config else ""])
+                          f", lfsf settings from {args.config}" if args.config else "",
+                          f", photographs from {args.images}" if args.images else ""])
         print(f"## Synthetic scenes, {w}×{h}, {args.grid}×{args.grid} {'RGB ' if args.colour else ''}views "
               f"(valid pixels, {SYNTH_BORDER}-px border{inputs})\n")
         print(synth_table(rows))

@@ -99,15 +99,53 @@ def trace(objects, origin, direction):
     return best, best_t, best_local
 
 
-def scene_objects(scene, cam):
-    """Per time, a list of dicts describing each primitive (from synth's own geometry)."""
+def image_texture(obj, local):
+    """RGB of an image texture: the image (its own pixels, h × w) in the plane of the two
+    local axes other than the one along which the point lies furthest out (in units of a
+    box's half extents), centred on the local origin, obj["scale"] image pixels per world
+    unit, repeated mirrored, bilinear."""
+    img = obj["image"]
+    h, w = img.shape[:2]
+    if obj["kind"] == 0:
+        axis = np.full(local.shape[:-1], 2)
+    else:
+        q = local / obj["size"] if obj["kind"] == 2 else local
+        axis = np.argmax(np.abs(q), -1)  # (ties: x, then y, as the kernel)
+    others = np.array([[1, 2], [0, 2], [0, 1]])[axis]
+    a = np.take_along_axis(local, others[..., :1], -1)[..., 0]
+    b = np.take_along_axis(local, others[..., 1:], -1)[..., 0]
+
+    def fold(x, n):
+        period = 2.0 * (n - 1)
+        t = np.mod(x, period)
+        return np.where(t > n - 1, period - t, t)
+
+    x = fold(a * obj["scale"] + 0.5 * (w - 1), w)
+    y = fold(b * obj["scale"] + 0.5 * (h - 1), h)
+    j0 = np.minimum(np.floor(x).astype(int), w - 2)
+    i0 = np.minimum(np.floor(y).astype(int), h - 2)
+    fx, fy = (x - j0)[..., None], (y - i0)[..., None]
+    return ((1 - fy) * ((1 - fx) * img[i0, j0] + fx * img[i0, j0 + 1])
+            + fy * ((1 - fx) * img[i0 + 1, j0] + fx * img[i0 + 1, j0 + 1]))
+
+
+def scene_objects(scene, cam, stack=None):
+    """Per time, a list of dicts describing each primitive (from synth's own geometry);
+    an object with an image texture takes the next image of ``stack`` (the renderer's
+    image stack, in the scene's order, each image at its own size)."""
     times = ([], [])
+    images = iter(stack or ())
     for prim in synth.get_scene(scene).objects:
         (p1, p2), size, freq = synth._object_poses(prim, cam)
+        extra = {}
+        if prim.texture.image >= 0:
+            img = next(images)
+            span = prim.texture.image_span * cam.width / synth.REFERENCE_WIDTH
+            extra = dict(image=img, scale=img.shape[1] / (span * prim.depth / cam.focal))
         for (rot, pos), out in zip((p1, p2), times):
             out.append(dict(kind=KINDS[prim.kind], rot=rot, pos=pos, size=size, freq=freq,
                             seed=prim.texture.seed, mean=prim.texture.mean,
-                            contrast=prim.texture.contrast, colour=np.asarray(prim.texture.colour)))
+                            contrast=prim.texture.contrast, colour=np.asarray(prim.texture.colour), **extra))
     return times
 
 
@@ -118,12 +156,12 @@ def rays(cam, xi, eta, x, y):
     return np.broadcast_to(origin, d.shape), d
 
 
-def render(scene, size, grid, supersample):
-    """Grey views [t][a, b, y, x] of both times."""
+def render(scene, size, grid, supersample, stack=None):
+    """Grey views [t][a, b, y, x] of both times (``stack``: as :func:`scene_objects`)."""
     width, height = size
     cam = synth.CameraArray.for_size(width, height)
     out = []
-    for objects in scene_objects(scene, cam):
+    for objects in scene_objects(scene, cam, stack):
         views = np.zeros((grid, grid, height, width))
         for a in range(grid):
             for b in range(grid):
@@ -137,7 +175,10 @@ def render(scene, size, grid, supersample):
                         k, t, local = trace(objects, *rays(cam, xi, eta, x, y))
                         for idx, obj in enumerate(objects):
                             m = k == idx
-                            acc[m] += texture(obj, local[m])[:, None] * obj["colour"]
+                            if "image" in obj:
+                                acc[m] += image_texture(obj, local[m]) * obj["colour"]
+                            else:
+                                acc[m] += texture(obj, local[m])[:, None] * obj["colour"]
                         acc[k < 0] += 0.5
                 rgb = acc / supersample**2
                 views[a, b] = rgb @ np.array([0.299, 0.587, 0.114])

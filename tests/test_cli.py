@@ -83,6 +83,35 @@ def test_synth_adds_sensor_noise_to_the_views_not_the_ground_truth(tmp_path):
     assert status == 2 and "noise" in err and not (tmp_path / "bad").exists(), err
 
 
+def test_synth_puts_a_folders_images_on_the_objects(tmp_path):
+    """``--images FOLDER``: the objects show the folder's images (drawn by
+    ``--image-seed``), the ground truth stays the scene's; a folder without images, or
+    with a file that is not one, is refused with exit status 2 and nothing written."""
+    rng = np.random.default_rng(1)
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    io.write_png(photos / "a.png", (rng.random((40, 60, 3)) * 255).astype(np.uint8))
+    io.write_png(photos / "b.png", (rng.random((30, 30)) * 65535).astype(np.uint16))
+    args = ("--size", 40, 30, "--grid", 3)
+    assert lfsf("synth", "paper", "--out", tmp_path / "plain", *args)[0] == 0
+    status, _, err = lfsf("synth", "paper", "--out", tmp_path / "img", "--images", photos, *args)
+    assert status == 0, err
+    status, _, err = lfsf("synth", "paper", "--out", tmp_path / "img2", "--images", photos, "--image-seed", 4, *args)
+    assert status == 0, err
+    plain, img, img2 = (io.read_lightfield(tmp_path / d / "lf1.npz").views for d in ("plain", "img", "img2"))
+    assert np.abs(img - plain).mean() > 0.05 and np.abs(img2 - img).mean() > 0.01
+    with np.load(tmp_path / "plain" / "gt.npz") as a, np.load(tmp_path / "img" / "gt.npz") as b:
+        for key in ("disp1", "disp2", "u", "v", "valid", "occluded"):
+            np.testing.assert_array_equal(a[key], b[key])
+    (tmp_path / "empty").mkdir()
+    status, _, err = lfsf("synth", "paper", "--out", tmp_path / "x", "--images", tmp_path / "empty", *args)
+    assert_clean_error(status, err, "no images")
+    (photos / "c.png").write_bytes(b"not a png")
+    status, _, err = lfsf("synth", "paper", "--out", tmp_path / "x", "--images", photos, *args)
+    assert_clean_error(status, err, "c.png")
+    assert not (tmp_path / "x").exists()
+
+
 def test_eval_of_ground_truth_against_itself_is_zero(tmp_path):
     assert main(["synth", "paper", "--out", str(tmp_path), "--size", "48", "36", "--grid", "1", "--quiet"]) == 0
     status, out, err = lfsf("eval", tmp_path / "gt.npz", tmp_path / "gt.npz", "--json", tmp_path / "e.json")

@@ -48,7 +48,8 @@ def test_banded_and_single_launches_give_identical_results():
     results = []
     for bands in (1, 2, 5):
         views = wp.zeros((9, 36, 48, 1), dtype=float, device="cpu")
-        D.launch_rows(render.render_views, dim=(9 * 36, 48), inputs=[wcam, objs, 3, 1.0, 1.0, 2],
+        no_images = wp.zeros((1, 1, 1, 3), dtype=float, device="cpu")
+        D.launch_rows(render.render_views, dim=(9 * 36, 48), inputs=[wcam, objs, 3, 1.0, 1.0, 2, no_images],
                       outputs=[views], device="cpu", bands=bands)
         results.append(views.numpy())
     assert np.all(results[0] != 0)

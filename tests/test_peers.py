@@ -216,3 +216,45 @@ def test_compare_peers_config_sets_every_lfsf_run(tmp_path, monkeypatch, capsys)
     assert script.main(args) == 2
     assert "no_such_setting" in capsys.readouterr().err
     script.SETTINGS["params"] = None
+
+
+def test_compare_peers_images_put_photographs_on_every_scene(tmp_path, capsys):
+    """``--images DIR`` hands every method the scene rendered with the folder's images
+    as textures (synth.with_images, seeded by the scene's name), with the scene's own
+    ground truth; a folder without images is refused with exit status 2."""
+    import zlib
+
+    import imageio.v3 as iio
+
+    from lfsf import synth
+
+    rng = np.random.default_rng(0)
+    photos = [(rng.random((30, 40, 3)) * 255).astype(np.uint8), (rng.random((25, 35)) * 65535).astype(np.uint16)]
+    iio.imwrite(tmp_path / "a.png", photos[0])
+    iio.imwrite(tmp_path / "b.png", photos[1])
+    (tmp_path / "notes.txt").write_text("not an image")
+    script = _compare_peers_script()
+    loaded = script.load_images(str(tmp_path))
+    assert [a.shape for a in loaded] == [(30, 40, 3), (25, 35)]
+    np.testing.assert_allclose(loaded[1], photos[1] / 65535.0, atol=1e-6)
+    args = script.build_parser().parse_args(["--size", "48", "32", "--grid", "3", "--images", str(tmp_path)])
+    script.IMAGES["list"] = loaded
+    seen = []
+
+    def fake(lf1, lf2, device):
+        seen.append((lf1.views.copy(), lf2.views.copy()))
+        return {"u": np.zeros(lf1.centre.shape, np.float32), "v": np.zeros(lf1.centre.shape, np.float32)}
+
+    rows = script.run_scene("slanted", args, False, {"fake": fake}, {"fake"})
+    want1, want2, gt = synth.render_scene(synth.with_images("slanted", 2, seed=zlib.crc32(b"slanted")),
+                                          size=(48, 32), grid=3, images=loaded)
+    (a1, a2), = seen
+    np.testing.assert_array_equal(a1, want1.views)
+    np.testing.assert_array_equal(a2, want2.views)
+    _, _, gt_plain = synth.render_scene("slanted", size=(48, 32), grid=3)
+    assert rows[0]["flow_epe"] is not None
+    np.testing.assert_array_equal(gt["u"], gt_plain["u"])
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert script.main(["--images", str(empty), "--methods", "peers"]) == 2
+    assert "no images" in capsys.readouterr().err
