@@ -44,8 +44,8 @@ class SceneObject:
     sphere (radius, unused, unused); box (three half extents). Texture: value noise of the
     local point times ``tex_freq`` (features per world unit), ``tex_mean ± tex_contrast``,
     tinted by ``colour``; or, where ``tex_image`` ≥ 0, that image of the render's image
-    stack (its top-left ``tex_height`` × ``tex_width`` pixels, RGB), ``tex_scale`` image
-    pixels per world unit, its centre at the local origin, tinted by ``colour``.
+    stack (its top-left ``tex_height`` × ``tex_width`` texels, RGB), ``tex_scale`` texels
+    per world unit, its centre at the local origin, tinted by ``colour``.
     """
 
     kind: int
@@ -125,17 +125,22 @@ def texture_value(obj: SceneObject, local: wp.vec3):
 
 @wp.func
 def mirror(x: float, n: int):
-    """Coordinate ``x`` folded into [0, n − 1] by mirrored repetition (n ≥ 2)."""
-    period = 2.0 * float(n - 1)
-    t = x - period * wp.floor(x / period)
-    return wp.where(t > float(n - 1), period - t, t)
+    """Texel coordinate ``x`` of an image n texels wide (texel k covers [k − ½, k + ½])
+    folded back into it by mirrored repetition, each edge texel repeated as in a mirror
+    (period 2n), then clamped to the texel centres [0, n − 1] for a bilinear lookup."""
+    period = 2.0 * float(n)
+    t = x + 0.5
+    t = t - period * wp.floor(t / period)
+    t = wp.where(t > float(n), period - t, t)
+    return wp.clamp(t - 0.5, 0.0, float(n - 1))
 
 
 @wp.func
 def image_value(images: wp.array4d(dtype=float), obj: SceneObject, local: wp.vec3):
     """RGB of the object's image texture at a local point: the image lies in the plane of
-    the two local axes other than the one along which the point lies furthest out (relative
-    to the box's half extents; a plane's own z for a plane patch), bilinear, mirrored."""
+    the two local axes other than the one along which the point lies furthest out
+    (relative to a box's half extents; a plane patch's own z), its centre at the local
+    origin, ``tex_scale`` texels per world unit, bilinear, repeated mirrored."""
     a = int(0)
     b = int(1)
     if obj.kind != KIND_PLANE:
@@ -153,8 +158,8 @@ def image_value(images: wp.array4d(dtype=float), obj: SceneObject, local: wp.vec
             b = 2
     w = obj.tex_width
     h = obj.tex_height
-    x = mirror(local[a] * obj.tex_scale + 0.5 * float(w - 1), w)
-    y = mirror(local[b] * obj.tex_scale + 0.5 * float(h - 1), h)
+    x = mirror(local[a] * obj.tex_scale + 0.5 * float(w) - 0.5, w)
+    y = mirror(local[b] * obj.tex_scale + 0.5 * float(h) - 0.5, h)
     j0 = wp.min(int(x), w - 2)
     i0 = wp.min(int(y), h - 2)
     fx = x - float(j0)

@@ -62,16 +62,21 @@ def cmd_synth(args) -> int:
         raise ValueError(f"--frames must be at least 2 (2: one pair), got {args.frames}")
     scene = synth.get_scene(args.scene)  # unknown scene: clear error before any work
     images = None
-    if args.images is not None:  # photographs on the objects, drawn by a seed of the scene's name
+    if args.images is not None:  # photographs on the objects, each one's image and scale drawn by --image-seed
+        if args.image_seed is not None and args.image_seed < 0:
+            raise ValueError(f"--image-seed must be ≥ 0, got {args.image_seed}")
         images = synth.load_images(args.images)
-        scene = synth.with_images(scene, len(images), seed=args.image_seed)
+        scene = synth.with_images(scene, len(images), seed=args.image_seed or 0)
+    elif args.image_seed is not None:
+        raise ValueError("--image-seed draws the images of --images FOLDER; give --images too")
+    what = f"'{args.scene}'" + (f" with the {len(images)} images of {args.images}" if images else "")
     output_folder(args.out, create=False)
     device = resolve_device(args.device)
     width, height = args.size
     if args.frames > 2:
         if args.preview:
             raise ValueError("--preview is for a pair; a sequence (--frames) writes none")
-        _log(args, f"rendering '{args.scene}' at {width}×{height}, {args.grid}×{args.grid} views, "
+        _log(args, f"rendering {what} at {width}×{height}, {args.grid}×{args.grid} views, "
                    f"{args.frames} frames, on {device} …")
         t0 = time.perf_counter()
         paths = synth.write_sequence(scene, args.out, args.frames, size=(width, height), grid=args.grid,
@@ -80,7 +85,7 @@ def cmd_synth(args) -> int:
         _log(args, f"wrote {len(paths['frames'])} frames to {Path(args.out) / 'frames'} and the ground truth of "
                    f"each pair to {Path(args.out) / 'gt'} in {time.perf_counter() - t0:.1f} s")
         return 0
-    _log(args, f"rendering '{args.scene}' at {width}×{height}, {args.grid}×{args.grid} views, t1 and t2, on {device} …")
+    _log(args, f"rendering {what} at {width}×{height}, {args.grid}×{args.grid} views, t1 and t2, on {device} …")
     t0 = time.perf_counter()
     paths = synth.write_scene(scene, args.out, size=(width, height), grid=args.grid,
                               supersample=args.supersample, colour=args.colour, device=device, noise=args.noise,
@@ -347,8 +352,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--images", type=Path, metavar="FOLDER",
                    help="photographs instead of the solid textures: every object shows one of FOLDER's images "
                         "(PNG, JPEG, TIFF), drawn with --image-seed; the geometry and ground truth stay the scene's")
-    p.add_argument("--image-seed", type=int, default=0, metavar="N",
-                   help="the draw of --images' image and scale per object (default 0)")
+    p.add_argument("--image-seed", type=int, default=None, metavar="N",
+                   help="with --images: the draw of each object's image and scale (default 0)")
     p.add_argument("--preview", action="store_true", help="also write DIR/preview.png of the ground truth")
     _device_options(p)
     p.set_defaults(func=cmd_synth)

@@ -14,6 +14,7 @@ from typing import Callable
 import numpy as np
 
 from lfsf import device as _device
+from lfsf._filters import gaussian_blur as _blur
 from lfsf.io import LightField, centre_view, check_pair, luma, read_lightfield
 from lfsf.params import Params
 
@@ -980,20 +981,6 @@ def _box_down(image: np.ndarray, factor: int) -> np.ndarray:
         return np.asarray(image, np.float64)
     h, w = image.shape[0] // factor, image.shape[1] // factor
     return np.asarray(image[:h * factor, :w * factor], np.float64).reshape(h, factor, w, factor).mean((1, 3))
-
-
-def _blur(image: np.ndarray, sigma: float) -> np.ndarray:
-    """Gaussian blur (separable, edges mirrored) of a 2-D float image."""
-    r = max(1, int(math.ceil(3 * sigma)))
-    k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
-    k /= k.sum()
-    out = np.asarray(image, np.float64)
-    for axis in (0, 1):
-        pad = [(0, 0), (0, 0)]
-        pad[axis] = (r, r)
-        padded = np.pad(out, pad, mode="symmetric")
-        out = sum(k[i] * np.take(padded, np.arange(i, i + out.shape[axis]), axis=axis) for i in range(2 * r + 1))
-    return out
 
 
 def _l1_line(x: np.ndarray, y: np.ndarray, weight: np.ndarray, span: float) -> tuple[float, float] | None:

@@ -237,9 +237,10 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
 
 
 def load_images(folder: str | Path) -> list[np.ndarray]:
-    """The images of a folder (PNG, JPEG, TIFF; sorted by name) as float32 arrays in
-    [0, 1], (h, w) or (h, w, 3) (alpha dropped), for :func:`with_images`. ValueError
-    names a folder without images or a file that is not one."""
+    """The images of a folder (PNG, JPEG, TIFF; sorted by name) as float32 (h, w, 3)
+    arrays in [0, 1] (grey repeated, alpha dropped), for :func:`with_images`.
+    FileNotFoundError or ValueError names a missing folder, a folder without images or
+    a file that is not one."""
     from lfsf.io import read_image
 
     folder = Path(folder)
@@ -248,18 +249,7 @@ def load_images(folder: str | Path) -> list[np.ndarray]:
     files = sorted(f for f in folder.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES)
     if not files:
         raise ValueError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)}) in the folder")
-    out = []
-    for f in files:
-        a = read_image(f)
-        if a.dtype.kind not in "uif" or a.ndim not in (2, 3) or (a.ndim == 3 and a.shape[2] not in (1, 2, 3, 4)):
-            raise ValueError(f"{f}: not a grey or colour image (shape {a.shape}, {a.dtype})")
-        a = a.astype(np.float32) / (np.iinfo(a.dtype).max if a.dtype.kind in "ui" else 1.0)
-        if a.ndim == 3:
-            a = a[..., 0] if a.shape[2] <= 2 else a[..., :3]  # (no alpha)
-        if min(a.shape[:2]) < 2 or not np.all(np.isfinite(a)):
-            raise ValueError(f"{f}: an image texture needs at least 2×2 finite pixels")
-        out.append(np.clip(a, 0.0, 1.0))
-    return out
+    return [_as_rgb(read_image(f), str(f)) for f in files]
 
 
 def _rotation(degrees) -> np.ndarray:
@@ -336,14 +326,15 @@ def _object_poses(prim: Primitive, cam: CameraArray, times=(0, 1)):
 _KINDS = {"plane": 0, "sphere": 1, "box": 2}
 
 
-def _scene_arrays(scene: Scene, cam: CameraArray, device: str, times=(0, 1), images=None):
+def _scene_arrays(scene: Scene, cam: CameraArray, device: str, times=(0, 1), textures=None):
     """Warp arrays of SceneObject, one per frame of ``times`` (default t1 and t2);
-    ``images`` as :func:`_check_images` returns them, for the image textures."""
+    ``textures``: the image textures' (width, height, texels per world unit) in the
+    scene's order, as :func:`_image_stack` returns them."""
     import warp as wp
 
     from lfsf.kernels import render
 
-    image_shapes = [a.shape[:2] for a in images or ()]
+    textures = list(textures or ())
     slot = 0
     per_time = tuple([] for _ in times)
     for prim in scene.objects:
@@ -367,8 +358,9 @@ def _scene_arrays(scene: Scene, cam: CameraArray, device: str, times=(0, 1), ima
             obj.tex_height = 0
             out.append(obj)
         if prim.texture.image >= 0:  # its own slot of the image stack (_image_stack, same order)
-            h, w = image_shapes[prim.texture.image]
-            scale = w / (_image_span_px(prim.texture, cam) * prim.depth / cam.focal)
+            if slot >= len(textures):
+                raise ValueError(f"scene {scene.name!r}: a {prim.kind} shows an image, but no image stack was made")
+            w, h, scale = textures[slot]
             for objs in per_time:
                 objs[-1].tex_image = slot
                 objs[-1].tex_scale = float(scale)
@@ -383,50 +375,90 @@ def _image_span_px(texture: Texture, cam: CameraArray) -> float:
     return texture.image_span * cam.width / REFERENCE_WIDTH
 
 
+def _as_rgb(image, name: str) -> np.ndarray:
+    """An image as float32 (h, w, 3) in [0, 1]: integers scaled by their type's maximum,
+    booleans as 0 and 1, grey repeated, alpha dropped. ValueError names ``name`` and the
+    problem."""
+    a = np.asarray(image)
+    if a.dtype == bool:
+        a = a.astype(np.float32)
+    elif a.dtype.kind in "ui":
+        a = a.astype(np.float32) / np.float32(np.iinfo(a.dtype).max)
+    elif a.dtype.kind == "f":
+        a = a.astype(np.float32)
+    else:
+        raise ValueError(f"{name}: not an image of numbers ({a.dtype})")
+    if a.ndim == 3 and a.shape[2] in (1, 2):  # grey, grey + alpha
+        a = a[..., 0]
+    if a.ndim == 2:
+        a = np.repeat(a[..., None], 3, axis=2)
+    if a.ndim != 3 or a.shape[2] not in (3, 4) or min(a.shape[:2]) < 2:
+        raise ValueError(f"{name}: an image texture must be (h, w) or (h, w, 1…4) with h, w ≥ 2, "
+                         f"got shape {np.shape(image)}")
+    a = a[..., :3]
+    if not np.all(np.isfinite(a)) or a.min() < 0.0 or a.max() > 1.0:
+        raise ValueError(f"{name}: an image texture's values must be finite and in [0, 1]")
+    return np.ascontiguousarray(a)
+
+
 def _check_images(scene: Scene, images) -> list[np.ndarray]:
-    """The images as float32 (h, w, 3) arrays in [0, 1] (grey ones repeated), checked
+    """The images as float32 (h, w, 3) arrays in [0, 1] (:func:`_as_rgb`), checked
     against the scene's image textures."""
-    out = []
-    for k, img in enumerate(images or ()):
-        a = np.asarray(img, dtype=np.float32)
-        if a.ndim == 2:
-            a = np.repeat(a[..., None], 3, axis=2)
-        if a.ndim != 3 or a.shape[2] != 3 or min(a.shape[:2]) < 2:
-            raise ValueError(f"image {k}: an image texture must be (h, w) or (h, w, 3) with h, w ≥ 2, "
-                             f"got shape {np.shape(img)}")
-        if not np.all(np.isfinite(a)) or a.min() < 0.0 or a.max() > 1.0:
-            raise ValueError(f"image {k}: an image texture's values must be finite and in [0, 1]")
-        out.append(a)
+    out = [_as_rgb(img, f"image {k}") for k, img in enumerate(images or ())]
     for prim in scene.objects:
         if prim.texture.image >= len(out):
             raise ValueError(f"scene {scene.name!r}: a {prim.kind} shows image {prim.texture.image}, but "
                              f"{len(out)} image(s) were given")
+        span = prim.texture.image_span
+        if prim.texture.image >= 0 and not (math.isfinite(span) and span > 0):
+            raise ValueError(f"scene {scene.name!r}: a {prim.kind}'s image_span must be a number > 0, got {span}")
     return out
 
 
+def _prefiltered(image: np.ndarray, shrink: float) -> tuple[np.ndarray, int]:
+    """An image seen ``shrink`` texels per rendered pixel, made fit to be sampled there:
+    (image, k). Where shrink ≥ 4, the means of k × k blocks, k = ⌊shrink / 2⌋ (the image
+    first cut, about its centre, to whole blocks); then a Gaussian that brings the
+    blur to σ = shrink / 2 texels in all, where shrink > 1. Edges mirrored as the
+    renderer repeats the image."""
+    from lfsf._filters import gaussian_blur
+
+    k = int(shrink // 2) if shrink >= 4 else 1
+    sigma = 0.5 * shrink if shrink > 1 else 0.0
+    if k > 1:
+        h, w = (image.shape[0] // k) * k, (image.shape[1] // k) * k
+        i0, j0 = (image.shape[0] - h) // 2, (image.shape[1] - w) // 2
+        image = image[i0:i0 + h, j0:j0 + w].reshape(h // k, k, w // k, k, 3).mean((1, 3))
+        sigma = math.sqrt(max(0.0, sigma * sigma - k * k / 12.0)) / k  # (a k-box's variance is k²/12)
+    if sigma > 0:
+        image = np.stack([gaussian_blur(image[..., c], sigma) for c in range(3)], axis=-1)
+    return image.astype(np.float32), k
+
+
 def _image_stack(scene: Scene, cam: CameraArray, images: list[np.ndarray], device: str):
-    """The render's image stack [slot, y, x, RGB]: for each object with an image texture,
-    in the scene's order, its image blurred against aliasing (a Gaussian of half the
-    image pixels per rendered pixel, where the image is seen shrunk); a 1×1×1×3 array
-    where no object has one."""
-    from lfsf.estimate import _blur  # (the exposure fit's separable Gaussian)
+    """The render's image stack [slot, y, x, RGB] and each slot's (width, height, texels
+    per world unit): for each object with an image texture, in the scene's order, its
+    image made fit to be seen at the object's depth at t1 (:func:`_prefiltered`; a plane
+    seen at a slant, or an object moving away in a long sequence, is seen shrunk more
+    than that and may alias); a 1×1×1×3 array where no object has one."""
     wp = _device.warp()
-    chosen = []
+    chosen, textures = [], []
     for prim in scene.objects:
         if prim.texture.image >= 0:
             img = images[prim.texture.image]
-            shrink = img.shape[1] / _image_span_px(prim.texture, cam)
-            if shrink > 1.0:
-                img = np.stack([_blur(img[..., c], 0.5 * shrink) for c in range(3)], axis=-1)
-            chosen.append(img.astype(np.float32))
+            span = _image_span_px(prim.texture, cam)
+            img_k, k = _prefiltered(img, img.shape[1] / span)
+            chosen.append(img_k)
+            # a texel is k of the image's own, which spans `span` px at the object's depth
+            textures.append((img_k.shape[1], img_k.shape[0], img.shape[1] / (k * span * prim.depth / cam.focal)))
     if not chosen:
-        return wp.zeros((1, 1, 1, 3), dtype=float, device=device)
+        return wp.zeros((1, 1, 1, 3), dtype=float, device=device), textures
     h = max(a.shape[0] for a in chosen)
     w = max(a.shape[1] for a in chosen)
     stack = np.zeros((len(chosen), h, w, 3), np.float32)
     for k, a in enumerate(chosen):
         stack[k, :a.shape[0], :a.shape[1]] = a
-    return wp.array(stack, dtype=float, device=device)
+    return wp.array(stack, dtype=float, device=device), textures
 
 
 def _warp_camera(cam: CameraArray):
@@ -565,9 +597,8 @@ def render_sequence(
     dev = _device.resolve_device(device)
     cam = CameraArray.for_size(width, height)
     wcam = _warp_camera(cam)
-    images = _check_images(sc, images)
-    objects = _scene_arrays(sc, cam, dev, times=range(int(frames)), images=images)
-    image_stack = _image_stack(sc, cam, images, dev)
+    image_stack, textures = _image_stack(sc, cam, _check_images(sc, images), dev)
+    objects = _scene_arrays(sc, cam, dev, times=range(int(frames)), textures=textures)
     channels = 3 if colour else 1
 
     lfs = []

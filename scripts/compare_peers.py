@@ -533,20 +533,18 @@ SKIMAGE_IMAGES = ("astronaut", "coffee", "chelsea", "rocket", "camera", "brick",
 
 
 def load_images(source: str) -> list[np.ndarray]:
-    """The photographs of ``--images``: float (h, w[, 3]) arrays in [0, 1]: scikit-image's
-    samples for ``skimage``, else the images of a folder (:func:`lfsf.synth.load_images`,
-    whose errors name the folder or file)."""
+    """The photographs of ``--images``: scikit-image's samples for ``skimage`` (as they
+    come; the renderer scales integers to [0, 1]), else the images of a folder
+    (:func:`lfsf.synth.load_images`, whose errors name the folder or file)."""
     if source != "skimage":
         from lfsf import synth
 
         return synth.load_images(source)
-    import skimage.data
-
-    out = []
-    for name in SKIMAGE_IMAGES:
-        a = np.asarray(getattr(skimage.data, name)())
-        out.append(a.astype(np.float32) / 255.0 if a.dtype == np.uint8 else np.clip(a.astype(np.float32), 0, 1))
-    return out
+    try:
+        import skimage.data
+    except ImportError:
+        raise ValueError("--images skimage needs scikit-image: pip install -e '.[peers]'") from None
+    return [np.asarray(getattr(skimage.data, name)()) for name in SKIMAGE_IMAGES]
 
 
 def selected_scenes(args) -> list[str]:

@@ -100,10 +100,11 @@ def trace(objects, origin, direction):
 
 
 def image_texture(obj, local):
-    """RGB of an image texture: the image (its own pixels, h × w) in the plane of the two
-    local axes other than the one along which the point lies furthest out (in units of a
-    box's half extents), centred on the local origin, obj["scale"] image pixels per world
-    unit, repeated mirrored, bilinear."""
+    """RGB of an image texture: the image (w × h texels, texel k covering [k − ½, k + ½])
+    in the plane of the two local axes other than the one along which the point lies
+    furthest out (in units of a box's half extents), centred on the local origin,
+    obj["scale"] texels per world unit, repeated mirrored with period 2w (each edge
+    texel doubled), bilinear between texel centres."""
     img = obj["image"]
     h, w = img.shape[:2]
     if obj["kind"] == 0:
@@ -115,13 +116,15 @@ def image_texture(obj, local):
     a = np.take_along_axis(local, others[..., :1], -1)[..., 0]
     b = np.take_along_axis(local, others[..., 1:], -1)[..., 0]
 
-    def fold(x, n):
-        period = 2.0 * (n - 1)
-        t = np.mod(x, period)
-        return np.where(t > n - 1, period - t, t)
+    def fold(t, n):
+        """Texel coordinate folded into the image: its position from the image's left
+        edge, t + ½, modulo 2n, reflected from the far half, clamped to the centres."""
+        e = np.mod(t + 0.5, 2.0 * n)
+        e = np.where(e > n, 2.0 * n - e, e)
+        return np.clip(e - 0.5, 0.0, n - 1.0)
 
-    x = fold(a * obj["scale"] + 0.5 * (w - 1), w)
-    y = fold(b * obj["scale"] + 0.5 * (h - 1), h)
+    x = fold(a * obj["scale"] + (w - 1) / 2, w)
+    y = fold(b * obj["scale"] + (h - 1) / 2, h)
     j0 = np.minimum(np.floor(x).astype(int), w - 2)
     i0 = np.minimum(np.floor(y).astype(int), h - 2)
     fx, fy = (x - j0)[..., None], (y - i0)[..., None]
@@ -129,19 +132,49 @@ def image_texture(obj, local):
             + fy * ((1 - fx) * img[i0 + 1, j0] + fx * img[i0 + 1, j0 + 1]))
 
 
+def prefiltered(img, shrink):
+    """An image seen `shrink` texels per pixel, as the renderer should sample it: k × k
+    block means for k = ⌊shrink/2⌋ when shrink ≥ 4 (cut about the centre to whole blocks),
+    then a Gaussian that makes the total blur σ = shrink/2 original texels (a k-box
+    counting k²/12 of variance), edges mirrored with the edge texel repeated.
+    Returns (image, k)."""
+    img = np.asarray(img, np.float64)
+    k = int(shrink // 2) if shrink >= 4 else 1
+    var = (shrink / 2) ** 2 if shrink > 1 else 0.0
+    if k > 1:
+        h, w = img.shape[0] // k * k, img.shape[1] // k * k
+        i0, j0 = (img.shape[0] - h) // 2, (img.shape[1] - w) // 2
+        img = img[i0:i0 + h, j0:j0 + w].reshape(h // k, k, w // k, k, -1).mean((1, 3))
+        var = max(0.0, var - k * k / 12) / k ** 2
+    if var > 0:
+        sigma = np.sqrt(var)
+        r = max(1, int(np.ceil(3 * sigma)))
+        g = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
+        g /= g.sum()
+        for axis in (0, 1):
+            n = img.shape[axis]
+            idx = np.arange(-r, n + r)
+            idx = np.where(idx < 0, -idx - 1, idx)          # mirrored, the edge texel repeated
+            idx = np.where(idx >= n, 2 * n - 1 - idx, idx)  # (r < n here)
+            padded = np.take(img, idx, axis=axis)
+            img = sum(g[i] * np.take(padded, np.arange(i, i + n), axis=axis) for i in range(2 * r + 1))
+    return img, k
+
+
 def scene_objects(scene, cam, stack=None):
     """Per time, a list of dicts describing each primitive (from synth's own geometry);
-    an object with an image texture takes the next image of ``stack`` (the renderer's
-    image stack, in the scene's order, each image at its own size)."""
+    an object with an image texture takes the next image of ``stack`` (float (h, w, 3),
+    one per such object in the scene's order, as given, before any prefilter)."""
     times = ([], [])
     images = iter(stack or ())
     for prim in synth.get_scene(scene).objects:
         (p1, p2), size, freq = synth._object_poses(prim, cam)
         extra = {}
         if prim.texture.image >= 0:
-            img = next(images)
-            span = prim.texture.image_span * cam.width / synth.REFERENCE_WIDTH
-            extra = dict(image=img, scale=img.shape[1] / (span * prim.depth / cam.focal))
+            img = np.asarray(next(images), np.float64)
+            span = prim.texture.image_span * cam.width / synth.REFERENCE_WIDTH  # px at the object's depth
+            seen, k = prefiltered(img, img.shape[1] / span)
+            extra = dict(image=seen, scale=img.shape[1] / (k * span * prim.depth / cam.focal))
         for (rot, pos), out in zip((p1, p2), times):
             out.append(dict(kind=KINDS[prim.kind], rot=rot, pos=pos, size=size, freq=freq,
                             seed=prim.texture.seed, mean=prim.texture.mean,

@@ -103,6 +103,8 @@ def test_synth_puts_a_folders_images_on_the_objects(tmp_path):
     with np.load(tmp_path / "plain" / "gt.npz") as a, np.load(tmp_path / "img" / "gt.npz") as b:
         for key in ("disp1", "disp2", "u", "v", "valid", "occluded"):
             np.testing.assert_array_equal(a[key], b[key])
+    status, _, err = lfsf("synth", "paper", "--out", tmp_path / "x", "--image-seed", 4, *args)
+    assert_clean_error(status, err, "--images")
     (tmp_path / "empty").mkdir()
     status, _, err = lfsf("synth", "paper", "--out", tmp_path / "x", "--images", tmp_path / "empty", *args)
     assert_clean_error(status, err, "no images")

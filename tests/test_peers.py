@@ -218,7 +218,7 @@ def test_compare_peers_config_sets_every_lfsf_run(tmp_path, monkeypatch, capsys)
     script.SETTINGS["params"] = None
 
 
-def test_compare_peers_images_put_photographs_on_every_scene(tmp_path, capsys):
+def test_compare_peers_images_put_photographs_on_every_scene(tmp_path, capsys, monkeypatch):
     """``--images DIR`` hands every method the scene rendered with the folder's images
     as textures (synth.with_images, seeded by the scene's name), with the scene's own
     ground truth; a folder without images is refused with exit status 2."""
@@ -235,10 +235,10 @@ def test_compare_peers_images_put_photographs_on_every_scene(tmp_path, capsys):
     (tmp_path / "notes.txt").write_text("not an image")
     script = _compare_peers_script()
     loaded = script.load_images(str(tmp_path))
-    assert [a.shape for a in loaded] == [(30, 40, 3), (25, 35)]
-    np.testing.assert_allclose(loaded[1], photos[1] / 65535.0, atol=1e-6)
+    assert [a.shape for a in loaded] == [(30, 40, 3), (25, 35, 3)]
+    np.testing.assert_allclose(loaded[1][..., 1], photos[1] / 65535.0, atol=1e-6)
     args = script.build_parser().parse_args(["--size", "48", "32", "--grid", "3", "--images", str(tmp_path)])
-    script.IMAGES["list"] = loaded
+    monkeypatch.setitem(script.IMAGES, "list", loaded)
     seen = []
 
     def fake(lf1, lf2, device):

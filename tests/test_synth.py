@@ -117,20 +117,18 @@ def _photos(seed=0, count=2, shape=(37, 53)):
     return out
 
 
-@pytest.mark.parametrize("scene", ["paper", "random-2"])
-def test_render_with_images_matches_numpy_reference(scene, device):
+@pytest.mark.parametrize("scene, size, span", [("paper", (24, 18), (60.0, 200.0)), ("random-2", (24, 18), (60.0, 200.0)),
+                                               ("random-2", (48, 36), (150.0, 400.0))])
+def test_render_with_images_matches_numpy_reference(scene, size, span, device):
     """Image textures on planes, spheres and boxes (random-2 has a box; every face and
-    the mirrored repeats are reached), against the NumPy reference of the same sampling
-    of the renderer's own image stack."""
-    size, grid = (24, 18), 3
-    images = _photos()
-    sc = synth.with_images(scene, len(images), seed=1, span=(60.0, 200.0))
+    the mirrored repeats are reached), seen shrunk 1–3.5× (a Gaussian prefilter) and 4–7×
+    (block means and a Gaussian), against the NumPy reference: its own prefilter of each
+    object's image, then the same sampling."""
+    grid = 3
+    images = _photos(shape=(120, 160))
+    sc = synth.with_images(scene, len(images), seed=1, span=span)
     lf1, lf2, _ = synth.render_scene(sc, size=size, grid=grid, supersample=2, device=device, images=images)
-    cam = synth.CameraArray.for_size(*size)
-    stack = synth._image_stack(sc, cam, synth._check_images(sc, images), "cpu").numpy()
-    chosen = [p for p in sc.objects if p.texture.image >= 0]
-    stack = [stack[k, :images[p.texture.image].shape[0], :images[p.texture.image].shape[1]]
-             for k, p in enumerate(chosen)]
+    stack = [images[p.texture.image] for p in sc.objects if p.texture.image >= 0]
     want1, want2 = ref.render(sc, size, grid, 2, stack=stack)
     for got, want in ((lf1.views, want1), (lf2.views, want2)):
         diff = np.abs(got - want)
@@ -139,28 +137,44 @@ def test_render_with_images_matches_numpy_reference(scene, device):
 
 
 def test_an_image_texture_spans_its_width_and_keeps_the_ground_truth():
-    """A horizontal ramp on a fronto-parallel plane: it climbs 1 over ``image_span``
-    pixels (at 640 px wide, half that at 320), mirrored beyond; the geometry and so the
-    ground truth are those of the solid-textured scene."""
-    ramp = np.tile(np.linspace(0.0, 1.0, 101, dtype=np.float32), (9, 1))
-    plane = synth.Primitive("plane", (0.5, 0.5), 6.0, (2.0, 2.0), synth.Texture(image=0, image_span=200.0))
-    sc = synth.Scene("ramp", "a ramp", (plane,))
-    for width, span in ((640, 200.0), (320, 100.0)):
-        lf, _, _ = synth.render_scene(sc, size=(width, 24), grid=1, images=[ramp])
+    """A horizontal ramp on a fronto-parallel plane: its w texels span ``image_span``
+    pixels (at 640 px wide; half that at 320), so from the first texel's centre to the
+    last it climbs 1 over (w − 1)/w of the span, also where the image is seen shrunk 10×
+    (block means, then a Gaussian); it is repeated mirrored beyond its edges. The
+    geometry and so the ground truth are those of the solid-textured scene."""
+    for w, width, span in ((101, 640, 200.0), (101, 320, 200.0), (1000, 640, 100.0)):
+        ramp = np.tile(np.linspace(0.0, 1.0, w, dtype=np.float32), (9, 1))
+        plane = synth.Primitive("plane", (0.5, 0.5), 6.0, (2.0, 2.0), synth.Texture(image=0, image_span=span))
+        lf, _, _ = synth.render_scene(synth.Scene("ramp", "a ramp", (plane,)), size=(width, 24), grid=1,
+                                      images=[ramp])
         row = lf.centre[12].astype(np.float64)
+        span_px = span * width / 640
         centre = (width - 1) / 2
-        inner = np.abs(np.arange(width) - centre) < 0.4 * span
-        slope = np.polyfit(np.arange(width)[inner], row[inner], 1)[0]
-        assert abs(slope * span - 1.0) < 0.01, (width, slope * span)
+        x = np.arange(width)
+        inner = np.abs(x - centre) < 0.4 * span_px
+        slope = np.polyfit(x[inner], row[inner], 1)[0]
+        assert abs(slope * span_px - w / (w - 1)) < 2e-3, (w, width, slope * span_px)
         assert abs(row[int(round(centre))] - 0.5) < 0.01
         # past the image's right edge the ramp comes back down (mirrored)
-        right = (np.arange(width) > centre + 0.6 * span) & (np.arange(width) < centre + 1.4 * span)
-        assert np.polyfit(np.arange(width)[right], row[right], 1)[0] < 0
+        right = (x > centre + 0.6 * span_px) & (x < centre + 1.4 * span_px)
+        assert np.polyfit(x[right], row[right], 1)[0] < 0
     _, _, gt = synth.render_scene("random-5", size=(40, 30), grid=3)
     _, _, gt_img = synth.render_scene(synth.with_images("random-5", 2, seed=3), size=(40, 30), grid=3,
                                       images=_photos())
     for key in ("disp1", "disp2", "u", "v", "valid", "occluded"):
         np.testing.assert_array_equal(gt[key], gt_img[key], err_msg=key)
+
+
+def test_an_image_seen_shrunk_is_filtered_not_aliased():
+    """Stripes one texel wide seen 3× and 10× shrunk render as their mean, grey, not as
+    a moiré of their phases."""
+    for w, span in ((300, 100.0), (1000, 100.0)):
+        stripes = np.tile((np.arange(w) % 2).astype(np.float32), (64, 1))
+        plane = synth.Primitive("plane", (0.5, 0.5), 6.0, (2.0, 2.0), synth.Texture(image=0, image_span=span))
+        lf, _, _ = synth.render_scene(synth.Scene("stripes", "stripes", (plane,)), size=(640, 24), grid=1,
+                                      images=[stripes])
+        seen = lf.centre[4:-4, 280:360]
+        assert abs(seen.mean() - 0.5) < 0.02 and seen.std() < 0.02, (w, seen.mean(), seen.std())
 
 
 def test_image_textures_are_checked():
@@ -170,10 +184,19 @@ def test_image_textures_are_checked():
     need = max(p.texture.image for p in sc.objects) + 1
     with pytest.raises(ValueError, match=f"shows image {need - 1}, but {need - 1} image"):
         synth.render_scene(sc, size=(16, 16), grid=1, images=_photos(count=need - 1) if need > 1 else None)
-    for bad, why in ((np.zeros((5, 5, 4)), "shape"), (np.zeros((1, 5)), "shape"),
+    for bad, why in ((np.zeros((5, 5, 5)), "shape"), (np.zeros((1, 5)), "shape"), (np.array([["a", "b"]] * 2), "numbers"),
                      (np.full((5, 5), 1.5), r"in \[0, 1\]"), (np.full((5, 5), np.nan), "finite")):
         with pytest.raises(ValueError, match=why):
             synth.render_scene(sc, size=(16, 16), grid=1, images=[bad] * 3)
+    # integers are scaled by their type's maximum, booleans are 0 and 1, alpha is dropped
+    u8 = np.full((6, 7, 4), 255, np.uint8)
+    u8[..., :3] = 51
+    for img, value in ((u8, 0.2), (np.ones((6, 7), bool), 1.0), (np.full((6, 7, 2), 0.25), 0.25)):
+        np.testing.assert_allclose(synth._check_images(sc, [img] * 3)[0], value, atol=1e-7)
+    for span in (0.0, -10.0, float("nan")):
+        flat = synth.Primitive("plane", (0.5, 0.5), 6.0, (2.0, 2.0), synth.Texture(image=0, image_span=span))
+        with pytest.raises(ValueError, match="image_span"):
+            synth.render_scene(synth.Scene("s", "s", (flat,)), size=(16, 16), grid=1, images=_photos(count=1))
     with pytest.raises(ValueError, match="at least one image"):
         synth.with_images("paper", 0)
 
