@@ -423,7 +423,7 @@ def _prefiltered(image: np.ndarray, shrink: float) -> tuple[np.ndarray, int]:
     renderer repeats the image."""
     from lfsf._filters import gaussian_blur
 
-    k = int(shrink // 2) if shrink >= 4 else 1
+    k = max(1, min(int(shrink // 2) if shrink >= 4 else 1, min(image.shape[:2]) // 2))  # (2 texels at least)
     sigma = 0.5 * shrink if shrink > 1 else 0.0
     if k > 1:
         h, w = (image.shape[0] // k) * k, (image.shape[1] // k) * k
@@ -521,7 +521,8 @@ def render_scene(
     colour : RGB views if true, else grey (BT.601 luma of the same colours)
     device : Warp device (default as :func:`lfsf.device.resolve_device`)
     images : the images that the scene's image textures name (:class:`Texture`), each
-        (h, w) or (h, w, 3) with values in [0, 1]
+        (h, w) or (h, w, 1…4) (alpha dropped), floats in [0, 1] or integers (scaled by
+        their type's maximum)
 
     Returns
     -------

@@ -139,7 +139,7 @@ def prefiltered(img, shrink):
     counting k²/12 of variance), edges mirrored with the edge texel repeated.
     Returns (image, k)."""
     img = np.asarray(img, np.float64)
-    k = int(shrink // 2) if shrink >= 4 else 1
+    k = max(1, min(int(shrink // 2) if shrink >= 4 else 1, min(img.shape[:2]) // 2))
     var = (shrink / 2) ** 2 if shrink > 1 else 0.0
     if k > 1:
         h, w = img.shape[0] // k * k, img.shape[1] // k * k

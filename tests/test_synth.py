@@ -175,6 +175,14 @@ def test_an_image_seen_shrunk_is_filtered_not_aliased():
                                       images=[stripes])
         seen = lf.centre[4:-4, 280:360]
         assert abs(seen.mean() - 0.5) < 0.02 and seen.std() < 0.02, (w, seen.mean(), seen.std())
+    # block means keep at least 2 × 2 texels (the renderer's bilinear lookup needs them),
+    # however small the image is seen
+    tiny = np.repeat(np.eye(3, dtype=np.float32)[..., None], 3, axis=2)
+    for shrink in (4.0, 6.0, 50.0):
+        img, k = synth._prefiltered(tiny, shrink)
+        assert min(img.shape[:2]) >= 2 and k == 1, (shrink, img.shape, k)
+    img, k = synth._prefiltered(np.zeros((40, 30, 3), np.float32), 50.0)
+    assert k == 15 and img.shape == (2, 2, 3)
 
 
 def test_image_textures_are_checked():
