@@ -379,15 +379,12 @@ def _as_rgb(image, name: str) -> np.ndarray:
     """An image as float32 (h, w, 3) in [0, 1]: integers scaled by their type's maximum,
     booleans as 0 and 1, grey repeated, alpha dropped. ValueError names ``name`` and the
     problem."""
+    from lfsf.io import _to_unit_float32
+
     a = np.asarray(image)
-    if a.dtype == bool:
-        a = a.astype(np.float32)
-    elif a.dtype.kind in "ui":
-        a = a.astype(np.float32) / np.float32(np.iinfo(a.dtype).max)
-    elif a.dtype.kind == "f":
-        a = a.astype(np.float32)
-    else:
+    if a.dtype.kind not in "biuf":
         raise ValueError(f"{name}: not an image of numbers ({a.dtype})")
+    a = _to_unit_float32(a)
     if a.ndim == 3 and a.shape[2] in (1, 2):  # grey, grey + alpha
         a = a[..., 0]
     if a.ndim == 2:
