@@ -856,7 +856,8 @@ def estimate_scene_flow(
         for k in range(params.warps):
             solver.linearise()
             lap("linearise")
-            solver.iterate(params.iterations)
+            last = level == 0 and k == params.warps - 1 and params.final_iterations > 0
+            solver.iterate(params.final_iterations if last else params.iterations)
             lap("iterate")
             solver.median()
             lap("median")

@@ -439,6 +439,28 @@ def test_median_radius_grows_with_levels_wider_than_320_pixels():
     assert level_median_radius(0, 640) == 0
 
 
+def test_final_iterations_run_the_last_warp_of_the_finest_level_only():
+    """Params.final_iterations is the last warp's count on the finest level: equal to
+    ``iterations`` (or 0) it is the paper's schedule bit for bit, more change the result,
+    and with one level of one warp it alone sets the count (2n final iterations are 2n
+    iterations)."""
+    lf1, lf2 = shift_lightfields(h=40, w=56, grid=5)
+    def run(params):
+        return estimate_scene_flow(lf1, lf2, params, device="cpu")
+
+    base = QUICK.replace(final_iterations=0)
+    same, plain = run(base.replace(final_iterations=base.iterations)), run(base)
+    more = run(base.replace(final_iterations=3 * base.iterations))
+    for name in ("disp1", "disp2", "u", "v"):
+        np.testing.assert_array_equal(getattr(same, name), getattr(plain, name))
+    assert not np.array_equal(more.u, plain.u)
+    one = base.replace(max_levels=1, warps=1)
+    np.testing.assert_array_equal(run(one.replace(final_iterations=2 * base.iterations)).u,
+                                  run(one.replace(iterations=2 * base.iterations)).u)
+    assert Params().final_iterations == 200 and Params.preset("lytro").final_iterations == 200
+    assert Params.preset("fast").final_iterations == 0 and Params.preset("flow").final_iterations == 0
+
+
 def test_carried_duals_act_between_levels_on_the_disparities_only():
     """Params.carry_duals hands the disparities' TGV duals from level to level: with one
     level, and for the flow alone, switching it off changes nothing (bit for bit); with
