@@ -143,12 +143,63 @@ def _copies(nbytes: int, dev: str, src=None, dst=None) -> dict[str, Callable[[],
     return copies
 
 
-def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
-    """(name, launch, bytes it must move) of the hot kernels on inputs of the paper's
-    setting: its sampled views (17 on a 9×9 grid) of ``size``; the unknowns and
-    coefficients at realistic values, so that branches go as they do in a real run."""
+#: What the hot kernels run on (:func:`kernel_cases`): "scene", the paper's setting on a
+#: rendered scene at its ground truth, as the last warp of a run sees it; "random", random
+#: views and unknowns, which make every pixel look hidden to the data term's tests.
+KERNEL_INPUTS = ("scene", "random")
+
+
+def _scene_solver(size, dev: str, scene: str = "paper"):
+    """A finest-level solver (:class:`lfsf.solver.LevelSolver`) of the `paper` preset on
+    ``scene`` rendered at ``size`` (9×9 views), linearised once at the ground truth: the
+    sample stacks (texture parts, contrast normalised, as the estimator makes them), the
+    view z-buffers, the hidden mask and the coefficients are those of a run's last warp,
+    so the data term's tests and lookups go as they do there. Returns (solver, t1
+    views as a (81, h, w) array)."""
+    from lfsf import synth
+    from lfsf.estimate import _normalise_contrast, _structure_texture
+    from lfsf.kernels import sampling
+    from lfsf.params import Params
+    from lfsf.solver import LevelSolver
+
+    wp = _device.warp()
+    width, height = size
+    params = Params.preset("paper")
+    lf1, lf2, gt = synth.render_scene(scene, size=(width, height), grid=9, device=dev)
+    phis, _radius = params.sample_offsets((9, 9))
+    n = len(phis)
+    weights = np.tile(np.array([params.lambda1, params.lambda2, params.lambda3], np.float32) / n, (n, 1))
+    weights[0, :2] = 0.0  # as the estimator: φ = 0 has no stereo residuals
+    wp_phis = wp.array(phis, dtype=wp.vec2, device=dev)
+    both = wp.empty((2 * n, height, width), dtype=float, device=dev)
+    span, per_row = _device.row_span(dev, width)
+    for t, lf in enumerate((lf1, lf2)):
+        views = wp.array(np.ascontiguousarray(lf.grey().views.reshape(81, height, width)), dtype=float, device=dev)
+        _device.launch_rows(sampling.sample_subaperture, dim=(n * height, per_row),
+                            inputs=[views, 9, 9, wp_phis, span], outputs=[both[t * n:(t + 1) * n]], device=dev)
+        if t == 0:
+            views1 = views
+    texture = _normalise_contrast(_structure_texture(both, params, dev), params, dev)
+    solver = LevelSolver(wp.clone(texture[:n]), wp.clone(texture[n:]), wp.clone(both[0]), wp.clone(both[n]), wp_phis,
+                         wp.array(weights, dtype=wp.vec3, device=dev), params, dev)
+    solver.set_state(np.stack([gt["disp1"], gt["disp2"], gt["u"], gt["v"]], -1).astype(np.float32))
+    solver.linearise()
+    return solver, views1
+
+
+def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Callable[[], None], int]]:
+    """(name, launch, bytes it must move) of the hot kernels in the paper's setting (17
+    samples on a 9×9 grid of views of ``size``). ``inputs`` (:data:`KERNEL_INPUTS`):
+    "scene" (default) gives the sampling and the data-term kernels the arrays of a
+    rendered scene's last warp (:func:`_scene_solver`); "random" gives them random
+    views and unknowns, a worst case (every pixel takes the data term's occlusion path
+    and the lookups scatter). The TGV steps take random values either way: their
+    branches are projections that every pixel runs."""
     from lfsf.kernels import data_groups, data_term, sampling, tgv
     from lfsf.params import Params
+
+    if inputs not in KERNEL_INPUTS:
+        raise ValueError(f"inputs must be one of {', '.join(KERNEL_INPUTS)}, got {inputs!r}")
 
     wp = _device.warp()
     width, height = size
@@ -212,6 +263,19 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
     x, w0, w1 = v4(), v4(), v4()
     tau = [arr(rng.uniform(0.05, 0.5, (h, w, 4)), wp.vec4) for _ in range(3)]
     sigma_y = arr(rng.uniform(0.05, 0.5, (h, w, 4)), wp.vec4)
+    coef_inputs = [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros, 1e-6, 1.0, zbuf1, zbuf2, 0.25, 1, lanes]
+    coef_outputs = [coef_store, grad_j2_store, colsum, q_store]
+    dual_inputs = [coef, weights, grad_j2, x_bar, x_hat, groups]
+    dual_outputs = [q, data_grad]
+    if inputs == "scene":
+        solver, views = _scene_solver(size, dev)
+        p = solver.params
+        coef_inputs = [solver.samples1, solver.samples2, solver.phis, solver.weights, solver.x_hat, p.occlusion_ratio,
+                       solver.hidden2, p.eps, p.step_ratio, solver.view_zbuf1, solver.view_zbuf2,
+                       solver.view_margin(), 1, solver.lanes]
+        coef_outputs = [solver.coef_store, solver.grad_j2_store, solver.data_colsum, solver.q_store]
+        dual_inputs = [solver.coef, solver.weights, solver.grad_j2, solver.x_bar, solver.x_hat, groups]
+        dual_outputs = [solver.q, solver.data_grad]
     cases = [
         # reads 4 neighbouring views per sample, writes the sample
         ("sample_subaperture", launch(sampling.sample_subaperture, [views, 9, 9, wp_phis, span], [sampled],
@@ -220,13 +284,10 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
         # reads both sample stacks, x̂, the hidden mask and a value of each view z-buffer per sample; writes
         # 10 coefficients per sample, ∇J2 (2) and the column sums; reads and writes q (the duals of rows left
         # out are zeroed)
-        ("data_coefficients", launch(coefficients, [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros, 1e-6, 1.0,
-                                                    zbuf1, zbuf2, 0.25, 1, lanes],
-                                     [coef_store, grad_j2_store, colsum, q_store], dim=(h, coefficient_columns)),
+        ("data_coefficients", launch(coefficients, coef_inputs, coef_outputs, dim=(h, coefficient_columns)),
          f * h * w * (2 * s + 4 + 1 + 2 * s + data_term.COEFFICIENTS * s + 2 + 4 + 6 * s)),
         # reads the coefficients, ∇J2 (2), x̄, x̂ and q; writes q and Kᵀq (the S weights stay in cache)
-        ("dual_data_step", launch(data_term.dual_data_kernel(lanes), [coef, weights, grad_j2, x_bar, x_hat, groups],
-                                  [q, data_grad], dim=(h, group_threads)),
+        ("dual_data_step", launch(data_term.dual_data_kernel(lanes), dual_inputs, dual_outputs, dim=(h, group_threads)),
          f * h * w * (data_term.COEFFICIENTS * s + 2 + 4 + 4 + 3 * s + 3 * s + 4)),
         # reads x̄, w̄ (12), the three tensors (9: it reads them as Γ's entries per unknown, 12, but is
         # credited with the 9 it must move), σ_y (4) and the six duals (24); writes the duals (24)
@@ -244,9 +305,10 @@ def kernel_cases(size, dev: str) -> list[tuple[str, Callable[[], None], int]]:
 
 
 def bench_kernels(size=(640, 480), device: str | None = None, repeats: int = 20,
-                  progress: Callable[[str], None] | None = None) -> list[dict]:
+                  progress: Callable[[str], None] | None = None, inputs: str = "scene") -> list[dict]:
     """Rows per hot kernel: seconds per launch (median, spread), effective GB/s and the
-    plain-copy GB/s of the same byte count on the same device, and their ratio. The
+    plain-copy GB/s of the same byte count on the same device, and their ratio, on the
+    ``inputs`` of :func:`kernel_cases` (a rendered scene's, or random ones). The
     kernel and the copies (:func:`_copies`) are timed in alternation, one launch of each
     per round, so that the machine's changes of speed (up to 1.5× within minutes on
     this shared one) fall on both sides of the ratio."""
@@ -261,7 +323,9 @@ def bench_kernels(size=(640, 480), device: str | None = None, repeats: int = 20,
         return time.perf_counter() - t0
 
     rows = []
-    for name, run, nbytes in kernel_cases(size, dev):
+    if inputs == "scene":
+        say(f"rendering the paper scene at {size[0]}×{size[1]} for the kernels' inputs")
+    for name, run, nbytes in kernel_cases(size, dev, inputs):
         say(f"{name}: {repeats} launches, each followed by the copies")
         copies = _copies(nbytes // 2, dev)  # a copy of nbytes/2 reads and writes nbytes in all
         steps = {name: run, **copies}
@@ -280,6 +344,7 @@ def bench_kernels(size=(640, 480), device: str | None = None, repeats: int = 20,
             "kernel": name,
             "device": dev,
             "size": list(size),
+            "inputs": inputs,
             "bytes": int(nbytes),
             **summarise(seconds[name]),
             "gbytes_per_s": round(gbs, 3),

@@ -284,6 +284,8 @@ def cmd_bench(args) -> int:
     device = resolve_device(args.device)
     if args.json:
         output_file(args.json)
+    if args.inputs and args.kind != "kernels":
+        raise ValueError(f"--inputs applies to `lfsf bench kernels`, not to {args.kind}")
     size = tuple(args.size) if args.size else None
     if size and args.kind in ("pipeline", "peers"):
         from lfsf.evaluate import SYNTH_BORDER
@@ -295,7 +297,8 @@ def cmd_bench(args) -> int:
     if args.kind == "pipeline":
         rows = bench.bench_pipeline(size or (640, 480), device, repeats=args.repeats or 3, progress=say)
     elif args.kind == "kernels":
-        rows = bench.bench_kernels(size or (640, 480), device, repeats=args.repeats or 20, progress=say)
+        rows = bench.bench_kernels(size or (640, 480), device, repeats=args.repeats or 20, progress=say,
+                                   inputs=args.inputs or "scene")
     else:
         rows = bench.bench_peers(size or (640, 480), device, repeats=args.repeats or 3, progress=say)
     print(bench.format_rows(args.kind, rows))
@@ -434,6 +437,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="what to measure (default pipeline)")
     p.add_argument("--size", nargs=2, type=_size, metavar=("W", "H"), help="view size (default 640 480)")
     p.add_argument("--repeats", type=_positive, help="timed runs (default 3; kernels 20)")
+    p.add_argument("--inputs", choices=("scene", "random"),
+                   help="kernels: what they run on, the arrays of a rendered scene's last warp (default) or "
+                        "random views and unknowns (a worst case: every pixel takes the occlusion tests' path)")
     p.add_argument("--json", type=Path, help="also write the rows to this JSON file")
     _device_options(p)
     p.set_defaults(func=cmd_bench)

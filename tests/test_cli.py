@@ -143,6 +143,8 @@ def test_eval_of_ground_truth_against_itself_is_zero(tmp_path):
         (["bench", "everything"], ["invalid choice"]),
         (["bench", "pipeline", "--size", "4", "4"], ["at least 8"]),
         (["bench", "pipeline", "--size", "16", "40"], ["at least 17 px"]),
+        (["bench", "pipeline", "--inputs", "random"], ["--inputs", "kernels"]),
+        (["bench", "kernels", "--inputs", "noise"], ["invalid choice"]),
     ],
 )
 def test_bad_input_is_one_clear_line_and_status_2(tmp_path, args, needles):
