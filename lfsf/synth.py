@@ -557,6 +557,53 @@ def add_noise(lf, sigma: float, seed: int = 0):
                       meta={**lf.meta, "noise_sigma": sigma})
 
 
+def vignetting_gains(grid: tuple[int, int], size: tuple[int, int], strength: float) -> np.ndarray:
+    """Gains (a, b, h, w) of :func:`add_vignetting`: with the view offsets ξ̃, η̃ and the
+    pixel position x̃, ỹ each scaled to [−1, 1] (0 at the centre view and the image
+    centre), ρ² = (ξ̃² + η̃²)/2 and r² = (x̃² + ỹ²)/2,
+
+        g = 1 − k · ρ² · (1 + r² + x̃ξ̃ + ỹη̃) / 2.
+
+    The centre view keeps g = 1; the further a view lies from it, the darker it is,
+    most on the side of the image its offset points to (a corner view at that image
+    corner: 1 − 2k) and not at all at the opposite corner (g ≤ 1 everywhere). Smooth,
+    low-frequency and different in every view, as a lens's vignetting or a surface's
+    view-dependent shading is."""
+    strength = float(strength)
+    if not math.isfinite(strength) or not 0 <= strength < 0.5:
+        raise ValueError(f"vignetting strength must be in [0, 0.5), got {strength}")
+    rows, cols = grid
+    width, height = size
+    yy, xx = np.mgrid[0:height, 0:width].astype(np.float64)
+    xs = (xx - (width - 1) / 2) / max((width - 1) / 2, 1.0)
+    ys = (yy - (height - 1) / 2) / max((height - 1) / 2, 1.0)
+    gains = np.empty((rows, cols, height, width), np.float32)
+    for a in range(rows):
+        for b in range(cols):
+            eta = (a - (rows - 1) / 2) / max((rows - 1) / 2, 1.0)
+            xi = (b - (cols - 1) / 2) / max((cols - 1) / 2, 1.0)
+            rho2 = (xi * xi + eta * eta) / 2
+            gains[a, b] = 1.0 - strength * rho2 * (1.0 + (xs * xs + ys * ys) / 2 + xs * xi + ys * eta) / 2
+    return gains
+
+
+def add_vignetting(lf, strength: float):
+    """``lf`` with every view multiplied by a smooth gain field of its own
+    (:func:`vignetting_gains`, ``strength`` k in [0, 0.5)), clipped to [0, 1]: the
+    brightness differences between views that a real camera's vignetting or a
+    surface's view-dependent shading leaves, which the renderer's Lambertian scenes
+    lack. Give both times the same strength: the camera is the same. ``strength`` 0
+    returns ``lf`` itself."""
+    from lfsf.io import LightField
+
+    gains = vignetting_gains(lf.grid, (lf.width, lf.height), strength)
+    if strength == 0:
+        return lf
+    views = lf.views * gains.reshape(gains.shape + (1,) * (lf.views.ndim - 4))
+    return LightField(np.clip(views, 0.0, 1.0).astype(np.float32), source=f"{lf.source} + vignetting {strength:g}",
+                      meta={**lf.meta, "vignetting": float(strength)})
+
+
 def render_sequence(
     scene: str | Scene,
     frames: int,

@@ -36,6 +36,7 @@ Usage (from the repository root)::
     python scripts/compare_peers.py --methods all --check  # exit 1 if a target fails
     python scripts/compare_peers.py --random 8 --check     # + 8 scenes drawn at random
     python scripts/compare_peers.py --noise 0.01           # sensor noise on every view
+    python scripts/compare_peers.py --vignetting 0.05      # every view darkened its own way
     python scripts/compare_peers.py --exposure 0.9 0.03    # t2 at another exposure
     python scripts/compare_peers.py --config my.toml       # lfsf with other settings
     python scripts/compare_peers.py --colour               # RGB views (the peers: their luma)
@@ -198,6 +199,8 @@ def run_scene(name, args, use_peers, lfsf_runs, warm):
         gain, shift = args.exposure
         lf2 = type(lf2)(np.clip(lf2.views * np.float32(gain) + np.float32(shift), 0.0, 1.0).astype(np.float32),
                         source=f"{lf2.source}, exposure {gain:g}·L2 {shift:+g}", meta=lf2.meta)
+    if args.vignetting > 0:  # the camera's, so the same at t1 and t2 (before the sensor's noise)
+        lf1, lf2 = synth.add_vignetting(lf1, args.vignetting), synth.add_vignetting(lf2, args.vignetting)
     if args.noise > 0:  # independent at t1 and t2, the same for every method
         seed = zlib.crc32(name.encode())
         lf1, lf2 = synth.add_noise(lf1, args.noise, seed), synth.add_noise(lf2, args.noise, seed + 1)
@@ -500,6 +503,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--noise", type=float, default=0.0, metavar="SIGMA",
                    help="Gaussian noise of this standard deviation (intensities in [0, 1]) on every "
                         "view of the synthetic scenes, independent at t1 and t2 (default 0)")
+    p.add_argument("--vignetting", type=float, default=0.0, metavar="K",
+                   help="every view of the synthetic scenes times a smooth gain field of its own, "
+                        "1 − 2K at worst (lfsf.synth.add_vignetting: a lens's vignetting, view-dependent "
+                        "shading), the same at t1 and t2; the centre view is untouched (default 0)")
     p.add_argument("--exposure", type=float, nargs=2, default=None, metavar=("GAIN", "OFFSET"),
                    help="t2's views of the synthetic scenes at another exposure, clip(GAIN·L2 + "
                         "OFFSET, 0, 1), for every method (default: the same exposure; the real data "
@@ -577,6 +584,9 @@ def main(argv=None) -> int:
     if not math.isfinite(args.noise) or args.noise < 0:
         print(f"error: --noise must be a finite number ≥ 0, got {args.noise}", file=sys.stderr)
         return 2
+    if not (math.isfinite(args.vignetting) and 0 <= args.vignetting < 0.5):
+        print(f"error: --vignetting must be in [0, 0.5), got {args.vignetting}", file=sys.stderr)
+        return 2
     if args.exposure is not None and not (all(map(math.isfinite, args.exposure)) and args.exposure[0] > 0):
         print(f"error: --exposure needs a finite GAIN > 0 and a finite OFFSET, got {args.exposure}", file=sys.stderr)
         return 2
@@ -627,6 +637,7 @@ def main(argv=None) -> int:
     w, h = args.size
     if not args.no_synth:
         inputs = "".join([f", noise σ = {args.noise:g}" if args.noise > 0 else "",
+                          f", vignetting {args.vignetting:g}" if args.vignetting > 0 else "",
                           f", t2 at clip({args.exposure[0]:g}·L2 {args.exposure[1]:+g})" if args.exposure else "",
                           f", lfsf settings from {args.config}" if args.config else "",
                           f", photographs from {args.images}" if args.images else ""])

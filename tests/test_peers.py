@@ -116,6 +116,8 @@ def test_compare_peers_selects_built_in_and_random_scenes(capsys):
     assert "unknown scene" in capsys.readouterr().err
     assert script.main(["--noise", "-0.01", "--methods", "peers"]) == 2
     assert "--noise" in capsys.readouterr().err
+    assert script.main(["--vignetting", "0.6", "--methods", "peers"]) == 2
+    assert "--vignetting" in capsys.readouterr().err
 
 
 def test_compare_peers_noise_reaches_every_method_reproducibly():
@@ -141,6 +143,28 @@ def test_compare_peers_noise_reaches_every_method_reproducibly():
     inner = (clean1.views > 0.1) & (clean1.views < 0.9) & (clean2.views > 0.1) & (clean2.views < 0.9)
     assert abs(n1[inner].std() - 0.02) < 0.002 and abs(n2[inner].std() - 0.02) < 0.002
     assert abs(np.corrcoef(n1[inner], n2[inner])[0, 1]) < 0.1
+
+
+def test_compare_peers_vignetting_darkens_both_times_alike():
+    """``--vignetting`` hands every method both light fields times the same gain fields,
+    their centre views untouched."""
+    from lfsf import synth
+
+    script = _compare_peers_script()
+    args = script.build_parser().parse_args(["--size", "48", "32", "--grid", "3", "--vignetting", "0.1"])
+    seen = []
+
+    def fake(lf1, lf2, device):
+        seen.append((lf1.views.copy(), lf2.views.copy()))
+        return {"u": np.zeros(lf1.centre.shape, np.float32), "v": np.zeros(lf1.centre.shape, np.float32)}
+
+    script.run_scene("weak_texture", args, False, {"fake": fake}, {"fake"})
+    clean1, clean2, _ = synth.render_scene("weak_texture", size=(48, 32), grid=3)
+    g = synth.vignetting_gains((3, 3), (48, 32), 0.1)
+    (a1, a2), = seen
+    np.testing.assert_allclose(a1, np.clip(clean1.views * g, 0, 1), rtol=1e-6)
+    np.testing.assert_allclose(a2, np.clip(clean2.views * g, 0, 1), rtol=1e-6)
+    np.testing.assert_array_equal(a1[1, 1], clean1.views[1, 1])
 
 
 def test_compare_peers_occlusion_table_compares_the_points_seen_at_t2():

@@ -238,6 +238,31 @@ def test_random_scenes_are_reproducible_distinct_and_in_range():
         synth.random_scene(-1)
 
 
+def test_add_vignetting_darkens_each_view_by_its_own_smooth_field():
+    """The centre view is untouched; a view's gain falls with its distance from the
+    centre, most towards the image side its offset points to (a corner view at that
+    corner: 1 − 2k), never above 1; the field is smooth; both times get the same."""
+    lf1, lf2, _ = synth.render_scene("weak_texture", size=(40, 30), grid=5)
+    k = 0.1
+    v1, v2 = synth.add_vignetting(lf1, k), synth.add_vignetting(lf2, k)
+    assert synth.add_vignetting(lf1, 0.0) is lf1
+    g = synth.vignetting_gains((5, 5), (40, 30), k)
+    assert g.shape == (5, 5, 30, 40) and g.max() <= 1.0
+    np.testing.assert_array_equal(g[2, 2], 1.0)
+    np.testing.assert_array_equal(v1.views[2, 2], lf1.views[2, 2])
+    assert g[0, 0, 0, 0] == pytest.approx(1 - 2 * k) and g[0, 0, -1, -1] == pytest.approx(1.0)
+    assert g[4, 4, -1, -1] == pytest.approx(1 - 2 * k) and g[0, 4, 0, -1] == pytest.approx(1 - 2 * k)
+    assert g[2, 0, 15, 0] < g[2, 1, 15, 0] < 1.0  # further out, darker
+    assert np.abs(np.diff(g, axis=-1)).max() < 4 * k / 39 + 1e-6  # smooth: no steps
+    inner = (lf1.views < 0.9)
+    np.testing.assert_allclose(v1.views[inner], (lf1.views * g)[inner], rtol=1e-6)
+    np.testing.assert_allclose(v2.views[lf2.views < 0.9], (lf2.views * g)[lf2.views < 0.9], rtol=1e-6)
+    assert v1.meta["vignetting"] == k and "vignetting" in v1.source
+    for bad in (-0.1, 0.5, float("nan")):
+        with pytest.raises(ValueError, match="vignetting strength"):
+            synth.add_vignetting(lf1, bad)
+
+
 def test_add_noise_is_gaussian_reproducible_independent_and_clipped():
     lf, _, _ = synth.render_scene("weak_texture", size=(64, 48), grid=3, supersample=1)
     assert synth.add_noise(lf, 0.0) is lf
