@@ -15,6 +15,7 @@ import numpy as np
 
 from lfsf import device as _device
 from lfsf._filters import gaussian_blur as _blur
+from lfsf.gains import view_gains
 from lfsf.io import LightField, centre_view, check_pair, luma, read_lightfield
 from lfsf.params import Params
 
@@ -754,6 +755,15 @@ def estimate_scene_flow(
                 say(f"exposure: t2 matched to t1 by I ↦ {gain:.4f}·I {shift:+.4f} (it moved the intensities "
                     f"by up to {100 * change:.1f} % of their range)")
         lap("exposure")
+    gains = None
+    if params.view_gain_sigma > 0 and n_samples > 1:
+        # the views' brightness matched to the centre's, the same fields at both times
+        gains = view_gains(stretched(lf1.grey().views), params.view_gain_sigma, dev)
+        if gains is not None:
+            gains = gains.reshape(rows * cols, height, width)
+            say(f"view gains: each view matched to the centre view's brightness (gains "
+                f"{float(gains.min()):.3f}–{float(gains.max()):.3f})")
+        lap("view gains")
     stacks = []
     for t, lf in enumerate((lf1, lf2)):
         # one grey light field on the host at a time; the caller's views are never written
@@ -761,6 +771,8 @@ def estimate_scene_flow(
         if t == 1 and exposure is not None:
             grey = grey * np.float32(exposure[0])
             grey += np.float32(exposure[1])
+        if gains is not None:
+            grey = grey * gains
         views = wp.array(np.ascontiguousarray(grey, dtype=np.float32), dtype=float, device=dev)
         del grey
         out = wp.empty((n_samples, height, width), dtype=float, device=dev)

@@ -1,0 +1,127 @@
+"""Per-view gain fields: the brightness differences between the views of one capture.
+
+A real camera's views of the same point differ in brightness by more than noise: the
+lens's vignetting darkens the outer sub-apertures, most towards one side of the image,
+and glossy surfaces look brighter from some directions. The data term compares views
+(MODEL.md §3, ρ1 and ρ2), so such differences pull the disparities. The structure–texture
+split removes part of them (the smooth structure it subtracts), but not all: on the HCI
+scene its views, warped to the centre by the ground truth, still differ from it by 0.4–0.7
+% of the range on the floor and up to 4 % on the wall (docs/accuracy.md).
+
+:func:`view_gains` measures them: a quick stereo pilot on the t1 light field reduced to
+about :data:`PILOT_SIZE` px gives the disparity; every view, warped to the centre by it,
+is compared with the centre view, and its gain field is the local least-squares ratio
+g = G_σ(C·W) / G_σ(W·W) over the pixels that match (|C − W| small, neither dark), G_σ a
+(three-pass box) Gaussian of σ = ``Params.view_gain_sigma`` full-resolution px. The estimator multiplies
+each view by its field at both times (the camera is the same). A field varies over tens
+of pixels, far slower than the texture the data term matches, so it cannot encode a
+disparity; where too few pixels match it stays 1.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: Longer side (px) of the pilot's views: the light field is box-averaged by the largest
+#: whole factor that leaves at least this many pixels (HCI's 512 px: factor 3).
+PILOT_SIZE = 160
+#: A pixel takes part in a view's fit where it differs from the centre view by less than
+#: this (intensities in [0, 1]; a mismatch: an occlusion, or the pilot's error) and both
+#: are brighter than :data:`DARK`.
+MATCH = 0.05
+DARK = 0.02
+#: Where the Gaussian weight of the matching pixels is below this fraction, the gain is 1.
+SUPPORT = 0.2
+#: The gains are clipped to [1 / MAX_GAIN, MAX_GAIN].
+MAX_GAIN = 1.25
+
+
+def _box_widths(sigma: float, passes: int = 3) -> list[int]:
+    """Odd widths of ``passes`` box filters whose variances, (b² − 1)/12 each, add up to
+    about σ²: m passes of the odd width b just below the ideal one, the rest of b + 2."""
+    ideal = math.sqrt(12.0 * sigma * sigma / passes + 1.0)
+    lower = int(ideal)
+    lower -= 1 - lower % 2  # odd, at most the ideal width
+    lower = max(lower, 1)
+    m = round((12.0 * sigma * sigma - passes * lower * lower - 4 * passes * lower - 3 * passes) / (-4.0 * lower - 4.0))
+    m = min(max(m, 0), passes)
+    return [lower] * m + [lower + 2] * (passes - m)
+
+
+def _box_blur_stack(stack: np.ndarray, sigma: float) -> np.ndarray:
+    """A Gaussian blur of σ = ``sigma`` of every image of a (n, h, w) stack, approximated
+    by three passes of box filters (:func:`_box_widths`: their variances add up to σ²)
+    along each axis, the edges mirrored (the edge pixel repeated). Each pass is a
+    difference of cumulative sums: the cost does not grow with σ."""
+    out = np.asarray(stack, np.float64)
+    for axis in (1, 2):
+        n = out.shape[axis]
+        for b in _box_widths(sigma):
+            r = b // 2
+            pad = [(0, 0)] * 3
+            pad[axis] = (r + 1, r)
+            c = np.cumsum(np.pad(out, pad, mode="symmetric"), axis=axis)
+            out = (np.take(c, np.arange(b, b + n), axis=axis) - np.take(c, np.arange(0, n), axis=axis)) / b
+    return out
+
+
+def _upsample(images: np.ndarray, factor: int, h: int, w: int) -> np.ndarray:
+    """(n, hs, ws) images reduced by block means of ``factor`` back to (n, h, w):
+    bilinear, each block's value at its centre, clamped at the edges (as two matrix
+    products per image)."""
+    def weights(size: int, small: int) -> np.ndarray:
+        pos = np.clip((np.arange(size) + 0.5) / factor - 0.5, 0, small - 1)
+        lo = np.minimum(pos.astype(np.int64), max(small - 2, 0))
+        frac = pos - lo
+        m = np.zeros((size, small))
+        m[np.arange(size), lo] += 1 - frac
+        m[np.arange(size), np.minimum(lo + 1, small - 1)] += frac
+        return m
+
+    n, hs, ws = images.shape
+    return (weights(h, hs) @ images @ weights(w, ws).T).astype(np.float32)
+
+
+def view_gains(views: np.ndarray, sigma: float, device: str | None = None) -> np.ndarray | None:
+    """Gain fields (a, b, h, w), float32, by which to multiply each grey view of ``views``
+    (a, b, h, w) so that it matches the centre view in brightness (module docstring);
+    ``sigma``: their smoothness in px. The centre view (of an odd grid) keeps 1; on an
+    even grid the reference is the mean of the four views around the centre, each warped
+    to it. None where the light field is too small for a pilot (under 16 px after the
+    reduction) or has a single view."""
+    from lfsf.estimate import _bilinear, estimate_scene_flow
+    from lfsf.params import Params
+
+    views = np.asarray(views, np.float32)
+    rows, cols, h, w = views.shape
+    factor = max(1, max(h, w) // PILOT_SIZE)
+    hs, ws = h // factor, w // factor
+    if rows * cols < 2 or min(hs, ws) < 16:
+        return None
+    small = views[:, :, :hs * factor, :ws * factor].reshape(rows, cols, hs, factor, ws, factor).mean((3, 5))
+    pilot = Params.preset("fast").replace(view_gain_sigma=0.0, match_exposure=False)
+    disparity = estimate_scene_flow(small, small, pilot, device=device).disp1.astype(np.float64)
+    yy, xx = np.mgrid[0:hs, 0:ws].astype(np.float64)
+    ac, bc = (rows - 1) / 2, (cols - 1) / 2
+    flat = small.reshape(rows * cols, hs, ws).astype(np.float64)
+    warped = np.empty_like(flat)
+    for k in range(rows * cols):
+        eta, xi = k // cols - ac, k % cols - bc
+        warped[k] = _bilinear(flat[k], xx - disparity * xi, yy - disparity * eta)
+    near = [k for k in range(rows * cols) if abs(k // cols - ac) <= 0.5 and abs(k % cols - bc) <= 0.5]
+    centre = warped[near].mean(0)
+    match = (np.abs(warped - centre) < MATCH) & (warped > DARK) & (centre > DARK)
+    border = max(2, int(round(8 / factor)))  # the pilot's own border, where its disparity is least sure
+    match[:, :border] = match[:, -border:] = False
+    match[:, :, :border] = match[:, :, -border:] = False
+    m = match.astype(np.float64)
+    s = sigma / factor
+    num, den, support = (_box_blur_stack(x, s) for x in (centre * warped * m, warped * warped * m, m))
+    gains = np.where(support > SUPPORT, num / np.maximum(den, 1e-12), 1.0)
+    gains = np.clip(gains, 1.0 / MAX_GAIN, MAX_GAIN)
+    if len(near) == 1:
+        gains[near[0]] = 1.0
+    full = _upsample(gains, factor, h, w) if factor > 1 else gains.astype(np.float32)
+    return full.reshape(rows, cols, h, w)
