@@ -95,9 +95,9 @@ class Params:
             160 px gives the disparity; each view, warped to the centre by it, is matched
             to the centre view in brightness by a gain field, the local least-squares
             ratio under a Gaussian of this σ, and multiplied by it at both times
-            (:mod:`lfsf.gains`). HCI antinous MSE×100 1.95 → 1.77, BadPix 13.1 → 8.5 %;
+            (:mod:`lfsf.gains`). HCI antinous MSE×100 1.95 → 1.74, BadPix 13.1 → 8.2 %;
             synthetic scenes with 5 % vignetting (`synth.add_vignetting`) δ1 / δ2 / EPE
-            0.86 / 0.83 / 0.91×; without it 1.04 / 0.96 / 0.96× (160×120, 24 scenes).
+            0.88 / 0.78 / 0.90×; without it 1.07 / 1.02 / 1.01× (160×120, 24 scenes).
     Regulariser: image-driven TGV² (§4)
         alpha0, alpha1 : α0 (on ∇w) and α1 (on Γ(∇x − w)). Where the data is weak a
             ramp of length L costs about 2α0/L per unit of height and a jump off the

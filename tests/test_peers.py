@@ -120,21 +120,28 @@ def test_compare_peers_selects_built_in_and_random_scenes(capsys):
     assert "--vignetting" in capsys.readouterr().err
 
 
-def test_compare_peers_noise_reaches_every_method_reproducibly():
-    """``--noise`` hands every method the same noisy pair, independent at t1 and t2."""
-    from lfsf import synth
-
+def _views_handed_over(scene, *options, runs=1):
+    """The (t1, t2) views every method gets from ``compare_peers.run_scene`` on ``scene``
+    at 48×32 with 3×3 views and the given options, ``runs`` times (a recording method)."""
     script = _compare_peers_script()
-    args = script.build_parser().parse_args(["--size", "48", "32", "--grid", "3", "--noise", "0.02"])
+    args = script.build_parser().parse_args(["--size", "48", "32", "--grid", "3", *options])
     seen = []
 
     def fake(lf1, lf2, device):
         seen.append((lf1.views.copy(), lf2.views.copy()))
         return {"u": np.zeros(lf1.centre.shape, np.float32), "v": np.zeros(lf1.centre.shape, np.float32)}
 
-    for _ in range(2):
-        rows = script.run_scene("weak_texture", args, False, {"fake": fake}, {"fake"})
+    for _ in range(runs):
+        rows = script.run_scene(scene, args, False, {"fake": fake}, {"fake"})
         assert rows[0]["method"] == "fake" and rows[0]["flow_epe"] is not None
+    return seen
+
+
+def test_compare_peers_noise_reaches_every_method_reproducibly():
+    """``--noise`` hands every method the same noisy pair, independent at t1 and t2."""
+    from lfsf import synth
+
+    seen = _views_handed_over("weak_texture", "--noise", "0.02", runs=2)
     clean1, clean2, _ = synth.render_scene("weak_texture", size=(48, 32), grid=3)
     (a1, a2), (b1, b2) = seen
     np.testing.assert_array_equal(a1, b1)
@@ -150,15 +157,7 @@ def test_compare_peers_vignetting_darkens_both_times_alike():
     their centre views untouched."""
     from lfsf import synth
 
-    script = _compare_peers_script()
-    args = script.build_parser().parse_args(["--size", "48", "32", "--grid", "3", "--vignetting", "0.1"])
-    seen = []
-
-    def fake(lf1, lf2, device):
-        seen.append((lf1.views.copy(), lf2.views.copy()))
-        return {"u": np.zeros(lf1.centre.shape, np.float32), "v": np.zeros(lf1.centre.shape, np.float32)}
-
-    script.run_scene("weak_texture", args, False, {"fake": fake}, {"fake"})
+    seen = _views_handed_over("weak_texture", "--vignetting", "0.1")
     clean1, clean2, _ = synth.render_scene("weak_texture", size=(48, 32), grid=3)
     g = synth.vignetting_gains((3, 3), (48, 32), 0.1)
     (a1, a2), = seen
@@ -196,14 +195,7 @@ def test_compare_peers_exposure_changes_t2_for_every_method(capsys):
     from lfsf import synth
 
     script = _compare_peers_script()
-    args = script.build_parser().parse_args(["--size", "48", "32", "--grid", "3", "--exposure", "1.2", "-0.05"])
-    seen = []
-
-    def fake(lf1, lf2, device):
-        seen.append((lf1.views.copy(), lf2.views.copy()))
-        return {"u": np.zeros(lf1.centre.shape, np.float32), "v": np.zeros(lf1.centre.shape, np.float32)}
-
-    script.run_scene("paper", args, False, {"fake": fake}, {"fake"})
+    seen = _views_handed_over("paper", "--exposure", "1.2", "-0.05")
     clean1, clean2, _ = synth.render_scene("paper", size=(48, 32), grid=3)
     (a1, a2), = seen
     np.testing.assert_array_equal(a1, clean1.views)
