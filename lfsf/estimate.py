@@ -15,7 +15,7 @@ import numpy as np
 
 from lfsf import device as _device
 from lfsf._filters import gaussian_blur as _blur
-from lfsf.gains import GAIN_CHANGE, gain_change, view_gains
+from lfsf.gains import GAIN_CHANGE, fit_view_gains, full_gains, gain_change
 from lfsf.io import LightField, centre_view, check_pair, luma, read_lightfield
 from lfsf.params import Params
 
@@ -758,11 +758,12 @@ def estimate_scene_flow(
     gains = None
     if params.view_gain_sigma > 0 and n_samples > 1:
         # the views' brightness matched to the centre's, the same fields at both times
-        fitted = view_gains(stretched(lf1.grey().views), params.view_gain_sigma, dev)
+        fitted, factor = fit_view_gains(stretched(lf1.grey().views), params.view_gain_sigma, dev)
         if fitted is not None:
-            change = gain_change(fitted)
+            # (on the reduced fields: the full ones only where they are used)
+            change = gain_change(fitted, border=-(-8 // factor))
             if change > GAIN_CHANGE:
-                gains = fitted.reshape(rows * cols, height, width)
+                gains = full_gains(fitted, factor, height, width).reshape(rows * cols, height, width)
                 say(f"view gains: each view matched to the centre view's brightness (gains "
                     f"{float(gains.min()):.3f}–{float(gains.max()):.3f}, 95th percentile of the change "
                     f"{100 * change:.1f} %)")

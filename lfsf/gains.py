@@ -46,13 +46,13 @@ MAX_GAIN = 1.25
 GAIN_CHANGE = 0.01
 
 
-def gain_change(gains: np.ndarray) -> float:
-    """How much the gain fields (a, b, h, w) change the views: the 95th percentile of
-    |g − 1| over their pixels, an 8-px border left out where the views are large enough
-    (:data:`GAIN_CHANGE`)."""
+def gain_change(gains: np.ndarray, border: int = 8) -> float:
+    """How much the gain fields (…, h, w) change the views: the 95th percentile of
+    |g − 1| over their pixels, ``border`` px left out at each edge where the fields are
+    larger than four borders (:data:`GAIN_CHANGE`)."""
     g = np.asarray(gains)
-    if min(g.shape[-2:]) > 32:
-        g = g[..., 8:-8, 8:-8]
+    if border > 0 and min(g.shape[-2:]) > 4 * border:
+        g = g[..., border:-border, border:-border]
     return float(np.percentile(np.abs(g - 1.0), 95.0))
 
 
@@ -93,13 +93,13 @@ def _upsample(images: np.ndarray, factor: int, h: int, w: int) -> np.ndarray:
         pos = np.clip((np.arange(size) + 0.5) / factor - 0.5, 0, small - 1)
         lo = np.minimum(pos.astype(np.int64), max(small - 2, 0))
         frac = pos - lo
-        m = np.zeros((size, small))
+        m = np.zeros((size, small), np.float32)
         m[np.arange(size), lo] += 1 - frac
         m[np.arange(size), np.minimum(lo + 1, small - 1)] += frac
         return m
 
     n, hs, ws = images.shape
-    return (weights(h, hs) @ images @ weights(w, ws).T).astype(np.float32)
+    return weights(h, hs) @ images.astype(np.float32) @ weights(w, ws).T
 
 
 def view_gains(views: np.ndarray, sigma: float, device: str | None = None) -> np.ndarray | None:
@@ -108,7 +108,25 @@ def view_gains(views: np.ndarray, sigma: float, device: str | None = None) -> np
     ``sigma``: their smoothness in px. The centre view (of an odd grid) keeps 1; on an
     even grid the reference is the mean of the four views around the centre, each warped
     to it. None where the light field is too small for a pilot (under 16 px after the
-    reduction) or has a single view."""
+    reduction) or has a single view. (:func:`fit_view_gains`, then :func:`full_gains`.)"""
+    small, factor = fit_view_gains(views, sigma, device)
+    if small is None:
+        return None
+    return full_gains(small, factor, *np.shape(views)[-2:])
+
+
+def full_gains(small: np.ndarray, factor: int, h: int, w: int) -> np.ndarray:
+    """The fields of :func:`fit_view_gains` (a, b, hs, ws) at the views' full size
+    (a, b, h, w), float32."""
+    rows, cols = small.shape[:2]
+    flat = small.reshape(rows * cols, *small.shape[2:])
+    full = _upsample(flat, factor, h, w) if factor > 1 else flat.astype(np.float32)
+    return full.reshape(rows, cols, h, w)
+
+
+def fit_view_gains(views: np.ndarray, sigma: float, device: str | None = None):
+    """The gain fields of :func:`view_gains` on the pilot's reduced views: (fields (a, b,
+    hs, ws), the reduction factor), or (None, factor) where there is nothing to fit."""
     from lfsf.estimate import _bilinear, estimate_scene_flow
     from lfsf.params import Params
 
@@ -117,7 +135,7 @@ def view_gains(views: np.ndarray, sigma: float, device: str | None = None) -> np
     factor = max(1, max(h, w) // PILOT_SIZE)
     hs, ws = h // factor, w // factor
     if rows * cols < 2 or min(hs, ws) < 16:
-        return None
+        return None, factor
     small = views[:, :, :hs * factor, :ws * factor].reshape(rows, cols, hs, factor, ws, factor).mean((3, 5))
     pilot = Params.preset("fast").replace(view_gain_sigma=0.0, match_exposure=False)
     disparity = estimate_scene_flow(small, small, pilot, device=device).disp1.astype(np.float64)
@@ -141,5 +159,4 @@ def view_gains(views: np.ndarray, sigma: float, device: str | None = None) -> np
     gains = np.clip(gains, 1.0 / MAX_GAIN, MAX_GAIN)
     if len(near) == 1:
         gains[near[0]] = 1.0
-    full = _upsample(gains, factor, h, w) if factor > 1 else gains.astype(np.float32)
-    return full.reshape(rows, cols, h, w)
+    return gains.reshape(rows, cols, hs, ws), factor
