@@ -12,12 +12,12 @@ scene its views, warped to the centre by the ground truth, still differ from it 
 about :data:`PILOT_SIZE` px gives the disparity; every view, warped to the centre by it,
 is compared with the centre view, and its gain field is the local least-squares ratio
 g = G_σ(C·W) / G_σ(W·W) over the pixels that match (|C − W| small, neither dark), G_σ a
-(three-pass box) Gaussian of σ = ``Params.view_gain_sigma`` full-resolution px. Where the fields change
-the views by more than :data:`GAIN_CHANGE` (:func:`gain_change`), the estimator
-multiplies each view by its field at both times (the camera is the same); below it,
-as on rendered Lambertian scenes, it leaves the views as they are. A field varies over tens
-of pixels, far slower than the texture the data term matches, so it cannot encode a
-disparity; where too few pixels match it stays 1.
+(three-pass box) Gaussian of σ = ``Params.view_gain_sigma`` full-resolution px. Where
+the fields change the views by more than :data:`GAIN_CHANGE` (:func:`gain_change`),
+the estimator multiplies each view by its field at both times (the camera is the
+same); below it, as on rendered Lambertian scenes, it leaves the views as they are. A
+field varies over tens of pixels, far slower than the texture the data term matches,
+so it cannot encode a disparity; where too few pixels match it stays 1.
 """
 
 from __future__ import annotations
@@ -138,7 +138,10 @@ def fit_view_gains(views: np.ndarray, sigma: float, device: str | None = None):
         return None, factor
     small = views[:, :, :hs * factor, :ws * factor].reshape(rows, cols, hs, factor, ws, factor).mean((3, 5))
     pilot = Params.preset("fast").replace(view_gain_sigma=0.0, match_exposure=False)
-    disparity = estimate_scene_flow(small, small, pilot, device=device).disp1.astype(np.float64)
+    try:
+        disparity = estimate_scene_flow(small, small, pilot, device=device).disp1.astype(np.float64)
+    except ValueError:  # a grid or size the quick preset cannot sample: no fields, no change
+        return None, factor
     yy, xx = np.mgrid[0:hs, 0:ws].astype(np.float64)
     ac, bc = (rows - 1) / 2, (cols - 1) / 2
     flat = small.reshape(rows * cols, hs, ws).astype(np.float64)

@@ -34,14 +34,16 @@ def test_view_gains_undo_vignetting_and_leave_a_clean_light_field_alone(scene):
 
 def test_view_gains_on_even_grids_and_where_there_is_nothing_to_fit():
     """An even grid has no centre view: the views around it are the reference, and the
-    vignetting is undone all the same. A single view, or views too small for a pilot,
-    give None."""
+    vignetting is undone all the same. A single view, views too small for a pilot, or a
+    grid it cannot sample (one row) give None."""
     lf1, _lf2, _gt = synth.render_scene("weak_texture", size=(96, 72), grid=4)
     g = synth.vignetting_gains((4, 4), (96, 72), 0.1)
     fitted = gains.view_gains(synth.add_vignetting(lf1, 0.1).grey().views, 24.0, "cpu")
     assert np.median(np.abs(fitted * g - 1)[INNER]) < 0.5 * np.median(np.abs(g - 1)[INNER])
     assert gains.view_gains(lf1.grey().views[:1, :1], 24.0, "cpu") is None
     assert gains.view_gains(lf1.grey().views[:, :, :12, :12], 24.0, "cpu") is None
+    # a grid the quick pilot cannot sample (one row): no fields rather than an error
+    assert gains.view_gains(lf1.grey().views[1:2], 24.0, "cpu") is None
 
 
 def test_box_blur_is_a_gaussian_of_that_sigma_and_upsampling_keeps_ramps():
