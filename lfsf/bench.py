@@ -214,7 +214,9 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
     def launch(kernel, inputs, outputs, dim=(h, w)):
         # as the solver launches its iterations: recorded once, replayed (no per-launch
         # argument packing, which costs ~85 µs a launch for the generic kernels)
-        return _device.RecordedRows(kernel, dim, inputs=inputs, outputs=outputs, device=dev)
+        recorded = _device.RecordedRows(kernel, dim, inputs=inputs, outputs=outputs, device=dev)
+        recorded.arrays = (inputs, outputs)  # alive while the recorded launch is (not every Warp keeps them)
+        return recorded
 
     wp_phis = arr(phis, wp.vec2)
     span, per_row = _device.row_span(dev, w)
@@ -272,7 +274,7 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
         p = solver.params
         coef_inputs = [solver.samples1, solver.samples2, solver.phis, solver.weights, solver.x_hat, p.occlusion_ratio,
                        solver.hidden2, p.eps, p.step_ratio, solver.view_zbuf1, solver.view_zbuf2,
-                       solver.view_margin(), 1, solver.lanes]
+                       solver.view_margin(), int(solver.view_zbuf1.shape[0] > 1), solver.lanes]
         coef_outputs = [solver.coef_store, solver.grad_j2_store, solver.data_colsum, solver.q_store]
         dual_inputs = [solver.coef, solver.weights, solver.grad_j2, solver.x_bar, solver.x_hat, groups]
         dual_outputs = [solver.q, solver.data_grad]

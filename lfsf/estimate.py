@@ -786,6 +786,7 @@ def estimate_scene_flow(
                             inputs=[views, rows, cols, wp_phis, span], outputs=[out], device=dev)
         stacks.append(out)
         del views
+    del gains  # (a float per view pixel: not kept through the solve)
     lap("sampling")
     colour = (_centre_colour(lf1, offset, stretch)
               if (params.colour_median_radius > 0 or params.colour_tensor) and n_samples > 1 else None)

@@ -11,13 +11,15 @@ scene its views, warped to the centre by the ground truth, still differ from it 
 :func:`view_gains` measures them: a quick stereo pilot on the t1 light field reduced to
 about :data:`PILOT_SIZE` px gives the disparity; every view, warped to the centre by it,
 is compared with the centre view, and its gain field is the local least-squares ratio
-g = G_σ(C·W) / G_σ(W·W) over the pixels that match (|C − W| small, neither dark), G_σ a
-(three-pass box) Gaussian of σ = ``Params.view_gain_sigma`` full-resolution px. Where
+g = G_σ(C·W) / G_σ(W·W) over the pixels that match (|C − g'·W| small, g' the view's
+median ratio and then the first fit; neither dark), G_σ a (three-pass box) Gaussian of
+σ = ``Params.view_gain_sigma`` full-resolution px. Where
 the fields change the views by more than :data:`GAIN_CHANGE` (:func:`gain_change`),
 the estimator multiplies each view by its field at both times (the camera is the
 same); below it, as on rendered Lambertian scenes, it leaves the views as they are. A
 field varies over tens of pixels, far slower than the texture the data term matches,
-so it cannot encode a disparity; where too few pixels match it stays 1.
+so it cannot encode a disparity; where few pixels match it leans towards the view's
+median ratio.
 """
 
 from __future__ import annotations
@@ -34,8 +36,12 @@ PILOT_SIZE = 160
 #: are brighter than :data:`DARK`.
 MATCH = 0.05
 DARK = 0.02
-#: Where the Gaussian weight of the matching pixels is below this fraction, the gain is 1.
+#: Where the Gaussian weight of the matching pixels is below this fraction, the gain
+#: leans towards the view's first, global gain (the median ratio), linearly to it at 0.
 SUPPORT = 0.2
+#: Fits: the first tests the matches on the view times its global gain, the next on the
+#: view times the previous fit.
+PASSES = 2
 #: The gains are clipped to [1 / MAX_GAIN, MAX_GAIN].
 MAX_GAIN = 1.25
 #: The gains are used only where they change the views by more than this: the 95th
@@ -106,8 +112,8 @@ def view_gains(views: np.ndarray, sigma: float, device: str | None = None) -> np
     """Gain fields (a, b, h, w), float32, by which to multiply each grey view of ``views``
     (a, b, h, w) so that it matches the centre view in brightness (module docstring);
     ``sigma``: their smoothness in px. The centre view (of an odd grid) keeps 1; on an
-    even grid the reference is the mean of the four views around the centre, each warped
-    to it. None where the light field is too small for a pilot (under 16 px after the
+    even grid the reference is the mean of the views nearest the centre (four where both
+    sides are even), each warped to it. None where the light field is too small for a pilot (under 16 px after the
     reduction) or has a single view. (:func:`fit_view_gains`, then :func:`full_gains`.)"""
     small, factor = fit_view_gains(views, sigma, device)
     if small is None:
@@ -138,10 +144,9 @@ def fit_view_gains(views: np.ndarray, sigma: float, device: str | None = None):
         return None, factor
     small = views[:, :, :hs * factor, :ws * factor].reshape(rows, cols, hs, factor, ws, factor).mean((3, 5))
     pilot = Params.preset("fast").replace(view_gain_sigma=0.0, match_exposure=False)
-    try:
-        disparity = estimate_scene_flow(small, small, pilot, device=device).disp1.astype(np.float64)
-    except ValueError:  # a grid or size the quick preset cannot sample: no fields, no change
+    if pilot.sample_offsets((rows, cols))[1] <= 0:  # a grid the pilot's circles do not fit (one row)
         return None, factor
+    disparity = estimate_scene_flow(small, small, pilot, device=device).disp1.astype(np.float64)
     yy, xx = np.mgrid[0:hs, 0:ws].astype(np.float64)
     ac, bc = (rows - 1) / 2, (cols - 1) / 2
     flat = small.reshape(rows * cols, hs, ws).astype(np.float64)
@@ -151,15 +156,26 @@ def fit_view_gains(views: np.ndarray, sigma: float, device: str | None = None):
         warped[k] = _bilinear(flat[k], xx - disparity * xi, yy - disparity * eta)
     near = [k for k in range(rows * cols) if abs(k // cols - ac) <= 0.5 and abs(k % cols - bc) <= 0.5]
     centre = warped[near].mean(0)
-    match = (np.abs(warped - centre) < MATCH) & (warped > DARK) & (centre > DARK)
+    seen = (warped > DARK) & (centre > DARK)
     border = max(2, int(round(8 / factor)))  # the pilot's own border, where its disparity is least sure
-    match[:, :border] = match[:, -border:] = False
-    match[:, :, :border] = match[:, :, -border:] = False
-    m = match.astype(np.float64)
-    s = sigma / factor
-    num, den, support = (_box_blur_stack(x, s) for x in (centre * warped * m, warped * warped * m, m))
-    gains = np.where(support > SUPPORT, num / np.maximum(den, 1e-12), 1.0)
-    gains = np.clip(gains, 1.0 / MAX_GAIN, MAX_GAIN)
+    seen[:, :border] = seen[:, -border:] = False
+    seen[:, :, :border] = seen[:, :, -border:] = False
+    # a first gain per view, the median ratio over the pixels both see: a view much darker
+    # than the centre then still finds its matches (the test below is on the corrected view)
+    base = np.ones(rows * cols)
+    for k in range(rows * cols):
+        if seen[k].sum() >= 16:
+            base[k] = float(np.median(centre[seen[k]] / warped[k][seen[k]]))
+    base = np.clip(base, 1.0 / MAX_GAIN, MAX_GAIN)[:, None, None]
+    s = max(sigma / factor, 1.0)  # (below 1 px the box widths would be 1: no blur)
+    gains = np.broadcast_to(base, warped.shape)
+    for _ in range(PASSES):
+        m = (seen & (np.abs(gains * warped - centre) < MATCH)).astype(np.float64)
+        num, den, support = (_box_blur_stack(x, s) for x in (centre * warped * m, warped * warped * m, m))
+        ratio = np.where(den > 0, num / np.where(den > 0, den, 1.0), base)
+        # where few pixels match, the view's first gain: a smooth blend, not a step
+        weight = np.clip(support / SUPPORT, 0.0, 1.0)
+        gains = np.clip(base + (ratio - base) * weight, 1.0 / MAX_GAIN, MAX_GAIN)
     if len(near) == 1:
         gains[near[0]] = 1.0
     return gains.reshape(rows, cols, hs, ws), factor

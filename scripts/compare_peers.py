@@ -195,12 +195,12 @@ def run_scene(name, args, use_peers, lfsf_runs, warm):
         scene = synth.with_images(name, len(images), seed=zlib.crc32(name.encode()))
     lf1, lf2, gt = synth.render_scene(scene, size=tuple(args.size), grid=args.grid, colour=args.colour,
                                       device=args.device, images=images)
+    if args.vignetting > 0:  # the camera's, at t1 and t2 alike; in the lens, so before exposure and noise
+        lf1, lf2 = synth.add_vignetting(lf1, args.vignetting), synth.add_vignetting(lf2, args.vignetting)
     if args.exposure is not None:  # t2 captured at another exposure, clipped as a sensor would
         gain, shift = args.exposure
         lf2 = type(lf2)(np.clip(lf2.views * np.float32(gain) + np.float32(shift), 0.0, 1.0).astype(np.float32),
                         source=f"{lf2.source}, exposure {gain:g}·L2 {shift:+g}", meta=lf2.meta)
-    if args.vignetting > 0:  # the camera's, so the same at t1 and t2 (before the sensor's noise)
-        lf1, lf2 = synth.add_vignetting(lf1, args.vignetting), synth.add_vignetting(lf2, args.vignetting)
     if args.noise > 0:  # independent at t1 and t2, the same for every method
         seed = zlib.crc32(name.encode())
         lf1, lf2 = synth.add_noise(lf1, args.noise, seed), synth.add_noise(lf2, args.noise, seed + 1)
