@@ -220,32 +220,34 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
 
     wp_phis = arr(phis, wp.vec2)
     span, per_row = _device.row_span(dev, w)
-    weights = arr(np.tile([10.0 / s, 10.0 / s, 30.0 / s], (s, 1)), wp.vec3)
-    views = arr(rng.random((81, h, w)), float)
-    stack1 = arr(rng.random((s, h, w)), float)
-    stack2 = arr(rng.random((s, h, w)), float)
-    x_hat = np.zeros((h, w, 4), np.float32)
-    x_hat[..., :2] = rng.uniform(-1, 1, (h, w, 1))
-    x_hat[..., 2:] = rng.uniform(-2, 2, (h, w, 2))
-    x_hat = arr(x_hat, wp.vec4)
-    zeros = arr(np.zeros((h, w)), float)
-    # view z-buffers (the default, Params.visibility): a nearer point somewhere in each view
-    zbuf1 = arr(rng.uniform(-3, 1, (s, h, w)), float)
-    zbuf2 = arr(rng.uniform(-3, 1, (s, h, w)), float)
-    # the data term's lane storage, as the solver allocates it
-    from lfsf.solver import lane_storage
-
     lanes = data_term.data_lanes(dev)
-    coef_store, coef = lane_storage(h, w, s, data_term.COEFFICIENTS, lanes, dev)
-    q_store, q = lane_storage(h, w, s, data_term.DUALS, lanes, dev)
-    grad_j2_store, grad_j2 = lane_storage(h, w, 1, 2, lanes, dev)
-    grad_j2_store.zero_()
-    coef_store.zero_()  # (uninitialised where the lanes fill the rows; data_coefficients writes them too)
-    q_store.zero_()
-    groups, group_threads = _device.row_span(dev, coef.shape[1])
     coefficients, coefficient_columns = data_groups.coefficients_kernel(w, lanes)
-    colsum = wp.empty((h, w), dtype=wp.vec4, device=dev)
     sampled = wp.empty((s, h, w), dtype=float, device=dev)
+    if inputs == "scene":
+        solver, views = _scene_solver(size, dev)
+    else:
+        weights = arr(np.tile([10.0 / s, 10.0 / s, 30.0 / s], (s, 1)), wp.vec3)
+        views = arr(rng.random((81, h, w)), float)
+        stack1 = arr(rng.random((s, h, w)), float)
+        stack2 = arr(rng.random((s, h, w)), float)
+        x_hat = np.zeros((h, w, 4), np.float32)
+        x_hat[..., :2] = rng.uniform(-1, 1, (h, w, 1))
+        x_hat[..., 2:] = rng.uniform(-2, 2, (h, w, 2))
+        x_hat = arr(x_hat, wp.vec4)
+        zeros = arr(np.zeros((h, w)), float)
+        # view z-buffers (the default, Params.visibility): a nearer point somewhere in each view
+        zbuf1 = arr(rng.uniform(-3, 1, (s, h, w)), float)
+        zbuf2 = arr(rng.uniform(-3, 1, (s, h, w)), float)
+        # the data term's lane storage, as the solver allocates it
+        from lfsf.solver import lane_storage
+
+        coef_store, coef = lane_storage(h, w, s, data_term.COEFFICIENTS, lanes, dev)
+        q_store, q = lane_storage(h, w, s, data_term.DUALS, lanes, dev)
+        grad_j2_store, grad_j2 = lane_storage(h, w, 1, 2, lanes, dev)
+        grad_j2_store.zero_()
+        coef_store.zero_()  # (uninitialised where the lanes fill the rows; data_coefficients writes them too)
+        q_store.zero_()
+        colsum = wp.empty((h, w), dtype=wp.vec4, device=dev)
 
     def v4(scale=1.0):
         return arr(scale * rng.standard_normal((h, w, 4)), wp.vec4)
@@ -265,19 +267,21 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
     x, w0, w1 = v4(), v4(), v4()
     tau = [arr(rng.uniform(0.05, 0.5, (h, w, 4)), wp.vec4) for _ in range(3)]
     sigma_y = arr(rng.uniform(0.05, 0.5, (h, w, 4)), wp.vec4)
-    coef_inputs = [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros, 1e-6, 1.0, zbuf1, zbuf2, 0.25, 1, lanes]
-    coef_outputs = [coef_store, grad_j2_store, colsum, q_store]
-    dual_inputs = [coef, weights, grad_j2, x_bar, x_hat, groups]
-    dual_outputs = [q, data_grad]
     if inputs == "scene":
-        solver, views = _scene_solver(size, dev)
         p = solver.params
         coef_inputs = [solver.samples1, solver.samples2, solver.phis, solver.weights, solver.x_hat, p.occlusion_ratio,
                        solver.hidden2, p.eps, p.step_ratio, solver.view_zbuf1, solver.view_zbuf2,
                        solver.view_margin(), int(solver.view_zbuf1.shape[0] > 1), solver.lanes]
         coef_outputs = [solver.coef_store, solver.grad_j2_store, solver.data_colsum, solver.q_store]
+        groups, group_threads = _device.row_span(dev, solver.coef.shape[1])
         dual_inputs = [solver.coef, solver.weights, solver.grad_j2, solver.x_bar, solver.x_hat, groups]
         dual_outputs = [solver.q, solver.data_grad]
+    else:
+        coef_inputs = [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros, 1e-6, 1.0, zbuf1, zbuf2, 0.25, 1, lanes]
+        coef_outputs = [coef_store, grad_j2_store, colsum, q_store]
+        groups, group_threads = _device.row_span(dev, coef.shape[1])
+        dual_inputs = [coef, weights, grad_j2, x_bar, x_hat, groups]
+        dual_outputs = [q, data_grad]
     cases = [
         # reads 4 neighbouring views per sample, writes the sample
         ("sample_subaperture", launch(sampling.sample_subaperture, [views, 9, 9, wp_phis, span], [sampled],
