@@ -157,7 +157,7 @@ def _scene_solver(size, dev: str, scene: str = "paper"):
     so the data term's tests and lookups go as they do there. Returns (solver, t1
     views as a (81, h, w) array)."""
     from lfsf import synth
-    from lfsf.estimate import _normalise_contrast, _structure_texture
+    from lfsf.estimate import _normalise_contrast, _structure_texture, data_weights
     from lfsf.kernels import sampling
     from lfsf.params import Params
     from lfsf.solver import LevelSolver
@@ -168,8 +168,7 @@ def _scene_solver(size, dev: str, scene: str = "paper"):
     lf1, lf2, gt = synth.render_scene(scene, size=(width, height), grid=9, device=dev)
     phis, _radius = params.sample_offsets((9, 9))
     n = len(phis)
-    weights = np.tile(np.array([params.lambda1, params.lambda2, params.lambda3], np.float32) / n, (n, 1))
-    weights[0, :2] = 0.0  # as the estimator: φ = 0 has no stereo residuals
+    weights = data_weights(params, n)
     wp_phis = wp.array(phis, dtype=wp.vec2, device=dev)
     both = wp.empty((2 * n, height, width), dtype=float, device=dev)
     span, per_row = _device.row_span(dev, width)

@@ -211,6 +211,16 @@ def _as_lightfield(lf, name: str) -> LightField:
     return LightField(np.asarray(lf), source=name)
 
 
+def data_weights(params: Params, n_samples: int) -> np.ndarray:
+    """(λ1, λ2, λ3) / S per sample, float32 (S, 3): the data term's row weights
+    (MODEL.md §3), with the stereo rows of φ = 0 (sample 0) at 0, where both residuals
+    vanish identically."""
+    weights = np.tile(np.array([params.lambda1, params.lambda2, params.lambda3], np.float32) / n_samples,
+                      (n_samples, 1))
+    weights[0, :2] = 0.0
+    return weights
+
+
 def pyramid_sizes(height: int, width: int, params: Params) -> list[tuple[int, int]]:
     """Level sizes (h, w), finest first: scaled by η_s while the shorter side stays at
     least ``min_size`` (and at most ``max_levels`` levels)."""
@@ -731,9 +741,7 @@ def estimate_scene_flow(
         params = params.replace(visibility=False)
         say("view z-buffers off: the side samples lie on one side of the centre (Params.visibility)")
     n_samples = len(phis)
-    weights = np.tile(np.array([params.lambda1, params.lambda2, params.lambda3], np.float32) / n_samples,
-                      (n_samples, 1))
-    weights[0, :2] = 0.0  # φ = 0: both stereo residuals vanish identically
+    weights = data_weights(params, n_samples)
     wp_phis = wp.array(phis, dtype=wp.vec2, device=dev)
     wp_weights = wp.array(weights, dtype=wp.vec3, device=dev)
 
@@ -755,10 +763,11 @@ def estimate_scene_flow(
                 say(f"exposure: t2 matched to t1 by I ↦ {gain:.4f}·I {shift:+.4f} (it moved the intensities "
                     f"by up to {100 * change:.1f} % of their range)")
         lap("exposure")
-    gains = None
+    gains = grey1 = None
     if params.view_gain_sigma > 0 and n_samples > 1:
         # the views' brightness matched to the centre's, the same fields at both times
-        fitted, factor = fit_view_gains(stretched(lf1.grey().views), params.view_gain_sigma, dev)
+        grey1 = stretched(lf1.grey().views)  # (sampled below as well)
+        fitted, factor = fit_view_gains(grey1, params.view_gain_sigma, dev)
         if fitted is not None:
             # (on the reduced fields: the full ones only where they are used)
             change = gain_change(fitted, border=-(-8 // factor))
@@ -772,7 +781,10 @@ def estimate_scene_flow(
     stacks = []
     for t, lf in enumerate((lf1, lf2)):
         # one grey light field on the host at a time; the caller's views are never written
-        grey = stretched(lf.grey().views.reshape(rows * cols, height, width))
+        if t == 0 and grey1 is not None:
+            grey, grey1 = grey1.reshape(rows * cols, height, width), None
+        else:
+            grey = stretched(lf.grey().views.reshape(rows * cols, height, width))
         if t == 1 and exposure is not None:
             grey = grey * np.float32(exposure[0])
             grey += np.float32(exposure[1])

@@ -13,13 +13,12 @@ about :data:`PILOT_SIZE` px gives the disparity; every view, warped to the centr
 is compared with the centre view, and its gain field is the local least-squares ratio
 g = G_σ(C·W) / G_σ(W·W) over the pixels that match (|C − g'·W| small, g' the view's
 median ratio and then the first fit; neither dark), G_σ a (three-pass box) Gaussian of
-σ = ``Params.view_gain_sigma`` full-resolution px. Where
-the fields change the views by more than :data:`GAIN_CHANGE` (:func:`gain_change`),
-the estimator multiplies each view by its field at both times (the camera is the
-same); below it, as on rendered Lambertian scenes, it leaves the views as they are. A
-field varies over tens of pixels, far slower than the texture the data term matches,
-so it cannot encode a disparity; where few pixels match it leans towards the view's
-median ratio.
+σ = ``Params.view_gain_sigma`` full-resolution px. Where the fields change the views by
+more than :data:`GAIN_CHANGE` (:func:`gain_change`), the estimator multiplies each view
+by its field at both times (the camera is the same); below it, as on rendered
+Lambertian scenes, it leaves the views as they are. A field varies over tens of pixels,
+far slower than the texture the data term matches, so it cannot encode a disparity;
+where few pixels match it leans towards the view's median ratio.
 """
 
 from __future__ import annotations
@@ -113,8 +112,9 @@ def view_gains(views: np.ndarray, sigma: float, device: str | None = None) -> np
     (a, b, h, w) so that it matches the centre view in brightness (module docstring);
     ``sigma``: their smoothness in px. The centre view (of an odd grid) keeps 1; on an
     even grid the reference is the mean of the views nearest the centre (four where both
-    sides are even), each warped to it. None where the light field is too small for a pilot (under 16 px after the
-    reduction) or has a single view. (:func:`fit_view_gains`, then :func:`full_gains`.)"""
+    sides are even), each warped to it. None where the light field is too small for a
+    pilot (under 16 px after the reduction), has a single view, or lies in one row or
+    column. (:func:`fit_view_gains`, then :func:`full_gains`.)"""
     small, factor = fit_view_gains(views, sigma, device)
     if small is None:
         return None
