@@ -9,6 +9,20 @@ parameter at a time around a base (``--vary``), or over a full grid (``--grid``)
 
 Prints a Markdown table: the setting, then per scene δ1 MSE, δ2 MSE, flow EPE and seconds,
 and the geometric means over the scenes (lower is better).
+
+How much of a difference is the setting's, and how much chance? The estimator makes
+hard choices (which searched value to fuse, which samples an occluder hides), and noise
+far below an 8-bit step can tip one; single scenes then move by up to several times and
+geometric means over a dozen scenes by up to a tenth (docs/accuracy.md, twenty-third
+session). ``--seeds K --perturb SIGMA`` runs every setting on K copies of each scene:
+the rendering itself (seed 0) and K − 1 with Gaussian noise of SIGMA added to both light
+fields (independent per copy and time, the same copies for every setting). The table
+then gives each scene's median over its copies, the geometric means over all scenes and
+copies, and, after them, each geometric mean's range over the copies: a setting whose
+ratio to the base stays inside the base's range has not been shown to matter.
+
+    python scripts/sweep.py --scenes paper slanted random-0 random-1 --seeds 3 \
+        --perturb 0.001 --vary "lambda3=20,40"
 """
 
 from __future__ import annotations
@@ -19,6 +33,7 @@ import itertools
 import math
 import sys
 import time
+import zlib
 
 import numpy as np
 
@@ -71,16 +86,44 @@ def parse_vary(text: str) -> tuple[str, list]:
     return key.strip(), [_literal(v) for v in split_top(values)]
 
 
-def score(params: lfsf.Params, data, device) -> dict:
+METRICS = ("disp1", "disp2", "epe")
+
+
+def perturbed(lf1, lf2, sigma: float, seed: int, name: str):
+    """Copy ``seed`` of a scene's pair: the rendering itself for seed 0, else both light
+    fields with independent Gaussian noise of ``sigma`` (:func:`lfsf.synth.add_noise`),
+    drawn from the scene's name and the seed (the same copy for every setting)."""
+    if seed == 0 or sigma == 0:
+        return lf1, lf2
+    base = (zlib.crc32(name.encode()) + 2 * seed) % 2**32
+    return synth.add_noise(lf1, sigma, base), synth.add_noise(lf2, sigma, base + 1)
+
+
+def score(params: lfsf.Params, data, device, seeds: int = 1, sigma: float = 0.0) -> dict:
+    """Per scene the errors of each copy (:func:`perturbed`): {name: [{disp1, disp2, epe,
+    seconds}, …]}, copy 0 first."""
     rows = {}
     for name, (lf1, lf2, gt) in data.items():
-        t0 = time.perf_counter()
-        sf = lfsf.estimate_scene_flow(lf1, lf2, params, device=device)
-        seconds = time.perf_counter() - t0
-        e = evaluate.evaluate(sf.as_dict(), gt, border=evaluate.SYNTH_BORDER)
-        rows[name] = {"disp1": e["disp1"]["mse"], "disp2": e["disp2"]["mse"], "epe": e["flow"]["epe"],
-                      "seconds": seconds}
+        rows[name] = []
+        for seed in range(seeds):
+            a, b = perturbed(lf1, lf2, sigma, seed, name)
+            t0 = time.perf_counter()
+            sf = lfsf.estimate_scene_flow(a, b, params, device=device)
+            seconds = time.perf_counter() - t0
+            e = evaluate.evaluate(sf.as_dict(), gt, border=evaluate.SYNTH_BORDER)
+            rows[name].append({"disp1": e["disp1"]["mse"], "disp2": e["disp2"]["mse"], "epe": e["flow"]["epe"],
+                               "seconds": seconds})
     return rows
+
+
+def summary(rows: dict) -> tuple[dict, dict]:
+    """(geometric means over every scene and copy, {metric: (least, greatest)} of the
+    geometric means over the scenes taken copy by copy)."""
+    copies = len(next(iter(rows.values())))
+    g = {k: geomean([c[k] for r in rows.values() for c in r]) for k in METRICS}
+    per_copy = [{k: geomean([r[s][k] for r in rows.values()]) for k in METRICS} for s in range(copies)]
+    spread = {k: (min(c[k] for c in per_copy), max(c[k] for c in per_copy)) for k in METRICS}
+    return g, spread
 
 
 def geomean(values) -> float:
@@ -97,9 +140,20 @@ def main(argv=None) -> int:
     ap.add_argument("--base", default="", help="settings applied to every run, e.g. 'lambda3=30,warps=4'")
     ap.add_argument("--vary", action="append", default=[], help="'key=v1,v2,…' (one at a time around the base)")
     ap.add_argument("--cartesian", action="store_true", help="every combination of the --vary values")
+    ap.add_argument("--seeds", type=int, default=1, metavar="K",
+                    help="copies of each scene: the rendering and K − 1 with --perturb noise (default 1)")
+    ap.add_argument("--perturb", type=float, default=0.0, metavar="SIGMA",
+                    help="the noise of the copies after the first (intensities in [0, 1]; e.g. 0.001, "
+                         "a quarter of an 8-bit step)")
     ap.add_argument("--device", default=None)
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
+    if args.seeds < 1:
+        raise ValueError(f"--seeds must be at least 1, got {args.seeds}")
+    if not math.isfinite(args.perturb) or args.perturb < 0:
+        raise ValueError(f"--perturb must be a finite number ≥ 0, got {args.perturb}")
+    if args.seeds > 1 and args.perturb == 0:
+        raise ValueError("--seeds above 1 needs --perturb SIGMA > 0 (the copies would be the same)")
     if args.json:
         output_file(args.json)  # before the runs, not after them
 
@@ -121,22 +175,34 @@ def main(argv=None) -> int:
         synth.get_scene(s)
     data = {s: synth.render_scene(s, size=tuple(args.size), grid=args.views) for s in scenes}
     results = []
-    header = "| setting | " + " | ".join(f"{s} δ1 / δ2 / EPE / s" for s in scenes) + " | gmean δ1 | gmean δ2 | gmean EPE |"
+    copies = args.seeds > 1
+    header = ("| setting | " + " | ".join(f"{s} δ1 / δ2 / EPE / s" for s in scenes)
+              + " | gmean δ1 | gmean δ2 | gmean EPE |" + (" range over copies δ1 / δ2 / EPE |" if copies else ""))
     print(f"base: {args.base or '(preset ' + args.preset + ')'}; {args.size[0]}×{args.size[1]}, "
-          f"{args.views}×{args.views} views", flush=True)
+          f"{args.views}×{args.views} views"
+          + (f"; {args.seeds} copies of each scene (noise σ = {args.perturb:g} on all but the first), "
+             "per scene their median" if copies else ""), flush=True)
     print(header)
-    print("|" + "---|" * (len(scenes) + 4), flush=True)
+    print("|" + "---|" * (len(scenes) + 4 + copies), flush=True)
     for change in settings:
         params = base.replace(**change)
-        rows = score(params, data, args.device)
-        g = {k: geomean([r[k] for r in rows.values()]) for k in ("disp1", "disp2", "epe")}
+        rows = score(params, data, args.device, args.seeds, args.perturb)
+        g, spread = summary(rows)
         label = ", ".join(f"{k}={v}" for k, v in change.items()) or "base"
+        med = {name: {k: float(np.median([c[k] for c in r])) for k in (*METRICS, "seconds")}
+               for name, r in rows.items()}
         cells = " | ".join(f"{r['disp1']:.4f} / {r['disp2']:.4f} / {r['epe']:.3f} / {r['seconds']:.1f}"
-                           for r in rows.values())
-        print(f"| {label} | {cells} | {g['disp1']:.4f} | {g['disp2']:.4f} | {g['epe']:.4f} |", flush=True)
-        results.append({"change": change, "scenes": rows, "geomean": g})
+                           for r in med.values())
+        band = (" " + " / ".join(f"{spread[k][0]:.4g}–{spread[k][1]:.4g}" for k in METRICS) + " |") if copies else ""
+        print(f"| {label} | {cells} | {g['disp1']:.4f} | {g['disp2']:.4f} | {g['epe']:.4f} |{band}", flush=True)
+        result = {"change": change, "scenes": {name: r[0] for name, r in rows.items()}, "geomean": g}
+        if copies:
+            result["copies"] = rows
+            result["geomean_range"] = spread
+        results.append(result)
     if args.json:
-        report = {"base": args.base, "size": args.size, "views": args.views, "results": results}
+        report = {"base": args.base, "size": args.size, "views": args.views, "seeds": args.seeds,
+                  "perturb": args.perturb, "results": results}
         write_json_atomic(args.json, report, indent=1, default=str)
     return 0
 

@@ -349,6 +349,9 @@ def test_an_error_raised_while_interrupted_counts_as_the_interrupt(monkeypatch, 
 @pytest.mark.parametrize("script,args,needle", [
     ("sweep.py", ["--vary", "warps"], "--vary expects"),
     ("sweep.py", ["--vary", "warps=-1", "--scenes", "paper"], "warps must be in"),
+    ("sweep.py", ["--seeds", "0"], "--seeds must be at least 1"),
+    ("sweep.py", ["--seeds", "3"], "needs --perturb"),
+    ("sweep.py", ["--perturb", "-0.1"], "--perturb must be a finite number"),
     ("sequence.py", ["--frames", "1"], "--frames must be at least 3"),
     ("lenslet_example.py", ["{tmp}/x", "--preset", "slow"], "unknown preset 'slow'"),
 ])

@@ -1,0 +1,73 @@
+"""scripts/sweep.py: copies of each scene with imperceptible noise, to tell a setting's
+effect from the chance of the estimator's hard choices."""
+
+import importlib.util
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lfsf import synth
+from lfsf.io import LightField
+
+
+def _sweep_script():
+    path = Path(__file__).resolve().parents[1] / "scripts" / "sweep.py"
+    spec = importlib.util.spec_from_file_location("sweep_script", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_copies_are_the_rendering_then_reproducible_independent_noise():
+    sweep = _sweep_script()
+    rng = np.random.default_rng(0)
+    views = rng.uniform(0.2, 0.8, (3, 3, 40, 50)).astype(np.float32)
+    lf1, lf2 = LightField(views), LightField(views.copy())
+    a, b = sweep.perturbed(lf1, lf2, 0.01, 0, "paper")
+    assert a is lf1 and b is lf2  # copy 0: the rendering itself
+    a1, b1 = sweep.perturbed(lf1, lf2, 0.01, 1, "paper")
+    n1, m1 = a1.views - views, b1.views - views
+    assert np.std(n1) == pytest.approx(0.01, rel=0.05) and np.std(m1) == pytest.approx(0.01, rel=0.05)
+    assert abs(np.corrcoef(n1.ravel(), m1.ravel())[0, 1]) < 0.05  # t1 and t2 independent
+    again = sweep.perturbed(lf1, lf2, 0.01, 1, "paper")
+    assert np.array_equal(again[0].views, a1.views) and np.array_equal(again[1].views, b1.views)
+    a2, _ = sweep.perturbed(lf1, lf2, 0.01, 2, "paper")
+    other, _ = sweep.perturbed(lf1, lf2, 0.01, 1, "slanted")
+    assert abs(np.corrcoef(n1.ravel(), (a2.views - views).ravel())[0, 1]) < 0.05
+    assert abs(np.corrcoef(n1.ravel(), (other.views - views).ravel())[0, 1]) < 0.05
+
+
+def test_summary_gives_the_geometric_means_and_their_range_over_the_copies():
+    sweep = _sweep_script()
+    rows = {"a": [{"disp1": 1.0, "disp2": 2.0, "epe": 4.0}, {"disp1": 4.0, "disp2": 2.0, "epe": 1.0}],
+            "b": [{"disp1": 1.0, "disp2": 8.0, "epe": 4.0}, {"disp1": 1.0, "disp2": 2.0, "epe": 1.0}]}
+    g, spread = sweep.summary(rows)
+    assert g["disp1"] == pytest.approx(4.0 ** 0.25) and g["disp2"] == pytest.approx(math.sqrt(8.0))
+    assert g["epe"] == pytest.approx(2.0)
+    assert spread["disp1"] == pytest.approx((1.0, 2.0))  # copy 0: gmean(1, 1); copy 1: gmean(4, 1)
+    assert spread["disp2"] == pytest.approx((2.0, 4.0))
+    assert spread["epe"] == pytest.approx((1.0, 4.0))
+
+
+def test_a_sweep_with_copies_keeps_the_rendering_as_its_first(tmp_path, capsys):
+    """Copy 0 of a run with copies is the run without them, to the last digit; the
+    others differ, and the table gives the range."""
+    sweep = _sweep_script()
+    common = ["--size", "32", "24", "--preset", "fast", "--scenes", "paper", "--device", "cpu"]
+    assert sweep.main([*common, "--json", str(tmp_path / "one.json")]) == 0
+    assert sweep.main([*common, "--seeds", "3", "--perturb", "0.02", "--json", str(tmp_path / "three.json")]) == 0
+    assert "range over copies" in capsys.readouterr().out
+    one = json.loads((tmp_path / "one.json").read_text())["results"][0]
+    three = json.loads((tmp_path / "three.json").read_text())
+    assert three["seeds"] == 3 and three["perturb"] == 0.02
+    result = three["results"][0]
+    copies = result["copies"]["paper"]
+    assert len(copies) == 3
+    for k in ("disp1", "disp2", "epe"):
+        assert copies[0][k] == one["scenes"]["paper"][k]
+        low, high = result["geomean_range"][k]
+        assert low <= min(c[k] for c in copies) * (1 + 1e-9) and high >= max(c[k] for c in copies) * (1 - 1e-9)
+    assert any(copies[1][k] != copies[0][k] for k in ("disp1", "disp2", "epe"))
