@@ -18,8 +18,11 @@ session). ``--seeds K --perturb SIGMA`` runs every setting on K copies of each s
 the rendering itself (seed 0) and K − 1 with Gaussian noise of SIGMA added to both light
 fields (independent per copy and time, the same copies for every setting). The table
 then gives each scene's median over its copies, the geometric means over all scenes and
-copies, and, after them, each geometric mean's range over the copies: a setting whose
-ratio to the base stays inside the base's range has not been shown to matter.
+copies, and, after them, the range of the geometric means taken copy by copy: a setting
+whose geometric mean lies inside the base's range has not been shown to matter. In the
+JSON, each result's ``scenes`` holds copy 0 (the rendering, as a run without copies
+gives it), ``copies`` every copy, ``median`` the table's medians, ``geomean`` the means
+over all scenes and copies and ``geomean_range`` the range.
 
     python scripts/sweep.py --scenes paper slanted random-0 random-1 --seeds 3 \
         --perturb 0.001 --vary "lambda3=20,40"
@@ -154,6 +157,8 @@ def main(argv=None) -> int:
         raise ValueError(f"--perturb must be a finite number ≥ 0, got {args.perturb}")
     if args.seeds > 1 and args.perturb == 0:
         raise ValueError("--seeds above 1 needs --perturb SIGMA > 0 (the copies would be the same)")
+    if args.seeds == 1 and args.perturb > 0:
+        raise ValueError("--perturb needs --seeds K ≥ 2 (copy 0 is the rendering itself, without noise)")
     if args.json:
         output_file(args.json)  # before the runs, not after them
 
@@ -170,7 +175,7 @@ def main(argv=None) -> int:
         for key, values in varies:
             settings += [{key: v} for v in values if getattr(base, key) != v]
 
-    scenes = args.scenes or list(synth.list_scenes())
+    scenes = list(dict.fromkeys(args.scenes)) if args.scenes else list(synth.list_scenes())  # (each once)
     for s in scenes:
         synth.get_scene(s)
     data = {s: synth.render_scene(s, size=tuple(args.size), grid=args.views) for s in scenes}
@@ -198,6 +203,7 @@ def main(argv=None) -> int:
         result = {"change": change, "scenes": {name: r[0] for name, r in rows.items()}, "geomean": g}
         if copies:
             result["copies"] = rows
+            result["median"] = med
             result["geomean_range"] = spread
         results.append(result)
     if args.json:

@@ -37,6 +37,7 @@ def test_copies_are_the_rendering_then_reproducible_independent_noise():
     a2, _ = sweep.perturbed(lf1, lf2, 0.01, 2, "paper")
     other, _ = sweep.perturbed(lf1, lf2, 0.01, 1, "slanted")
     assert abs(np.corrcoef(n1.ravel(), (a2.views - views).ravel())[0, 1]) < 0.05
+    assert abs(np.corrcoef(m1.ravel(), (a2.views - views).ravel())[0, 1]) < 0.05  # no seed shared across copies
     assert abs(np.corrcoef(n1.ravel(), (other.views - views).ravel())[0, 1]) < 0.05
 
 
@@ -58,14 +59,24 @@ def test_a_sweep_with_copies_keeps_the_rendering_as_its_first(tmp_path, capsys):
     sweep = _sweep_script()
     common = ["--size", "32", "24", "--preset", "fast", "--scenes", "paper", "--device", "cpu"]
     assert sweep.main([*common, "--json", str(tmp_path / "one.json")]) == 0
+    capsys.readouterr()
     assert sweep.main([*common, "--seeds", "3", "--perturb", "0.02", "--json", str(tmp_path / "three.json")]) == 0
-    assert "range over copies" in capsys.readouterr().out
+    table = capsys.readouterr().out
+    assert "range over copies" in table
+    cells = next(line for line in table.splitlines() if line.startswith("| base |")).split("|")[2]
     one = json.loads((tmp_path / "one.json").read_text())["results"][0]
     three = json.loads((tmp_path / "three.json").read_text())
     assert three["seeds"] == 3 and three["perturb"] == 0.02
     result = three["results"][0]
     copies = result["copies"]["paper"]
     assert len(copies) == 3
+    assert result["scenes"]["paper"] == copies[0]
+    # the table's cell: each error's median over the copies
+    shown = [float(v) for v in cells.split("/")[:3]]
+    for k, v in zip(("disp1", "disp2", "epe"), shown):
+        median = float(np.median([c[k] for c in copies]))
+        assert result["median"]["paper"][k] == median
+        assert v == pytest.approx(median, abs=0.000051 if k != "epe" else 0.00051)
     for k in ("disp1", "disp2", "epe"):
         assert copies[0][k] == one["scenes"]["paper"][k]
         low, high = result["geomean_range"][k]
