@@ -168,13 +168,9 @@ def test_hci_breakdown_parts_add_up_to_lfsf_eval():
     """scripts/hci_breakdown.py: its regions and the rest add up to the total, which is
     ``lfsf eval``'s MSE×100 with the benchmark's 15-px border; the part off by more than
     1 holds exactly those pixels."""
-    import importlib.util
-    from pathlib import Path
+    from conftest import load_script
 
-    path = Path(__file__).resolve().parent.parent / "scripts" / "hci_breakdown.py"
-    spec = importlib.util.spec_from_file_location("hci_breakdown", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = load_script("hci_breakdown")
     rng = np.random.default_rng(3)
     truth = rng.uniform(-3, 3, (512, 512)).astype(np.float32)
     estimate = truth + rng.normal(0, 0.3, truth.shape).astype(np.float32)

@@ -1580,13 +1580,12 @@ def test_median_networks_select_the_median_and_match_their_generator():
     """The selection networks (kernels/median_networks.py) are what
     scripts/gen_median_networks.py generates, and select the median of random, tied and
     0/1 inputs (its check, NumPy on the same operations)."""
-    import importlib.util
     from pathlib import Path
 
+    from conftest import load_script
+
     root = Path(__file__).resolve().parents[1]
-    spec = importlib.util.spec_from_file_location("gen_median_networks", root / "scripts" / "gen_median_networks.py")
-    gen = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(gen)
+    gen = load_script("gen_median_networks")
     text = (root / "kernels" / "median_networks.py").read_text()
     for n in gen.SIZES:
         gen.check(n)

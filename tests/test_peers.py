@@ -90,14 +90,9 @@ def test_disparity_at_t1_pixels_samples_at_p_plus_u(peers):
 
 
 def _compare_peers_script():
-    import importlib.util
-    from pathlib import Path
+    from conftest import load_script
 
-    path = Path(__file__).resolve().parents[1] / "scripts" / "compare_peers.py"
-    spec = importlib.util.spec_from_file_location("compare_peers_script", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("compare_peers")
 
 
 def test_compare_peers_selects_built_in_and_random_scenes(capsys):

@@ -1,24 +1,19 @@
 """scripts/sweep.py: copies of each scene with imperceptible noise, to tell a setting's
 effect from the chance of the estimator's hard choices."""
 
-import importlib.util
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from lfsf import synth
 from lfsf.io import LightField
+
+from conftest import load_script
 
 
 def _sweep_script():
-    path = Path(__file__).resolve().parents[1] / "scripts" / "sweep.py"
-    spec = importlib.util.spec_from_file_location("sweep_script", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("sweep")
 
 
 def test_copies_are_the_rendering_then_reproducible_independent_noise():
