@@ -252,6 +252,26 @@ def load_images(folder: str | Path) -> list[np.ndarray]:
     return [_as_rgb(read_image(f), str(f)) for f in files]
 
 
+#: scikit-image's sample photographs and textures that :func:`photographs` gives for
+#: ``"skimage"``.
+SKIMAGE_IMAGES = ("astronaut", "coffee", "chelsea", "rocket", "camera", "brick", "grass", "gravel", "coins",
+                  "moon")
+
+
+def photographs(source: str | Path) -> list[np.ndarray]:
+    """Images for :func:`with_images`: scikit-image's samples for ``"skimage"``
+    (:data:`SKIMAGE_IMAGES`, as they come; the renderer scales integers to [0, 1]; needs
+    the ``peers`` extra), else the images of a folder (:func:`load_images`, whose errors
+    name the folder or file)."""
+    if str(source) != "skimage":
+        return load_images(source)
+    try:
+        import skimage.data
+    except ImportError:
+        raise ValueError("images from 'skimage' need scikit-image: pip install -e '.[peers]'") from None
+    return [np.asarray(getattr(skimage.data, name)()) for name in SKIMAGE_IMAGES]
+
+
 def _rotation(degrees) -> np.ndarray:
     """Rotation matrix of successive rotations about x, y, z (degrees)."""
     ax, ay, az = np.deg2rad(np.asarray(degrees, dtype=np.float64))

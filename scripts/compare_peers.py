@@ -534,24 +534,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 #: The photographs of ``--images`` (loaded once, by :func:`load_images`).
 IMAGES: dict = {"list": None}
-#: scikit-image's sample photographs and textures that ``--images skimage`` uses.
-SKIMAGE_IMAGES = ("astronaut", "coffee", "chelsea", "rocket", "camera", "brick", "grass", "gravel", "coins",
-                  "moon")
 
 
 def load_images(source: str) -> list[np.ndarray]:
-    """The photographs of ``--images``: scikit-image's samples for ``skimage`` (as they
-    come; the renderer scales integers to [0, 1]), else the images of a folder
-    (:func:`lfsf.synth.load_images`, whose errors name the folder or file)."""
-    if source != "skimage":
-        from lfsf import synth
+    """The photographs of ``--images``: scikit-image's samples for ``skimage``, else the
+    images of a folder (:func:`lfsf.synth.photographs`)."""
+    from lfsf import synth
 
-        return synth.load_images(source)
-    try:
-        import skimage.data
-    except ImportError:
-        raise ValueError("--images skimage needs scikit-image: pip install -e '.[peers]'") from None
-    return [np.asarray(getattr(skimage.data, name)()) for name in SKIMAGE_IMAGES]
+    return synth.photographs(source)
 
 
 def selected_scenes(args) -> list[str]:

@@ -26,6 +26,10 @@ over all scenes and copies and ``geomean_range`` the range.
 
     python scripts/sweep.py --scenes paper slanted random-0 random-1 --seeds 3 \
         --perturb 0.001 --vary "lambda3=20,40"
+
+``--images skimage`` (or a folder) puts photographs on the objects, each scene's drawn
+from its name as ``compare_peers.py --images`` draws them: natural images are where the
+defaults, tuned on the solid textures, are weakest (docs/accuracy.md).
 """
 
 from __future__ import annotations
@@ -140,6 +144,10 @@ def main(argv=None) -> int:
     ap.add_argument("--grid", dest="views", type=int, default=9, help="N×N views")
     ap.add_argument("--scenes", nargs="*", default=None)
     ap.add_argument("--preset", default="paper")
+    ap.add_argument("--images", metavar="SOURCE",
+                    help="photographs on the objects instead of their solid textures: 'skimage' "
+                         "(scikit-image's samples) or a folder of images; each scene's images drawn from "
+                         "its name, as compare_peers.py --images draws them")
     ap.add_argument("--base", default="", help="settings applied to every run, e.g. 'lambda3=30,warps=4'")
     ap.add_argument("--vary", action="append", default=[], help="'key=v1,v2,…' (one at a time around the base)")
     ap.add_argument("--cartesian", action="store_true", help="every combination of the --vary values")
@@ -178,13 +186,19 @@ def main(argv=None) -> int:
     scenes = list(dict.fromkeys(args.scenes)) if args.scenes else list(synth.list_scenes())  # (each once)
     for s in scenes:
         synth.get_scene(s)
-    data = {s: synth.render_scene(s, size=tuple(args.size), grid=args.views) for s in scenes}
+    images = synth.photographs(args.images) if args.images is not None else None
+
+    def scene_of(name):  # the scene's geometry and motion; photographs for textures with --images
+        return name if images is None else synth.with_images(name, len(images), seed=zlib.crc32(name.encode()))
+
+    data = {s: synth.render_scene(scene_of(s), size=tuple(args.size), grid=args.views, images=images)
+            for s in scenes}
     results = []
     copies = args.seeds > 1
     header = ("| setting | " + " | ".join(f"{s} δ1 / δ2 / EPE / s" for s in scenes)
               + " | gmean δ1 | gmean δ2 | gmean EPE |" + (" range over copies δ1 / δ2 / EPE |" if copies else ""))
     print(f"base: {args.base or '(preset ' + args.preset + ')'}; {args.size[0]}×{args.size[1]}, "
-          f"{args.views}×{args.views} views"
+          f"{args.views}×{args.views} views" + (f", photographs from {args.images}" if images else "")
           + (f"; {args.seeds} copies of each scene (noise σ = {args.perturb:g} on all but the first), "
              "per scene their median" if copies else ""), flush=True)
     print(header)
@@ -207,7 +221,7 @@ def main(argv=None) -> int:
             result["geomean_range"] = spread
         results.append(result)
     if args.json:
-        report = {"base": args.base, "size": args.size, "views": args.views, "seeds": args.seeds,
+        report = {"base": args.base, "size": args.size, "views": args.views, "images": args.images, "seeds": args.seeds,
                   "perturb": args.perturb, "results": results}
         write_json_atomic(args.json, report, indent=1, default=str)
     return 0

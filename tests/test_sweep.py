@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from lfsf import synth
 from lfsf.io import LightField
 
 from conftest import load_script
@@ -77,3 +78,48 @@ def test_a_sweep_with_copies_keeps_the_rendering_as_its_first(tmp_path, capsys):
         low, high = result["geomean_range"][k]
         assert low <= min(c[k] for c in copies) * (1 + 1e-9) and high >= max(c[k] for c in copies) * (1 - 1e-9)
     assert any(copies[1][k] != copies[0][k] for k in ("disp1", "disp2", "epe"))
+
+
+
+def test_a_sweep_puts_the_photographs_on_the_objects(tmp_path, capsys, monkeypatch):
+    """--images FOLDER: the scene keeps its geometry and shows the folder's images, each
+    object's drawn from the scene's name as compare_peers.py --images draws them; the
+    result differs from the solid texture's. A missing folder is named."""
+    import zlib
+
+    import imageio.v3 as iio
+
+    rng = np.random.default_rng(2)
+    for k in range(2):
+        iio.imwrite(tmp_path / f"p{k}.png", (rng.random((40, 60, 3)) * 255).astype(np.uint8))
+    sweep = _sweep_script()
+    rendered = []
+    render = synth.render_scene
+
+    def recording(scene, **kwargs):
+        rendered.append((scene, kwargs.get("images")))
+        return render(scene, **kwargs)
+
+    monkeypatch.setattr(synth, "render_scene", recording)
+    common = ["--size", "32", "24", "--preset", "fast", "--scenes", "slanted", "--device", "cpu"]
+    assert sweep.main([*common, "--json", str(tmp_path / "solid.json")]) == 0
+    assert sweep.main([*common, "--images", str(tmp_path), "--json", str(tmp_path / "photo.json")]) == 0
+    assert f"photographs from {tmp_path}" in capsys.readouterr().out
+    assert rendered[0] == ("slanted", None)
+    scene, images = rendered[1]
+    assert len(images) == 2
+    assert scene == synth.with_images("slanted", 2, seed=zlib.crc32(b"slanted"))
+    assert all(obj.texture.image >= 0 for obj in scene.objects)
+    solid = json.loads((tmp_path / "solid.json").read_text())
+    photo = json.loads((tmp_path / "photo.json").read_text())
+    assert solid["images"] is None and photo["images"] == str(tmp_path)
+    assert photo["results"][0]["scenes"]["slanted"] != solid["results"][0]["scenes"]["slanted"]
+    with pytest.raises(FileNotFoundError, match="no such folder"):
+        sweep.main([*common, "--images", str(tmp_path / "missing")])
+
+
+def test_photographs_from_scikit_image_are_its_samples():
+    pytest.importorskip("skimage")
+    images = synth.photographs("skimage")
+    assert len(images) == len(synth.SKIMAGE_IMAGES) == 10
+    assert all(np.asarray(a).ndim in (2, 3) and min(np.shape(a)[:2]) >= 256 for a in images)
