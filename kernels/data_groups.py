@@ -24,13 +24,15 @@ from . import data_term
 from .common import (HALF_PLANES, bilinear, bilinear_gradient, bilinear_taps, contiguous_row, float_run, footprint,
                      footprint_visible, from_vec4, half_plane_mask, inside, interior, lane_vector, overload_unknowns,
                      to_vec4)
-from .data_term import (CENTRE_OCCLUSION_FACTOR, COEFFICIENTS, DATA_LANES, DUALS, OCCLUSION_FLOOR,
-                        pixel_coefficients, second_pass)
+from .data_term import (CENTRE_OCCLUSION_FACTOR, COEFFICIENTS, DATA_LANES, DUALS, FLAG_BITS, OCCLUSION_FLOOR,
+                        flag_vector, pixel_coefficients, second_pass)
 
 wp.set_module_options({"enable_backward": False, "max_unroll": 1})
 
 #: A value for each pixel of a group.
 lanes_f = lane_vector(DATA_LANES)
+#: A row-flag word for each pixel of a group.
+lanes_u = flag_vector(DATA_LANES)
 #: Per-half-plane sums of a group: [half-plane, lane].
 half_lanes = wp.types.matrix(shape=(HALF_PLANES, DATA_LANES), dtype=wp.float32)
 
@@ -76,6 +78,14 @@ def lookup_lanes(img: wp.array2d(dtype=float), run: wp.array(dtype=float), x: la
 def store_lanes(ptr: wp.uint64, at: wp.int64, v: lanes_f):
     """The group's values v to floats ``at`` … of the memory at ``ptr``."""
     run = float_run(ptr, at, DATA_LANES)
+    for f in range(DATA_LANES):
+        run[f] = v[f]
+
+
+@wp.func
+def store_flags(ptr: wp.uint64, at: wp.int64, v: lanes_u):
+    """The group's row-flag words v to the int32 ``at`` … of the memory at ``ptr``."""
+    run = wp.array(ptr=ptr + wp.uint64(at * wp.int64(4)), shape=(DATA_LANES,), dtype=wp.int32)
     for f in range(DATA_LANES):
         run[f] = v[f]
 
@@ -135,13 +145,12 @@ def group_coefficients(
     x_hat: Any,
     occlusion_ratio: float,
     hidden2: wp.array2d(dtype=float),
-    eps: float,
-    step_ratio: float,
     zbuf1: wp.array3d(dtype=float),
     zbuf2: wp.array3d(dtype=float),
     margin: float,
     use_zbuf: int,
     coef: wp.array3d(dtype=float),
+    flags: wp.array3d(dtype=wp.int32),
     grad_j2: wp.array3d(dtype=float),
     data_colsum: Any,
     q: wp.array3d(dtype=float),
@@ -203,7 +212,13 @@ def group_coefficients(
     keep2 = lanes_f()
     coef_at = (wp.int64(i) * wp.int64(coef.shape[1]) + wp.int64(g)) * wp.int64(coef.shape[2])
     q_at = (wp.int64(i) * wp.int64(q.shape[1]) + wp.int64(g)) * wp.int64(q.shape[2])
-    for s in range(phis.shape[0]):
+    flags_at = (wp.int64(i) * wp.int64(flags.shape[1]) + wp.int64(g)) * wp.int64(flags.shape[2])
+    n = phis.shape[0]
+    words = (n + FLAG_BITS - 1) // FLAG_BITS
+    flag1 = lanes_u()
+    flag2 = lanes_u()
+    flag3 = lanes_u()
+    for s in range(n):
         phi = phis[s]
         lam = weights[s]
         view1 = samples1[s]
@@ -248,14 +263,13 @@ def group_coefficients(
             in_2 = inside(view2, x2[f], y2[f]) and seen2 and (s > 0 or in_j0[f] > 0.0) and hid[f] == 0.0
             keep1[f] = wp.where(in_1, 1.0, 0.0)
             keep2[f] = wp.where(in_2, 1.0, 0.0)
-        # the coefficients, the steps σ̃ (data_term.row_steps, operation for operation), the
-        # stored values (data_term.STORED) and the duals of the rows left out. (Stores in
-        # loops of their own: the compiler vectorises a loop that writes to one run.)
+        # the coefficients, the row weights and column sums (data_term.row_steps, operation
+        # for operation), the stored values, the row flags and the duals of the rows left
+        # out. (Stores in loops of their own: the compiler vectorises a loop that writes to
+        # one run.)
         c0 = lanes_f()
         c2 = lanes_f()
-        sig1 = lanes_f()
-        sig2 = lanes_f()
-        sig3 = lanes_f()
+        bit = wp.int32(1) << wp.int32(s % FLAG_BITS)
         wt1_f = lanes_f()
         wt2_f = lanes_f()
         wt3_f = lanes_f()
@@ -273,9 +287,9 @@ def group_coefficients(
             wt1 = wp.where(in_1, lam[0], 0.0)
             wt2 = wp.where(in_2 and in_j0[f] > 0.0, lam[1], 0.0)
             wt3 = wp.where(in_1 and in_2, lam[2], 0.0)
-            sig1[f] = wt1 * wt1 / ((wt1 * a1 + eps) * step_ratio)
-            sig2[f] = wt2 * wt2 / ((wt2 * (a3 + a8 + a9) + eps) * step_ratio)
-            sig3[f] = wt3 * wt3 / ((wt3 * (a1 + a3 + a5 + a6) + eps) * step_ratio)
+            flag1[f] = flag1[f] | wp.where(wt1 > 0.0, bit, wp.int32(0))
+            flag2[f] = flag2[f] | wp.where(wt2 > 0.0, bit, wp.int32(0))
+            flag3[f] = flag3[f] | wp.where(wt3 > 0.0, bit, wp.int32(0))
             cs0[f] = cs0[f] + (wt1 + wt3) * a1
             cs1[f] = cs1[f] + (wt2 + wt3) * a3
             cs2[f] = cs2[f] + (wt2 * a8 + wt3 * a5)
@@ -291,9 +305,15 @@ def group_coefficients(
         store_lanes(coef.ptr, at + wp.int64(4 * lanes), g2x)
         store_lanes(coef.ptr, at + wp.int64(5 * lanes), g2y)
         store_lanes(coef.ptr, at + wp.int64(6 * lanes), w1v - w2v)
-        store_lanes(coef.ptr, at + wp.int64(7 * lanes), sig1)
-        store_lanes(coef.ptr, at + wp.int64(8 * lanes), sig2)
-        store_lanes(coef.ptr, at + wp.int64(9 * lanes), sig3)
+        if s % FLAG_BITS == FLAG_BITS - 1 or s == n - 1:
+            # a word of flags complete: stored, and the next one started
+            word = wp.int64(s // FLAG_BITS)
+            store_flags(flags.ptr, flags_at + word * wp.int64(lanes), flag1)
+            store_flags(flags.ptr, flags_at + (wp.int64(words) + word) * wp.int64(lanes), flag2)
+            store_flags(flags.ptr, flags_at + (wp.int64(2 * words) + word) * wp.int64(lanes), flag3)
+            flag1 = lanes_u()
+            flag2 = lanes_u()
+            flag3 = lanes_u()
         qa = q_at + wp.int64(DUALS * s * lanes)
         zero_left_out(q.ptr, qa, wt1_f)
         zero_left_out(q.ptr, qa + wp.int64(lanes), wt2_f)
@@ -316,8 +336,8 @@ def group_coefficients(
         for f in range(DATA_LANES):
             if again[f] > 0.0:
                 colsum = second_pass(i, j0 + f, g, f, lanes, to_vec4(x_hat[i, j0 + f]), int(half1[f]), int(half2[f]),
-                                     in_j[f] > 0.0, hid[f] > 0.0, samples1, samples2, phis, weights, eps,
-                                     step_ratio, zbuf1, zbuf2, margin, use_zbuf, coef, grad_j2, q)
+                                     in_j[f] > 0.0, hid[f] > 0.0, samples1, samples2, phis, weights, zbuf1, zbuf2,
+                                     margin, use_zbuf, coef, flags, grad_j2, q)
                 cs0[f] = colsum[0]
                 cs1[f] = colsum[1]
                 cs2[f] = colsum[2]
@@ -337,8 +357,6 @@ def data_coefficients_groups(
     x_hat: wp.array2d(dtype=Any),
     occlusion_ratio: float,
     hidden2: wp.array2d(dtype=float),
-    eps: float,
-    step_ratio: float,
     zbuf1: wp.array3d(dtype=float),
     zbuf2: wp.array3d(dtype=float),
     margin: float,
@@ -346,6 +364,7 @@ def data_coefficients_groups(
     lanes: int,
     # outputs
     coef: wp.array3d(dtype=float),
+    flags: wp.array3d(dtype=wp.int32),
     grad_j2: wp.array3d(dtype=float),
     data_colsum: wp.array2d(dtype=Any),
     q: wp.array3d(dtype=float),
@@ -362,12 +381,12 @@ def data_coefficients_groups(
     w = samples1.shape[2]
     j0 = g * lanes
     if lanes == DATA_LANES and j0 + lanes <= w and h >= 4:
-        group_coefficients(i, g, samples1, samples2, phis, weights, x_hat, occlusion_ratio, hidden2, eps, step_ratio,
-                           zbuf1, zbuf2, margin, use_zbuf, coef, grad_j2, data_colsum, q)
+        group_coefficients(i, g, samples1, samples2, phis, weights, x_hat, occlusion_ratio, hidden2, zbuf1, zbuf2,
+                           margin, use_zbuf, coef, flags, grad_j2, data_colsum, q)
     else:
         for j in range(j0, wp.min(j0 + lanes, w)):
-            pixel_coefficients(i, j, samples1, samples2, phis, weights, x_hat, occlusion_ratio, hidden2, eps,
-                               step_ratio, zbuf1, zbuf2, margin, use_zbuf, lanes, coef, grad_j2, data_colsum, q)
+            pixel_coefficients(i, j, samples1, samples2, phis, weights, x_hat, occlusion_ratio, hidden2, zbuf1, zbuf2,
+                               margin, use_zbuf, lanes, coef, flags, grad_j2, data_colsum, q)
 
 
 overload_unknowns(data_coefficients_groups, "x_hat", "data_colsum")

@@ -8,22 +8,34 @@ W1 = L(p − δ̂1 φ, φ, t1), W2 = L(p + û − δ̂2 φ, φ, t2) and J2 = L(p
     ρ3 ≈ A7 + A1 Δδ1 − A3 Δδ2 − A5 Δu − A6 Δv     (flow, weight λ3)
 
 with Δx = x − x̂. The unknowns are packed per pixel as vec4 (δ1, δ2, u, v), or as vec2
-(u, v) for flow only (:data:`lfsf.kernels.common.UNKNOWNS`). Each sample's
-coefficients are the twelve values (A1 … A9, σ̃1, σ̃2, σ̃3), and its scaled duals three.
-A8 and A9 are ∇J2 − (A5, A6), with ∇J2 the pixel's own (the same for every sample), so
-ten values a sample are stored, (A1 … A7, σ̃1, σ̃2, σ̃3), and ∇J2 once a pixel; A8 and A9
-are rebuilt from them, bit for bit (one float subtraction either way). They are stored
-in *lanes*: a row's pixels in groups of L consecutive ones (L = :data:`DATA_LANES` on
-the CPU, 1 on CUDA), and for each group, sample and value the L pixels' values side by
-side, ``coef[i, j // L, (10 s + k) L + j % L]`` (a float array, as
-:func:`data_coefficients` writes it; the same memory as L-vectors ``[i, j // L, 10 s + k]``,
-as :data:`dual_data_step` reads it), and ∇J2 as ``grad_j2[i, j // L, k L + j % L]``, k =
-0, 1. With L = 1 this is pixel-major: what one pixel's iteration reads is contiguous.
-With L = 8 the iteration works on 8 pixels at once in vector registers. The row weight w_k is λ_k (divided
-by the sample count) or 0 where the row is left out (a warped position leaves the image,
-an occlusion); σ̃_k = w_k² / ((w_k Σ|row k| + ε) c) is the dual step of the scaled dual
-q̃_k = w_k q_k ∈ [−w_k, w_k] (c: the step ratio, :class:`lfsf.Params` ``step_ratio``),
-so the iterations divide nothing and a left-out row has σ̃_k = 0 and q̃_k = 0.
+(u, v) for flow only (:data:`lfsf.kernels.common.UNKNOWNS`).
+
+The row weight w_k is λ_k (divided by the sample count) or 0 where the row is left out (a
+warped position leaves the image, an occlusion); σ̃_k = w_k² / ((w_k Σ|row k| + ε) c) is
+the dual step of the scaled dual q̃_k = w_k q_k ∈ [−w_k, w_k] (c: the step ratio,
+:class:`lfsf.Params` ``step_ratio``), so a left-out row has σ̃_k = 0 and q̃_k = 0.
+
+What a warp stores, once, for the iterations to read, per pixel and sample: A1 … A7
+(:data:`COEFFICIENTS`) and the scaled duals q̃1 … q̃3 (:data:`DUALS`); per pixel: ∇J2
+(the same for every sample; A8, A9 = ∇J2 − (A5, A6) are rebuilt from it, bit for bit,
+one float subtraction either way) and the *row flags*, one bit per sample and row, set
+where the row is in (:func:`flag_words` words of 31 bits a row). The dual step computes
+σ̃_k from the coefficients and the flag, every iteration: three divisions a sample,
+hidden behind the loads of a step bound by memory. Until the twenty-fourth session the
+coefficients' kernel stored σ̃1 … σ̃3, 10 values a sample where 7 and the flags now do;
+the dual step takes 0.83–0.86× the time without them (640×480, 17 samples, medians of
+22 alternating launches), with the same results bit for bit (the same float operations
+on the same values).
+
+The values are stored in *lanes*: a row's pixels in groups of L consecutive ones (L =
+:data:`DATA_LANES` on the CPU, 1 on CUDA), and for each group, sample and value the L
+pixels' values side by side, ``coef[i, j // L, (7 s + k) L + j % L]`` (a float array, as
+:func:`data_coefficients` writes it; the same memory as L-vectors ``[i, j // L, 7 s + k]``,
+as :data:`dual_data_step` reads it), ∇J2 as ``grad_j2[i, j // L, k L + j % L]``, k = 0,
+1, and the flags (int32) as ``flags[i, j // L, (k W + s // 31) L + j % L]``, bit s % 31,
+for row k = 0, 1, 2 (ρ1, ρ2, ρ3) and W = :func:`flag_words` of the sample count. With
+L = 1 this is pixel-major: what one pixel's iteration reads is contiguous. With L = 8 the
+iteration works on 8 pixels at once in vector registers.
 """
 
 from typing import Any
@@ -37,20 +49,38 @@ from .common import (HALF_PLANES, add_residual, bilinear_with_gradient, from_vec
 
 wp.set_module_options({"enable_backward": False})
 
-vec12 = wp.types.vector(length=12, dtype=wp.float32)
+_FLAG_VECTORS: dict = {}
+
+
+def flag_vector(lanes: int):
+    """The vector type of ``lanes`` int32 row-flag words (one per pixel of a group)."""
+    if lanes not in _FLAG_VECTORS:
+        _FLAG_VECTORS[lanes] = wp.types.vector(length=lanes, dtype=wp.int32)
+    return _FLAG_VECTORS[lanes]
+
+
+#: A sample's coefficients A1 … A9.
+vec9 = wp.types.vector(length=9, dtype=wp.float32)
 #: Pixels per group of the data term's storage on the CPU (see the module's docstring):
 #: the dual step then runs 8 pixels at once in vector registers, 0.69× the time of one
 #: pixel at a time (640×480, 17 samples, medians of 8 rounds; bit-identical results).
 #: CUDA takes 1 (a thread per pixel).
 DATA_LANES = 8
-#: Values stored per sample: the coefficients (A1 … A7, σ̃1 … σ̃3; A8, A9 rebuilt from
-#: ∇J2, stored once a pixel) and the scaled duals. Ten instead of twelve: the dual step,
-#: bound by memory since it runs 8 pixels at once, 0.89× the time (medians of 8 rounds).
-COEFFICIENTS = 10
+#: Values stored per sample: the coefficients A1 … A7 (A8, A9 rebuilt from ∇J2, stored
+#: once a pixel; σ̃1 … σ̃3 from the coefficients and the row flags) and the scaled duals.
+#: Seven instead of twelve: the dual step, bound by memory since it runs 8 pixels at
+#: once, took 0.89× the time with ten (A8, A9 rebuilt), and 0.83–0.89× that with seven.
+COEFFICIENTS = 7
 DUALS = 3
-#: The stored values' places in the twelve (A1 … A9, σ̃1 … σ̃3): all but A8 and A9 (7, 8).
-STORED_VALUES = (0, 1, 2, 3, 4, 5, 6, 9, 10, 11)
-STORED = wp.constant(wp.types.vector(length=COEFFICIENTS, dtype=wp.int32)(*STORED_VALUES))
+#: The data rows of a sample (ρ1, ρ2, ρ3), each with its flag bits.
+ROWS = wp.constant(3)
+#: Row flags per int32 word (the sign bit is left alone).
+FLAG_BITS = wp.constant(31)
+
+
+def flag_words(samples: int) -> int:
+    """Words of row flags per pixel and row for ``samples`` samples."""
+    return -(-int(samples) // FLAG_BITS)
 #: An occlusion must also raise the mean residual by this much (intensities in [0, 1]):
 #: in weak texture, ratios of tiny residuals are noise.
 OCCLUSION_FLOOR = wp.constant(0.01)
@@ -99,9 +129,10 @@ def keeps(best: int, normal: wp.vec2, phi: wp.vec2):
 
 
 @wp.func
-def row_steps(c: vec12, lam: wp.vec3, in_1: bool, in_2: bool, in_j: bool, eps: float, step_ratio: float):
-    """The row weights w_k of one sample (λ_k where the row is in, else 0) and, in c, the
-    dual steps σ̃_k; returns (c, (w1, w2, w3), its part of the column sums Σ|K|)."""
+def row_steps(c: vec9, lam: wp.vec3, in_1: bool, in_2: bool, in_j: bool):
+    """The row weights w_k of one sample (λ_k where the row is in, else 0) and their part
+    of the column sums Σ|K| (the data part of the preconditioner τ), from the sample's
+    coefficients c = (A1 … A9)."""
     a1 = wp.abs(c[0])
     a3 = wp.abs(c[2])
     a5 = wp.abs(c[4])
@@ -117,35 +148,50 @@ def row_steps(c: vec12, lam: wp.vec3, in_1: bool, in_2: bool, in_j: bool, eps: f
         wt2 = lam[1]
     if in_1 and in_2:
         wt3 = lam[2]
-    c[9] = wt1 * wt1 / ((wt1 * a1 + eps) * step_ratio)
-    c[10] = wt2 * wt2 / ((wt2 * (a3 + a8 + a9) + eps) * step_ratio)
-    c[11] = wt3 * wt3 / ((wt3 * (a1 + a3 + a5 + a6) + eps) * step_ratio)
     colsum = wp.vec4((wt1 + wt3) * a1, (wt2 + wt3) * a3, wt2 * a8 + wt3 * a5, wt2 * a9 + wt3 * a6)
-    return c, wp.vec3(wt1, wt2, wt3), colsum
+    return wp.vec3(wt1, wt2, wt3), colsum
 
 
 @wp.func
 def load_coefficients(coef: wp.array3d(dtype=float), grad_j2: wp.array3d(dtype=float), i: int, g: int, lane: int,
                       lanes: int, s: int):
-    """The twelve values of sample s at the pixel in lane ``lane`` of group g of row i
-    (column g · L + lane; lane storage, module docstring): the ten stored, and A8, A9 =
-    ∇J2 − (A5, A6)."""
+    """A1 … A9 of sample s at the pixel in lane ``lane`` of group g of row i (column
+    g · L + lane; lane storage, module docstring): the seven stored, and A8, A9 = ∇J2 −
+    (A5, A6)."""
     at = COEFFICIENTS * s * lanes + lane
-    c = vec12()
+    c = vec9()
     for k in range(COEFFICIENTS):
-        c[STORED[k]] = coef[i, g, at + k * lanes]
+        c[k] = coef[i, g, at + k * lanes]
     c[7] = grad_j2[i, g, lane] - c[4]
     c[8] = grad_j2[i, g, lanes + lane] - c[5]
     return c
 
 
 @wp.func
-def store_coefficients(coef: wp.array3d(dtype=float), i: int, g: int, lane: int, lanes: int, s: int, c: vec12):
-    """Store the ten values of sample s at that pixel that are not rebuilt (all but A8,
-    A9)."""
+def store_coefficients(coef: wp.array3d(dtype=float), i: int, g: int, lane: int, lanes: int, s: int, c: vec9):
+    """Store the seven values of sample s at that pixel that are not rebuilt (A1 … A7)."""
     at = COEFFICIENTS * s * lanes + lane
     for k in range(COEFFICIENTS):
-        coef[i, g, at + k * lanes] = c[STORED[k]]
+        coef[i, g, at + k * lanes] = c[k]
+
+
+@wp.func
+def clear_flags(flags: wp.array3d(dtype=wp.int32), i: int, g: int, lane: int, lanes: int, words: int):
+    """Every row flag of the pixel in lane ``lane`` of group g of row i set to 0 (out)."""
+    for k in range(ROWS * words):
+        flags[i, g, k * lanes + lane] = wp.int32(0)
+
+
+@wp.func
+def set_flags(flags: wp.array3d(dtype=wp.int32), i: int, g: int, lane: int, lanes: int, words: int, s: int,
+              wt: wp.vec3):
+    """Set the flags of sample s's rows that are in (w_k > 0) at that pixel (after
+    :func:`clear_flags`)."""
+    bit = wp.int32(1) << wp.int32(s % FLAG_BITS)
+    for k in range(ROWS):
+        if wt[k] > 0.0:
+            at = (k * words + s // FLAG_BITS) * lanes + lane
+            flags[i, g, at] = flags[i, g, at] | bit
 
 
 @wp.func
@@ -160,14 +206,14 @@ def keep_duals(q: wp.array3d(dtype=float), i: int, g: int, lane: int, lanes: int
 @wp.func
 def second_pass(i: int, j: int, g: int, lane: int, lanes: int, xh: wp.vec4, half1: int, half2: int, in_j: bool,
                 hidden: bool, samples1: wp.array3d(dtype=float), samples2: wp.array3d(dtype=float),
-                phis: wp.array(dtype=wp.vec2), weights: wp.array(dtype=wp.vec3), eps: float, step_ratio: float,
-                zbuf1: wp.array3d(dtype=float), zbuf2: wp.array3d(dtype=float), margin: float, use_zbuf: int,
-                coef: wp.array3d(dtype=float), grad_j2: wp.array3d(dtype=float), q: wp.array3d(dtype=float)):
+                phis: wp.array(dtype=wp.vec2), weights: wp.array(dtype=wp.vec3), zbuf1: wp.array3d(dtype=float),
+                zbuf2: wp.array3d(dtype=float), margin: float, use_zbuf: int, coef: wp.array3d(dtype=float),
+                flags: wp.array3d(dtype=wp.int32), grad_j2: wp.array3d(dtype=float), q: wp.array3d(dtype=float)):
     """The second pass of :func:`data_coefficients` at pixel (i, j), stored in lane
     ``lane`` of group g: the rows that the tests of all the samples keep (the best
-    halves ``half1``, ``half2``; the centre view at t2, ``in_j``), their steps σ̃ again
-    from the stored coefficients, and the duals of the rows left out zeroed. Returns
-    the column sums."""
+    halves ``half1``, ``half2``; the centre view at t2, ``in_j``), their flags again,
+    and the duals of the rows left out zeroed. Returns the column sums, again from the
+    stored coefficients."""
     px = float(j)
     py = float(i)
     xj = px + xh[2]
@@ -175,6 +221,8 @@ def second_pass(i: int, j: int, g: int, lane: int, lanes: int, xh: wp.vec4, half
     normal1 = half_plane_normal(wp.max(half1, 0))
     normal2 = half_plane_normal(wp.max(half2, 0))
     colsum = wp.vec4(0.0)
+    words = (phis.shape[0] + FLAG_BITS - 1) // FLAG_BITS
+    clear_flags(flags, i, g, lane, lanes, words)
     for s in range(phis.shape[0]):
         phi = phis[s]
         x1 = px - xh[0] * phi[0]
@@ -191,9 +239,8 @@ def second_pass(i: int, j: int, g: int, lane: int, lanes: int, xh: wp.vec4, half
             seen2 = keeps(half2, normal2, phi)
         in_1 = inside(samples1[s], x1, y1) and seen1
         in_2 = inside(samples2[s], x2, y2) and seen2 and (s > 0 or in_j) and not hidden
-        c, wt, part = row_steps(load_coefficients(coef, grad_j2, i, g, lane, lanes, s), weights[s], in_1, in_2,
-                                in_j, eps, step_ratio)
-        store_coefficients(coef, i, g, lane, lanes, s, c)
+        wt, part = row_steps(load_coefficients(coef, grad_j2, i, g, lane, lanes, s), weights[s], in_1, in_2, in_j)
+        set_flags(flags, i, g, lane, lanes, words, s, wt)
         keep_duals(q, i, g, lane, lanes, s, wt)
         colsum += part
     return colsum
@@ -210,14 +257,13 @@ def pixel_coefficients(
     x_hat: Any,
     occlusion_ratio: float,
     hidden2: wp.array2d(dtype=float),
-    eps: float,
-    step_ratio: float,
     zbuf1: wp.array3d(dtype=float),
     zbuf2: wp.array3d(dtype=float),
     margin: float,
     use_zbuf: int,
     lanes: int,
     coef: wp.array3d(dtype=float),
+    flags: wp.array3d(dtype=wp.int32),
     grad_j2: wp.array3d(dtype=float),
     data_colsum: Any,
     q: wp.array3d(dtype=float),
@@ -250,6 +296,8 @@ def pixel_coefficients(
     # floor, which needs |i1 − j2| above the floor; t1's only without the view z-buffers
     halves2 = use_zbuf == 0 or (occlusion_ratio > 0.0 and wp.abs(i1 - j2) > OCCLUSION_FLOOR)
     colsum = wp.vec4(0.0)
+    words = (phis.shape[0] + FLAG_BITS - 1) // FLAG_BITS
+    clear_flags(flags, i, g, lane, lanes, words)
     for s in range(phis.shape[0]):
         phi = phis[s]
         view1 = samples1[s]
@@ -260,7 +308,7 @@ def pixel_coefficients(
         y2 = yj - xh[1] * phi[1]
         w1v, g1 = bilinear_with_gradient(view1, x1, y1)
         w2v, g2 = bilinear_with_gradient(view2, x2, y2)
-        c = vec12()
+        c = vec9()
         c[0] = -wp.dot(phi, g1)
         c[1] = i1 - w1v
         c[2] = -wp.dot(phi, g2)
@@ -288,8 +336,9 @@ def pixel_coefficients(
             seen2 = visible(zbuf2, s, x2, y2, xh[1], margin)
         in_1 = ins1 and seen1
         in_2 = ins2 and seen2 and (s > 0 or in_j0) and not hidden
-        c, wt, part = row_steps(c, weights[s], in_1, in_2, in_j0, eps, step_ratio)
+        wt, part = row_steps(c, weights[s], in_1, in_2, in_j0)
         store_coefficients(coef, i, g, lane, lanes, s, c)
+        set_flags(flags, i, g, lane, lanes, words, s, wt)
         keep_duals(q, i, g, lane, lanes, s, wt)
         colsum += part
     # Both light fields are tested against the point's appearance at t1, I1(p): at t2
@@ -302,11 +351,11 @@ def pixel_coefficients(
     # (only where side views at t2 give a residual to compare with: flow only, M = 1, has none)
     if occlusion_ratio > 0.0 and count2 > 0.0 and wp.abs(i1 - j2) > CENTRE_OCCLUSION_FACTOR * kept2 + OCCLUSION_FLOOR:
         in_j = False
-    # second pass, where the tests of all the samples leave rows out: the rows in, their
-    # steps σ̃ and the column sums again
+    # second pass, where the tests of all the samples leave rows out: the rows in (their
+    # flags) and the column sums again
     if (use_zbuf == 0 and (half1 >= 0 or half2 >= 0)) or (in_j0 and not in_j):
         colsum = second_pass(i, j, g, lane, lanes, xh, half1, half2, in_j, hidden, samples1, samples2, phis, weights,
-                             eps, step_ratio, zbuf1, zbuf2, margin, use_zbuf, coef, grad_j2, q)
+                             zbuf1, zbuf2, margin, use_zbuf, coef, flags, grad_j2, q)
     data_colsum[i, j] = from_vec4(colsum, unknowns)
 
 
@@ -320,8 +369,6 @@ def data_coefficients(
     x_hat: wp.array2d(dtype=Any),
     occlusion_ratio: float,
     hidden2: wp.array2d(dtype=float),
-    eps: float,
-    step_ratio: float,
     zbuf1: wp.array3d(dtype=float),
     zbuf2: wp.array3d(dtype=float),
     margin: float,
@@ -329,19 +376,20 @@ def data_coefficients(
     lanes: int,
     # outputs
     coef: wp.array3d(dtype=float),
+    flags: wp.array3d(dtype=wp.int32),
     grad_j2: wp.array3d(dtype=float),
     data_colsum: wp.array2d(dtype=Any),
     q: wp.array3d(dtype=float),
 ):
-    """Coefficients A1…A9 and dual steps σ̃1…σ̃3 of every sample at the linearisation
-    point x̂ (σ̃ divided by the step ratio c), and the column sums Σ|K| of the data rows for
-    each unknown (the data part of the preconditioner τ). ``coef``, ``grad_j2`` and ``q``
-    are lane storage of ``lanes`` pixels a group (module docstring): the ten stored values
-    of sample s at pixel (i, j) at ``coef[i, j // L, (10 s + k) L + j % L]``, k = 0 … 9
-    (A1 … A7, σ̃1 … σ̃3), and ∇J2, from which A8 and A9 are rebuilt. The scaled duals q̃
-    of the rows left out are set to 0 (the others kept):
-    :func:`dual_data_step` then needs no row flags, since a row with σ̃ = 0 and q̃ = 0
-    stays at 0.
+    """Coefficients A1…A9 of every sample at the linearisation point x̂, the rows kept,
+    and the column sums Σ|K| of the data rows for each unknown (the data part of the
+    preconditioner τ). ``coef``, ``flags``, ``grad_j2`` and ``q`` are lane storage of
+    ``lanes`` pixels a group (module docstring): the seven stored values of sample s at
+    pixel (i, j) at ``coef[i, j // L, (7 s + k) L + j % L]``, k = 0 … 6 (A1 … A7), ∇J2,
+    from which A8 and A9 are rebuilt, and the row flags, bit s of row k set where the row
+    is in (w_k > 0). The scaled duals q̃ of the rows left out are set to 0 (the others
+    kept): :func:`dual_data_step` gives a row left out σ̃ = 0, and with q̃ = 0 it stays
+    at 0.
 
     ``samples1[s]``, ``samples2[s]``: (texture part of) the sub-aperture image at φ_s at
     t1 and t2; sample 0 must be the centre view (φ = 0). ``weights[s]`` = (λ1, λ2, λ3)
@@ -366,7 +414,7 @@ def data_coefficients(
     One pass over the samples takes every row that the sample's own tests keep (in the
     image, seen by the z-buffers, not hidden). The best halves and the centre test,
     which need all the samples, can only leave rows out; a second pass, only at the
-    pixels where they do, recomputes the steps and column sums from the stored
+    pixels where they do, recomputes the flags and column sums from the stored
     coefficients. (Two passes at every pixel took 1.1–1.2× the time, 640×480.)
 
     A thread per pixel: CUDA's kernel. On the CPU
@@ -375,23 +423,33 @@ def data_coefficients(
     picks one).
     """
     i, j = wp.tid()
-    pixel_coefficients(i + row0, j, samples1, samples2, phis, weights, x_hat, occlusion_ratio, hidden2, eps,
-                       step_ratio, zbuf1, zbuf2, margin, use_zbuf, lanes, coef, grad_j2, data_colsum, q)
+    pixel_coefficients(i + row0, j, samples1, samples2, phis, weights, x_hat, occlusion_ratio, hidden2, zbuf1, zbuf2,
+                       margin, use_zbuf, lanes, coef, flags, grad_j2, data_colsum, q)
 
 
 def _dual_data_kernel(lanes: int):
     """:data:`dual_data_step` for groups of ``lanes`` pixels (the lane storage of the
     module docstring)."""
     row = lane_vector(lanes)
+    flag_row = flag_vector(lanes)
+
+    @wp.func
+    def step(on: row, lam: float, row_sum: row, eps: float, step_ratio: float):
+        """σ̃ = w² / ((w Σ|row| + ε) c) of one row of the L pixels, w = λ where the row is
+        in (``on`` 1), else 0 (``on`` 0; then σ̃ = 0)."""
+        return wp.cw_mul(on, wp.cw_div(row(lam * lam), (lam * row_sum + row(eps)) * step_ratio))
 
     @wp.kernel
     def dual_data_step(
         row0: int,
         coef: wp.array3d(dtype=row),
+        flags: wp.array3d(dtype=flag_row),
         weights: wp.array(dtype=wp.vec3),
         grad_j2: wp.array3d(dtype=row),
         x_bar: wp.array2d(dtype=Any),
         x_hat: wp.array2d(dtype=Any),
+        eps: float,
+        step_ratio: float,
         groups: int,
         # outputs
         q: wp.array3d(dtype=row),
@@ -400,22 +458,25 @@ def _dual_data_kernel(lanes: int):
         """Dual ascent on the data rows, fused with the primal gradient Kᵀq of the data term.
 
         With the scaled duals q̃_k = w_k q_k (``q``):
-        q̃_k ← clip(q̃_k + σ̃_k ρ_k(x̄), −w_k, w_k), σ̃_k = w_k σ_k and σ_k = 1 / (w_k Σ|row k| + ε)
-        the diagonal preconditioner; then ``data_grad`` = Σ_s Kᵀ q for (δ1, δ2, u, v). This
-        is q_k ← clip(q_k + σ_k w_k ρ_k, −1, 1) of the unscaled duals, without a division.
-        Rows left out (w_k = 0) must have q̃_k = 0, as :func:`data_coefficients` leaves them:
-        the clip is to ±λ_k, and σ̃_k = 0 keeps them at 0. The clip is vector min/max: a
-        NaN (which no valid input leads to) becomes −λ_k rather than passing through.
+        q̃_k ← clip(q̃_k + σ̃_k ρ_k(x̄), −w_k, w_k), σ̃_k = w_k σ_k / c and σ_k = 1 / (w_k
+        Σ|row k| + ε) the diagonal preconditioner (``eps`` ε, ``step_ratio`` c); then
+        ``data_grad`` = Σ_s Kᵀ q for (δ1, δ2, u, v). This is q_k ← clip(q_k + σ_k w_k ρ_k /
+        c, −1, 1) of the unscaled duals. w_k is λ_k where the row's flag is set, else 0.
+        Rows left out must have q̃_k = 0, as :func:`data_coefficients` leaves them: the
+        clip is to ±λ_k, and σ̃_k = 0 keeps them at 0. The clip is vector min/max: a NaN (which no valid input leads
+        to) becomes −λ_k rather than passing through.
 
-        ``coef``, ``grad_j2`` and ``q`` are the lane storage (module docstring) seen as
-        L-vectors, (rows, groups, 10 S), (rows, groups, 2) and (rows, groups, 3 S); A8, A9 =
-        ∇J2 − (A5, A6) are rebuilt per sample. Every operation acts on the L pixels of a
+        ``coef``, ``flags``, ``grad_j2`` and ``q`` are the lane storage (module docstring)
+        seen as L-vectors, (rows, groups, 7 S), (rows, groups, 3 W), (rows, groups, 2) and
+        (rows, groups, 3 S); A8, A9 = ∇J2 − (A5, A6) are rebuilt per sample. Every
+        operation acts on the L pixels of a
         group at once, each pixel's arithmetic the same as alone. Launch over (rows,
         ⌈groups per row / ``groups``⌉): each thread walks ``groups`` groups of a row."""
         i, c0 = wp.tid()
         i = i + row0
         w = x_bar.shape[1]
         n = weights.shape[0]
+        words = (n + FLAG_BITS - 1) // FLAG_BITS
         g0 = c0 * groups
         for g in range(g0, wp.min(coef.shape[1], g0 + groups)):
             # the L pixels' x̄ − x̂ per unknown (pixels past the row's end repeat the last; their
@@ -437,34 +498,53 @@ def _dual_data_kernel(lanes: int):
             s1 = row()
             s2 = row()
             s3 = row()
-            for s in range(n):
-                b = COEFFICIENTS * s
-                a1 = coef[i, g, b + 0]
-                a3 = coef[i, g, b + 2]
-                a5 = coef[i, g, b + 4]
-                a6 = coef[i, g, b + 5]
-                a8 = gjx - a5
-                a9 = gjy - a6
-                rho1 = coef[i, g, b + 1] - wp.cw_mul(a1, d0)
-                rho2 = coef[i, g, b + 3] - wp.cw_mul(a3, d1) + wp.cw_mul(a8, d2) + wp.cw_mul(a9, d3)
-                rho3 = coef[i, g, b + 6] + wp.cw_mul(a1, d0) - wp.cw_mul(a3, d1) - wp.cw_mul(a5, d2) - wp.cw_mul(a6, d3)
-                # clipped to ±λ_k: a row left out has σ̃_k = 0 and q̃_k = 0 (data_coefficients), so
-                # it stays 0 without a test of its flag
-                lam = weights[s]
-                top1 = row(lam[0])
-                top2 = row(lam[1])
-                top3 = row(lam[2])
-                e = DUALS * s
-                q1 = wp.min(wp.max(q[i, g, e] + wp.cw_mul(coef[i, g, b + 7], rho1), -top1), top1)
-                q2 = wp.min(wp.max(q[i, g, e + 1] + wp.cw_mul(coef[i, g, b + 8], rho2), -top2), top2)
-                q3 = wp.min(wp.max(q[i, g, e + 2] + wp.cw_mul(coef[i, g, b + 9], rho3), -top3), top3)
-                q[i, g, e] = q1
-                q[i, g, e + 1] = q2
-                q[i, g, e + 2] = q3
-                s0 += wp.cw_mul(q3 - q1, a1)
-                s1 += wp.cw_mul(-(q2 + q3), a3)
-                s2 += wp.cw_mul(q2, a8) - wp.cw_mul(q3, a5)
-                s3 += wp.cw_mul(q2, a9) - wp.cw_mul(q3, a6)
+            for word in range(words):
+                # the row flags of samples 31 word … 31 word + 30
+                f1 = flags[i, g, word]
+                f2 = flags[i, g, words + word]
+                f3 = flags[i, g, 2 * words + word]
+                for s in range(word * FLAG_BITS, wp.min(n, (word + 1) * FLAG_BITS)):
+                    bit = s - word * FLAG_BITS
+                    # the rows in (1) and out (0)
+                    on1 = row()
+                    on2 = row()
+                    on3 = row()
+                    for k in range(lanes):
+                        on1[k] = float((f1[k] >> bit) & 1)
+                        on2[k] = float((f2[k] >> bit) & 1)
+                        on3[k] = float((f3[k] >> bit) & 1)
+                    b = COEFFICIENTS * s
+                    a1 = coef[i, g, b + 0]
+                    a3 = coef[i, g, b + 2]
+                    a5 = coef[i, g, b + 4]
+                    a6 = coef[i, g, b + 5]
+                    a8 = gjx - a5
+                    a9 = gjy - a6
+                    rho1 = coef[i, g, b + 1] - wp.cw_mul(a1, d0)
+                    rho2 = coef[i, g, b + 3] - wp.cw_mul(a3, d1) + wp.cw_mul(a8, d2) + wp.cw_mul(a9, d3)
+                    rho3 = coef[i, g, b + 6] + wp.cw_mul(a1, d0) - wp.cw_mul(a3, d1) - wp.cw_mul(a5, d2) - wp.cw_mul(a6, d3)
+                    # the steps (row_steps' sums, in its order), 0 where the row is out; clipped to
+                    # ±λ_k: a row left out has σ̃_k = 0 and q̃_k = 0 (data_coefficients), so it stays 0
+                    lam = weights[s]
+                    b1 = wp.abs(a1)
+                    b3 = wp.abs(a3)
+                    sigma1 = step(on1, lam[0], b1, eps, step_ratio)
+                    sigma2 = step(on2, lam[1], b3 + wp.abs(a8) + wp.abs(a9), eps, step_ratio)
+                    sigma3 = step(on3, lam[2], b1 + b3 + wp.abs(a5) + wp.abs(a6), eps, step_ratio)
+                    top1 = row(lam[0])
+                    top2 = row(lam[1])
+                    top3 = row(lam[2])
+                    e = DUALS * s
+                    q1 = wp.min(wp.max(q[i, g, e] + wp.cw_mul(sigma1, rho1), -top1), top1)
+                    q2 = wp.min(wp.max(q[i, g, e + 1] + wp.cw_mul(sigma2, rho2), -top2), top2)
+                    q3 = wp.min(wp.max(q[i, g, e + 2] + wp.cw_mul(sigma3, rho3), -top3), top3)
+                    q[i, g, e] = q1
+                    q[i, g, e + 1] = q2
+                    q[i, g, e + 2] = q3
+                    s0 += wp.cw_mul(q3 - q1, a1)
+                    s1 += wp.cw_mul(-(q2 + q3), a3)
+                    s2 += wp.cw_mul(q2, a8) - wp.cw_mul(q3, a5)
+                    s3 += wp.cw_mul(q2, a9) - wp.cw_mul(q3, a6)
             for k in range(lanes):
                 j = g * lanes + k
                 if j < w:

@@ -205,7 +205,7 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
     phis, _radius = Params.preset("paper").sample_offsets((9, 9))
     h, w, s = height, width, len(phis)
     rng = np.random.default_rng(0)
-    f = 4  # bytes per float
+    f = 4  # bytes per float (and per flag word)
 
     def arr(a, dtype):
         return wp.array(np.ascontiguousarray(a, np.float32), dtype=dtype, device=dev)
@@ -222,6 +222,7 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
     lanes = data_term.data_lanes(dev)
     coefficients, coefficient_columns = data_groups.coefficients_kernel(w, lanes)
     sampled = wp.empty((s, h, w), dtype=float, device=dev)
+    flag_words = 3 * data_term.flag_words(s)
     if inputs == "scene":
         solver, views = _scene_solver(size, dev)
     else:
@@ -241,6 +242,8 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
         from lfsf.solver import lane_storage
 
         coef_store, coef = lane_storage(h, w, s, data_term.COEFFICIENTS, lanes, dev)
+        flags_store, flags = lane_storage(h, w, 1, 3 * data_term.flag_words(s), lanes, dev, flags=True)
+        flags_store.zero_()
         q_store, q = lane_storage(h, w, s, data_term.DUALS, lanes, dev)
         grad_j2_store, grad_j2 = lane_storage(h, w, 1, 2, lanes, dev)
         grad_j2_store.zero_()
@@ -269,17 +272,19 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
     if inputs == "scene":
         p = solver.params
         coef_inputs = [solver.samples1, solver.samples2, solver.phis, solver.weights, solver.x_hat, p.occlusion_ratio,
-                       solver.hidden2, p.eps, p.step_ratio, solver.view_zbuf1, solver.view_zbuf2,
-                       solver.view_margin(), int(solver.view_zbuf1.shape[0] > 1), solver.lanes]
-        coef_outputs = [solver.coef_store, solver.grad_j2_store, solver.data_colsum, solver.q_store]
+                       solver.hidden2, solver.view_zbuf1, solver.view_zbuf2, solver.view_margin(),
+                       int(solver.view_zbuf1.shape[0] > 1), solver.lanes]
+        coef_outputs = [solver.coef_store, solver.flags_store, solver.grad_j2_store, solver.data_colsum,
+                        solver.q_store]
         groups, group_threads = _device.row_span(dev, solver.coef.shape[1])
-        dual_inputs = [solver.coef, solver.weights, solver.grad_j2, solver.x_bar, solver.x_hat, groups]
+        dual_inputs = [solver.coef, solver.flags, solver.weights, solver.grad_j2, solver.x_bar, solver.x_hat, p.eps,
+                       p.step_ratio, groups]
         dual_outputs = [solver.q, solver.data_grad]
     else:
-        coef_inputs = [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros, 1e-6, 1.0, zbuf1, zbuf2, 0.25, 1, lanes]
-        coef_outputs = [coef_store, grad_j2_store, colsum, q_store]
+        coef_inputs = [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros, zbuf1, zbuf2, 0.25, 1, lanes]
+        coef_outputs = [coef_store, flags_store, grad_j2_store, colsum, q_store]
         groups, group_threads = _device.row_span(dev, coef.shape[1])
-        dual_inputs = [coef, weights, grad_j2, x_bar, x_hat, groups]
+        dual_inputs = [coef, flags, weights, grad_j2, x_bar, x_hat, 1e-6, 1.0, groups]
         dual_outputs = [q, data_grad]
     cases = [
         # reads 4 neighbouring views per sample, writes the sample
@@ -287,13 +292,14 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
                                              dim=(s * h, per_row)),
          f * h * w * s * 5),
         # reads both sample stacks, x̂, the hidden mask and a value of each view z-buffer per sample; writes
-        # 10 coefficients per sample, ∇J2 (2) and the column sums; reads and writes q (the duals of rows left
-        # out are zeroed)
+        # 7 coefficients per sample, the row flags (3 words per 32 samples), ∇J2 (2) and the column sums;
+        # reads and writes q (the duals of rows left out are zeroed)
         ("data_coefficients", launch(coefficients, coef_inputs, coef_outputs, dim=(h, coefficient_columns)),
-         f * h * w * (2 * s + 4 + 1 + 2 * s + data_term.COEFFICIENTS * s + 2 + 4 + 6 * s)),
-        # reads the coefficients, ∇J2 (2), x̄, x̂ and q; writes q and Kᵀq (the S weights stay in cache)
+         f * h * w * (2 * s + 4 + 1 + 2 * s + data_term.COEFFICIENTS * s + flag_words + 2 + 4 + 6 * s)),
+        # reads the coefficients, the row flags, ∇J2 (2), x̄, x̂ and q; writes q and Kᵀq (the S weights stay
+        # in cache)
         ("dual_data_step", launch(data_term.dual_data_kernel(lanes), dual_inputs, dual_outputs, dim=(h, group_threads)),
-         f * h * w * (data_term.COEFFICIENTS * s + 2 + 4 + 4 + 3 * s + 3 * s + 4)),
+         f * h * w * (data_term.COEFFICIENTS * s + flag_words + 2 + 4 + 4 + 3 * s + 3 * s + 4)),
         # reads x̄, w̄ (12), the three tensors (9: it reads them as Γ's entries per unknown, 12, but is
         # credited with the 9 it must move), σ_y (4) and the six duals (24); writes the duals (24)
         ("tgv_dual_step", launch(tgv.tgv_kernels(dev)[0], [x_bar, w0_bar, w1_bar, *gammas, sigma_y, 0.25, 2.0, 0.5,

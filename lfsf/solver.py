@@ -96,11 +96,13 @@ class LevelSolver:
         # Γ's entries (Γ00, Γ01, Γ11) per unknown, as the TGV steps read them (_expand_tensors)
         self.tensor_entries = tuple(wp.empty((h, w), dtype=self.vec, device=device) for _ in range(3))
 
-        # data term: coefficients per pixel and sample, the scaled duals q̃ (both in lane
-        # storage, lfsf.kernels.data_term; ``*_store`` as floats, the others the same memory
-        # as vectors of ``lanes``), and Kᵀq
+        # data term: coefficients per pixel and sample, the row flags, the scaled duals q̃
+        # (all in lane storage, lfsf.kernels.data_term; ``*_store`` as floats or words, the
+        # others the same memory as vectors of ``lanes``), and Kᵀq
         self.lanes = data_term.data_lanes(device)
         self.coef_store, self.coef = lane_storage(h, w, n, data_term.COEFFICIENTS, self.lanes, device)
+        self.flags_store, self.flags = lane_storage(h, w, 1, 3 * data_term.flag_words(n), self.lanes, device,
+                                                    flags=True)
         self.grad_j2_store, self.grad_j2 = lane_storage(h, w, 1, 2, self.lanes, device)  # ∇J2 (A8, A9 from it)
         self.q_store, self.q = lane_storage(h, w, n, data_term.DUALS, self.lanes, device)  # zeroed by set_state
         self.data_colsum = zeros4()
@@ -214,9 +216,10 @@ class LevelSolver:
         kernel, columns = data_groups.coefficients_kernel(self.shape[1], self.lanes)
         _device.launch_rows(kernel, dim=(self.shape[0], columns),
                             inputs=[self.samples1, self.samples2, self.phis, self.weights, self.x_hat,
-                                    p.occlusion_ratio, self.hidden2, p.eps, p.step_ratio, self.view_zbuf1,
-                                    self.view_zbuf2, self.view_margin(), use_zbuf, self.lanes],
-                            outputs=[self.coef_store, self.grad_j2_store, self.data_colsum, self.q_store],
+                                    p.occlusion_ratio, self.hidden2, self.view_zbuf1, self.view_zbuf2,
+                                    self.view_margin(), use_zbuf, self.lanes],
+                            outputs=[self.coef_store, self.flags_store, self.grad_j2_store, self.data_colsum,
+                                     self.q_store],
                             device=self.device, bands=self.bands)
         self._launch(tgv.tgv_preconditioner,
                      inputs=[self.data_colsum, self.tensor1, self.tensor2, self.tensor3, p.alpha0, p.alpha1, p.eps,
@@ -367,7 +370,8 @@ class LevelSolver:
         dual_step, primal_step = tgv.tgv_kernels(self.device)
         return [
             record(data_term.dual_data_kernel(self.lanes),
-                   inputs=[self.coef, self.weights, self.grad_j2, self.x_bar, self.x_hat, groups],
+                   inputs=[self.coef, self.flags, self.weights, self.grad_j2, self.x_bar, self.x_hat, p.eps,
+                           p.step_ratio, groups],
                    outputs=[self.q, self.data_grad], dim=(self.shape[0], per_row)),
             record(dual_step,
                    inputs=[self.x_bar, self.w0_bar, self.w1_bar, *self.tensor_entries, self.sigma_y, sigma_z,
@@ -406,12 +410,14 @@ class LevelSolver:
         else 0). For tests and diagnostics, not the hot path."""
         from lfsf.kernels import data_term
 
-        c = unpack_coefficients(from_lanes(self.coef_store.numpy(), self.shape[1], self.lanes, data_term.COEFFICIENTS),
-                                from_lanes(self.grad_j2_store.numpy(), self.shape[1], self.lanes, 2)[:, :, 0])
-        c = c.astype(np.float64)  # (h, w, S, 12)
-        a = np.moveaxis(c[..., :9], (3, 2), (0, 1))
+        w = self.shape[1]
+        c = unpack_coefficients(from_lanes(self.coef_store.numpy(), w, self.lanes, data_term.COEFFICIENTS),
+                                from_lanes(self.grad_j2_store.numpy(), w, self.lanes, 2)[:, :, 0])
+        a = np.moveaxis(c.astype(np.float64), (3, 2), (0, 1))  # (9, S, h, w)
         lam = self.weights.numpy().astype(np.float64)  # (S, 3)
-        on = np.moveaxis(c[..., 9:] > 0, (3, 2), (0, 1))
+        words = from_lanes(self.flags_store.numpy(), w, self.lanes, self.flags_store.shape[2] // self.lanes)
+        on = unpack_flags(words[:, :, 0], lam.shape[0])  # (h, w, S, 3)
+        on = np.moveaxis(on, (3, 2), (0, 1))
         return a, np.where(on, lam.T[:, :, None, None], 0.0)
 
     def energy(self) -> float:
@@ -442,22 +448,24 @@ class LevelSolver:
 TGV_DUALS = ("y0", "y1", "z00", "z01", "z10", "z11")
 
 
-def lane_storage(h: int, w: int, n: int, values: int, lanes: int, device: str):
-    """Lane storage (:mod:`lfsf.kernels.data_term`) of ``values`` floats per sample for n
-    samples of an (h, w) level: the float array (h, ⌈w / L⌉, n · values · L) and the
-    same memory as vectors of L (h, ⌈w / L⌉, n · values). Keep the first alive while the
-    second is used: the second holds a reference to the first
+def lane_storage(h: int, w: int, n: int, values: int, lanes: int, device: str, flags: bool = False):
+    """Lane storage (:mod:`lfsf.kernels.data_term`) of ``values`` floats (``flags``:
+    int32 words) per sample for n samples of an (h, w) level: the array (h, ⌈w / L⌉,
+    n · values · L) and the same memory as vectors of L (h, ⌈w / L⌉, n · values). Keep
+    the first alive while the second is used: the second holds a reference to the first
     (:func:`lfsf.device.vector_view`). Uninitialised where every lane holds a pixel (``data_coefficients``
     writes every pixel's coefficients, ``set_state`` zeroes the duals); zeroed where
     lanes run past the row's end, which no kernel writes (zeroing 300 MB at 640×480
     took 1.3 s of the solvers' set-up)."""
     from lfsf.kernels.common import lane_vector
+    from lfsf.kernels.data_term import flag_vector
 
     wp = _device.warp()
     groups = -(-int(w) // lanes)
     alloc = wp.empty if groups * lanes == w else wp.zeros
-    store = alloc((h, groups, n * values * lanes), dtype=float, device=device)
-    return store, _device.vector_view(store, lane_vector(lanes), (h, groups, n * values))
+    store = alloc((h, groups, n * values * lanes), dtype=wp.int32 if flags else float, device=device)
+    vector = flag_vector(lanes) if flags else lane_vector(lanes)
+    return store, _device.vector_view(store, vector, (h, groups, n * values))
 
 
 def from_lanes(a: np.ndarray, w: int, lanes: int, values: int) -> np.ndarray:
@@ -468,42 +476,60 @@ def from_lanes(a: np.ndarray, w: int, lanes: int, values: int) -> np.ndarray:
         a.reshape(h, groups, n, values, lanes).transpose(0, 1, 4, 2, 3).reshape(h, groups * lanes, n, values)[:, :w])
 
 
-def _stored() -> list[int]:
-    """The places of the stored values in the twelve coefficients (A1 … A9, σ̃1 … σ̃3):
-    all but A8 and A9 (:data:`lfsf.kernels.data_term.STORED_VALUES`)."""
-    from lfsf.kernels import data_term
-
-    return list(data_term.STORED_VALUES)
-
-
 def unpack_coefficients(stored: np.ndarray, grad_j2: np.ndarray) -> np.ndarray:
-    """The twelve coefficients (…, S, 12) from the ten stored (…, S, 10) and ∇J2 (…, 2)
-    of each pixel, A8, A9 = ∇J2 − (A5, A6) in float32 as the kernels rebuild them."""
+    """A1 … A9 (…, S, 9) from the seven stored (…, S, 7) and ∇J2 (…, 2) of each pixel,
+    A8, A9 = ∇J2 − (A5, A6) in float32 as the kernels rebuild them."""
     stored = np.asarray(stored, np.float32)
-    out = np.zeros(stored.shape[:-1] + (12,), np.float32)
-    out[..., _stored()] = stored
     g = np.asarray(grad_j2, np.float32)[..., None, :]
-    out[..., 7] = g[..., 0] - stored[..., 4]
-    out[..., 8] = g[..., 1] - stored[..., 5]
-    return out
+    return np.concatenate([stored, (g[..., 0] - stored[..., 4])[..., None], (g[..., 1] - stored[..., 5])[..., None]],
+                          axis=-1)
 
 
 def pack_coefficients(coef: np.ndarray, grad_j2: np.ndarray) -> np.ndarray:
-    """The ten stored values (…, S, 10) of twelve coefficients (…, S, 12) whose A8, A9
-    are ∇J2 − (A5, A6) (checked, in float32)."""
+    """The seven stored values (…, S, 7) of A1 … A9 (…, S, 9) whose A8, A9 are ∇J2 −
+    (A5, A6) (checked, in float32)."""
     coef = np.asarray(coef, np.float32)
-    stored = np.ascontiguousarray(coef[..., _stored()])
+    stored = np.ascontiguousarray(coef[..., :7])
     if not np.array_equal(unpack_coefficients(stored, grad_j2), coef):
         raise ValueError("A8, A9 are not ∇J2 − (A5, A6)")
     return stored
 
 
+def pack_flags(on: np.ndarray) -> np.ndarray:
+    """Row flags (…, S, 3) of booleans (row k of sample s in) as the kernels' int32 words
+    (…, 3 W), W = :func:`lfsf.kernels.data_term.flag_words` of S: bit s % 31 of word
+    k W + s // 31."""
+    from lfsf.kernels.data_term import FLAG_BITS, flag_words
+
+    on = np.asarray(on, bool)
+    n = on.shape[-2]
+    words = flag_words(n)
+    out = np.zeros(on.shape[:-2] + (3 * words,), np.int32)
+    for s in range(n):
+        for k in range(3):
+            out[..., k * words + s // FLAG_BITS] |= on[..., s, k].astype(np.int32) << (s % FLAG_BITS)
+    return out
+
+
+def unpack_flags(words: np.ndarray, n: int) -> np.ndarray:
+    """The booleans (…, n, 3) of row-flag words (…, 3 W) (:func:`pack_flags`)."""
+    from lfsf.kernels.data_term import FLAG_BITS
+
+    words = np.asarray(words, np.int32)
+    w = words.shape[-1] // 3
+    out = np.zeros(words.shape[:-1] + (n, 3), bool)
+    for s in range(n):
+        for k in range(3):
+            out[..., s, k] = (words[..., k * w + s // FLAG_BITS] >> (s % FLAG_BITS)) & 1 != 0
+    return out
+
+
 def to_lanes(a: np.ndarray, lanes: int) -> np.ndarray:
-    """(h, w, n, values) as lane storage (h, ⌈w / L⌉, n · values · L), float32, zero past
-    the row's end."""
+    """(h, w, n, values) as lane storage (h, ⌈w / L⌉, n · values · L), float32 (int32 for
+    row-flag words), zero past the row's end."""
     h, w, n, values = a.shape
     groups = -(-w // lanes)
-    padded = np.zeros((h, groups * lanes, n, values), np.float32)
+    padded = np.zeros((h, groups * lanes, n, values), np.int32 if a.dtype == np.int32 else np.float32)
     padded[:, :w] = a
     return np.ascontiguousarray(padded.reshape(h, groups, lanes, n, values).transpose(0, 1, 3, 4, 2)
                                 .reshape(h, groups, n * values * lanes))

@@ -25,13 +25,14 @@ def test_time_repeated_warms_up_then_times_each_run():
 
 
 def test_kernel_cases_count_the_bytes_of_their_arrays():
-    """The bytes a data-term step must move: coefficients (10 floats per sample), q read
-    and written (3 + 3), ∇J2 (2), x̄, x̂ and Kᵀq (4 each) per pixel; a TGV dual step's: x̄, w̄ (12),
-    three tensors (9), σ_y (4), the six duals read and written (24 + 24)."""
+    """The bytes a data-term step must move: coefficients (7 floats per sample), q read
+    and written (3 + 3), the row flags (3 words for up to 31 samples), ∇J2 (2), x̄, x̂ and
+    Kᵀq (4 each) per pixel; a TGV dual step's: x̄, w̄ (12), three tensors (9), σ_y (4), the
+    six duals read and written (24 + 24)."""
     cases = {name: nbytes for name, _run, nbytes in bench.kernel_cases((20, 10), "cpu")}  # 17 samples
     assert set(cases) == {"sample_subaperture", "data_coefficients", "dual_data_step", "tgv_dual_step",
                           "tgv_primal_step"}
-    assert cases["dual_data_step"] == 4 * 200 * (10 * 17 + 6 * 17 + 2 + 12)
+    assert cases["dual_data_step"] == 4 * 200 * (7 * 17 + 6 * 17 + 3 + 2 + 12)
     assert cases["tgv_dual_step"] == 4 * 200 * 73
 
 
@@ -44,12 +45,14 @@ def test_scene_inputs_are_the_last_warp_of_a_run_at_the_ground_truth(monkeypatch
     size = (48, 32)
     solver, views = bench._scene_solver(size, "cpu")
     assert views.shape == (81, 32, 48)
-    expected = solver.coef_store.numpy().copy()
+    expected = solver.coef_store.numpy().copy(), solver.flags_store.numpy().copy()
     monkeypatch.setattr(bench, "_scene_solver", lambda *_a, **_k: (solver, views))
     cases = {name: run for name, run, _n in bench.kernel_cases(size, "cpu")}
     solver.coef_store.zero_()
+    solver.flags_store.zero_()
     cases["data_coefficients"]()
-    np.testing.assert_array_equal(solver.coef_store.numpy(), expected)
+    np.testing.assert_array_equal(solver.coef_store.numpy(), expected[0])
+    np.testing.assert_array_equal(solver.flags_store.numpy(), expected[1])
 
     def median_residuals(s):
         a, wt = s.data_rows()

@@ -391,16 +391,7 @@ def _data_inputs(seed, h=7, w=9):
 def _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device, occlusion_ratio=0.0, hidden2=None,
                            zbufs=None):
     """The kernel's coefficients as (S, h, w, 12) with the row weights w_k in [9:12] (w_k
-    is λ_k where the kernel's σ̃_k > 0, else 0), and the column sums."""
-    coef, colsum = _run_data_coefficients_raw(samples1, samples2, phis, weights, x_hat, device, occlusion_ratio,
-                                              hidden2, zbufs)
-    coef[..., 9:] = np.where(coef[..., 9:] > 0, np.asarray(weights, np.float32)[:, None, None, :], 0.0)
-    return coef, colsum
-
-
-def _run_data_coefficients_raw(samples1, samples2, phis, weights, x_hat, device, occlusion_ratio=0.0,
-                               hidden2=None, zbufs=None):
-    """The kernel's output as it is: (A1…A9, σ̃1…σ̃3) per sample, as (S, h, w, 12).
+    is λ_k where the kernel's row flag is set, else 0), and the column sums.
     ``zbufs``: (Z1, Z2) view z-buffers (S, h, w) to decide visibility by (margin
     VIEW_MARGIN), else the best half."""
     from lfsf.kernels import data_groups, data_term
@@ -409,7 +400,7 @@ def _run_data_coefficients_raw(samples1, samples2, phis, weights, x_hat, device,
     hidden2 = np.zeros((h, w), np.float32) if hidden2 is None else hidden2
     no_zbuf = np.zeros((1, 1, 1), np.float32)
     z1, z2 = (no_zbuf, no_zbuf) if zbufs is None else zbufs
-    from lfsf.solver import from_lanes, unpack_coefficients
+    from lfsf.solver import from_lanes, unpack_coefficients, unpack_flags
 
     results = []
     # the device's kernel and storage (on the CPU, groups of 8 pixels in vector code), and the
@@ -417,6 +408,8 @@ def _run_data_coefficients_raw(samples1, samples2, phis, weights, x_hat, device,
     for lanes in (data_term.data_lanes(device), 1):
         kernel, columns = data_groups.coefficients_kernel(w, lanes)
         coef, _ = _lane_buffer(np.zeros((h, w, s, data_term.COEFFICIENTS), np.float32), device, lanes)
+        words = 3 * data_term.flag_words(s)
+        flags, _ = _lane_buffer(np.full((h, w, 1, words), -1, np.int32), device, lanes)  # every bit set before
         grad_j2, _ = _lane_buffer(np.zeros((h, w, 1, 2), np.float32), device, lanes)
         colsum = wp.zeros((h, w), dtype=wp.vec4, device=device)
         q_before = rng(99).uniform(-1.0, 1.0, (h, w, s, 3)).astype(np.float32)  # the duals of the last warp
@@ -424,12 +417,15 @@ def _run_data_coefficients_raw(samples1, samples2, phis, weights, x_hat, device,
         launch(kernel, (h, columns),
                [arr(samples1, float, device), arr(samples2, float, device), arr(phis, wp.vec2, device),
                 arr(weights, wp.vec3, device), arr(x_hat, wp.vec4, device), float(occlusion_ratio),
-                arr(hidden2, float, device), DATA_EPS, 1.0, arr(z1, float, device), arr(z2, float, device),
-                VIEW_MARGIN, 0 if zbufs is None else 1, lanes],
-               [coef, grad_j2, colsum, q], device)
-        # (h, w, S, 12): the ten stored, A8 and A9 rebuilt from ∇J2 as the kernels do
-        got = unpack_coefficients(from_lanes(coef.numpy(), w, lanes, data_term.COEFFICIENTS),
-                                  from_lanes(grad_j2.numpy(), w, lanes, 2)[:, :, 0])
+                arr(hidden2, float, device), arr(z1, float, device), arr(z2, float, device), VIEW_MARGIN,
+                0 if zbufs is None else 1, lanes],
+               [coef, flags, grad_j2, colsum, q], device)
+        # (h, w, S, 12): the seven stored, A8 and A9 rebuilt from ∇J2 as the kernels do, and the
+        # row weights of the flags
+        a = unpack_coefficients(from_lanes(coef.numpy(), w, lanes, data_term.COEFFICIENTS),
+                                from_lanes(grad_j2.numpy(), w, lanes, 2)[:, :, 0])
+        on = unpack_flags(from_lanes(flags.numpy(), w, lanes, words)[:, :, 0], s)
+        got = np.concatenate([a, np.where(on, np.asarray(weights, np.float32)[None, None], 0.0)], -1)
         # the duals of rows left out are zeroed, the others kept as they were
         np.testing.assert_array_equal(from_lanes(q.numpy(), w, lanes, 3), np.where(got[..., 9:] > 0, q_before, 0.0))
         results.append((got, colsum.numpy()))
@@ -444,29 +440,21 @@ DATA_EPS = 1e-6
 VIEW_MARGIN = 0.25
 
 
-def _dual_steps(A, W, eps=DATA_EPS):
-    """σ̃_k = w_k² / (w_k Σ|row k| + ε) of each row (MODEL.md §5, scaled duals)."""
-    a = np.abs(A)
-    sums = (a[0], a[2] + a[7] + a[8], a[0] + a[2] + a[4] + a[5])
-    return [W[k] * W[k] / (W[k] * sums[k] + eps) for k in range(3)]
-
-
 def _check_data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio, device, hidden2=None,
                              zbufs=None):
-    """Kernel vs reference: A1…A9, the rows left out (exactly), the dual steps σ̃ and the
+    """Kernel vs reference: A1…A9, the rows left out (exactly, from the row flags) and the
     column sums. Returns (kernel coef with the row weights in [9:12], reference W,
     reference occlusion details)."""
-    coef, colsum = _run_data_coefficients_raw(samples1, samples2, phis, weights, x_hat, device, occlusion_ratio,
-                                              hidden2, zbufs)
+    coef, colsum = _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device, occlusion_ratio,
+                                          hidden2, zbufs)
     details = {}
     A, W, want_colsum = ref.data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio, details,
                                               hidden2, zbufs, VIEW_MARGIN)
     for k in range(9):
         close(coef[..., k], A[k], atol=2e-5)
-    for k, sigma in enumerate(_dual_steps(A, W)):
+    for k in range(3):
         np.testing.assert_array_equal(coef[..., 9 + k] > 0, W[k] > 0, err_msg=f"rows of w{k + 1} left out")
-        np.testing.assert_allclose(coef[..., 9 + k], sigma, rtol=1e-4, atol=1e-6, err_msg=f"σ̃{k + 1}")
-        coef[..., 9 + k] = np.where(coef[..., 9 + k] > 0, np.asarray(weights, np.float32)[:, None, None, k], 0.0)
+        close(coef[..., 9 + k], W[k], atol=1e-6)
     close(colsum, want_colsum, atol=5e-5)
     if occlusion_ratio > 0:  # the input decides the occlusion tests with a margin
         for name in ("t1", "t2"):
@@ -659,22 +647,24 @@ def test_data_coefficients_groups_equal_pixel_by_pixel(h, w, use_zbuf, ratio, un
     runs = []
     for kernel, columns in (data_groups.coefficients_kernel(w, lanes), data_groups.coefficients_kernel(w, 1)):
         coef, _ = _lane_buffer(np.full((h, w, n, data_term.COEFFICIENTS), 7.0, np.float32), "cpu", lanes)
+        flags, _ = _lane_buffer(np.full((h, w, 1, 3 * data_term.flag_words(n)), 7, np.int32), "cpu", lanes)
         grad_j2, _ = _lane_buffer(np.full((h, w, 1, 2), 7.0, np.float32), "cpu", lanes)
         q, _ = _lane_buffer(q_before, "cpu", lanes)
         colsum = wp.zeros((h, w), dtype=getattr(wp, unknowns), device="cpu")
         launch(kernel, (h, columns),
                [arr(samples1, float, "cpu"), arr(samples2, float, "cpu"), arr(phis, wp.vec2, "cpu"),
-                arr(weights, wp.vec3, "cpu"), x_in, ratio, arr(hidden2, float, "cpu"), DATA_EPS, 1.0,
-                arr(zbufs[0], float, "cpu"), arr(zbufs[1], float, "cpu"), VIEW_MARGIN, use_zbuf, lanes],
-               [coef, grad_j2, colsum, q], "cpu")
-        runs.append([a.numpy() for a in (coef, grad_j2, colsum, q)])
+                arr(weights, wp.vec3, "cpu"), x_in, ratio, arr(hidden2, float, "cpu"), arr(zbufs[0], float, "cpu"),
+                arr(zbufs[1], float, "cpu"), VIEW_MARGIN, use_zbuf, lanes],
+               [coef, flags, grad_j2, colsum, q], "cpu")
+        runs.append([a.numpy() for a in (coef, flags, grad_j2, colsum, q)])
     assert data_groups.coefficients_kernel(w, lanes)[0] is data_groups.data_coefficients_groups
     assert data_groups.coefficients_kernel(w, 1)[0] is data_term.data_coefficients
-    for name, got, want in zip(("coef", "grad_j2", "colsum", "q"), *runs):
+    for name, got, want in zip(("coef", "flags", "grad_j2", "colsum", "q"), *runs):
         np.testing.assert_array_equal(got.view(np.uint32), want.view(np.uint32), err_msg=name)
-    # the inputs reach what they are meant to: rows left out, duals zeroed, both kinds of group
-    coef_got = runs[0][0]
-    assert np.any(coef_got == 0.0) and np.any(runs[0][3] == 0.0) and np.any(runs[0][3] != 0.0)
+    # the inputs reach what they are meant to: rows left out (flags cleared) and kept, duals
+    # zeroed, both kinds of group
+    flags_got = runs[0][1]
+    assert np.any(flags_got != 7) and np.any(runs[0][4] == 0.0) and np.any(runs[0][4] != 0.0)
 
 
 # --- data term: occlusion handling ------------------------------------------------------------
@@ -993,11 +983,12 @@ def test_data_linearisation_is_first_order_accurate(device):
 
 
 def _lane_buffer(values: np.ndarray, device, lanes: int):
-    """(h, w, S, k) values in the data term's lane storage: (float store, vector view)."""
+    """(h, w, S, k) values in the data term's lane storage: (float store, vector view);
+    int32 values as row-flag words."""
     from lfsf.solver import lane_storage, to_lanes
 
     h, w, n, k = values.shape
-    store, view = lane_storage(h, w, n, k, lanes, device)
+    store, view = lane_storage(h, w, n, k, lanes, device, flags=values.dtype == np.int32)
     store.assign(to_lanes(values, lanes))
     return store, view
 
@@ -1019,17 +1010,19 @@ def test_lane_storage_views_keep_their_memory_alive():
 
 
 # a pixel per thread (CUDA), a row of single pixels, groups of 8 pixels one or two a thread,
-# and a whole row of them (the CPU); 9 columns leave 7 lanes of the second group empty
+# and a whole row of them (the CPU); 9 columns leave 7 lanes of the second group empty; 40
+# samples take two words of row flags a row
 @UNKNOWNS
-@pytest.mark.parametrize("lanes, groups", [(1, 1), (1, 9), (8, 1), (8, 2)])
-def test_dual_data_step_matches_reference(device, lanes, groups, unknowns):
-    """The kernel's scaled duals q̃ = w q against the reference's q, and Kᵀq. On vec2
-    (flow only) δ1, δ2 are 0 and Kᵀq has the flow's components."""
+@pytest.mark.parametrize("lanes, groups, s", [(1, 1, 3), (1, 9, 3), (8, 1, 3), (8, 2, 3), (1, 1, 40), (8, 2, 40)])
+def test_dual_data_step_matches_reference(device, lanes, groups, s, unknowns):
+    """The kernel's scaled duals q̃ = w q against the reference's q, and Kᵀq, with the dual
+    steps σ̃ computed from the coefficients and the row flags. On vec2 (flow only) δ1,
+    δ2 are 0 and Kᵀq has the flow's components."""
     from lfsf.kernels import data_term
-    from lfsf.solver import from_lanes, pack_coefficients
+    from lfsf.solver import from_lanes, pack_coefficients, pack_flags
 
     r = rng(11)
-    s, h, w = 3, 7, 9
+    h, w = 7, 9
     A = r.standard_normal((9, s, h, w)).astype(np.float32)
     grad_j2 = r.standard_normal((h, w, 2)).astype(np.float32)  # ∇J2: A8, A9 = ∇J2 − (A5, A6), as stored
     A[7] = grad_j2[None, :, :, 0] - A[4]
@@ -1038,20 +1031,21 @@ def test_dual_data_step_matches_reference(device, lanes, groups, unknowns):
     W = lam.T[:, :, None, None] * (r.random((3, s, h, w)) > 0.2)
     A = A.astype(np.float64)  # the float32 values the kernel sees
     W = W.astype(np.float32).astype(np.float64)
-    sigma = _dual_steps(A, W)
-    coef = pack_coefficients(np.concatenate([A, sigma]).transpose(2, 3, 1, 0).astype(np.float32), grad_j2)
+    coef = pack_coefficients(A.transpose(2, 3, 1, 0).astype(np.float32), grad_j2)
+    flags = pack_flags((W > 0).transpose(2, 3, 1, 0))[:, :, None, :]  # (h, w, 1, 3 words)
     x_bar = r.standard_normal((h, w, 4)).astype(np.float32)
     x_hat = r.standard_normal((h, w, 4)).astype(np.float32)
     if unknowns == "vec2":
         x_bar[..., :2] = x_hat[..., :2] = 0.0
     q = r.uniform(-1, 1, (3, s, h, w))
     _, coef_wp = _lane_buffer(coef, device, lanes)
+    _, flags_wp = _lane_buffer(flags, device, lanes)
     _, grad_j2_wp = _lane_buffer(grad_j2[:, :, None, :], device, lanes)
     q_store, q_wp = _lane_buffer((W * q).transpose(2, 3, 1, 0).astype(np.float32), device, lanes)
     grad_wp = unknowns_zeros((h, w), unknowns, device)
     launch(data_term.dual_data_kernel(lanes), (h, -(-coef_wp.shape[1] // groups)),
-           [coef_wp, arr(lam, wp.vec3, device), grad_j2_wp, unknowns_arr(x_bar, unknowns, device),
-            unknowns_arr(x_hat, unknowns, device), groups],
+           [coef_wp, flags_wp, arr(lam, wp.vec3, device), grad_j2_wp, unknowns_arr(x_bar, unknowns, device),
+            unknowns_arr(x_hat, unknowns, device), DATA_EPS, 1.0, groups],
            [q_wp, grad_wp], device)
     want_q, want_grad = ref.dual_data_step(A, W, q, x_bar, x_hat, DATA_EPS)
     want_grad = flow_part(want_grad, unknowns)
