@@ -532,16 +532,8 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-#: The photographs of ``--images`` (loaded once, by :func:`load_images`).
+#: The photographs of ``--images`` (loaded once, by :func:`lfsf.synth.photographs`).
 IMAGES: dict = {"list": None}
-
-
-def load_images(source: str) -> list[np.ndarray]:
-    """The photographs of ``--images``: scikit-image's samples for ``skimage``, else the
-    images of a folder (:func:`lfsf.synth.photographs`)."""
-    from lfsf import synth
-
-    return synth.photographs(source)
 
 
 def selected_scenes(args) -> list[str]:
@@ -587,9 +579,13 @@ def main(argv=None) -> int:
         except (OSError, ValueError) as exc:
             print(f"error: --config: {exc}", file=sys.stderr)
             return 2
+    IMAGES["list"] = None
     try:
         scenes = selected_scenes(args)
-        IMAGES["list"] = load_images(args.images) if args.images is not None else None
+        if args.images is not None:
+            from lfsf import synth
+
+            IMAGES["list"] = synth.photographs(args.images)
     except (OSError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -50,13 +50,16 @@ def flow_part(a, unknowns):
 # --- sampling ------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("span", [1, 4, 9])  # a pixel per thread (CUDA), part of a row, a whole row (CPU)
+# a pixel per thread (CUDA), part of a row, a whole row (CPU); 37 columns: two chunks of 16
+# (sampling.CHUNK) and the rest one by one, a span of 20 one chunk and the rest
+@pytest.mark.parametrize("w, span", [(9, 1), (9, 4), (9, 9), (37, 1), (37, 20), (37, 37)])
 @pytest.mark.parametrize("grid", [(5, 5), (4, 6), (3, 2)])
-def test_sample_subaperture_matches_reference(grid, span, device):
+def test_sample_subaperture_matches_reference(grid, w, span, device):
     from lfsf.kernels import sampling
 
+    assert sampling.CHUNK == 16
     rows, cols = grid
-    h, w = 7, 9
+    h = 7
     views = rng(1).random((rows, cols, h, w)).astype(np.float32)
     ac, bc = (rows - 1) / 2, (cols - 1) / 2
     phis = np.array([

@@ -245,7 +245,7 @@ def test_compare_peers_images_put_photographs_on_every_scene(tmp_path, capsys, m
     iio.imwrite(tmp_path / "b.png", photos[1])
     (tmp_path / "notes.txt").write_text("not an image")
     script = _compare_peers_script()
-    loaded = script.load_images(str(tmp_path))
+    loaded = synth.photographs(str(tmp_path))
     assert [a.shape for a in loaded] == [(30, 40, 3), (25, 35, 3)]
     np.testing.assert_allclose(loaded[1][..., 1], photos[1] / 65535.0, atol=1e-6)
     args = script.build_parser().parse_args(["--size", "48", "32", "--grid", "3", "--images", str(tmp_path)])
