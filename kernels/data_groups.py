@@ -5,8 +5,8 @@
 takes the :data:`~lfsf.kernels.data_term.DATA_LANES` pixels of one group of the lane
 storage (the data term's module docstring) and computes what each sample's own tests
 decide for all of them in loops over the lanes, which the CPU compiler turns into
-vector code: the lookups at per-pixel positions as gathers, the coefficients, the dual
-steps and the stores of the group's contiguous values. Each pixel's arithmetic is the
+vector code: the lookups at per-pixel positions as gathers, the coefficients, the row
+flags and column sums, and the stores of the group's contiguous values. Each pixel's arithmetic is the
 per-pixel kernel's, operation for operation, so the results are the same bit for bit
 (for finite inputs; where a NaN comes out, its sign bit may differ). What needs the
 tests of all the samples, the best halves and the centre view at t2, also runs for all

@@ -23,9 +23,9 @@ where the row is in (:func:`flag_words` words of 31 bits a row). The dual step c
 σ̃_k from the coefficients and the flag, every iteration: three divisions a sample,
 hidden behind the loads of a step bound by memory. Until the twenty-fourth session the
 coefficients' kernel stored σ̃1 … σ̃3, 10 values a sample where 7 and the flags now do;
-the dual step takes 0.83–0.86× the time without them (640×480, 17 samples, medians of
-22 alternating launches), with the same results bit for bit (the same float operations
-on the same values).
+the dual step takes 0.83–0.93× the time without them (640×480, 17 samples, medians of
+15–24 alternating launches on random and on a scene's inputs), with the same results
+bit for bit (the same float operations on the same values).
 
 The values are stored in *lanes*: a row's pixels in groups of L consecutive ones (L =
 :data:`DATA_LANES` on the CPU, 1 on CUDA), and for each group, sample and value the L
@@ -69,7 +69,7 @@ DATA_LANES = 8
 #: Values stored per sample: the coefficients A1 … A7 (A8, A9 rebuilt from ∇J2, stored
 #: once a pixel; σ̃1 … σ̃3 from the coefficients and the row flags) and the scaled duals.
 #: Seven instead of twelve: the dual step, bound by memory since it runs 8 pixels at
-#: once, took 0.89× the time with ten (A8, A9 rebuilt), and 0.83–0.89× that with seven.
+#: once, took 0.89× the time with ten (A8, A9 rebuilt), and 0.83–0.93× that with seven.
 COEFFICIENTS = 7
 DUALS = 3
 #: The data rows of a sample (ρ1, ρ2, ρ3), each with its flag bits.
@@ -386,8 +386,8 @@ def data_coefficients(
     preconditioner τ). ``coef``, ``flags``, ``grad_j2`` and ``q`` are lane storage of
     ``lanes`` pixels a group (module docstring): the seven stored values of sample s at
     pixel (i, j) at ``coef[i, j // L, (7 s + k) L + j % L]``, k = 0 … 6 (A1 … A7), ∇J2,
-    from which A8 and A9 are rebuilt, and the row flags, bit s of row k set where the row
-    is in (w_k > 0). The scaled duals q̃ of the rows left out are set to 0 (the others
+    from which A8 and A9 are rebuilt, and the row flags, bit s % 31 of word k W + s // 31
+    set where row k of sample s is in (w_k > 0). The scaled duals q̃ of the rows left out are set to 0 (the others
     kept): :func:`dual_data_step` gives a row left out σ̃ = 0, and with q̃ = 0 it stays
     at 0.
 

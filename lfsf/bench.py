@@ -292,7 +292,7 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
                                              dim=(s * h, per_row)),
          f * h * w * s * 5),
         # reads both sample stacks, x̂, the hidden mask and a value of each view z-buffer per sample; writes
-        # 7 coefficients per sample, the row flags (3 words per 32 samples), ∇J2 (2) and the column sums;
+        # 7 coefficients per sample, the row flags (3 words per 31 samples), ∇J2 (2) and the column sums;
         # reads and writes q (the duals of rows left out are zeroed)
         ("data_coefficients", launch(coefficients, coef_inputs, coef_outputs, dim=(h, coefficient_columns)),
          f * h * w * (2 * s + 4 + 1 + 2 * s + data_term.COEFFICIENTS * s + flag_words + 2 + 4 + 6 * s)),

@@ -612,21 +612,42 @@ def test_data_coefficients_match_reference(device):
     close(coef[0, ..., 2], 0.0)
 
 
+def test_data_coefficients_row_flags_of_many_samples_match_reference(device):
+    """With 40 samples each row's flags take two words (bits 0 … 30 and 0 … 8): the rows
+    left out, decoded from the kernels' words, are the reference's, for samples on both
+    sides of the words' seam (warps that leave the image, points hidden at t2, the centre
+    view at t2 outside the image)."""
+    samples1, samples2, _phis, _weights, x_hat = _data_inputs(31)
+    r = rng(32)
+    s = 40
+    h, w = samples1.shape[1:]
+    phis = np.concatenate([[(0.0, 0.0)], r.uniform(-3.0, 3.0, (s - 1, 2))]).astype(np.float32)
+    samples1, samples2 = (r.random((s, h, w)).astype(np.float32) for _ in range(2))
+    weights = np.tile(np.float32([10.0 / s, 10.0 / s, 30.0 / s]), (s, 1))
+    hidden2 = (r.random((h, w)) < 0.2).astype(np.float32)
+    coef, W, _ = _check_data_coefficients(samples1, samples2, phis, weights, x_hat, 0.0, device, hidden2)
+    for k in range(3):  # rows in and out on both sides of the seam, in every row
+        for part in (W[k, :31], W[k, 31:]):
+            assert np.any(part > 0) and np.any(part == 0), k
+
+
 @UNKNOWNS
-@pytest.mark.parametrize("h, w", [(11, 37), (4, 16), (3, 8), (7, 45)])
+@pytest.mark.parametrize("h, w, samples", [(11, 37, (1, 8, 8)), (4, 16, (1, 8, 8)), (3, 8, (1, 8, 8)),
+                                           (7, 45, (1, 8, 8)), (11, 37, (1, 16, 24))])
 @pytest.mark.parametrize("use_zbuf, ratio", [(0, 0.0), (0, 0.7), (1, 0.0), (1, 0.7)])
-def test_data_coefficients_groups_equal_pixel_by_pixel(h, w, use_zbuf, ratio, unknowns):
+def test_data_coefficients_groups_equal_pixel_by_pixel(h, w, samples, use_zbuf, ratio, unknowns):
     """On the CPU the coefficients run a group of 8 pixels at once in vector code
     (:data:`lfsf.kernels.data_groups.data_coefficients_groups`); groups cut by the row's
-    end, and views of fewer than 4 rows, pixel by pixel. Every output (coefficients, ∇J2,
-    column sums, duals) has the same bits as the kernel of a thread per pixel, the same
-    lane storage: with warps that leave the image and lookups within a pixel of the
-    border, hidden points, both occlusion tests, and flow only."""
+    end, and views of fewer than 4 rows, pixel by pixel. Every output (coefficients, row
+    flags, ∇J2, column sums, duals) has the same bits as the kernel of a thread per
+    pixel, the same lane storage: with warps that leave the image and lookups within a
+    pixel of the border, hidden points, both occlusion tests, flow only, and 41 samples
+    (two words of row flags a row)."""
     from lfsf.kernels import data_groups, data_term
     from lfsf.params import Params
 
     r = rng(40 + w)
-    phis, _radius = Params.preset("paper").sample_offsets((9, 9))
+    phis, _radius = Params.preset("paper").replace(samples=samples).sample_offsets((9, 9))
     phis = np.asarray(phis, np.float32)
     if unknowns == "vec2":
         phis = phis[:1]
