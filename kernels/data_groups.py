@@ -6,8 +6,9 @@ takes the :data:`~lfsf.kernels.data_term.DATA_LANES` pixels of one group of the 
 storage (the data term's module docstring) and computes what each sample's own tests
 decide for all of them in loops over the lanes, which the CPU compiler turns into
 vector code: the lookups at per-pixel positions as gathers, the coefficients, the row
-flags and column sums, and the stores of the group's contiguous values. Each pixel's arithmetic is the
-per-pixel kernel's, operation for operation, so the results are the same bit for bit
+flags and column sums, and the stores of the group's contiguous values. Each pixel's
+arithmetic is the per-pixel kernel's, operation for operation, so the results are the
+same bit for bit
 (for finite inputs; where a NaN comes out, its sign bit may differ). What needs the
 tests of all the samples, the best halves and the centre view at t2, also runs for all
 the lanes at once; the second pass, where a pixel needs it, pixel by pixel.
@@ -32,7 +33,7 @@ wp.set_module_options({"enable_backward": False, "max_unroll": 1})
 #: A value for each pixel of a group.
 lanes_f = lane_vector(DATA_LANES)
 #: A row-flag word for each pixel of a group.
-lanes_u = flag_vector(DATA_LANES)
+lanes_words = flag_vector(DATA_LANES)
 #: Per-half-plane sums of a group: [half-plane, lane].
 half_lanes = wp.types.matrix(shape=(HALF_PLANES, DATA_LANES), dtype=wp.float32)
 
@@ -83,7 +84,7 @@ def store_lanes(ptr: wp.uint64, at: wp.int64, v: lanes_f):
 
 
 @wp.func
-def store_flags(ptr: wp.uint64, at: wp.int64, v: lanes_u):
+def store_flags(ptr: wp.uint64, at: wp.int64, v: lanes_words):
     """The group's row-flag words v to the int32 ``at`` … of the memory at ``ptr``."""
     run = wp.array(ptr=ptr + wp.uint64(at * wp.int64(4)), shape=(DATA_LANES,), dtype=wp.int32)
     for f in range(DATA_LANES):
@@ -215,9 +216,9 @@ def group_coefficients(
     flags_at = (wp.int64(i) * wp.int64(flags.shape[1]) + wp.int64(g)) * wp.int64(flags.shape[2])
     n = phis.shape[0]
     words = (n + FLAG_BITS - 1) // FLAG_BITS
-    flag1 = lanes_u()
-    flag2 = lanes_u()
-    flag3 = lanes_u()
+    flag1 = lanes_words()
+    flag2 = lanes_words()
+    flag3 = lanes_words()
     for s in range(n):
         phi = phis[s]
         lam = weights[s]
@@ -311,9 +312,9 @@ def group_coefficients(
             store_flags(flags.ptr, flags_at + word * wp.int64(lanes), flag1)
             store_flags(flags.ptr, flags_at + (wp.int64(words) + word) * wp.int64(lanes), flag2)
             store_flags(flags.ptr, flags_at + (wp.int64(2 * words) + word) * wp.int64(lanes), flag3)
-            flag1 = lanes_u()
-            flag2 = lanes_u()
-            flag3 = lanes_u()
+            flag1 = lanes_words()
+            flag2 = lanes_words()
+            flag3 = lanes_words()
         qa = q_at + wp.int64(DUALS * s * lanes)
         zero_left_out(q.ptr, qa, wt1_f)
         zero_left_out(q.ptr, qa + wp.int64(lanes), wt2_f)

@@ -463,8 +463,8 @@ def _dual_data_kernel(lanes: int):
         ``data_grad`` = Σ_s Kᵀ q for (δ1, δ2, u, v). This is q_k ← clip(q_k + σ_k w_k ρ_k /
         c, −1, 1) of the unscaled duals. w_k is λ_k where the row's flag is set, else 0.
         Rows left out must have q̃_k = 0, as :func:`data_coefficients` leaves them: the
-        clip is to ±λ_k, and σ̃_k = 0 keeps them at 0. The clip is vector min/max: a NaN (which no valid input leads
-        to) becomes −λ_k rather than passing through.
+        clip is to ±λ_k, and σ̃_k = 0 keeps them at 0. The clip is vector min/max: a NaN
+        (which no valid input leads to) becomes −λ_k rather than passing through.
 
         ``coef``, ``flags``, ``grad_j2`` and ``q`` are the lane storage (module docstring)
         seen as L-vectors, (rows, groups, 7 S), (rows, groups, 3 W), (rows, groups, 2) and
@@ -522,9 +522,11 @@ def _dual_data_kernel(lanes: int):
                     a9 = gjy - a6
                     rho1 = coef[i, g, b + 1] - wp.cw_mul(a1, d0)
                     rho2 = coef[i, g, b + 3] - wp.cw_mul(a3, d1) + wp.cw_mul(a8, d2) + wp.cw_mul(a9, d3)
-                    rho3 = coef[i, g, b + 6] + wp.cw_mul(a1, d0) - wp.cw_mul(a3, d1) - wp.cw_mul(a5, d2) - wp.cw_mul(a6, d3)
-                    # the steps (row_steps' sums, in its order), 0 where the row is out; clipped to
-                    # ±λ_k: a row left out has σ̃_k = 0 and q̃_k = 0 (data_coefficients), so it stays 0
+                    rho3 = (coef[i, g, b + 6] + wp.cw_mul(a1, d0) - wp.cw_mul(a3, d1) - wp.cw_mul(a5, d2)
+                            - wp.cw_mul(a6, d3))
+                    # the steps σ̃ (the sums of |A| in the order the stored steps had them: the same
+                    # bits), 0 where the row is out; clipped to ±λ_k: a row left out has σ̃_k = 0 and
+                    # q̃_k = 0 (data_coefficients), so it stays 0
                     lam = weights[s]
                     b1 = wp.abs(a1)
                     b3 = wp.abs(a3)
