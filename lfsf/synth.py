@@ -20,6 +20,7 @@ image) at t2.
 from __future__ import annotations
 
 import math
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -230,6 +231,14 @@ def with_images(scene: str | Scene, count: int, seed: int = 0, span=(200.0, 800.
         objects.append(Primitive(prim.kind, prim.at, prim.depth, prim.size, texture, tilt=prim.tilt,
                                  shift=prim.shift, approach=prim.approach, spin=prim.spin))
     return Scene(f"{sc.name}+images", f"{sc.description}, showing images", tuple(objects))
+
+
+def with_images_of_name(name: str, count: int) -> Scene:
+    """:func:`with_images` of the scene ``name`` with the seed drawn from the name (its
+    CRC-32): each scene shows the same photographs wherever it is rendered with the same
+    ``count`` images (``scripts/compare_peers.py --images``, ``scripts/sweep.py
+    --images``)."""
+    return with_images(name, count, seed=zlib.crc32(str(name).encode()))
 
 
 #: File suffixes that :func:`load_images` reads from a folder.

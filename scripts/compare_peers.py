@@ -192,7 +192,7 @@ def run_scene(name, args, use_peers, lfsf_runs, warm):
     scene, images = name, None
     if args.images is not None:  # the scene's geometry and motion, photographs for textures
         images = IMAGES["list"]
-        scene = synth.with_images(name, len(images), seed=zlib.crc32(name.encode()))
+        scene = synth.with_images_of_name(name, len(images))
     lf1, lf2, gt = synth.render_scene(scene, size=tuple(args.size), grid=args.grid, colour=args.colour,
                                       device=args.device, images=images)
     if args.vignetting > 0:  # the camera's, at t1 and t2 alike; in the lens, so before exposure and noise

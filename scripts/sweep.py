@@ -189,7 +189,7 @@ def main(argv=None) -> int:
     images = synth.photographs(args.images) if args.images is not None else None
 
     def scene_of(name):  # the scene's geometry and motion; photographs for textures with --images
-        return name if images is None else synth.with_images(name, len(images), seed=zlib.crc32(name.encode()))
+        return name if images is None else synth.with_images_of_name(name, len(images))
 
     data = {s: synth.render_scene(scene_of(s), size=tuple(args.size), grid=args.views, images=images)
             for s in scenes}
