@@ -222,7 +222,7 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
     lanes = data_term.data_lanes(dev)
     coefficients, coefficient_columns = data_groups.coefficients_kernel(w, lanes)
     sampled = wp.empty((s, h, w), dtype=float, device=dev)
-    flag_words = 3 * data_term.flag_words(s)
+    flag_words = 3 * data_term.flag_words(s)  # the row flags' words a pixel (three rows)
     if inputs == "scene":
         solver, views = _scene_solver(size, dev)
     else:
@@ -242,7 +242,7 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
         from lfsf.solver import lane_storage
 
         coef_store, coef = lane_storage(h, w, s, data_term.COEFFICIENTS, lanes, dev)
-        flags_store, flags = lane_storage(h, w, 1, 3 * data_term.flag_words(s), lanes, dev, flags=True)
+        flags_store, flags = lane_storage(h, w, 1, flag_words, lanes, dev, flags=True)
         flags_store.zero_()
         q_store, q = lane_storage(h, w, s, data_term.DUALS, lanes, dev)
         grad_j2_store, grad_j2 = lane_storage(h, w, 1, 2, lanes, dev)
