@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import collections
-import json
 import sys
 import time
 from pathlib import Path
@@ -36,7 +35,9 @@ class KernelTimes:
         self.launches: collections.Counter = collections.Counter()
 
     def _timed(self, name: str, call):
-        wp = _warp()
+        from lfsf.device import warp
+
+        wp = warp()
         wp.synchronize_device(self.device)
         start = time.perf_counter()
         call()
@@ -72,12 +73,6 @@ class KernelTimes:
 
         device.launch_rows, device.RecordedRows.__call__, device.CapturedLoop.run = self._saved
         return False
-
-
-def _warp():
-    from lfsf import device
-
-    return device.warp()
 
 
 def _name(kernel) -> str:
@@ -148,9 +143,9 @@ def main(argv=None) -> int:
         return 2
     print(table(report))
     if args.json is not None:
-        tmp = args.json.with_name(args.json.name + ".tmp")
-        tmp.write_text(json.dumps(report, indent=2))
-        tmp.replace(args.json)
+        from lfsf._files import write_json_atomic
+
+        write_json_atomic(args.json, report)
     return 0
 
 
