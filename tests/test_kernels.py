@@ -631,18 +631,41 @@ def test_data_coefficients_row_flags_of_many_samples_match_reference(device):
             assert np.any(part > 0) and np.any(part == 0), k
 
 
+def _consecutive_share(x_hat, phis, lanes=8):
+    """The share of the whole groups of ``lanes`` pixels whose lookups at t1 and t2 (each
+    sample's) read consecutive pixels of one row, where
+    :func:`lfsf.kernels.data_groups.lookup_lanes` loads its taps contiguously (lanes out
+    of the unclamped interior read at (1, 1), as there)."""
+    h, w = x_hat.shape[:2]
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    whole = w // lanes * lanes
+    shares = []
+    for phi in np.asarray(phis, np.float32):
+        for d, dx, dy in ((x_hat[..., 0], 0.0, 0.0), (x_hat[..., 1], x_hat[..., 2], x_hat[..., 3])):
+            x = xx + dx - d * phi[0]
+            y = yy + dy - d * phi[1]
+            inner = (x >= 1) & (y >= 1) & (x < w - 2) & (y < h - 2)
+            o = np.where(inner, np.floor(np.where(inner, y, 1)) * w + np.floor(np.where(inner, x, 1)), w + 1)
+            o = o[:, :whole].reshape(h, -1, lanes) - np.arange(lanes)
+            shares.append(np.all(o == o[..., :1], -1))
+    return float(np.mean(shares))
+
+
 @UNKNOWNS
 @pytest.mark.parametrize("h, w, samples", [(11, 37, (1, 8, 8)), (4, 16, (1, 8, 8)), (3, 8, (1, 8, 8)),
                                            (7, 45, (1, 8, 8)), (11, 37, (1, 16, 24))])
 @pytest.mark.parametrize("use_zbuf, ratio", [(0, 0.0), (0, 0.7), (1, 0.0), (1, 0.7)])
-def test_data_coefficients_groups_equal_pixel_by_pixel(h, w, samples, use_zbuf, ratio, unknowns):
+@pytest.mark.parametrize("fields", ["random", "smooth"])
+def test_data_coefficients_groups_equal_pixel_by_pixel(h, w, samples, use_zbuf, ratio, fields, unknowns):
     """On the CPU the coefficients run a group of 8 pixels at once in vector code
     (:data:`lfsf.kernels.data_groups.data_coefficients_groups`); groups cut by the row's
     end, and views of fewer than 4 rows, pixel by pixel. Every output (coefficients, row
     flags, ∇J2, column sums, duals) has the same bits as the kernel of a thread per
     pixel, the same lane storage: with warps that leave the image and lookups within a
     pixel of the border, hidden points, both occlusion tests, flow only, and 41 samples
-    (two words of row flags a row)."""
+    (two words of row flags a row). With random unknowns a group's lookups scatter
+    (gathers); with smooth ones most groups read consecutive pixels (contiguous loads),
+    and some straddle a whole-pixel step."""
     from lfsf.kernels import data_groups, data_term
     from lfsf.params import Params
 
@@ -656,6 +679,13 @@ def test_data_coefficients_groups_equal_pixel_by_pixel(h, w, samples, use_zbuf, 
     weights = np.tile(np.float32([10.0 / n, 10.0 / n, 30.0 / n]), (n, 1))
     x_hat = np.concatenate([r.uniform(-1.0, 1.0, (h, w, 1)) + r.uniform(-0.2, 0.2, (h, w, 2)),
                             r.uniform(-2.0, 2.0, (h, w, 2))], -1).astype(np.float32)
+    if fields == "smooth":
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+        x_hat = np.stack([0.3 + 0.02 * xx, 0.25 + 0.015 * xx + 0.01 * yy, 1.3 + 0.03 * xx, 0.6 - 0.02 * yy],
+                         -1).astype(np.float32)
+        if h >= 7:  # (4 rows or fewer leave almost no unclamped interior)
+            share = _consecutive_share(x_hat, phis)
+            assert 0.1 < share < 1.0, share
     x_hat[0, 0] = (3.0, -4.0, 0.3, 0.2)  # warps that leave the image
     x_hat[min(3, h - 1), min(4, w - 1)] = (0.1, 0.2, 20.0, 0.0)
     # lookups exactly on the bounds of the unclamped interior (x = 1, w − 2; y = 1, h − 2)
