@@ -52,7 +52,7 @@ def prefetch(ptr: wp.uint64, at: wp.int64):
 #: How far ahead of a group's lookups (in floats, along the row) :func:`lookup_lanes` and
 #: the visibility test ask for the rows they will read (:func:`prefetch`): a thread reads
 #: about a hundred rows at once (four for each sample's lookup at t1 and t2, two for each
-#: z-buffer), more than the CPU's own prefetchers follow; 2–3 ms of 40 at 640×480.
+#: z-buffer), more than the CPU's own prefetchers follow; 1–3 ms of 40 at 640×480.
 PREFETCH_AHEAD = wp.constant(32)
 
 
@@ -98,7 +98,8 @@ def lookup_lanes(img: wp.array2d(dtype=float), run: wp.array(dtype=float), x: la
     for f in range(DATA_LANES):
         apart += wp.where(o[f] == o0 + f, 0, 1)
     if apart == 0:
-        # rows i − 1 … i + 2 from the columns the taps need (every lane interior here)
+        # rows i − 1 … i + 2 over the columns the taps need (a lane outside the interior, read
+        # at (1, 1) as in the gathers, can only be lane 0 here, and is redone below)
         up = float_run(run.ptr, wp.int64(o0 - w), DATA_LANES + 1)
         mid = float_run(run.ptr, wp.int64(o0 - 1), DATA_LANES + 3)
         low = float_run(run.ptr, wp.int64(o0 + w - 1), DATA_LANES + 3)
