@@ -45,7 +45,7 @@ import warp as wp
 from lfsf.device import is_cpu
 
 from .common import (HALF_PLANES, add_residual, bilinear_with_gradient, from_vec4, half_plane_mask, lane_vector,
-                     half_plane_normal, in_half_plane, inside, overload_unknowns, to_vec4, vec8, visible)
+                     half_plane_normal, in_half_plane, inside, overload_unknowns, store_apart, to_vec4, vec8, visible)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -468,7 +468,8 @@ def _dual_data_kernel(lanes: int):
 
         ``coef``, ``flags``, ``grad_j2`` and ``q`` are the lane storage (module docstring)
         seen as L-vectors, (rows, groups, 7 S), (rows, groups, 3 W), (rows, groups, 2) and
-        (rows, groups, 3 S); A8, A9 = ∇J2 − (A5, A6) are rebuilt per sample. Every
+        (rows, groups, 3 S); A8, A9 = ∇J2 − (A5, A6) are rebuilt per sample. ``data_grad``
+        must be stored contiguously. Every
         operation acts on the L pixels of a
         group at once, each pixel's arithmetic the same as alone. Launch over (rows,
         ⌈groups per row / ``groups``⌉): each thread walks ``groups`` groups of a row."""
@@ -547,10 +548,12 @@ def _dual_data_kernel(lanes: int):
                     s1 += wp.cw_mul(-(q2 + q3), a3)
                     s2 += wp.cw_mul(q2, a8) - wp.cw_mul(q3, a5)
                     s3 += wp.cw_mul(q2, a9) - wp.cw_mul(q3, a6)
+            # (data_grad[i, j] = from_vec4(...), each component stored on its own: see store_apart)
             for k in range(lanes):
                 j = g * lanes + k
                 if j < w:
-                    data_grad[i, j] = from_vec4(wp.vec4(s0[k], s1[k], s2[k], s3[k]), x_hat[i, j])
+                    store_apart(data_grad.ptr, wp.int64(i) * wp.int64(w) + wp.int64(j), wp.vec4(s0[k], s1[k], s2[k], s3[k]),
+                                x_hat[i, j])
 
     return dual_data_step
 
