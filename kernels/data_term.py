@@ -469,10 +469,9 @@ def _dual_data_kernel(lanes: int):
         ``coef``, ``flags``, ``grad_j2`` and ``q`` are the lane storage (module docstring)
         seen as L-vectors, (rows, groups, 7 S), (rows, groups, 3 W), (rows, groups, 2) and
         (rows, groups, 3 S); A8, A9 = ∇J2 − (A5, A6) are rebuilt per sample. ``data_grad``
-        must be stored contiguously. Every
-        operation acts on the L pixels of a
-        group at once, each pixel's arithmetic the same as alone. Launch over (rows,
-        ⌈groups per row / ``groups``⌉): each thread walks ``groups`` groups of a row."""
+        must be stored contiguously. Every operation acts on the L pixels of a group at
+        once, each pixel's arithmetic the same as alone. Launch over (rows, ⌈groups per
+        row / ``groups``⌉): each thread walks ``groups`` groups of a row."""
         i, c0 = wp.tid()
         i = i + row0
         w = x_bar.shape[1]
@@ -552,8 +551,8 @@ def _dual_data_kernel(lanes: int):
             for k in range(lanes):
                 j = g * lanes + k
                 if j < w:
-                    store_apart(data_grad.ptr, wp.int64(i) * wp.int64(w) + wp.int64(j), wp.vec4(s0[k], s1[k], s2[k], s3[k]),
-                                x_hat[i, j])
+                    store_apart(data_grad.ptr, wp.int64(i) * wp.int64(w) + wp.int64(j),
+                                wp.vec4(s0[k], s1[k], s2[k], s3[k]), x_hat[i, j])
 
     return dual_data_step
 
