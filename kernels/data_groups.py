@@ -26,7 +26,7 @@ from .common import (HALF_PLANES, bilinear, bilinear_gradient, bilinear_taps, co
                      footprint_visible, from_vec4, half_plane_mask, inside, interior, lane_vector, overload_unknowns,
                      to_vec4)
 from .data_term import (CENTRE_OCCLUSION_FACTOR, COEFFICIENTS, DATA_LANES, DUALS, FLAG_BITS, OCCLUSION_FLOOR,
-                        flag_vector, pixel_coefficients, second_pass)
+                        flag_vector, pixel_coefficients, second_pass, words_of)
 
 wp.set_module_options({"enable_backward": False, "max_unroll": 1})
 
@@ -269,7 +269,7 @@ def group_coefficients(
     q_at = (wp.int64(i) * wp.int64(q.shape[1]) + wp.int64(g)) * wp.int64(q.shape[2])
     flags_at = (wp.int64(i) * wp.int64(flags.shape[1]) + wp.int64(g)) * wp.int64(flags.shape[2])
     n = phis.shape[0]
-    words = (n + FLAG_BITS - 1) // FLAG_BITS
+    words = words_of(n)
     flag1 = lanes_words()
     flag2 = lanes_words()
     flag3 = lanes_words()

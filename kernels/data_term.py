@@ -79,8 +79,21 @@ FLAG_BITS = wp.constant(31)
 
 
 def flag_words(samples: int) -> int:
-    """Words of row flags per pixel and row for ``samples`` samples."""
+    """Words of row flags per pixel and row for ``samples`` samples (in kernels:
+    :func:`words_of`)."""
     return -(-int(samples) // FLAG_BITS)
+
+
+def pixel_flag_words(samples: int) -> int:
+    """Words of row flags per pixel, all :data:`ROWS` rows, for ``samples`` samples: the
+    flags' lane storage holds this many values a pixel."""
+    return ROWS * flag_words(samples)
+
+
+@wp.func
+def words_of(samples: int):
+    """:func:`flag_words` in a kernel."""
+    return (samples + FLAG_BITS - 1) // FLAG_BITS
 #: An occlusion must also raise the mean residual by this much (intensities in [0, 1]):
 #: in weak texture, ratios of tiny residuals are noise.
 OCCLUSION_FLOOR = wp.constant(0.01)
@@ -221,7 +234,7 @@ def second_pass(i: int, j: int, g: int, lane: int, lanes: int, xh: wp.vec4, half
     normal1 = half_plane_normal(wp.max(half1, 0))
     normal2 = half_plane_normal(wp.max(half2, 0))
     colsum = wp.vec4(0.0)
-    words = (phis.shape[0] + FLAG_BITS - 1) // FLAG_BITS
+    words = words_of(phis.shape[0])
     clear_flags(flags, i, g, lane, lanes, words)
     for s in range(phis.shape[0]):
         phi = phis[s]
@@ -296,7 +309,7 @@ def pixel_coefficients(
     # floor, which needs |i1 − j2| above the floor; t1's only without the view z-buffers
     halves2 = use_zbuf == 0 or (occlusion_ratio > 0.0 and wp.abs(i1 - j2) > OCCLUSION_FLOOR)
     colsum = wp.vec4(0.0)
-    words = (phis.shape[0] + FLAG_BITS - 1) // FLAG_BITS
+    words = words_of(phis.shape[0])
     clear_flags(flags, i, g, lane, lanes, words)
     for s in range(phis.shape[0]):
         phi = phis[s]
@@ -476,7 +489,7 @@ def _dual_data_kernel(lanes: int):
         i = i + row0
         w = x_bar.shape[1]
         n = weights.shape[0]
-        words = (n + FLAG_BITS - 1) // FLAG_BITS
+        words = words_of(n)
         g0 = c0 * groups
         for g in range(g0, wp.min(coef.shape[1], g0 + groups)):
             # the L pixels' x̄ − x̂ per unknown (pixels past the row's end repeat the last; their

@@ -222,7 +222,7 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
     lanes = data_term.data_lanes(dev)
     coefficients, coefficient_columns = data_groups.coefficients_kernel(w, lanes)
     sampled = wp.empty((s, h, w), dtype=float, device=dev)
-    flag_words = 3 * data_term.flag_words(s)  # the row flags' words a pixel (three rows)
+    flag_words = data_term.pixel_flag_words(s)  # the row flags' words a pixel (three rows)
     if inputs == "scene":
         solver, views = _scene_solver(size, dev)
     else:

@@ -101,7 +101,7 @@ class LevelSolver:
         # others the same memory as vectors of ``lanes``), and Kᵀq
         self.lanes = data_term.data_lanes(device)
         self.coef_store, self.coef = lane_storage(h, w, n, data_term.COEFFICIENTS, self.lanes, device)
-        self.flags_store, self.flags = lane_storage(h, w, 1, 3 * data_term.flag_words(n), self.lanes, device,
+        self.flags_store, self.flags = lane_storage(h, w, 1, data_term.pixel_flag_words(n), self.lanes, device,
                                                     flags=True)
         self.grad_j2_store, self.grad_j2 = lane_storage(h, w, 1, 2, self.lanes, device)  # ∇J2 (A8, A9 from it)
         self.q_store, self.q = lane_storage(h, w, n, data_term.DUALS, self.lanes, device)  # zeroed by set_state
@@ -499,12 +499,12 @@ def pack_flags(on: np.ndarray) -> np.ndarray:
     """Row flags (…, S, 3) of booleans (row k of sample s in) as the kernels' int32 words
     (…, 3 W), W = :func:`lfsf.kernels.data_term.flag_words` of S: bit s % 31 of word
     k W + s // 31."""
-    from lfsf.kernels.data_term import FLAG_BITS, flag_words
+    from lfsf.kernels.data_term import FLAG_BITS, flag_words, pixel_flag_words
 
     on = np.asarray(on, bool)
     n = on.shape[-2]
     words = flag_words(n)
-    out = np.zeros(on.shape[:-2] + (3 * words,), np.int32)
+    out = np.zeros(on.shape[:-2] + (pixel_flag_words(n),), np.int32)
     for s in range(n):
         for k in range(3):
             out[..., k * words + s // FLAG_BITS] |= on[..., s, k].astype(np.int32) << (s % FLAG_BITS)

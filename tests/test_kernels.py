@@ -411,7 +411,7 @@ def _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device, occ
     for lanes in (data_term.data_lanes(device), 1):
         kernel, columns = data_groups.coefficients_kernel(w, lanes)
         coef, _ = _lane_buffer(np.zeros((h, w, s, data_term.COEFFICIENTS), np.float32), device, lanes)
-        words = 3 * data_term.flag_words(s)
+        words = data_term.pixel_flag_words(s)
         flags, _ = _lane_buffer(np.full((h, w, 1, words), -1, np.int32), device, lanes)  # every bit set before
         grad_j2, _ = _lane_buffer(np.zeros((h, w, 1, 2), np.float32), device, lanes)
         colsum = wp.zeros((h, w), dtype=wp.vec4, device=device)
@@ -701,7 +701,7 @@ def test_data_coefficients_groups_equal_pixel_by_pixel(h, w, samples, use_zbuf, 
     runs = []
     for kernel, columns in (data_groups.coefficients_kernel(w, lanes), data_groups.coefficients_kernel(w, 1)):
         coef, _ = _lane_buffer(np.full((h, w, n, data_term.COEFFICIENTS), 7.0, np.float32), "cpu", lanes)
-        flags, _ = _lane_buffer(np.full((h, w, 1, 3 * data_term.flag_words(n)), 7, np.int32), "cpu", lanes)
+        flags, _ = _lane_buffer(np.full((h, w, 1, data_term.pixel_flag_words(n)), 7, np.int32), "cpu", lanes)
         grad_j2, _ = _lane_buffer(np.full((h, w, 1, 2), 7.0, np.float32), "cpu", lanes)
         q, _ = _lane_buffer(q_before, "cpu", lanes)
         colsum = wp.zeros((h, w), dtype=getattr(wp, unknowns), device="cpu")
