@@ -94,6 +94,8 @@ def pixel_flag_words(samples: int) -> int:
 def words_of(samples: int):
     """:func:`flag_words` in a kernel."""
     return (samples + FLAG_BITS - 1) // FLAG_BITS
+
+
 #: An occlusion must also raise the mean residual by this much (intensities in [0, 1]):
 #: in weak texture, ratios of tiny residuals are noise.
 OCCLUSION_FLOOR = wp.constant(0.01)
