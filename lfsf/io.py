@@ -378,13 +378,51 @@ def _read_npz_arrays(path: Path, keys) -> tuple[list[str], dict[str, np.ndarray]
             with np.load(f, allow_pickle=False) as data:
                 names = list(data.files)
                 # members are decompressed lazily, on access: read them inside the try
+                for k in keys:
+                    if k in names:
+                        _check_npz_member_size(path, data.zip, k)
                 arrays = {k: np.asarray(data[k]) for k in keys if k in names}
+        except _DamagedMember:
+            raise
         except _NPZ_ERRORS as err:
             kind = type(err).__name__
             if type(err).__module__ != "builtins":
                 kind = f"{type(err).__module__}.{kind}"    # zlib.error, zipfile.BadZipFile
             raise ValueError(f"{path}: cannot read as .npz ({kind}: {err})") from err
     return names, arrays
+
+
+class _DamagedMember(ValueError):
+    """A ``.npz`` member that cannot be what its header says (the message names the file)."""
+
+
+def _check_npz_member_size(path: Path, archive: zipfile.ZipFile, key: str) -> None:
+    """Refuse a member whose ``.npy`` header claims more data than the member holds.
+
+    Read before the member itself, so that a small damaged (or hostile) file claiming a
+    huge shape is a ``ValueError`` naming it rather than a ``MemoryError`` from the
+    allocation ``np.load`` would make for that shape.
+    """
+    member = key + ".npy"
+    if member not in archive.namelist():
+        return                               # not a .npy member; np.load reports it
+    size = archive.getinfo(member).file_size
+    with archive.open(member) as f:
+        version = np.lib.format.read_magic(f)
+        if version == (1, 0):
+            shape, _, dtype = np.lib.format.read_array_header_1_0(f)
+        elif version == (2, 0):
+            shape, _, dtype = np.lib.format.read_array_header_2_0(f)
+        else:
+            return                           # format 3.0 (utf-8 names): left to np.load
+        header = f.tell()
+    if dtype.hasobject:
+        return                               # np.load refuses these without allow_pickle
+    claimed = math.prod(shape) * dtype.itemsize
+    if claimed > size - header:
+        raise _DamagedMember(f"{path}: '{key}' is damaged: its header claims shape {tuple(shape)} "
+                         f"of {dtype} ({claimed} bytes) but the file holds {size - header} bytes "
+                         f"of data")
 
 
 def _read_folder(folder: Path) -> LightField:

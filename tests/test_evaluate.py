@@ -1,7 +1,9 @@
 """Evaluation metrics against hand-computed values."""
 
+import io
 import math
 import struct
+import zipfile
 
 import numpy as np
 import pytest
@@ -162,6 +164,14 @@ def test_damaged_npz_results_and_ground_truth_name_the_file(tmp_path):
             load(tmp_path / "text.npz")
     with pytest.raises(ValueError, match=r"sceneflow.npz: cannot read as .npz \(zlib.error"):
         E.load_estimate(tmp_path / "r")
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<f4", "fortran_order": False,
+                                                  "shape": (99999, 99999)})
+    with zipfile.ZipFile(tmp_path / "huge.npz", "w") as archive:    # 40 GB claimed, 16 bytes held
+        archive.writestr("disp1.npy", header.getvalue() + bytes(16))
+    for load in (E.load_estimate, lambda p: E.load_ground_truth(p)[0]):
+        with pytest.raises(ValueError, match=r"huge.npz: 'disp1' is damaged: its header claims"):
+            load(tmp_path / "huge.npz")
 
 
 def test_hci_breakdown_parts_add_up_to_lfsf_eval():

@@ -13,6 +13,7 @@ import io
 import signal
 import struct
 import warnings
+import zipfile
 import zlib
 from pathlib import Path
 
@@ -826,6 +827,25 @@ def test_damaged_compressed_npz_names_the_file(tmp_path):
     _damaged_compressed_npz(tmp_path / "views.npz", views=np.zeros((2, 2, 8, 8), np.float32))
     with pytest.raises(ValueError, match=r"views.npz: cannot read as .npz \(zlib.error"):
         lio.read_lightfield(tmp_path / "views.npz")
+
+
+def _npz_claiming_shape(path: Path, key: str, shape: tuple) -> None:
+    """A small .npz whose member's .npy header claims ``shape`` but holds 16 bytes."""
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<f4", "fortran_order": False,
+                                                  "shape": shape})
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr(key + ".npy", header.getvalue() + bytes(16))
+
+
+def test_npz_whose_header_claims_a_huge_shape_is_a_value_error(tmp_path):
+    """Read before any allocation: not a MemoryError (a traceback, status 1) for 3 TB."""
+    _npz_claiming_shape(tmp_path / "huge.npz", "views", (9, 9, 99999, 99999))
+    with pytest.raises(ValueError, match=r"huge.npz: 'views' is damaged: its header claims shape "
+                                         r"\(9, 9, 99999, 99999\).* holds 16 bytes"):
+        lio.read_lightfield(tmp_path / "huge.npz")
+    _npz_claiming_shape(tmp_path / "fits.npz", "views", (1, 1, 2, 2))    # exactly 16 bytes
+    assert lio.read_lightfield(tmp_path / "fits.npz").views.shape == (1, 1, 2, 2)
 
 
 def test_npz_that_is_not_a_zip_says_so(tmp_path):
