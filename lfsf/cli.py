@@ -61,6 +61,7 @@ def cmd_synth(args) -> int:
     if args.frames < 2:
         raise ValueError(f"--frames must be at least 2 (2: one pair), got {args.frames}")
     scene = synth.get_scene(args.scene)  # unknown scene: clear error before any work
+    synth.check_render(args.size, args.grid, args.supersample, args.frames, args.colour, args.noise)
     images = None
     if args.images is not None:  # photographs on the objects, each one's image and scale drawn by --image-seed
         if args.image_seed is not None and args.image_seed < 0:
@@ -193,6 +194,8 @@ def cmd_demo(args) -> int:
 
     device = resolve_device(args.device)
     params = _params(args)
+    synth.get_scene(args.scene)
+    synth.check_render(args.size, args.grid, colour=args.colour)  # before any work
     width, height = args.size
     out = output_folder(args.out, create=False)
     _say(args, f"lfsf demo: scene '{args.scene}', {width}×{height}, {args.grid}×{args.grid} "
@@ -287,6 +290,10 @@ def cmd_bench(args) -> int:
     if args.inputs and args.kind != "kernels":
         raise ValueError(f"--inputs applies to `lfsf bench kernels`, not to {args.kind}")
     size = tuple(args.size) if args.size else None
+    if size:
+        from lfsf.synth import check_render
+
+        check_render(size, 9)  # the benches render 9×9 views
     if size and args.kind in ("pipeline", "peers"):
         from lfsf.evaluate import SYNTH_BORDER
 

@@ -499,18 +499,68 @@ def _warp_camera(cam: CameraArray):
     return c
 
 
+#: Upper bounds on what a render may ask for, checked before any work: a view's side in
+#: pixels, views per side of the grid, rays per pixel side, and float32 values in all the
+#: frames' light fields together (2³¹, 8 GiB: more than the estimator could hold anyway).
+MAX_VIEW_SIDE = 8192
+MAX_GRID = 33
+MAX_SUPERSAMPLE = 16
+MAX_RENDER_VALUES = 2 ** 31
+
+
+def _whole(name: str, value, least: int, most: int) -> int:
+    """``value`` as an int in [least, most], or a ValueError naming ``name``: a bool or a
+    fraction is an error, not truncated."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer, float, np.floating)) \
+            or not float(value).is_integer():
+        raise ValueError(f"{name} must be a whole number, got {value!r}")
+    value = int(value)
+    if not least <= value <= most:
+        raise ValueError(f"{name} must be in {least}…{most}, got {value}")
+    return value
+
+
+def _pair(name: str, value, what: str) -> tuple:
+    """A scalar as (value, value), or a 2-sequence as a tuple; anything else names ``name``."""
+    if np.isscalar(value):
+        return value, value
+    try:
+        first, second = value
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be {what}, got {value!r}") from None
+    return first, second
+
+
 def _grid(grid) -> tuple[int, int]:
-    rows, cols = (grid, grid) if np.isscalar(grid) else tuple(grid)
-    if int(rows) < 1 or int(cols) < 1:
-        raise ValueError(f"the view grid must be at least 1×1, got {rows}×{cols}")
-    return int(rows), int(cols)
+    rows, cols = _pair("grid", grid, "a number of views per side or (rows, cols)")
+    return (_whole("grid rows", rows, 1, MAX_GRID), _whole("grid columns", cols, 1, MAX_GRID))
 
 
 def _check_size(size) -> tuple[int, int]:
-    width, height = (int(s) for s in size)
-    if width < 8 or height < 8:
-        raise ValueError(f"image size must be at least 8×8 pixels, got {width}×{height}")
-    return width, height
+    if np.isscalar(size):
+        raise ValueError(f"size must be (width, height), got {size!r}")
+    width, height = _pair("size", size, "(width, height)")
+    return (_whole("image width", width, 8, MAX_VIEW_SIDE), _whole("image height", height, 8, MAX_VIEW_SIDE))
+
+
+def check_render(size, grid, supersample=2, frames=2, colour=False, noise=0.0) -> dict:
+    """The settings of a render checked and normalised, before any work: ``size`` (width,
+    height), ``grid`` (rows, cols), ``supersample``, ``frames`` and ``noise`` as
+    :func:`render_sequence` and :func:`write_scene` take them. Any of them out of range,
+    or light fields too large together (more than :data:`MAX_RENDER_VALUES` values), is a
+    ``ValueError`` naming it."""
+    width, height = _check_size(size)
+    rows, cols = _grid(grid)
+    supersample = _whole("supersample", supersample, 1, MAX_SUPERSAMPLE)
+    frames = _whole("frames (a sequence needs at least 2)", frames, 2, MAX_RENDER_VALUES)
+    values = frames * rows * cols * height * width * (3 if colour else 1)
+    if values > MAX_RENDER_VALUES:
+        raise ValueError(f"{frames} light fields of {rows}×{cols} views of {width}×{height}"
+                         f"{' RGB' if colour else ''} pixels hold {values:,} values, more than the "
+                         f"{MAX_RENDER_VALUES:,} a render may (8 GiB): use a smaller size, grid or "
+                         "number of frames")
+    return {"size": (width, height), "grid": (rows, cols), "supersample": supersample, "frames": frames,
+            "noise": _noise_sigma(noise)}
 
 
 def get_scene(scene: str | Scene) -> Scene:
@@ -662,12 +712,9 @@ def render_sequence(
 
     wp = _device.warp()
     sc = get_scene(scene)
-    width, height = _check_size(size)
-    rows, cols = _grid(grid)
-    if int(supersample) < 1:
-        raise ValueError(f"supersample must be at least 1, got {supersample}")
-    if int(frames) < 2:
-        raise ValueError(f"a sequence needs at least 2 frames, got {frames}")
+    checked = check_render(size, grid, supersample, frames, colour)
+    (width, height), (rows, cols) = checked["size"], checked["grid"]
+    supersample, frames = checked["supersample"], checked["frames"]
     dev = _device.resolve_device(device)
     cam = CameraArray.for_size(width, height)
     wcam = _warp_camera(cam)

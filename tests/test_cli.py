@@ -153,6 +153,28 @@ def test_bad_input_is_one_clear_line_and_status_2(tmp_path, args, needles):
     assert not (tmp_path / "x").exists() and not (tmp_path / "r").exists()
 
 
+@pytest.mark.parametrize(
+    "args,needle",
+    [
+        (["synth", "paper", "--out", "{tmp}/x", "--size", "100000", "100000"], "image width must be in 8…8192"),
+        (["synth", "paper", "--out", "{tmp}/x", "--grid", "1000"], "grid rows must be in 1…33, got 1000"),
+        (["synth", "paper", "--out", "{tmp}/x", "--supersample", "50"], "supersample must be in 1…16"),
+        (["synth", "paper", "--out", "{tmp}/x", "--frames", "300"], "more than the 2,147,483,648"),
+        (["synth", "paper", "--out", "{tmp}/x", "--noise", "-1"], "noise sigma must be a finite number"),
+        (["demo", "--out", "{tmp}/x", "--size", "320", "9000"], "image height must be in 8…8192"),
+        (["demo", "--out", "{tmp}/x", "--grid", "40"], "grid rows must be in 1…33"),
+        (["bench", "kernels", "--size", "10000", "10"], "image width must be in 8…8192"),
+    ],
+)
+def test_settings_that_size_a_render_are_bounded_and_checked_before_any_work(tmp_path, capsys, args, needle):
+    """Each is one line and status 2, with nothing said (no 'rendering …') before it:
+    without the bounds, a Warp allocation error (status 1) or a render that never ends."""
+    assert main([a.format(tmp=tmp_path) for a in args]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.count("\n") == 1 and needle in captured.err, captured
+    assert not (tmp_path / "x").exists()
+
+
 def test_nan_pixels_are_rejected_with_the_file_name(tmp_path):
     views = np.full((3, 3, 10, 12), 0.5, np.float32)
     views[1, 2, 4, 4] = np.nan

@@ -370,3 +370,30 @@ def test_a_sequence_over_an_earlier_longer_one_is_refused(tmp_path):
     with pytest.raises(ValueError, match="f003.npz"):
         synth.write_sequence("paper", tmp_path / "s", 3, size=(16, 16), grid=3, device="cpu")
     assert len(list((tmp_path / "s" / "frames").glob("*.npz"))) == 4
+
+
+@pytest.mark.parametrize(
+    "kwargs,needle",
+    [
+        ({"size": (48.5, 40)}, "image width must be a whole number, got 48.5"),
+        ({"size": 48}, "size must be (width, height)"),
+        ({"grid": (2,)}, "grid must be a number of views per side or (rows, cols), got (2,)"),
+        ({"grid": True}, "grid rows must be a whole number"),
+        ({"grid": (3, 0)}, "grid columns must be in 1…33, got 0"),
+        ({"size": (100_000, 40)}, "image width must be in 8…8192"),
+        ({"supersample": 0}, "supersample must be in 1…16"),
+        ({"size": (8192, 8192), "grid": 9}, "use a smaller size, grid or number of frames"),
+    ],
+)
+def test_render_settings_out_of_range_are_value_errors_naming_them(kwargs, needle):
+    """Not truncated (48.5 → 48), not an unpacking TypeError, not a Warp allocation error."""
+    settings = {"size": (48, 40), "grid": 3, **kwargs}
+    with pytest.raises(ValueError) as info:
+        synth.render_scene("paper", **settings)
+    assert needle in str(info.value)
+
+
+def test_check_render_normalises_what_it_accepts():
+    assert synth.check_render((48.0, np.int64(40)), (3, 5), supersample=2.0, frames=3, noise=0.01) == {
+        "size": (48, 40), "grid": (3, 5), "supersample": 2, "frames": 3, "noise": 0.01}
+
