@@ -280,11 +280,18 @@ class Params:
         path = Path(path)
         if not path.exists():
             raise FileNotFoundError(f"{path}: no such file")
+        if path.is_dir():
+            raise ValueError(f"{path}: a folder, not a TOML file of settings")
         try:
             data = tomllib.loads(path.read_text())
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise ValueError(f"{path}: not valid TOML ({exc})") from None
-        data = data.get("params", data)
+        if "params" in data:
+            outside = sorted(k for k in data if k != "params")
+            if outside:      # they would be dropped without a word
+                raise ValueError(f"{path}: settings both in [params] and at the top level "
+                                 f"({', '.join(outside)}); put them all in one place")
+            data = data["params"]
         if not isinstance(data, dict):
             raise ValueError(f"{path}: [params] must be a table of settings, got {data!r}")
         data = dict(data)

@@ -157,3 +157,19 @@ def test_a_params_key_that_is_no_table_names_the_file(tmp_path):
     path.write_text("params = 3\n")
     with pytest.raises(ValueError, match=re.escape(str(path))):
         Params.from_toml(path)
+
+
+def test_settings_both_in_a_params_table_and_at_the_top_level_are_an_error(tmp_path):
+    """Not silently dropped: with a [params] table, `warps = 9` above it was ignored."""
+    path = tmp_path / "mixed.toml"
+    path.write_text('warps = 9\npreset = "fast"\n[params]\niterations = 40\n')
+    with pytest.raises(ValueError, match=re.escape(f"{path}: settings both in [params] and at the top level "
+                                                   "(preset, warps)")):
+        Params.from_toml(path)
+    path.write_text('[params]\npreset = "fast"\nwarps = 9\n')
+    assert Params.from_toml(path) == Params.preset("fast").replace(warps=9)
+
+
+def test_a_folder_given_as_the_config_is_a_value_error(tmp_path):
+    with pytest.raises(ValueError, match=re.escape(f"{tmp_path}: a folder, not a TOML file")):
+        Params.from_toml(tmp_path)
