@@ -250,6 +250,22 @@ def test_check_pair():
         assert "3×3 grid of 5×4 views" in str(info.value)
 
 
+def test_check_pair_refuses_light_fields_scaled_differently():
+    """One light field in [0, 1] and the other in counts ([0, 255] as floats): the joint
+    stretch would leave the first nearly black and the estimate meaningless."""
+    rng = np.random.default_rng(0)
+    unit = rng.random((3, 3, 6, 7)).astype(np.float32)
+    counts = lio.LightField(unit * 255, source="t2")
+    with pytest.raises(ValueError, match=r"^t2: its brightest value is 25\d\.\d+ against 0\.99\d+ in t1: "
+                                         r"the two light fields look scaled differently"):
+        lio.check_pair(lio.LightField(unit, source="t1"), counts)
+    with pytest.raises(ValueError, match="scaled differently"):
+        lio.check_pair(counts, lio.LightField(unit, source="t1"))
+    lio.check_pair(counts, lio.LightField(unit * 200, source="t1"))        # both in counts: stretched alike
+    lio.check_pair(lio.LightField(unit, source="t1"), lio.LightField(unit / 20, source="t2"))  # dark, in [0, 1]
+    lio.check_pair(lio.LightField(unit * 1.9, source="t1"), lio.LightField(unit * 0.1, source="t2"))
+
+
 # --------------------------------------------------------------------------------------
 # Lenslet images
 # --------------------------------------------------------------------------------------
