@@ -20,7 +20,7 @@ from lfsf.io import LightField, centre_view, check_pair, luma, read_lightfield
 from lfsf.params import Params
 
 
-@dataclass
+@dataclass(eq=False, repr=False)
 class SceneFlow:
     """The estimate for the centre view at t1 (MODEL.md §1 conventions).
 
@@ -51,6 +51,12 @@ class SceneFlow:
     device: str
     timings: dict = field(default_factory=dict)
     exposure: tuple[float, float] | None = None
+
+    # eq=False: a field-wise == of arrays raised "truth value of an array is ambiguous";
+    # compare the maps with np.array_equal (or as_dict()) instead. repr: not four arrays.
+    def __repr__(self) -> str:
+        height, width = self.disp1.shape
+        return f"SceneFlow({width}×{height}, R={self.radius:g}, device={self.device!r})"
 
     def as_dict(self) -> dict[str, np.ndarray]:
         return {"disp1": self.disp1, "disp2": self.disp2, "u": self.u, "v": self.v}
@@ -749,7 +755,11 @@ def estimate_scene_flow(
     offset, stretch = _intensity_stretch(lf1, lf2)
 
     def stretched(grey: np.ndarray) -> np.ndarray:
-        return (grey - np.float32(offset)) * np.float32(stretch) if stretch != 1.0 else grey
+        if stretch == 1.0:
+            return grey
+        if stretch > float(np.finfo(np.float32).max):  # a span below 2.9e-39: 1/span overflows float32
+            return ((grey - np.float32(offset)) / np.float32(1.0 / stretch)).astype(np.float32)
+        return (grey - np.float32(offset)) * np.float32(stretch)
 
     exposure = None
     if params.match_exposure and max(height, width) >= EXPOSURE_MIN_SIZE:
@@ -1108,18 +1118,30 @@ def _check_init(init, height: int, width: int) -> np.ndarray | None:
     """A starting estimate as one (H, W, 4) array [δ1, δ2, u, v], checked."""
     if init is None:
         return None
-    maps = init.as_dict() if isinstance(init, SceneFlow) else init
+    return _checked_maps(init, "init", (height, width))
+
+
+def _checked_maps(maps, what: str, shape: tuple[int, int] | None = None) -> np.ndarray:
+    """δ1, δ2, u, v of a SceneFlow or a dict as one (H, W, 4) float32 array, or a
+    ValueError starting with ``what``: a missing key, maps of another ``shape`` (or, with
+    none given, not 2-D and alike), NaN or infinite values."""
+    maps = maps.as_dict() if isinstance(maps, SceneFlow) else maps
     if not isinstance(maps, Mapping):
-        raise ValueError(f"init must be a SceneFlow or a dict with disp1, disp2, u and v, got {type(init).__name__}")
+        raise ValueError(f"{what} must be a SceneFlow or a dict with disp1, disp2, u and v, "
+                         f"got {type(maps).__name__}")
     try:
         arrays = [np.asarray(maps[k], np.float32) for k in ("disp1", "disp2", "u", "v")]
-    except (KeyError, TypeError):
-        raise ValueError("init must be a SceneFlow or a dict with disp1, disp2, u and v") from None
+    except (KeyError, TypeError, ValueError):
+        raise ValueError(f"{what} must be a SceneFlow or a dict with disp1, disp2, u and v "
+                         f"(2-D maps), got keys {', '.join(map(str, maps)) or 'none'}") from None
+    shape = arrays[0].shape if shape is None else tuple(shape)
+    if len(shape) != 2 or min(shape) < 1:
+        raise ValueError(f"{what}: disp1 should be a 2-D map, got shape {shape}")
     for name, a in zip(("disp1", "disp2", "u", "v"), arrays):
-        if a.shape != (height, width):
-            raise ValueError(f"init: {name} is {a.shape}, the views are {(height, width)}")
+        if a.shape != shape:
+            raise ValueError(f"{what}: {name} is {a.shape}, expected {shape}")
         if not np.isfinite(a).all():
-            raise ValueError(f"init: {name} has NaN or infinite values")
+            raise ValueError(f"{what}: {name} has NaN or infinite values")
     return np.stack(arrays, -1)
 
 
@@ -1132,9 +1154,12 @@ def predict_next(previous) -> dict[str, np.ndarray]:
     pair starts with δ1 = δ2(q), flow u(q) and δ2 = δ2(q) + (δ2 − δ1)(q). Points are
     splatted to their nearest pixel, the nearer (larger δ) winning where several land;
     pixels nothing lands on take the value found at p − u(p).
+
+    Raises ``ValueError`` for a missing map, maps of different shapes, or NaN or
+    infinite values.
     """
-    maps = previous.as_dict() if isinstance(previous, SceneFlow) else previous
-    d1, d2, u, v = (np.asarray(maps[k], np.float32) for k in ("disp1", "disp2", "u", "v"))
+    maps = _checked_maps(previous, "predict_next: previous")
+    d1, d2, u, v = (maps[..., c] for c in range(4))
     h, w = d1.shape
     moved = np.stack([d2, 2 * d2 - d1, u, v], -1)  # what each point carries to frame k + 1
     yy, xx = np.mgrid[0:h, 0:w]

@@ -92,6 +92,23 @@ def test_bad_starting_estimate_is_a_clear_error():
         estimate_scene_flow(lf1, lf2, PARAMS, device="cpu", init={"disp1": gt["disp1"]})
 
 
+def test_bad_previous_estimate_for_predict_next_is_a_clear_error():
+    """As init's: a NaN flow was an IndexError deep in the splatting, a missing key a bare KeyError."""
+    from lfsf.estimate import predict_next
+
+    maps = {k: np.zeros((6, 7), np.float32) for k in ("disp1", "disp2", "u", "v")}
+    assert predict_next(maps)["u"].shape == (6, 7)
+    maps["u"][2, 2] = np.nan
+    with pytest.raises(ValueError, match="predict_next: previous: u has NaN or infinite values"):
+        predict_next(maps)
+    with pytest.raises(ValueError, match=r"predict_next: previous must be .* got keys disp1, disp2$"):
+        predict_next({"disp1": maps["disp1"], "disp2": maps["disp2"]})
+    with pytest.raises(ValueError, match=r"predict_next: previous: v is \(6, 8\), expected \(6, 7\)"):
+        predict_next({**maps, "u": maps["disp1"], "v": np.zeros((6, 8))})
+    with pytest.raises(ValueError, match=r"disp1 should be a 2-D map, got shape \(6,\)"):
+        predict_next({k: np.zeros(6) for k in maps})
+
+
 # --- sources ----------------------------------------------------------------------------
 
 def test_folder_gives_consecutive_pairs_named_after_their_first_frame(frames):
@@ -381,3 +398,15 @@ def test_predict_next_is_public():
     from lfsf.estimate import predict_next
 
     assert lfsf.predict_next is predict_next and "predict_next" in dir(lfsf)
+
+
+def test_scene_flow_compares_by_identity_and_prints_briefly():
+    """A dataclass __eq__ over four arrays raised 'truth value … is ambiguous'."""
+    from lfsf import Params
+    from lfsf.estimate import SceneFlow
+
+    maps = {k: np.zeros((4, 6), np.float32) for k in ("disp1", "disp2", "u", "v")}
+    a = SceneFlow(**maps, params=Params.preset("fast"), radius=4.0, device="cpu")
+    b = SceneFlow(**maps, params=Params.preset("fast"), radius=4.0, device="cpu")
+    assert a == a and a != b and a in [a]
+    assert repr(a) == "SceneFlow(6×4, R=4, device='cpu')"
