@@ -34,8 +34,9 @@ def _mask(shape, valid, border: int, finite: np.ndarray) -> np.ndarray:
 
     Raises ``ValueError`` for a negative border, and when no pixel is left, saying why.
     """
-    if border < 0:
-        raise ValueError(f"the border must be 0 or more pixels, got {border}")
+    if isinstance(border, (bool, np.bool_)) or not isinstance(border, (int, np.integer)) or border < 0:
+        raise ValueError(f"the border must be a whole number of pixels, 0 or more, got {border!r}")
+    border = int(border)
     mask = np.ones(shape, dtype=bool) if valid is None else np.asarray(valid, dtype=bool).copy()
     if mask.shape != tuple(shape):
         raise ValueError(f"valid mask has shape {mask.shape}, expected {tuple(shape)}")
@@ -108,7 +109,7 @@ def flow_errors(u, v, gt_u, gt_v, valid=None, border: int = 0) -> dict[str, floa
     }
 
 
-def evaluate(estimate: dict, gt: dict, border: int = SYNTH_BORDER) -> dict[str, dict[str, float]]:
+def evaluate(estimate, gt: dict, border: int = SYNTH_BORDER) -> dict[str, dict[str, float]]:
     """Errors of an estimate (a mapping with some of ``disp1, disp2, u, v``) against a
     ground truth (the same keys, optional bool ``valid``). Only variables present in both
     are evaluated; the flow needs both ``u`` and ``v``. With an ``occluded`` mask in the
@@ -116,7 +117,10 @@ def evaluate(estimate: dict, gt: dict, border: int = SYNTH_BORDER) -> dict[str, 
     points seen at t2 as well.
 
     Raises ``ValueError`` for maps of different sizes, a negative ``border``, or when the
-    border, the ``valid`` mask and non-finite ground truth leave no pixel to evaluate."""
+    border, the ``valid`` mask and non-finite ground truth leave no pixel to evaluate.
+    ``estimate`` may also be an :class:`lfsf.SceneFlow`."""
+    if hasattr(estimate, "as_dict"):
+        estimate = estimate.as_dict()
     valid = gt.get("valid")
     out: dict[str, dict[str, float]] = {}
     for name in ("disp1", "disp2"):

@@ -128,9 +128,24 @@ def test_no_pixels_left_is_an_error_that_says_why():
         E.evaluate({"disp1": np.zeros((48, 64))}, gt)
 
 
-def test_negative_border_is_rejected():
-    with pytest.raises(ValueError, match="border must be 0 or more pixels, got -3"):
-        E.evaluate({"disp1": np.zeros((20, 20))}, {"disp1": np.zeros((20, 20))}, border=-3)
+@pytest.mark.parametrize("border", [-3, 2.5, "8", True])
+def test_a_border_that_is_not_a_count_of_pixels_is_rejected(border):
+    """A fraction was a TypeError from the slicing; a bool would have counted as 1."""
+    with pytest.raises(ValueError, match=f"border must be a whole number of pixels, 0 or more, got {border!r}"):
+        E.evaluate({"disp1": np.zeros((20, 20))}, {"disp1": np.zeros((20, 20))}, border=border)
+    assert E.evaluate({"disp1": np.ones((20, 20))}, {"disp1": np.zeros((20, 20))},
+                      border=np.int64(2))["disp1"]["pixels"] == 16 * 16
+
+
+def test_a_scene_flow_is_evaluated_as_its_maps():
+    from lfsf import Params
+    from lfsf.estimate import SceneFlow
+
+    gt = {k: np.zeros((20, 20), np.float32) for k in E.VARIABLES}
+    maps = {**gt, "u": np.full((20, 20), 0.5, np.float32)}
+    sf = SceneFlow(**maps, params=Params.preset("fast"), radius=4.0, device="cpu")
+    assert E.evaluate(sf, gt, border=2) == E.evaluate(maps, gt, border=2)
+    assert E.evaluate(sf, gt, border=2)["flow"]["epe"] == 0.5
 
 
 def test_colour_pfm_is_not_a_disparity_map(tmp_path):
