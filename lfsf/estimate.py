@@ -694,14 +694,17 @@ def estimate_scene_flow(
 
     Notes
     -----
-    Special cases come from the same code: ``estimate_scene_flow(lf, lf)`` is stereo
-    (the flow comes out within 0.01 px of zero and δ2 within 0.01 of δ1, but near depth
-    edges, where a sample's rows drop out at one time and not the other: on ``paper``
-    at 160×120, flows of up to 0.13 px at 1.5 % of the pixels and |δ2 − δ1| up to 1.6 at
-    0.1 %; on colour light fields δ1's tensor is the colour one and δ2's the luma's,
-    which adds a little: `random-5` in colour at 96×72, `fast`, largest flow 0.15 px
-    against 0.09 with ``colour_tensor`` off), ``circles=1`` is optical flow of the
-    centre views alone,
+    Special cases come from the same code: ``estimate_scene_flow(lf, lf)`` is stereo.
+    With the ``paper`` preset the flow comes out within 0.01 px of zero and δ2 within
+    0.01 of δ1 but near depth edges, where a sample's rows drop out at one time and not
+    the other (scene ``paper`` at 160×120, 9×9 views: flows above 0.01 px at 0.28 % of
+    the pixels, largest 0.095 px; |δ2 − δ1| at most 0.008). ``fast`` (3 warps of 30
+    iterations against 5 of 100) stops further from that fixed point: median flow
+    0.005 px, above 0.01 px at 23 % of the pixels, largest 0.22 px; |δ2 − δ1| above 0.01
+    at 0.3 %, largest 0.43. On colour light fields δ1's tensor is the colour one and
+    δ2's the luma's, which adds a little (`random-5` in colour at 96×72, `fast`: largest
+    flow 0.15 px against 0.09 with ``colour_tensor`` off). ``circles=1`` is optical flow
+    of the centre views alone,
     ``circles=2, samples=(1, 1)`` is two-view stereo plus flow.
 
     References
