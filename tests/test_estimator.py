@@ -1,5 +1,7 @@
 """The estimator end to end: identities, known shifts, special cases, accuracy."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -620,6 +622,36 @@ def test_the_exposure_fit_recovers_a_known_gain_and_offset():
     assert np.abs(g * (0.8 * x + 0.05) + b - x).max() < 0.004, (g, b)
     assert change > estimate.EXPOSURE_CHANGE
     assert estimate._exposure_change(c1, c2, "cpu")[2] < 0.75 * estimate.EXPOSURE_CHANGE
+
+
+def test_the_exposure_fit_undoes_changes_of_up_to_two_stops_and_says_when_it_refuses():
+    """t2 at 0.4 of t1's exposure (g = 2.5, beyond the one stop once allowed: refused,
+    and the flow was ruined) is fitted; at 0.2 (g = 5) it is refused (the two slopes
+    disagree) and the note says so.
+    The fit's bias grows with the gain (measured here, the largest error of the map over
+    t2's range as a fraction of t1's: 0.005 at 0.8, 0.019 at 0.5, 0.031 at 0.4; g 2.396)."""
+    from lfsf import estimate
+
+    lf1, lf2 = shift_lightfields(h=96, w=128)
+    c1, c2 = lf1.centre, lf2.centre
+    x = np.linspace(0.05, 0.95, 19) * 0.4             # t2's values
+    g, b, change = estimate._exposure_change(c1, (0.4 * c2).astype(np.float32), "cpu")
+    assert abs(g / 2.5 - 1) < 0.05 and np.abs(g * x + b - x / 0.4).max() < 0.04, (g, b)
+    notes = []
+    assert estimate._exposure_change(c1, (0.2 * c2).astype(np.float32), "cpu", note=notes.append) == (1.0, 0.0, 0.0)
+    assert len(notes) == 1 and notes[0].startswith("exposure: not matched, the fit's two slopes disagree")
+
+
+def test_a_gain_beyond_the_cap_is_refused_with_a_note(monkeypatch):
+    from lfsf import estimate
+
+    monkeypatch.setattr(estimate, "EXPOSURE_MAX_GAIN", 2.0)        # the cap as it was
+    lf1, lf2 = shift_lightfields(h=96, w=128)
+    notes = []
+    assert estimate._exposure_change(lf1.centre, (0.4 * lf2.centre).astype(np.float32), "cpu",
+                                     note=notes.append) == (1.0, 0.0, 0.0)
+    assert len(notes) == 1 and re.fullmatch(r"exposure: not matched, the gain fitted \(2\.[345]\d\d\) is beyond "
+                                            r"the 2× \(either way\) that is undone", notes[0]), notes
 
 
 @pytest.mark.parametrize("scene, preset, size", [("paper", "flow", (120, 90)), ("random-3", "flow", (120, 90)),
