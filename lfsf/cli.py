@@ -125,8 +125,14 @@ def cmd_eval(args) -> int:
         raise ValueError(f"{args.result} against {args.gt}: {exc}") from None
     print(f"{args.result} against {args.gt} (border {border} px)")
     print(format_table(errors))
+    # a partial result (one map written, another lost) should not pass for a whole one
+    lacking = [name for name, keys in (("disp1", ("disp1",)), ("disp2", ("disp2",)), ("flow", ("u", "v")))
+               if all(k in gt for k in keys) and not all(k in estimate for k in keys)]
+    if lacking:
+        print(f"not evaluated, missing from {args.result}: {', '.join(lacking)} (the ground truth has them)")
     if args.json:
-        report = {"result": str(args.result), "ground_truth": str(args.gt), "border": border, "errors": errors}
+        report = {"result": str(args.result), "ground_truth": str(args.gt), "border": border, "errors": errors,
+                  "not_evaluated": lacking}
         write_json_atomic(args.json, report)
     return 0
 

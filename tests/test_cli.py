@@ -129,6 +129,23 @@ def test_eval_of_ground_truth_against_itself_is_zero(tmp_path):
     assert report["errors"]["disp2_noc"]["pixels"] == seen and "flow noc" in out
 
 
+def test_eval_of_a_partial_result_says_what_it_left_out(tmp_path, capsys):
+    """A folder with disp1.pfm alone (the others lost) is scored, and the report says
+    that δ2 and the flow were not, where the ground truth has them."""
+    assert main(["synth", "paper", "--out", str(tmp_path), "--size", "48", "36", "--grid", "1", "--quiet"]) == 0
+    with np.load(tmp_path / "gt.npz") as gt:
+        disp1 = gt["disp1"]
+    (tmp_path / "r").mkdir()
+    io.write_pfm(tmp_path / "r" / "disp1.pfm", disp1)
+    capsys.readouterr()
+    assert main(["eval", str(tmp_path / "r"), str(tmp_path / "gt.npz"), "--json", str(tmp_path / "e.json")]) == 0
+    out = capsys.readouterr().out
+    assert f"not evaluated, missing from {tmp_path / 'r'}: disp2, flow" in out
+    assert json.loads((tmp_path / "e.json").read_text())["not_evaluated"] == ["disp2", "flow"]
+    assert main(["eval", str(tmp_path / "gt.npz"), str(tmp_path / "gt.npz")]) == 0
+    assert "not evaluated" not in capsys.readouterr().out
+
+
 @pytest.mark.parametrize(
     "args,needles",
     [
