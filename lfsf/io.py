@@ -32,6 +32,7 @@ with the file's name.
 from __future__ import annotations
 
 import configparser
+import itertools
 import lzma
 import math
 import os
@@ -460,9 +461,14 @@ def _read_folder(folder: Path) -> LightField:
 
 
 def _listed(items: list) -> str:
-    shown = ", ".join(str(i) for i in items[:_MAX_NAMES_LISTED])
-    more = len(items) - _MAX_NAMES_LISTED
-    return shown + (f" and {more} more" if more > 0 else "")
+    return _listed_first(iter(items), len(items))
+
+
+def _listed_first(items, count: int) -> str:
+    """:func:`_listed` of an iterator of ``count`` items, of which only the first few are taken."""
+    shown = list(itertools.islice(items, _MAX_NAMES_LISTED))
+    more = count - len(shown)
+    return ", ".join(str(i) for i in shown) + (f" and {more} more" if more > 0 else "")
 
 
 def _hci_grid(folder: Path, matches: list) -> list[list[Path]]:
@@ -473,10 +479,13 @@ def _hci_grid(folder: Path, matches: list) -> list[list[Path]]:
             raise ValueError(f"{folder}: two files for view {index}: {by_index[index]} and {name}")
         by_index[index] = name
     count = max(by_index) + 1
-    missing = [f"input_Cam{i:03d}.png" for i in range(count) if i not in by_index]
-    if missing:
+    if len(by_index) < count:
+        # counted, and only the first few named: a stray input_Cam99999999.png must not
+        # make a list of 10^8 names
+        missing = (f"input_Cam{i:03d}.png" for i in range(count) if i not in by_index)
         raise ValueError(f"{folder}: the HCI views input_Cam000 … input_Cam{count - 1:03d} "
-                         f"are incomplete, {len(missing)} missing: {_listed(missing)}")
+                         f"are incomplete, {count - len(by_index)} missing: "
+                         f"{_listed_first(missing, count - len(by_index))}")
     side = math.isqrt(count)
     if side * side != count:
         raise ValueError(f"{folder}: expected a square number of HCI views (e.g. {side}×{side} "
@@ -504,12 +513,15 @@ def _rowcol_grid(folder: Path, matches: list) -> tuple[list[list[Path]], str]:
     rows = max(r for r, _ in by_position)
     cols = max(c for _, c in by_position)
     width_r, width_c = len(matches[0][0].group(2)), len(matches[0][0].group(3))
-    missing = [f"{prefix}_{r:0{width_r}d}_{c:0{width_c}d}.png"
-               for r in range(1, rows + 1) for c in range(1, cols + 1)
-               if (r, c) not in by_position]
-    if missing:
+    if len(by_position) < rows * cols:
+        # counted, and only the first few named (IMG_20240101_120000.png alone would be
+        # a grid of 2.4·10^12 views)
+        missing = (f"{prefix}_{r:0{width_r}d}_{c:0{width_c}d}.png"
+                   for r in range(1, rows + 1) for c in range(1, cols + 1)
+                   if (r, c) not in by_position)
         raise ValueError(f"{folder}: the {rows}×{cols} grid of views is incomplete, "
-                         f"{len(missing)} missing: {_listed(missing)}")
+                         f"{rows * cols - len(by_position)} missing: "
+                         f"{_listed_first(missing, rows * cols - len(by_position))}")
     files = [[folder / by_position[r, c] for c in range(1, cols + 1)] for r in range(1, rows + 1)]
     return files, prefix
 

@@ -773,6 +773,28 @@ def test_rowcol_incomplete_grid_names_missing_views(tmp_path):
         lio.read_lightfield(folder)
 
 
+def test_a_stray_name_with_big_numbers_is_counted_not_listed(tmp_path):
+    """A phone photo's name (IMG_20240101_120000.png) reads as view (20240101, 120000),
+    a stray input_Cam99999999.png as view 10^8: the missing views are counted and the
+    first few named, in milliseconds (listing them all hung, or ran out of memory)."""
+    (tmp_path / "photos").mkdir()
+    iio.imwrite(tmp_path / "photos" / "IMG_20240101_120000.png", np.zeros((2, 2), dtype=np.uint8))
+    _hci_folder(tmp_path / "hci", 3)
+    iio.imwrite(tmp_path / "hci" / "input_Cam99999999.png", np.zeros((4, 5, 3), dtype=np.uint8))
+    previous = signal.signal(signal.SIGALRM, lambda *_: pytest.fail("still listing the missing views after 20 s"))
+    signal.alarm(20)
+    try:
+        with pytest.raises(ValueError, match=r"the 20240101×120000 grid of views is incomplete, 2428812119999 "
+                                             r"missing: IMG_00000001_000001.png, .* and 2428812119991 more$"):
+            lio.read_lightfield(tmp_path / "photos")
+        with pytest.raises(ValueError, match=r"input_Cam000 … input_Cam99999999 are incomplete, 99999990 "
+                                             r"missing: input_Cam009.png, .*input_Cam016.png and 99999982 more$"):
+            lio.read_lightfield(tmp_path / "hci")
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+
+
 def test_rowcol_indices_are_one_based(tmp_path):
     folder = tmp_path / "rc"
     folder.mkdir()
