@@ -1257,12 +1257,22 @@ def decode_png(data: bytes, source: str = "<bytes>") -> np.ndarray:
     if compression != 0 or filtering != 0 or interlace not in (0, 1) or width < 1 or height < 1:
         raise ValueError(f"{source}: corrupt PNG header: size {width}×{height}, compression "
                          f"{compression}, filter method {filtering}, interlace {interlace}")
-    try:
-        raw = zlib.decompress(b"".join(idat))
-    except zlib.error as err:
-        raise ValueError(f"{source}: corrupt PNG image data ({err})") from err
     channels = _PNG_CHANNELS[colour_type]
     bpp = channels * depth // 8                          # bytes per pixel
+    # the bytes the header promises, filter bytes included; no more is decompressed, and
+    # nothing is allocated for the image before they are there (a 70-byte file may claim
+    # 100000×100000 pixels, and a small IDAT may inflate without end)
+    passes = [(width, height)] if interlace == 0 else [
+        (-(-(width - x0) // dx) if width > x0 else 0, -(-(height - y0) // dy) if height > y0 else 0)
+        for x0, y0, dx, dy in _ADAM7]
+    expected = sum(h * (w * bpp + 1) for w, h in passes if w and h)
+    try:
+        raw = zlib.decompressobj().decompress(b"".join(idat), expected)
+    except zlib.error as err:
+        raise ValueError(f"{source}: corrupt PNG image data ({err})") from err
+    if len(raw) < expected:
+        raise ValueError(f"{source}: truncated PNG image data: expected {expected} bytes for "
+                         f"{width}×{height} pixels, got {len(raw)}")
     if interlace == 0:
         pixels, _ = _unfilter_pass(raw, 0, width, height, bpp, source)
         pixels = pixels.reshape(height, width, bpp)

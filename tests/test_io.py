@@ -444,6 +444,22 @@ def test_decode_png_rejects_truncated_image_data():
     assert lio.decode_png(_png_by_hand(image, (0,))).shape == (4, 4, 3)
 
 
+@pytest.mark.parametrize("interlace", [0, 1])
+def test_decode_png_claiming_a_huge_size_fails_before_allocating(interlace):
+    """A 70-byte file claiming 100000×100000 16-bit RGB pixels: interlaced, the image
+    (56 GiB) was allocated before the data were checked, a MemoryError; and a small IDAT
+    that inflates far beyond what the header promises is cut off at that size."""
+    data = (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", struct.pack(">IIBBBBB", 100000, 100000, 16, 2, 0, 0, interlace))
+            + _chunk(b"IDAT", zlib.compress(bytes(64))) + _chunk(b"IEND", b""))
+    with pytest.raises(ValueError, match=r"bomb.png: truncated PNG image data: expected 600001\d{5} bytes "
+                                         r"for 100000×100000 pixels, got 64"):
+        lio.decode_png(data, source="bomb.png")
+    # 2×2 grey promises 2·(2 + 1) = 6 bytes; 100 MB of zeros (100 kB compressed) behind them
+    bomb = (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", struct.pack(">IIBBBBB", 2, 2, 8, 0, 0, 0, interlace))
+            + _chunk(b"IDAT", zlib.compress(bytes(100_000_000), 9)) + _chunk(b"IEND", b""))
+    np.testing.assert_array_equal(lio.decode_png(bomb), np.zeros((2, 2), np.uint8))
+
+
 # --------------------------------------------------------------------------------------
 # PFM
 # --------------------------------------------------------------------------------------
