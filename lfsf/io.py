@@ -224,11 +224,11 @@ def centre_view(views: np.ndarray) -> np.ndarray:
     return middle.sum(axis=(0, 1), dtype=np.float32) / np.float32(count)
 
 
-#: Two light fields whose brightest values are this far apart, one of them above the first
-#: number (beyond [0, 1] and its noise), were scaled differently (one in [0, 1], the other
-#: in counts): the joint stretch to [0, 1] would leave one nearly black. 16 is four stops,
-#: far beyond any exposure change the estimator undoes (gain ≤ 2).
-_SCALED_APART = (2.0, 16.0)
+#: Two light fields whose brightest values are more than this factor apart were scaled
+#: differently (one in [0, 1], the other in counts; or integers of another width, as
+#: uint8 against int64, which scales by 2^63 − 1): the estimate would be meaningless.
+#: 16 is four stops, twice what the estimator's exposure matching undoes (a gain of 4).
+_SCALED_APART = 16.0
 
 
 def check_pair(lf1: LightField, lf2: LightField) -> None:
@@ -241,8 +241,8 @@ def check_pair(lf1: LightField, lf2: LightField) -> None:
     ------
     ValueError
         Naming both sources, if the grids or the view sizes differ, or if one light
-        field's brightest value is above 2 and more than 16 times the other's (one in
-        [0, 1], the other in counts such as [0, 255]).
+        field's brightest value is more than 16 times the other's (one in [0, 1], the
+        other in counts such as [0, 255]; uint8 against int64).
     """
     def describe(lf: LightField) -> str:
         rows, cols = lf.grid
@@ -252,10 +252,11 @@ def check_pair(lf1: LightField, lf2: LightField) -> None:
         raise ValueError(f"{lf2.source}: expected the grid and view size of {lf1.source} "
                          f"({describe(lf1)}), got {describe(lf2)}")
     highs = [float(np.max(lf.views)) for lf in (lf1, lf2)]
-    if max(highs) > _SCALED_APART[0] and max(highs) > _SCALED_APART[1] * max(min(highs), 0.0):
+    if min(highs) > 0.0 and max(highs) > _SCALED_APART * min(highs):   # (all black: no scale to compare)
         raise ValueError(f"{lf2.source}: its brightest value is {highs[1]:g} against {highs[0]:g} in "
                          f"{lf1.source}: the two light fields look scaled differently (float views "
-                         "belong in [0, 1]; integer ones are scaled by their type's maximum)")
+                         "belong in [0, 1]; integer ones are scaled by their type's maximum, so give "
+                         "both the same type), or lie more than four stops apart in exposure")
 
 
 def _to_unit_float32(array: np.ndarray) -> np.ndarray:

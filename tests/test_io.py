@@ -262,8 +262,12 @@ def test_check_pair_refuses_light_fields_scaled_differently():
     with pytest.raises(ValueError, match="scaled differently"):
         lio.check_pair(counts, lio.LightField(unit, source="t1"))
     lio.check_pair(counts, lio.LightField(unit * 200, source="t1"))        # both in counts: stretched alike
-    lio.check_pair(lio.LightField(unit, source="t1"), lio.LightField(unit / 20, source="t2"))  # dark, in [0, 1]
-    lio.check_pair(lio.LightField(unit * 1.9, source="t1"), lio.LightField(unit * 0.1, source="t2"))
+    lio.check_pair(lio.LightField(unit, source="t1"), lio.LightField(unit / 10, source="t2"))  # dark, in [0, 1]
+    lio.check_pair(lio.LightField(unit * 1.9, source="t1"), lio.LightField(unit * 0.2, source="t2"))
+    # uint8 counts against the same counts as int64 (np.array of Python ints): 1 against ~1e-17
+    eight = (unit * 255).astype(np.uint8)
+    with pytest.raises(ValueError, match=r"^t2: its brightest value is 2\.7\d*e-17 against 0\.99\d* in t1"):
+        lio.check_pair(lio.LightField(eight, source="t1"), lio.LightField(eight.astype(np.int64), source="t2"))
 
 
 # --------------------------------------------------------------------------------------
