@@ -161,13 +161,21 @@ class _Progress:
             sys.stderr.flush()
 
 
+def _preset_label(args) -> str:
+    """What the settings came from, for a log line: "preset 'fast' and run.toml"."""
+    config = getattr(args, "config", None)
+    if args.preset:
+        return f"preset '{args.preset}'" + (f" and {config}" if config else "")
+    return f"the settings of {config}" if config else "preset 'paper'"
+
+
 def _params(args):
     from lfsf.params import Params
 
-    params = Params.preset(args.preset)
     if getattr(args, "config", None):
-        params = Params.from_toml(args.config, base=params)
-    return params
+        # the file's preset = "…" or --preset (both, differing: an error), else paper
+        return Params.from_toml(args.config, preset=args.preset)
+    return Params.preset(args.preset or "paper")
 
 
 def cmd_run(args) -> int:
@@ -205,8 +213,7 @@ def cmd_demo(args) -> int:
     width, height = args.size
     out = output_folder(args.out, create=False)
     _say(args, f"lfsf demo: scene '{args.scene}', {width}×{height}, {args.grid}×{args.grid} "
-               f"{'RGB ' if args.colour else ''}views, preset "
-               f"'{args.preset}', on {device}")
+               f"{'RGB ' if args.colour else ''}views, {_preset_label(args)}, on {device}")
     t0 = time.perf_counter()
     lf1, lf2, gt = synth.render_scene(args.scene, size=(width, height), grid=args.grid, colour=args.colour,
                                       device=device)
@@ -251,7 +258,7 @@ def cmd_batch(args) -> int:
     where = (f"the Dask scheduler at {args.scheduler}" if args.scheduler
              else f"a local Dask cluster of {args.workers} process{'es' if args.workers > 1 else ''}"
              if batch.have_dask() else "this process (Dask is not installed)")
-    _log(args, f"lfsf batch: {len(pairs)} pairs to {args.out}, preset '{args.preset}', on {where}"
+    _log(args, f"lfsf batch: {len(pairs)} pairs to {args.out}, {_preset_label(args)}, on {where}"
                + (", each pair of a sequence starting from the one before" if args.warm_start else ""))
     bar = batch.ProgressBar(len(pairs), quiet=args.quiet)
     summary = batch.run_batch(pairs, args.out, params, workers=args.workers, scheduler=args.scheduler,
@@ -335,9 +342,9 @@ def _device_options(p) -> None:
 
 
 def _estimator_options(p) -> None:
-    p.add_argument("--preset", default="paper",
+    p.add_argument("--preset",
                    help="paper (17 views), fast, lytro, or flow (optical flow of the centre views alone) "
-                        "(default paper)")
+                        "(default paper, or the --config file's preset)")
     p.add_argument("--config", type=Path, help="TOML file setting any parameter of lfsf.Params")
     _device_options(p)
 

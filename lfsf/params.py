@@ -271,9 +271,11 @@ class Params:
         return dataclasses.replace(self, **changes)
 
     @classmethod
-    def from_toml(cls, path: str | Path, base: "Params | None" = None) -> "Params":
+    def from_toml(cls, path: str | Path, base: "Params | None" = None, preset: str | None = None) -> "Params":
         """Settings from a TOML file (top-level keys, or a ``[params]`` table; a
-        ``preset = "name"`` key picks the base), over ``base`` (default: the preset)."""
+        ``preset = "name"`` key picks the base), over ``base`` (default: the preset).
+        ``preset``: a preset named elsewhere (``--preset``), the base where the file
+        names none; a file naming another is an error rather than silently winning."""
         try:
             import tomllib
         except ModuleNotFoundError:  # Python 3.10
@@ -296,9 +298,13 @@ class Params:
         if not isinstance(data, dict):
             raise ValueError(f"{path}: [params] must be a table of settings, got {data!r}")
         data = dict(data)
-        preset = data.pop("preset", None)
+        named = data.pop("preset", None)
+        if named is not None and preset is not None and named != preset:
+            raise ValueError(f"{path}: preset = {named!r} here, but preset {preset!r} was given too "
+                             "(--preset); name it in one place")
+        named = preset if named is None else named
         try:
-            params = cls.preset(preset) if preset is not None else (base or cls())
+            params = cls.preset(named) if named is not None else (base or cls())
             return params.replace(**data)
         except (ValueError, TypeError) as exc:
             raise ValueError(f"{path}: {exc}") from None

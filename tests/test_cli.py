@@ -1,5 +1,6 @@
 """The command line: outputs, and bad input ending in one clear line with exit status 2."""
 
+import argparse
 import json
 import os
 import subprocess
@@ -8,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from lfsf import io
+from lfsf import Params, io
 from lfsf.cli import main
 
 
@@ -190,6 +191,20 @@ def test_settings_that_size_a_render_are_bounded_and_checked_before_any_work(tmp
     captured = capsys.readouterr()
     assert captured.out == "" and captured.err.count("\n") == 1 and needle in captured.err, captured
     assert not (tmp_path / "x").exists()
+
+
+def test_a_preset_in_the_config_file_meets_the_command_line(tmp_path, capsys):
+    from lfsf import cli
+
+    (tmp_path / "f.toml").write_text('preset = "flow"\n')
+    assert main(["run", "a.npz", "b.npz", "--out", str(tmp_path / "r"), "--preset", "paper",
+                 "--config", str(tmp_path / "f.toml")]) == 2
+    assert "preset = 'flow' here, but preset 'paper' was given too" in capsys.readouterr().err
+    for preset, config, want in ((None, None, "paper"), ("fast", None, "fast"), (None, "f.toml", "flow"),
+                                 ("flow", "f.toml", "flow")):
+        args = argparse.Namespace(preset=preset, config=config and tmp_path / config)
+        assert cli._params(args) == Params.preset(want), (preset, config)
+    assert cli._preset_label(argparse.Namespace(preset=None, config="f.toml")) == "the settings of f.toml"
 
 
 def test_nan_pixels_are_rejected_with_the_file_name(tmp_path):

@@ -173,3 +173,16 @@ def test_settings_both_in_a_params_table_and_at_the_top_level_are_an_error(tmp_p
 def test_a_folder_given_as_the_config_is_a_value_error(tmp_path):
     with pytest.raises(ValueError, match=re.escape(f"{tmp_path}: a folder, not a TOML file")):
         Params.from_toml(tmp_path)
+
+
+def test_a_preset_named_both_on_the_command_line_and_in_the_file_must_agree(tmp_path):
+    """`--preset paper --config f.toml` with `preset = "flow"` in the file ran the flow
+    preset (δ1 all zero) without a word."""
+    path = tmp_path / "f.toml"
+    path.write_text('preset = "flow"\nwarps = 2\n')
+    with pytest.raises(ValueError, match=re.escape(f"{path}: preset = 'flow' here, but preset 'paper' was given")):
+        Params.from_toml(path, preset="paper")
+    assert Params.from_toml(path, preset="flow") == Params.preset("flow").replace(warps=2)
+    assert Params.from_toml(path) == Params.preset("flow").replace(warps=2)
+    path.write_text("warps = 2\n")
+    assert Params.from_toml(path, preset="fast") == Params.preset("fast").replace(warps=2)
