@@ -134,7 +134,7 @@ def pairs_from_sources(sources: Sequence[str | os.PathLike], out: str | os.PathL
 
 def _manifest_pairs(path: Path) -> list[Pair]:
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8-sig")    # (-sig: Excel's "CSV UTF-8" starts with a BOM)
     except UnicodeDecodeError:
         raise ValueError(f"{path}: not a text CSV manifest") from None
     rows = [row for row in csv.reader(_io.StringIO(text)) if row and any(c.strip() for c in row)]
@@ -145,11 +145,13 @@ def _manifest_pairs(path: Path) -> list[Pair]:
     pairs = []
     for number, row in enumerate(rows, 1):
         cells = [c.strip() for c in row]
+        if any("\0" in c for c in cells):
+            raise ValueError(f"{path}: pair {number} holds a NUL byte, which no path or name can")
         if len(cells) not in (2, 3) or not cells[0] or not cells[1]:
             raise ValueError(f"{path}: pair {number} ({','.join(row)!r}) is not 't1,t2[,name]'")
         t1, t2 = ((path.parent / c) for c in cells[:2])
         name = cells[2] if len(cells) == 3 and cells[2] else _stem(t1)
-        if not name or name.startswith(".") or "/" in name or "\\" in name:
+        if not name or name.startswith(".") or "/" in name or "\\" in name or "\0" in name:
             raise ValueError(f"{path}: pair {number} has the name {name!r}, which cannot be a folder name")
         pairs.append(Pair(name, t1, t2))
     return pairs
@@ -193,6 +195,11 @@ def _holds_only_results(folder: Path) -> bool:
     return folder.is_dir() and all(p.is_file() and p.name in names for p in folder.iterdir())
 
 
+#: The longest pair name, in bytes: its temporary folder adds 24 (".", ".part-", a process
+#: id, "-" and 8 hex digits) and file systems take 255.
+MAX_PAIR_NAME = 200
+
+
 def check_outputs(pairs: Sequence[Pair], out: str | os.PathLike) -> None:
     """Before any work: no pair's result folder ``out/NAME`` may be, or hold, a light
     field that a pair reads (it would be replaced), and none may be a file.
@@ -205,6 +212,13 @@ def check_outputs(pairs: Sequence[Pair], out: str | os.PathLike) -> None:
     out = Path(out).absolute()
     sources = [Path(p).absolute() for pair in pairs for p in (pair.t1, pair.t2)]
     for pair in pairs:
+        # its folder and the temporary ".NAME.part-PID-XXXXXXXX" beside it must be names
+        # the file system takes (255 bytes), and it must not be the list of failures
+        if len(os.fsencode(pair.name)) > MAX_PAIR_NAME or "\0" in pair.name:
+            raise ValueError(f"pair {pair.name[:40]!r}…: a pair's name must be a folder name of at most "
+                             f"{MAX_PAIR_NAME} bytes; name it in a manifest's third column")
+        if pair.name == "failed.csv":
+            raise ValueError(f"{out / pair.name}: a pair may not be named failed.csv, the list of failed pairs")
         final = out / pair.name
         for source in sources:
             if _within(source, final):
@@ -228,12 +242,13 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
 
     out = Path(out)
     final = out / pair.name
-    if is_complete(final):
-        return Outcome(pair.name, "skipped")
     t0 = time.perf_counter()
-    _remove_stale(out, pair.name)
-    tmp = out / f".{pair.name}.part-{os.getpid()}-{uuid.uuid4().hex[:8]}"
-    try:
+    tmp = None
+    try:  # all of it: a name too long for the file system fails here, in is_complete
+        if is_complete(final):
+            return Outcome(pair.name, "skipped")
+        _remove_stale(out, pair.name)
+        tmp = out / f".{pair.name}.part-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         tmp.mkdir(parents=True)
         lf1 = read_lightfield(pair.t1)
         lf2 = read_lightfield(pair.t2)
@@ -255,8 +270,8 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
         reason = _reason(exc)
         return Outcome(pair.name, "failed", time.perf_counter() - t0, reason)
     finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)     # (not there, or its name unusable: nothing to do)
 
 
 def _reason(exc: BaseException) -> str:
@@ -435,7 +450,8 @@ def _write_failed(out: Path, pairs: Sequence[Pair], summary: Summary) -> None:
     for outcome in failed:
         pair = by_name[outcome.name]
         writer.writerow([pair.name, pair.t1, pair.t2, outcome.reason])
-    write_bytes_atomic(path, text.getvalue().encode())
+    # surrogateescape: a path of bytes that are not UTF-8 is written back as those bytes
+    write_bytes_atomic(path, text.getvalue().encode("utf-8", "surrogateescape"))
 
 
 # --- progress ----------------------------------------------------------------------------

@@ -139,11 +139,42 @@ def test_manifest_with_and_without_header(tmp_path):
     ([("t1", "t2")], "names no pairs"),
     ([("a.npz", "b.npz", "same"), ("c.npz", "d.npz", "same")], "both named 'same'"),
     ([("a.npz", "b.npz", ".hidden")], "cannot be a folder name"),
+    ([("a.npz", "b\0.npz")], "pair 1 holds a NUL byte"),
 ])
 def test_bad_manifest_is_a_clear_error(tmp_path, rows, message):
     path = _manifest(tmp_path / "m.csv", rows)
     with pytest.raises(ValueError, match=re.escape(message)):
         batch.pairs_from_sources([path])
+
+
+def test_a_manifest_saved_with_a_byte_order_mark_reads_its_header(tmp_path):
+    """Excel's "CSV UTF-8" starts with a BOM: the header was read as a pair ('\ufefft1')."""
+    path = tmp_path / "m.csv"
+    path.write_bytes("t1,t2,name\na.npz,b.npz,first\n".encode("utf-8-sig"))
+    assert [(p.name, p.t1) for p in batch.pairs_from_sources([path])] == [("first", tmp_path / "a.npz")]
+
+
+def test_pair_names_a_file_system_cannot_take_are_refused_before_any_work(tmp_path):
+    long = batch.Pair("a" * 201, tmp_path / "a.npz", tmp_path / "b.npz")
+    with pytest.raises(ValueError, match="a pair's name must be a folder name of at most 200 bytes"):
+        batch.check_outputs([long], tmp_path / "out")
+    batch.check_outputs([batch.Pair("é" * 100, tmp_path / "a.npz", tmp_path / "b.npz")], tmp_path / "out")
+    with pytest.raises(ValueError, match="may not be named failed.csv"):
+        batch.check_outputs([batch.Pair("failed.csv", tmp_path / "a.npz", tmp_path / "b.npz")], tmp_path / "out")
+    # run_pair on its own, given a name too long (255 bytes and more): a failed pair, not an OSError
+    outcome = batch.run_pair(batch.Pair("a" * 300, tmp_path / "a.npz", tmp_path / "b.npz"), tmp_path / "out",
+                             PARAMS)
+    assert outcome.status == "failed" and "File name too long" in outcome.reason
+
+
+def test_failed_csv_keeps_paths_whose_bytes_are_not_utf8(tmp_path):
+    """A failed pair read from b'fr\xff.npz': writing failed.csv raised UnicodeEncodeError."""
+    source = tmp_path / os.fsdecode(b"fr\xff.npz")
+    pair = batch.Pair("fr", source, source)
+    summary = batch.Summary([batch.Outcome("fr", "failed", 0.0, f"{source}: no such file")])
+    batch._write_failed(tmp_path, [pair], summary)
+    data = (tmp_path / "failed.csv").read_bytes()
+    assert data.count(os.fsencode(source)) == 3 and data.startswith(b"name,t1,t2,reason")
 
 
 def test_missing_source_and_short_folder(tmp_path):
