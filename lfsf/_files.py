@@ -29,6 +29,12 @@ def output_folder(path: str | os.PathLike, create: bool = True) -> Path:
     for part in (path, *path.parents):
         if part.exists() and not part.is_dir():
             raise ValueError(f"{path}: cannot write results there: {part} is a file, not a folder")
+        if part.is_symlink() and not part.exists():
+            raise ValueError(f"{path}: cannot write results there: {part} is a broken symbolic link "
+                             f"(to {os.readlink(part)})")
+    existing = next(part for part in (path, *path.parents) if part.exists())
+    if existing != path and not os.access(existing, os.W_OK | os.X_OK):
+        raise ValueError(f"{path}: cannot make the output folder: {existing} is not writable")
     if create:
         try:
             path.mkdir(parents=True, exist_ok=True)
@@ -55,9 +61,16 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
 
     ``suffix`` is the temporary file's ending (default: the target's own), which matters to
     writers that pick the format from the name (imageio, ``np.savez``). On any exception the
-    temporary file is removed and the target is left as it was.
+    temporary file is removed and the target is left as it was. A symbolic link is written
+    through (the file it points to is replaced, the link kept); a target that is neither a
+    file nor missing (``/dev/stdout``, a named pipe) is yielded itself, to write in place.
     """
     path = Path(path)
+    if path.exists() and not path.is_file() and not path.is_dir():   # a device or a pipe (/dev/stdout)
+        yield path
+        return
+    if path.is_symlink():                        # the link stays; what it points to is written
+        path = Path(os.path.realpath(path))
     path.parent.mkdir(parents=True, exist_ok=True)
     suffix = path.suffix if suffix is None else suffix
     tmp_path = None

@@ -300,6 +300,32 @@ def test_results_are_written_as_one_set_or_not_at_all(tmp_path):
     assert sorted(p.name for p in (tmp_path / "r").iterdir()) == ["disp2.png"]
 
 
+def test_outputs_are_written_through_symbolic_links_and_into_devices(tmp_path):
+    """--json LINK replaced the link with a file (and its target never changed); --json
+    /dev/stdout, a link to a device, would have replaced the device."""
+    import stat
+
+    from lfsf._files import write_bytes_atomic
+
+    (tmp_path / "target.json").write_text("old")
+    (tmp_path / "link.json").symlink_to("target.json")
+    write_bytes_atomic(tmp_path / "link.json", b"{}")
+    assert (tmp_path / "link.json").is_symlink() and (tmp_path / "target.json").read_bytes() == b"{}"
+    (tmp_path / "null").symlink_to("/dev/null")
+    write_bytes_atomic(tmp_path / "null", b"{}")
+    assert (tmp_path / "null").is_symlink() and stat.S_ISCHR(os.stat("/dev/null").st_mode)
+    assert not list(tmp_path.glob(".*.part*"))
+
+
+def test_an_output_folder_that_is_a_broken_link_is_refused_before_any_work(tmp_path):
+    from lfsf._files import output_folder
+
+    (tmp_path / "out").symlink_to(tmp_path / "gone")
+    for create in (False, True):
+        with pytest.raises(ValueError, match=r"out/r: cannot write results there: .*out is a broken symbolic link"):
+            output_folder(tmp_path / "out" / "r", create=create)
+
+
 def test_output_names_near_the_length_limit_still_get_a_temporary_name(tmp_path):
     from lfsf._files import write_bytes_atomic
 
