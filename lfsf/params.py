@@ -319,6 +319,13 @@ class Params:
             if not ok:
                 raise ValueError(f"bad parameter: {message}")
 
+        # real settings in float32 with room to spare: the kernels compute in float32, and
+        # λ = 1e39, α = 1e308 or step_ratio = 1e-308 made every map NaN without an error
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.type == "float" and value != 0:
+                need(MIN_REAL <= abs(value) <= MAX_REAL,
+                     f"{f.name} must be 0 or of magnitude {MIN_REAL:g}…{MAX_REAL:g}, got {value:g}")
         need(self.circles >= 1, f"circles (M) must be at least 1, got {self.circles}")
         need(len(self.samples) == self.circles,
              f"samples (N_i) must give one count per circle: M = {self.circles}, N = {self.samples}")
@@ -406,6 +413,12 @@ class Params:
 
 # Upper bounds of the settings that size buffers or loops (:meth:`Params.validate`).
 MAX_SAMPLES = 256
+#: The magnitudes a real setting may have (or 0): within float32 (1.2e-38…3.4e38) with
+#: room for the products the kernels form. `fast` at 48×40 gave finite maps with every
+#: real setting at 1e-12 and at 1e12 that its own range allows, but flow_edge_weight at
+#: 1e12 (fine at 1e9).
+MIN_REAL = 1e-12
+MAX_REAL = 1e9
 MAX_OCCLUSION_REACH = 32
 MAX_HIDDEN_FILL_SIGMA = 64.0
 #: The gain fields are blurred on the pilot's reduced views with a kernel of 3σ: beyond

@@ -186,3 +186,12 @@ def test_a_preset_named_both_on_the_command_line_and_in_the_file_must_agree(tmp_
     assert Params.from_toml(path) == Params.preset("flow").replace(warps=2)
     path.write_text("warps = 2\n")
     assert Params.from_toml(path, preset="fast") == Params.preset("fast").replace(warps=2)
+
+
+@pytest.mark.parametrize("name, value", [("lambda1", 1e39), ("alpha0", 1e308), ("step_ratio", 1e-308),
+                                         ("contrast", 1e308), ("flow_edge_weight", 1e12)])
+def test_real_settings_beyond_what_float32_kernels_can_carry_are_refused(name, value):
+    """Each was accepted and made every map NaN (λ = 1e39 is past float32's 3.4e38)."""
+    with pytest.raises(ValueError, match=named(name) + r".*must be 0 or of magnitude 1e-12…1e\+09"):
+        Params.preset("fast").replace(**{name: value})
+    Params.preset("fast").replace(**{name: 1e9 if value > 1 else 1e-12})
