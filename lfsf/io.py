@@ -445,6 +445,9 @@ def _read_folder(folder: Path) -> LightField:
     names = sorted(p.name for p in folder.iterdir() if p.is_file())
     hci = [(m, name) for name in names if (m := _HCI_NAME.fullmatch(name))]
     rowcol = [(m, name) for name in names if (m := _ROWCOL_NAME.fullmatch(name))]
+    if hci and rowcol:
+        raise ValueError(f"{folder}: holds views in two layouts, HCI ({hci[0][1]}, …) and row-column "
+                         f"({rowcol[0][1]}, …); keep one light field per folder")
     if hci:
         files = _hci_grid(folder, hci)
         meta = {"layout": "hci"}

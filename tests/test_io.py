@@ -815,6 +815,15 @@ def test_a_stray_name_with_big_numbers_is_counted_not_listed(tmp_path):
         signal.signal(signal.SIGALRM, previous)
 
 
+def test_a_folder_with_views_in_both_layouts_is_an_error(tmp_path):
+    """It was read as the HCI light field without a word about the other."""
+    _hci_folder(tmp_path / "both", 2)
+    iio.imwrite(tmp_path / "both" / "scene_01_01.png", np.zeros((4, 5, 3), dtype=np.uint8))
+    with pytest.raises(ValueError, match=r"both: holds views in two layouts, HCI \(input_Cam000.png, …\) and "
+                                         r"row-column \(scene_01_01.png, …\)"):
+        lio.read_lightfield(tmp_path / "both")
+
+
 def test_rowcol_indices_are_one_based(tmp_path):
     folder = tmp_path / "rc"
     folder.mkdir()
