@@ -775,6 +775,8 @@ def _read_bytes(path: str | os.PathLike) -> bytes:
         raise FileNotFoundError(f"{path}: no such file") from None
     except IsADirectoryError:
         raise ValueError(f"{path}: expected a file, got a folder") from None
+    except ValueError as exc:                       # a NUL byte in the name
+        raise ValueError(f"{str(path)!r}: not a usable file name ({exc})") from None
 
 
 def read_pfm(path: str | os.PathLike) -> np.ndarray:

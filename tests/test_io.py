@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import re
 import signal
 import struct
 import warnings
@@ -467,6 +468,13 @@ def test_decode_png_claiming_a_huge_size_fails_before_allocating(interlace):
 # --------------------------------------------------------------------------------------
 # PFM
 # --------------------------------------------------------------------------------------
+
+
+def test_a_nul_byte_in_a_file_name_is_named_in_the_error():
+    """open() says only 'embedded null byte'; which name held it is the useful part."""
+    for read in (lio.read_pfm, lio.read_flo):
+        with pytest.raises(ValueError, match=re.escape("'gt\\x00.pfm': not a usable file name (embedded null byte)")):
+            read("gt\0.pfm")
 
 
 def test_pfm_hand_made_little_endian(tmp_path):
