@@ -290,3 +290,31 @@ def test_a_tall_narrow_image_is_not_enlarged_into_a_huge_picture():
     c = np.random.default_rng(0).random((3000, 8)).astype(np.float32)
     img = viz.overview_figure(c, c, c, c, c, c)
     assert img.shape[0] < 3 * 3000 + 1000 and img.shape[1] < 1000
+
+
+def test_odd_maps_and_titles_are_handled_quickly_or_refused_clearly():
+    """A finite map spanning ±1e308 (hi − lo overflowed: an IndexError), an infinite end
+    (the same), a 0×5 map (a ZeroDivisionError), a 10000-character title (33 s, shortened
+    one character at a time)."""
+    import signal
+
+    rgb = viz.disparity_to_color(np.array([[-1e308, 1e308], [0.0, 1.0]]), vmin=-1e308, vmax=1e308)
+    assert rgb[0, 0].tolist() == viz.disparity_to_color(np.array([[0.0, 1.0]]))[0, 0].tolist()
+    assert (rgb[1, 0] == rgb[1, 1]).all()         # 0 and 1 are the same colour on that scale
+    with pytest.raises(ValueError, match="expected finite ends of the colour scale, got -inf"):
+        viz.disparity_to_color(np.zeros((2, 2)), vmin=-np.inf, vmax=1.0)
+    empty = np.zeros((0, 5))
+    with pytest.raises(ValueError, match=r"at least one pixel, got shape \(0, 5\)"):
+        viz.overview_figure(empty, empty, empty, empty, empty, empty)
+    maps = np.zeros((4, 5))
+    short = viz.overview_figure(maps, maps, maps, maps, maps, maps, title="x" * 300)
+    # (a guard against a hang, not a timing: one character at a time this took many minutes)
+    previous = signal.signal(signal.SIGALRM, lambda *_: pytest.fail("still shortening the title after 120 s"))
+    signal.alarm(120)
+    try:
+        long = viz.overview_figure(maps, maps, maps, maps, maps, maps, title="x" * 100_000)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+    assert np.array_equal(short, long)                 # the same shortened title
+
