@@ -15,10 +15,11 @@ from typing import Iterator
 TEMP_STEM = 40
 
 
-def output_folder(path: str | os.PathLike, create: bool = True) -> Path:
+def output_folder(path: str | os.PathLike, create: bool = True, names=()) -> Path:
     """``path`` as a folder to write results into, made if missing (unless ``create`` is
     false: then only what exists of it is checked): checked before any work, so that a
-    run does not end, after minutes, on an output it cannot write.
+    run does not end, after minutes, on an output it cannot write. ``names``: the files
+    that will be written into it, none of which may be a folder there.
 
     Raises
     ------
@@ -42,7 +43,14 @@ def output_folder(path: str | os.PathLike, create: bool = True) -> Path:
             raise ValueError(f"{path}: cannot make the output folder ({exc.strerror or exc})") from None
     if path.exists() and not os.access(path, os.W_OK | os.X_OK):
         raise ValueError(f"{path}: the output folder is not writable")
+    _check_names(path, names)
     return path
+
+
+def _check_names(out: Path, names) -> None:
+    for name in names:
+        if (out / name).is_dir():
+            raise ValueError(f"{out / name}: is a folder; {name} cannot be written there")
 
 
 def output_file(path: str | os.PathLike) -> Path:
@@ -178,9 +186,7 @@ def file_set(out: Path, names):
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    for name in names:
-        if (out / name).is_dir():
-            raise ValueError(f"{out / name}: is a folder; {name} cannot be written there")
+    _check_names(out, names)
     tmp = None
     try:
         tmp = Path(tempfile.mkdtemp(prefix=".lfsf-set.", dir=out))

@@ -161,6 +161,13 @@ class _Progress:
             sys.stderr.flush()
 
 
+def _result_names() -> tuple[str, ...]:
+    """What `lfsf run` and `lfsf demo` write into --out (SceneFlow.save with the overview)."""
+    from lfsf.batch import RESULT_FILES
+
+    return RESULT_FILES + ("overview.png",)
+
+
 def _preset_label(args) -> str:
     """What the settings came from, for a log line: "preset 'fast' and run.toml"."""
     config = getattr(args, "config", None)
@@ -185,7 +192,8 @@ def cmd_run(args) -> int:
 
     device = resolve_device(args.device)
     params = _params(args)
-    output_folder(args.out, create=False)  # before any work; made when the results are written
+    # before any work; made when the results are written
+    output_folder(args.out, create=False, names=_result_names())
     lf1 = read_lightfield(args.lf1)
     lf2 = read_lightfield(args.lf2)
     check_pair(lf1, lf2)
@@ -211,7 +219,7 @@ def cmd_demo(args) -> int:
     synth.get_scene(args.scene)
     synth.check_render(args.size, args.grid, colour=args.colour)  # before any work
     width, height = args.size
-    out = output_folder(args.out, create=False)
+    out = output_folder(args.out, create=False, names=_result_names())
     _say(args, f"lfsf demo: scene '{args.scene}', {width}×{height}, {args.grid}×{args.grid} "
                f"{'RGB ' if args.colour else ''}views, {_preset_label(args)}, on {device}")
     t0 = time.perf_counter()

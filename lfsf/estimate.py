@@ -72,9 +72,10 @@ class SceneFlow:
 
         from lfsf import io, viz
         from lfsf._files import file_set, output_folder
+        from lfsf.batch import RESULT_FILES
 
         out = output_folder(out)
-        names = ["disp1.pfm", "disp2.pfm", "flow.flo", "sceneflow.npz", "disp1.png", "disp2.png", "flow.png"]
+        names = list(RESULT_FILES)
         if centre1 is not None and centre2 is not None:
             names.append("overview.png")
         with file_set(out, names) as tmp:

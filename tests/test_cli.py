@@ -326,6 +326,16 @@ def test_an_output_folder_that_is_a_broken_link_is_refused_before_any_work(tmp_p
             output_folder(tmp_path / "out" / "r", create=create)
 
 
+def test_a_folder_where_a_result_goes_is_refused_before_the_estimate(tmp_path, monkeypatch, capsys):
+    from lfsf import estimate
+
+    monkeypatch.setattr(estimate, "estimate_scene_flow", lambda *a, **k: pytest.fail("estimated"))
+    np.savez(tmp_path / "a.npz", views=np.full((3, 3, 16, 16), 0.5, np.float32))
+    (tmp_path / "r" / "overview.png").mkdir(parents=True)
+    assert main(["run", str(tmp_path / "a.npz"), str(tmp_path / "a.npz"), "--out", str(tmp_path / "r")]) == 2
+    assert "overview.png: is a folder; overview.png cannot be written there" in capsys.readouterr().err
+
+
 def test_output_names_near_the_length_limit_still_get_a_temporary_name(tmp_path):
     from lfsf._files import write_bytes_atomic
 
