@@ -403,9 +403,10 @@ def _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retrie
         else:
             # one thread per worker: the estimator runs its own CPU threads
             threads = max(1, (os.cpu_count() or 1) // workers)
+            # (the workers ignore Ctrl-C once started: lfsf._dask_worker)
             cluster = stack.enter_context(LocalCluster(
                 n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                silence_logs=logging.ERROR, env={"LFSF_THREADS": str(threads)}))
+                silence_logs=logging.ERROR, env={"LFSF_THREADS": str(threads)}, preload=["lfsf._dask_worker"]))
             client = stack.enter_context(Client(cluster))
         out.mkdir(parents=True, exist_ok=True)  # only once there is a cluster to write into it
         futures, by_name = {}, {}

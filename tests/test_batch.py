@@ -308,6 +308,29 @@ def test_cluster_survives_a_worker_killed_mid_task(tmp_path):
         assert np.isfinite(data["disp1"]).all()
 
 
+@needs_dask
+def test_ctrl_c_on_a_cluster_batch_is_one_line_not_the_workers_tracebacks(frames, tmp_path):
+    """A terminal's Ctrl-C reaches the whole process group: each worker process printed
+    a KeyboardInterrupt traceback (36–82 lines) before 'interrupted'. Sent here once a
+    pair is running, as a terminal would, to the group."""
+    import subprocess
+    import sys
+
+    folder, _ = frames
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "lfsf", "batch", str(folder), "--out", str(out), "--workers", "2",
+                             "--preset", "fast"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    deadline = time.monotonic() + 120
+    while not list(out.glob(".*.part-*")) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.002)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and err.strip().splitlines()[-1] == "lfsf batch: interrupted", err
+    assert _leftovers(out) == []
+
+
 # --- the command ------------------------------------------------------------------------------
 
 def test_cli_exit_status_1_when_a_pair_fails_and_2_for_bad_input(frames, tmp_path, monkeypatch, capsys):
