@@ -7,6 +7,7 @@ status 2, never a traceback; every file is written under a temporary name and re
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -33,6 +34,20 @@ def _size(text: str) -> int:
     if value < 8:
         raise argparse.ArgumentTypeError(f"image size must be at least 8 pixels, got {value}")
     return value
+
+
+def _folder_name(text: str) -> Path:
+    """An output folder: '' would silently be the current folder (Path('') is '.')."""
+    if not text:
+        raise argparse.ArgumentTypeError("an empty folder name (it would be the current folder; give '.' for that)")
+    return Path(text)
+
+
+def _file_name(text: str) -> Path:
+    """An output file: 'new/' would silently be the file 'new' (Path drops the slash)."""
+    if not text or text.endswith(("/", os.sep)):
+        raise argparse.ArgumentTypeError(f"{text!r} names a folder, not a file to write")
+    return Path(text)
 
 
 def _positive(text: str) -> int:
@@ -367,7 +382,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "ground truth DIR/gt.npz.")
     p.add_argument("scene", nargs="?", help="scene name (see --list)")
     p.add_argument("--list", action="store_true", help="list the scenes and exit")
-    p.add_argument("--out", type=Path, help="output folder")
+    p.add_argument("--out", type=_folder_name, help="output folder")
     p.add_argument("--size", nargs=2, type=_size, metavar=("W", "H"), default=(640, 480),
                    help="view size in pixels (default 640 480)")
     p.add_argument("--grid", type=_positive, default=9, metavar="N", help="N×N views (default 9)")
@@ -396,7 +411,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("gt", type=Path, help="gt.npz of 'lfsf synth' or an HCI gt_disp_lowres.pfm")
     p.add_argument("--border", type=int, default=None,
                    help="pixels left out at each edge (default 15 for a .pfm, as the HCI benchmark; 8 for gt.npz)")
-    p.add_argument("--json", type=Path, help="also write the figures to this JSON file")
+    p.add_argument("--json", type=_file_name, help="also write the figures to this JSON file")
     p.set_defaults(func=cmd_eval)
 
     p = sub.add_parser("run", help="estimate scene flow from two light fields",
@@ -404,7 +419,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "t2; writes disp1.pfm, disp2.pfm, flow.flo, sceneflow.npz and pictures.")
     p.add_argument("lf1", type=Path, help="light field at t1 (folder of views or .npz)")
     p.add_argument("lf2", type=Path, help="light field at t2")
-    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--out", type=_folder_name, required=True, help="output folder")
     _estimator_options(p)
     p.set_defaults(func=cmd_run)
 
@@ -415,7 +430,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    ".lfr/.lfp/.raw, or any raw format rawpy reads.")
     p.add_argument("raw", type=Path, help="raw lenslet image")
     p.add_argument("--white", type=Path, required=True, help="white image of the same camera")
-    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--out", type=_folder_name, required=True, help="output folder")
     p.add_argument("--views", type=_positive, metavar="N",
                    help="N×N views spanning one lens pitch, at most the pitch rounded up (default: the largest "
                         "odd N not above the pitch)")
@@ -437,7 +452,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="RGB views (default grey): the estimate then also takes δ1's diffusion tensor from the "
                         "colours (Params.colour_tensor) and snaps δ1 and δ2 to the colour edges "
                         "(Params.colour_median_radius)")
-    p.add_argument("--out", type=Path, default=Path("lfsf-demo"), help="output folder (default ./lfsf-demo)")
+    p.add_argument("--out", type=_folder_name, default=Path("lfsf-demo"), help="output folder (default ./lfsf-demo)")
     _estimator_options(p)
     p.set_defaults(func=cmd_demo)
 
@@ -447,7 +462,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "Complete results are skipped; failed pairs are listed in DIR/failed.csv and the "
                                    "exit status is then 1.")
     p.add_argument("sources", nargs="+", type=Path, metavar="SOURCE", help="a manifest CSV or a folder of frames")
-    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--out", type=_folder_name, required=True, help="output folder")
     p.add_argument("--workers", type=_positive, default=1, metavar="N",
                    help="processes of the local Dask cluster (default 1; without Dask, 1 runs in this process)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler, e.g. tcp://host:8786")
@@ -468,7 +483,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--inputs", choices=("scene", "random"),
                    help="kernels: what they run on, the arrays of a rendered scene's last warp (default) or "
                         "random views and unknowns (a worst case: every pixel takes the occlusion tests' path)")
-    p.add_argument("--json", type=Path, help="also write the rows to this JSON file")
+    p.add_argument("--json", type=_file_name, help="also write the rows to this JSON file")
     _device_options(p)
     p.set_defaults(func=cmd_bench)
     return parser

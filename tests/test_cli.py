@@ -163,6 +163,9 @@ def test_eval_of_a_partial_result_says_what_it_left_out(tmp_path, capsys):
         (["bench", "pipeline", "--size", "16", "40"], ["at least 17 px"]),
         (["bench", "pipeline", "--inputs", "random"], ["--inputs", "kernels"]),
         (["bench", "kernels", "--inputs", "noise"], ["invalid choice"]),
+        (["run", "{tmp}/a.npz", "{tmp}/a.npz", "--out", ""], ["an empty folder name"]),
+        (["eval", "{tmp}/r", "{tmp}/gt.npz", "--json", "{tmp}/new/"], ["names a folder, not a file"]),
+        (["bench", "kernels", "--json", "{tmp}/new/"], ["names a folder, not a file"]),
     ],
 )
 def test_bad_input_is_one_clear_line_and_status_2(tmp_path, args, needles):
