@@ -26,6 +26,8 @@ def output_folder(path: str | os.PathLike, create: bool = True, names=()) -> Pat
     ValueError
         If ``path`` (or a folder above it) is a file, or the folder is not writable.
     """
+    if not os.fspath(path):
+        raise ValueError("an empty folder name (it would be the current folder; give '.' for that)")
     path = Path(path)
     for part in (path, *path.parents):
         if part.exists() and not part.is_dir():
@@ -73,13 +75,17 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     through (the file it points to is replaced, the link kept); a target that is neither a
     file nor missing (``/dev/stdout``, a named pipe) is yielded itself, to write in place.
     """
+    if not os.fspath(path):
+        raise ValueError("an empty file name")
     path = Path(path)
     if path.exists() and not path.is_file() and not path.is_dir():   # a device or a pipe (/dev/stdout)
         yield path
         return
     if path.is_symlink():                        # the link stays; what it points to is written
         path = Path(os.path.realpath(path))
-    path.parent.mkdir(parents=True, exist_ok=True)
+    if path.is_dir():
+        raise ValueError(f"{path}: is a folder, not a file to write")
+    output_folder(path.parent)                   # made if missing; no file where a folder goes
     suffix = path.suffix if suffix is None else suffix
     tmp_path = None
     try:

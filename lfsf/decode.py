@@ -926,7 +926,7 @@ def decode_files(raw_path, white_path, out, *, views: int | None = None, bayer: 
               "lattice": lattice.as_dict()}
     rows, cols = lf.grid
     views_written = _view_names("hci", rows, cols)
-    _refuse_mixed_views(out, views_written, "hci")
+    _refuse_mixed_views(out, views_written)
     with file_set(out, [*views_written, "views.npz", "decode.json"]) as tmp:
         write_lightfield(lf, tmp)
         with open(tmp / "views.npz", "wb") as f:

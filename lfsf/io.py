@@ -49,7 +49,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 
-from lfsf._files import savez_atomic, write_bytes_atomic
+from lfsf._files import output_folder, savez_atomic, write_bytes_atomic
 
 __all__ = [
     "BT601_LUMA",
@@ -349,6 +349,8 @@ def read_lightfield(path: str | os.PathLike) -> LightField:
         raise FileNotFoundError(f"{path}: no such light field (file or folder)")
     if path.is_dir():
         return _read_folder(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: not a regular file (a named pipe or a device would be read forever)")
     suffix = path.suffix.lower()
     if suffix == ".npz":
         return _read_npz(path)
@@ -380,6 +382,8 @@ def _read_npz_arrays(path: Path, keys) -> tuple[list[str], dict[str, np.ndarray]
 
     Also used by :mod:`lfsf.evaluate`. Any damage is a ``ValueError`` naming the file.
     """
+    if Path(path).exists() and not Path(path).is_file() and not Path(path).is_dir():
+        raise ValueError(f"{path}: not a regular file (a named pipe or a device would be read forever)")
     # Opened here, not by np.load, which leaves the file open when the zip is unreadable.
     with open(path, "rb") as f:
         head = f.read(4)
@@ -603,14 +607,16 @@ def _read_view_grid(files: list[list[Path]]) -> np.ndarray:
     return views
 
 
-def _refuse_mixed_views(folder: Path, names: list[str], layout: str) -> None:
-    """Raise ValueError if ``folder`` holds views of the layout other than ``names``
+def _refuse_mixed_views(folder: Path, names: list[str]) -> None:
+    """Raise ValueError if ``folder`` holds views (of either layout) other than ``names``
     (:func:`_view_names`): writing these beside them would mix two light fields."""
     if not folder.is_dir():
         return
-    pattern = _HCI_NAME if layout == "hci" else _ROWCOL_NAME
+    # views of either layout that are not these: the reader would refuse the folder or
+    # read the wrong light field
     ours = set(names)
-    stale = sorted(p.name for p in folder.iterdir() if pattern.fullmatch(p.name) and p.name not in ours)
+    stale = sorted(p.name for p in folder.iterdir()
+                   if (_HCI_NAME.fullmatch(p.name) or _ROWCOL_NAME.fullmatch(p.name)) and p.name not in ours)
     if stale:
         raise ValueError(f"{folder}: already holds views that these would mix with "
                          f"({_listed(stale)}); write to an empty folder")
@@ -660,6 +666,8 @@ def write_lightfield(lf_or_views, path: str | os.PathLike, *, bit_depth: int = 1
     ``meta`` is not written. Each file is written atomically; a failure part-way through
     a folder leaves complete files only.
     """
+    if not os.fspath(path):
+        raise ValueError("an empty path (it would be the current folder; give '.' for that)")
     path = Path(path)
     lf = (lf_or_views if isinstance(lf_or_views, LightField)
           else LightField(lf_or_views, source=f"views for {path}"))
@@ -678,8 +686,8 @@ def write_lightfield(lf_or_views, path: str | os.PathLike, *, bit_depth: int = 1
         raise ValueError(f"{path}: the HCI layout needs a square grid, got {rows}×{cols}; "
                          f"use layout='rowcol' or a .npz")
     names = _view_names(layout, rows, cols)
-    _refuse_mixed_views(path, names, layout)
-    path.mkdir(parents=True, exist_ok=True)
+    _refuse_mixed_views(path, names)
+    output_folder(path)
     dtype = np.uint16 if bit_depth == 16 else np.uint8
     levels = np.float32(np.iinfo(dtype).max)
 
@@ -768,15 +776,24 @@ _PFM_HEADER = re.compile(rb"(\S+)\s+(\S+)\s+(\S+)\s+(\S+)\s")
 
 
 def _read_bytes(path: str | os.PathLike) -> bytes:
+    if not isinstance(path, (str, os.PathLike)):
+        raise ValueError(f"expected a file name (str or path), got {type(path).__name__} {path!r}")
     path = Path(path)
     try:
+        if path.exists() and not path.is_file() and not path.is_dir():
+            # reading a named pipe waits for a writer; a device may never end
+            raise ValueError(f"{path}: not a regular file")
         return path.read_bytes()
     except FileNotFoundError:
         raise FileNotFoundError(f"{path}: no such file") from None
     except IsADirectoryError:
         raise ValueError(f"{path}: expected a file, got a folder") from None
-    except ValueError as exc:                       # a NUL byte in the name
-        raise ValueError(f"{str(path)!r}: not a usable file name ({exc})") from None
+    except ValueError as exc:
+        if str(exc).startswith(str(path)):
+            raise
+        raise ValueError(f"{str(path)!r}: not a usable file name ({exc})") from None    # a NUL byte
+    except OSError as exc:                          # not permitted, a symbolic link loop, …
+        raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
 
 
 def read_pfm(path: str | os.PathLike) -> np.ndarray:

@@ -776,10 +776,11 @@ def write_scene(
     together, so an interrupted write leaves none of them.
     Returns the paths written.
     """
-    from lfsf._files import file_set, savez_atomic
+    from lfsf._files import file_set, output_folder, savez_atomic
     from lfsf.io import write_lightfield
 
     noise = _noise_sigma(noise)  # a bad sigma: an error before any rendering
+    output_folder(out, create=False)  # and an output that cannot be written
     lf1, lf2, gt = render_scene(scene, size=size, grid=grid, supersample=supersample, colour=colour, device=device,
                                 images=images)
     lf1, lf2 = add_noise(lf1, noise, seed=0), add_noise(lf2, noise, seed=1)
@@ -810,10 +811,11 @@ def write_sequence(
     ``out/gt/f000.npz``, … (named after the pair's first frame), all moved into place
     together once written.
     ``noise`` > 0: sensor noise on every view, independent per frame (seed = frame)."""
-    from lfsf._files import file_set, savez_atomic
+    from lfsf._files import file_set, output_folder, savez_atomic
     from lfsf.io import write_lightfield
 
     noise = _noise_sigma(noise)  # a bad sigma: an error before any rendering
+    output_folder(out, create=False)  # and an output that cannot be written
     lfs, gts = render_sequence(scene, frames, size=size, grid=grid, supersample=supersample, colour=colour,
                                device=device, images=images)
     lfs = [add_noise(lf, noise, seed=k) for k, lf in enumerate(lfs)]

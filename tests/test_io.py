@@ -832,6 +832,52 @@ def test_a_folder_with_views_in_both_layouts_is_an_error(tmp_path):
         lio.read_lightfield(tmp_path / "both")
 
 
+def test_writing_views_beside_those_of_the_other_layout_is_refused(tmp_path):
+    """write_lightfield(hci) then write_lightfield(rowcol) into one folder wrote a folder
+    that read_lightfield refuses (two layouts)."""
+    views = np.random.default_rng(3).random((2, 2, 4, 5)).astype(np.float32)
+    lio.write_lightfield(views, tmp_path / "mix")
+    with pytest.raises(ValueError, match=r"mix: already holds views that these would mix with \(input_Cam000"):
+        lio.write_lightfield(views, tmp_path / "mix", layout="rowcol")
+    assert lio.read_lightfield(tmp_path / "mix").shape == (2, 2, 4, 5)
+
+
+def test_writers_refuse_targets_they_cannot_write_before_writing(tmp_path, monkeypatch):
+    """Each was a raw OSError (IsADirectoryError naming a temporary file, EBUSY,
+    FileExistsError), or for '' a light field written into the current folder."""
+    monkeypatch.chdir(tmp_path)
+    image, views = np.zeros((3, 4), np.float32), np.zeros((2, 2, 8, 8), np.float32)
+    (tmp_path / "adir.pfm").mkdir()
+    (tmp_path / "afile").write_text("x")
+    for write, needle in ((lambda: lio.write_pfm(tmp_path / "adir.pfm", image), "adir.pfm: is a folder"),
+                          (lambda: lio.write_flo(".", np.zeros((3, 4, 2))), ".: is a folder"),
+                          (lambda: lio.write_pfm("", image), "an empty file name"),
+                          (lambda: lio.write_pfm(tmp_path / "afile" / "x.pfm", image), "afile is a file, not a folder"),
+                          (lambda: lio.write_lightfield(views, tmp_path / "afile"), "afile is a file, not a folder"),
+                          (lambda: lio.write_lightfield(views, ""), "an empty path")):
+        with pytest.raises(ValueError, match=re.escape(needle)):
+            write()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["adir.pfm", "afile"]
+
+
+def test_readers_refuse_what_is_not_a_regular_file(tmp_path):
+    """A named pipe blocked every reader for ever (waiting for a writer); /dev/zero was a
+    MemoryError; a path of bytes or None a TypeError from pathlib."""
+    import os
+
+    from lfsf import evaluate
+
+    os.mkfifo(tmp_path / "pipe.npz")
+    for read in (lio.read_lightfield, lio.read_pfm, lio.read_flo, evaluate.load_ground_truth, evaluate.load_estimate):
+        with pytest.raises(ValueError, match="pipe.npz: not a regular file"):
+            read(tmp_path / "pipe.npz")
+    with pytest.raises(ValueError, match="/dev/zero: not a regular file"):
+        lio.read_flo("/dev/zero")
+    for path in (b"x.pfm", None):
+        with pytest.raises(ValueError, match="expected a file name"):
+            lio.read_pfm(path)
+
+
 def test_rowcol_indices_are_one_based(tmp_path):
     folder = tmp_path / "rc"
     folder.mkdir()
