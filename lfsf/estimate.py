@@ -1132,6 +1132,12 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str,
     return float(gain), float(shift), float(change)
 
 
+#: The largest magnitude a starting disparity or flow may have (px): far beyond any image,
+#: and far from float32's end (u = 1e38 overflowed in the pyramid's upsampling, an
+#: IndexError).
+MAX_START_VALUE = 1e6
+
+
 def _check_init(init, height: int, width: int) -> np.ndarray | None:
     """A starting estimate as one (H, W, 4) array [δ1, δ2, u, v], checked."""
     if init is None:
@@ -1160,6 +1166,9 @@ def _checked_maps(maps, what: str, shape: tuple[int, int] | None = None) -> np.n
             raise ValueError(f"{what}: {name} is {a.shape}, expected {shape}")
         if not np.isfinite(a).all():
             raise ValueError(f"{what}: {name} has NaN or infinite values")
+        if a.size and float(np.abs(a).max()) > MAX_START_VALUE:
+            raise ValueError(f"{what}: {name} reaches {float(np.abs(a).max()):g} px, beyond the "
+                             f"{MAX_START_VALUE:g} px a disparity or flow may start from")
     return np.stack(arrays, -1)
 
 

@@ -17,6 +17,7 @@ of matching and of filling in.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -37,7 +38,12 @@ def _mask(shape, valid, border: int, finite: np.ndarray) -> np.ndarray:
     if isinstance(border, (bool, np.bool_)) or not isinstance(border, (int, np.integer)) or border < 0:
         raise ValueError(f"the border must be a whole number of pixels, 0 or more, got {border!r}")
     border = int(border)
-    mask = np.ones(shape, dtype=bool) if valid is None else np.asarray(valid, dtype=bool).copy()
+    if valid is not None:
+        valid = np.asarray(valid)
+        # a float or string mask read by truthiness counts NaN and "False" as valid
+        if valid.dtype != bool and not (valid.dtype.kind in "iu" and np.isin(valid, (0, 1)).all()):
+            raise ValueError(f"the valid mask must be bool (or 0 and 1), got dtype {valid.dtype}")
+    mask = np.ones(shape, dtype=bool) if valid is None else valid.astype(bool)
     if mask.shape != tuple(shape):
         raise ValueError(f"valid mask has shape {mask.shape}, expected {tuple(shape)}")
     if border > 0:
@@ -95,6 +101,8 @@ def flow_errors(u, v, gt_u, gt_v, valid=None, border: int = 0) -> dict[str, floa
     u, v, gt_u, gt_v = (np.asarray(a, dtype=np.float64) for a in (u, v, gt_u, gt_v))
     _check_pair("flow", u, gt_u)
     _check_pair("flow", v, gt_v)
+    if v.shape != u.shape:
+        raise ValueError(f"flow: v is {v.shape[1]}×{v.shape[0]} but u is {u.shape[1]}×{u.shape[0]}")
     m = _mask(gt_u.shape, valid, border, np.isfinite(gt_u) & np.isfinite(gt_v))
     n = int(m.sum())
     du = u[m] - gt_u[m]
@@ -121,6 +129,10 @@ def evaluate(estimate, gt: dict, border: int = SYNTH_BORDER) -> dict[str, dict[s
     ``estimate`` may also be an :class:`lfsf.SceneFlow`."""
     if hasattr(estimate, "as_dict"):
         estimate = estimate.as_dict()
+    for name, maps in (("estimate", estimate), ("ground truth", gt)):
+        if not isinstance(maps, Mapping):     # (a string passed the `in` tests by substring)
+            raise ValueError(f"the {name} must be a dict of maps{' or a SceneFlow' if name == 'estimate' else ''} "
+                             f"(load_estimate / load_ground_truth read them from files), got {type(maps).__name__}")
     valid = gt.get("valid")
     out: dict[str, dict[str, float]] = {}
     for name in ("disp1", "disp2"):

@@ -107,6 +107,8 @@ def test_bad_previous_estimate_for_predict_next_is_a_clear_error():
         predict_next({**maps, "u": maps["disp1"], "v": np.zeros((6, 8))})
     with pytest.raises(ValueError, match=r"disp1 should be a 2-D map, got shape \(6,\)"):
         predict_next({k: np.zeros(6) for k in maps})
+    with pytest.raises(ValueError, match=r"previous: u reaches 1e\+38 px, beyond the 1e\+06 px"):
+        predict_next({**maps, "u": np.full((6, 7), 1e38, np.float32)})
 
 
 # --- sources ----------------------------------------------------------------------------

@@ -208,3 +208,24 @@ def test_hci_breakdown_parts_add_up_to_lfsf_eval():
     assert parts["badpix_0.07"] == pytest.approx(reference["badpix_0.07"], rel=1e-9)
     error = (estimate - truth).astype(np.float64)[15:-15, 15:-15]
     assert parts["off_by_more_than_1"] == pytest.approx(100 * np.sum(error[np.abs(error) > 1] ** 2) / error.size)
+
+
+def test_arguments_of_the_wrong_kind_are_value_errors():
+    """A path or None for the ground truth was an AttributeError; a string estimate a
+    TypeError ('disp1 u v' passed the key tests by substring); flow maps of different
+    but broadcastable shapes an IndexError; a float mask of NaN counted every pixel."""
+    maps = {k: np.zeros((6, 8), np.float32) for k in E.VARIABLES}
+    for estimate, gt, needle in ((maps, "gt.npz", "the ground truth must be a dict"),
+                                 (maps, None, "the ground truth must be a dict"),
+                                 (None, maps, "the estimate must be a dict of maps or a SceneFlow"),
+                                 ("disp1 u v", maps, "the estimate must be a dict")):
+        with pytest.raises(ValueError, match=needle):
+            E.evaluate(estimate, gt, border=0)
+    with pytest.raises(ValueError, match=r"flow: v is 8×1 but u is 8×6"):
+        E.flow_errors(maps["u"], maps["v"][:1], maps["u"], maps["v"][:1])
+    for valid in (np.full((6, 8), np.nan), np.full((6, 8), "False"), np.full((6, 8), 2)):
+        with pytest.raises(ValueError, match="the valid mask must be bool \\(or 0 and 1\\), got dtype"):
+            E.evaluate(maps, {**maps, "valid": valid}, border=0)
+    ones = np.ones((6, 8), np.uint8)
+    assert E.evaluate(maps, {**maps, "valid": ones}, border=0)["disp1"]["pixels"] == 48
+
