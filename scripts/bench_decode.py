@@ -75,11 +75,22 @@ def illum(bayer: str | None) -> None:
     print(f"PSNR inner 7×7: {10 * np.log10(1 / np.mean(err)):.1f} dB")
 
 
-if __name__ == "__main__":
-    what = sys.argv[1] if len(sys.argv) > 1 else "cases"
-    if what == "cases":
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv and argv[0] in ("-h", "--help"):
+        print(__doc__)
+        return 0
+    what = argv[0] if argv else "cases"
+    if what == "cases" and len(argv) <= 1:
         cases()
-    elif what == "illum":
-        illum(sys.argv[2] if len(sys.argv) > 2 and sys.argv[2] != "grey" else None)
+    elif what == "illum" and len(argv) <= 2:
+        illum(argv[1] if len(argv) > 1 and argv[1] != "grey" else None)
     else:
-        raise SystemExit(__doc__)
+        raise ValueError(f"expected 'cases' or 'illum [BAYER]', got {' '.join(argv)!r} (see --help)")
+    return 0
+
+
+if __name__ == "__main__":
+    from lfsf._errors import run_script
+
+    sys.exit(run_script(main))

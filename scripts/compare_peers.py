@@ -581,6 +581,15 @@ def main(argv=None) -> int:
             return 2
     IMAGES["list"] = None
     try:
+        from lfsf import synth
+        from lfsf._files import output_file
+        from lfsf.device import resolve_device
+
+        synth.check_render(args.size, args.grid, colour=args.colour)   # (a bad --grid was a traceback)
+        if args.device is not None:
+            resolve_device(args.device)
+        if args.json:
+            output_file(args.json)          # before the run, not after it
         scenes = selected_scenes(args)
         if args.images is not None:
             from lfsf import synth
@@ -666,4 +675,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from lfsf._errors import run_script
+
+    sys.exit(run_script(main))

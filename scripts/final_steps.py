@@ -76,6 +76,15 @@ def main(argv=None) -> int:
         # (the errors leave out an 8-px border: smaller views leave nothing to evaluate)
         if min(args.size) < 32 or args.grid < 2:
             raise ValueError("--size needs at least 32×32 pixels and --grid at least 2 views per side")
+        synth.check_render(args.size, args.grid, colour=colour)
+        if args.device is not None:
+            from lfsf.device import resolve_device
+
+            resolve_device(args.device)
+        if args.json:
+            from lfsf._files import output_file
+
+            output_file(args.json)
     except ValueError as err:
         parser.error(str(err))  # exit status 2
     rows = []
@@ -116,4 +125,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from lfsf._errors import run_script
+
+    sys.exit(run_script(main))

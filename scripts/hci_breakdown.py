@@ -105,6 +105,16 @@ def main(argv=None) -> int:
     try:
         params = lfsf.Params.preset(args.preset).replace(**overrides)
         params.validate()
+        if args.device is not None:
+            from lfsf.device import resolve_device
+
+            resolve_device(args.device)
+        if args.save:
+            from lfsf._files import output_file
+
+            if not args.save.endswith(".npy"):   # np.save would add it: '.npy' alone for 'dir/'
+                raise ValueError(f"--save {args.save}: give a file name ending in .npy")
+            output_file(args.save)
     except (TypeError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -132,4 +142,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from lfsf._errors import run_script
+
+    sys.exit(run_script(main))

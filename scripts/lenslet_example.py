@@ -25,6 +25,7 @@ The same steps on the command line, after step 1:
 from __future__ import annotations
 
 import argparse
+import math
 import time
 from pathlib import Path
 
@@ -32,7 +33,7 @@ import numpy as np
 
 from lfsf import synth
 from lfsf._errors import run_script
-from lfsf._files import savez_atomic
+from lfsf._files import output_folder, savez_atomic
 from lfsf.decode import Lattice, decode_files, synthetic_lenslet
 from lfsf.estimate import estimate_scene_flow
 from lfsf.evaluate import SYNTH_BORDER, evaluate, format_table
@@ -63,8 +64,15 @@ def main(argv=None) -> int:
                          "micro-images mix in the neighbouring lenses (default 3)")
     ap.add_argument("--preset", default="paper")
     args = ap.parse_args(argv)
-    out = args.out
-    out.mkdir(parents=True, exist_ok=True)
+    # before any work: the sensor is pitch × the view size, so a pitch must be sized too
+    if not (math.isfinite(args.pitch) and 8.0 <= args.pitch <= 32.0):  # (a Lytro: ~10, an Illum: ~14)
+        raise ValueError(f"--pitch must be in 8…32 sensor pixels (9 views a lens), got {args.pitch}")
+    synth.check_render(args.size, 9, colour=args.bayer.lower() != "none")
+    if (args.size[0] + 1.2) * args.pitch * (args.size[1] + 1.2) * args.pitch > 2 ** 28:
+        raise ValueError(f"a sensor of {args.size[0]}×{args.size[1]} lenses of {args.pitch} px holds more "
+                         "than 2^28 pixels; use a smaller --size or --pitch")
+    Params.preset(args.preset).replace(radius=args.radius)
+    out = output_folder(args.out)
     width, height = args.size
     views = 9
     bayer = None if args.bayer.lower() == "none" else args.bayer

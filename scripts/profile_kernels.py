@@ -137,6 +137,11 @@ def main(argv=None) -> int:
         if min(args.size) < 16:
             raise ValueError(f"--size must be at least 16×16, got {args.size[0]}×{args.size[1]}")
         Params.preset(args.preset)
+        synth.check_render(args.size, 9)
+        if args.json is not None:
+            from lfsf._files import output_file
+
+            output_file(args.json)
         report = profile(args.scene, args.size, args.preset, args.device)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -150,4 +155,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from lfsf._errors import run_script
+
+    sys.exit(run_script(main))

@@ -448,8 +448,20 @@ def test_an_error_raised_while_interrupted_counts_as_the_interrupt(monkeypatch, 
     ("sweep.py", ["--perturb", "-0.1"], "--perturb must be a finite number"),
     ("sequence.py", ["--frames", "1"], "--frames must be at least 3"),
     ("lenslet_example.py", ["{tmp}/x", "--preset", "slow"], "unknown preset 'slow'"),
+    # each of these was a traceback (status 1), some only after the whole run
+    ("lenslet_example.py", ["{tmp}/x", "--pitch", "inf"], "--pitch must be in 8…32"),
+    ("compare_peers.py", ["--grid", "0"], "grid rows must be in 1…33, got 0"),
+    ("compare_peers.py", ["--device", "gpu"], "unknown device 'gpu'"),
+    ("compare_peers.py", ["--json", "{tmp}/gt/x.json"], "is a file, not a folder"),
+    ("final_steps.py", ["--step", "depth", "--grid", "99"], "grid rows must be in 1…33, got 99"),
+    ("hci_breakdown.py", ["{tmp}", "--save", "{tmp}/"], "give a file name ending in .npy"),
+    ("hci_breakdown.py", ["{tmp}"], "found no light-field views"),
+    ("profile_kernels.py", ["--json", ""], "is a folder, not a file to write"),
+    ("bench_decode.py", ["nope"], "expected 'cases' or 'illum [BAYER]'"),
 ])
 def test_scripts_answer_bad_options_in_one_line(tmp_path, script, args, needle):
+    (tmp_path / "gt").write_text("a file")
+    (tmp_path / "gt_disp_lowres.pfm").write_text("only checked to be there")
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     proc = subprocess.run([sys.executable, os.path.join(root, "scripts", script), *[a.format(tmp=tmp_path) for a in args]],
                           capture_output=True, text=True, env={**os.environ, "LFSF_DEVICE": ""})
