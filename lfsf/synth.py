@@ -180,7 +180,7 @@ def random_scene(seed: int) -> Scene:
     disparities of about ±2.5 px per view step, each moving up to 12 px (and
     towards or away from the camera, and turning), textured with features of 10 to 40 px
     at contrasts from weak (0.08) to strong (0.5)."""
-    seed = int(seed)
+    seed = _whole("a random scene's seed", seed, -2 ** 63, 2 ** 63 - 1)     # (1.5 was read as 1)
     if seed < 0:
         raise ValueError(f"a random scene's seed must be ≥ 0, got {seed}")
     rng = np.random.default_rng([0x5CE7E, seed])
@@ -570,7 +570,7 @@ def get_scene(scene: str | Scene) -> Scene:
         return scene
     if isinstance(scene, str) and scene.startswith(RANDOM_PREFIX) and scene[len(RANDOM_PREFIX):].isdecimal():
         return random_scene(int(scene[len(RANDOM_PREFIX):]))
-    if scene not in SCENES:
+    if not isinstance(scene, str) or scene not in SCENES:
         raise ValueError(f"unknown scene {scene!r}: the scenes are {', '.join(SCENES)} "
                          f"and {RANDOM_PREFIX}N (N = 0, 1, …)")
     return SCENES[scene]
@@ -612,8 +612,23 @@ def render_scene(
     return lfs[0], lfs[1], gts[0]
 
 
+def _as_lightfield(lf):
+    """A LightField as it is, views (an array) as a LightField, with intensities in
+    [0, 1] (what the camera effects here clip to); anything else a ValueError."""
+    from lfsf.io import LightField
+
+    lf = lf if isinstance(lf, LightField) else LightField(lf, source="views")
+    high = float(lf.views.max())
+    if high > 1.0 + 1e-6:         # counts as floats would all be clipped to 1
+        raise ValueError(f"{lf.source}: intensities up to {high:g}; noise and vignetting are added to "
+                         "intensities in [0, 1] (scale counts by their maximum first)")
+    return lf
+
+
 def _noise_sigma(sigma) -> float:
     """A noise level as a float, or a ValueError naming the problem."""
+    if isinstance(sigma, (bool, np.bool_)) or not isinstance(sigma, (int, float, np.integer, np.floating)):
+        raise ValueError(f"noise sigma must be a finite number ≥ 0, got {sigma!r}")
     sigma = float(sigma)
     if not math.isfinite(sigma) or sigma < 0:
         raise ValueError(f"noise sigma must be a finite number ≥ 0, got {sigma}")
@@ -627,7 +642,9 @@ def add_noise(lf, sigma: float, seed: int = 0):
     independent. ``sigma`` 0 returns ``lf`` itself."""
     from lfsf.io import LightField
 
+    lf = _as_lightfield(lf)
     sigma = _noise_sigma(sigma)
+    seed = _whole("seed", seed, 0, 2 ** 63 - 1)
     if sigma == 0:
         return lf
     rng = np.random.default_rng(seed)
@@ -648,6 +665,8 @@ def vignetting_gains(grid: tuple[int, int], size: tuple[int, int], strength: flo
     corner: 1 − 2k) and not at all at the opposite corner (g ≤ 1 everywhere). Smooth,
     low-frequency and different in every view, as a lens's vignetting or a surface's
     view-dependent shading is."""
+    if isinstance(strength, (bool, np.bool_)) or not isinstance(strength, (int, float, np.integer, np.floating)):
+        raise ValueError(f"vignetting strength must be a number in [0, 0.5), got {strength!r}")
     strength = float(strength)
     if not math.isfinite(strength) or not 0 <= strength < 0.5:
         raise ValueError(f"vignetting strength must be in [0, 0.5), got {strength}")
@@ -675,6 +694,7 @@ def add_vignetting(lf, strength: float):
     returns ``lf`` itself."""
     from lfsf.io import LightField
 
+    lf = _as_lightfield(lf)
     gains = vignetting_gains(lf.grid, (lf.width, lf.height), strength)
     if strength == 0:
         return lf

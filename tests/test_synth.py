@@ -1,5 +1,7 @@
 """The renderer against its NumPy reference, and the ground truth against the images."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -396,4 +398,24 @@ def test_render_settings_out_of_range_are_value_errors_naming_them(kwargs, needl
 def test_check_render_normalises_what_it_accepts():
     assert synth.check_render((48.0, np.int64(40)), (3, 5), supersample=2.0, frames=3, noise=0.01) == {
         "size": (48, 40), "grid": (3, 5), "supersample": 2, "frames": 3, "noise": 0.01}
+
+
+def test_camera_effects_and_scene_choices_refuse_odd_arguments_clearly():
+    """Each was a TypeError, an AttributeError, an OverflowError, a string-format error,
+    or silently something else (seed 1.5 read as 1; counts clipped to all white)."""
+    import lfsf
+
+    views = np.random.default_rng(0).random((2, 2, 8, 8)).astype(np.float32)
+    lf = lfsf.LightField(views)
+    assert synth.add_noise(views, 0.01).views.shape == views.shape       # views as an array: fine
+    for call, needle in ((lambda: synth.add_vignetting(lf, "0.1"), "vignetting strength must be a number"),
+                         (lambda: synth.add_vignetting(lf, None), "vignetting strength must be a number"),
+                         (lambda: synth.add_noise(lf, 0.1, seed=1.5), "seed must be a whole number, got 1.5"),
+                         (lambda: synth.add_noise(lf, "0.1"), "noise sigma must be a finite number"),
+                         (lambda: synth.add_noise(lfsf.LightField(views * 4095), 0.01), "intensities up to 40"),
+                         (lambda: synth.random_scene(1.5), "seed must be a whole number, got 1.5"),
+                         (lambda: synth.random_scene(float("inf")), "seed must be a whole number"),
+                         (lambda: synth.get_scene(["paper"]), "unknown scene ['paper']")):
+        with pytest.raises(ValueError, match=re.escape(needle)):
+            call()
 
