@@ -219,6 +219,9 @@ def _as_lightfield(lf, name: str) -> LightField:
         return lf
     if isinstance(lf, (str, os.PathLike)):
         return read_lightfield(lf)
+    if isinstance(lf, (bytes, bytearray)) or lf is None:
+        raise ValueError(f"{name}: expected a LightField, views (an array) or a path as str or "
+                         f"path-like, got {type(lf).__name__} {lf!r:.60}")
     return LightField(np.asarray(lf), source=name)
 
 
@@ -732,6 +735,8 @@ def estimate_scene_flow(
         timings[name] = timings.get(name, 0.0) + now - clock
         clock = now
 
+    if progress is not None and not callable(progress):       # (found only after the first level)
+        raise ValueError(f"progress must be a callable taking a line, got {type(progress).__name__}")
     say = progress or (lambda _msg: None)
     params = Params.preset("paper") if params is None else params
     if not isinstance(params, Params):

@@ -524,6 +524,14 @@ def test_light_fields_may_be_given_as_paths(tmp_path):
     np.testing.assert_array_equal(by_path.u, by_array.u)
     with pytest.raises(FileNotFoundError, match="missing.npz"):
         estimate_scene_flow(tmp_path / "missing.npz", lf2, QUICK, device="cpu")
+    # a path as bytes read as an array of one string ('expected real-valued views, got |S5');
+    # a progress that cannot be called failed only after the first level
+    for first, second, needle in ((b"a.npz", lf2, "light field 1: expected a LightField, views"),
+                                  (lf1, None, "light field 2: expected a LightField, views")):
+        with pytest.raises(ValueError, match=needle):
+            estimate_scene_flow(first, second, QUICK, device="cpu")
+    with pytest.raises(ValueError, match="progress must be a callable"):
+        estimate_scene_flow(lf1, lf2, QUICK, device="cpu", progress=5)
 
 
 def test_a_narrow_intensity_range_is_stretched_like_12_bit_data_in_16_bits():
