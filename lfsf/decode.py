@@ -1008,6 +1008,9 @@ def synthetic_lenslet(light_field, lattice: Lattice, sensor: tuple[int, int], *,
         ``bayer``), in [0, 1]
     """
     width, height = (int(s) for s in sensor)
+    if min(width, height) < lattice.pitch:          # (0×0 returned (None, None), 1×1 NaN)
+        raise ValueError(f"synthetic_lenslet: a sensor of {width}×{height} pixels holds no whole "
+                         f"micro-image (pitch {lattice.pitch:g} px)")
     source = light_field if callable(light_field) else None
     array = None if source else np.asarray(getattr(light_field, "views", light_field), np.float32)
     if bayer is not None:

@@ -131,7 +131,7 @@ class LightField:
     def __post_init__(self):
         self.source = str(self.source)
         self.views = _validated_views(self.views, self.source)
-        self.meta = dict(self.meta)
+        self.meta = dict(self.meta) if self.meta is not None else {}
 
     def __repr__(self) -> str:
         rows, cols = self.grid
@@ -1170,6 +1170,8 @@ def write_png(path: str | os.PathLike, array) -> None:
         if not np.isfinite(image).all():
             raise ValueError(f"{path}: expected finite values to write as PNG, got NaN or infinity")
         image = np.rint(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
+    elif image.dtype.kind == "u" and image.dtype.itemsize == 2 and not image.dtype.isnative:
+        image = image.astype(np.uint16)              # big-endian samples: the values are what count
     elif image.dtype not in (np.uint8, np.uint16):
         raise ValueError(f"{path}: expected a uint8, uint16, bool or float image, got {image.dtype}")
     write_bytes_atomic(path, encode_png(image, source=str(path)))

@@ -392,7 +392,7 @@ class Params:
     def sample_offsets(self, grid: tuple[int, int]) -> tuple[np.ndarray, float]:
         """The angular offsets φ_ij = r_i (cos s_ij, sin s_ij) in view steps, centre first,
         and the radius R actually used (at most the grid's half extent)."""
-        rows, cols = grid
+        rows, cols = (grid, grid) if np.isscalar(grid) else grid    # (a square grid as one number)
         limit = min(rows - 1, cols - 1) / 2.0
         radius = min(self.radius, limit)
         phis = [(0.0, 0.0)]

@@ -553,3 +553,11 @@ def test_missing_white_is_named_as_the_white_image(lenslet_files, tmp_path, caps
     with pytest.raises(ValueError, match="expected a white image file, got a folder"):
         D.decode_files(lenslet_files / "raw.png", tmp_path, tmp_path / "o")
     assert not (tmp_path / "o").exists()
+
+
+def test_a_sensor_smaller_than_one_lens_is_refused():
+    """(0, 0) returned (None, None) and a 1×1 sensor NaN."""
+    lattice = Lattice.regular("hex", 9.6, 0.0, (5.0, 5.0))
+    for sensor in ((0, 0), (1, 1)):
+        with pytest.raises(ValueError, match="holds no whole micro-image"):
+            synthetic_lenslet(np.zeros((9, 9, 8, 8), np.float32), lattice, sensor, views=9)

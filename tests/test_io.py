@@ -1160,3 +1160,11 @@ def test_pfm_header_end_and_data_that_starts_with_a_newline_byte(tmp_path, end):
     path = tmp_path / "h.pfm"
     path.write_bytes(b"Pf\n2 2\n-1" + end + a[::-1].astype("<f4").tobytes())
     np.testing.assert_array_equal(lio.read_pfm(path), a)
+
+
+def test_small_api_gaps_are_closed(tmp_path):
+    """meta=None was a TypeError; big-endian uint16 samples were refused by write_png."""
+    assert lio.LightField(np.zeros((2, 2, 8, 8)), meta=None).meta == {}
+    image = (np.arange(12).reshape(3, 4) * 1000).astype(">u2")
+    lio.write_png(tmp_path / "be.png", image)
+    np.testing.assert_array_equal(lio.read_image(tmp_path / "be.png"), image.astype(np.uint16))

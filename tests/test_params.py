@@ -195,3 +195,9 @@ def test_real_settings_beyond_what_float32_kernels_can_carry_are_refused(name, v
     with pytest.raises(ValueError, match=named(name) + r".*must be 0 or of magnitude 1e-12…1e\+09"):
         Params.preset("fast").replace(**{name: value})
     Params.preset("fast").replace(**{name: 1e9 if value > 1 else 1e-12})
+
+
+def test_sample_offsets_take_a_square_grid_as_one_number():
+    params = Params.preset("paper")
+    for a, b in zip(params.sample_offsets(9), params.sample_offsets((9, 9))):
+        np.testing.assert_array_equal(a, b)
