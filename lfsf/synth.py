@@ -218,11 +218,15 @@ def with_images(scene: str | Scene, count: int, seed: int = 0, span=(200.0, 800.
     reproducibly from ``seed``, the objects untinted. The geometry, the motion and so the
     ground truth are the scene's."""
     sc = get_scene(scene)
-    if int(count) < 1:
-        raise ValueError(f"with_images needs at least one image, got {count}")
-    if int(seed) < 0:
-        raise ValueError(f"with_images: the seed must be ≥ 0, got {seed}")
-    rng = np.random.default_rng([0x1A6E5, int(seed)])
+    count = _whole("with_images: the count of images", count, 1, 2 ** 31)
+    seed = _whole("with_images: the seed", seed, 0, 2 ** 63 - 1)
+    for name, (low, high) in (("span", _pair("span", span, "(least, most)")),
+                              ("backdrop_span", _pair("backdrop_span", backdrop_span, "(least, most)"))):
+        # an image spans a width in pixels: 1e-300 made the prefilter's blur overflow
+        if not all(isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool)
+                   and 1.0 <= x <= 1e6 for x in (low, high)) or low > high:
+            raise ValueError(f"with_images: {name} must be (least, most) widths in 1…1e6 px, got {(low, high)!r}")
+    rng = np.random.default_rng([0x1A6E5, seed])
     objects = []
     for prim in sc.objects:
         backdrop = prim.kind == "plane" and prim.size[0] >= 0.5
@@ -430,6 +434,8 @@ def _as_rgb(image, name: str) -> np.ndarray:
 def _check_images(scene: Scene, images) -> list[np.ndarray]:
     """The images as float32 (h, w, 3) arrays in [0, 1] (:func:`_as_rgb`), checked
     against the scene's image textures."""
+    if isinstance(images, np.ndarray):      # (one array: its truth value was 'ambiguous')
+        raise ValueError(f"images must be a list of images (arrays), got one array of shape {images.shape}")
     out = [_as_rgb(img, f"image {k}") for k, img in enumerate(images or ())]
     for prim in scene.objects:
         if prim.texture.image >= len(out):

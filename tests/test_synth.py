@@ -419,3 +419,16 @@ def test_camera_effects_and_scene_choices_refuse_odd_arguments_clearly():
         with pytest.raises(ValueError, match=re.escape(needle)):
             call()
 
+
+def test_image_textures_refuse_odd_arguments_clearly():
+    """A span of 1e-300 px overflowed in the prefilter; three numbers, a None count and
+    one array for the list of images were TypeErrors or numpy's 'ambiguous'."""
+    for call, needle in ((lambda: synth.with_images("paper", 1, span=(1e-300, 1e-300)), "span must be (least, most)"),
+                         (lambda: synth.with_images("paper", 1, span=(1, 2, 3)), "span must be (least, most)"),
+                         (lambda: synth.with_images("paper", None), "the count of images must be a whole number"),
+                         (lambda: synth.render_scene(synth.with_images("paper", 1), size=(48, 40), grid=3,
+                                                     device="cpu", images=np.zeros((4, 4, 3))),
+                          "images must be a list of images")):
+        with pytest.raises(ValueError, match=re.escape(needle)):
+            call()
+
