@@ -218,8 +218,12 @@ def with_images(scene: str | Scene, count: int, seed: int = 0, span=(200.0, 800.
     reproducibly from ``seed``, the objects untinted. The geometry, the motion and so the
     ground truth are the scene's."""
     sc = get_scene(scene)
-    count = _whole("with_images: the count of images", count, 1, 2 ** 31)
-    seed = _whole("with_images: the seed", seed, 0, 2 ** 63 - 1)
+    count = _whole("with_images: the count of images", count, -2 ** 31, 2 ** 31)
+    if count < 1:
+        raise ValueError(f"with_images needs at least one image, got {count}")
+    seed = _whole("with_images: the seed", seed, -2 ** 63, 2 ** 63 - 1)
+    if seed < 0:
+        raise ValueError(f"with_images: the seed must be ≥ 0, got {seed}")
     for name, (low, high) in (("span", _pair("span", span, "(least, most)")),
                               ("backdrop_span", _pair("backdrop_span", backdrop_span, "(least, most)"))):
         # an image spans a width in pixels: 1e-300 made the prefilter's blur overflow
