@@ -330,6 +330,11 @@ def have_dask() -> bool:
 def check_dask(workers: int, scheduler: str | None) -> None:
     """Raise ValueError, saying how to install it, when the execution asked for needs
     Dask and Dask is not installed (one worker runs in this process without it)."""
+    cores = os.cpu_count() or 1
+    if not scheduler and workers > cores:
+        # each worker runs the estimator on threads of its own: more processes than cores
+        # only divide them, and multiply the memory (hundreds of MB each)
+        raise ValueError(f"--workers {workers}: this machine has {cores} cores; give at most {cores}")
     if (workers > 1 or scheduler) and not have_dask():
         asked = f"--workers {workers}" if workers > 1 else ""
         asked += (" and " if asked and scheduler else "") + ("--scheduler" if scheduler else "")

@@ -50,6 +50,13 @@ def _file_name(text: str) -> Path:
     return Path(text)
 
 
+def _repeats(text: str) -> int:
+    value = _positive(text)
+    if value > 1000:
+        raise argparse.ArgumentTypeError(f"at most 1000 timed runs, got {value}")
+    return value
+
+
 def _positive(text: str) -> int:
     value = int(text)
     if value < 1:
@@ -479,7 +486,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("kind", nargs="?", default="pipeline", choices=("kernels", "pipeline", "peers"),
                    help="what to measure (default pipeline)")
     p.add_argument("--size", nargs=2, type=_size, metavar=("W", "H"), help="view size (default 640 480)")
-    p.add_argument("--repeats", type=_positive, help="timed runs (default 3; kernels 20)")
+    p.add_argument("--repeats", type=_repeats, help="timed runs, at most 1000 (default 3; kernels 20)")
     p.add_argument("--inputs", choices=("scene", "random"),
                    help="kernels: what they run on, the arrays of a rendered scene's last warp (default) or "
                         "random views and unknowns (a worst case: every pixel takes the occlusion tests' path)")

@@ -333,6 +333,15 @@ def test_ctrl_c_on_a_cluster_batch_is_one_line_not_the_workers_tracebacks(frames
     assert _leftovers(out) == []
 
 
+def test_more_local_workers_than_cores_are_refused():
+    """--workers 1000 started a thousand processes, each with the estimator's memory."""
+    cores = os.cpu_count() or 1
+    with pytest.raises(ValueError, match=f"--workers {cores + 1}: this machine has {cores} cores"):
+        batch.check_dask(cores + 1, None)
+    if batch.have_dask():
+        batch.check_dask(cores + 1, "tcp://elsewhere:8786")    # a remote cluster's workers are its own
+
+
 # --- the command ------------------------------------------------------------------------------
 
 def test_cli_exit_status_1_when_a_pair_fails_and_2_for_bad_input(frames, tmp_path, monkeypatch, capsys):

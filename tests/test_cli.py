@@ -166,6 +166,7 @@ def test_eval_of_a_partial_result_says_what_it_left_out(tmp_path, capsys):
         (["run", "{tmp}/a.npz", "{tmp}/a.npz", "--out", ""], ["an empty folder name"]),
         (["eval", "{tmp}/r", "{tmp}/gt.npz", "--json", "{tmp}/new/"], ["names a folder, not a file"]),
         (["bench", "kernels", "--json", "{tmp}/new/"], ["names a folder, not a file"]),
+        (["bench", "kernels", "--repeats", "100000"], ["at most 1000 timed runs"]),
     ],
 )
 def test_bad_input_is_one_clear_line_and_status_2(tmp_path, args, needles):
