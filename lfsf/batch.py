@@ -24,6 +24,7 @@ import contextlib
 import csv
 import io as _io
 import os
+import re
 import shutil
 import sys
 import time
@@ -394,6 +395,21 @@ def _run_here(pairs, out, params, device, warm_start, report) -> list[Outcome]:
     return outcomes
 
 
+#: How long a batch waits for a running scheduler to have a worker before it gives up.
+WORKER_WAIT = "30s"
+
+
+def check_scheduler_address(address: str) -> None:
+    """A ValueError naming ``--scheduler`` unless ``address`` is ``tcp://HOST:PORT`` (or
+    ``HOST:PORT``) with a port in 1…65535: the other protocols need settings (TLS
+    certificates, UCX) that a batch does not take, and a malformed address was a
+    traceback, a vague message or a silent local cluster ('')."""
+    match = re.fullmatch(r"(?:tcp://)?([^/:\s]+|\[[0-9a-fA-F:.]+\]):(\d{1,5})", address)
+    if match is None or not 1 <= int(match.group(2)) <= 65535:
+        raise ValueError(f"--scheduler {address!r}: expected a running Dask scheduler's address, "
+                         "tcp://HOST:PORT with a port in 1…65535")
+
+
 def _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retries, report) -> list[Outcome]:
     import logging
 
@@ -401,10 +417,16 @@ def _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retrie
 
     with contextlib.ExitStack() as stack:
         if scheduler:
+            check_scheduler_address(scheduler)
             try:
                 client = stack.enter_context(Client(scheduler, timeout="10s"))
             except OSError as exc:
                 raise ValueError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+            try:    # a scheduler without workers would take the tasks and wait for ever
+                client.wait_for_workers(1, timeout=WORKER_WAIT)
+            except (TimeoutError, OSError):
+                raise ValueError(f"the Dask scheduler at {scheduler} has had no worker for {WORKER_WAIT}; "
+                                 "start one (dask worker ADDRESS)") from None
         else:
             # one thread per worker: the estimator runs its own CPU threads
             threads = max(1, (os.cpu_count() or 1) // workers)

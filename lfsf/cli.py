@@ -280,8 +280,10 @@ def cmd_batch(args) -> int:
 
     params = _params(args)
     output_folder(args.out, create=False)  # made once there is a cluster to write into it
-    if args.device and not args.scheduler:
-        resolve_device(args.device)  # a device this machine lacks: one clear error before any work
+    if args.scheduler is not None:
+        batch.check_scheduler_address(args.scheduler)
+    elif args.device or os.environ.get("LFSF_DEVICE"):
+        resolve_device(args.device)  # a device this machine lacks (or $LFSF_DEVICE's): one error before any work
     pairs = batch.pairs_from_sources(args.sources, out=args.out)
     batch.check_outputs(pairs, args.out)  # before the first line of the run
     batch.check_dask(args.workers, args.scheduler)  # before the first line of the run

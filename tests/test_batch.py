@@ -371,6 +371,41 @@ def test_cli_unreachable_scheduler_is_a_clear_error(frames, tmp_path, capsys):
     assert not out.exists()  # nothing written without a cluster
 
 
+@pytest.mark.parametrize("address", ["", "tls://127.0.0.1:1", "inproc://x", "tcp://127.0.0.1:abc",
+                                     "tcp://127.0.0.1:8786/extra", "tcp://127.0.0.1:99999", "127.0.0.1"])
+def test_cli_malformed_scheduler_addresses_are_one_line(frames, tmp_path, capsys, address):
+    """Each was a traceback (tls, ucx), a message naming neither the option nor the problem,
+    a 10-s wait to connect to port 99999, or ('') a local cluster without a word."""
+    folder, _ = frames
+    assert main(["batch", str(folder), "--out", str(tmp_path / "out"), "--scheduler", address, "--quiet"]) == 2
+    assert f"--scheduler {address!r}: expected a running Dask scheduler's address" in capsys.readouterr().err
+    batch.check_scheduler_address("tcp://127.0.0.1:8786")
+    batch.check_scheduler_address("localhost:8786")
+
+
+@needs_dask
+def test_cli_on_a_scheduler_without_workers_gives_up(frames, tmp_path, capsys, monkeypatch):
+    """It waited for ever (the tasks queued on a scheduler no worker would ever serve)."""
+    import logging
+
+    from distributed import LocalCluster
+
+    monkeypatch.setattr(batch, "WORKER_WAIT", "2s")
+    folder, _ = frames
+    with LocalCluster(n_workers=0, dashboard_address=None, silence_logs=logging.ERROR) as cluster:
+        assert main(["batch", str(folder), "--out", str(tmp_path / "out"), "--scheduler",
+                     cluster.scheduler_address, "--quiet"]) == 2
+    assert "has had no worker for 2s" in capsys.readouterr().err
+
+
+def test_cli_a_bad_lfsf_device_is_refused_before_any_pair(frames, tmp_path, capsys, monkeypatch):
+    """$LFSF_DEVICE=bogus ran every pair, failed each, and ended with status 1."""
+    monkeypatch.setenv("LFSF_DEVICE", "bogus")
+    folder, _ = frames
+    assert main(["batch", str(folder), "--out", str(tmp_path / "out"), "--quiet"]) == 2
+    assert "bogus" in capsys.readouterr().err and not (tmp_path / "out").exists()
+
+
 @needs_dask
 def test_cli_on_a_running_scheduler(frames, tmp_path, capsys):
     """--scheduler: the tasks go to a cluster started elsewhere (here a LocalCluster of
