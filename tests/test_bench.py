@@ -141,3 +141,17 @@ def test_bench_peers_rows_without_or_with_the_peers():
         assert np.isfinite(r["epe"]) and r["seconds_median"] > 0
     for r in rows[3:]:
         assert r["epe"] is None and "not installed" in r["note"] or np.isfinite(r["epe"])
+
+
+def test_peak_rss_is_each_settings_own_where_it_can_be_reset():
+    """bench pipeline gave every setting the process's peak so far (the paper setting's)."""
+    import numpy as np
+
+    from lfsf import bench
+
+    big = np.ones(64 * 2**20 // 8)          # 64 MB touched
+    with_big = bench.peak_rss_mb()
+    del big
+    if not bench.reset_peak_rss():
+        pytest.skip("this system cannot reset the peak resident set")
+    assert bench.peak_rss_mb() < with_big - 32
