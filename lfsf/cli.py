@@ -114,6 +114,10 @@ def cmd_synth(args) -> int:
                               supersample=args.supersample, colour=args.colour, device=device, noise=args.noise,
                               images=images)
     _log(args, f"wrote {', '.join(str(p) for p in paths.values())} in {time.perf_counter() - t0:.1f} s")
+    stale = Path(args.out) / "preview.png"
+    if not args.preview and stale.is_file():  # an earlier render's picture beside this one's files
+        stale.unlink()
+        _log(args, f"removed {stale}, an earlier render's (give --preview for this one's)")
     if args.preview:
         from lfsf.io import read_lightfield
         from lfsf.viz import overview_figure

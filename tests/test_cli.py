@@ -340,6 +340,14 @@ def test_a_folder_where_a_result_goes_is_refused_before_the_estimate(tmp_path, m
     assert "overview.png: is a folder; overview.png cannot be written there" in capsys.readouterr().err
 
 
+def test_synth_does_not_leave_an_earlier_renders_preview_beside_its_files(tmp_path):
+    """paper's preview.png stayed beside slanted's light fields and ground truth."""
+    common = ["--out", str(tmp_path), "--size", "16", "16", "--grid", "1", "--quiet"]
+    assert main(["synth", "paper", *common, "--preview"]) == 0 and (tmp_path / "preview.png").is_file()
+    assert main(["synth", "slanted", *common]) == 0
+    assert not (tmp_path / "preview.png").exists()
+
+
 def test_output_names_near_the_length_limit_still_get_a_temporary_name(tmp_path):
     from lfsf._files import write_bytes_atomic
 
