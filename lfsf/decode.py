@@ -369,7 +369,8 @@ def read_raw(path: str | os.PathLike, *, role: str = "raw") -> RawImage:
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such {role} image file")
     if not path.is_file():
-        raise ValueError(f"{path}: expected a {role} image file, got a folder")
+        raise ValueError(f"{path}: expected a {role} image file, got "
+                         f"{'a folder' if path.is_dir() else 'something else (a pipe or a device)'}")
     suffix = path.suffix.lower()
     if suffix == ".lfr":
         return _read_lytro(path, "LYTRO-LFR", 1023.0, "GRBG")

@@ -1127,7 +1127,8 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such image file")
     if not path.is_file():
-        raise ValueError(f"{path}: expected an image file, got a folder")
+        raise ValueError(f"{path}: expected an image file, got "
+                         f"{'a folder' if path.is_dir() else 'something else (a pipe or a device)'}")
     with open(path, "rb") as f:
         head = f.read(26)
     if not head:
