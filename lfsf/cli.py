@@ -155,7 +155,13 @@ def cmd_eval(args) -> int:
     lacking = [name for name, keys in (("disp1", ("disp1",)), ("disp2", ("disp2",)), ("flow", ("u", "v")))
                if all(k in gt for k in keys) and not all(k in estimate for k in keys)]
     if lacking:
-        print(f"not evaluated, missing from {args.result}: {', '.join(lacking)} (the ground truth has them)")
+        from lfsf.evaluate import flow_only
+
+        if flow_only(args.result):
+            print(f"not evaluated in {args.result}: {', '.join(lacking)} (a flow-only result, circles = 1: "
+                  "its disparities are zeros, not estimates)")
+        else:
+            print(f"not evaluated, missing from {args.result}: {', '.join(lacking)} (the ground truth has them)")
     if args.json:
         report = {"result": str(args.result), "ground_truth": str(args.gt), "border": border, "errors": errors,
                   "not_evaluated": lacking}

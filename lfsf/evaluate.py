@@ -184,13 +184,35 @@ def load_estimate(path: str | Path) -> dict[str, np.ndarray]:
         return out
     suffix = path.suffix.lower()
     if suffix == ".npz":
-        return _load_npz(path, VARIABLES)
+        out = _load_npz(path, VARIABLES)
+        if flow_only(path):     # its δ1 and δ2 are zeros, not estimates: scored they read as failures
+            out.pop("disp1", None)
+            out.pop("disp2", None)
+        return out
     if suffix == ".pfm":
         return {"disp1": _read_disparity_pfm(path)}
     if suffix == ".flo":
         flow = io.read_flo(path)
         return {"u": flow[..., 0], "v": flow[..., 1]}
     raise ValueError(f"{path}: not a result (expected a folder, .npz, .pfm or .flo)")
+
+
+def flow_only(path: str | Path) -> bool:
+    """Whether a result (a folder of ``lfsf run`` or its ``sceneflow.npz``) was estimated
+    with one circle (``--preset flow``): its disparities are zeros, not estimates."""
+    import json
+
+    from lfsf import io
+
+    path = Path(path)
+    path = path / "sceneflow.npz" if path.is_dir() else path
+    if path.suffix.lower() != ".npz" or not path.is_file():
+        return False
+    try:
+        _, arrays = io._read_npz_arrays(path, ("params",))
+        return json.loads(str(arrays["params"]))["params"]["circles"] == 1
+    except (KeyError, TypeError, ValueError):
+        return False
 
 
 def load_ground_truth(path: str | Path) -> tuple[dict[str, np.ndarray], int]:

@@ -147,6 +147,24 @@ def test_eval_of_a_partial_result_says_what_it_left_out(tmp_path, capsys):
     assert "not evaluated" not in capsys.readouterr().out
 
 
+def test_eval_of_a_flow_only_result_leaves_its_zero_disparities_out(tmp_path, capsys):
+    """They were scored (BadPix 95–100 %) as if estimated."""
+    from lfsf.estimate import SceneFlow
+
+    assert main(["synth", "paper", "--out", str(tmp_path), "--size", "48", "36", "--grid", "1", "--quiet"]) == 0
+    with np.load(tmp_path / "gt.npz") as gt:
+        maps = {k: gt[k] for k in ("u", "v")}
+    zeros = np.zeros_like(maps["u"])
+    SceneFlow(zeros, zeros, maps["u"], maps["v"], params=Params.preset("flow"), radius=0.0,
+              device="cpu").save(tmp_path / "r")
+    capsys.readouterr()
+    assert main(["eval", str(tmp_path / "r"), str(tmp_path / "gt.npz"), "--json", str(tmp_path / "e.json")]) == 0
+    out = capsys.readouterr().out
+    assert "not evaluated in" in out and "disp1, disp2 (a flow-only result" in out
+    report = json.loads((tmp_path / "e.json").read_text())
+    assert "disp1" not in report["errors"] and report["errors"]["flow"]["epe"] == 0.0
+
+
 @pytest.mark.parametrize(
     "args,needles",
     [
