@@ -814,6 +814,13 @@ def decode(raw, white, *, views: int | None = None, bayer: str | None = None, fl
 
     raw = _check_raw(raw, "raw")
     white = _check_raw(white, "white")
+    for image, role in ((raw, "raw"), (white, "white")):
+        # float values in counts (0…65535) made views of ~1e-5 and a negative white clipped
+        # them all, each with status 0
+        low, high = np.percentile(image.data[::7, ::7], [0.1, 99.9])
+        if not (-0.5 <= low and high <= 2.0):
+            raise ValueError(f"{image.source}: the {role} image's values run from {low:g} to {high:g}; "
+                             "expected [0, 1] (floats) or integers, which are scaled by their type's maximum")
     if raw.data.shape[:2] != white.data.shape[:2]:
         rh, rw = raw.data.shape[:2]
         wh, ww = white.data.shape[:2]

@@ -561,3 +561,14 @@ def test_a_sensor_smaller_than_one_lens_is_refused():
     for sensor in ((0, 0), (1, 1)):
         with pytest.raises(ValueError, match="holds no whole micro-image"):
             synthetic_lenslet(np.zeros((9, 9, 8, 8), np.float32), lattice, sensor, views=9)
+
+
+def test_images_outside_the_unit_range_are_refused():
+    """A float white in counts (0…65535) decoded to views of ~1e-5, and a negative white
+    clipped 99.7 % of them, both with status 0."""
+    lattice = Lattice.regular("hex", 9.6, 0.0, (5.0, 5.0))
+    raw, white = synthetic_lenslet(np.full((9, 9, 16, 16), 0.5, np.float32), lattice, (200, 180), views=9)
+    for bad, needle in ((white * 65535, "values run from"), (white - 1.0, "values run from")):
+        with pytest.raises(ValueError, match=f"white: the white image's {needle}"):
+            decode(raw, bad, views=9, device="cpu")
+
