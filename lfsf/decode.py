@@ -755,8 +755,10 @@ def view_offsets(lattice: Lattice, views: int, flip: bool = False) -> np.ndarray
 
 
 def _default_views(pitch: float) -> int:
-    """The largest odd number not above the pitch: one view step is at least a pixel."""
-    n = int(math.floor(pitch))
+    """The largest odd number not above the pitch: one view step is at least a pixel. A
+    pitch fitted a hair under a whole number counts as it (3 px fitted as 2.9994 gave 1×1
+    views, which only the flow preset takes)."""
+    n = int(math.floor(pitch + 0.01))
     return max(1, n if n % 2 else n - 1)
 
 

@@ -572,3 +572,7 @@ def test_images_outside_the_unit_range_are_refused():
         with pytest.raises(ValueError, match=f"white: the white image's {needle}"):
             decode(raw, bad, views=9, device="cpu")
 
+
+
+def test_the_default_view_count_takes_a_pitch_fitted_a_hair_under_a_whole_number():
+    assert [D._default_views(p) for p in (2.9994, 3.0, 4.98, 4.995, 9.6, 14.29, 2.5)] == [3, 3, 3, 5, 9, 13, 1]
