@@ -927,6 +927,8 @@ def decode_files(raw_path, white_path, out, *, views: int | None = None, bayer: 
             if entry.is_dir() and (entry.name in ("views.npz", "decode.json") or _HCI_NAME.fullmatch(entry.name)):
                 raise ValueError(f"{entry}: is a folder; the decoded {entry.name} cannot be written there")
     bayer = _bayer_option(bayer, "--bayer")
+    if views is not None and isinstance(views, int) and views >= 1:
+        _refuse_mixed_views(out, _view_names("hci", views, views))   # known: checked before the decode
     raw = read_raw(raw_path)
     white = read_raw(white_path, role="white")
     lf = decode(raw, white, views=views, bayer=bayer, flip=flip, device=device)

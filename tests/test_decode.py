@@ -496,6 +496,9 @@ def test_interrupted_decode_writes_nothing(lenslet_files, tmp_path, monkeypatch,
     capsys.readouterr()
     _fails(_decode_argv(lenslet_files, out, "--views", "5"), capsys, str(out), "input_Cam025.png")
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    # … and with --views given it comes before the decode (it came after it: 10-16 s on an Illum's sensor)
+    monkeypatch.setattr(D, "decode", lambda *a, **k: pytest.fail("decoded before the refusal"))
+    _fails(_decode_argv(lenslet_files, out, "--views", "5"), capsys, str(out), "input_Cam025.png")
 
 
 @pytest.mark.parametrize("name", ["views.npz", "decode.json", "input_Cam003.png"])
