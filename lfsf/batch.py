@@ -436,30 +436,47 @@ def _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retrie
                 silence_logs=logging.ERROR, env={"LFSF_THREADS": str(threads)}, preload=["lfsf._dask_worker"]))
             client = stack.enter_context(Client(cluster))
         out.mkdir(parents=True, exist_ok=True)  # only once there is a cluster to write into it
-        futures, by_name = {}, {}
-        for index, pair in enumerate(pairs):
-            after = by_name.get(pair.previous) if warm_start and pair.previous else None
-            future = client.submit(run_pair, pair, str(out), params, device, warm_start, after,
-                                   key=f"lfsf-{pair.name}-{uuid.uuid4().hex[:8]}", retries=retries, pure=False)
+        futures = {}
+
+        def submit(index: int):
+            future = client.submit(run_pair, pairs[index], str(out), params, device, warm_start, None,
+                                   key=f"lfsf-{pairs[index].name}-{uuid.uuid4().hex[:8]}", retries=retries,
+                                   pure=False)
             futures[future] = index
-            by_name[pair.name] = future
+            return future
+
+        # With --warm-start a pair goes to the cluster once the pair before it has ended,
+        # done or failed (it then starts cold). Given as a Dask dependency, a pair whose
+        # worker died failed every later pair of its sequence with its own reason.
+        names = {pair.name for pair in pairs}
+        after: dict[str, list[int]] = {}
+        first = []
+        for index, pair in enumerate(pairs):
+            if warm_start and pair.previous in names:
+                after.setdefault(pair.previous, []).append(index)
+            else:
+                first.append(index)
+        queue = as_completed([submit(index) for index in first])
         outcomes: list[Outcome | None] = [None] * len(pairs)
         finished = 0
-        for future in as_completed(futures):
+        for future in queue:
             index = futures[future]
             try:
                 outcome = future.result()
             except Exception as exc:  # noqa: BLE001 - a task that died on every attempt
-                outcome = Outcome(pairs[index].name, "failed", reason=_dask_reason(exc, retries))
+                outcome = Outcome(pairs[index].name, "failed", reason=_dask_reason(exc))
             outcomes[index] = outcome
             finished += 1
             report(outcome, finished, len(pairs))
+            for successor in after.pop(pairs[index].name, []):
+                queue.add(submit(successor))
     return outcomes
 
 
-def _dask_reason(exc: BaseException, retries: int) -> str:
+def _dask_reason(exc: BaseException) -> str:
     if type(exc).__name__ == "KilledWorker":
-        return f"its worker process died on each of {retries + 1} attempts"
+        # (how many attempts the scheduler allows is its own setting, allowed-failures)
+        return "its worker process died on every attempt the scheduler allowed"
     return f"{type(exc).__name__}: {exc}"
 
 

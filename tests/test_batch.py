@@ -342,6 +342,44 @@ def test_more_local_workers_than_cores_are_refused():
         batch.check_dask(cores + 1, "tcp://elsewhere:8786")    # a remote cluster's workers are its own
 
 
+@needs_dask
+def test_warm_start_goes_on_cold_after_a_pair_whose_worker_died(tmp_path):
+    """With --warm-start each pair depended on the one before as a Dask task: when f000's
+    worker died on every attempt, f001 and f002 failed too with the same reason without
+    ever running. Now they run, from a cold start."""
+    lfs, _ = synth.render_sequence("slanted", 4, size=(96, 72), grid=5, device="cpu")
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k, lf in enumerate(lfs):
+        write_lightfield(lf, folder / f"f{k:03d}.npz")
+    pairs = batch.pairs_from_sources([folder])
+    out = tmp_path / "out"
+    out.mkdir()
+    killed = []
+
+    def killer():                       # f000 is the only pair that can run first
+        deadline = time.monotonic() + 120
+        while not killed and time.monotonic() < deadline:
+            for part in out.glob(".f000.part-*"):
+                os.kill(int(part.name.split(".part-")[1].split("-")[0]), signal.SIGKILL)
+                killed.append(part.name)
+                return
+            time.sleep(0.002)
+
+    import dask
+
+    thread = threading.Thread(target=killer, daemon=True)
+    thread.start()
+    # (one death fails the task: the scheduler's allowed failures, read when the local cluster starts)
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        summary = batch.run_batch(pairs, out, PARAMS, workers=2, device="cpu", warm_start=True, retries=0)
+    thread.join(5)
+    assert killed, "f000 was not seen running"
+    assert [o.status for o in summary.outcomes] == ["failed", "done", "done"], summary.describe()
+    assert "died" in summary.outcomes[0].reason
+    assert not summary.outcomes[1].warm and summary.outcomes[2].warm   # f001 cold, f002 from f001
+
+
 # --- the command ------------------------------------------------------------------------------
 
 def test_cli_exit_status_1_when_a_pair_fails_and_2_for_bad_input(frames, tmp_path, monkeypatch, capsys):
