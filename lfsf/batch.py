@@ -235,8 +235,8 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
 
     Errors in the pair (unreadable input, mismatched light fields, …) come back as a
     ``failed`` :class:`Outcome` with the reason; they are not raised, so that a Dask retry
-    is spent only on a worker that died. ``_after`` is the previous pair's outcome when
-    the scheduler must run the two in order; it is not used otherwise.
+    is spent only on a worker that died. ``_after`` is not used (a dependency a caller may
+    give Dask; lfsf submits a warm-started pair only once the one before it has ended).
     """
     from lfsf.estimate import estimate_scene_flow, predict_next
     from lfsf.io import check_pair, read_lightfield
