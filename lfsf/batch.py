@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import glob
 import io as _io
 import os
 import re
@@ -286,7 +287,7 @@ def _reason(exc: BaseException) -> str:
 def _remove_stale(out: Path, name: str) -> None:
     """Temporary folders of earlier attempts at this pair (a killed worker's)."""
     if out.is_dir():
-        for stale in out.glob(f".{name}.part-*"):
+        for stale in out.glob(f".{glob.escape(name)}.part-*"):
             shutil.rmtree(stale, ignore_errors=True)
 
 
@@ -465,6 +466,7 @@ def _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retrie
                 outcome = future.result()
             except Exception as exc:  # noqa: BLE001 - a task that died on every attempt
                 outcome = Outcome(pairs[index].name, "failed", reason=_dask_reason(exc))
+                _remove_stale(out, pairs[index].name)   # the last dead attempt's folder: no retry will
             outcomes[index] = outcome
             finished += 1
             report(outcome, finished, len(pairs))

@@ -378,6 +378,7 @@ def test_warm_start_goes_on_cold_after_a_pair_whose_worker_died(tmp_path):
     assert [o.status for o in summary.outcomes] == ["failed", "done", "done"], summary.describe()
     assert "died" in summary.outcomes[0].reason
     assert not summary.outcomes[1].warm and summary.outcomes[2].warm   # f001 cold, f002 from f001
+    assert _leftovers(out) == []                     # the dead attempt's temporary folder too
 
 
 # --- the command ------------------------------------------------------------------------------
