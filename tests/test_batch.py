@@ -271,25 +271,25 @@ def test_cluster_broken_pair_then_rerun_skips_complete_results(frames, tmp_path)
     assert batch.is_complete(out / "f001") and not (out / "failed.csv").exists()
 
 
-@needs_dask
-def test_cluster_survives_a_worker_killed_mid_task(tmp_path):
-    """SIGKILL the worker process running a pair (found by the pid in its temporary
-    folder's name): Dask retries the task on a new worker and the batch completes, with
-    every result complete and no temporary folder left."""
-    lfs, _ = synth.render_sequence("slanted", 5, size=(96, 72), grid=5, device="cpu")
+def _slanted_frames(tmp_path: Path, count: int) -> tuple[list, Path]:
+    """``count`` frames of 'slanted' at 96×72 (long enough a pair to be caught running),
+    their pairs, and an empty output folder."""
+    lfs, _ = synth.render_sequence("slanted", count, size=(96, 72), grid=5, device="cpu")
     folder = tmp_path / "frames"
     folder.mkdir()
     for k, lf in enumerate(lfs):
         write_lightfield(lf, folder / f"f{k:03d}.npz")
-    pairs = batch.pairs_from_sources([folder])
-    out = tmp_path / "out"
-    out.mkdir()
-    killed = []
+    (tmp_path / "out").mkdir()
+    return batch.pairs_from_sources([folder]), tmp_path / "out"
 
+
+def _kill_when_running(out: Path, pattern: str, killed: list) -> threading.Thread:
+    """A thread that SIGKILLs the first worker process seen running a pair (by the pid in
+    the name of its temporary folder matching ``pattern``) and notes it in ``killed``."""
     def killer():
         deadline = time.monotonic() + 120
         while not killed and time.monotonic() < deadline:
-            for part in out.glob(".*.part-*"):
+            for part in out.glob(pattern):
                 pid = int(part.name.split(".part-")[1].split("-")[0])
                 if pid != os.getpid():
                     os.kill(pid, signal.SIGKILL)
@@ -299,6 +299,17 @@ def test_cluster_survives_a_worker_killed_mid_task(tmp_path):
 
     thread = threading.Thread(target=killer, daemon=True)
     thread.start()
+    return thread
+
+
+@needs_dask
+def test_cluster_survives_a_worker_killed_mid_task(tmp_path):
+    """SIGKILL the worker process running a pair (found by the pid in its temporary
+    folder's name): Dask retries the task on a new worker and the batch completes, with
+    every result complete and no temporary folder left."""
+    pairs, out = _slanted_frames(tmp_path, 5)
+    killed = []
+    thread = _kill_when_running(out, ".*.part-*", killed)
     summary = batch.run_batch(pairs, out, PARAMS, workers=2, device="cpu", retries=2)
     thread.join(5)
     assert killed, "no task was seen running"
@@ -347,29 +358,11 @@ def test_warm_start_goes_on_cold_after_a_pair_whose_worker_died(tmp_path):
     """With --warm-start each pair depended on the one before as a Dask task: when f000's
     worker died on every attempt, f001 and f002 failed too with the same reason without
     ever running. Now they run, from a cold start."""
-    lfs, _ = synth.render_sequence("slanted", 4, size=(96, 72), grid=5, device="cpu")
-    folder = tmp_path / "frames"
-    folder.mkdir()
-    for k, lf in enumerate(lfs):
-        write_lightfield(lf, folder / f"f{k:03d}.npz")
-    pairs = batch.pairs_from_sources([folder])
-    out = tmp_path / "out"
-    out.mkdir()
-    killed = []
-
-    def killer():                       # f000 is the only pair that can run first
-        deadline = time.monotonic() + 120
-        while not killed and time.monotonic() < deadline:
-            for part in out.glob(".f000.part-*"):
-                os.kill(int(part.name.split(".part-")[1].split("-")[0]), signal.SIGKILL)
-                killed.append(part.name)
-                return
-            time.sleep(0.002)
-
     import dask
 
-    thread = threading.Thread(target=killer, daemon=True)
-    thread.start()
+    pairs, out = _slanted_frames(tmp_path, 4)
+    killed = []
+    thread = _kill_when_running(out, ".f000.part-*", killed)    # f000 is the only pair that can run first
     # (one death fails the task: the scheduler's allowed failures, read when the local cluster starts)
     with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
         summary = batch.run_batch(pairs, out, PARAMS, workers=2, device="cpu", warm_start=True, retries=0)
