@@ -349,8 +349,7 @@ def read_lightfield(path: str | os.PathLike) -> LightField:
         raise FileNotFoundError(f"{path}: no such light field (file or folder)")
     if path.is_dir():
         return _read_folder(path)
-    if not path.is_file():
-        raise ValueError(f"{path}: not a regular file (a named pipe or a device would be read forever)")
+    _refuse_special_file(path)
     suffix = path.suffix.lower()
     if suffix == ".npz":
         return _read_npz(path)
@@ -382,8 +381,7 @@ def _read_npz_arrays(path: Path, keys) -> tuple[list[str], dict[str, np.ndarray]
 
     Also used by :mod:`lfsf.evaluate`. Any damage is a ``ValueError`` naming the file.
     """
-    if Path(path).exists() and not Path(path).is_file() and not Path(path).is_dir():
-        raise ValueError(f"{path}: not a regular file (a named pipe or a device would be read forever)")
+    _refuse_special_file(Path(path))
     # Opened here, not by np.load, which leaves the file open when the zip is unreadable.
     with open(path, "rb") as f:
         head = f.read(4)
@@ -775,23 +773,26 @@ def lenslet_to_views(raw, grid: tuple[int, int]) -> np.ndarray:
 _PFM_HEADER = re.compile(rb"(\S+)\s+(\S+)\s+(\S+)\s+(\S+)\s")
 
 
+def _refuse_special_file(path: Path) -> None:
+    """A ValueError for a path that is there but neither a file nor a folder: reading a
+    named pipe waits for a writer, and a device may never end."""
+    if path.exists() and not path.is_file() and not path.is_dir():
+        raise ValueError(f"{path}: not a regular file (a named pipe or a device would be read forever)")
+
+
 def _read_bytes(path: str | os.PathLike) -> bytes:
     if not isinstance(path, (str, os.PathLike)):
         raise ValueError(f"expected a file name (str or path), got {type(path).__name__} {path!r}")
     path = Path(path)
+    _refuse_special_file(path)
     try:
-        if path.exists() and not path.is_file() and not path.is_dir():
-            # reading a named pipe waits for a writer; a device may never end
-            raise ValueError(f"{path}: not a regular file")
         return path.read_bytes()
     except FileNotFoundError:
         raise FileNotFoundError(f"{path}: no such file") from None
     except IsADirectoryError:
         raise ValueError(f"{path}: expected a file, got a folder") from None
-    except ValueError as exc:
-        if str(exc).startswith(str(path)):
-            raise
-        raise ValueError(f"{str(path)!r}: not a usable file name ({exc})") from None    # a NUL byte
+    except ValueError as exc:                       # a NUL byte in the name
+        raise ValueError(f"{str(path)!r}: not a usable file name ({exc})") from None
     except OSError as exc:                          # not permitted, a symbolic link loop, …
         raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
 
@@ -1305,9 +1306,7 @@ def decode_png(data: bytes, source: str = "<bytes>") -> np.ndarray:
     else:
         pixels = np.empty((height, width, bpp), dtype=np.uint8)
         offset = 0
-        for x0, y0, dx, dy in _ADAM7:
-            pass_width = -(-(width - x0) // dx) if width > x0 else 0
-            pass_height = -(-(height - y0) // dy) if height > y0 else 0
+        for (x0, y0, dx, dy), (pass_width, pass_height) in zip(_ADAM7, passes):
             if pass_width == 0 or pass_height == 0:
                 continue                                 # an empty pass has no bytes at all
             block, offset = _unfilter_pass(raw, offset, pass_width, pass_height, bpp, source)
