@@ -227,8 +227,7 @@ def with_images(scene: str | Scene, count: int, seed: int = 0, span=(200.0, 800.
     for name, (low, high) in (("span", _pair("span", span, "(least, most)")),
                               ("backdrop_span", _pair("backdrop_span", backdrop_span, "(least, most)"))):
         # an image spans a width in pixels: 1e-300 made the prefilter's blur overflow
-        if not all(isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool)
-                   and 1.0 <= x <= 1e6 for x in (low, high)) or low > high:
+        if not all(_is_number(x) and 1.0 <= x <= 1e6 for x in (low, high)) or low > high:
             raise ValueError(f"with_images: {name} must be (least, most) widths in 1…1e6 px, got {(low, high)!r}")
     rng = np.random.default_rng([0x1A6E5, seed])
     objects = []
@@ -518,11 +517,15 @@ MAX_SUPERSAMPLE = 16
 MAX_RENDER_VALUES = 2 ** 31
 
 
+def _is_number(value) -> bool:
+    """An int or a float (numpy's too), not a bool: what a numeric argument may be."""
+    return isinstance(value, (int, np.integer, float, np.floating)) and not isinstance(value, (bool, np.bool_))
+
+
 def _whole(name: str, value, least: int, most: int) -> int:
     """``value`` as an int in [least, most], or a ValueError naming ``name``: a bool or a
     fraction is an error, not truncated."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer, float, np.floating)) \
-            or not float(value).is_integer():
+    if not _is_number(value) or not float(value).is_integer():
         raise ValueError(f"{name} must be a whole number, got {value!r}")
     value = int(value)
     if not least <= value <= most:
@@ -637,7 +640,7 @@ def _as_lightfield(lf):
 
 def _noise_sigma(sigma) -> float:
     """A noise level as a float, or a ValueError naming the problem."""
-    if isinstance(sigma, (bool, np.bool_)) or not isinstance(sigma, (int, float, np.integer, np.floating)):
+    if not _is_number(sigma):
         raise ValueError(f"noise sigma must be a finite number ≥ 0, got {sigma!r}")
     sigma = float(sigma)
     if not math.isfinite(sigma) or sigma < 0:
@@ -675,7 +678,7 @@ def vignetting_gains(grid: tuple[int, int], size: tuple[int, int], strength: flo
     corner: 1 − 2k) and not at all at the opposite corner (g ≤ 1 everywhere). Smooth,
     low-frequency and different in every view, as a lens's vignetting or a surface's
     view-dependent shading is."""
-    if isinstance(strength, (bool, np.bool_)) or not isinstance(strength, (int, float, np.integer, np.floating)):
+    if not _is_number(strength):
         raise ValueError(f"vignetting strength must be a number in [0, 0.5), got {strength!r}")
     strength = float(strength)
     if not math.isfinite(strength) or not 0 <= strength < 0.5:
