@@ -18,6 +18,7 @@ a list of rows (dicts) that the command prints as a table and writes as JSON.
 
 from __future__ import annotations
 
+import math
 import resource
 import statistics
 import sys
@@ -342,23 +343,33 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
     return cases
 
 
+#: A timed kernel sample lasts at least this long: shorter launches are repeated within it
+#: (at most :data:`MAX_BATCH` times) and the sample is their mean.
+MIN_SAMPLE_SECONDS = 2e-3
+MAX_BATCH = 1000
+
+
 def bench_kernels(size=(640, 480), device: str | None = None, repeats: int = 20,
                   progress: Callable[[str], None] | None = None, inputs: str = "scene") -> list[dict]:
     """Rows per hot kernel: seconds per launch (median, spread), effective GB/s and the
     plain-copy GB/s of the same byte count on the same device, and their ratio, on the
     ``inputs`` of :func:`kernel_cases` (a rendered scene's, or random ones). The
-    kernel and the copies (:func:`_copies`) are timed in alternation, one launch of each
+    kernel and the copies (:func:`_copies`) are timed in alternation, one sample of each
     per round, so that the machine's changes of speed (up to 1.5× within minutes on
-    this shared one) fall on both sides of the ratio."""
+    this shared one) fall on both sides of the ratio. A sample is one launch, or the mean
+    of as many as fill :data:`MIN_SAMPLE_SECONDS` where one is shorter (``launches_per_sample``;
+    a GPU's launch at 640×480 takes microseconds, about what reading the clock and
+    synchronising cost)."""
     wp = _device.warp()
     say = progress or (lambda _m: None)
     dev = _device.resolve_device(device)
 
-    def timed(fn):
+    def timed(fn, times=1):
         t0 = time.perf_counter()
-        fn()
+        for _ in range(times):
+            fn()
         wp.synchronize_device(dev)
-        return time.perf_counter() - t0
+        return (time.perf_counter() - t0) / times
 
     rows = []
     if inputs == "scene":
@@ -371,10 +382,15 @@ def bench_kernels(size=(640, 480), device: str | None = None, repeats: int = 20,
             for _ in range(2):
                 fn()
         wp.synchronize_device(dev)
+        # launches per timed sample: enough for MIN_SAMPLE_SECONDS, so that a short launch
+        # (microseconds on a GPU) is timed for itself rather than for the clock's reading
+        # and the synchronisation; a sample's time is their mean
+        times = {k: max(1, min(MAX_BATCH, math.ceil(MIN_SAMPLE_SECONDS / max(timed(fn), 1e-9))))
+                 for k, fn in steps.items()}
         seconds = {k: [] for k in steps}
         for _ in range(repeats):
             for k, fn in steps.items():
-                seconds[k].append(timed(fn))
+                seconds[k].append(timed(fn, times[k]))
         how = min(copies, key=lambda k: statistics.median(seconds[k]))
         gbs = nbytes / statistics.median(seconds[name]) / 1e9
         copy_gbs = nbytes / statistics.median(seconds[how]) / 1e9
@@ -389,6 +405,7 @@ def bench_kernels(size=(640, 480), device: str | None = None, repeats: int = 20,
             "memcpy_gbytes_per_s": round(copy_gbs, 3),
             "memcpy": how,
             "fraction_of_memcpy": round(gbs / copy_gbs, 3),
+            "launches_per_sample": times[name],
         })
     return rows
 

@@ -85,6 +85,18 @@ def test_bench_kernels_rows(inputs):
         assert r["fraction_of_memcpy"] == pytest.approx(r["gbytes_per_s"] / r["memcpy_gbytes_per_s"], rel=0.01, abs=1e-3)
 
 
+def test_bench_kernels_batches_short_launches(monkeypatch):
+    """A launch shorter than MIN_SAMPLE_SECONDS is timed as the mean of a batch that
+    fills it (a GPU's launches take microseconds); with the minimum at zero, a sample is
+    one launch."""
+    rows = bench.bench_kernels((24, 16), "cpu", repeats=2, inputs="random")
+    # 24×16 launches take tens of microseconds (any: one may be slowed while calibrating)
+    assert any(r["launches_per_sample"] > 1 for r in rows)
+    monkeypatch.setattr(bench, "MIN_SAMPLE_SECONDS", 0.0)
+    rows = bench.bench_kernels((24, 16), "cpu", repeats=2, inputs="random")
+    assert all(r["launches_per_sample"] == 1 for r in rows)
+
+
 def test_copy_references_copy_every_element(monkeypatch):
     """The copies that the kernels' bandwidth is measured against (one ``wp.copy``, and
     one per row band on the CPU's threads) each copy the whole array."""
