@@ -458,10 +458,10 @@ def coefficients_kernel(width: int, lanes: int):
     """The data coefficients' kernel for lane storage of ``lanes`` pixels a group
     (:func:`lfsf.kernels.data_term.data_lanes` of the device) and the columns to launch it
     over, (kernel, columns), with rows as the first dimension: for groups (the CPU's
-    storage) :data:`data_coefficients_groups` over ⌈width / lanes⌉ groups; for single
-    pixels (CUDA's) the per-pixel :func:`lfsf.kernels.data_term.data_coefficients` over
+    storage, DATA_LANES) :data:`data_coefficients_groups` over ⌈width / lanes⌉ groups;
+    for any other (CUDA's, :data:`lfsf.kernels.data_term.CUDA_LANES`) the per-pixel :func:`lfsf.kernels.data_term.data_coefficients` over
     ``width``, a thread per pixel, where the vector code would only take registers. Same
     arguments, same results."""
-    if lanes > 1:
+    if not data_term.pixelwise(lanes):
         return data_coefficients_groups, -(-int(width) // int(lanes))
     return data_term.data_coefficients, int(width)

@@ -28,14 +28,15 @@ the dual step takes 0.83–0.93× the time without them (640×480, 17 samples, m
 bit for bit (the same float operations on the same values).
 
 The values are stored in *lanes*: a row's pixels in groups of L consecutive ones (L =
-:data:`DATA_LANES` on the CPU, 1 on CUDA), and for each group, sample and value the L
+:data:`DATA_LANES` on the CPU, :data:`CUDA_LANES` on CUDA), and for each group, sample and value the L
 pixels' values side by side, ``coef[i, j // L, (7 s + k) L + j % L]`` (a float array, as
 :func:`data_coefficients` writes it; the same memory as L-vectors ``[i, j // L, 7 s + k]``,
 as :data:`dual_data_step` reads it), ∇J2 as ``grad_j2[i, j // L, k L + j % L]``, k = 0,
 1, and the flags (int32) as ``flags[i, j // L, (k W + s // 31) L + j % L]``, bit s % 31,
 for row k = 0, 1, 2 (ρ1, ρ2, ρ3) and W = :func:`flag_words` of the sample count. With
 L = 1 this is pixel-major: what one pixel's iteration reads is contiguous. With L = 8 the
-iteration works on 8 pixels at once in vector registers.
+iteration works on 8 pixels at once in vector registers (the CPU); with L = 32 a warp of
+CUDA threads, a pixel each, reads each value from consecutive addresses.
 """
 
 from typing import Any
@@ -64,8 +65,12 @@ vec9 = wp.types.vector(length=9, dtype=wp.float32)
 #: Pixels per group of the data term's storage on the CPU (see the module's docstring):
 #: the dual step then runs 8 pixels at once in vector registers, 0.69× the time of one
 #: pixel at a time (640×480, 17 samples, medians of 8 rounds; bit-identical results).
-#: CUDA takes 1 (a thread per pixel).
 DATA_LANES = 8
+#: … and on CUDA, a warp's worth: a thread per pixel whose loads and stores of a value
+#: are consecutive across the warp's threads. With 1 (a pixel's values side by side) a
+#: warp's load touched 32 sectors for 4 bytes of each: the dual step ran at 0.09 of the
+#: copy bandwidth (H200, 640×480, 17 samples).
+CUDA_LANES = 32
 #: Values stored per sample: the coefficients A1 … A7 (A8, A9 rebuilt from ∇J2, stored
 #: once a pixel; σ̃1 … σ̃3 from the coefficients and the row flags) and the scaled duals.
 #: Seven instead of twelve: the dual step, bound by memory since it runs 8 pixels at
@@ -572,21 +577,104 @@ def _dual_data_kernel(lanes: int):
     return dual_data_step
 
 
-#: The dual step on groups of :data:`DATA_LANES` pixels (the CPU) …
+#: The dual step on groups of :data:`DATA_LANES` pixels (the CPU).
 dual_data_step = _dual_data_kernel(DATA_LANES)
-#: … and on single pixels (CUDA).
-dual_data_step_pixel = _dual_data_kernel(1)
+
+
+@wp.kernel
+def dual_data_step_pixel(
+    row0: int,
+    coef: wp.array3d(dtype=float),
+    flags: wp.array3d(dtype=wp.int32),
+    weights: wp.array(dtype=wp.vec3),
+    grad_j2: wp.array3d(dtype=float),
+    x_bar: wp.array2d(dtype=Any),
+    x_hat: wp.array2d(dtype=Any),
+    eps: float,
+    step_ratio: float,
+    lanes: int,
+    # outputs
+    q: wp.array3d(dtype=float),
+    data_grad: wp.array2d(dtype=Any),
+):
+    """:data:`dual_data_step` a pixel per thread (CUDA's kernel), on lane storage of any
+    ``lanes`` L seen as the float (and int32) arrays that :func:`data_coefficients` writes:
+    value v of sample s at ``coef[i, j // L, (7 s + v) L + j % L]`` (module docstring).
+    With L = :data:`CUDA_LANES`, the threads of a warp (consecutive pixels of a row) read
+    and write consecutive addresses. The same float operations per pixel as the groups'
+    kernel, so the same results. Launch over (rows, width)."""
+    i, j = wp.tid()
+    i = i + row0
+    w = x_bar.shape[1]
+    n = weights.shape[0]
+    words = words_of(n)
+    g = j // lanes
+    lane = j - g * lanes
+    d = to_vec4(x_bar[i, j]) - to_vec4(x_hat[i, j])
+    gjx = grad_j2[i, g, lane]
+    gjy = grad_j2[i, g, lanes + lane]
+    s0 = float(0.0)
+    s1 = float(0.0)
+    s2 = float(0.0)
+    s3 = float(0.0)
+    for word in range(words):
+        # the row flags of samples 31 word … 31 word + 30
+        f1 = flags[i, g, word * lanes + lane]
+        f2 = flags[i, g, (words + word) * lanes + lane]
+        f3 = flags[i, g, (2 * words + word) * lanes + lane]
+        for s in range(word * FLAG_BITS, wp.min(n, (word + 1) * FLAG_BITS)):
+            bit = s - word * FLAG_BITS
+            on1 = float((f1 >> bit) & 1)
+            on2 = float((f2 >> bit) & 1)
+            on3 = float((f3 >> bit) & 1)
+            b = COEFFICIENTS * s * lanes + lane
+            a1 = coef[i, g, b]
+            a3 = coef[i, g, b + 2 * lanes]
+            a5 = coef[i, g, b + 4 * lanes]
+            a6 = coef[i, g, b + 5 * lanes]
+            a8 = gjx - a5
+            a9 = gjy - a6
+            rho1 = coef[i, g, b + lanes] - a1 * d[0]
+            rho2 = coef[i, g, b + 3 * lanes] - a3 * d[1] + a8 * d[2] + a9 * d[3]
+            rho3 = coef[i, g, b + 6 * lanes] + a1 * d[0] - a3 * d[1] - a5 * d[2] - a6 * d[3]
+            lam = weights[s]
+            b1 = wp.abs(a1)
+            b3 = wp.abs(a3)
+            sigma1 = on1 * (lam[0] * lam[0] / ((lam[0] * b1 + eps) * step_ratio))
+            sigma2 = on2 * (lam[1] * lam[1] / ((lam[1] * (b3 + wp.abs(a8) + wp.abs(a9)) + eps) * step_ratio))
+            sigma3 = on3 * (lam[2] * lam[2] / ((lam[2] * (b1 + b3 + wp.abs(a5) + wp.abs(a6)) + eps) * step_ratio))
+            e = DUALS * s * lanes + lane
+            q1 = wp.min(wp.max(q[i, g, e] + sigma1 * rho1, -lam[0]), lam[0])
+            q2 = wp.min(wp.max(q[i, g, e + lanes] + sigma2 * rho2, -lam[1]), lam[1])
+            q3 = wp.min(wp.max(q[i, g, e + 2 * lanes] + sigma3 * rho3, -lam[2]), lam[2])
+            q[i, g, e] = q1
+            q[i, g, e + lanes] = q2
+            q[i, g, e + 2 * lanes] = q3
+            s0 += (q3 - q1) * a1
+            s1 += -(q2 + q3) * a3
+            s2 += q2 * a8 - q3 * a5
+            s3 += q2 * a9 - q3 * a6
+    data_grad[i, j] = from_vec4(wp.vec4(s0, s1, s2, s3), x_hat[i, j])
 
 
 def data_lanes(device) -> int:
     """Pixels per group of the data term's storage on ``device``: :data:`DATA_LANES` on
-    the CPU, 1 on CUDA."""
-    return DATA_LANES if is_cpu(device) else 1
+    the CPU, :data:`CUDA_LANES` on CUDA."""
+    return DATA_LANES if is_cpu(device) else CUDA_LANES
+
+
+def pixelwise(lanes: int) -> bool:
+    """Whether the data term's kernels for storage of ``lanes`` pixels a group take a
+    pixel per thread (:func:`data_coefficients`, :func:`dual_data_step_pixel`, reading the
+    float arrays) rather than a group per thread in vector registers (the CPU's
+    :data:`DATA_LANES`)."""
+    return lanes != DATA_LANES
 
 
 def dual_data_kernel(lanes: int):
-    """The dual step for storage of ``lanes`` pixels a group."""
-    return {DATA_LANES: dual_data_step, 1: dual_data_step_pixel}[lanes]
+    """The dual step for storage of ``lanes`` pixels a group (:func:`pixelwise` says which
+    arrays and launch it takes)."""
+    return dual_data_step_pixel if pixelwise(lanes) else dual_data_step
 
 
 # the kernels on the unknowns, for vec4 (δ1, δ2, u, v) and vec2 (u, v; flow only)

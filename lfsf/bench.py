@@ -245,6 +245,8 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
         recorded.arrays = (inputs, outputs)  # alive while the recorded launch is (not every Warp keeps them)
         return recorded
 
+    from lfsf.solver import dual_data_launch, lane_storage
+
     wp_phis = arr(phis, wp.vec2)
     span, per_row = _device.row_span(dev, w)
     lanes = data_term.data_lanes(dev)
@@ -267,7 +269,6 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
         zbuf1 = arr(rng.uniform(-3, 1, (s, h, w)), float)
         zbuf2 = arr(rng.uniform(-3, 1, (s, h, w)), float)
         # the data term's lane storage, as the solver allocates it
-        from lfsf.solver import lane_storage
 
         coef_store, coef = lane_storage(h, w, s, data_term.COEFFICIENTS, lanes, dev)
         flags_store, flags = lane_storage(h, w, 1, flag_words, lanes, dev, flags=True)
@@ -304,16 +305,19 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
                        int(solver.view_zbuf1.shape[0] > 1), solver.lanes]
         coef_outputs = [solver.coef_store, solver.flags_store, solver.grad_j2_store, solver.data_colsum,
                         solver.q_store]
-        groups, group_threads = _device.row_span(dev, solver.coef.shape[1])
-        dual_inputs = [solver.coef, solver.flags, solver.weights, solver.grad_j2, solver.x_bar, solver.x_hat, p.eps,
-                       p.step_ratio, groups]
-        dual_outputs = [solver.q, solver.data_grad]
+        data_step, dual_columns, (d_coef, d_flags, d_grad_j2, d_q), last = dual_data_launch(
+            lanes, dev, w, (solver.coef_store, solver.coef), (solver.flags_store, solver.flags),
+            (solver.grad_j2_store, solver.grad_j2), (solver.q_store, solver.q))
+        dual_inputs = [d_coef, d_flags, solver.weights, d_grad_j2, solver.x_bar, solver.x_hat, p.eps,
+                       p.step_ratio, last]
+        dual_outputs = [d_q, solver.data_grad]
     else:
         coef_inputs = [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros, zbuf1, zbuf2, 0.25, 1, lanes]
         coef_outputs = [coef_store, flags_store, grad_j2_store, colsum, q_store]
-        groups, group_threads = _device.row_span(dev, coef.shape[1])
-        dual_inputs = [coef, flags, weights, grad_j2, x_bar, x_hat, 1e-6, 1.0, groups]
-        dual_outputs = [q, data_grad]
+        data_step, dual_columns, (d_coef, d_flags, d_grad_j2, d_q), last = dual_data_launch(
+            lanes, dev, w, (coef_store, coef), (flags_store, flags), (grad_j2_store, grad_j2), (q_store, q))
+        dual_inputs = [d_coef, d_flags, weights, d_grad_j2, x_bar, x_hat, 1e-6, 1.0, last]
+        dual_outputs = [d_q, data_grad]
     cases = [
         # reads 4 neighbouring views per sample, writes the sample
         ("sample_subaperture", launch(sampling.sample_subaperture, [views, 9, 9, wp_phis, span], [sampled],
@@ -326,7 +330,7 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
          f * h * w * (2 * s + 4 + 1 + 2 * s + data_term.COEFFICIENTS * s + flag_words + 2 + 4 + 6 * s)),
         # reads the coefficients, the row flags, ∇J2 (2), x̄, x̂ and q; writes q and Kᵀq (the S weights stay
         # in cache)
-        ("dual_data_step", launch(data_term.dual_data_kernel(lanes), dual_inputs, dual_outputs, dim=(h, group_threads)),
+        ("dual_data_step", launch(data_step, dual_inputs, dual_outputs, dim=(h, dual_columns)),
          f * h * w * (data_term.COEFFICIENTS * s + flag_words + 2 + 4 + 4 + 3 * s + 3 * s + 4)),
         # reads x̄, w̄ (12), the three tensors (9: it reads them as Γ's entries per unknown, 12, but is
         # credited with the 9 it must move), σ_y (4) and the six duals (24); writes the duals (24)

@@ -366,13 +366,14 @@ class LevelSolver:
             return _device.RecordedRows(kernel, dim, inputs=inputs, outputs=outputs, device=self.device,
                                         bands=self.bands)
 
-        groups, per_row = _device.row_span(self.device, self.coef.shape[1])  # groups of lanes per thread
+        data_step, columns, (coef, flags, grad_j2, q), last = dual_data_launch(
+            self.lanes, self.device, self.shape[1], (self.coef_store, self.coef), (self.flags_store, self.flags),
+            (self.grad_j2_store, self.grad_j2), (self.q_store, self.q))
         dual_step, primal_step = tgv.tgv_kernels(self.device)
         return [
-            record(data_term.dual_data_kernel(self.lanes),
-                   inputs=[self.coef, self.flags, self.weights, self.grad_j2, self.x_bar, self.x_hat, p.eps,
-                           p.step_ratio, groups],
-                   outputs=[self.q, self.data_grad], dim=(self.shape[0], per_row)),
+            record(data_step,
+                   inputs=[coef, flags, self.weights, grad_j2, self.x_bar, self.x_hat, p.eps, p.step_ratio, last],
+                   outputs=[q, self.data_grad], dim=(self.shape[0], columns)),
             record(dual_step,
                    inputs=[self.x_bar, self.w0_bar, self.w1_bar, *self.tensor_entries, self.sigma_y, sigma_z,
                            p.alpha0, p.alpha1, self.span],
@@ -466,6 +467,22 @@ def lane_storage(h: int, w: int, n: int, values: int, lanes: int, device: str, f
     store = alloc((h, groups, n * values * lanes), dtype=wp.int32 if flags else float, device=device)
     vector = flag_vector(lanes) if flags else lane_vector(lanes)
     return store, _device.vector_view(store, vector, (h, groups, n * values))
+
+
+def dual_data_launch(lanes: int, device: str, width: int, coef, flags, grad_j2, q):
+    """How the data term's dual step is launched on lane storage of ``lanes`` pixels a
+    group (:func:`lane_storage`; ``coef``, ``flags``, ``grad_j2``, ``q``: its (store,
+    vector view) pairs): (kernel, columns to launch over with the rows, the four arrays
+    as the kernel reads them, its last input). A pixel per thread
+    (:func:`lfsf.kernels.data_term.pixelwise`) reads the stores and takes ``lanes``; the
+    groups' kernel reads the vectors and takes the groups each thread walks."""
+    from lfsf.kernels import data_term
+
+    kernel = data_term.dual_data_kernel(lanes)
+    if data_term.pixelwise(lanes):
+        return kernel, int(width), tuple(a[0] for a in (coef, flags, grad_j2, q)), int(lanes)
+    groups, per_row = _device.row_span(device, coef[1].shape[1])
+    return kernel, per_row, tuple(a[1] for a in (coef, flags, grad_j2, q)), groups
 
 
 def from_lanes(a: np.ndarray, w: int, lanes: int, values: int) -> np.ndarray:

@@ -224,8 +224,8 @@ def test_estimate_does_not_depend_on_how_rows_are_split_among_threads(monkeypatc
 
 def test_estimate_does_not_depend_on_how_the_data_term_is_stored(monkeypatch):
     """The data term's coefficients and duals are stored in groups of 8 pixels on the CPU
-    and of 1 on CUDA (lfsf.kernels.data_term, lanes): the same arithmetic per pixel, so
-    the four maps must be equal bit for bit with either (on the CPU), at a width that
+    and of 32 on CUDA (lfsf.kernels.data_term, lanes; or 1): the same arithmetic per pixel,
+    so the four maps must be equal bit for bit with each (on the CPU), at a width that
     leaves a group part-empty on every level (99 px) and with the flow-only solver's
     (u, v)."""
     from lfsf import synth
@@ -234,11 +234,12 @@ def test_estimate_does_not_depend_on_how_the_data_term_is_stored(monkeypatch):
     lf1, lf2, _gt = synth.render_scene("random-3", size=(99, 75), grid=9)
     for preset in ("fast", "flow"):
         maps = []
-        for lanes in (data_term.DATA_LANES, 1):
+        for lanes in (data_term.DATA_LANES, 1, data_term.CUDA_LANES):
             monkeypatch.setattr(data_term, "data_lanes", lambda device, lanes=lanes: lanes)
             maps.append(estimate_scene_flow(lf1, lf2, Params.preset(preset), device="cpu").as_dict())
         for key, a in maps[0].items():
-            np.testing.assert_array_equal(a, maps[1][key], err_msg=f"{preset} {key}")
+            for other in maps[1:]:
+                np.testing.assert_array_equal(a, other[key], err_msg=f"{preset} {key}")
 
 
 def test_joint_flow_beats_flow_only():

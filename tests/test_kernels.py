@@ -407,8 +407,8 @@ def _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device, occ
 
     results = []
     # the device's kernel and storage (on the CPU, groups of 8 pixels in vector code), and the
-    # kernel of a thread per pixel with a pixel's values together
-    for lanes in (data_term.data_lanes(device), 1):
+    # kernel of a thread per pixel with a pixel's values together and with CUDA's groups of 32
+    for lanes in dict.fromkeys((data_term.data_lanes(device), 1, data_term.CUDA_LANES)):
         kernel, columns = data_groups.coefficients_kernel(w, lanes)
         coef, _ = _lane_buffer(np.zeros((h, w, s, data_term.COEFFICIENTS), np.float32), device, lanes)
         words = data_term.pixel_flag_words(s)
@@ -432,9 +432,10 @@ def _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device, occ
         # the duals of rows left out are zeroed, the others kept as they were
         np.testing.assert_array_equal(from_lanes(q.numpy(), w, lanes, 3), np.where(got[..., 9:] > 0, q_before, 0.0))
         results.append((got, colsum.numpy()))
-    (got, colsum), (got_1, colsum_1) = results
-    np.testing.assert_array_equal(got, got_1)  # the same values, however stored
-    np.testing.assert_array_equal(colsum, colsum_1)
+    (got, colsum), *others = results
+    for got_1, colsum_1 in others:
+        np.testing.assert_array_equal(got, got_1)  # the same values, however stored
+        np.testing.assert_array_equal(colsum, colsum_1)
     # sample-major (S, h, w, 12) here, as the reference
     return got.transpose(2, 0, 1, 3).astype(np.float64), colsum.astype(np.float64)
 
@@ -1063,11 +1064,12 @@ def test_lane_storage_views_keep_their_memory_alive():
     np.testing.assert_array_equal(from_lanes(view.numpy().reshape(3, 2, -1), 10, 8, 3), values)
 
 
-# a pixel per thread (CUDA), a row of single pixels, groups of 8 pixels one or two a thread,
-# and a whole row of them (the CPU); 9 columns leave 7 lanes of the second group empty; 40
-# samples take two words of row flags a row
+# a pixel per thread on storage of 1 or of 32 pixels a group (CUDA's), groups of 8 pixels
+# one or two a thread (the CPU); 9 columns leave 7 lanes of the second group of 8 empty
+# (23 of 32); 40 samples take two words of row flags a row
 @UNKNOWNS
-@pytest.mark.parametrize("lanes, groups, s", [(1, 1, 3), (1, 9, 3), (8, 1, 3), (8, 2, 3), (1, 1, 40), (8, 2, 40)])
+@pytest.mark.parametrize("lanes, groups, s", [(1, None, 3), (32, None, 3), (8, 1, 3), (8, 2, 3), (1, None, 40),
+                                              (32, None, 40), (8, 2, 40)])
 def test_dual_data_step_matches_reference(device, lanes, groups, s, unknowns):
     """The kernel's scaled duals q̃ = w q against the reference's q, and Kᵀq, with the dual
     steps σ̃ computed from the coefficients and the row flags. On vec2 (flow only) δ1,
@@ -1092,14 +1094,22 @@ def test_dual_data_step_matches_reference(device, lanes, groups, s, unknowns):
     if unknowns == "vec2":
         x_bar[..., :2] = x_hat[..., :2] = 0.0
     q = r.uniform(-1, 1, (3, s, h, w))
-    _, coef_wp = _lane_buffer(coef, device, lanes)
-    _, flags_wp = _lane_buffer(flags, device, lanes)
-    _, grad_j2_wp = _lane_buffer(grad_j2[:, :, None, :], device, lanes)
-    q_store, q_wp = _lane_buffer((W * q).transpose(2, 3, 1, 0).astype(np.float32), device, lanes)
+    coef_wp = _lane_buffer(coef, device, lanes)
+    flags_wp = _lane_buffer(flags, device, lanes)
+    grad_j2_wp = _lane_buffer(grad_j2[:, :, None, :], device, lanes)
+    q_wp = _lane_buffer((W * q).transpose(2, 3, 1, 0).astype(np.float32), device, lanes)
+    q_store = q_wp[0]
     grad_wp = unknowns_zeros((h, w), unknowns, device)
-    launch(data_term.dual_data_kernel(lanes), (h, -(-coef_wp.shape[1] // groups)),
+    kernel = data_term.dual_data_kernel(lanes)
+    assert (kernel is data_term.dual_data_step_pixel) == (groups is None)
+    if groups is None:  # a pixel per thread reads the stores
+        columns, (coef_wp, flags_wp, grad_j2_wp, q_wp), last = w, (a[0] for a in (coef_wp, flags_wp, grad_j2_wp, q_wp)), lanes
+    else:  # a group per thread, the vector views
+        columns = -(-coef_wp[1].shape[1] // groups)
+        (coef_wp, flags_wp, grad_j2_wp, q_wp), last = (a[1] for a in (coef_wp, flags_wp, grad_j2_wp, q_wp)), groups
+    launch(kernel, (h, columns),
            [coef_wp, flags_wp, arr(lam, wp.vec3, device), grad_j2_wp, unknowns_arr(x_bar, unknowns, device),
-            unknowns_arr(x_hat, unknowns, device), DATA_EPS, 1.0, groups],
+            unknowns_arr(x_hat, unknowns, device), DATA_EPS, 1.0, last],
            [q_wp, grad_wp], device)
     want_q, want_grad = ref.dual_data_step(A, W, q, x_bar, x_hat, DATA_EPS)
     want_grad = flow_part(want_grad, unknowns)
