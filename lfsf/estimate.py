@@ -15,7 +15,7 @@ import numpy as np
 
 from lfsf import device as _device
 from lfsf._filters import gaussian_blur as _blur
-from lfsf.gains import GAIN_CHANGE, fit_view_gains, full_gains, gain_change
+from lfsf.gains import GAIN_CHANGE, fit_reduced_gains, gain_change, reduction_factor, sampled_views
 from lfsf.io import LightField, centre_view, check_pair, luma, read_lightfield
 from lfsf.params import Params
 
@@ -720,7 +720,7 @@ def estimate_scene_flow(
     S. Heber and T. Pock, "Scene Flow Estimation from Light Fields via the
     Preconditioned Primal-Dual Algorithm", GCPR 2014.
     """
-    from lfsf.kernels import sampling
+    from lfsf.kernels import gains as gain_kernels, sampling
     from lfsf.solver import LevelSolver
 
     wp = _device.warp()
@@ -786,42 +786,56 @@ def estimate_scene_flow(
                 say(f"exposure: t2 matched to t1 by I ↦ {gain:.4f}·I {shift:+.4f} (it moved the intensities "
                     f"by up to {100 * change:.1f} % of their range)")
         lap("exposure")
-    gains = grey1 = None
+    gains = views1 = None
     if params.view_gain_sigma > 0 and n_samples > 1:
-        # the views' brightness matched to the centre's, the same fields at both times
-        grey1 = stretched(lf1.grey().views)  # (sampled below as well)
-        fitted, factor = fit_view_gains(grey1, params.view_gain_sigma, dev)
-        if fitted is not None:
-            # (on the reduced fields: the full ones only where they are used)
-            change = gain_change(fitted, border=-(-8 // factor))
-            if change > GAIN_CHANGE:
-                gains = full_gains(fitted, factor, height, width).reshape(rows * cols, height, width)
-                say(f"view gains: each view matched to the centre view's brightness (gains "
-                    f"{float(gains.min()):.3f}–{float(gains.max()):.3f}, 95th percentile of the change "
-                    f"{100 * change:.1f} %)")
-            del fitted
+        # the views' brightness matched to the centre's, the same fields at both times: fitted
+        # on the t1 views reduced by block means (on the device, where they are sampled
+        # below), and only for the views the samples read
+        views1 = wp.array(np.ascontiguousarray(stretched(lf1.grey().views), dtype=np.float32).reshape(
+            rows * cols, height, width), dtype=float, device=dev)
+        factor = reduction_factor(height, width)
+        small = wp.empty((rows * cols, height // factor, width // factor), dtype=float, device=dev)
+        if min(small.shape[1:]) >= 16:
+            _device.launch_rows(gain_kernels.block_mean, dim=(rows * cols * small.shape[1], small.shape[2]),
+                                inputs=[views1, factor], outputs=[small], device=dev)
+            used = sampled_views(phis, rows, cols)
+            fitted = fit_reduced_gains(small.numpy().reshape(rows, cols, *small.shape[1:]), factor,
+                                       params.view_gain_sigma, dev, used=used)
+            if fitted is not None:
+                fitted = fitted.reshape(rows * cols, *small.shape[1:])
+                # (on the reduced fields of the views sampled: the full ones only where they are used)
+                change = gain_change(fitted[used], border=-(-8 // factor))
+                if change > GAIN_CHANGE:
+                    gains = (wp.array(fitted.astype(np.float32), dtype=float, device=dev),
+                             wp.array(np.asarray(used, np.int32), dtype=wp.int32, device=dev), factor)
+                    say(f"view gains: each view sampled matched to the centre view's brightness (gains "
+                        f"{float(fitted[used].min()):.3f}–{float(fitted[used].max()):.3f}, 95th percentile of "
+                        f"the change {100 * change:.1f} %)")
+        del small
         lap("view gains")
     stacks = []
     for t, lf in enumerate((lf1, lf2)):
-        # one grey light field on the host at a time; the caller's views are never written
-        if t == 0 and grey1 is not None:
-            grey, grey1 = grey1.reshape(rows * cols, height, width), None
+        # one grey light field at a time; the caller's views are never written
+        if t == 0 and views1 is not None:
+            views, views1 = views1, None
         else:
             grey = stretched(lf.grey().views.reshape(rows * cols, height, width))
-        if t == 1 and exposure is not None:
-            grey = grey * np.float32(exposure[0])
-            grey += np.float32(exposure[1])
+            if t == 1 and exposure is not None:
+                grey = grey * np.float32(exposure[0])
+                grey += np.float32(exposure[1])
+            views = wp.array(np.ascontiguousarray(grey, dtype=np.float32), dtype=float, device=dev)
+            del grey
         if gains is not None:
-            grey = grey * gains
-        views = wp.array(np.ascontiguousarray(grey, dtype=np.float32), dtype=float, device=dev)
-        del grey
+            fields, index, factor = gains
+            _device.launch_rows(gain_kernels.apply_gains, dim=(index.shape[0] * height, width),
+                                inputs=[fields, index, factor], outputs=[views], device=dev)
         out = wp.empty((n_samples, height, width), dtype=float, device=dev)
         span, per_row = _device.row_span(dev, width)
         _device.launch_rows(sampling.sample_subaperture, dim=(n_samples * height, per_row),
                             inputs=[views, rows, cols, wp_phis, span], outputs=[out], device=dev)
         stacks.append(out)
         del views
-    del gains  # (a float per view pixel: not kept through the solve)
+    del gains
     lap("sampling")
     colour = (_centre_colour(lf1, offset, stretch)
               if (params.colour_median_radius > 0 or params.colour_tensor) and n_samples > 1 else None)

@@ -48,6 +48,10 @@ MAX_GAIN = 1.25
 #: Lambertian scenes, whose views agree, gave 0.0005–0.0053 (the pilot's own error);
 #: HCI antinous 0.0165, the Lytro scene 0.024, synthetic vignetting of k = 0.02 and 0.05
 #: 0.017 and 0.038 (twenty-second session). Below it the estimate is that without them.
+#: Over the views the samples read alone (:func:`sampled_views`, as the estimator now
+#: measures it): HCI 0.0136 (37 of 81 views, `paper`), Lytro 0.0244 (45, `lytro`),
+#: vignetting 0.012 and 0.027, `paper` clean 0.0040, `random-1/5/14` 0.0014–0.0048
+#: (twenty-ninth session, /tmp/gc.py in its note): the same side of the threshold.
 GAIN_CHANGE = 0.01
 
 
@@ -136,42 +140,84 @@ def full_gains(small: np.ndarray, factor: int, h: int, w: int) -> np.ndarray:
     return full.reshape(rows, cols, h, w)
 
 
-def fit_view_gains(views: np.ndarray, sigma: float, device: str | None = None):
-    """The gain fields of :func:`view_gains` on the pilot's reduced views: (fields (a, b,
-    hs, ws), the reduction factor), or (None, factor) where there is nothing to fit."""
-    from lfsf.estimate import _bilinear, estimate_scene_flow
-    from lfsf.params import Params
+def sampled_views(phis, rows: int, cols: int) -> list[int]:
+    """The views (indices a·cols + b of a rows × cols grid) that the sub-aperture sampling
+    at the angular offsets ``phis`` ((ξ, η) in view steps from the grid's centre) reads
+    with a weight above 0, as :func:`lfsf.kernels.sampling.sample_subaperture` finds
+    them: only their gains change the samples. The paper's 17 samples on a 9×9 grid read
+    37 of the 81 views."""
+    used = set()
+    for xi, eta in np.asarray(phis, np.float32).reshape(-1, 2):
+        a = min(max(np.float32(0.5) * np.float32(rows - 1) + eta, np.float32(0.0)), np.float32(rows - 1))
+        b = min(max(np.float32(0.5) * np.float32(cols - 1) + xi, np.float32(0.0)), np.float32(cols - 1))
+        a0, b0 = min(int(a), max(rows - 2, 0)), min(int(b), max(cols - 2, 0))
+        fa, fb = float(a - a0), float(b - b0)
+        for da, wa in ((0, 1.0 - fa), (1, fa)):
+            for db, wb in ((0, 1.0 - fb), (1, fb)):
+                if wa * wb > 0.0:
+                    used.add(min(a0 + da, rows - 1) * cols + min(b0 + db, cols - 1))
+    return sorted(used)
 
+
+def fit_view_gains(views: np.ndarray, sigma: float, device: str | None = None, used=None):
+    """The gain fields of :func:`view_gains` on the pilot's reduced views: (fields (a, b,
+    hs, ws), the reduction factor), or (None, factor) where there is nothing to fit.
+    ``used``: the views (indices a·b + c) whose fields are wanted (:func:`sampled_views`);
+    the others get 1 (default: all)."""
     views = np.asarray(views, np.float32)
     rows, cols, h, w = views.shape
-    factor = max(1, max(h, w) // PILOT_SIZE)
+    factor = reduction_factor(h, w)
     hs, ws = h // factor, w // factor
     if rows * cols < 2 or min(hs, ws) < 16:
         return None, factor
     small = views[:, :, :hs * factor, :ws * factor].reshape(rows, cols, hs, factor, ws, factor).mean((3, 5))
+    return fit_reduced_gains(small, factor, sigma, device, used), factor
+
+
+def reduction_factor(h: int, w: int) -> int:
+    """The factor by which the pilot's views are reduced (block means): the largest whole
+    one that leaves at least :data:`PILOT_SIZE` px along the longer side."""
+    return max(1, max(h, w) // PILOT_SIZE)
+
+
+def fit_reduced_gains(small: np.ndarray, factor: int, sigma: float, device: str | None = None, used=None):
+    """:func:`fit_view_gains` on the views already reduced by block means of ``factor``,
+    (a, b, hs, ws): the fields (a, b, hs, ws), or None where there is nothing to fit (a
+    single view, under 16 px, or a grid the pilot's circles do not fit)."""
+    from lfsf.estimate import _bilinear, estimate_scene_flow
+    from lfsf.params import Params
+
+    small = np.asarray(small, np.float32)
+    rows, cols, hs, ws = small.shape
+    if rows * cols < 2 or min(hs, ws) < 16:
+        return None
     pilot = Params.preset("fast").replace(view_gain_sigma=0.0, match_exposure=False)
     if pilot.sample_offsets((rows, cols))[1] <= 0:  # a grid the pilot's circles do not fit (one row)
-        return None, factor
+        return None
     disparity = estimate_scene_flow(small, small, pilot, device=device).disp1.astype(np.float64)
     yy, xx = np.mgrid[0:hs, 0:ws].astype(np.float64)
     ac, bc = (rows - 1) / 2, (cols - 1) / 2
-    flat = small.reshape(rows * cols, hs, ws).astype(np.float64)
-    warped = np.empty_like(flat)
-    for k in range(rows * cols):
-        eta, xi = k // cols - ac, k % cols - bc
-        warped[k] = _bilinear(flat[k], xx - disparity * xi, yy - disparity * eta)
     near = [k for k in range(rows * cols) if abs(k // cols - ac) <= 0.5 and abs(k % cols - bc) <= 0.5]
-    centre = warped[near].mean(0)
+    wanted = list(range(rows * cols)) if used is None else sorted({int(k) for k in used})
+    if any(not 0 <= k < rows * cols for k in wanted):
+        raise ValueError(f"used must name views 0…{rows * cols - 1}, got {wanted}")
+    fitted = sorted(set(wanted) | set(near))  # (the near views make the reference)
+    flat = small.reshape(rows * cols, hs, ws).astype(np.float64)
+    warped = np.empty((len(fitted), hs, ws))
+    for m, k in enumerate(fitted):
+        eta, xi = k // cols - ac, k % cols - bc
+        warped[m] = _bilinear(flat[k], xx - disparity * xi, yy - disparity * eta)
+    centre = warped[[fitted.index(k) for k in near]].mean(0)
     seen = (warped > DARK) & (centre > DARK)
     border = max(2, int(round(8 / factor)))  # the pilot's own border, where its disparity is least sure
     seen[:, :border] = seen[:, -border:] = False
     seen[:, :, :border] = seen[:, :, -border:] = False
     # a first gain per view, the median ratio over the pixels both see: a view much darker
     # than the centre then still finds its matches (the test below is on the corrected view)
-    base = np.ones(rows * cols)
-    for k in range(rows * cols):
-        if seen[k].sum() >= 16:
-            base[k] = float(np.median(centre[seen[k]] / warped[k][seen[k]]))
+    base = np.ones(len(fitted))
+    for m in range(len(fitted)):
+        if seen[m].sum() >= 16:
+            base[m] = float(np.median(centre[seen[m]] / warped[m][seen[m]]))
     base = np.clip(base, 1.0 / MAX_GAIN, MAX_GAIN)[:, None, None]
     s = max(sigma / factor, 1.0)  # (below 1 px the box widths would be 1: no blur)
     gains = np.broadcast_to(base, warped.shape)
@@ -183,5 +229,7 @@ def fit_view_gains(views: np.ndarray, sigma: float, device: str | None = None):
         weight = np.clip(support / SUPPORT, 0.0, 1.0)
         gains = np.clip(base + (ratio - base) * weight, 1.0 / MAX_GAIN, MAX_GAIN)
     if len(near) == 1:
-        gains[near[0]] = 1.0
-    return gains.reshape(rows, cols, hs, ws), factor
+        gains[fitted.index(near[0])] = 1.0
+    fields = np.ones((rows * cols, hs, ws))
+    fields[wanted] = gains[[fitted.index(k) for k in wanted]]
+    return fields.reshape(rows, cols, hs, ws)

@@ -138,3 +138,100 @@ def test_the_estimator_matches_the_views_brightness_by_default():
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
     assert Params().view_gain_sigma == 24.0 and Params.preset("lytro").view_gain_sigma == 24.0
     assert Params.preset("fast").view_gain_sigma == 0.0
+
+
+# --- on the device: block means, gains applied, the views sampled ---------------------------
+
+
+@pytest.mark.parametrize("factor, shape", [(1, (3, 7, 9)), (3, (4, 17, 23)), (4, (2, 16, 16))])
+def test_block_mean_kernel_matches_numpy(device, factor, shape):
+    """The views reduced by block means of ``factor`` (the gains' pilot's input), the
+    pixels past the last whole block left out, as fit_view_gains reduces them on the host."""
+    from conftest import arr, launch
+    from lfsf.device import warp
+    from lfsf.kernels import gains as kernels
+
+    n, h, w = shape
+    views = np.random.default_rng(3).random(shape).astype(np.float32)
+    hs, ws = h // factor, w // factor
+    small = warp().zeros((n, hs, ws), dtype=float, device=device)
+    launch(kernels.block_mean, (n * hs, ws), [arr(views, float, device), factor], [small], device)
+    want = views[:, :hs * factor, :ws * factor].reshape(n, hs, factor, ws, factor).mean((2, 4))
+    np.testing.assert_allclose(small.numpy(), want, rtol=1e-6, atol=1e-7)
+
+
+@pytest.mark.parametrize("factor, small_shape, size", [(4, (15, 20), (62, 83)), (1, (6, 5), (6, 5)),
+                                                       (3, (1, 4), (4, 13))])
+def test_apply_gains_kernel_matches_full_gains(device, factor, small_shape, size):
+    """Views times their gain fields upsampled to full size, on the views named only,
+    against lfsf.gains.full_gains (bilinear, block centres, clamped edges; the sizes
+    leave pixels past the last whole block, and one field is a single row)."""
+    from conftest import arr, launch
+    from lfsf.device import warp
+    from lfsf.kernels import gains as kernels
+
+    r = np.random.default_rng(5)
+    n, (h, w) = 6, size
+    fields = r.uniform(0.8, 1.25, (n, *small_shape)).astype(np.float32)
+    views = r.random((n, h, w)).astype(np.float32)
+    index = [0, 2, 5]
+    out = arr(views, float, device)
+    launch(kernels.apply_gains, (len(index) * h, w),
+           [arr(fields, float, device), warp().array(np.int32(index), dtype=warp().int32, device=device), factor],
+           [out], device)
+    full = gains.full_gains(fields.reshape(2, 3, *small_shape), factor, h, w).reshape(n, h, w)
+    want = views.copy()
+    want[index] *= full[index]
+    np.testing.assert_allclose(out.numpy(), want, rtol=2e-6, atol=1e-7)
+
+
+@pytest.mark.parametrize("grid, preset", [((9, 9), "paper"), ((9, 9), "fast"), ((4, 5), "paper"), ((15, 15), "lytro")])
+def test_sampled_views_are_the_views_the_samples_read(device, grid, preset):
+    """sampled_views names exactly the views that sample_subaperture reads with a weight
+    above 0: changing any other view leaves every sample as it was, and changing any view
+    named changes some sample."""
+    from conftest import arr, launch
+    from lfsf.device import row_span, warp
+    from lfsf.kernels import sampling
+
+    rows, cols = grid
+    phis, _radius = Params.preset(preset).sample_offsets(grid)
+    used = gains.sampled_views(phis, rows, cols)
+    h, w = 3, 4
+    views = np.random.default_rng(8).random((rows * cols, h, w)).astype(np.float32)
+
+    def samples(v):
+        out = warp().zeros((len(phis), h, w), dtype=float, device=device)
+        span, per_row = row_span(device, w)
+        launch(sampling.sample_subaperture, (len(phis) * h, per_row),
+               [arr(v, float, device), rows, cols, arr(phis, warp().vec2, device), span], [out], device)
+        return out.numpy()
+
+    base = samples(views)
+    others = views.copy()
+    others[[k for k in range(rows * cols) if k not in used]] += 7.0
+    np.testing.assert_array_equal(samples(others), base)
+    for k in used:
+        changed = views.copy()
+        changed[k] += 7.0
+        assert np.any(samples(changed) != base), k
+    if preset == "paper" and grid == (9, 9):
+        assert len(used) == 37
+
+
+def test_gains_fitted_for_some_views_are_those_of_the_full_fit():
+    """Fitting only the views named (the ones the samples read) gives them the fields of
+    the fit of all views, bit for bit (each view's fit involves only it and the reference
+    views), and the others 1."""
+    lf, _lf2, _gt = synth.render_scene("paper", size=(96, 72), grid=5)
+    views = synth.add_vignetting(lf, 0.1).grey().views
+    full, factor = gains.fit_view_gains(views, 24.0, "cpu")
+    used = [0, 3, 7, 19]  # (the centre view, 12, not among them: it is the reference)
+    some, factor_some = gains.fit_view_gains(views, 24.0, "cpu", used=used)
+    assert factor_some == factor
+    full, some = full.reshape(25, *full.shape[2:]), some.reshape(25, *some.shape[2:])
+    np.testing.assert_array_equal(some[used], full[used])
+    others = [k for k in range(25) if k not in used]
+    assert np.all(some[others] == 1.0) and not np.all(full[others] == 1.0)
+    with pytest.raises(ValueError, match="used must name views"):
+        gains.fit_view_gains(views, 24.0, "cpu", used=[25])
