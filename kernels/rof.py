@@ -153,6 +153,23 @@ def texture_part(
     texture[n, i, j] = f[n, i, j] - theta * structure[n, i + offset, j + offset]
 
 
+@wp.kernel
+def scale_values(
+    row0: int,
+    factor: float,
+    # outputs
+    stack: wp.array3d(dtype=float),
+):
+    """stack ×= ``factor`` (the texture parts' contrast normalised), in place. Launch over
+    (n × rows, columns)."""
+    r, j = wp.tid()
+    r = r + row0
+    h = stack.shape[1]
+    n = r // h
+    i = r - n * h
+    stack[n, i, j] = stack[n, i, j] * factor
+
+
 #: Pixels per group of the ROF steps that work on groups of a row at once (the CPU):
 #: :data:`rof_dual_lanes`, :data:`rof_primal_lanes`.
 ROF_LANES = 8

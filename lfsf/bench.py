@@ -206,8 +206,9 @@ def _scene_solver(size, dev: str, scene: str = "paper"):
                             inputs=[views, 9, 9, wp_phis, span], outputs=[both[t * n:(t + 1) * n]], device=dev)
         if t == 0:
             views1 = views
+    centres = wp.clone(both[0]), wp.clone(both[n])  # (before the contrast is normalised: in place)
     texture = _normalise_contrast(_structure_texture(both, params, dev), params, dev)
-    solver = LevelSolver(wp.clone(texture[:n]), wp.clone(texture[n:]), wp.clone(both[0]), wp.clone(both[n]), wp_phis,
+    solver = LevelSolver(wp.clone(texture[:n]), wp.clone(texture[n:]), *centres, wp_phis,
                          wp.array(weights, dtype=wp.vec3, device=dev), params, dev)
     solver.set_state(np.stack([gt["disp1"], gt["disp2"], gt["u"], gt["v"]], -1).astype(np.float32))
     solver.linearise()

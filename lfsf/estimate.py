@@ -349,16 +349,20 @@ def _normalise_contrast(stack, params: Params, device: str):
     bright, weakly and strongly textured scenes, with or without the texture split. The
     gradient, not the spread of values, measures what matching sees (large smooth
     shading has a wide spread and no texture). One factor for every image, so that
-    brightness constancy between views and times is kept."""
+    brightness constancy between views and times is kept. The stack is scaled in place
+    (on the device: only the centre view comes to the host) and returned."""
+    from lfsf.kernels import rof
+
     if params.contrast <= 0:
         return stack
-    wp = _device.warp()
     centre = stack[0].numpy()
     gradient = 0.5 * (float(np.mean(np.abs(np.diff(centre, axis=1)))) + float(np.mean(np.abs(np.diff(centre, axis=0)))))
     if not np.isfinite(gradient) or gradient < 1e-7:
         return stack  # a flat image: nothing to match, nothing to scale
-    data = stack.numpy() * np.float32(params.contrast / gradient)
-    return wp.array(data, dtype=float, device=device)
+    n, h, w = stack.shape
+    _device.launch_rows(rof.scale_values, dim=(n * h, w), inputs=[float(np.float32(params.contrast / gradient))],
+                        outputs=[stack], device=device)
+    return stack
 
 
 def _downsample(stack, size, device: str):
@@ -813,7 +817,8 @@ def estimate_scene_flow(
                         f"the change {100 * change:.1f} %)")
         del small
         lap("view gains")
-    stacks = []
+    # the samples of both times in one stack, t1's first (as the texture split takes them)
+    both = wp.empty((2 * n_samples, height, width), dtype=float, device=dev)
     for t, lf in enumerate((lf1, lf2)):
         # one grey light field at a time; the caller's views are never written
         if t == 0 and views1 is not None:
@@ -829,21 +834,16 @@ def estimate_scene_flow(
             fields, index, factor = gains
             _device.launch_rows(gain_kernels.apply_gains, dim=(index.shape[0] * height, width),
                                 inputs=[fields, index, factor], outputs=[views], device=dev)
-        out = wp.empty((n_samples, height, width), dtype=float, device=dev)
         span, per_row = _device.row_span(dev, width)
         _device.launch_rows(sampling.sample_subaperture, dim=(n_samples * height, per_row),
-                            inputs=[views, rows, cols, wp_phis, span], outputs=[out], device=dev)
-        stacks.append(out)
+                            inputs=[views, rows, cols, wp_phis, span],
+                            outputs=[both[t * n_samples:(t + 1) * n_samples]], device=dev)
         del views
     del gains
     lap("sampling")
     colour = (_centre_colour(lf1, offset, stretch)
               if (params.colour_median_radius > 0 or params.colour_tensor) and n_samples > 1 else None)
-    centres = [wp.clone(s[0]) for s in stacks]
-    both = wp.empty((2 * n_samples, height, width), dtype=float, device=dev)
-    wp.copy(both, stacks[0], dest_offset=0, count=n_samples * height * width)
-    wp.copy(both, stacks[1], dest_offset=n_samples * height * width, count=n_samples * height * width)
-    del stacks
+    centres = [wp.clone(both[t * n_samples]) for t in range(2)]
     texture = _normalise_contrast(_structure_texture(both, params, dev), params, dev)
     lap("texture")
 

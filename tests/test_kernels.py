@@ -248,6 +248,16 @@ def test_texture_part_matches_reference(device):
     close(out.numpy(), f.astype(np.float64) - 0.5 * sp[:, 2:-2, 2:-2])
 
 
+def test_scale_values_matches_numpy(device):
+    """The contrast normalisation's in-place scaling: float32 products, as NumPy's."""
+    from lfsf.kernels import rof
+
+    f = rng(6).random((3, 5, 7)).astype(np.float32)
+    a = arr(f, float, device)
+    launch(rof.scale_values, (3 * 5, 7), [float(np.float32(1.7))], [a], device)
+    np.testing.assert_array_equal(a.numpy(), f * np.float32(1.7))
+
+
 @pytest.mark.parametrize("pad", [1, 3, 6])
 def test_pad_odd_matches_numpy(device, pad):
     from lfsf.kernels import rof
