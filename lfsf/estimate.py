@@ -1096,8 +1096,8 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str,
     lo = min(float(centre1.min()), float(centre2.min()))
     hi = max(float(centre1.max()), float(centre2.max()))
     # the range that `change` is a fraction of: robust to a few hot or dead pixels
-    span = float(max(np.percentile(centre1, 99.9), np.percentile(centre2, 99.9))
-                 - min(np.percentile(centre1, 0.1), np.percentile(centre2, 0.1)))
+    ends1, ends2 = np.percentile(centre1, [0.1, 99.9]), np.percentile(centre2, [0.1, 99.9])  # (a sort each)
+    span = float(max(ends1[1], ends2[1]) - min(ends1[0], ends2[0]))
     if not np.isfinite(span) or span <= 0.0 or not hi > lo:
         return 1.0, 0.0, 0.0
     factor = max(1, max(centre1.shape[:2]) // EXPOSURE_SIZE)  # (down: the pilot never below 160 px)
