@@ -185,7 +185,7 @@ def _scene_solver(size, dev: str, scene: str = "paper"):
     so the data term's tests and lookups go as they do there. Returns (solver, t1
     views as a (81, h, w) array)."""
     from lfsf import synth
-    from lfsf.estimate import _normalise_contrast, _structure_texture, data_weights
+    from lfsf.estimate import _normalise_contrast, _structure_texture, data_weights, sample_views
     from lfsf.kernels import sampling
     from lfsf.params import Params
     from lfsf.solver import LevelSolver
@@ -199,11 +199,9 @@ def _scene_solver(size, dev: str, scene: str = "paper"):
     weights = data_weights(params, n)
     wp_phis = wp.array(phis, dtype=wp.vec2, device=dev)
     both = wp.empty((2 * n, height, width), dtype=float, device=dev)
-    span, per_row = _device.row_span(dev, width)
     for t, lf in enumerate((lf1, lf2)):
         views = wp.array(np.ascontiguousarray(lf.grey().views.reshape(81, height, width)), dtype=float, device=dev)
-        _device.launch_rows(sampling.sample_subaperture, dim=(n * height, per_row),
-                            inputs=[views, 9, 9, wp_phis, span], outputs=[both[t * n:(t + 1) * n]], device=dev)
+        sample_views(views, 9, 9, wp_phis, both[t * n:(t + 1) * n], dev)
         if t == 0:
             views1 = views
     centres = wp.clone(both[0]), wp.clone(both[n])  # (before the contrast is normalised: in place)
@@ -321,8 +319,10 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
         dual_outputs = [d_q, data_grad]
     cases = [
         # reads 4 neighbouring views per sample, writes the sample
-        ("sample_subaperture", launch(sampling.sample_subaperture, [views, 9, 9, wp_phis, span], [sampled],
-                                             dim=(s * h, per_row)),
+        ("sample_subaperture", (launch(sampling.sample_subaperture, [views, 9, 9, wp_phis, span], [sampled],
+                                       dim=(s * h, per_row)) if _device.is_cpu(dev) else
+                                launch(sampling.sample_subaperture_pixel, [views, 9, 9, wp_phis], [sampled],
+                                       dim=(h, w))),
          f * h * w * s * 5),
         # reads both sample stacks, x̂, the hidden mask and a value of each view z-buffer per sample; writes
         # 7 coefficients per sample, the row flags (3 words per 31 samples), ∇J2 (2) and the column sums;

@@ -318,6 +318,23 @@ def _rof_rows(width: int, device: str) -> int:
     return -(-width // rof.ROF_LANES) * rof.ROF_LANES if _device.is_cpu(device) else width
 
 
+def sample_views(views, rows: int, cols: int, phis, out, device: str) -> None:
+    """out[s] = the sub-aperture image at φ_s (``phis``) of ``views`` (rows · cols, h, w),
+    both stored contiguously: on the CPU a thread walks whole rows of a sample
+    (:func:`lfsf.kernels.sampling.sample_subaperture`), on CUDA a thread takes a pixel of
+    every sample (:func:`lfsf.kernels.sampling.sample_subaperture_pixel`)."""
+    from lfsf.kernels import sampling
+
+    n, h, w = out.shape
+    if _device.is_cpu(device):
+        span, per_row = _device.row_span(device, w)
+        _device.launch_rows(sampling.sample_subaperture, dim=(n * h, per_row), inputs=[views, rows, cols, phis, span],
+                            outputs=[out], device=device)
+    else:
+        _device.launch_rows(sampling.sample_subaperture_pixel, dim=(h, w), inputs=[views, rows, cols, phis],
+                            outputs=[out], device=device)
+
+
 def _structure_texture(stack, params: Params, device: str):
     """Texture part T = f − θ·ROF(f) of every image of a (n, h, w) stack (MODEL.md §3),
     ROF on the image padded by odd reflection (:data:`ROF_PAD`)."""
@@ -724,7 +741,7 @@ def estimate_scene_flow(
     S. Heber and T. Pock, "Scene Flow Estimation from Light Fields via the
     Preconditioned Primal-Dual Algorithm", GCPR 2014.
     """
-    from lfsf.kernels import gains as gain_kernels, sampling
+    from lfsf.kernels import gains as gain_kernels
     from lfsf.solver import LevelSolver
 
     wp = _device.warp()
@@ -834,10 +851,7 @@ def estimate_scene_flow(
             fields, index, factor = gains
             _device.launch_rows(gain_kernels.apply_gains, dim=(index.shape[0] * height, width),
                                 inputs=[fields, index, factor], outputs=[views], device=dev)
-        span, per_row = _device.row_span(dev, width)
-        _device.launch_rows(sampling.sample_subaperture, dim=(n_samples * height, per_row),
-                            inputs=[views, rows, cols, wp_phis, span],
-                            outputs=[both[t * n_samples:(t + 1) * n_samples]], device=dev)
+        sample_views(views, rows, cols, wp_phis, both[t * n_samples:(t + 1) * n_samples], dev)
         del views
     del gains
     lap("sampling")

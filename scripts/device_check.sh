@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
 # The CUDA checks of issue 4 in one prepared run, for a session that is lent a GPU
 # machine (the `device` tool: a bare machine with Python 3.12, CUDA, NumPy, imageio,
-# scikit-image and pytest, but no warp-lang and no network).
+# scikit-image, pytest and pytest-xdist, but no warp-lang, no zstd and no network).
 #
 # warp-lang (its wheel is 149 MB) is larger than the 64 MiB that one device call may
 # carry. So the Warp installed here travels as an xz tarball (about 98 MB) in two
-# halves, over two calls while the machine stays warm (30 s):
+# halves, over two calls while the machine stays warm (30 s after a call; /tmp is kept
+# while it is, files written into the checkout are not):
 #
 #   here:             bash scripts/device_check.sh prepare        # .whl/a/, .whl/b/ (ignored)
 #   device call 1:    bash scripts/device_check.sh stash          # carry [".whl/a"]
@@ -13,9 +14,10 @@
 #                     bash scripts/device_check.sh run "$OUT"     # carry [".whl/b"]
 #
 # `run` unpacks Warp, puts this tree's lfsf on the path, then writes under OUT:
-# nvidia-smi.txt, pytest.txt (the kernel, search, device and estimator tests, on cpu and
-# cuda:0), kernels.json/.txt (`lfsf bench kernels`), pipeline.json/.txt (`lfsf bench
-# pipeline`). It stops after about 8 minutes; give the call a timeout of 540 s.
+# nvidia-smi.txt, pytest.txt (every test on cuda:0, 8 processes), kernels.json/.txt
+# (`lfsf bench kernels`), pipeline.json/.txt (`lfsf bench pipeline`), demo.txt (`lfsf
+# demo` on cuda:0). It took 2 minutes in the twenty-ninth session; give the call a
+# timeout of 400 s.
 set -u -o pipefail
 
 mode=${1:-}
@@ -36,35 +38,40 @@ prepare)
     ls -l .whl/a .whl/b
     ;;
 stash)
-    # .whlstore/ is ignored and not carried, so the next call on the same warm machine finds it
-    mkdir -p .whlstore && cp .whl/a/warp.part0 .whlstore/ && ls -l .whlstore
+    # /tmp stays while the machine is warm; the checkout is replaced at each call
+    mkdir -p /tmp/lfsf-warp && cp .whl/a/warp.part0 /tmp/lfsf-warp/ && ls -l /tmp/lfsf-warp && nvidia-smi -L
     ;;
 run)
     out=${2:?usage: device_check.sh run OUT_DIR}
     mkdir -p "$out"
     export PYTHONUNBUFFERED=1
-    if ! python3 -c "import warp" 2>/dev/null; then
-        [ -f .whlstore/warp.part0 ] && [ -f .whl/b/warp.part1 ] || {
-            echo "error: no Warp here and not both halves of it (.whlstore/warp.part0 from 'stash', .whl/b from carry)" >&2
+    if [ -d /tmp/site/warp ]; then
+        export PYTHONPATH=/tmp/site${PYTHONPATH:+:$PYTHONPATH}
+    elif ! python3 -c "import warp" 2>/dev/null; then
+        [ -f /tmp/lfsf-warp/warp.part0 ] && [ -f .whl/b/warp.part1 ] || {
+            echo "error: no Warp here and not both halves of it (/tmp/lfsf-warp/warp.part0 from 'stash' on this" \
+                 "machine, .whl/b from carry): the machine went back between the calls? stash again" >&2
             exit 2
         }
         mkdir -p /tmp/site
-        cat .whlstore/warp.part0 .whl/b/warp.part1 \
+        cat /tmp/lfsf-warp/warp.part0 .whl/b/warp.part1 \
             | python3 -c "import sys, tarfile; tarfile.open(fileobj=sys.stdin.buffer, mode='r|xz').extractall('/tmp/site')" \
             || exit 2
         export PYTHONPATH=/tmp/site${PYTHONPATH:+:$PYTHONPATH}
     fi
     # lfsf from this tree, no install (pip would want to build): lfsf.kernels is kernels/
-    [ -e lfsf/kernels ] || ln -s ../kernels lfsf/kernels
+    ln -sfn ../kernels lfsf/kernels
     export PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH}
     python3 -c "import lfsf.kernels.tgv, lfsf.cli" || exit 2
     (nvidia-smi; python3 -c "import warp as wp; wp.init(); print(wp.get_cuda_devices())") > "$out/nvidia-smi.txt" 2>&1
-    timeout 240 python3 -m pytest -q -p no:cacheprovider tests/test_kernels.py tests/test_search_kernels.py \
-        tests/test_device.py tests/test_estimator.py 2>&1 | tee "$out/pytest.txt" | tail -5
-    timeout 90 python3 -m lfsf bench kernels --device cuda:0 --repeats 50 --json "$out/kernels.json" 2>&1 \
+    xdist=$(python3 -c "import xdist" 2>/dev/null && echo "-n 8 -p no:benchmark")
+    # shellcheck disable=SC2086
+    timeout 150 python3 -m pytest -q -p no:cacheprovider $xdist -k cuda tests 2>&1 | tee "$out/pytest.txt" | tail -5
+    timeout 90 python3 -m lfsf bench kernels --device cuda:0 --repeats 30 --json "$out/kernels.json" 2>&1 \
         | tee "$out/kernels.txt"
-    timeout 150 python3 -m lfsf bench pipeline --device cuda:0 --repeats 5 --json "$out/pipeline.json" 2>&1 \
+    timeout 120 python3 -m lfsf bench pipeline --device cuda:0 --repeats 7 --json "$out/pipeline.json" 2>&1 \
         | tee "$out/pipeline.txt"
+    timeout 60 python3 -m lfsf demo --device cuda:0 --out /tmp/lfsf-demo 2>&1 | tee "$out/demo.txt"
     ;;
 *)
     echo "usage: device_check.sh prepare | stash | run OUT_DIR" >&2

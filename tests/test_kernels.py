@@ -78,6 +78,14 @@ def test_sample_subaperture_matches_reference(grid, w, span, device):
            [out], device)
     got = out.numpy()
     close(got, ref.sample_subaperture(views, phis))
+    # CUDA's kernel, a pixel of every sample a thread: the same sums
+    pixel = wp.empty((len(phis), h, w), dtype=float, device=device)
+    launch(sampling.sample_subaperture_pixel, (h, w),
+           [arr(views.reshape(rows * cols, h, w), float, device), rows, cols, arr(phis, wp.vec2, device)],
+           [pixel], device)
+    close(pixel.numpy(), ref.sample_subaperture(views, phis))
+    if device == "cpu":  # (CUDA may contract the products and sums into fused ones either way)
+        np.testing.assert_array_equal(pixel.numpy(), got)
     # angular positions on a view give that view exactly
     exact = {
         3: (math.ceil(ac), math.ceil(bc)), 4: (0, 0), 5: (rows - 1, cols - 1),
