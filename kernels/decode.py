@@ -31,15 +31,17 @@ def devignette(
     raw: wp.array2d(dtype=float),
     white: wp.array2d(dtype=float),
     floor: float,
+    level: float,
     # outputs
     out: wp.array2d(dtype=float),
 ):
-    """out = raw / max(white, floor): the raw image divided by the white image of the same
-    camera, which removes the micro-lens and main-lens vignetting (and, photosite by
-    photosite, the colour filters' gains). Launch over (rows, columns)."""
+    """out = level · raw / max(white, floor): the raw image divided by the white image of
+    the same camera taken relative to its bright ``level``, which removes the micro-lens
+    and main-lens vignetting (and, photosite by photosite, the colour filters' gains)
+    whatever exposure the white was taken at. Launch over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0
-    out[i, j] = raw[i, j] / wp.max(white[i, j], floor)
+    out[i, j] = level * raw[i, j] / wp.max(white[i, j], floor)
 
 
 @wp.kernel

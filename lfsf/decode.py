@@ -13,8 +13,9 @@ in the scene. Decoding turns the raw sensor image into the 4-D light field
    centres, then a lattice (hexagonal or rectangular; pitch, rotation, offset) fitted to
    all of them by least squares.
 3. **Devignetting and demosaicing**: the raw image is divided by the white image,
-   photosite by photosite, then a Bayer mosaic is interpolated bilinearly
-   (:func:`demosaic`).
+   photosite by photosite, relative to the white's bright level (its 99.9th percentile:
+   the white's exposure does not matter, only its shape), then a Bayer mosaic is
+   interpolated bilinearly (:func:`demosaic`).
 4. **Resampling** (:func:`decode`): each micro-image is sampled at the sub-pixel offset of
    every view, then the lens values are resampled from the lens lattice onto a
    rectangular grid of square pixels one lens pitch wide (barycentric interpolation over
@@ -773,6 +774,16 @@ def _check_raw(raw, source: str) -> RawImage:
     return RawImage(np.asarray(data, np.float32), None, source)
 
 
+def white_level(white) -> float:
+    """A white image's bright level: the 99.9th percentile of its values (every 7th row
+    and column), at least 1e-6. :func:`decode` divides the raw image by the white relative
+    to it, so a decoded view is the raw's brightness through the unvignetted centre of
+    the lenses: a scene as bright as the white scene, taken at the white's exposure,
+    decodes to about this level (0.994 for :func:`synthetic_lenslet`'s white, whose peak
+    is 1), whatever the exposure of the white itself."""
+    return max(float(np.percentile(np.asarray(white)[::7, ::7], 99.9)), 1e-6)
+
+
 def decode(raw, white, *, views: int | None = None, bayer: str | None = None, flip: bool = False,
            lattice: Lattice | None = None, device: str | None = None):
     """Decode a raw lenslet image into an N×N light field.
@@ -801,7 +812,8 @@ def decode(raw, white, *, views: int | None = None, bayer: str | None = None, fl
     -------
     LightField
         ``views[a, b, y, x]`` (grey) or ``[a, b, y, x, c]`` (colour), float32 clipped to
-        [0, 1]; ``meta["lattice"]`` the :class:`Lattice`, ``meta["plane_origin"]`` the
+        [0, 1]; ``meta["lattice"]`` the :class:`Lattice`, ``meta["white_level"]`` the white's
+        bright level it was divided relative to (:func:`white_level`), ``meta["plane_origin"]`` the
         lattice-plane position (u0, v0) of output pixel (0, 0), in pitches;
         ``meta["bayer"]`` the pattern used (None: grey or RGB).
 
@@ -856,14 +868,19 @@ def decode(raw, white, *, views: int | None = None, bayer: str | None = None, fl
                          f"{lattice.pitch:.2f} px to decode ({max(width, 0)}×{max(height, 0)} output pixels)")
     wp = _device.warp()
     dev = _device.resolve_device(device)
-    floor = np.float32(_WHITE_FLOOR * max(float(np.percentile(white.data[::7, ::7], 99.9)), 1e-6))
+    # the raw is divided by the white relative to its bright level, so that a white taken
+    # at a lower exposure than the raw (half scale: every view pixel brighter than half
+    # clipped to 1) devignettes the same as one at full scale
+    level = white_level(white.data)
+    floor = np.float32(_WHITE_FLOOR * level)
 
     def on_device(a):
         return wp.array(np.ascontiguousarray(a, np.float32), dtype=float, device=dev)
 
     def devignetted(r, w):
         out = wp.empty(r.shape, dtype=float, device=dev)
-        _device.launch_rows(K.devignette, dim=r.shape, inputs=[r, w, float(floor)], outputs=[out], device=dev)
+        _device.launch_rows(K.devignette, dim=r.shape, inputs=[r, w, float(floor), float(np.float32(level))],
+                            outputs=[out], device=dev)
         return out
 
     if raw.data.ndim == 3:
@@ -891,7 +908,7 @@ def decode(raw, white, *, views: int | None = None, bayer: str | None = None, fl
     array = result[0] if len(result) == 1 else np.stack(result, -1)
     return LightField(array, source=raw.source,
                       meta={"layout": "lenslet", "lattice": lattice, "plane_origin": (u0, v0), "flip": flip,
-                            "bayer": pattern})
+                            "bayer": pattern, "white_level": level})
 
 
 def decode_files(raw_path, white_path, out, *, views: int | None = None, bayer: str | None = None,
@@ -935,7 +952,7 @@ def decode_files(raw_path, white_path, out, *, views: int | None = None, bayer: 
     lattice = lf.meta["lattice"]
     report = {"raw": str(raw_path), "white": str(white_path), "views": lf.grid[0], "bayer": lf.meta["bayer"],
               "flip": flip, "size": [lf.width, lf.height], "plane_origin": list(lf.meta["plane_origin"]),
-              "lattice": lattice.as_dict()}
+              "white_level": lf.meta["white_level"], "lattice": lattice.as_dict()}
     rows, cols = lf.grid
     views_written = _view_names("hci", rows, cols)
     _refuse_mixed_views(out, views_written)

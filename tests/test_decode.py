@@ -103,8 +103,8 @@ def test_devignette_matches_reference(device):
     white = rng(2).random((7, 9)).astype(np.float32)
     white[2, 3] = 0.0
     out = wp.empty((7, 9), dtype=float, device=device)
-    launch(K.devignette, (7, 9), [arr(raw, float, device), arr(white, float, device), 0.05], [out], device)
-    close(out.numpy(), raw / np.maximum(white, 0.05))
+    launch(K.devignette, (7, 9), [arr(raw, float, device), arr(white, float, device), 0.05, 0.8], [out], device)
+    close(out.numpy(), 0.8 * raw / np.maximum(white, 0.05))
 
 
 @pytest.mark.parametrize("bayer", ["RGGB", "BGGR", "GRBG", "GBRG"])
@@ -210,7 +210,8 @@ def test_view_axes_are_the_sensor_axes(flip):
     lf = decode(raw, white, views=5, flip=flip, device="cpu")
     inner = lf.views[1:4, 1:4, 2:-2, 2:-2].mean(axis=(2, 3))
     a, b = np.mgrid[1:4, 1:4]
-    close(inner, 0.5 + 0.04 * (b - 2) + 0.02 * (a - 2), atol=2e-3)
+    # (relative to the white's bright level, D.white_level: 0.994 here)
+    close(inner, D.white_level(white) * (0.5 + 0.04 * (b - 2) + 0.02 * (a - 2)), atol=2e-3)
     wrong = decode(raw, white, views=5, flip=not flip, device="cpu")
     assert wrong.views[1, 3].mean() < wrong.views[1, 1].mean()
 
@@ -290,6 +291,26 @@ def test_decoded_views_match_the_source(kind, bayer, device):
     assert psnr >= 30.0, f"{kind}, bayer {bayer}: {psnr:.1f} dB"
 
 
+@pytest.mark.parametrize("bayer", [None, "GRBG"])
+def test_a_white_taken_at_a_lower_exposure_decodes_the_same(bayer, device):
+    """The white image is taken relative to its bright level: the same white at half or
+    a quarter of the scale (a lower exposure) gives the same views, where dividing by its
+    absolute level doubled them and clipped every pixel brighter than half to 1; the
+    views still match the source (PSNR as in the test above)."""
+    true = CASES["hex"]
+    field = _texture_field(3, colour=bayer is not None)
+    raw, white = synthetic_lenslet(field, true, (520, 400), views=9, vignetting=0.4, noise=0.003,
+                                   white_noise=0.001, bayer=bayer)
+    lattice = calibrate(D.RawImage(white, bayer, "<white>"))
+    full = decode(raw, white, views=9, bayer=bayer, lattice=lattice, device=device)
+    for scale in (0.5, 0.25):
+        dim = decode(raw, white * np.float32(scale), views=9, bayer=bayer, lattice=lattice, device=device)
+        np.testing.assert_allclose(dim.views, full.views, atol=2e-6, err_msg=f"white × {scale}")
+    assert np.mean(full.views >= 1.0) < 0.01  # (half the pixels were 1 with the half-scale white)
+    psnr, _misfit = _psnr_inner(full, true, field, 9)
+    assert psnr >= 30.0, psnr
+
+
 def test_scene_flow_from_decoded_views_matches_source_views():
     """A textured plane with disparity 0.6 at t1, moved by (1.5, −0.8) with disparity 0.4
     at t2: scene flow from the decoded inner 7×7 views is close to that from the source
@@ -357,6 +378,8 @@ def test_cli_decode_writes_a_light_field(lenslet_files, tmp_path, capsys):
     report = json.loads((out / "decode.json").read_text())
     assert report["lattice"]["kind"] == "rect" and abs(report["lattice"]["pitch"] - 10.83) < 0.02
     assert report["bayer"] == "RGGB"
+    white = D.read_raw(lenslet_files / "white.png", role="white").data
+    assert report["white_level"] == pytest.approx(D.white_level(white), rel=1e-6) and 0.5 < report["white_level"] <= 1
     assert not list(out.glob(".*part*"))
 
 
