@@ -16,6 +16,21 @@ wp.set_module_options({"enable_backward": False})
 CHUNK = wp.constant(16)
 
 
+@wp.func
+def four_views(phi: wp.vec2, grid_rows: int, grid_cols: int):
+    """The four views around the angular position φ = (ξ, η) (view steps from the grid's
+    centre, clamped to the grid), rows a0, a1 and columns b0, b1, and their bilinear
+    weights (w00, w01, w10, w11) as a vec4."""
+    a = wp.clamp(0.5 * float(grid_rows - 1) + phi[1], 0.0, float(grid_rows - 1))
+    b = wp.clamp(0.5 * float(grid_cols - 1) + phi[0], 0.0, float(grid_cols - 1))
+    a0 = wp.min(int(a), wp.max(grid_rows - 2, 0))
+    b0 = wp.min(int(b), wp.max(grid_cols - 2, 0))
+    fa = a - float(a0)
+    fb = b - float(b0)
+    weights = wp.vec4((1.0 - fa) * (1.0 - fb), (1.0 - fa) * fb, fa * (1.0 - fb), fa * fb)
+    return a0, wp.min(a0 + 1, grid_rows - 1), b0, wp.min(b0 + 1, grid_cols - 1), weights
+
+
 @wp.kernel
 def sample_subaperture(
     row0: int,
@@ -42,19 +57,11 @@ def sample_subaperture(
     height = samples.shape[1]
     s = r // height
     y = r - s * height
-    phi = phis[s]
-    a = wp.clamp(0.5 * float(grid_rows - 1) + phi[1], 0.0, float(grid_rows - 1))
-    b = wp.clamp(0.5 * float(grid_cols - 1) + phi[0], 0.0, float(grid_cols - 1))
-    a0 = wp.min(int(a), wp.max(grid_rows - 2, 0))
-    b0 = wp.min(int(b), wp.max(grid_cols - 2, 0))
-    a1 = wp.min(a0 + 1, grid_rows - 1)
-    b1 = wp.min(b0 + 1, grid_cols - 1)
-    fa = a - float(a0)
-    fb = b - float(b0)
-    w00 = (1.0 - fa) * (1.0 - fb)
-    w01 = (1.0 - fa) * fb
-    w10 = fa * (1.0 - fb)
-    w11 = fa * fb
+    a0, a1, b0, b1, weights = four_views(phis[s], grid_rows, grid_cols)
+    w00 = weights[0]
+    w01 = weights[1]
+    w10 = weights[2]
+    w11 = weights[3]
     # the rows as runs of constant stride (contiguous_row), in chunks of CHUNK pixels (vector
     # code), then the rest one by one
     x0 = c * span
@@ -96,21 +103,9 @@ def sample_subaperture_pixel(
     y, x = wp.tid()
     y = y + row0
     for s in range(samples.shape[0]):
-        phi = phis[s]
-        a = wp.clamp(0.5 * float(grid_rows - 1) + phi[1], 0.0, float(grid_rows - 1))
-        b = wp.clamp(0.5 * float(grid_cols - 1) + phi[0], 0.0, float(grid_cols - 1))
-        a0 = wp.min(int(a), wp.max(grid_rows - 2, 0))
-        b0 = wp.min(int(b), wp.max(grid_cols - 2, 0))
-        a1 = wp.min(a0 + 1, grid_rows - 1)
-        b1 = wp.min(b0 + 1, grid_cols - 1)
-        fa = a - float(a0)
-        fb = b - float(b0)
-        w00 = (1.0 - fa) * (1.0 - fb)
-        w01 = (1.0 - fa) * fb
-        w10 = fa * (1.0 - fb)
-        w11 = fa * fb
-        samples[s, y, x] = ((w00 * views[a0 * grid_cols + b0, y, x] + w01 * views[a0 * grid_cols + b1, y, x])
-                            + (w10 * views[a1 * grid_cols + b0, y, x] + w11 * views[a1 * grid_cols + b1, y, x]))
+        a0, a1, b0, b1, w = four_views(phis[s], grid_rows, grid_cols)
+        samples[s, y, x] = ((w[0] * views[a0 * grid_cols + b0, y, x] + w[1] * views[a0 * grid_cols + b1, y, x])
+                            + (w[2] * views[a1 * grid_cols + b0, y, x] + w[3] * views[a1 * grid_cols + b1, y, x]))
 
 
 @wp.kernel
