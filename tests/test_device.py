@@ -57,6 +57,38 @@ def test_banded_and_single_launches_give_identical_results():
     np.testing.assert_array_equal(results[0], results[2])
 
 
+def test_generic_kernels_launch_through_their_cached_overload(device, monkeypatch):
+    """launch_rows launches a generic kernel (unknowns of dtype=Any) through the overload
+    for its arguments' types, found once: the same results as Warp's own inference, one
+    overload for vec4 and another for vec2, and no inference on later launches. A kernel
+    that is not generic is launched as it is."""
+    from lfsf.kernels import tgv
+
+    wp = D.warp()
+    r = np.random.default_rng(4)
+    h, w = 5, 7
+    tensors = [wp.array(r.random((h, w, 3)).astype(np.float32), dtype=wp.vec3, device=device) for _ in range(3)]
+    for vec in (wp.vec4, wp.vec2):
+        ours = [wp.zeros((h, w), dtype=vec, device=device) for _ in range(3)]
+        D.launch_rows(tgv.expand_tensor, (h, w), tensors, ours, device)
+        theirs = [wp.zeros((h, w), dtype=vec, device=device) for _ in range(3)]
+        wp.launch(tgv.expand_tensor, dim=(h, w), inputs=[0, *tensors], outputs=theirs, device=device)
+        for a, b in zip(ours, theirs):
+            np.testing.assert_array_equal(a.numpy(), b.numpy())
+            assert np.any(a.numpy() != 0)
+    overloads = {k: v for k, v in D._overloads.items() if k[0] is tgv.expand_tensor}
+    assert len({id(v) for v in overloads.values()}) == 2 and not any(v.is_generic for v in overloads.values())
+
+    def no_inference(*_args):
+        raise AssertionError("types inferred again")
+
+    monkeypatch.setattr(type(tgv.expand_tensor), "infer_argument_types", no_inference)
+    D.launch_rows(tgv.expand_tensor, (h, w), tensors, ours, device)
+    from lfsf.kernels import sampling
+
+    assert D.resolved_kernel(sampling.sample_subaperture, [0]) is sampling.sample_subaperture  # not generic
+
+
 def test_thread_count_from_environment(monkeypatch):
     monkeypatch.setenv(D.ENV_THREADS, "3")
     assert D.cpu_threads() == 3
