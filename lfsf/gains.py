@@ -51,7 +51,8 @@ MAX_GAIN = 1.25
 #: Over the views the samples read alone (:func:`sampled_views`, as the estimator now
 #: measures it): HCI 0.0136 (37 of 81 views, `paper`), Lytro 0.0244 (45, `lytro`),
 #: vignetting 0.012 and 0.027, `paper` clean 0.0040, `random-1/5/14` 0.0014–0.0048
-#: (twenty-ninth session, /tmp/gc.py in its note): the same side of the threshold.
+#: (twenty-ninth session: :func:`fit_view_gains` of all views, then :func:`gain_change`
+#: of the sampled ones): the same side of the threshold.
 GAIN_CHANGE = 0.01
 
 
@@ -162,7 +163,7 @@ def sampled_views(phis, rows: int, cols: int) -> list[int]:
 def fit_view_gains(views: np.ndarray, sigma: float, device: str | None = None, used=None):
     """The gain fields of :func:`view_gains` on the pilot's reduced views: (fields (a, b,
     hs, ws), the reduction factor), or (None, factor) where there is nothing to fit.
-    ``used``: the views (indices a·b + c) whose fields are wanted (:func:`sampled_views`);
+    ``used``: the views (indices a·cols + b) whose fields are wanted (:func:`sampled_views`);
     the others get 1 (default: all)."""
     views = np.asarray(views, np.float32)
     rows, cols, h, w = views.shape
