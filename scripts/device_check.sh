@@ -16,7 +16,8 @@
 # `run` unpacks Warp, puts this tree's lfsf on the path, then writes under OUT:
 # nvidia-smi.txt, pytest.txt (every test on cuda:0, 8 processes), kernels.json/.txt
 # (`lfsf bench kernels`), pipeline.json/.txt (`lfsf bench pipeline`), demo.txt (`lfsf
-# demo` on cuda:0). It took 2 minutes in the twenty-ninth session; give the call a
+# demo` on cuda:0), profile.txt (a `paper` run's stages, GPU activity and host profile).
+# It took 2 minutes in the twenty-ninth session (before the profile); give the call a
 # timeout of 400 s.
 set -u -o pipefail
 
@@ -72,6 +73,37 @@ run)
     timeout 120 python3 -m lfsf bench pipeline --device cuda:0 --repeats 7 --json "$out/pipeline.json" 2>&1 \
         | tee "$out/pipeline.txt"
     timeout 60 python3 -m lfsf demo --device cuda:0 --out /tmp/lfsf-demo 2>&1 | tee "$out/demo.txt"
+    # where a `paper` run's time goes on the GPU: its stages, the GPU's own activity (CUDA
+    # events; a replayed graph counts as one) and the host's Python (cProfile)
+    timeout 90 python3 - > "$out/profile.txt" 2>&1 <<'PY'
+import cProfile, collections, io, pstats, time
+import warp as wp
+from lfsf import Params, estimate_scene_flow, synth
+lf1, lf2, _gt = synth.render_scene("paper", size=(640, 480), grid=9, device="cuda:0")
+params = Params.preset("paper")
+for _ in range(2):
+    estimate_scene_flow(lf1, lf2, params, device="cuda:0")
+wp.timing_begin(cuda_filter=wp.TIMING_ALL)
+t = time.perf_counter()
+sf = estimate_scene_flow(lf1, lf2, params, device="cuda:0")
+wall = time.perf_counter() - t
+activity = collections.defaultdict(lambda: [0.0, 0])
+for r in wp.timing_end():
+    activity[r.name][0] += r.elapsed
+    activity[r.name][1] += 1
+print(f"wall {wall:.3f} s; GPU activity {sum(v[0] for v in activity.values()) / 1000:.3f} s")
+print({k: round(v, 3) for k, v in sf.timings.items()})
+for name, (ms, count) in sorted(activity.items(), key=lambda kv: -kv[1][0])[:25]:
+    print(f"{ms:9.3f} ms {count:6d}  {name}")
+profile = cProfile.Profile()
+profile.enable()
+estimate_scene_flow(lf1, lf2, params, device="cuda:0")
+profile.disable()
+text = io.StringIO()
+pstats.Stats(profile, stream=text).sort_stats("tottime").print_stats(30)
+print(text.getvalue())
+PY
+    head -30 "$out/profile.txt"
     ;;
 *)
     echo "usage: device_check.sh prepare | stash | run OUT_DIR" >&2
