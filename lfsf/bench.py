@@ -186,7 +186,6 @@ def _scene_solver(size, dev: str, scene: str = "paper"):
     views as a (81, h, w) array)."""
     from lfsf import synth
     from lfsf.estimate import _normalise_contrast, _structure_texture, data_weights, sample_views
-    from lfsf.kernels import sampling
     from lfsf.params import Params
     from lfsf.solver import LevelSolver
 
@@ -221,7 +220,7 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
     views and unknowns, a worst case (every pixel takes the data term's occlusion path
     and the lookups scatter). The TGV steps take random values either way: their
     branches are projections that every pixel runs."""
-    from lfsf.kernels import data_groups, data_term, sampling, tgv
+    from lfsf.kernels import data_groups, data_term, tgv
     from lfsf.params import Params
 
     if inputs not in KERNEL_INPUTS:
@@ -244,6 +243,7 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
         recorded.arrays = (inputs, outputs)  # alive while the recorded launch is (not every Warp keeps them)
         return recorded
 
+    from lfsf.estimate import sampling_launch
     from lfsf.solver import dual_data_launch, lane_storage
 
     wp_phis = arr(phis, wp.vec2)
@@ -317,12 +317,10 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
             lanes, dev, w, (coef_store, coef), (flags_store, flags), (grad_j2_store, grad_j2), (q_store, q))
         dual_inputs = [d_coef, d_flags, weights, d_grad_j2, x_bar, x_hat, 1e-6, 1.0, last]
         dual_outputs = [d_q, data_grad]
+    sample_kernel, sample_dim, sample_inputs = sampling_launch(views, 9, 9, wp_phis, sampled, dev)
     cases = [
         # reads 4 neighbouring views per sample, writes the sample
-        ("sample_subaperture", (launch(sampling.sample_subaperture, [views, 9, 9, wp_phis, span], [sampled],
-                                       dim=(s * h, per_row)) if _device.is_cpu(dev) else
-                                launch(sampling.sample_subaperture_pixel, [views, 9, 9, wp_phis], [sampled],
-                                       dim=(h, w))),
+        ("sample_subaperture", launch(sample_kernel, sample_inputs, [sampled], dim=sample_dim),
          f * h * w * s * 5),
         # reads both sample stacks, x̂, the hidden mask and a value of each view z-buffer per sample; writes
         # 7 coefficients per sample, the row flags (3 words per 31 samples), ∇J2 (2) and the column sums;

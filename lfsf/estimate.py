@@ -318,9 +318,10 @@ def _rof_rows(width: int, device: str) -> int:
     return -(-width // rof.ROF_LANES) * rof.ROF_LANES if _device.is_cpu(device) else width
 
 
-def sample_views(views, rows: int, cols: int, phis, out, device: str) -> None:
-    """out[s] = the sub-aperture image at φ_s (``phis``) of ``views`` (rows · cols, h, w),
-    both stored contiguously: on the CPU a thread walks whole rows of a sample
+def sampling_launch(views, rows: int, cols: int, phis, out, device: str):
+    """How out[s] = the sub-aperture image at φ_s (``phis``) of ``views`` (rows · cols, h,
+    w), both stored contiguously, is launched on ``device``: (kernel, dim, inputs). On
+    the CPU a thread walks whole rows of a sample
     (:func:`lfsf.kernels.sampling.sample_subaperture`), on CUDA a thread takes a pixel of
     every sample (:func:`lfsf.kernels.sampling.sample_subaperture_pixel`)."""
     from lfsf.kernels import sampling
@@ -328,11 +329,14 @@ def sample_views(views, rows: int, cols: int, phis, out, device: str) -> None:
     n, h, w = out.shape
     if _device.is_cpu(device):
         span, per_row = _device.row_span(device, w)
-        _device.launch_rows(sampling.sample_subaperture, dim=(n * h, per_row), inputs=[views, rows, cols, phis, span],
-                            outputs=[out], device=device)
-    else:
-        _device.launch_rows(sampling.sample_subaperture_pixel, dim=(h, w), inputs=[views, rows, cols, phis],
-                            outputs=[out], device=device)
+        return sampling.sample_subaperture, (n * h, per_row), [views, rows, cols, phis, span]
+    return sampling.sample_subaperture_pixel, (h, w), [views, rows, cols, phis]
+
+
+def sample_views(views, rows: int, cols: int, phis, out, device: str) -> None:
+    """out[s] = the sub-aperture image at φ_s (``phis``) of ``views`` (:func:`sampling_launch`)."""
+    kernel, dim, inputs = sampling_launch(views, rows, cols, phis, out, device)
+    _device.launch_rows(kernel, dim=dim, inputs=inputs, outputs=[out], device=device)
 
 
 def _structure_texture(stack, params: Params, device: str):
