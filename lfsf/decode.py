@@ -781,7 +781,17 @@ def white_level(white) -> float:
     the lenses: a scene as bright as the white scene, taken at the white's exposure,
     decodes to about this level (0.994 for :func:`synthetic_lenslet`'s white, whose peak
     is 1), whatever the exposure of the white itself."""
-    return max(float(np.percentile(np.asarray(white)[::7, ::7], 99.9)), 1e-6)
+    return _bright_level(_value_ends(white)[1])
+
+
+def _value_ends(image) -> np.ndarray:
+    """The 0.1th and 99.9th percentiles of an image's values (every 7th row and column):
+    its range, a few hot or dead pixels left out."""
+    return np.percentile(np.asarray(image)[::7, ::7], [0.1, 99.9])
+
+
+def _bright_level(high) -> float:
+    return max(float(high), 1e-6)
 
 
 def decode(raw, white, *, views: int | None = None, bayer: str | None = None, flip: bool = False,
@@ -828,10 +838,11 @@ def decode(raw, white, *, views: int | None = None, bayer: str | None = None, fl
 
     raw = _check_raw(raw, "raw")
     white = _check_raw(white, "white")
+    ends = {}
     for image, role in ((raw, "raw"), (white, "white")):
         # float values in counts (0…65535) made views of ~1e-5 and a negative white clipped
         # them all, each with status 0
-        low, high = np.percentile(image.data[::7, ::7], [0.1, 99.9])
+        low, high = ends[role] = _value_ends(image.data)
         if not (-0.5 <= low and high <= 2.0):
             raise ValueError(f"{image.source}: the {role} image's values run from {low:g} to {high:g}; "
                              "expected [0, 1] (floats) or integers, which are scaled by their type's maximum")
@@ -871,7 +882,7 @@ def decode(raw, white, *, views: int | None = None, bayer: str | None = None, fl
     # the raw is divided by the white relative to its bright level, so that a white taken
     # at a lower exposure than the raw (half scale: every view pixel brighter than half
     # clipped to 1) devignettes the same as one at full scale
-    level = white_level(white.data)
+    level = _bright_level(ends["white"][1])   # (white_level, from the range found above)
     floor = np.float32(_WHITE_FLOOR * level)
 
     def on_device(a):
