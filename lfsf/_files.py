@@ -65,6 +65,11 @@ def output_file(path: str | os.PathLike) -> Path:
     return path
 
 
+def is_special_file(path: Path) -> bool:
+    """Whether ``path`` is there but neither a file nor a folder: a named pipe or a device."""
+    return path.exists() and not path.is_file() and not path.is_dir()
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path in the target's folder; rename it onto ``path`` on success.
@@ -78,7 +83,7 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     if not os.fspath(path):
         raise ValueError("an empty file name")
     path = Path(path)
-    if path.exists() and not path.is_file() and not path.is_dir():   # a device or a pipe (/dev/stdout)
+    if is_special_file(path):                    # a device or a pipe (/dev/stdout)
         yield path
         return
     if path.is_symlink():                        # the link stays; what it points to is written

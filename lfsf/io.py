@@ -49,7 +49,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 
-from lfsf._files import output_folder, savez_atomic, write_bytes_atomic
+from lfsf._files import is_special_file, output_folder, savez_atomic, write_bytes_atomic
 
 __all__ = [
     "BT601_LUMA",
@@ -776,7 +776,7 @@ _PFM_HEADER = re.compile(rb"(\S+)\s+(\S+)\s+(\S+)\s+(\S+)\s")
 def _refuse_special_file(path: Path) -> None:
     """A ValueError for a path that is there but neither a file nor a folder: reading a
     named pipe waits for a writer, and a device may never end."""
-    if path.exists() and not path.is_file() and not path.is_dir():
+    if is_special_file(path):
         raise ValueError(f"{path}: not a regular file (a named pipe or a device would be read forever)")
 
 
