@@ -18,7 +18,8 @@
 # (`lfsf bench kernels`), pipeline.json/.txt (`lfsf bench pipeline`), demo.txt (`lfsf
 # demo` on cuda:0), profile.txt (a `paper` run's stages, GPU activity and host profile).
 # It took 2 minutes in the twenty-ninth session (before the profile); give the call a
-# timeout of 400 s.
+# timeout of 400 s. LFSF_CHECK_STEPS picks some of the steps (a space-separated list of
+# tests, kernels, pipeline, demo, profile; all of them when unset).
 set -u -o pipefail
 
 mode=${1:-}
@@ -65,17 +66,19 @@ run)
     export PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH}
     python3 -c "import lfsf.kernels.tgv, lfsf.cli" || exit 2
     (nvidia-smi; python3 -c "import warp as wp; wp.init(); print(wp.get_cuda_devices())") > "$out/nvidia-smi.txt" 2>&1
+    steps=" ${LFSF_CHECK_STEPS:-tests kernels pipeline demo profile} "
+    want() { [[ "$steps" == *" $1 "* ]]; }
     xdist=$(python3 -c "import xdist" 2>/dev/null && echo "-n 8 -p no:benchmark")
     # shellcheck disable=SC2086
-    timeout 150 python3 -m pytest -q -p no:cacheprovider $xdist -k cuda tests 2>&1 | tee "$out/pytest.txt" | tail -5
-    timeout 90 python3 -m lfsf bench kernels --device cuda:0 --repeats 30 --json "$out/kernels.json" 2>&1 \
+    want tests && timeout 150 python3 -m pytest -q -p no:cacheprovider $xdist -k cuda tests 2>&1 | tee "$out/pytest.txt" | tail -5
+    want kernels && timeout 90 python3 -m lfsf bench kernels --device cuda:0 --repeats 30 --json "$out/kernels.json" 2>&1 \
         | tee "$out/kernels.txt"
-    timeout 120 python3 -m lfsf bench pipeline --device cuda:0 --repeats 7 --json "$out/pipeline.json" 2>&1 \
+    want pipeline && timeout 120 python3 -m lfsf bench pipeline --device cuda:0 --repeats 7 --json "$out/pipeline.json" 2>&1 \
         | tee "$out/pipeline.txt"
-    timeout 60 python3 -m lfsf demo --device cuda:0 --out /tmp/lfsf-demo 2>&1 | tee "$out/demo.txt"
+    want demo && timeout 60 python3 -m lfsf demo --device cuda:0 --out /tmp/lfsf-demo 2>&1 | tee "$out/demo.txt"
     # where a `paper` run's time goes on the GPU: its stages, the GPU's own activity (CUDA
     # events; a replayed graph counts as one) and the host's Python (cProfile)
-    timeout 90 python3 - > "$out/profile.txt" 2>&1 <<'PY'
+    want profile && timeout 90 python3 - > "$out/profile.txt" 2>&1 <<'PY'
 import cProfile, collections, io, pstats, time
 import warp as wp
 from lfsf import Params, estimate_scene_flow, synth
@@ -101,9 +104,10 @@ estimate_scene_flow(lf1, lf2, params, device="cuda:0")
 profile.disable()
 text = io.StringIO()
 pstats.Stats(profile, stream=text).sort_stats("tottime").print_stats(30)
+pstats.Stats(profile, stream=text).sort_stats("cumulative").print_stats(45)
 print(text.getvalue())
 PY
-    head -30 "$out/profile.txt"
+    want profile && head -30 "$out/profile.txt"
     ;;
 *)
     echo "usage: device_check.sh prepare | stash | run OUT_DIR" >&2
