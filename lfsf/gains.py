@@ -78,27 +78,30 @@ def _box_widths(sigma: float, passes: int = 3) -> list[int]:
     return [lower] * m + [lower + 2] * (passes - m)
 
 
-def _box_operator(n: int, sigma: float) -> np.ndarray:
-    """The (n, n) matrix of :func:`_box_blur_stack` along one axis of n pixels: three
-    passes of box filters (:func:`_box_widths`: their variances add up to σ²), the edges
-    mirrored (the edge pixel repeated), each pass a difference of cumulative sums,
-    applied to the identity."""
-    out = np.eye(n)
-    for b in _box_widths(sigma):
-        r = b // 2
-        c = np.cumsum(np.pad(out, [(r + 1, r), (0, 0)], mode="symmetric"), axis=0)
-        out = (c[b:b + n] - c[:n]) / b
-    return out
+def box_blur(stack, sigma: float, device: str, spare=None):
+    """A Gaussian blur of σ = ``sigma`` of every image of a (n, h, w) stack on the device
+    (a Warp array, blurred in place; returned): three passes of box filters
+    (:func:`_box_widths`: their variances add up to σ²) along the rows, then three along
+    the columns, each pixel the mean of the box around it, the edges mirrored (the edge
+    pixel repeated, as often as a wide box needs); on the CPU by running sums along each
+    line (:func:`lfsf.kernels.gains.box_pass`). ``spare``: a Warp array of the same
+    shape to work in (allocated where not given)."""
+    from lfsf import device as _device
+    from lfsf.kernels import gains as kernels
 
-
-def _box_blur_stack(stack: np.ndarray, sigma: float) -> np.ndarray:
-    """A Gaussian blur of σ = ``sigma`` of every image of a (n, h, w) stack, approximated
-    by three passes of box filters along each axis (:func:`_box_operator`), as two matrix
-    products per image: for the 81 pilot views of 160×120 and the three sums that a fit
-    blurs, 0.06–0.13 s where the passes of cumulative sums over the stack took 0.34–0.8 s."""
-    stack = np.asarray(stack, np.float64)
-    _n, h, w = stack.shape
-    return _box_operator(h, sigma) @ stack @ _box_operator(w, sigma).T
+    wp = _device.warp()
+    n, h, w = stack.shape
+    work = wp.empty_like(stack) if spare is None else spare
+    src, dst = stack, work
+    for along_rows, lines, length in ((1, h, w), (0, w, h)):
+        span, per_line = _device.row_span(device, length)
+        for b in _box_widths(sigma):
+            _device.launch_rows(kernels.box_pass, dim=(n * lines, per_line), inputs=[src, b // 2, along_rows, span],
+                                outputs=[dst], device=device)
+            src, dst = dst, src
+    if src is not stack:  # (six passes: never, but the widths' count may change)
+        wp.copy(stack, src)
+    return stack
 
 
 def _upsample(images: np.ndarray, factor: int, h: int, w: int) -> np.ndarray:
@@ -184,8 +187,12 @@ def reduction_factor(h: int, w: int) -> int:
 def fit_reduced_gains(small: np.ndarray, factor: int, sigma: float, device: str | None = None, used=None):
     """:func:`fit_view_gains` on the views already reduced by block means of ``factor``,
     (a, b, hs, ws): the fields (a, b, hs, ws), or None where there is nothing to fit (a
-    single view, under 16 px, or a grid the pilot's circles do not fit)."""
-    from lfsf.estimate import _bilinear, estimate_scene_flow
+    single view, under 16 px, or a grid the pilot's circles do not fit). The warps, the
+    masked sums and their blurs run on ``device`` (:mod:`lfsf.kernels.gains`), in float32;
+    each view's global gain (a median) on the host."""
+    from lfsf import device as _device
+    from lfsf.estimate import estimate_scene_flow
+    from lfsf.kernels import gains as kernels
     from lfsf.params import Params
 
     small = np.asarray(small, np.float32)
@@ -195,42 +202,54 @@ def fit_reduced_gains(small: np.ndarray, factor: int, sigma: float, device: str 
     pilot = Params.preset("fast").replace(view_gain_sigma=0.0, match_exposure=False)
     if pilot.sample_offsets((rows, cols))[1] <= 0:  # a grid the pilot's circles do not fit (one row)
         return None
-    disparity = estimate_scene_flow(small, small, pilot, device=device).disp1.astype(np.float64)
-    yy, xx = np.mgrid[0:hs, 0:ws].astype(np.float64)
+    dev = _device.resolve_device(device)
+    wp = _device.warp()
+    disparity = estimate_scene_flow(small, small, pilot, device=dev).disp1
     ac, bc = (rows - 1) / 2, (cols - 1) / 2
     near = [k for k in range(rows * cols) if abs(k // cols - ac) <= 0.5 and abs(k % cols - bc) <= 0.5]
     wanted = list(range(rows * cols)) if used is None else sorted({int(k) for k in used})
     if any(not 0 <= k < rows * cols for k in wanted):
         raise ValueError(f"used must name views 0…{rows * cols - 1}, got {wanted}")
     fitted = sorted(set(wanted) | set(near))  # (the near views make the reference)
-    flat = small.reshape(rows * cols, hs, ws).astype(np.float64)
-    warped = np.empty((len(fitted), hs, ws))
-    for m, k in enumerate(fitted):
-        eta, xi = k // cols - ac, k % cols - bc
-        warped[m] = _bilinear(flat[k], xx - disparity * xi, yy - disparity * eta)
-    centre = warped[[fitted.index(k) for k in near]].mean(0)
-    seen = (warped > DARK) & (centre > DARK)
+    n = len(fitted)
+    offsets = np.array([(k % cols - bc, k // cols - ac) for k in fitted], np.float32)
+    warped = wp.empty((n, hs, ws), dtype=float, device=dev)
+    _device.launch_rows(kernels.warp_to_centre, dim=(n * hs, ws),
+                        inputs=[wp.array(small.reshape(rows * cols, hs, ws), dtype=float, device=dev),
+                                wp.array(np.int32(fitted), dtype=wp.int32, device=dev),
+                                wp.array(offsets, dtype=wp.vec2, device=dev),
+                                wp.array(np.ascontiguousarray(disparity, np.float32), dtype=float, device=dev)],
+                        outputs=[warped], device=dev)
+    centre = wp.empty((hs, ws), dtype=float, device=dev)
+    _device.launch_rows(kernels.mean_of_views, dim=(hs, ws),
+                        inputs=[warped, wp.array(np.int32([fitted.index(k) for k in near]), dtype=wp.int32,
+                                                 device=dev)],
+                        outputs=[centre], device=dev)
     border = max(2, int(round(8 / factor)))  # the pilot's own border, where its disparity is least sure
-    seen[:, :border] = seen[:, -border:] = False
-    seen[:, :, :border] = seen[:, :, -border:] = False
     # a first gain per view, the median ratio over the pixels both see: a view much darker
     # than the centre then still finds its matches (the test below is on the corrected view)
-    base = np.ones(len(fitted))
-    for m in range(len(fitted)):
-        if seen[m].sum() >= 16:
-            base[m] = float(np.median(centre[seen[m]] / warped[m][seen[m]]))
-    base = np.clip(base, 1.0 / MAX_GAIN, MAX_GAIN)[:, None, None]
+    w_host, c_host = warped.numpy()[:, border:-border, border:-border], centre.numpy()[border:-border, border:-border]
+    c_seen = c_host > DARK
+    base = np.ones(n, np.float32)
+    for m in range(n):
+        seen = c_seen & (w_host[m] > DARK)
+        if seen.sum() >= 16:
+            base[m] = np.median(c_host[seen] / w_host[m][seen])
+    base = wp.array(np.clip(base, 1.0 / MAX_GAIN, MAX_GAIN).astype(np.float32), dtype=float, device=dev)
     s = max(sigma / factor, 1.0)  # (below 1 px the box widths would be 1: no blur)
-    gains = np.broadcast_to(base, warped.shape)
-    for _ in range(PASSES):
-        m = (seen & (np.abs(gains * warped - centre) < MATCH)).astype(np.float64)
-        num, den, support = (_box_blur_stack(x, s) for x in (centre * warped * m, warped * warped * m, m))
-        ratio = np.where(den > 0, num / np.where(den > 0, den, 1.0), base)
-        # where few pixels match, the view's first gain: a smooth blend, not a step
-        weight = np.clip(support / SUPPORT, 0.0, 1.0)
-        gains = np.clip(base + (ratio - base) * weight, 1.0 / MAX_GAIN, MAX_GAIN)
+    gains = wp.empty((n, hs, ws), dtype=float, device=dev)
+    sums = wp.empty((3 * n, hs, ws), dtype=float, device=dev)
+    spare = wp.empty_like(sums)
+    for p in range(PASSES):
+        _device.launch_rows(kernels.gain_sums, dim=(n * hs, ws),
+                            inputs=[warped, centre, gains, base, int(p == 0), border, DARK, MATCH], outputs=[sums],
+                            device=dev)
+        box_blur(sums, s, dev, spare)
+        _device.launch_rows(kernels.gains_from_sums, dim=(n * hs, ws), inputs=[sums, base, SUPPORT, MAX_GAIN],
+                            outputs=[gains], device=dev)
+    out = gains.numpy()
     if len(near) == 1:
-        gains[fitted.index(near[0])] = 1.0
-    fields = np.ones((rows * cols, hs, ws))
-    fields[wanted] = gains[[fitted.index(k) for k in wanted]]
+        out[fitted.index(near[0])] = 1.0
+    fields = np.ones((rows * cols, hs, ws), np.float32)
+    fields[wanted] = out[[fitted.index(k) for k in wanted]]
     return fields.reshape(rows, cols, hs, ws)

@@ -50,15 +50,18 @@ def test_view_gains_where_there_is_nothing_to_fit():
     assert gains.view_gains(lf1.grey().views[1:2], 24.0, "cpu") is None
 
 
+def mirror(k, n):
+    """Index k into n pixels mirrored at the edges (the edge pixel repeated), as often as
+    needed."""
+    period = 2 * n
+    k %= period
+    return k if k < n else period - 1 - k
+
+
 def _box_reference(stack, sigma):
     """Three box filters of :func:`lfsf.gains._box_widths` along each axis, pixel by pixel:
     each output the mean of the b inputs around it, indices past an edge mirrored (the
     edge pixel repeated, as often as a wide box needs)."""
-    def mirror(k, n):
-        period = 2 * n
-        k %= period
-        return k if k < n else period - 1 - k
-
     out = np.asarray(stack, np.float64)
     for axis in (1, 2):
         for b in gains._box_widths(sigma):
@@ -72,13 +75,20 @@ def _box_reference(stack, sigma):
     return out
 
 
+def _blurred(stack, sigma, device="cpu"):
+    from lfsf.device import warp
+
+    return gains.box_blur(warp().array(np.asarray(stack, np.float32), dtype=float, device=device), sigma,
+                          device).numpy()
+
+
 @pytest.mark.parametrize("shape,sigma", [((3, 11, 14), 1.5), ((2, 6, 9), 4.0), ((1, 5, 4), 8.0)])
-def test_box_blur_matches_boxes_pixel_by_pixel(shape, sigma):
-    """The blur as matrix products equals three box filters per axis computed pixel by
-    pixel, boxes wider than the image included (σ = 8 on 5×4: widths of 15)."""
-    stack = np.random.default_rng(1).random(shape)
-    np.testing.assert_allclose(gains._box_blur_stack(stack, sigma), _box_reference(stack, sigma), rtol=1e-12,
-                               atol=1e-13)
+def test_box_blur_kernel_matches_boxes_pixel_by_pixel(device, shape, sigma):
+    """The blur on the device (a kernel per box pass) equals three box filters per axis
+    computed pixel by pixel, boxes wider than the image included (σ = 8 on 5×4: widths
+    of 15, mirrored more than once)."""
+    stack = np.random.default_rng(1).random(shape).astype(np.float32)
+    np.testing.assert_allclose(_blurred(stack, sigma, device), _box_reference(stack, sigma), rtol=1e-5, atol=1e-6)
 
 
 def test_box_blur_is_a_gaussian_of_that_sigma_and_upsampling_keeps_ramps():
@@ -89,13 +99,13 @@ def test_box_blur_is_a_gaussian_of_that_sigma_and_upsampling_keeps_ramps():
     impulse = np.zeros((1, 241, 241))
     impulse[0, 120, 120] = 1.0
     for sigma in (6.0, 8.0, 24.0):  # (the widths are odd whole numbers: at σ = 2 the variance is 17 % short)
-        b = gains._box_blur_stack(impulse, sigma)[0]
-        assert b.sum() == pytest.approx(1.0, abs=1e-9)
+        b = _blurred(impulse, sigma)[0].astype(np.float64)
+        assert b.sum() == pytest.approx(1.0, abs=1e-5)
         yy, xx = np.mgrid[0:241, 0:241]
         assert (b * (xx - 120.0) ** 2).sum() == pytest.approx(sigma ** 2, rel=0.1)
         # (three boxes are flatter on top than a Gaussian: 8 and 9 % of the peak at σ = 6 and 8, 12 % at 24)
         assert np.abs(b - gaussian_blur(impulse[0], sigma)).max() < 0.13 * b.max()
-    np.testing.assert_allclose(gains._box_blur_stack(np.full((2, 9, 7), 0.3), 3.0), 0.3, atol=1e-12)
+    np.testing.assert_allclose(_blurred(np.full((2, 9, 7), 0.3), 3.0), 0.3, rtol=1e-6)
     factor = 4
     small = np.arange(6, dtype=np.float64)[None, None, :] * 2.0 + np.arange(5)[None, :, None]  # 2x + y
     full = gains._upsample(small, factor, 20, 24)
@@ -235,3 +245,107 @@ def test_gains_fitted_for_some_views_are_those_of_the_full_fit():
     assert np.all(some[others] == 1.0) and not np.all(full[others] == 1.0)
     with pytest.raises(ValueError, match="used must name views"):
         gains.fit_view_gains(views, 24.0, "cpu", used=[25])
+
+
+# --- the fit on the device ---------------------------------------------------------------------
+
+
+def test_warp_to_centre_and_mean_of_views_kernels_match_numpy(device):
+    """Each view named, seen from the centre through the disparity (bilinear, clamped:
+    the tent-weights reference), and the mean of the slots named."""
+    from conftest import arr, launch
+    from reference_kernels import bilinear
+
+    from lfsf.device import warp
+
+    wp = warp()
+    r = np.random.default_rng(11)
+    n, h, w = 5, 9, 12
+    views = r.random((n, h, w)).astype(np.float32)
+    index = [4, 0, 2]
+    offsets = np.float32([[1.0, -2.0], [-1.5, 0.5], [0.0, 3.0]])
+    disparity = r.uniform(-3, 3, (h, w)).astype(np.float32)  # (reaching past the edges: clamped)
+    warped = wp.zeros((len(index), h, w), dtype=float, device=device)
+    launch(gain_kernels().warp_to_centre, (len(index) * h, w),
+           [arr(views, float, device), arr(np.int32(index), wp.int32, device), arr(offsets, wp.vec2, device),
+            arr(disparity, float, device)], [warped], device)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    want = np.stack([bilinear(views[k], xx - disparity * xi, yy - disparity * eta)
+                     for k, (xi, eta) in zip(index, offsets)])
+    np.testing.assert_allclose(warped.numpy(), want, rtol=1e-5, atol=1e-5)
+    mean = wp.zeros((h, w), dtype=float, device=device)
+    launch(gain_kernels().mean_of_views, (h, w), [warped, arr(np.int32([2, 0]), wp.int32, device)], [mean], device)
+    np.testing.assert_allclose(mean.numpy(), warped.numpy()[[2, 0]].mean(0), rtol=1e-6)
+
+
+def gain_kernels():
+    from lfsf.kernels import gains as kernels
+
+    return kernels
+
+
+@pytest.mark.parametrize("first", [1, 0])
+def test_gain_sums_and_gains_from_sums_kernels_match_numpy(device, first):
+    """One pass of the fit: the masked sums (dark pixels, the border and mismatches left
+    out; the view's global gain on the first pass, its field after), then the fields
+    from (here unblurred) sums: the ratio blended towards the global gain where the
+    support is weak, clipped."""
+    from conftest import arr, launch
+
+    from lfsf.device import warp
+
+    wp = warp()
+    r = np.random.default_rng(12)
+    n, h, w, border = 3, 10, 13, 2
+    centre = r.uniform(0.0, 0.6, (h, w)).astype(np.float32)
+    warped = (centre * r.uniform(0.85, 1.15, (n, h, w))).astype(np.float32)
+    warped[1, 4, 5] = 0.01  # dark
+    field = r.uniform(0.9, 1.1, (n, h, w)).astype(np.float32)
+    base = np.float32([0.9, 1.0, 1.12])
+    sums = wp.zeros((3 * n, h, w), dtype=float, device=device)
+    launch(gain_kernels().gain_sums, (n * h, w),
+           [arr(warped, float, device), arr(centre, float, device), arr(field, float, device),
+            arr(base, float, device), first, border, gains.DARK, gains.MATCH], [sums], device)
+    g = base[:, None, None] if first else field
+    inside = np.zeros((h, w), bool)
+    inside[border:-border, border:-border] = True
+    on = ((warped > gains.DARK) & (centre > gains.DARK) & inside & (np.abs(g * warped - centre) < gains.MATCH))
+    assert 0 < on.sum() < on.size
+    want = np.concatenate([centre * warped * on, warped * warped * on, on.astype(np.float32)])
+    np.testing.assert_allclose(sums.numpy(), want, rtol=1e-6, atol=1e-7)
+    # the fields from sums: a ratio where the denominator is above 0, the support blends
+    s = np.concatenate([r.uniform(0.5, 1.5, (n, h, w)), r.uniform(0.5, 1.5, (n, h, w)),
+                        r.uniform(0.0, 0.4, (n, h, w))]).astype(np.float32)
+    s[n:2 * n][:, 0] = 0.0  # no matches: the global gain
+    out = wp.zeros((n, h, w), dtype=float, device=device)
+    launch(gain_kernels().gains_from_sums, (n * h, w), [arr(s, float, device), arr(base, float, device),
+                                                       gains.SUPPORT, gains.MAX_GAIN], [out], device)
+    num, den, support = s[:n], s[n:2 * n], s[2 * n:]
+    ratio = np.where(den > 0, num / np.where(den > 0, den, 1.0), base[:, None, None])
+    weight = np.clip(support / gains.SUPPORT, 0.0, 1.0)
+    want = np.clip(base[:, None, None] + (ratio - base[:, None, None]) * weight, 1 / gains.MAX_GAIN, gains.MAX_GAIN)
+    np.testing.assert_allclose(out.numpy(), want, rtol=1e-5, atol=1e-6)
+    assert np.any(want == gains.MAX_GAIN) or np.any(want == 1 / gains.MAX_GAIN)
+
+
+@pytest.mark.parametrize("span", [1, 3, 17])
+@pytest.mark.parametrize("along_rows", [1, 0])
+def test_box_pass_kernel_matches_numpy_at_any_span(device, span, along_rows):
+    """One box pass, each thread taking ``span`` pixels of a line by a running sum (1: the
+    CUDA layout, the whole line: the CPU's), boxes wider than the line mirrored twice."""
+    from conftest import arr, launch
+
+    from lfsf.device import warp
+
+    n, h, w = 2, 7, 17
+    src = np.random.default_rng(13).random((n, h, w)).astype(np.float32)
+    for radius in (0, 2, 9):
+        out = warp().zeros((n, h, w), dtype=float, device=device)
+        lines, length = (h, w) if along_rows else (w, h)
+        launch(gain_kernels().box_pass, (n * lines, -(-length // span)), [arr(src, float, device), radius,
+                                                                          along_rows, span], [out], device)
+        axis = 2 if along_rows else 1
+        moved = np.moveaxis(src, axis, -1)
+        want = np.stack([moved[..., [mirror(j + t, length) for t in range(-radius, radius + 1)]].mean(-1)
+                         for j in range(length)], -1)
+        np.testing.assert_allclose(out.numpy(), np.moveaxis(want, -1, axis), rtol=1e-5, atol=1e-6)
