@@ -4,9 +4,11 @@ upsampling of the unknowns (scaled by the size ratio) between levels (MODEL.md �
 Pixel centres map between a fine grid (h, w) and a coarse grid (hc, wc) as
 x_c = (x + 0.5)·wc/w − 0.5 (and likewise for y)."""
 
+from typing import Any
+
 import warp as wp
 
-from .common import bilinear
+from .common import bilinear, from_vec4, overload_unknowns, to_vec4
 
 wp.set_module_options({"enable_backward": False})
 
@@ -73,3 +75,45 @@ def upsample(
     x = (float(j) + 0.5) * float(wc) / float(w) - 0.5
     y = (float(i) + 0.5) * float(hc) / float(h) - 0.5
     fine[n, i, j] = scale * bilinear(coarse[n], x, y)
+
+
+@wp.kernel
+def upsample_unknowns(
+    row0: int,
+    coarse: wp.array2d(dtype=Any),
+    scales: wp.vec4,
+    carried: int,
+    # outputs
+    fine: wp.array2d(dtype=Any),
+):
+    """The unknowns of a coarser level on this one, on the device: component k of (δ1,
+    δ2, u, v) (flow only: (u, v)) set to scales[k] · ``coarse``'s interpolated bilinearly
+    at the fine pixel centres, as :func:`upsample` does each plane, for k < ``carried``;
+    the others left as they are (the TGV duals' flow parts, which a level starts at 0).
+    Launch over (fine rows, fine columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    h = fine.shape[0]
+    w = fine.shape[1]
+    hc = coarse.shape[0]
+    wc = coarse.shape[1]
+    x = wp.clamp((float(j) + 0.5) * float(wc) / float(w) - 0.5, 0.0, float(wc - 1))
+    y = wp.clamp((float(i) + 0.5) * float(hc) / float(h) - 0.5, 0.0, float(hc - 1))
+    j0 = wp.min(int(x), wp.max(wc - 2, 0))
+    i0 = wp.min(int(y), wp.max(hc - 2, 0))
+    j1 = wp.min(j0 + 1, wc - 1)
+    i1 = wp.min(i0 + 1, hc - 1)
+    fx = x - float(j0)
+    fy = y - float(i0)
+    top = (1.0 - fx) * to_vec4(coarse[i0, j0]) + fx * to_vec4(coarse[i0, j1])
+    bottom = (1.0 - fx) * to_vec4(coarse[i1, j0]) + fx * to_vec4(coarse[i1, j1])
+    up = (1.0 - fy) * top + fy * bottom
+    old = to_vec4(fine[i, j])
+    out = wp.vec4(old[0], old[1], old[2], old[3])
+    for k in range(4):
+        if k < carried:
+            out[k] = up[k] * scales[k]
+    fine[i, j] = from_vec4(out, fine[i, j])
+
+
+overload_unknowns(upsample_unknowns, "coarse", "fine")

@@ -906,7 +906,7 @@ def estimate_scene_flow(
     say(f"{width}×{height}, {rows}×{cols} views, {n_samples} samples (R = {radius:g}), "
         f"{len(sizes)} levels on {dev}")
 
-    x = w0 = w1 = duals = None
+    x = coarser = None  # (the unknowns on the host; the coarser level's solver)
     hidden_here = None
     for level in range(len(sizes) - 1, -1, -1):
         h, w = sizes[level]
@@ -934,9 +934,11 @@ def estimate_scene_flow(
             x = _fuse_disparities(x, s1, s2, wp_phis, _resize_map(found[0], (h, w), scale, dev),
                                   _resize_map(found[1], (h, w), scale, dev), params, dev)
             lap("search")
-        solver.set_state(x, w0, w1)
-        if duals is not None:
-            solver.carry_disparity_duals(duals)
+        solver.set_state(x)
+        if coarser is not None:
+            # w and the disparities' TGV duals (Params.carry_duals) go on to this level on the device
+            solver.take_coarse(coarser, params.carry_duals and n_samples > 1)
+            coarser = None
         lap("setup")
         for k in range(params.warps):
             solver.linearise()
@@ -959,16 +961,13 @@ def estimate_scene_flow(
             # 320×240, 0.162 → 0.151)
             solver.median()
             lap("median")
-        x, w0, w1 = solver.state()
+        x = solver.unknowns()
         if level > 0:
             fh, fw = sizes[level - 1]
             sx, sy = fw / w, fh / h
             sd = 0.5 * (sx + sy)
-            x, = _upsample_state([x], (fh, fw), (sd, sd, sx, sy), dev)
-            w0, w1 = _upsample_state([w0, w1], (fh, fw), (1.0, 1.0, 1.0, 1.0), dev)
-            if params.carry_duals and n_samples > 1:
-                # the disparities' TGV duals go on to the finer level (Params.carry_duals)
-                duals = _upsample_state(solver.tgv_duals(), (fh, fw), (1.0, 1.0, 1.0, 1.0), dev)
+            x, = _upsample_state([x], (fh, fw), (sd, sd, sx, sy), dev)  # (on the host: the searches fuse into it)
+            coarser = solver
         lap("upsample")
     if params.depth_change_radius > 0 and n_samples > 1:
         x = _depth_change_median(x, params, dev)

@@ -148,6 +148,12 @@ class LevelSolver:
         wp = _device.warp()
         h, w = self.shape
         for name, value in (("x", x), ("w0", w0), ("w1", w1)):
+            if value is None and name != "x":  # (zeroed where they are: nothing to upload)
+                if self.flow_only:
+                    self._held[name] = np.zeros((h, w, 2), np.float32)
+                getattr(self, name).zero_()
+                getattr(self, name + "_bar").zero_()
+                continue
             arr = np.zeros((h, w, 4), np.float32) if value is None else np.ascontiguousarray(value, np.float32)
             if arr.shape != (h, w, 4):
                 raise ValueError(f"{name} must have shape {(h, w, 4)}, got {arr.shape}")
@@ -183,6 +189,32 @@ class LevelSolver:
             merged = target.numpy()
             merged[..., :2] = given[..., :2]
             wp.copy(target, wp.array(merged, dtype=self.vec, device=self.device))
+
+    def take_coarse(self, coarse: LevelSolver, duals: bool) -> None:
+        """After :meth:`set_state`: w0 and w1 from the coarser level's solver ``coarse``,
+        upsampled bilinearly on the device (as the unknowns between levels, unscaled),
+        and with ``duals`` (``params.carry_duals``) the (δ1, δ2) parts of its TGV duals
+        (:meth:`carry_disparity_duals`, without the trip through the host). Flow only,
+        no duals are carried, and w's held (δ1, δ2) parts stay 0, which is what
+        upsampling the coarser level's zeros gives."""
+        from lfsf.kernels import pyramid
+
+        wp = _device.warp()
+        if coarse.flow_only != self.flow_only:
+            raise ValueError("take_coarse: the coarser level's solver has other unknowns (flow only or not)")
+        ones = wp.vec4(1.0, 1.0, 1.0, 1.0)
+        for name in ("w0", "w1"):
+            self._launch(pyramid.upsample_unknowns, inputs=[getattr(coarse, name), ones, 4],
+                         outputs=[getattr(self, name)])
+            wp.copy(getattr(self, name + "_bar"), getattr(self, name))
+        if duals and not self.flow_only:
+            for name in TGV_DUALS:
+                self._launch(pyramid.upsample_unknowns, inputs=[getattr(coarse, name), ones, 2],
+                             outputs=[getattr(self, name)])
+
+    def unknowns(self) -> np.ndarray:
+        """x = (δ1, δ2, u, v) as a numpy array of shape (h, w, 4)."""
+        return self._full("x", self.x)
 
     def state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(x, w0, w1) as numpy arrays of shape (h, w, 4)."""

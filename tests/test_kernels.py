@@ -371,6 +371,28 @@ def test_upsample_matches_reference(coarse, fine, scale, device):
     close(out1.numpy(), 0.7 * scale)
 
 
+@pytest.mark.parametrize("vec, carried", [(wp.vec4, 4), (wp.vec4, 2), (wp.vec2, 4), (wp.vec2, 3)])
+@pytest.mark.parametrize("coarse,fine", [((4, 5), (9, 11)), ((5, 6), (7, 9))])
+def test_upsample_unknowns_matches_the_planes_upsampled(coarse, fine, vec, carried, device):
+    """The unknowns (vec4 (δ1, δ2, u, v), or flow only vec2 (u, v)) upsampled in place:
+    component k < ``carried`` of the vec4 form is scales[k] times the plane upsampled
+    (the reference), the others keep the fine array's values."""
+    from lfsf.kernels import pyramid
+
+    n = 4 if vec == wp.vec4 else 2
+    src = rng(9).normal(size=(*coarse, n)).astype(np.float32)
+    before = rng(10).normal(size=(*fine, n)).astype(np.float32)
+    scales = (1.5, 0.5, 2.25, 1.75)
+    out = arr(before, vec, device)
+    launch(pyramid.upsample_unknowns, fine, [arr(src, vec, device), wp.vec4(*scales), carried], [out], device)
+    want = before.copy()
+    for c in range(n):
+        k = c + 4 - n  # (the component of (δ1, δ2, u, v))
+        if k < carried:
+            want[..., c] = ref.upsample(src[None, ..., c], fine, scales[k])[0]
+    close(out.numpy(), want)
+
+
 def test_upsample_reproduces_a_linear_ramp_in_the_interior(device):
     from lfsf.kernels import pyramid
 
@@ -1728,6 +1750,51 @@ def test_carried_duals_set_the_disparity_parts_and_leave_the_flow_at_zero(device
     flow = _level_solver((32, 24), 5, Params.preset("flow").replace(rof_iterations=10), device)
     flow.carry_disparity_duals(given)
     assert all(np.all(d == 0) for d in flow.tgv_duals())
+
+
+@pytest.mark.parametrize("preset", ["fast", "flow"])
+def test_take_coarse_upsamples_w_and_the_disparity_duals_on_the_device(device, preset):
+    """``take_coarse``: after set_state, w0 and w1 become the coarser level's upsampled
+    (every component, unscaled: the pyramid's upsampling of each plane), and with
+    ``duals`` the (δ1, δ2) parts of the TGV duals become its upsampled ones, the flow's
+    parts staying 0; without ``duals`` they all stay 0. Flow only, w's held (δ1, δ2)
+    parts stay 0 and no dual is carried. Solvers of other unknowns are refused."""
+    from reference_kernels import upsample
+
+    from lfsf.params import Params
+    from lfsf.solver import TGV_DUALS
+
+    params = Params.preset(preset).replace(rof_iterations=10)
+    coarse = _level_solver((16, 12), 5, params, device)
+    coarse.linearise()
+    coarse.iterate(20)
+    _x, cw0, cw1 = coarse.state()
+    cduals = coarse.tgv_duals()
+    assert np.any(cw0 != 0) and np.any(cw1 != 0)
+    fine = _level_solver((32, 24), 5, params, device)
+    h, w = fine.shape
+
+    def up(field):
+        return np.stack([upsample(field[..., c][None], (h, w), 1.0)[0] for c in range(field.shape[-1])], -1)
+
+    for duals in (True, False):
+        fine.set_state(np.zeros((h, w, 4), np.float32))
+        fine.take_coarse(coarse, duals)
+        _x, w0, w1 = fine.state()
+        np.testing.assert_allclose(w0, up(cw0), rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(w1, up(cw1), rtol=1e-5, atol=1e-6)
+        np.testing.assert_array_equal(fine.w0_bar.numpy(), fine.w0.numpy())
+        for name, got, was in zip(TGV_DUALS, fine.tgv_duals(), cduals):
+            if duals and preset != "flow":
+                np.testing.assert_allclose(got[..., :2], up(was)[..., :2], rtol=1e-5, atol=1e-6, err_msg=name)
+                assert np.all(got[..., 2:] == 0) and np.any(got[..., :2] != 0), name
+            else:
+                assert np.all(got == 0), name
+    if preset == "flow":
+        assert np.all(w0[..., :2] == 0) and np.any(w0[..., 2:] != 0)
+    other = _level_solver((16, 12), 5, Params.preset("flow" if preset == "fast" else "fast"), device)
+    with pytest.raises(ValueError, match="other unknowns"):
+        fine.take_coarse(other, True)
 
 
 def test_view_visibility_margin_scales_with_the_level(device):
