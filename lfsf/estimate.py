@@ -463,7 +463,7 @@ def _sweep(samples, phis, radius_used: float, disparity_range: float, search_rad
     samples move by half a pixel from one to the next. The first pass leaves occluded
     samples out by the best half; with ``visibility_margin`` a second pass leaves out
     those that the first pass's disparities cover (view z-buffers, ``Params.visibility``)."""
-    from lfsf.kernels import search
+    from lfsf.kernels import fusion, search
     from lfsf.kernels.common import vec8
 
     wp = _device.warp()
@@ -485,7 +485,10 @@ def _sweep(samples, phis, radius_used: float, disparity_range: float, search_rad
                         device=device)
     if visibility_margin is not None and n > 1:
         del smooth
-        zbuf = _view_zbuffer(best.numpy(), None, phis, device)
+        unknowns = wp.zeros((h, w), dtype=wp.vec4, device=device)
+        _device.launch_rows(fusion.with_plane, dim=(h, w), inputs=[unknowns, 0, best], outputs=[unknowns],
+                            device=device)
+        zbuf = _view_zbuffer(unknowns, 0, False, phis, device)
         smooth = _windowed_cost(visible_kernel, [samples, shifts, candidates, zbuf, visibility_margin],
                                 len(cands), (h, w), search_radius, device, columns)
         _device.launch_rows(search.select_disparity, dim=(h, w), inputs=[smooth, candidates],
@@ -493,61 +496,65 @@ def _sweep(samples, phis, radius_used: float, disparity_range: float, search_rad
     return best.numpy()
 
 
-def _view_zbuffer(disparity: np.ndarray, flow: np.ndarray | None, phis, device: str):
-    """View z-buffers (S, h, w) of a disparity map whose points sit at p (+ the flow (h,
-    w, 2), at t2) in the centre view (:func:`lfsf.kernels.occlusion.splat_views`)."""
+def _view_zbuffer(x, component: int, flow: bool, phis, device: str):
+    """View z-buffers (S, h, w) of the disparity map x[component] (x: the unknowns, a
+    vec4 (h, w) device array) whose points sit at p (+ x's flow, at t2, with ``flow``)
+    in the centre view (:func:`lfsf.kernels.occlusion.splat_views`)."""
     from lfsf.kernels import occlusion
 
     wp = _device.warp()
-    h, w = disparity.shape
-    x = np.zeros((h, w, 4), np.float32)
-    x[..., 0] = disparity
-    if flow is not None:
-        x[..., 2:] = flow
+    h, w = x.shape
     n = phis.shape[0]
     zbuf = wp.full((n, h, w), occlusion.EMPTY, dtype=float, device=device)
     span, per_row = _device.row_span(device, w)
-    _device.launch_rows(occlusion.splat_views, dim=(n, h, per_row),
-                        inputs=[wp.array(x, dtype=wp.vec4, device=device), 0, 0 if flow is None else 1, phis, span],
+    _device.launch_rows(occlusion.splat_views, dim=(n, h, per_row), inputs=[x, component, int(flow), phis, span],
                         outputs=[zbuf], device=device)  # bands of whole samples: the atomics never meet
     return zbuf
 
 
-def _window_cost(samples, phis, disparity: np.ndarray, offset: np.ndarray, search_radius: int, device: str,
-                 zbuf=None, margin: float = 0.0):
-    """Windowed matching cost of a per-pixel disparity field (at p + offset's flow): by
-    the best half, or with view z-buffers ``zbuf`` by the samples they leave visible."""
+def _window_cost(samples, phis, disparity, offset, search_radius: int, device: str, zbuf=None, margin: float = 0.0):
+    """Windowed matching cost (h, w) (a device array) of a per-pixel disparity field
+    (a float (h, w) device array) at p + the flow of ``offset`` (vec4 (h, w), the
+    unknowns): by the best half, or with view z-buffers ``zbuf`` by the samples they
+    leave visible."""
     from lfsf.kernels import search
 
     wp = _device.warp()
     n, h, w = samples.shape
     zero = wp.zeros(1, dtype=float, device=device)
-    base = wp.array(np.ascontiguousarray(disparity, np.float32), dtype=float, device=device)
-    off = wp.array(np.ascontiguousarray(offset, np.float32), dtype=wp.vec4, device=device)
     if zbuf is None:
-        kernel, inputs = search.disparity_cost, [samples, phis, zero, base, off]
+        kernel, inputs = search.disparity_cost, [samples, phis, zero, disparity, offset]
     else:
-        kernel, inputs = search.disparity_cost_visible, [samples, phis, zero, base, off, zbuf, margin]
-    return _windowed_cost(kernel, inputs, 1, (h, w), search_radius, device).numpy()[0]
+        kernel, inputs = search.disparity_cost_visible, [samples, phis, zero, disparity, offset, zbuf, margin]
+    return _windowed_cost(kernel, inputs, 1, (h, w), search_radius, device)[0]
 
 
-def _resize_map(image: np.ndarray, size, scale: float, device: str) -> np.ndarray:
-    """Resample a (h, w) map to ``size`` (Gaussian-prefiltered when shrinking, bilinear
-    when growing) and multiply it by ``scale``."""
-    from lfsf.kernels import pyramid
+def _resize_plane(image, size, scale: float, device: str):
+    """Resample a (h, w) map (a float device array) to ``size`` (Gaussian-prefiltered
+    when shrinking, bilinear when growing) and multiply it by ``scale``: a new (size)
+    device array."""
+    from lfsf.kernels import pyramid, rof
 
     wp = _device.warp()
     h, w = image.shape
+    src = image.reshape((1, h, w))
     if (h, w) == tuple(size):
-        return image * np.float32(scale)
-    src = wp.array(np.ascontiguousarray(image[None], np.float32), dtype=float, device=device)
-    if size[0] < h:
-        out = _downsample(src, size, device).numpy()[0]
+        out = wp.clone(src)
+    elif size[0] < h:
+        out = _downsample(src, size, device)
     else:
-        dst = wp.empty((1, size[0], size[1]), dtype=float, device=device)
-        _device.launch_rows(pyramid.upsample, dim=(size[0], size[1]), inputs=[src, 1.0], outputs=[dst], device=device)
-        out = dst.numpy()[0]
-    return out * np.float32(scale)
+        out = wp.empty((1, size[0], size[1]), dtype=float, device=device)
+        _device.launch_rows(pyramid.upsample, dim=(size[0], size[1]), inputs=[src, 1.0], outputs=[out], device=device)
+    _device.launch_rows(rof.scale_values, dim=(size[0], size[1]), inputs=[float(np.float32(scale))], outputs=[out],
+                        device=device)
+    return out[0]
+
+
+def _resize_map(image: np.ndarray, size, scale: float, device: str) -> np.ndarray:
+    """:func:`_resize_plane` of a NumPy map, to NumPy."""
+    wp = _device.warp()
+    src = wp.array(np.ascontiguousarray(image, np.float32), dtype=float, device=device)
+    return _resize_plane(src, size, scale, device).numpy()
 
 
 def _bilinear(image: np.ndarray, px: np.ndarray, py: np.ndarray) -> np.ndarray:
@@ -631,56 +638,76 @@ def _keep_blocks(mask: np.ndarray) -> np.ndarray:
     return block[:-1, :-1] | block[1:, :-1] | block[:-1, 1:] | block[1:, 1:]
 
 
-def _window_flow_cost(centre1, centre2, x: np.ndarray, search_radius: int, device: str) -> np.ndarray:
+def _window_flow_cost(centre1, centre2, x, search_radius: int, device: str):
+    """Windowed flow residual |I1(p) − I2(p + (u, v))| (h, w) of the unknowns x (vec4
+    (h, w) device array), a device array."""
     from lfsf.kernels import search
 
     wp = _device.warp()
     h, w = centre1.shape
     zero = wp.zeros(1, dtype=wp.vec2, device=device)
-    base = wp.array(np.ascontiguousarray(x, np.float32), dtype=wp.vec4, device=device)
-    return _windowed_cost(search.flow_cost, [centre1, centre2, zero, base], 1, (h, w), search_radius,
-                          device).numpy()[0]
+    return _windowed_cost(search.flow_cost, [centre1, centre2, zero, x], 1, (h, w), search_radius, device)[0]
 
 
-def _fuse_flow(x: np.ndarray, centre1, centre2, found: np.ndarray, params: Params, device: str,
-               hidden: np.ndarray | None = None) -> np.ndarray:
-    """Per pixel, keep the flow or take the searched one, whichever matches better; keep
-    it wherever ``hidden`` (bool (h, w)) says the point is hidden at t2. There no match
-    is the point's own: the search finds the occluder or whatever matches by chance,
-    which then matches better than the true flow and moves the point with its occluder,
-    where the geometric test of the later warps no longer sees it hidden."""
-    cand = x.copy()
-    cand[..., 2:] = found
+def _fuse_flow(x, centre1, centre2, found_u, found_v, params: Params, device: str, hidden=None) -> None:
+    """Per pixel, keep the flow of x (the unknowns, a vec4 (h, w) device array, fused in
+    place) or take the searched one (``found_u``, ``found_v``: float (h, w) device
+    arrays), whichever matches better; keep it wherever ``hidden`` (float (h, w), > 0.5)
+    says the point is hidden at t2. There no match is the point's own: the search finds
+    the occluder or whatever matches by chance, which then matches better than the true
+    flow and moves the point with its occluder, where the geometric test of the later
+    warps no longer sees it hidden."""
+    from lfsf.kernels import fusion
+
+    wp = _device.warp()
+    shape = x.shape
+    cand = wp.empty_like(x)
+    _device.launch_rows(fusion.with_plane, dim=shape, inputs=[x, 2, found_u], outputs=[cand], device=device)
+    _device.launch_rows(fusion.with_plane, dim=shape, inputs=[cand, 3, found_v], outputs=[cand], device=device)
     r = params.search_radius
-    better = (_window_flow_cost(centre1, centre2, cand, r, device)
-              < FUSION_MARGIN * _window_flow_cost(centre1, centre2, x, r, device))
-    if hidden is not None:
-        better &= ~hidden
-    out = x.copy()
-    out[better, 2:] = found[better]
-    return out
+    new = _window_flow_cost(centre1, centre2, cand, r, device)
+    cur = _window_flow_cost(centre1, centre2, x, r, device)
+    use = hidden is not None
+    _device.launch_rows(fusion.take_better, dim=shape,
+                        inputs=[cand, new, cur, FUSION_MARGIN, hidden if use else new, int(use), 2, 2], outputs=[x],
+                        device=device)
 
 
-def _fuse_disparities(x: np.ndarray, s1, s2, phis, found1: np.ndarray, found2: np.ndarray, params: Params,
-                      device: str) -> np.ndarray:
-    """Per pixel, keep δ1 (δ2) or take the searched one, whichever matches better. With
-    ``params.visibility`` both are judged by the samples that the searched map's view
-    z-buffers leave visible (the same samples for both), else by the best half."""
-    x = x.copy()
-    no_flow = np.zeros_like(x)
+def _fuse_disparities(x, s1, s2, phis, found1, found2, params: Params, device: str) -> None:
+    """Per pixel, keep δ1 (δ2) of x (the unknowns, a vec4 (h, w) device array, fused in
+    place) or take the searched one (``found1``, ``found2``: float (h, w) device arrays,
+    each in its own time's frame: δ2's is read at p + (u, v)), whichever matches better.
+    With ``params.visibility`` both are judged by the samples that the searched map's
+    view z-buffers leave visible (the same samples for both), else by the best half."""
+    from lfsf.kernels import fusion
+
+    wp = _device.warp()
+    shape = x.shape
+    no_flow = wp.zeros(shape, dtype=wp.vec4, device=device)
     r = params.search_radius
     vis = params.visibility
     margin = params.occlusion_margin
-    z1 = _view_zbuffer(found1, None, phis, device) if vis else None
-    cur1 = _window_cost(s1, phis, x[..., 0], no_flow, r, device, z1, margin)
+    current = wp.empty(shape, dtype=float, device=device)
+    cand = wp.empty_like(x)
+    # δ1: the searched map in the centre view at t1
+    _device.launch_rows(fusion.with_plane, dim=shape, inputs=[x, 0, found1], outputs=[cand], device=device)
+    z1 = _view_zbuffer(cand, 0, False, phis, device) if vis else None
+    _device.launch_rows(fusion.unknown_plane, dim=shape, inputs=[x, 0], outputs=[current], device=device)
+    cur1 = _window_cost(s1, phis, current, no_flow, r, device, z1, margin)
     new1 = _window_cost(s1, phis, found1, no_flow, r, device, z1, margin)
-    x[..., 0] = np.where(new1 < FUSION_MARGIN * cur1, found1, x[..., 0])
-    cand2 = _sample_at_flow(found2, x)
-    z2 = _view_zbuffer(cand2, x[..., 2:], phis, device) if vis else None
-    cur2 = _window_cost(s2, phis, x[..., 1], x, r, device, z2, margin)
+    _device.launch_rows(fusion.take_better, dim=shape, inputs=[cand, new1, cur1, FUSION_MARGIN, new1, 0, 0, 1],
+                        outputs=[x], device=device)
+    del z1
+    # δ2: the searched map of t2's frame read where the point moves, p + (u, v)
+    cand2 = wp.empty(shape, dtype=float, device=device)
+    _device.launch_rows(fusion.sample_at_flow, dim=shape, inputs=[found2, x], outputs=[cand2], device=device)
+    _device.launch_rows(fusion.with_plane, dim=shape, inputs=[x, 1, cand2], outputs=[cand], device=device)
+    z2 = _view_zbuffer(cand, 1, True, phis, device) if vis else None
+    _device.launch_rows(fusion.unknown_plane, dim=shape, inputs=[x, 1], outputs=[current], device=device)
+    cur2 = _window_cost(s2, phis, current, x, r, device, z2, margin)
     new2 = _window_cost(s2, phis, cand2, x, r, device, z2, margin)
-    x[..., 1] = np.where(new2 < FUSION_MARGIN * cur2, cand2, x[..., 1])
-    return x
+    _device.launch_rows(fusion.take_better, dim=shape, inputs=[cand, new2, cur2, FUSION_MARGIN, new2, 0, 1, 1],
+                        outputs=[x], device=device)
 
 
 def estimate_scene_flow(
@@ -745,6 +772,7 @@ def estimate_scene_flow(
     S. Heber and T. Pock, "Scene Flow Estimation from Light Fields via the
     Preconditioned Primal-Dual Algorithm", GCPR 2014.
     """
+    from lfsf.kernels import fusion
     from lfsf.kernels import gains as gain_kernels
     from lfsf.solver import LevelSolver
 
@@ -885,8 +913,9 @@ def estimate_scene_flow(
         tex = levels[k][0]
         level_scale = sizes[k][1] / width
         margin = params.occlusion_margin * level_scale if params.visibility else None
-        found = [_sweep(wp.clone(tex[t * n_samples:(t + 1) * n_samples]), wp_phis, radius,
-                        params.disparity_range * level_scale, params.search_radius, dev, margin) / level_scale
+        found = [wp.array(_sweep(wp.clone(tex[t * n_samples:(t + 1) * n_samples]), wp_phis, radius,
+                                 params.disparity_range * level_scale, params.search_radius, dev, margin)
+                          / level_scale, dtype=float, device=dev)
                  for t in (0, 1)]
         lap("search")
     flow_search = params.flow_search
@@ -901,7 +930,8 @@ def estimate_scene_flow(
         c1, c2 = wp.clone(tex[0]), wp.clone(tex[n_samples])
         forward = _flow_search(c1, c2, half, params.search_radius, dev)
         hidden = _hidden_matches(forward, _flow_search(c2, c1, half, params.search_radius, dev))
-        flow_found = (forward, hidden.astype(np.float32), sizes[k])
+        flow_found = [wp.array(np.ascontiguousarray(a, np.float32), dtype=float, device=dev)
+                      for a in (forward[..., 0], forward[..., 1], hidden)]
         lap("search")
     say(f"{width}×{height}, {rows}×{cols} views, {n_samples} samples (R = {radius:g}), "
         f"{len(sizes)} levels on {dev}")
@@ -920,20 +950,30 @@ def estimate_scene_flow(
             x = np.stack([_resize_map(start[..., c], (h, w), scales[c], dev) for c in range(4)], -1)
         elif x is None:
             x = np.zeros((h, w, 4), np.float32)
+        # the searches fuse into x on the device (kernels.fusion)
+        x_dev = (wp.array(np.ascontiguousarray(x, np.float32), dtype=wp.vec4, device=dev)
+                 if flow_search or search else None)
         if flow_search:
-            found_flow, hidden, (search_h, search_w) = flow_found
-            resized = np.stack([_resize_map(found_flow[..., 0], (h, w), w / search_w, dev),
-                                _resize_map(found_flow[..., 1], (h, w), h / search_h, dev)], -1)
+            found_u, found_v, found_hidden = flow_found
+            search_h, search_w = found_u.shape
             # not where the point is hidden at t2: by the searches (its match is another
             # point's), or by the estimate so far (its flow comes from the regulariser)
-            hidden_here = (_resize_map(hidden, (h, w), 1.0, dev) > 0.01) | solver.hidden_at_t2(x)
-            x = _fuse_flow(x, s1[0], s2[0], resized, params, dev, hidden_here)
+            hidden_here = wp.empty((h, w), dtype=float, device=dev)
+            _device.launch_rows(fusion.either_above, dim=(h, w),
+                                inputs=[_resize_plane(found_hidden, (h, w), 1.0, dev), 0.01,
+                                        solver.find_hidden_at(x_dev), 0.5],
+                                outputs=[hidden_here], device=dev)
+            _fuse_flow(x_dev, s1[0], s2[0], _resize_plane(found_u, (h, w), w / search_w, dev),
+                       _resize_plane(found_v, (h, w), h / search_h, dev), params, dev, hidden_here)
             lap("search")
         if search:
             scale = w / width
-            x = _fuse_disparities(x, s1, s2, wp_phis, _resize_map(found[0], (h, w), scale, dev),
-                                  _resize_map(found[1], (h, w), scale, dev), params, dev)
+            _fuse_disparities(x_dev, s1, s2, wp_phis, _resize_plane(found[0], (h, w), scale, dev),
+                              _resize_plane(found[1], (h, w), scale, dev), params, dev)
             lap("search")
+        if x_dev is not None:
+            x = x_dev.numpy()
+            del x_dev
         solver.set_state(x)
         if coarser is not None:
             # w and the disparities' TGV duals (Params.carry_duals) go on to this level on the device

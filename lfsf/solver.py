@@ -349,9 +349,20 @@ class LevelSolver:
         wp = _device.warp()
         if self.flow_only:
             return np.zeros(self.shape, bool)
-        wp.copy(self.x_hat, wp.array(np.ascontiguousarray(x, np.float32), dtype=self.vec, device=self.device))
+        return self.find_hidden_at(wp.array(np.ascontiguousarray(x, np.float32), dtype=wp.vec4,
+                                            device=self.device)).numpy() > 0.5
+
+    def find_hidden_at(self, x):
+        """:meth:`hidden_at_t2` on the device: x, the unknowns (δ1, δ2, u, v) as a vec4
+        (h, w) device array; returns ``hidden2`` (float, 1 where hidden), which holds until
+        the next :meth:`linearise`. Flow only, 0 everywhere."""
+        wp = _device.warp()
+        if tuple(x.shape) != self.shape:
+            raise ValueError(f"x must be {self.shape}, got {tuple(x.shape)}")
+        if not self.flow_only:
+            wp.copy(self.x_hat, x)
         self.find_hidden()
-        return self.hidden2.numpy() > 0.5
+        return self.hidden2
 
     def fill_hidden(self, flagged: np.ndarray | None = None) -> None:
         """Where a point is hidden at t2 (``hidden2`` of the last linearisation), give it
@@ -360,22 +371,26 @@ class LevelSolver:
         (:func:`lfsf.kernels.occlusion.fill_hidden_motion`; ``params.hidden_fill_sigma``,
         0: off, and ``params.hidden_fill_depth``). No view constrains the point at t2,
         and the regulariser alone reaches over to the occluder. ``flagged`` (bool (h, w),
-        optional): points another test suspects hidden (the estimator's searches); their
-        δ2 is set the same way. The estimator calls it once, after the finest level's
+        optional; or a float device array, 1 where flagged): points another test suspects
+        hidden (the estimator's searches); their δ2 is set the same way. The estimator calls it once, after the finest level's
         last warp."""
         from lfsf.kernels import occlusion
 
         sigma = self.params.hidden_fill_sigma
         if sigma <= 0 or self.flow_only or self.params.occlusion_margin <= 0:
             return
+        wp = _device.warp()
         radius = int(math.ceil(3.0 * sigma))
         depth_sigma = self.params.hidden_fill_depth * self.level_scale
         if flagged is None:
             self.scratch1.zero_()
         else:
-            if flagged.shape != self.shape:
-                raise ValueError(f"flagged must be {self.shape}, got {flagged.shape}")
-            self.scratch1.assign(np.ascontiguousarray(flagged, np.float32))
+            if tuple(flagged.shape) != self.shape:
+                raise ValueError(f"flagged must be {self.shape}, got {tuple(flagged.shape)}")
+            if isinstance(flagged, np.ndarray):
+                self.scratch1.assign(np.ascontiguousarray(flagged, np.float32))
+            else:
+                wp.copy(self.scratch1, flagged)
         self._launch(occlusion.fill_hidden_motion, inputs=[self.hidden2, self.scratch1, sigma, depth_sigma, radius],
                      outputs=[self.x, self.x_bar])
 

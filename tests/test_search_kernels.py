@@ -520,3 +520,78 @@ def test_hidden_matches_of_block_matching_find_the_covered_strip(device):
     outline[10:30, 12:31] = True
     outline[14:26, 19:24] = False  # the square's inside at both times, 2 px in
     assert not flagged[~outline].any(), np.argwhere(flagged & ~outline)
+
+
+# --- fusion of the searches into the estimate (kernels/fusion.py) --------------------------
+
+
+def test_fusion_plane_kernels_match_numpy(device):
+    """A component of the unknowns as a map, and the unknowns with one component replaced
+    (in place as well)."""
+    from lfsf.kernels import fusion
+
+    r = rng(31)
+    h, w = 5, 7
+    x = r.normal(size=(h, w, 4)).astype(np.float32)
+    plane = r.normal(size=(h, w)).astype(np.float32)
+    for k in range(4):
+        out = wp.zeros((h, w), dtype=float, device=device)
+        launch(fusion.unknown_plane, (h, w), [arr(x, wp.vec4, device), k], [out], device)
+        np.testing.assert_array_equal(out.numpy(), x[..., k])
+        xs = arr(x, wp.vec4, device)
+        launch(fusion.with_plane, (h, w), [xs, k, arr(plane, float, device)], [xs], device)
+        want = x.copy()
+        want[..., k] = plane
+        np.testing.assert_array_equal(xs.numpy(), want)
+
+
+@pytest.mark.parametrize("first, count, use_hidden", [(2, 2, 1), (0, 1, 0), (1, 1, 0), (2, 2, 0)])
+def test_take_better_kernel_matches_numpy(device, first, count, use_hidden):
+    """Components first … first + count − 1 take the candidate's where its cost is below
+    margin times the current one, and (with the mask) the pixel is not hidden."""
+    from lfsf.kernels import fusion
+
+    r = rng(32)
+    h, w = 6, 9
+    x = r.normal(size=(h, w, 4)).astype(np.float32)
+    cand = r.normal(size=(h, w, 4)).astype(np.float32)
+    new, cur = r.random((h, w)).astype(np.float32), r.random((h, w)).astype(np.float32)
+    hidden = (r.random((h, w)) > 0.6).astype(np.float32)
+    margin = 0.9
+    xs = arr(x, wp.vec4, device)
+    launch(fusion.take_better, (h, w), [arr(cand, wp.vec4, device), arr(new, float, device), arr(cur, float, device),
+                                        margin, arr(hidden, float, device), use_hidden, first, count], [xs], device)
+    better = new < np.float32(margin) * cur
+    if use_hidden:
+        better &= hidden <= 0.5
+    assert 0 < better.sum() < better.size
+    want = x.copy()
+    want[better, first:first + count] = cand[better, first:first + count]
+    np.testing.assert_array_equal(xs.numpy(), want)
+    # and a mask of two tests
+    a, b = r.random((h, w)).astype(np.float32), r.random((h, w)).astype(np.float32)
+    out = wp.zeros((h, w), dtype=float, device=device)
+    launch(fusion.either_above, (h, w), [arr(a, float, device), 0.7, arr(b, float, device), 0.8], [out], device)
+    np.testing.assert_array_equal(out.numpy(), ((a > 0.7) | (b > 0.8)).astype(np.float32))
+
+
+def test_sample_at_flow_kernel_matches_the_host_bilinear(device):
+    """image(p + (u, v)), clamped, against lfsf.estimate._sample_at_flow: bit for bit on
+    the CPU (float64 weights, as NumPy takes them; the estimate is sensitive to them),
+    within float32 rounding on CUDA (fused multiply–adds)."""
+    from lfsf.estimate import _sample_at_flow
+    from lfsf.kernels import fusion
+
+    r = rng(33)
+    h, w = 23, 31
+    image = r.random((h, w)).astype(np.float32)
+    x = r.normal(scale=8.0, size=(h, w, 4)).astype(np.float32)  # (many positions past the edges: clamped)
+    out = wp.zeros((h, w), dtype=float, device=device)
+    launch(fusion.sample_at_flow, (h, w), [arr(image, float, device), arr(x, wp.vec4, device)], [out], device)
+    want = _sample_at_flow(image, x)
+    if D.is_cpu(device):
+        np.testing.assert_array_equal(out.numpy(), want)
+    else:
+        close(out.numpy(), want, rtol=1e-6, atol=1e-7)
+    yy, xx = np.mgrid[0:h, 0:w]
+    close(want, ref.bilinear(image, xx + x[..., 2], yy + x[..., 3]))
