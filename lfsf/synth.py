@@ -525,9 +525,9 @@ def _is_number(value) -> bool:
 def _whole(name: str, value, least: int, most: int) -> int:
     """``value`` as an int in [least, most], or a ValueError naming ``name``: a bool or a
     fraction is an error, not truncated."""
-    if not _is_number(value) or not float(value).is_integer():
+    if not _is_number(value) or not (isinstance(value, (int, np.integer)) or float(value).is_integer()):
         raise ValueError(f"{name} must be a whole number, got {value!r}")
-    value = int(value)
+    value = int(value)  # (an int as it is: float() of one past float's range overflows)
     if not least <= value <= most:
         raise ValueError(f"{name} must be in {least}…{most}, got {value}")
     return value

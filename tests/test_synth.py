@@ -415,6 +415,8 @@ def test_camera_effects_and_scene_choices_refuse_odd_arguments_clearly():
                          (lambda: synth.add_noise(lfsf.LightField(views * 4095), 0.01), "intensities up to 40"),
                          (lambda: synth.random_scene(1.5), "seed must be a whole number, got 1.5"),
                          (lambda: synth.random_scene(float("inf")), "seed must be a whole number"),
+                         (lambda: synth.random_scene(10 ** 400), "seed must be in"),  # (was an OverflowError)
+                         (lambda: synth.add_noise(lf, 0.1, seed=-(10 ** 400)), "seed must be in"),
                          (lambda: synth.get_scene(["paper"]), "unknown scene ['paper']")):
         with pytest.raises(ValueError, match=re.escape(needle)):
             call()
