@@ -244,6 +244,12 @@ def check_pair(lf1: LightField, lf2: LightField) -> None:
         field's brightest value is more than 16 times the other's (one in [0, 1], the
         other in counts such as [0, 255]; uint8 against int64).
     """
+    _check_pair_brightest(lf1, lf2, None)
+
+
+def _check_pair_brightest(lf1: LightField, lf2: LightField, highs) -> None:
+    """:func:`check_pair` given each light field's brightest value (``highs``; None:
+    found here), which the estimator has already taken for its intensity range."""
     def describe(lf: LightField) -> str:
         rows, cols = lf.grid
         return f"a {rows}×{cols} grid of {lf.width}×{lf.height} views"
@@ -251,7 +257,8 @@ def check_pair(lf1: LightField, lf2: LightField) -> None:
     if lf1.grid != lf2.grid or lf1.views.shape[2:4] != lf2.views.shape[2:4]:
         raise ValueError(f"{lf2.source}: expected the grid and view size of {lf1.source} "
                          f"({describe(lf1)}), got {describe(lf2)}")
-    highs = [float(np.max(lf.views)) for lf in (lf1, lf2)]
+    if highs is None:
+        highs = [float(np.max(lf.views)) for lf in (lf1, lf2)]
     if min(highs) > 0.0 and max(highs) > _SCALED_APART * min(highs):   # (all black: no scale to compare)
         raise ValueError(f"{lf2.source}: its brightest value is {highs[1]:g} against {highs[0]:g} in "
                          f"{lf1.source}: the two light fields look scaled differently (float views "
