@@ -70,15 +70,29 @@ run)
     want() { [[ "$steps" == *" $1 "* ]]; }
     xdist=$(python3 -c "import xdist" 2>/dev/null && echo "-n 8 -p no:benchmark")
     # shellcheck disable=SC2086
-    want tests && timeout 150 python3 -m pytest -q -p no:cacheprovider $xdist -k cuda tests 2>&1 | tee "$out/pytest.txt" | tail -5
-    want kernels && timeout 90 python3 -m lfsf bench kernels --device cuda:0 --repeats 30 --json "$out/kernels.json" 2>&1 \
-        | tee "$out/kernels.txt"
-    want pipeline && timeout 120 python3 -m lfsf bench pipeline --device cuda:0 --repeats 7 --json "$out/pipeline.json" 2>&1 \
-        | tee "$out/pipeline.txt"
-    want demo && timeout 60 python3 -m lfsf demo --device cuda:0 --out /tmp/lfsf-demo 2>&1 | tee "$out/demo.txt"
+    status=0
+    if want tests; then
+        timeout 150 python3 -m pytest -q -p no:cacheprovider $xdist -k cuda tests 2>&1 | tee "$out/pytest.txt" | tail -5
+        status=$(( status | $? ))
+    fi
+    if want kernels; then
+        timeout 90 python3 -m lfsf bench kernels --device cuda:0 --repeats 30 --json "$out/kernels.json" 2>&1 \
+            | tee "$out/kernels.txt"
+        status=$(( status | $? ))
+    fi
+    if want pipeline; then
+        timeout 120 python3 -m lfsf bench pipeline --device cuda:0 --repeats 7 --json "$out/pipeline.json" 2>&1 \
+            | tee "$out/pipeline.txt"
+        status=$(( status | $? ))
+    fi
+    if want demo; then
+        timeout 60 python3 -m lfsf demo --device cuda:0 --out /tmp/lfsf-demo 2>&1 | tee "$out/demo.txt"
+        status=$(( status | $? ))
+    fi
     # where a `paper` run's time goes on the GPU: its stages, the GPU's own activity (CUDA
     # events; a replayed graph counts as one) and the host's Python (cProfile)
-    want profile && timeout 90 python3 - > "$out/profile.txt" 2>&1 <<'PY'
+    if want profile; then
+    timeout 90 python3 - > "$out/profile.txt" 2>&1 <<'PY'
 import cProfile, collections, io, pstats, time
 import warp as wp
 from lfsf import Params, estimate_scene_flow, synth
@@ -107,7 +121,10 @@ pstats.Stats(profile, stream=text).sort_stats("tottime").print_stats(30)
 pstats.Stats(profile, stream=text).sort_stats("cumulative").print_stats(45)
 print(text.getvalue())
 PY
-    want profile && head -30 "$out/profile.txt"
+        status=$(( status | $? ))
+        head -30 "$out/profile.txt"
+    fi
+    exit "$status"  # (not 0 where a step failed: a step left out is not a failure)
     ;;
 *)
     echo "usage: device_check.sh prepare | stash | run OUT_DIR" >&2
