@@ -19,6 +19,11 @@ Usage (from the repository root)::
 
     python scripts/perturbation_spread.py                      # the built-in scenes, 160×120
     python scripts/perturbation_spread.py paper random-1 --size 320 240 --seeds 4 --json out.json
+    python scripts/perturbation_spread.py --stereo-only    # also δ1 of the t1 light field given twice
+
+With ``--stereo-only`` each run also estimates the stereo-only special case (the t1
+light field, perturbed the same way, given as both t1 and t2) and scores its δ1: the
+issue's comparison of the joint δ1 against it, with the spread of both.
 
 Exit status 2 for bad arguments.
 """
@@ -48,6 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seeds", type=int, default=4, help="perturbed runs per scene (default 4)")
     p.add_argument("--epsilon", type=float, default=1e-6, help="relative size of the perturbation (default 1e-6)")
     p.add_argument("--device", default=None, help="Warp device (default: lfsf's)")
+    p.add_argument("--stereo-only", action="store_true",
+                   help="also score δ1 of the stereo-only case (t1 given twice) in every run")
     p.add_argument("--json", metavar="FILE", help="write every run's figures to FILE")
     return p
 
@@ -64,6 +71,14 @@ def figures(sf, gt) -> list[float]:
 
     errors = evaluate(sf, gt)
     return [float(errors[group][key]) for _name, group, key in FIGURES]
+
+
+def stereo_figure(sf, gt) -> float:
+    """δ1 MSE of a stereo-only estimate (its δ2 and flow are not the scene's)."""
+    from lfsf.evaluate import evaluate
+
+    truth = {k: gt[k] for k in ("disp1", "valid") if k in gt}
+    return float(evaluate({"disp1": sf.disp1}, truth)["disp1"]["mse"])
 
 
 def main(argv=None) -> int:
@@ -84,23 +99,29 @@ def main(argv=None) -> int:
               "scenes": {}}
     print(f"{args.preset}, {args.size[0]}×{args.size[1]}, {args.grid}×{args.grid} views, {args.seeds} perturbed "
           f"runs a scene, ε = {args.epsilon:g}")
-    header = " | ".join(f"{name} rendered | range | range/median" for name, _g, _k in FIGURES)
+    names = [name for name, _g, _k in FIGURES] + (["stereo-only δ1 MSE"] if args.stereo_only else [])
+    header = " | ".join(f"{name} rendered | range | range/median" for name in names)
     print(f"| scene | {header} |")
-    print("|---" * (1 + 3 * len(FIGURES)) + "|")
+    print("|---" * (1 + 3 * len(names)) + "|")
     for name in scenes:
         start = time.perf_counter()
         lf1, lf2, gt = synth.render_scene(name, size=tuple(args.size), grid=args.grid)
-        runs = [figures(estimate_scene_flow(lf1, lf2, params, device=args.device), gt)]
+        pairs = [(lf1, lf2)]
         for seed in range(args.seeds):
             rng = np.random.default_rng(seed)
-            p1, p2 = perturbed(lf1, args.epsilon, rng), perturbed(lf2, args.epsilon, rng)
-            runs.append(figures(estimate_scene_flow(p1, p2, params, device=args.device), gt))
+            pairs.append((perturbed(lf1, args.epsilon, rng), perturbed(lf2, args.epsilon, rng)))
+        runs = []
+        for p1, p2 in pairs:
+            run = figures(estimate_scene_flow(p1, p2, params, device=args.device), gt)
+            if args.stereo_only:
+                run.append(stereo_figure(estimate_scene_flow(p1, p1, params, device=args.device), gt))
+            runs.append(run)
         table = np.array(runs)
         spread = (table.max(0) - table.min(0)) / np.median(table, 0)
         cells = " | ".join(f"{table[0, k]:.4g} | {table[:, k].min():.4g}–{table[:, k].max():.4g} | {spread[k]:.2f}"
-                           for k in range(len(FIGURES)))
+                           for k in range(len(names)))
         print(f"| {name} | {cells} |", flush=True)
-        report["scenes"][name] = {"runs": runs, "range_over_median": spread.tolist(),
+        report["scenes"][name] = {"columns": names, "runs": runs, "range_over_median": spread.tolist(),
                                   "seconds": round(time.perf_counter() - start, 1)}
     if args.json:
         from lfsf._files import write_json_atomic
