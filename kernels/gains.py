@@ -8,6 +8,8 @@ setting at 640×480 (81 views) the reduction and the application took about 0.2 
 
 import warp as wp
 
+from .common import bilinear
+
 wp.set_module_options({"enable_backward": False})
 
 
@@ -85,28 +87,17 @@ def warp_to_centre(
 ):
     """warped[m](p) = views[index[m]](p − δ(p)·(ξ_m, η_m)), the view at angular offset
     (ξ_m, η_m) = offsets[m] (view steps from the grid's centre) seen from the centre
-    through the disparity δ: bilinear, the position clamped to the view (as
-    :func:`lfsf.estimate._bilinear`). Launch over (len(index) × rows, columns)."""
+    through the disparity δ: bilinear, the position clamped to the view
+    (:func:`lfsf.kernels.common.bilinear`). Launch over (len(index) × rows, columns)."""
     r, x = wp.tid()
     r = r + row0
     h = warped.shape[1]
-    w = warped.shape[2]
     m = r // h
     y = r - m * h
     k = index[m]
     d = disparity[y, x]
     o = offsets[m]
-    px = wp.clamp(float(x) - d * o[0], 0.0, float(w - 1))
-    py = wp.clamp(float(y) - d * o[1], 0.0, float(h - 1))
-    x0 = wp.min(int(px), wp.max(w - 2, 0))
-    y0 = wp.min(int(py), wp.max(h - 2, 0))
-    x1 = wp.min(x0 + 1, w - 1)
-    y1 = wp.min(y0 + 1, h - 1)
-    fx = px - float(x0)
-    fy = py - float(y0)
-    top = (1.0 - fx) * views[k, y0, x0] + fx * views[k, y0, x1]
-    bottom = (1.0 - fx) * views[k, y1, x0] + fx * views[k, y1, x1]
-    warped[m, y, x] = (1.0 - fy) * top + fy * bottom
+    warped[m, y, x] = bilinear(views[k], float(x) - d * o[0], float(y) - d * o[1])
 
 
 @wp.kernel
