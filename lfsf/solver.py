@@ -371,9 +371,9 @@ class LevelSolver:
         (:func:`lfsf.kernels.occlusion.fill_hidden_motion`; ``params.hidden_fill_sigma``,
         0: off, and ``params.hidden_fill_depth``). No view constrains the point at t2,
         and the regulariser alone reaches over to the occluder. ``flagged`` (bool (h, w),
-        optional; or a float device array, 1 where flagged): points another test suspects
-        hidden (the estimator's searches); their δ2 is set the same way. The estimator calls it once, after the finest level's
-        last warp."""
+        optional; or a float device array, 1 where flagged): points another test
+        suspects hidden (the estimator's searches); their δ2 is set the same way. The
+        estimator calls it once, after the finest level's last warp."""
         from lfsf.kernels import occlusion
 
         sigma = self.params.hidden_fill_sigma
