@@ -20,10 +20,13 @@ Usage (from the repository root)::
     python scripts/perturbation_spread.py                      # the built-in scenes, 160×120
     python scripts/perturbation_spread.py paper random-1 --size 320 240 --seeds 4 --json out.json
     python scripts/perturbation_spread.py --stereo-only    # also δ1 of the t1 light field given twice
+    python scripts/perturbation_spread.py random-14 --flow-only   # also the EPE of flow only (M = 1)
 
 With ``--stereo-only`` each run also estimates the stereo-only special case (the t1
-light field, perturbed the same way, given as both t1 and t2) and scores its δ1: the
-issue's comparison of the joint δ1 against it, with the spread of both.
+light field, perturbed the same way, given as both t1 and t2) and scores its δ1; with
+``--flow-only`` the flow-only case (one circle, the centre views alone: M = 1) and its
+EPE. These are the issue's comparisons of the joint model against its special cases,
+with the spread of both sides.
 
 Exit status 2 for bad arguments.
 """
@@ -55,6 +58,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", default=None, help="Warp device (default: lfsf's)")
     p.add_argument("--stereo-only", action="store_true",
                    help="also score δ1 of the stereo-only case (t1 given twice) in every run")
+    p.add_argument("--flow-only", action="store_true",
+                   help="also score the EPE of the flow-only case (M = 1) in every run")
     p.add_argument("--json", metavar="FILE", help="write every run's figures to FILE")
     return p
 
@@ -71,6 +76,14 @@ def figures(sf, gt) -> list[float]:
 
     errors = evaluate(sf, gt)
     return [float(errors[group][key]) for _name, group, key in FIGURES]
+
+
+def evaluate_flow(sf, gt) -> float:
+    """The flow EPE of an estimate (of a flow-only run: its disparities are not estimates)."""
+    from lfsf.evaluate import evaluate
+
+    truth = {k: gt[k] for k in ("u", "v", "valid") if k in gt}
+    return float(evaluate({"u": sf.u, "v": sf.v}, truth)["flow"]["epe"])
 
 
 def stereo_figure(sf, gt) -> float:
@@ -99,7 +112,8 @@ def main(argv=None) -> int:
               "scenes": {}}
     print(f"{args.preset}, {args.size[0]}×{args.size[1]}, {args.grid}×{args.grid} views, {args.seeds} perturbed "
           f"runs a scene, ε = {args.epsilon:g}")
-    names = [name for name, _g, _k in FIGURES] + (["stereo-only δ1 MSE"] if args.stereo_only else [])
+    names = ([name for name, _g, _k in FIGURES] + (["stereo-only δ1 MSE"] if args.stereo_only else [])
+             + (["flow-only EPE"] if args.flow_only else []))
     header = " | ".join(f"{name} rendered | range | range/median" for name in names)
     print(f"| scene | {header} |")
     print("|---" * (1 + 3 * len(names)) + "|")
@@ -115,6 +129,9 @@ def main(argv=None) -> int:
             run = figures(estimate_scene_flow(p1, p2, params, device=args.device), gt)
             if args.stereo_only:
                 run.append(stereo_figure(estimate_scene_flow(p1, p1, params, device=args.device), gt))
+            if args.flow_only:
+                flow = estimate_scene_flow(p1, p2, params.replace(circles=1, samples=(1,)), device=args.device)
+                run.append(float(evaluate_flow(flow, gt)))
             runs.append(run)
         table = np.array(runs)
         spread = (table.max(0) - table.min(0)) / np.median(table, 0)

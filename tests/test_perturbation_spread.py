@@ -7,15 +7,15 @@ from conftest import load_script
 
 def test_perturbation_spread_scores_every_run_and_refuses_bad_arguments(tmp_path, capsys):
     """A tiny run scores the rendered pair and each perturbed one (δ1, δ2, EPE as lfsf
-    eval does, and the stereo-only case's δ1) and writes them; an unknown scene or a seed count of 0 exits with 2."""
+    eval does, the stereo-only case's δ1 and the flow-only case's EPE) and writes them; an unknown scene or a seed count of 0 exits with 2."""
     script = load_script("perturbation_spread")
     out = tmp_path / "spread.json"
     assert script.main(["paper", "--size", "32", "24", "--grid", "3", "--seeds", "2", "--preset", "fast",
-                        "--device", "cpu", "--stereo-only", "--json", str(out)]) == 0
+                        "--device", "cpu", "--stereo-only", "--flow-only", "--json", str(out)]) == 0
     report = json.loads(out.read_text())
     runs = report["scenes"]["paper"]["runs"]
-    assert report["scenes"]["paper"]["columns"][-1] == "stereo-only δ1 MSE"
-    assert len(runs) == 3 and all(len(r) == 4 and all(v >= 0 for v in r) for r in runs)
+    assert report["scenes"]["paper"]["columns"][-2:] == ["stereo-only δ1 MSE", "flow-only EPE"]
+    assert len(runs) == 3 and all(len(r) == 5 and all(v >= 0 for v in r) for r in runs)
     assert "| paper |" in capsys.readouterr().out
     assert script.main(["no-such-scene"]) == 2
     assert script.main(["paper", "--seeds", "0"]) == 2
