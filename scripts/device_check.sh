@@ -13,13 +13,22 @@
 #   device call 2, at once:
 #                     bash scripts/device_check.sh run "$OUT"     # carry [".whl/b"]
 #
+# The real light fields of ../shared/data (51 MB) travel the same way, in a call of their
+# own between those two: `prepare` copies them to .whl/data, and
+#
+#   device call 1b:   bash scripts/device_check.sh stash-data     # carry [".whl/data"]
+#
+# keeps them in /tmp/lfsf-data; `run` then adds the step `real` (compare_peers.py
+# --real on cuda:0: HCI antinous and the Lytro scene against their bars).
+#
 # `run` unpacks Warp, puts this tree's lfsf on the path, then writes under OUT:
 # nvidia-smi.txt, pytest.txt (every test on cuda:0, 8 processes), kernels.json/.txt
 # (`lfsf bench kernels`), pipeline.json/.txt (`lfsf bench pipeline`), demo.txt (`lfsf
-# demo` on cuda:0), profile.txt (a `paper` run's stages, GPU activity and host profile).
-# It took 2 minutes in the twenty-ninth session (before the profile); give the call a
-# timeout of 400 s. LFSF_CHECK_STEPS picks some of the steps (a space-separated list of
-# tests, kernels, pipeline, demo, profile; all of them when unset).
+# demo` on cuda:0), profile.txt (a `paper` run's stages, GPU activity and host profile),
+# real.json/.txt (with the data stashed). Every step took 70 s in the thirtieth session
+# (the real data about 60 s more, most of it compiling); give the call a timeout of
+# 400 s. LFSF_CHECK_STEPS picks some of the steps (a space-separated list of tests,
+# kernels, pipeline, demo, profile, real; all of them when unset).
 set -u -o pipefail
 
 mode=${1:-}
@@ -37,7 +46,17 @@ prepare)
     mv .whl/part.0 .whl/a/warp.part0
     mv .whl/part.1 .whl/b/warp.part1
     rm .whl/warp.tar.xz
-    ls -l .whl/a .whl/b
+    if [ -d ../shared/data ]; then  # (the real light fields, for `stash-data`)
+        mkdir -p .whl/data
+        for d in hci-antinous lytro-illum-2067; do
+            [ -d "../shared/data/$d" ] && cp -r "../shared/data/$d" .whl/data/ && chmod -R u+w ".whl/data/$d"
+        done
+    fi
+    ls -l .whl/a .whl/b; du -sh .whl/data 2>/dev/null
+    ;;
+stash-data)
+    [ -d .whl/data ] || { echo "error: no .whl/data here: run 'prepare' where ../shared/data is, and carry .whl/data" >&2; exit 2; }
+    mkdir -p /tmp/lfsf-data && cp -r .whl/data/* /tmp/lfsf-data/ && du -sh /tmp/lfsf-data/*
     ;;
 stash)
     # /tmp stays while the machine is warm; the checkout is replaced at each call
@@ -66,7 +85,7 @@ run)
     export PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH}
     python3 -c "import lfsf.kernels.tgv, lfsf.cli" || exit 2
     (nvidia-smi; python3 -c "import warp as wp; wp.init(); print(wp.get_cuda_devices())") > "$out/nvidia-smi.txt" 2>&1
-    steps=" ${LFSF_CHECK_STEPS:-tests kernels pipeline demo profile} "
+    steps=" ${LFSF_CHECK_STEPS:-tests kernels pipeline demo profile real} "
     want() { [[ "$steps" == *" $1 "* ]]; }
     xdist=$(python3 -c "import xdist" 2>/dev/null && echo "-n 8 -p no:benchmark")
     # shellcheck disable=SC2086
@@ -124,10 +143,15 @@ PY
         status=$(( status | $? ))
         head -30 "$out/profile.txt"
     fi
+    if want real && [ -d /tmp/lfsf-data ]; then
+        timeout 240 python3 scripts/compare_peers.py --real --no-synth --methods lfsf --data /tmp/lfsf-data \
+            --device cuda:0 --json "$out/real.json" 2>&1 | tee "$out/real.txt" | tail -8
+        status=$(( status | $? ))
+    fi
     exit "$status"  # (not 0 where a step failed: a step left out is not a failure)
     ;;
 *)
-    echo "usage: device_check.sh prepare | stash | run OUT_DIR" >&2
+    echo "usage: device_check.sh prepare | stash | stash-data | run OUT_DIR" >&2
     exit 2
     ;;
 esac
