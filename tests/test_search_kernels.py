@@ -595,3 +595,104 @@ def test_sample_at_flow_kernel_matches_the_host_bilinear(device):
         close(out.numpy(), want, rtol=1e-6, atol=1e-7)
     yy, xx = np.mgrid[0:h, 0:w]
     close(want, ref.bilinear(image, xx + x[..., 2], yy + x[..., 3]))
+
+
+def _fusion_inputs(device, seed=40):
+    """Samples of a textured plane at disparity 0.6 (t1) and 0.8 seen moved by (1.5, −0.5)
+    (t2), 5 samples on a circle, an estimate x near the truth with noise, and searched
+    maps that are right at some pixels and wrong at others."""
+    from lfsf.params import Params
+
+    h, w = 24, 32
+    phis, _radius = Params.preset("fast").replace(circles=2, samples=(1, 4)).sample_offsets((5, 5))
+    phis = np.asarray(phis, np.float32)
+    tex = wave_texture(seed, 6, (0.3, 0.9), 0.15)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    s1 = np.stack([tex(xx - 0.6 * p[0], yy - 0.6 * p[1]) for p in phis]).astype(np.float32)
+    s2 = np.stack([tex(xx - 1.5 - 0.8 * p[0], yy + 0.5 - 0.8 * p[1]) for p in phis]).astype(np.float32)
+    r = rng(seed)
+    x = np.stack([0.6 + r.normal(0, 0.3, (h, w)), 0.8 + r.normal(0, 0.3, (h, w)),
+                  1.5 + r.normal(0, 0.6, (h, w)), -0.5 + r.normal(0, 0.6, (h, w))], -1).astype(np.float32)
+    good = r.random((h, w)) < 0.5
+    found1 = np.where(good, 0.6, 0.6 + r.normal(0, 0.5, (h, w))).astype(np.float32)
+    found2 = np.where(good, 0.8, 0.8 + r.normal(0, 0.5, (h, w))).astype(np.float32)
+    fu = np.where(good, 1.5, 1.5 + r.normal(0, 1.0, (h, w))).astype(np.float32)
+    fv = np.where(good, -0.5, -0.5 + r.normal(0, 1.0, (h, w))).astype(np.float32)
+    hidden = (r.random((h, w)) < 0.2).astype(np.float32)
+    return phis, s1, s2, x, found1, found2, fu, fv, hidden
+
+
+@pytest.mark.parametrize("visibility", [True, False])
+def test_disparity_fusion_on_the_device_is_the_host_rule(device, visibility):
+    """lfsf.estimate._fuse_disparities against the NumPy rule it replaced: δ1 takes the
+    searched value where its windowed cost (view z-buffers of the searched map, or the
+    best half) is below FUSION_MARGIN times the current one; then δ2 takes the searched
+    map of t2's frame read at p + (u, v) by the same rule, its costs at the fused x's
+    flow. Bit for bit on the CPU; on CUDA (other rounding) at all but a few pixels."""
+    from lfsf.estimate import FUSION_MARGIN, _fuse_disparities, _sample_at_flow, _view_zbuffer, _window_cost
+    from lfsf.params import Params
+
+    phis, s1, s2, x, found1, found2, _fu, _fv, _hidden = _fusion_inputs(device)
+    params = Params.preset("paper").replace(visibility=visibility)
+    r, margin = params.search_radius, params.occlusion_margin
+    wphis, ws1, ws2 = arr(phis, wp.vec2, device), arr(s1, float, device), arr(s2, float, device)
+
+    def cost(samples, d, offset, disparity_map):
+        zbuf = None
+        if visibility:
+            zx = offset.copy()
+            zx[..., disparity_map[0]] = disparity_map[1]
+            zbuf = _view_zbuffer(arr(zx, wp.vec4, device), disparity_map[0], disparity_map[0] == 1, wphis, device)
+        return _window_cost(samples, wphis, arr(d, float, device), arr(offset, wp.vec4, device), r, device, zbuf,
+                            margin).numpy()
+
+    want = x.copy()
+    cur = cost(ws1, want[..., 0], np.zeros_like(x), (0, found1))
+    new = cost(ws1, found1, np.zeros_like(x), (0, found1))
+    want[..., 0] = np.where(new < np.float32(FUSION_MARGIN) * cur, found1, want[..., 0])
+    cand2 = _sample_at_flow(found2, want)
+    cur = cost(ws2, want[..., 1], want, (1, cand2))
+    new = cost(ws2, cand2, want, (1, cand2))
+    want[..., 1] = np.where(new < np.float32(FUSION_MARGIN) * cur, cand2, want[..., 1])
+
+    xs = arr(x, wp.vec4, device)
+    _fuse_disparities(xs, ws1, ws2, wphis, arr(found1, float, device), arr(found2, float, device), params, device)
+    got = xs.numpy()
+    for k in (0, 1):
+        taken = want[..., k] != x[..., k]
+        assert 0.02 < taken.mean() < 0.98, k  # (both outcomes occur)
+    np.testing.assert_array_equal(got[..., 2:], x[..., 2:])
+    if D.is_cpu(device):
+        np.testing.assert_array_equal(got, want)
+    else:
+        assert np.mean(got != want) < 0.02
+
+
+def test_flow_fusion_on_the_device_is_the_host_rule(device):
+    """lfsf.estimate._fuse_flow against the NumPy rule it replaced: the flow takes the
+    searched one where its windowed residual is below FUSION_MARGIN times the current
+    one, but not where the point is hidden at t2; the disparities are left alone."""
+    from lfsf.estimate import FUSION_MARGIN, _fuse_flow, _window_flow_cost
+    from lfsf.params import Params
+
+    _phis, s1, s2, x, _f1, _f2, fu, fv, hidden = _fusion_inputs(device, seed=41)
+    params = Params.preset("paper")
+    c1, c2 = arr(s1[0], float, device), arr(s2[0], float, device)
+    cand = x.copy()
+    cand[..., 2], cand[..., 3] = fu, fv
+    new = _window_flow_cost(c1, c2, arr(cand, wp.vec4, device), params.search_radius, device).numpy()
+    cur = _window_flow_cost(c1, c2, arr(x, wp.vec4, device), params.search_radius, device).numpy()
+    for mask in (None, hidden):
+        better = new < np.float32(FUSION_MARGIN) * cur
+        if mask is not None:
+            better &= ~(mask > 0.5)
+        want = x.copy()
+        want[better, 2:] = cand[better, 2:]
+        assert 0.1 < better.mean() < 0.9
+        xs = arr(x, wp.vec4, device)
+        _fuse_flow(xs, c1, c2, arr(fu, float, device), arr(fv, float, device), params, device,
+                   None if mask is None else arr(mask, float, device))
+        if D.is_cpu(device):
+            np.testing.assert_array_equal(xs.numpy(), want)
+        else:
+            assert np.mean(xs.numpy() != want) < 0.02
