@@ -187,12 +187,10 @@ def reduction_factor(h: int, w: int) -> int:
 def fit_reduced_gains(small: np.ndarray, factor: int, sigma: float, device: str | None = None, used=None):
     """:func:`fit_view_gains` on the views already reduced by block means of ``factor``,
     (a, b, hs, ws): the fields (a, b, hs, ws), or None where there is nothing to fit (a
-    single view, under 16 px, or a grid the pilot's circles do not fit). The warps, the
-    masked sums and their blurs run on ``device`` (:mod:`lfsf.kernels.gains`), in float32;
-    each view's global gain (a median) on the host."""
+    single view, under 16 px, or a grid the pilot's circles do not fit). The pilot's
+    disparity, then :func:`fit_gains_at`."""
     from lfsf import device as _device
     from lfsf.estimate import estimate_scene_flow
-    from lfsf.kernels import gains as kernels
     from lfsf.params import Params
 
     small = np.asarray(small, np.float32)
@@ -203,8 +201,25 @@ def fit_reduced_gains(small: np.ndarray, factor: int, sigma: float, device: str 
     if pilot.sample_offsets((rows, cols))[1] <= 0:  # a grid the pilot's circles do not fit (one row)
         return None
     dev = _device.resolve_device(device)
-    wp = _device.warp()
     disparity = estimate_scene_flow(small, small, pilot, device=dev).disp1
+    return fit_gains_at(small, disparity, factor, sigma, dev, used)
+
+
+def fit_gains_at(small: np.ndarray, disparity: np.ndarray, factor: int, sigma: float, device: str, used=None):
+    """The fit of :func:`fit_reduced_gains` given the disparity (hs, ws) of the reduced
+    views' centre (the pilot's): every view named warped to the centre by it, the
+    reference (the centre view, or the views nearest it) their mean; each view's global
+    gain the median ratio over the pixels both see (on the host); then :data:`PASSES`
+    fits of the local ratio G_σ(C·W·M) / G_σ(W·W·M) over the matching pixels M, blended
+    towards the global gain where their weight G_σ(M) is below :data:`SUPPORT` and
+    clipped (on ``device``, float32; σ = ``sigma`` / ``factor`` px, at least 1)."""
+    from lfsf import device as _device
+    from lfsf.kernels import gains as kernels
+
+    wp = _device.warp()
+    dev = device
+    small = np.asarray(small, np.float32)
+    rows, cols, hs, ws = small.shape
     ac, bc = (rows - 1) / 2, (cols - 1) / 2
     near = [k for k in range(rows * cols) if abs(k // cols - ac) <= 0.5 and abs(k % cols - bc) <= 0.5]
     wanted = list(range(rows * cols)) if used is None else sorted({int(k) for k in used})

@@ -349,3 +349,64 @@ def test_box_pass_kernel_matches_numpy_at_any_span(device, span, along_rows):
         want = np.stack([moved[..., [mirror(j + t, length) for t in range(-radius, radius + 1)]].mean(-1)
                          for j in range(length)], -1)
         np.testing.assert_allclose(out.numpy(), np.moveaxis(want, -1, axis), rtol=1e-5, atol=1e-6)
+
+
+def _fit_reference(small, disparity, factor, sigma, used):
+    """The fit in float64 NumPy, as lfsf.gains ran it on the host before the thirtieth
+    session: the views warped by the tent-weights bilinear reference, the box blur pixel
+    by pixel (_box_reference)."""
+    from reference_kernels import bilinear
+
+    small = np.asarray(small, np.float64)
+    rows, cols, hs, ws = small.shape
+    yy, xx = np.mgrid[0:hs, 0:ws].astype(np.float64)
+    ac, bc = (rows - 1) / 2, (cols - 1) / 2
+    near = [k for k in range(rows * cols) if abs(k // cols - ac) <= 0.5 and abs(k % cols - bc) <= 0.5]
+    fitted = sorted(set(used) | set(near))
+    flat = small.reshape(rows * cols, hs, ws)
+    d = np.asarray(disparity, np.float64)
+    warped = np.stack([bilinear(flat[k], xx - d * (k % cols - bc), yy - d * (k // cols - ac)) for k in fitted])
+    centre = warped[[fitted.index(k) for k in near]].mean(0)
+    seen = (warped > gains.DARK) & (centre > gains.DARK)
+    border = max(2, int(round(8 / factor)))
+    seen[:, :border] = seen[:, -border:] = False
+    seen[:, :, :border] = seen[:, :, -border:] = False
+    base = np.ones(len(fitted))
+    for m in range(len(fitted)):
+        if seen[m].sum() >= 16:
+            base[m] = np.median(centre[seen[m]] / warped[m][seen[m]])
+    base = np.clip(base, 1 / gains.MAX_GAIN, gains.MAX_GAIN)[:, None, None]
+    s = max(sigma / factor, 1.0)
+    g = np.broadcast_to(base, warped.shape)
+    for _ in range(gains.PASSES):
+        m = (seen & (np.abs(g * warped - centre) < gains.MATCH)).astype(np.float64)
+        num, den, support = (_box_reference(x, s) for x in (centre * warped * m, warped * warped * m, m))
+        ratio = np.where(den > 0, num / np.where(den > 0, den, 1.0), base)
+        g = np.clip(base + (ratio - base) * np.clip(support / gains.SUPPORT, 0, 1), 1 / gains.MAX_GAIN, gains.MAX_GAIN)
+    if len(near) == 1:
+        g[fitted.index(near[0])] = 1.0
+    out = np.ones((rows * cols, hs, ws))
+    out[used] = g[[fitted.index(k) for k in used]]
+    return out.reshape(rows, cols, hs, ws)
+
+
+@pytest.mark.parametrize("grid", [(5, 5), (4, 4)])
+def test_the_fit_on_the_device_matches_its_numpy_reference(device, grid):
+    """lfsf.gains.fit_gains_at (warps, masked sums, box blurs and ratios as kernels, in
+    float32; the medians on the host) against the float64 NumPy fit it replaced, on a
+    vignetted `paper` with the ground truth's disparity as the pilot's: within 2e-5
+    (float32 sums and blurs: 3e-6 measured on the CPU; a pixel whose match test flips on
+    rounding would move more, so at most 0.1 % of the pixels may), on an odd grid (the
+    centre view the reference) and an even one (the four nearest). The views' offsets
+    mirrored left to right fail it."""
+    lf, _lf2, gt = synth.render_scene("paper", size=(64, 48), grid=grid[0])
+    views = synth.add_vignetting(lf, 0.1).grey().views
+    used = [0, 2, 5, 7, 8, grid[0] * grid[1] - 1]
+    got = gains.fit_gains_at(views, gt["disp1"], 1, 6.0, device, used=used)
+    want = _fit_reference(views, gt["disp1"], 1, 6.0, used)
+    assert got.shape == want.shape
+    far = np.abs(got - want) > 2e-5
+    assert far.mean() < 1e-3, float(np.abs(got - want).max())
+    assert np.abs(want - 1).max() > 0.05  # (the fields are not trivially 1)
+    others = [k for k in range(grid[0] * grid[1]) if k not in used]
+    assert np.all(got.reshape(-1, 48, 64)[others] == 1.0)
