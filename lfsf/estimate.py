@@ -772,7 +772,7 @@ def estimate_scene_flow(
     S. Heber and T. Pock, "Scene Flow Estimation from Light Fields via the
     Preconditioned Primal-Dual Algorithm", GCPR 2014.
     """
-    from lfsf.kernels import fusion
+    from lfsf.kernels import fusion, pyramid
     from lfsf.kernels import gains as gain_kernels
     from lfsf.solver import LevelSolver
 
@@ -938,7 +938,9 @@ def estimate_scene_flow(
     say(f"{width}×{height}, {rows}×{cols} views, {n_samples} samples (R = {radius:g}), "
         f"{len(sizes)} levels on {dev}")
 
-    x = coarser = None  # (the unknowns on the host; the coarser level's solver)
+    # the unknowns: on the device between levels (x_dev, vec4), on the host (x) at the
+    # start, at the end, and for flow only (whose solver holds (δ1, δ2) on the host)
+    x = x_dev = coarser = None  # (coarser: the coarser level's solver)
     hidden_here = None
     for level in range(len(sizes) - 1, -1, -1):
         h, w = sizes[level]
@@ -947,14 +949,14 @@ def estimate_scene_flow(
         s2 = wp.clone(tex[n_samples:])
         solver = LevelSolver(s1, s2, wp.clone(cen[0]), wp.clone(cen[1]), wp_phis, wp_weights, params, dev,
                              level_scale=w / width, colour1=col)
-        if x is None and start is not None:
-            scales = (w / width, w / width, w / width, h / height)  # δ1, δ2 and u with the width, v with the height
-            x = np.stack([_resize_map(start[..., c], (h, w), scales[c], dev) for c in range(4)], -1)
-        elif x is None:
-            x = np.zeros((h, w, 4), np.float32)
+        if x_dev is None:
+            if x is None and start is not None:
+                scales = (w / width, w / width, w / width, h / height)  # δ1, δ2 and u with the width, v with the height
+                x = np.stack([_resize_map(start[..., c], (h, w), scales[c], dev) for c in range(4)], -1)
+            elif x is None:
+                x = np.zeros((h, w, 4), np.float32)
+            x_dev = wp.array(np.ascontiguousarray(x, np.float32), dtype=wp.vec4, device=dev)
         # the searches fuse into x on the device (kernels.fusion)
-        x_dev = (wp.array(np.ascontiguousarray(x, np.float32), dtype=wp.vec4, device=dev)
-                 if flow_search or search else None)
         if flow_search:
             found_u, found_v, found_hidden = flow_found
             search_h, search_w = found_u.shape
@@ -973,10 +975,8 @@ def estimate_scene_flow(
             _fuse_disparities(x_dev, s1, s2, wp_phis, _resize_plane(found[0], (h, w), scale, dev),
                               _resize_plane(found[1], (h, w), scale, dev), params, dev)
             lap("search")
-        if x_dev is not None:
-            x = x_dev.numpy()
-            del x_dev
-        solver.set_state(x)
+        solver.set_state(x_dev)
+        x = x_dev = None
         if coarser is not None:
             # w and the disparities' TGV duals (Params.carry_duals) go on to this level on the device
             solver.take_coarse(coarser, params.carry_duals and n_samples > 1)
@@ -1003,13 +1003,19 @@ def estimate_scene_flow(
             # 320×240, 0.162 → 0.151)
             solver.median()
             lap("median")
-        x = solver.unknowns()
         if level > 0:
             fh, fw = sizes[level - 1]
             sx, sy = fw / w, fh / h
             sd = 0.5 * (sx + sy)
-            x, = _upsample_state([x], (fh, fw), (sd, sd, sx, sy), dev)  # (on the host: the searches fuse into it)
+            if solver.flow_only:
+                x, = _upsample_state([solver.unknowns()], (fh, fw), (sd, sd, sx, sy), dev)
+            else:
+                x_dev = wp.empty((fh, fw), dtype=wp.vec4, device=dev)
+                _device.launch_rows(pyramid.upsample_unknowns, dim=(fh, fw),
+                                    inputs=[solver.x, wp.vec4(sd, sd, sx, sy), 4], outputs=[x_dev], device=dev)
             coarser = solver
+        else:
+            x = solver.unknowns()
         lap("upsample")
     if params.depth_change_radius > 0 and n_samples > 1:
         x = _depth_change_median(x, params, dev)

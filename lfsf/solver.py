@@ -141,13 +141,24 @@ class LevelSolver:
 
     # --- state ---------------------------------------------------------------------------
 
-    def set_state(self, x: np.ndarray, w0: np.ndarray | None = None, w1: np.ndarray | None = None) -> None:
+    def set_state(self, x, w0: np.ndarray | None = None, w1: np.ndarray | None = None) -> None:
         """Start from x (h, w, 4) = (δ1, δ2, u, v) and w (each (h, w, 4), default 0);
         duals are reset, and the tensors Γ_t2, Γ_uv set from x. Flow only, the (δ1, δ2)
-        parts are held as they are."""
+        parts are held as they are. x may also be a vec4 (h, w) device array (the
+        estimator's, which stays on the device between levels)."""
         wp = _device.warp()
         h, w = self.shape
+        on_device = isinstance(x, wp.array)
+        if on_device:
+            if tuple(x.shape) != (h, w) or x.dtype != wp.vec4:
+                raise ValueError(f"x must be a vec4 array of shape {(h, w)}, got {x.dtype.__name__} {tuple(x.shape)}")
+            if self.flow_only:
+                x, on_device = x.numpy(), False  # (the held (δ1, δ2) parts stay on the host)
         for name, value in (("x", x), ("w0", w0), ("w1", w1)):
+            if name == "x" and on_device:
+                wp.copy(self.x, value)
+                wp.copy(self.x_bar, value)
+                continue
             if value is None and name != "x":  # (zeroed where they are: nothing to upload)
                 if self.flow_only:
                     self._held[name] = np.zeros((h, w, 2), np.float32)

@@ -1797,6 +1797,31 @@ def test_take_coarse_upsamples_w_and_the_disparity_duals_on_the_device(device, p
         fine.take_coarse(other, True)
 
 
+@pytest.mark.parametrize("preset", ["fast", "flow"])
+def test_set_state_takes_the_unknowns_on_the_device(device, preset):
+    """set_state from a vec4 device array gives the state that the same array from the
+    host gives (flow only: (δ1, δ2) held on the host, (u, v) iterated); another shape or
+    type is refused."""
+    from lfsf.params import Params
+
+    params = Params.preset(preset).replace(rof_iterations=10)
+    solver = _level_solver((32, 24), 5, params, device)
+    h, w = solver.shape
+    x = rng(14).normal(size=(h, w, 4)).astype(np.float32)
+    solver.set_state(x)
+    want = [a.copy() for a in solver.state()]
+    solver.linearise()
+    solver.iterate(5)
+    solver.set_state(arr(x, wp.vec4, device))
+    for got, expected in zip(solver.state(), want):
+        np.testing.assert_array_equal(got, expected)
+    np.testing.assert_array_equal(solver.x_bar.numpy(), solver.x.numpy())
+    with pytest.raises(ValueError, match="vec4 array of shape"):
+        solver.set_state(arr(x[:-1], wp.vec4, device))
+    with pytest.raises(ValueError, match="vec4 array of shape"):
+        solver.set_state(arr(x[..., :2], wp.vec2, device))
+
+
 def test_view_visibility_margin_scales_with_the_level(device):
     """``occlusion_margin`` is in px per view step at full resolution, and disparities
     shrink with the level: a step of 0.2 (level px per view step) hides no background
