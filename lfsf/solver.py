@@ -184,28 +184,11 @@ class LevelSolver:
         the unknowns' components (δ1, δ2, u, v) last (flow only: (h, w, 2), (u, v))."""
         return [getattr(self, name).numpy() for name in TGV_DUALS]
 
-    def carry_disparity_duals(self, duals: list[np.ndarray]) -> None:
-        """Set the (δ1, δ2) parts of the TGV duals from ``duals`` (as :meth:`tgv_duals`
-        gives them, of this level's size: the coarser level's, upsampled); the flow's
-        parts stay as they are (0 after :meth:`set_state`). Flow only: nothing to set.
-        ``params.carry_duals``."""
-        if self.flow_only:
-            return
-        wp = _device.warp()
-        h, w = self.shape
-        for name, given in zip(TGV_DUALS, duals):
-            if given.shape != (h, w, 4):
-                raise ValueError(f"{name} must have shape {(h, w, 4)}, got {given.shape}")
-            target = getattr(self, name)
-            merged = target.numpy()
-            merged[..., :2] = given[..., :2]
-            wp.copy(target, wp.array(merged, dtype=self.vec, device=self.device))
-
     def take_coarse(self, coarse: LevelSolver, duals: bool) -> None:
         """After :meth:`set_state`: w0 and w1 from the coarser level's solver ``coarse``,
         upsampled bilinearly on the device (as the unknowns between levels, unscaled),
-        and with ``duals`` (``params.carry_duals``) the (δ1, δ2) parts of its TGV duals
-        (:meth:`carry_disparity_duals`, without the trip through the host). Flow only,
+        and with ``duals`` (``params.carry_duals``) the (δ1, δ2) parts of its TGV duals,
+        their flow parts left at the 0 that :meth:`set_state` gave them. Flow only,
         no duals are carried, and w's held (δ1, δ2) parts stay 0, which is what
         upsampling the coarser level's zeros gives."""
         from lfsf.kernels import pyramid
