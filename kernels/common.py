@@ -2,6 +2,8 @@
 gradients with Neumann boundaries. Pixel (row i, column j) has its centre at image
 coordinates (x, y) = (j, i)."""
 
+from typing import Any
+
 import warp as wp
 
 wp.set_module_options({"enable_backward": False})
@@ -137,8 +139,9 @@ def pixel(img: wp.array2d(dtype=float), i: int, j: int):
 
 
 @wp.func
-def bilinear(img: wp.array2d(dtype=float), x: float, y: float):
-    """Bilinear interpolation of img at (x, y) (x = column), clamped at the borders."""
+def bilinear(img: wp.array2d(dtype=Any), x: float, y: float):
+    """Bilinear interpolation of img at (x, y) (x = column), clamped at the borders: of
+    a float image, or of the unknowns (vec4 or vec2) component by component."""
     h = img.shape[0]
     w = img.shape[1]
     xc = wp.clamp(x, 0.0, float(w - 1))

@@ -95,19 +95,9 @@ def upsample_unknowns(
     i = i + row0
     h = fine.shape[0]
     w = fine.shape[1]
-    hc = coarse.shape[0]
-    wc = coarse.shape[1]
-    x = wp.clamp((float(j) + 0.5) * float(wc) / float(w) - 0.5, 0.0, float(wc - 1))
-    y = wp.clamp((float(i) + 0.5) * float(hc) / float(h) - 0.5, 0.0, float(hc - 1))
-    j0 = wp.min(int(x), wp.max(wc - 2, 0))
-    i0 = wp.min(int(y), wp.max(hc - 2, 0))
-    j1 = wp.min(j0 + 1, wc - 1)
-    i1 = wp.min(i0 + 1, hc - 1)
-    fx = x - float(j0)
-    fy = y - float(i0)
-    top = (1.0 - fx) * to_vec4(coarse[i0, j0]) + fx * to_vec4(coarse[i0, j1])
-    bottom = (1.0 - fx) * to_vec4(coarse[i1, j0]) + fx * to_vec4(coarse[i1, j1])
-    up = (1.0 - fy) * top + fy * bottom
+    x = (float(j) + 0.5) * float(coarse.shape[1]) / float(w) - 0.5
+    y = (float(i) + 0.5) * float(coarse.shape[0]) / float(h) - 0.5
+    up = to_vec4(bilinear(coarse, x, y))
     old = to_vec4(fine[i, j])
     out = wp.vec4(old[0], old[1], old[2], old[3])
     for k in range(4):
