@@ -29,6 +29,9 @@ class Params:
         lambda1, lambda2, lambda3 : λ1 (stereo at t1), λ2 (stereo at t2), λ3 (flow).
             Each is divided by the number of samples, so the weights mean the same
             whatever the sampling.
+        lambda3_side : the weight of the side samples' ρ3 rows (φ ≠ 0, the cross-time
+            rows that tie δ1 to δ2 and the flow) as a fraction of λ3; the centre view's
+            ρ3 row (φ = 0, the optical-flow term) keeps λ3. 1 is the paper's model.
         occlusion_ratio : occlusion handling (an addition to the paper): where the samples
             on one side of a line through the centre match better than this fraction of
             the mean, the other side is left out of that pixel's stereo rows (0: off).
@@ -203,6 +206,7 @@ class Params:
     lambda1: float = 10.0
     lambda2: float = 10.0
     lambda3: float = 30.0
+    lambda3_side: float = 1.0
     occlusion_ratio: float = 0.7
     visibility: bool = True
     occlusion_margin: float = 0.25
@@ -337,7 +341,7 @@ class Params:
         need(sum(self.samples) <= MAX_SAMPLES,
              f"samples (N_i) may hold at most {MAX_SAMPLES} positions in all, got {sum(self.samples)}")
         need(self.radius > 0 or self.circles == 1, f"radius R must be positive, got {self.radius}")
-        for name in ("lambda1", "lambda2", "lambda3", "alpha0", "alpha1", "gamma", "beta", "rof_weight", "eps"):
+        for name in ("lambda1", "lambda2", "lambda3", "lambda3_side", "alpha0", "alpha1", "gamma", "beta", "rof_weight", "eps"):
             value = getattr(self, name)
             need(value >= 0, f"{name} must be a finite number ≥ 0, got {value}")
         need(self.alpha0 > 0 and self.alpha1 > 0, "alpha0 and alpha1 must be positive")

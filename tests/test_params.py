@@ -60,6 +60,7 @@ BAD = [
     ("lambda3", "x"), ("lambda1", True), ("radius", None), ("hidden_fill_sigma", math.inf),
     ("radius", math.nan), ("gamma", -math.inf), ("step_ratio", math.inf), ("flow_edge_weight", math.inf),
     ("occlusion_margin", math.inf), ("hidden_fill_depth", math.inf), ("lambda2", 10 ** 400),
+    ("lambda3_side", -0.5), ("lambda3_side", math.nan),
     # ranges
     ("eps", 0), ("eps", 0.0), ("eps", -1e-6),
     ("colour_median_radius", 4), ("colour_median_radius", -1), ("colour_median_radius", 2.5),
