@@ -172,18 +172,33 @@ def cmd_eval(args) -> int:
 # --- run and demo ----------------------------------------------------------------------------
 
 class _Progress:
-    """Progress lines on a terminal (each overwriting the last); silent in logs or --quiet."""
+    """Progress lines on a terminal (each overwriting the last); silent in logs. The
+    estimator's notes (:class:`lfsf.estimate.Note`: an exposure matched or refused, …)
+    stay on a line of their own on a terminal and are printed in logs too. Nothing
+    with --quiet."""
 
     def __init__(self, args):
-        self.live = sys.stderr.isatty() and not getattr(args, "quiet", False)
+        self.quiet = getattr(args, "quiet", False)
+        self.live = sys.stderr.isatty() and not self.quiet
+        self.prefix = f"lfsf {getattr(args, 'command', None) or 'run'}: "
         self.t0 = time.perf_counter()
         self.width = 0
 
     def __call__(self, message: str) -> None:
+        from lfsf.estimate import Note
+
+        if self.quiet:
+            return
         if not self.live:
+            if isinstance(message, Note):
+                sys.stderr.write(self.prefix + message + "\n")
+                sys.stderr.flush()
             return
         line = f"[{time.perf_counter() - self.t0:6.1f} s] {message}"
         sys.stderr.write("\r" + line.ljust(self.width))
+        if isinstance(message, Note):  # kept: the next line starts below it
+            sys.stderr.write("\n")
+            line = ""
         sys.stderr.flush()
         self.width = len(line)
 

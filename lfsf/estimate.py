@@ -108,6 +108,15 @@ def _colour_range(*maps) -> tuple[float, float]:
 
 ProgressFn = Callable[[str], None]
 
+
+class Note(str):
+    """A line of the progress that reports a decision about the input rather than how far
+    the run has come: t2 matched to another exposure, or such a match refused; the views'
+    gains matched; the view z-buffers off. A plain ``str`` to any progress callable; the
+    command line prints these in logs too, where it leaves the progress out."""
+
+    __slots__ = ()
+
 #: The flow search runs on the finest level where its range is at most this many pixels
 #: and which is at most FLOW_SEARCH_WIDTH pixels wide. Its 3×3 windows need texture of
 #: the scene's scale, not the image's: at 640×480, searching the 160×120 level instead of
@@ -746,7 +755,9 @@ def estimate_scene_flow(
     device : str, optional
         ``cpu`` or ``cuda:N`` (default: :func:`lfsf.device.resolve_device`).
     progress : callable, optional
-        Called with a line of text at each level and warp.
+        Called with a line of text at each level and warp, and with a :class:`Note`
+        (a ``str``) for each decision about the input: an exposure matched or refused,
+        the views' gains matched, the view z-buffers off.
     init : SceneFlow or dict, optional
         A starting estimate (``disp1``, ``disp2``, ``u``, ``v``, (H, W) maps of the t1
         centre view), e.g. :func:`predict_next` of the previous pair of a sequence. The
@@ -797,6 +808,9 @@ def estimate_scene_flow(
     if progress is not None and not callable(progress):       # (found only after the first level)
         raise ValueError(f"progress must be a callable taking a line, got {type(progress).__name__}")
     say = progress or (lambda _msg: None)
+
+    def note(message: str) -> None:
+        say(Note(message))
     params = Params.preset("paper") if params is None else params
     if not isinstance(params, Params):
         raise ValueError(f"params must be an lfsf.Params, got {type(params).__name__}")
@@ -819,7 +833,7 @@ def estimate_scene_flow(
     requested = params
     if params.visibility and one_sided(phis):
         params = params.replace(visibility=False)
-        say("view z-buffers off: the side samples lie on one side of the centre (Params.visibility)")
+        note("view z-buffers off: the side samples lie on one side of the centre (Params.visibility)")
     n_samples = len(phis)
     weights = data_weights(params, n_samples)
     wp_phis = wp.array(phis, dtype=wp.vec2, device=dev)
@@ -841,10 +855,10 @@ def estimate_scene_flow(
         grey_centres = [stretched(luma(centre_view(lf.views)) if lf.is_colour else centre_view(lf.views))
                         for lf in (lf1, lf2)]
         if not np.array_equal(*grey_centres):
-            gain, shift, change = _exposure_change(*grey_centres, dev, note=say)
+            gain, shift, change = _exposure_change(*grey_centres, dev, note=note)
             if change > EXPOSURE_CHANGE:
                 exposure = (gain, shift)
-                say(f"exposure: t2 matched to t1 by I ↦ {gain:.4f}·I {shift:+.4f} (it moved the intensities "
+                note(f"exposure: t2 matched to t1 by I ↦ {gain:.4f}·I {shift:+.4f} (it moved the intensities "
                     f"by up to {100 * change:.1f} % of their range)")
         lap("exposure")
     gains = views1 = None
@@ -869,7 +883,7 @@ def estimate_scene_flow(
                 if change > GAIN_CHANGE:
                     gains = (wp.array(fitted.astype(np.float32), dtype=float, device=dev),
                              wp.array(np.asarray(used, np.int32), dtype=wp.int32, device=dev), factor)
-                    say(f"view gains: each view sampled matched to the centre view's brightness (gains "
+                    note(f"view gains: each view sampled matched to the centre view's brightness (gains "
                         f"{float(fitted[used].min()):.3f}–{float(fitted[used].max()):.3f}, 95th percentile of "
                         f"the change {100 * change:.1f} %)")
         del small

@@ -1,7 +1,9 @@
 """The command line: outputs, and bad input ending in one clear line with exit status 2."""
 
 import argparse
+import io as io_module
 import json
+import re
 import os
 import subprocess
 import sys
@@ -493,3 +495,53 @@ def test_scripts_answer_bad_options_in_one_line(tmp_path, script, args, needle):
     proc = subprocess.run([sys.executable, os.path.join(root, "scripts", script), *[a.format(tmp=tmp_path) for a in args]],
                           capture_output=True, text=True, env={**os.environ, "LFSF_DEVICE": ""})
     assert_clean_error(proc.returncode, proc.stderr, needle)
+
+
+class _Stream(io_module.StringIO):
+    def __init__(self, tty):
+        super().__init__()
+        self.tty = tty
+
+    def isatty(self):
+        return self.tty
+
+
+@pytest.mark.parametrize("tty", [False, True])
+def test_the_estimators_notes_reach_a_log_and_the_progress_only_a_terminal(monkeypatch, tty):
+    from lfsf.cli import _Progress
+    from lfsf.estimate import Note
+
+    for quiet in (False, True):
+        stream = _Stream(tty)
+        monkeypatch.setattr(sys, "stderr", stream)
+        progress = _Progress(argparse.Namespace(command="run", quiet=quiet))
+        progress("level 1/3 (40×30), warp 1/3")
+        progress(Note("exposure: not matched, the gain fitted (5.000) is beyond the 4× (either way) that is undone"))
+        progress("level 2/3 (80×60), warp 1/3")
+        progress.done()
+        text = stream.getvalue()
+        if quiet:
+            assert text == ""
+        elif tty:  # the note on a line of its own, the progress overwritten in place
+            lines = text.split("\n")
+            assert "exposure: not matched" in lines[0] and "level 1/3" in lines[0] and lines[0].startswith("\r")
+            assert "level 2/3" in lines[1] and lines[2] == ""
+        else:
+            assert text == "lfsf run: exposure: not matched, the gain fitted (5.000) is beyond the 4× (either way) " \
+                           "that is undone\n"
+
+
+def test_run_says_in_its_log_that_it_matched_t2s_exposure(tmp_path):
+    """Not on a terminal (a log, a pipe, a batch job) the exposure match is still said."""
+    assert main(["synth", "slanted", "--out", str(tmp_path / "s"), "--size", "128", "96", "--grid", "3",
+                 "--quiet"]) == 0
+    with np.load(tmp_path / "s" / "lf2.npz") as z:
+        np.savez(tmp_path / "dark.npz", views=(0.5 * z["views"]).astype(np.float32))
+    status, _, err = lfsf("run", tmp_path / "s" / "lf1.npz", tmp_path / "dark.npz", "--out", tmp_path / "r",
+                          "--preset", "flow")
+    assert status == 0, err
+    found = re.search(r"^lfsf run: exposure: t2 matched to t1 by I ↦ ([0-9.]+)·I", err, flags=re.M)
+    assert found and abs(float(found.group(1)) - 2.0) < 0.1, err
+    status, _, err = lfsf("run", tmp_path / "s" / "lf1.npz", tmp_path / "dark.npz", "--out", tmp_path / "q",
+                          "--preset", "flow", "--quiet")
+    assert status == 0 and err == "", err
