@@ -1,7 +1,5 @@
 """``python -m lfsf`` is the ``lfsf`` command."""
 
-import sys
+from lfsf.cli import entry
 
-from lfsf.cli import main
-
-sys.exit(main())
+entry()

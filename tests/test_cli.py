@@ -545,3 +545,16 @@ def test_run_says_in_its_log_that_it_matched_t2s_exposure(tmp_path):
     status, _, err = lfsf("run", tmp_path / "s" / "lf1.npz", tmp_path / "dark.npz", "--out", tmp_path / "q",
                           "--preset", "flow", "--quiet")
     assert status == 0 and err == "", err
+
+
+@pytest.mark.parametrize("status", [0, 2, 130])
+def test_the_command_ends_at_once_after_an_interrupt(status):
+    """``lfsf.cli.entry`` (the installed command): after Ctrl-C (status 130) the process
+    ends without the interpreter's shutdown (no atexit, no thread joins, no collection
+    of what the interrupt left half made, whose errors printed tracebacks after
+    "interrupted"); any other status exits as usual."""
+    code = ("import atexit, lfsf.cli as c; atexit.register(lambda: print('shutdown ran', flush=True)); "
+            f"c.main = lambda: {status}; c.entry()")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == status, proc.stderr
+    assert ("shutdown ran" in proc.stdout) == (status != 130), proc.stdout
