@@ -7,7 +7,9 @@ folder:
 * a task writes into a hidden temporary folder ``OUT/.NAME.part-PID-…`` and renames it
   to ``OUT/NAME`` only when every file is there, so a killed run never leaves a
   half-written result, and a result folder that exists is complete;
-* a re-run skips the pairs whose result folder is complete;
+* a re-run skips the pairs whose result folder is complete and was estimated with the
+  same settings; it estimates again, and replaces, one of other settings or whose
+  sceneflow.npz does not read;
 * a pair that fails (bad input, an error in the estimate) is reported with its reason
   and the others go on; a worker process that dies in the middle of a task is replaced
   and the task runs again elsewhere (Dask retries it);
@@ -87,7 +89,9 @@ class Summary:
     def describe(self) -> str:
         done = [o.seconds for o in self.outcomes if o.status == "done"]
         per_pair = f", {np.median(done):.1f} s per pair (median)" if done else ""
-        return (f"{self.count('done')} done, {self.count('skipped')} skipped (complete), "
+        replaced = sum(o.status == "done" and o.reason == REPLACED for o in self.outcomes)
+        again = (f" ({replaced} over a result of other settings or an unreadable one)" if replaced else "")
+        return (f"{self.count('done')} done{again}, {self.count('skipped')} skipped (complete), "
                 f"{self.count('failed')} failed in {self.seconds:.1f} s{per_pair}")
 
 
@@ -190,6 +194,29 @@ def is_complete(folder: Path) -> bool:
     return all((folder / name).is_file() for name in RESULT_FILES)
 
 
+#: An :class:`Outcome`'s reason where a pair was estimated again over a complete result.
+REPLACED = "replaced a result of other settings, or one whose sceneflow.npz does not read"
+
+
+def _estimated_with(folder: Path, params) -> bool:
+    """Whether the complete result in ``folder`` was estimated with the settings
+    ``params`` (None: the `paper` preset): its sceneflow.npz reads, maps and all, and
+    the settings it records are these. Anything else (other settings, a file cut short
+    or not lfsf's) is no result of this run, and a re-run estimates the pair again."""
+    import json
+
+    from lfsf.params import Params
+
+    try:
+        with np.load(folder / "sceneflow.npz") as z:
+            recorded = Params(**json.loads(str(z["params"]))["params"])
+            for key in ("disp1", "disp2", "u", "v"):
+                z[key]
+    except Exception:  # noqa: BLE001 - whatever fails to read is no result of this run
+        return False
+    return recorded == (Params.preset("paper") if params is None else params)
+
+
 def _holds_only_results(folder: Path) -> bool:
     """Whether ``folder`` holds nothing but (some of) a result's files, so that an
     incomplete result may be replaced without losing anything else."""
@@ -247,8 +274,11 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
     t0 = time.perf_counter()
     tmp = None
     try:  # all of it: a name too long for the file system fails here, in is_complete
+        replaced = ""
         if is_complete(final):
-            return Outcome(pair.name, "skipped")
+            if _estimated_with(final, params):
+                return Outcome(pair.name, "skipped")
+            replaced = REPLACED
         _remove_stale(out, pair.name)
         tmp = out / f".{pair.name}.part-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         tmp.mkdir(parents=True)
@@ -267,7 +297,7 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
                                  f"{', '.join(sorted(p.name for p in final.iterdir())[:5])}); not replaced")
             shutil.rmtree(final)
         os.replace(tmp, final)
-        return Outcome(pair.name, "done", time.perf_counter() - t0, warm=init is not None)
+        return Outcome(pair.name, "done", time.perf_counter() - t0, replaced, warm=init is not None)
     except Exception as exc:  # noqa: BLE001 - every failure of a pair is reported, the batch goes on
         reason = _reason(exc)
         return Outcome(pair.name, "failed", time.perf_counter() - t0, reason)

@@ -542,3 +542,36 @@ def test_scene_flow_compares_by_identity_and_prints_briefly():
     b = SceneFlow(**maps, params=Params.preset("fast"), radius=4.0, device="cpu")
     assert a == a and a != b and a in [a]
     assert repr(a) == "SceneFlow(6×4, R=4, device='cpu')"
+
+
+def test_a_rerun_skips_only_results_of_its_own_settings_that_read(frames, tmp_path, monkeypatch):
+    """A re-run with the same settings skips a complete result and leaves it untouched;
+    with other settings, or where sceneflow.npz is cut short, it estimates the pair again
+    and replaces the result (it had kept a `fast` result under `paper`, and counted a
+    truncated one as complete)."""
+    import json
+
+    monkeypatch.setattr(batch, "have_dask", lambda: False)
+    folder, _ = frames
+    manifest = _manifest(tmp_path / "m.csv", [(folder / "f000.npz", folder / "f001.npz", "a")])
+    pairs, out = batch.pairs_from_sources([manifest]), tmp_path / "out"
+    flow = PARAMS.replace(circles=1, samples=(1,))
+
+    def settings():
+        with np.load(out / "a" / "sceneflow.npz") as z:
+            return Params(**json.loads(str(z["params"]))["params"])
+
+    assert [o.status for o in batch.run_batch(pairs, out, PARAMS, device="cpu").outcomes] == ["done"]
+    before = _mtimes(out, "a")
+    summary = batch.run_batch(pairs, out, PARAMS, device="cpu")
+    assert [o.status for o in summary.outcomes] == ["skipped"] and _mtimes(out, "a") == before
+    summary = batch.run_batch(pairs, out, flow, device="cpu")
+    assert [(o.status, o.reason) for o in summary.outcomes] == [("done", batch.REPLACED)], summary.describe()
+    assert "1 done (1 over a result of other settings or an unreadable one)" in summary.describe()
+    assert settings() == flow and _leftovers(out) == []
+    with open(out / "a" / "sceneflow.npz", "r+b") as f:
+        f.truncate(50)
+    summary = batch.run_batch(pairs, out, flow, device="cpu")
+    assert [(o.status, o.reason) for o in summary.outcomes] == [("done", batch.REPLACED)]
+    assert settings() == flow
+    assert [o.status for o in batch.run_batch(pairs, out, flow, device="cpu").outcomes] == ["skipped"]
