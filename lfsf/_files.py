@@ -99,7 +99,10 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         fd, tmp = tempfile.mkstemp(prefix=f".{path.stem[:TEMP_STEM]}.", suffix=".part" + suffix, dir=path.parent)
         tmp_path = Path(tmp)
         os.close(fd)
-        yield tmp_path
+        try:
+            yield tmp_path
+        except OSError as exc:
+            raise _named(exc, path) from exc
         # mkstemp makes the file private (0600); give it the mode a plain open() would.
         os.chmod(tmp_path, 0o666 & ~_umask())
         os.replace(tmp_path, path)
@@ -108,6 +111,14 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
             with contextlib.suppress(FileNotFoundError):
                 tmp_path.unlink()
         raise
+
+
+def _named(exc: OSError, path: Path) -> OSError:
+    """``exc`` itself where it names a file; else the same error naming ``path``, what was
+    being written (a full disk's ``[Errno 28] No space left on device`` names none)."""
+    if exc.filename is not None or exc.errno is None:
+        return exc
+    return type(exc)(exc.errno, exc.strerror or str(exc), os.fspath(path))
 
 
 def _umask() -> int:
@@ -201,7 +212,10 @@ def file_set(out: Path, names):
     tmp = None
     try:
         tmp = Path(tempfile.mkdtemp(prefix=".lfsf-set.", dir=out))
-        yield tmp
+        try:
+            yield tmp
+        except OSError as exc:
+            raise _named(exc, out) from exc
         with interrupts_held():
             for name in names:
                 (out / name).parent.mkdir(parents=True, exist_ok=True)

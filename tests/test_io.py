@@ -1168,3 +1168,34 @@ def test_small_api_gaps_are_closed(tmp_path):
     image = (np.arange(12).reshape(3, 4) * 1000).astype(">u2")
     lio.write_png(tmp_path / "be.png", image)
     np.testing.assert_array_equal(lio.read_image(tmp_path / "be.png"), image.astype(np.uint16))
+
+
+@pytest.mark.parametrize("where", ["atomic_path", "file_set"])
+def test_an_os_error_without_a_file_name_names_what_was_being_written(tmp_path, where):
+    """A full disk's ``[Errno 28] No space left on device`` names no file: the writers add
+    the file (or the folder of a set of results) being written, and leave nothing
+    behind; an error that names its file is passed on as it is."""
+    import errno
+    import os
+
+    from lfsf import _files
+
+    def write(exc):
+        if where == "atomic_path":
+            with _files.atomic_path(tmp_path / "r.pfm") as tmp:
+                tmp.write_bytes(b"x")
+                raise exc
+        with _files.file_set(tmp_path / "out", ["a.pfm"]) as tmp:
+            (tmp / "a.pfm").write_bytes(b"x")
+            raise exc
+
+    target = os.fspath(tmp_path / ("r.pfm" if where == "atomic_path" else "out"))
+    with pytest.raises(OSError) as raised:
+        write(OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)))
+    assert raised.value.errno == errno.ENOSPC and raised.value.filename == target
+    assert str(raised.value) == f"[Errno 28] No space left on device: '{target}'"
+    with pytest.raises(OSError) as raised:
+        write(FileNotFoundError(errno.ENOENT, "gone", "/else/where"))
+    assert type(raised.value) is FileNotFoundError and raised.value.filename == "/else/where"
+    left = sorted(p.name for p in tmp_path.rglob("*"))
+    assert left == ([] if where == "atomic_path" else ["out"]), left
