@@ -10,6 +10,7 @@ import argparse
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
 
 from lfsf._errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, run_script
@@ -541,7 +542,11 @@ def main(argv=None) -> int:
     if args.command is None:
         parser.print_help(sys.stderr)
         return EXIT_BAD_INPUT
-    return run_script(lambda: args.func(args), prog=f"lfsf {args.command}")
+    prog = f"lfsf {args.command}"
+    with warnings.catch_warnings():  # (restores the default display on the way out)
+        # a warning is one line like every other message, not Python's file:line and source
+        warnings.showwarning = lambda message, *_rest, **_kw: print(f"{prog}: warning: {message}", file=sys.stderr)
+        return run_script(lambda: args.func(args), prog=prog)
 
 
 def entry() -> None:  # pragma: no cover - the installed command; tests call main()

@@ -556,7 +556,9 @@ def _read_hci_parameters(path: Path) -> dict:
     try:
         parser.read_string(path.read_text(encoding="utf-8", errors="replace"), source=str(path))
     except configparser.Error as err:
-        warnings.warn(f"{path}: ignored, not an INI file ({err})", stacklevel=3)
+        # (configparser's first line says what; the others repeat the file, the line and its text)
+        why = str(err).splitlines()[0].rstrip(".") if str(err).strip() else type(err).__name__
+        warnings.warn(f"{path}: ignored, not an INI file ({why})", stacklevel=3)
         return {}
     return {section: {key: _parse_cfg_value(value) for key, value in parser[section].items()}
             for section in parser.sections()}

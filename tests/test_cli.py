@@ -558,3 +558,16 @@ def test_the_command_ends_at_once_after_an_interrupt(status):
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert proc.returncode == status, proc.stderr
     assert ("shutdown ran" in proc.stdout) == (status != 130), proc.stdout
+
+
+def test_a_warning_is_one_line_of_the_command(tmp_path):
+    """A warning (here: an HCI folder's parameters.cfg that is no INI file, ignored) is
+    printed as ``lfsf run: warning: …`` on one line, not as Python's file, line and source."""
+    views = np.random.default_rng(0).random((3, 3, 24, 32)).astype(np.float32)
+    io.write_lightfield(views, tmp_path / "hci")
+    (tmp_path / "hci" / "parameters.cfg").write_text("garbage [[[\n")
+    status, _, err = lfsf("run", tmp_path / "hci", tmp_path / "hci", "--out", tmp_path / "r", "--preset", "fast",
+                          "--quiet")
+    assert status == 0, err
+    assert err.splitlines() == [f"lfsf run: warning: {tmp_path / 'hci' / 'parameters.cfg'}: ignored, not an INI "
+                                "file (File contains no section headers)"], err
