@@ -163,9 +163,18 @@ def cmd_eval(args) -> int:
                   "its disparities are zeros, not estimates)")
         else:
             print(f"not evaluated, missing from {args.result}: {', '.join(lacking)} (the ground truth has them)")
+    # and what the ground truth lacks: half a flow, or the mask of the pixels to score
+    notes = []
+    if ("u" in gt) != ("v" in gt):
+        has, lacks = ("u", "v") if "u" in gt else ("v", "u")
+        notes.append(f"flow not evaluated: {args.gt} has '{has}' but no '{lacks}'")
+    if Path(args.gt).suffix.lower() == ".npz" and "valid" not in gt:
+        notes.append(f"every pixel scored (but the border): {args.gt} holds no 'valid' mask")
+    for note in notes:
+        print(note)
     if args.json:
         report = {"result": str(args.result), "ground_truth": str(args.gt), "border": border, "errors": errors,
-                  "not_evaluated": lacking}
+                  "not_evaluated": lacking, "notes": notes}
         write_json_atomic(args.json, report)
     return 0
 

@@ -149,6 +149,28 @@ def test_eval_of_a_partial_result_says_what_it_left_out(tmp_path, capsys):
     assert "not evaluated" not in capsys.readouterr().out
 
 
+def test_eval_says_what_the_ground_truth_lacks(tmp_path, capsys):
+    """A gt.npz with half a flow (v, no u) scores no flow and says why; one without a
+    'valid' mask scores every pixel and says so. Neither note for a whole gt.npz."""
+    assert main(["synth", "paper", "--out", str(tmp_path), "--size", "48", "36", "--grid", "1", "--quiet"]) == 0
+    with np.load(tmp_path / "gt.npz") as z:
+        gt = dict(z)
+    np.savez(tmp_path / "half.npz", **{k: v for k, v in gt.items() if k != "u"})
+    np.savez(tmp_path / "all.npz", **{k: v for k, v in gt.items() if k != "valid"})
+    capsys.readouterr()
+    assert main(["eval", str(tmp_path / "gt.npz"), str(tmp_path / "half.npz"), "--json", str(tmp_path / "e.json")]) == 0
+    out = capsys.readouterr().out
+    assert f"flow not evaluated: {tmp_path / 'half.npz'} has 'v' but no 'u'" in out
+    assert not [line for line in out.splitlines() if line.split()[:1] == ["flow"]], out  # no flow row
+    assert json.loads((tmp_path / "e.json").read_text())["notes"] == [
+        f"flow not evaluated: {tmp_path / 'half.npz'} has 'v' but no 'u'"]
+    assert main(["eval", str(tmp_path / "gt.npz"), str(tmp_path / "all.npz")]) == 0
+    assert f"every pixel scored (but the border): {tmp_path / 'all.npz'} holds no 'valid' mask" in capsys.readouterr().out
+    assert main(["eval", str(tmp_path / "gt.npz"), str(tmp_path / "gt.npz")]) == 0
+    out = capsys.readouterr().out
+    assert "not evaluated" not in out and "every pixel" not in out
+
+
 def test_eval_of_a_flow_only_result_leaves_its_zero_disparities_out(tmp_path, capsys):
     """They were scored (BadPix 95–100 %) as if estimated."""
     from lfsf.estimate import SceneFlow
