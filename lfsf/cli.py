@@ -276,6 +276,9 @@ def cmd_demo(args) -> int:
     synth.get_scene(args.scene)
     synth.check_render(args.size, args.grid, colour=args.colour)  # before any work
     width, height = args.size
+    if min(width, height) <= 2 * SYNTH_BORDER:
+        raise ValueError(f"--size {width} {height}: the demo's errors leave out a {SYNTH_BORDER}-px border; "
+                         f"give at least {2 * SYNTH_BORDER + 1} px each way")
     out = output_folder(args.out, create=False, names=_result_names())
     _say(args, f"lfsf demo: scene '{args.scene}', {width}×{height}, {args.grid}×{args.grid} "
                f"{'RGB ' if args.colour else ''}views, {_preset_label(args)}, on {device}")

@@ -227,6 +227,7 @@ def test_bad_input_is_one_clear_line_and_status_2(tmp_path, args, needles):
         (["synth", "paper", "--out", "{tmp}/x", "--noise", "-1"], "noise sigma must be a finite number"),
         (["demo", "--out", "{tmp}/x", "--size", "320", "9000"], "image height must be in 8…8192"),
         (["demo", "--out", "{tmp}/x", "--grid", "40"], "grid rows must be in 1…33"),
+        (["demo", "--out", "{tmp}/x", "--size", "16", "12"], "give at least 17 px each way"),
         (["bench", "kernels", "--size", "10000", "10"], "image width must be in 8…8192"),
     ],
 )
