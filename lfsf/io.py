@@ -32,6 +32,7 @@ with the file's name.
 from __future__ import annotations
 
 import configparser
+import contextlib
 import itertools
 import lzma
 import math
@@ -1146,8 +1147,12 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     if (len(head) == 26 and head.startswith(_PNG_SIGNATURE) and head[12:16] == b"IHDR"
             and head[24] == 16 and head[25] in (2, 4, 6)):
         return decode_png(path.read_bytes(), source=str(path))
+    told = []
     try:
-        return np.asarray(iio.imread(path))
+        # (tifffile logs what it finds wrong with a corrupt TIFF and returns no pixels: its
+        # lines are kept for the error below rather than printed on their own)
+        with _log_lines("tifffile", told):
+            image = np.asarray(iio.imread(path))
     except Exception as err:        # imageio/Pillow raise many kinds for a corrupt file
         first_line = (str(err).strip().splitlines() or [""])[0]
         if first_line.startswith("Could not find a backend"):
@@ -1156,6 +1161,31 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
         else:
             reason = f"{type(err).__name__}: {first_line}" if first_line else type(err).__name__
         raise ValueError(f"{path}: cannot read image ({reason})") from err
+    if image.size == 0:
+        why = re.sub(r"^<[^>]*> ", "", told[0]) if told else "the file holds none"
+        raise ValueError(f"{path}: cannot read image: no pixels decoded ({why}); a corrupt or truncated file?")
+    return image
+
+
+@contextlib.contextmanager
+def _log_lines(name: str, lines: list):
+    """Within the block, what the logger ``name`` says at WARNING or above goes into
+    ``lines`` instead of stderr."""
+    import logging
+
+    class Keep(logging.Handler):
+        def emit(self, record):
+            lines.append(record.getMessage())
+
+    logger = logging.getLogger(name)
+    keep, propagate = Keep(logging.WARNING), logger.propagate
+    logger.addHandler(keep)
+    logger.propagate = False
+    try:
+        yield
+    finally:
+        logger.removeHandler(keep)
+        logger.propagate = propagate
 
 
 def write_png(path: str | os.PathLike, array) -> None:

@@ -1199,3 +1199,14 @@ def test_an_os_error_without_a_file_name_names_what_was_being_written(tmp_path, 
     assert type(raised.value) is FileNotFoundError and raised.value.filename == "/else/where"
     left = sorted(p.name for p in tmp_path.rglob("*"))
     assert left == ([] if where == "atomic_path" else ["out"]), left
+
+
+def test_a_tiff_with_no_pixels_is_an_error_naming_the_file_and_why(tmp_path, capsys):
+    """A TIFF header before garbage: tifffile logs "invalid offset to first page" and
+    decodes nothing; read_image says so in its error instead of passing on an empty array
+    (decode then said "expected a 2-D sensor image, got shape (0,)") and of the log line."""
+    path = tmp_path / "bad.tif"
+    path.write_bytes(b"II*\x00" + np.random.default_rng(1).integers(0, 256, 1000, dtype=np.uint8).tobytes())
+    with pytest.raises(ValueError, match=r"bad\.tif: cannot read image: no pixels decoded \(invalid offset"):
+        lio.read_image(path)
+    assert capsys.readouterr().err == ""
