@@ -203,7 +203,9 @@ def file_set(out: Path, names):
     ``out``) into; on success they are moved into place together, with Ctrl-C held back
     meanwhile (:func:`interrupts_held`), so that a failure or an interrupt leaves either
     none of them or all of them, never a mix with an earlier set. Existing folders in
-    their place are refused before anything is written."""
+    their place are refused before anything is written. A symbolic link in the place of
+    a file is written through, as :func:`atomic_path` does: the link stays and the file
+    it names is replaced."""
     import shutil
 
     out = Path(out)
@@ -219,7 +221,11 @@ def file_set(out: Path, names):
         with interrupts_held():
             for name in names:
                 (out / name).parent.mkdir(parents=True, exist_ok=True)
-                os.replace(tmp / name, out / name)
+                if (out / name).is_symlink():  # the link stays; the file it names is replaced
+                    with atomic_path(out / name) as through:
+                        shutil.copyfile(tmp / name, through)
+                else:
+                    os.replace(tmp / name, out / name)
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)

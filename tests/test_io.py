@@ -1210,3 +1210,24 @@ def test_a_tiff_with_no_pixels_is_an_error_naming_the_file_and_why(tmp_path, cap
     with pytest.raises(ValueError, match=r"bad\.tif: cannot read image: no pixels decoded \(invalid offset"):
         lio.read_image(path)
     assert capsys.readouterr().err == ""
+
+
+def test_a_set_of_results_is_written_through_a_symbolic_link(tmp_path):
+    """file_set (lfsf run's results): a link in a result's place stays a link, and the
+    file it names gets the new contents, as a single file's atomic write does."""
+    import os
+
+    from lfsf import _files
+
+    (tmp_path / "elsewhere").mkdir()
+    (tmp_path / "elsewhere" / "a.pfm").write_bytes(b"old")
+    (tmp_path / "out").mkdir()
+    os.symlink(tmp_path / "elsewhere" / "a.pfm", tmp_path / "out" / "a.pfm")
+    with _files.file_set(tmp_path / "out", ["a.pfm", "b.pfm"]) as tmp:
+        (tmp / "a.pfm").write_bytes(b"new a")
+        (tmp / "b.pfm").write_bytes(b"new b")
+    assert (tmp_path / "out" / "a.pfm").is_symlink()
+    assert (tmp_path / "elsewhere" / "a.pfm").read_bytes() == b"new a"
+    assert (tmp_path / "out" / "b.pfm").read_bytes() == b"new b"
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a.pfm", "b.pfm"]
+    assert sorted(p.name for p in (tmp_path / "elsewhere").iterdir()) == ["a.pfm"]
