@@ -436,7 +436,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--supersample", type=_positive, default=2, metavar="K",
                    help="K×K rays per pixel (default 2)")
     p.add_argument("--colour", action="store_true", help="RGB views (default grey)")
-    p.add_argument("--frames", type=_positive, default=2, metavar="K",
+    p.add_argument("--frames", type=int, default=2, metavar="K",
                    help="K > 2: a sequence moving at a constant rate, DIR/frames/f000.npz … and the ground truth "
                         "of each pair DIR/gt/f000.npz … (default 2: DIR/lf1.npz, DIR/lf2.npz, DIR/gt.npz)")
     p.add_argument("--noise", type=float, default=0.0, metavar="SIGMA",

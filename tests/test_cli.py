@@ -405,9 +405,10 @@ def test_too_long_an_input_name_is_a_clear_error(tmp_path):
     assert_clean_error(status, err, "too long")
 
 
-def test_synth_frames_must_make_a_pair(tmp_path):
-    status, _, err = lfsf("synth", "paper", "--out", tmp_path / "s", "--frames", "1", "--size", "16", "16")
-    assert_clean_error(status, err, "--frames", "at least 2")
+@pytest.mark.parametrize("frames", ["1", "0", "-3"])
+def test_synth_frames_must_make_a_pair(tmp_path, frames):
+    status, _, err = lfsf("synth", "paper", "--out", tmp_path / "s", "--frames", frames, "--size", "16", "16")
+    assert_clean_error(status, err, f"--frames must be at least 2 (2: one pair), got {frames}")
     assert not (tmp_path / "s").exists()
 
 
