@@ -117,6 +117,7 @@ class Note(str):
 
     __slots__ = ()
 
+
 #: The flow search runs on the finest level where its range is at most this many pixels
 #: and which is at most FLOW_SEARCH_WIDTH pixels wide. Its 3×3 windows need texture of
 #: the scene's scale, not the image's: at 640×480, searching the 160×120 level instead of
@@ -811,6 +812,7 @@ def estimate_scene_flow(
 
     def note(message: str) -> None:
         say(Note(message))
+
     params = Params.preset("paper") if params is None else params
     if not isinstance(params, Params):
         raise ValueError(f"params must be an lfsf.Params, got {type(params).__name__}")
@@ -859,7 +861,7 @@ def estimate_scene_flow(
             if change > EXPOSURE_CHANGE:
                 exposure = (gain, shift)
                 note(f"exposure: t2 matched to t1 by I ↦ {gain:.4f}·I {shift:+.4f} (it moved the intensities "
-                    f"by up to {100 * change:.1f} % of their range)")
+                     f"by up to {100 * change:.1f} % of their range)")
         lap("exposure")
     gains = views1 = None
     if params.view_gain_sigma > 0 and n_samples > 1:
@@ -884,8 +886,8 @@ def estimate_scene_flow(
                     gains = (wp.array(fitted.astype(np.float32), dtype=float, device=dev),
                              wp.array(np.asarray(used, np.int32), dtype=wp.int32, device=dev), factor)
                     note(f"view gains: each view sampled matched to the centre view's brightness (gains "
-                        f"{float(fitted[used].min()):.3f}–{float(fitted[used].max()):.3f}, 95th percentile of "
-                        f"the change {100 * change:.1f} %)")
+                         f"{float(fitted[used].min()):.3f}–{float(fitted[used].max()):.3f}, 95th percentile of "
+                         f"the change {100 * change:.1f} %)")
         del small
         lap("view gains")
     # the samples of both times in one stack, t1's first (as the texture split takes them)
@@ -1166,7 +1168,8 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str,
 
     A flow-only pilot (the ``flow`` preset with θ = EXPOSURE_THETA) on the views
     box-averaged by the largest whole factor that leaves at least EXPOSURE_SIZE px along
-    their longer side gives the correspondences p ↔ p + u.
+    their longer side, t2 scaled by the ratio of the two views' mean gradients (within
+    EXPOSURE_MAX_GAIN either way), gives the correspondences p ↔ p + u.
     Over them, on the two views blurred by EXPOSURE_BLUR, L1 fits (iteratively
     reweighted least squares) of I1 on I2(p + u) and of I2(p + u) on I1 give g as the
     geometric mean of their slopes, and b is the weighted median of I1 − g·I2(p + u).

@@ -39,6 +39,7 @@ import math
 import os
 import re
 import struct
+import threading
 import tokenize
 import warnings
 import zipfile
@@ -1148,10 +1149,12 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
             and head[24] == 16 and head[25] in (2, 4, 6)):
         return decode_png(path.read_bytes(), source=str(path))
     told = []
+    # (tifffile logs what it finds wrong with a corrupt TIFF and returns no pixels: its
+    # lines are kept for the error below rather than printed on their own; one TIFF at a
+    # time, as the logger is shared by the threads that read a folder's views)
+    kept = _log_lines("tifffile", told) if path.suffix.lower() in (".tif", ".tiff") else contextlib.nullcontext()
     try:
-        # (tifffile logs what it finds wrong with a corrupt TIFF and returns no pixels: its
-        # lines are kept for the error below rather than printed on their own)
-        with _log_lines("tifffile", told):
+        with kept:
             image = np.asarray(iio.imread(path))
     except Exception as err:        # imageio/Pillow raise many kinds for a corrupt file
         first_line = (str(err).strip().splitlines() or [""])[0]
@@ -1170,22 +1173,26 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
 @contextlib.contextmanager
 def _log_lines(name: str, lines: list):
     """Within the block, what the logger ``name`` says at WARNING or above goes into
-    ``lines`` instead of stderr."""
+    ``lines`` instead of stderr (one such block at a time, in any thread)."""
     import logging
 
     class Keep(logging.Handler):
         def emit(self, record):
             lines.append(record.getMessage())
 
-    logger = logging.getLogger(name)
-    keep, propagate = Keep(logging.WARNING), logger.propagate
-    logger.addHandler(keep)
-    logger.propagate = False
-    try:
-        yield
-    finally:
-        logger.removeHandler(keep)
-        logger.propagate = propagate
+    with _LOG_LINES_LOCK:
+        logger = logging.getLogger(name)
+        keep, propagate = Keep(logging.WARNING), logger.propagate
+        logger.addHandler(keep)
+        logger.propagate = False
+        try:
+            yield
+        finally:
+            logger.removeHandler(keep)
+            logger.propagate = propagate
+
+
+_LOG_LINES_LOCK = threading.Lock()
 
 
 def write_png(path: str | os.PathLike, array) -> None:

@@ -323,7 +323,7 @@ def test_corrupt_pfm_and_flo_are_rejected_with_the_file_name(tmp_path, name, con
     ["run", "{tmp}/a.npz", "{tmp}/a.npz", "--out", "{tmp}/afile"],
     ["run", "{tmp}/a.npz", "{tmp}/a.npz", "--out", "{tmp}/afile/r"],
     ["synth", "paper", "--out", "{tmp}/afile", "--size", "16", "16", "--grid", "3"],
-    ["demo", "--out", "{tmp}/afile", "--size", "16", "16"],
+    ["demo", "--out", "{tmp}/afile", "--size", "24", "24"],
     ["eval", "{tmp}/r", "{tmp}/gt.npz", "--json", "{tmp}/afile/x.json"],
     ["bench", "kernels", "--size", "16", "16", "--json", "{tmp}/afile/x.json"],
 ])
