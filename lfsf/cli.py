@@ -555,10 +555,50 @@ def main(argv=None) -> int:
         parser.print_help(sys.stderr)
         return EXIT_BAD_INPUT
     prog = f"lfsf {args.command}"
-    with warnings.catch_warnings():  # (restores the default display on the way out)
-        # a warning is one line like every other message, not Python's file:line and source
-        warnings.showwarning = lambda message, *_rest, **_kw: print(f"{prog}: warning: {message}", file=sys.stderr)
-        return run_script(lambda: args.func(args), prog=prog)
+    stdout = sys.stdout
+    try:
+        sys.stdout = _PipeSafe(stdout)
+        with warnings.catch_warnings():  # (restores the default display on the way out)
+            # a warning is one line like every other message, not Python's file:line and source
+            warnings.showwarning = lambda message, *_rest, **_kw: print(f"{prog}: warning: {message}",
+                                                                        file=sys.stderr)
+            return run_script(lambda: args.func(args), prog=prog)
+    finally:
+        sys.stdout = stdout
+
+
+class _PipeSafe:
+    """stdout for a command: where its reader has gone (``lfsf demo | head -1``), what is
+    printed later is dropped and the command goes on to write its files, instead of
+    ending in "[Errno 32] Broken pipe" with the results thrown away. The stream's file
+    descriptor then points at /dev/null, so that the interpreter's last flush is quiet."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def write(self, text):
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:
+            self._drop()
+            return len(text)
+
+    def flush(self):
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            self._drop()
+
+    def _drop(self):
+        try:
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, self._stream.fileno())
+            os.close(devnull)
+        except (OSError, ValueError):  # no descriptor (a captured stream): nothing to point elsewhere
+            pass
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
 
 
 def entry() -> None:  # pragma: no cover - the installed command; tests call main()

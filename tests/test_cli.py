@@ -595,3 +595,18 @@ def test_a_warning_is_one_line_of_the_command(tmp_path):
     assert status == 0, err
     assert err.splitlines() == [f"lfsf run: warning: {tmp_path / 'hci' / 'parameters.cfg'}: ignored, not an INI "
                                 "file (File contains no section headers)"], err
+
+
+def test_a_reader_that_goes_away_does_not_cost_the_results(tmp_path):
+    """``lfsf demo | head -1``: once the reader has closed the pipe, what the demo prints
+    is dropped, and it still writes its files and ends with status 0 (it had ended in
+    "[Errno 32] Broken pipe", status 2, with nothing written)."""
+    proc = subprocess.Popen([sys.executable, "-m", "lfsf", "demo", "--size", "24", "24", "--grid", "3", "--preset",
+                             "fast", "--out", str(tmp_path / "d")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            env={**os.environ, "LFSF_DEVICE": ""})
+    first = proc.stdout.readline()
+    proc.stdout.close()
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=300) == 0, err
+    assert first.startswith(b"lfsf demo: scene 'paper'") and err == ""
+    assert len(list((tmp_path / "d").iterdir())) == 8
