@@ -116,7 +116,7 @@ def bench_pipeline(size=(640, 480), device: str | None = None, repeats: int = 3,
             runs.append(sf)
             return sf
 
-        say(f"{name}: warm-up and {repeats} runs")
+        say(f"{name}: warm-up and {repeats} run{'s' if repeats != 1 else ''}")
         # each setting's own peak (it was the process's so far: the paper setting's for all)
         own_peak = reset_peak_rss()
         seconds, _ = time_repeated(once, repeats, warmup=1)
@@ -446,7 +446,7 @@ def bench_peers(size=(640, 480), device: str | None = None, repeats: int = 3, sc
     ]
     rows = []
     for name, fn in methods:
-        say(f"{name}: warm-up and {repeats} runs")
+        say(f"{name}: warm-up and {repeats} run{'s' if repeats != 1 else ''}")
         try:
             seconds, (u, v) = time_repeated(fn, repeats, warmup=1)
         except ImportError as exc:

@@ -328,7 +328,8 @@ def cmd_batch(args) -> int:
     where = (f"the Dask scheduler at {args.scheduler}" if args.scheduler
              else f"a local Dask cluster of {args.workers} process{'es' if args.workers > 1 else ''}"
              if batch.have_dask() else "this process (Dask is not installed)")
-    _log(args, f"lfsf batch: {len(pairs)} pairs to {args.out}, {_preset_label(args)}, on {where}"
+    count = f"{len(pairs)} pair{'s' if len(pairs) != 1 else ''}"
+    _log(args, f"lfsf batch: {count} to {args.out}, {_preset_label(args)}, on {where}"
                + (", each pair of a sequence starting from the one before" if args.warm_start else ""))
     bar = batch.ProgressBar(len(pairs), quiet=args.quiet)
     summary = batch.run_batch(pairs, args.out, params, workers=args.workers, scheduler=args.scheduler,
