@@ -16,7 +16,7 @@ import numpy as np
 from lfsf import device as _device
 from lfsf._filters import gaussian_blur as _blur
 from lfsf.gains import GAIN_CHANGE, fit_reduced_gains, gain_change, reduction_factor, sampled_views
-from lfsf.io import LightField, _check_pair_brightest, centre_view, luma, read_lightfield
+from lfsf.io import LightField, _check_pair_brightest, _refuse_non_finite, centre_view, luma, read_lightfield
 from lfsf.params import Params
 
 
@@ -820,6 +820,9 @@ def estimate_scene_flow(
     lf2 = _as_lightfield(lf2, "light field 2")
     # each light field's value range, taken once: the pair's check and the intensity stretch read it
     ranges = [(float(np.min(lf.views)), float(np.max(lf.views))) for lf in (lf1, lf2)]
+    for lf, (lo, hi) in zip((lf1, lf2), ranges):
+        if not (math.isfinite(lo) and math.isfinite(hi)):  # (written into its views after it was made)
+            _refuse_non_finite(lf.views, lf.source)
     _check_pair_brightest(lf1, lf2, [hi for _lo, hi in ranges])
     dev = _device.resolve_device(device)
     rows, cols = lf1.grid

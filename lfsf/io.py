@@ -299,16 +299,24 @@ def _validated_views(views, source: str) -> np.ndarray:
     # A float64 sum of float32 values cannot overflow, so it is finite exactly when every
     # value is: one cheap pass instead of a full boolean mask in the common case.
     if not np.isfinite(array.sum(dtype=np.float64)):
-        bad = ~np.isfinite(array)
-        if bad.ndim == 5:
-            bad = bad.any(axis=4)
-        per_view = bad.sum(axis=(2, 3))
-        bad_views = np.argwhere(per_view)
+        _refuse_non_finite(array, source)
+    return array
+
+
+def _refuse_non_finite(array: np.ndarray, source: str) -> None:
+    """Raise the ValueError that names how many of the views' values (``array``, [a, b, y,
+    x] or [a, b, y, x, c]) are NaN or infinite, and the first view holding one; nothing if
+    none is."""
+    bad = ~np.isfinite(array)
+    if bad.ndim == 5:
+        bad = bad.any(axis=4)
+    per_view = bad.sum(axis=(2, 3))
+    bad_views = np.argwhere(per_view)
+    if len(bad_views):
         first = tuple(int(i) for i in bad_views[0])
         raise ValueError(f"{source}: expected finite pixel values, got {int(per_view.sum())} "
                          f"NaN or infinite pixel(s) in {len(bad_views)} view(s), the first "
                          f"in view (a, b) = {first}")
-    return array
 
 
 # --------------------------------------------------------------------------------------

@@ -750,3 +750,17 @@ def test_data_weights_scale_the_side_samples_flow_rows_alone(side):
     assert w.shape == (17, 3) and w.dtype == np.float32
     np.testing.assert_allclose(w[0], [0.0, 0.0, 30.0 / 17], rtol=1e-6)
     np.testing.assert_allclose(w[1:], np.tile([10.0 / 17, 20.0 / 17, 30.0 * side / 17], (16, 1)), rtol=1e-6)
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_a_value_made_non_finite_after_the_light_field_was_built_is_refused(bad):
+    """LightField checks its views when it is made and keeps a float32 array as given:
+    a NaN or inf written into that array later reached the estimate (all-NaN disparities,
+    a flow of 1e30 px; inf read as 'scaled differently'). The estimator's own pass over
+    the values refuses it, naming the view."""
+    views = np.random.default_rng(0).random((3, 3, 24, 32)).astype(np.float32)
+    first, second = lfsf.LightField(views.copy()), lfsf.LightField(views)
+    views[1, 2, 5, 5] = bad
+    with pytest.raises(ValueError, match=r"expected finite pixel values, got 1 NaN or infinite pixel\(s\) in 1 "
+                                         r"view\(s\), the first in view \(a, b\) = \(1, 2\)"):
+        estimate_scene_flow(first, second, Params.preset("fast"), device="cpu")
