@@ -30,6 +30,17 @@ HCI_BORDER = 15
 SYNTH_BORDER = 8
 
 
+def _bool_mask(mask, name: str) -> np.ndarray:
+    """A ground truth's mask (``valid``, ``occluded``) as given, checked: bool, or
+    integers that are all 0 and 1. A float or string mask read by truthiness would count
+    NaN and "False" as true (and 255 too, were any nonzero integer taken)."""
+    mask = np.asarray(mask)
+    if mask.dtype != bool and not (mask.dtype.kind in "iu" and np.isin(mask, (0, 1)).all()):
+        raise ValueError(f"the {name} mask must be bool (or 0 and 1), got dtype {mask.dtype}"
+                         + (" with values other than 0 and 1" if mask.dtype.kind in "iu" else ""))
+    return mask
+
+
 def _mask(shape, valid, border: int, finite: np.ndarray) -> np.ndarray:
     """Pixels to evaluate: ``valid`` (all if None) and ``finite``, less the border.
 
@@ -39,10 +50,7 @@ def _mask(shape, valid, border: int, finite: np.ndarray) -> np.ndarray:
         raise ValueError(f"the border must be a whole number of pixels, 0 or more, got {border!r}")
     border = int(border)
     if valid is not None:
-        valid = np.asarray(valid)
-        # a float or string mask read by truthiness counts NaN and "False" as valid
-        if valid.dtype != bool and not (valid.dtype.kind in "iu" and np.isin(valid, (0, 1)).all()):
-            raise ValueError(f"the valid mask must be bool (or 0 and 1), got dtype {valid.dtype}")
+        valid = _bool_mask(valid, "valid")
     mask = np.ones(shape, dtype=bool) if valid is None else valid.astype(bool)
     if mask.shape != tuple(shape):
         raise ValueError(f"valid mask has shape {mask.shape}, expected {tuple(shape)}")
@@ -145,7 +153,7 @@ def evaluate(estimate, gt: dict, border: int = SYNTH_BORDER) -> dict[str, dict[s
                          f"(estimate: {sorted(estimate)}, ground truth: {sorted(gt)})")
     occluded = gt.get("occluded")
     if occluded is not None and ("disp2" in out or "flow" in out):
-        occluded = np.asarray(occluded, dtype=bool)
+        occluded = _bool_mask(occluded, "occluded").astype(bool)
         shape = np.shape(gt["disp2"] if "disp2" in out else gt["u"])
         if occluded.shape != tuple(shape):
             raise ValueError(f"occluded mask has shape {occluded.shape}, expected {tuple(shape)}")

@@ -228,4 +228,11 @@ def test_arguments_of_the_wrong_kind_are_value_errors():
             E.evaluate(maps, {**maps, "valid": valid}, border=0)
     ones = np.ones((6, 8), np.uint8)
     assert E.evaluate(maps, {**maps, "valid": ones}, border=0)["disp1"]["pixels"] == 48
+    # the occluded mask likewise (a NaN mask had hidden every point: the noc rows vanished)
+    for occluded in (np.full((6, 8), np.nan), np.full((6, 8), "False"), np.full((6, 8), 255, np.uint8)):
+        with pytest.raises(ValueError, match="the occluded mask must be bool \\(or 0 and 1\\), got dtype"):
+            E.evaluate(maps, {**maps, "occluded": occluded}, border=0)
+    half = np.zeros((6, 8), np.uint8)
+    half[:, :4] = 1
+    assert E.evaluate(maps, {**maps, "occluded": half}, border=0)["flow_noc"]["pixels"] == 24
 
