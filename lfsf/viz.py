@@ -513,7 +513,9 @@ def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="
 
 
 def _fit_text(draw: ImageDraw.ImageDraw, text: str, font, width: int) -> str:
-    """``text``, shortened with '..' until it fits in ``width`` pixels."""
+    """``text`` on one line (line breaks and tabs become spaces: Pillow measures no
+    multi-line text), shortened with '..' until it fits in ``width`` pixels."""
+    text = " ".join(text.split())
     if draw.textlength(text, font=font) <= width:
         return text
     # the longest prefix that fits, by bisection (a 10000-character title took 33 s one
@@ -620,7 +622,7 @@ def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = N
     path : str or path-like, optional
         Where to write the figure as PNG (atomically).
     title : str, optional
-        A line of text above the grid.
+        A line of text above the grid (line breaks become spaces; shortened to fit).
     max_flow : float, optional
         Flow magnitude at full saturation for both estimate and ground truth. Default:
         the largest valid magnitude over both.

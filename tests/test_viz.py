@@ -318,3 +318,11 @@ def test_odd_maps_and_titles_are_handled_quickly_or_refused_clearly():
         signal.signal(signal.SIGALRM, previous)
     assert np.array_equal(short, long)                 # the same shortened title
 
+
+
+def test_a_title_with_line_breaks_is_drawn_on_one_line():
+    """A title with a newline (Pillow's "can't measure length of multiline text" ended
+    SceneFlow.save with nothing written) is drawn as the same words on one line."""
+    maps = np.zeros((4, 5))
+    broken = viz.overview_figure(maps, maps, maps, maps, maps, maps, title="paper\nfast\t 48×40")
+    assert np.array_equal(broken, viz.overview_figure(maps, maps, maps, maps, maps, maps, title="paper fast 48×40"))
