@@ -30,8 +30,15 @@ _LAZY = {
 
 __all__ = sorted(_LAZY) + ["__version__"]
 
+#: The submodules, reachable as attributes after ``import lfsf`` (``lfsf.synth.render_scene``),
+#: each imported on first use.
+SUBMODULES = ("batch", "bench", "cli", "decode", "device", "estimate", "evaluate", "gains", "io", "params",
+              "peers", "solver", "synth", "viz")
+
 
 def __getattr__(name: str):
+    if name in SUBMODULES:
+        return importlib.import_module(f"lfsf.{name}")   # (the import sets the attribute too)
     module = _LAZY.get(name)
     if module is None:
         raise AttributeError(f"module 'lfsf' has no attribute {name!r}")
@@ -41,4 +48,4 @@ def __getattr__(name: str):
 
 
 def __dir__():
-    return __all__
+    return __all__ + list(SUBMODULES)

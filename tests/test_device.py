@@ -222,3 +222,17 @@ def test_kernel_module_compiles_for_cuda(name, tmp_path):
     module = importlib.import_module(f"lfsf.kernels.{name}")
     paths = wp.compile_aot_module(module, arch=90, use_ptx=True, module_dir=tmp_path)
     assert paths and all(p.exists() and p.stat().st_size > 0 for p in paths)
+
+
+def test_the_submodules_are_attributes_of_lfsf_imported_on_first_use():
+    """``import lfsf`` then ``lfsf.synth.render_scene`` (an AttributeError before, reading
+    as if the module did not exist), still without importing Warp until a submodule that
+    needs it is used; a name that is neither is an AttributeError."""
+    import subprocess
+    import sys
+
+    code = ("import sys, lfsf; assert 'lfsf.synth' not in sys.modules; "
+            "print(lfsf.synth.__name__, lfsf.viz.flow_to_color.__name__, 'synth' in dir(lfsf), 'warp' in sys.modules)\n"
+            "try:\n    lfsf.nothing\nexcept AttributeError as e:\n    print(e)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.splitlines() == ["lfsf.synth flow_to_color True False", "module 'lfsf' has no attribute 'nothing'"]
