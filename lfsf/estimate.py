@@ -52,6 +52,24 @@ class SceneFlow:
     timings: dict = field(default_factory=dict)
     exposure: tuple[float, float] | None = None
 
+    def __post_init__(self) -> None:
+        # the maps as the files promise them (float32 H×W, one shape), whoever made this
+        maps = {}
+        for name in ("disp1", "disp2", "u", "v"):
+            try:
+                maps[name] = np.asarray(getattr(self, name), dtype=np.float32)
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f"SceneFlow: {name} must be a 2-D map of real numbers ({exc})") from None
+            if maps[name].ndim != 2 or maps[name].size == 0:
+                raise ValueError(f"SceneFlow: {name} must be a non-empty 2-D map, got shape {maps[name].shape}")
+            if maps[name].shape != maps["disp1"].shape:
+                raise ValueError(f"SceneFlow: {name} is {maps[name].shape}, disp1 {maps['disp1'].shape}: the maps "
+                                 "must have one shape")
+            setattr(self, name, maps[name])
+        if not isinstance(self.params, Params):
+            raise ValueError(f"SceneFlow: params must be an lfsf.Params (the settings used), got "
+                             f"{type(self.params).__name__}")
+
     # eq=False: a field-wise == of arrays raised "truth value of an array is ambiguous";
     # compare the maps with np.array_equal (or as_dict()) instead. repr: not four arrays.
     def __repr__(self) -> str:

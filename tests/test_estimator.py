@@ -764,3 +764,24 @@ def test_a_value_made_non_finite_after_the_light_field_was_built_is_refused(bad)
     with pytest.raises(ValueError, match=r"expected finite pixel values, got 1 NaN or infinite pixel\(s\) in 1 "
                                          r"view\(s\), the first in view \(a, b\) = \(1, 2\)"):
         estimate_scene_flow(first, second, Params.preset("fast"), device="cpu")
+
+
+def test_a_scene_flow_holds_float32_maps_of_one_shape_and_its_settings(tmp_path):
+    """SceneFlow made by hand: float64 maps or lists become float32 (what sceneflow.npz
+    promises; float64 had been written), maps of two shapes or a missing Params are a
+    ValueError naming them (a numpy error without the name, or an AttributeError on
+    save)."""
+    from lfsf.estimate import SceneFlow
+
+    maps = {k: np.full((4, 6), i, np.float64) for i, k in enumerate(("disp1", "disp2", "u", "v"))}
+    sf = SceneFlow(**{**maps, "u": maps["u"].tolist()}, params=Params.preset("fast"), radius=4.0, device="cpu")
+    assert all(m.dtype == np.float32 and m.shape == (4, 6) for m in sf.as_dict().values())
+    sf.save(tmp_path)
+    with np.load(tmp_path / "sceneflow.npz") as z:
+        assert all(z[k].dtype == np.float32 for k in ("disp1", "disp2", "u", "v"))
+    with pytest.raises(ValueError, match=r"SceneFlow: v is \(4, 5\), disp1 \(4, 6\)"):
+        SceneFlow(**{**maps, "v": maps["v"][:, :5]}, params=Params.preset("fast"), radius=4.0, device="cpu")
+    with pytest.raises(ValueError, match=r"SceneFlow: params must be an lfsf.Params"):
+        SceneFlow(**maps, params=None, radius=4.0, device="cpu")
+    with pytest.raises(ValueError, match=r"SceneFlow: disp2 must be a non-empty 2-D map, got shape \(24,\)"):
+        SceneFlow(**{**maps, "disp2": maps["disp2"].ravel()}, params=Params.preset("fast"), radius=4.0, device="cpu")
