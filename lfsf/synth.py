@@ -564,6 +564,8 @@ def check_render(size, grid, supersample=2, frames=2, colour=False, noise=0.0) -
     ``ValueError`` naming it."""
     width, height = _check_size(size)
     rows, cols = _grid(grid)
+    if not isinstance(colour, (bool, np.bool_)):  # ("no" would be true)
+        raise ValueError(f"colour must be True or False, got {colour!r}")
     supersample = _whole("supersample", supersample, 1, MAX_SUPERSAMPLE)
     frames = _whole("frames (a sequence needs at least 2)", frames, 2, MAX_RENDER_VALUES)
     values = frames * rows * cols * height * width * (3 if colour else 1)

@@ -434,3 +434,11 @@ def test_image_textures_refuse_odd_arguments_clearly():
         with pytest.raises(ValueError, match=re.escape(needle)):
             call()
 
+
+
+@pytest.mark.parametrize("colour", ["no", 0, None, "False"])
+def test_colour_must_be_a_bool(colour):
+    """colour='no' rendered RGB (a non-empty string is true); like Params' switches, it
+    must be True or False."""
+    with pytest.raises(ValueError, match=r"colour must be True or False, got"):
+        synth.render_scene("paper", size=(32, 24), grid=3, colour=colour)
