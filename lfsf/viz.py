@@ -202,13 +202,17 @@ def flow_to_color(u, v, max_flow: float | None = None) -> np.ndarray:
     return rgb
 
 
+#: The largest flow_wheel_legend: a figure's key, not a poster.
+MAX_LEGEND_SIZE = 4096
+
+
 def flow_wheel_legend(size: int = 128) -> np.ndarray:
     """The flow colour wheel itself, as a key for figures.
 
     Parameters
     ----------
     size : int
-        Side of the square image in pixels (≥ 1).
+        Side of the square image in pixels, 1 … MAX_LEGEND_SIZE.
 
     Returns
     -------
@@ -217,9 +221,11 @@ def flow_wheel_legend(size: int = 128) -> np.ndarray:
         image centre to that pixel, with the inscribed disc's radius as ``max_flow`` (so
         the rim is fully saturated and the centre white). Outside the disc: white.
     """
+    if isinstance(size, (bool, np.bool_)) or not isinstance(size, (int, np.integer)):  # (2.7 had become 2)
+        raise ValueError(f"expected a whole number of pixels for the size, got {size!r}")
     size = int(size)
-    if size < 1:
-        raise ValueError(f"expected size >= 1, got {size}")
+    if not 1 <= size <= MAX_LEGEND_SIZE:  # (10**5 asked numpy for 75 GiB)
+        raise ValueError(f"expected a size in 1…{MAX_LEGEND_SIZE} px, got {size}")
     half = (size - 1) / 2.0
     coords = (np.arange(size) - half) / max(half, 1.0)
     x, y = np.meshgrid(coords, coords)

@@ -114,6 +114,10 @@ def test_wheel_legend_size_and_layout():
     assert tuple(legend[32, 64]) == (255, 0, 0)       # right rim: full red
     assert tuple(legend[0, 0]) == (255, 255, 255)     # corner: outside the disc
     assert viz.flow_wheel_legend(10).shape == (10, 10, 3)
+    assert viz.flow_wheel_legend(np.int64(3)).shape == (3, 3, 3)
+    for bad in (0, 10**5, 2.7, True, "64"):  # (10**5 asked for 75 GiB; 2.7 became 2)
+        with pytest.raises(ValueError, match="size"):
+            viz.flow_wheel_legend(bad)
 
 
 # --------------------------------------------------------------------------- scalar maps
