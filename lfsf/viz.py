@@ -431,6 +431,23 @@ def _view_to_rgb(name: str, view, shape: tuple[int, int]) -> np.ndarray:
     return np.repeat(rgb[..., None], 3, axis=2) if rgb.ndim == 2 else rgb
 
 
+def _shown_together(centre1, centre2):
+    """The two centre views on one scale for display: float views beyond [0, 1] (counts
+    given as floats, 0…255, which the estimator stretches to [0, 1] for itself) mapped
+    from their joint range onto [0, 1], so that they are not clipped to white; views
+    within [0, 1], and integer ones, as they are."""
+    views = [np.asarray(c) for c in (centre1, centre2)]
+    if not all(np.issubdtype(c.dtype, np.floating) and c.size for c in views):
+        return centre1, centre2
+    with np.errstate(invalid="ignore"):
+        lo = min(float(np.nanmin(c)) if np.isfinite(c).any() else 0.0 for c in views)
+        hi = max(float(np.nanmax(c)) if np.isfinite(c).any() else 1.0 for c in views)
+    if lo >= 0.0 and hi <= 1.0 or not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
+        return centre1, centre2
+    lo, hi = min(lo, 0.0), max(hi, 1.0)
+    return tuple((c.astype(np.float64) - lo) / (hi - lo) for c in views)
+
+
 def _check_map_shape(name: str, a, shape: tuple[int, ...]) -> np.ndarray:
     a = _check_map(name, a)
     if a.shape != shape:
@@ -447,6 +464,7 @@ def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="
     shape = _check_map("disp1", disp1).shape
     est = {k: _check_map_shape(k, a, shape)
            for k, a in (("disp1", disp1), ("disp2", disp2), ("u", u), ("v", v))}
+    centre1, centre2 = _shown_together(centre1, centre2)
     rows = [[
         _Panel("centre view t1", _view_to_rgb("centre1", centre1, shape)),
         _Panel("centre view t2", _view_to_rgb("centre2", centre2, shape)),

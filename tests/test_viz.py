@@ -330,3 +330,16 @@ def test_a_title_with_line_breaks_is_drawn_on_one_line():
     maps = np.zeros((4, 5))
     broken = viz.overview_figure(maps, maps, maps, maps, maps, maps, title="paper\nfast\t 48×40")
     assert np.array_equal(broken, viz.overview_figure(maps, maps, maps, maps, maps, maps, title="paper fast 48×40"))
+
+
+def test_centre_views_beyond_0_1_are_shown_on_their_joint_scale():
+    """Float views in 0…255 (which the estimator stretches for itself) were clipped to a
+    white overview; they are shown on the two views' joint range, the same picture as
+    the views in [0, 1]. Views in [0, 1] are shown as they are."""
+    rng = np.random.default_rng(0)
+    c1, c2 = rng.random((12, 16)), rng.random((12, 16))
+    c1[0, 0], c2[0, 1] = 0.0, 1.0                 # (the joint range exactly 0…1)
+    maps = np.zeros((12, 16))
+    unit = viz.overview_figure(c1, c2, maps, maps, maps, maps)
+    assert np.array_equal(viz.overview_figure(255.0 * c1, 255.0 * c2, maps, maps, maps, maps), unit)
+    assert not np.array_equal(viz.overview_figure(0.5 * c1, 0.5 * c2, maps, maps, maps, maps), unit)
