@@ -38,6 +38,7 @@ Usage (from the repository root)::
     python scripts/compare_peers.py --noise 0.01           # sensor noise on every view
     python scripts/compare_peers.py --vignetting 0.05      # every view darkened its own way
     python scripts/compare_peers.py --exposure 0.9 0.03    # t2 at another exposure
+    python scripts/compare_peers.py --exposure 0.5 0 --exposure-at t1   # t1 at another exposure
     python scripts/compare_peers.py --config my.toml       # lfsf with other settings
     python scripts/compare_peers.py --colour               # RGB views (the peers: their luma)
     python scripts/compare_peers.py --images skimage       # photographs on the objects
@@ -197,10 +198,13 @@ def run_scene(name, args, use_peers, lfsf_runs, warm):
                                       device=args.device, images=images)
     if args.vignetting > 0:  # the camera's, at t1 and t2 alike; in the lens, so before exposure and noise
         lf1, lf2 = synth.add_vignetting(lf1, args.vignetting), synth.add_vignetting(lf2, args.vignetting)
-    if args.exposure is not None:  # t2 captured at another exposure, clipped as a sensor would
+    if args.exposure is not None:  # t2 (or t1) captured at another exposure, clipped as a sensor would
         gain, shift = args.exposure
-        lf2 = type(lf2)(np.clip(lf2.views * np.float32(gain) + np.float32(shift), 0.0, 1.0).astype(np.float32),
-                        source=f"{lf2.source}, exposure {gain:g}·L2 {shift:+g}", meta=lf2.meta)
+        k = 1 if args.exposure_at == "t1" else 2
+        lf = lf1 if k == 1 else lf2
+        lf = type(lf)(np.clip(lf.views * np.float32(gain) + np.float32(shift), 0.0, 1.0).astype(np.float32),
+                      source=f"{lf.source}, exposure {gain:g}·L{k} {shift:+g}", meta=lf.meta)
+        lf1, lf2 = (lf, lf2) if k == 1 else (lf1, lf)
     if args.noise > 0:  # independent at t1 and t2, the same for every method
         seed = zlib.crc32(name.encode())
         lf1, lf2 = synth.add_noise(lf1, args.noise, seed), synth.add_noise(lf2, args.noise, seed + 1)
@@ -511,6 +515,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="t2's views of the synthetic scenes at another exposure, clip(GAIN·L2 + "
                         "OFFSET, 0, 1), for every method (default: the same exposure; the real data "
                         "are stereo, one light field twice)")
+    p.add_argument("--exposure-at", choices=("t2", "t1"), default="t2",
+                   help="which light field --exposure changes (default t2; t1: the first capture the darker "
+                        "or brighter one, which lfsf matches t2 to)")
     p.add_argument("--images", metavar="SOURCE",
                    help="photographs instead of the scenes' solid textures, each object showing one drawn "
                         "from SOURCE: 'skimage' (scikit-image's sample photographs) or a folder of PNG, JPEG "
@@ -633,7 +640,8 @@ def main(argv=None) -> int:
     if not args.no_synth:
         inputs = "".join([f", noise σ = {args.noise:g}" if args.noise > 0 else "",
                           f", vignetting {args.vignetting:g}" if args.vignetting > 0 else "",
-                          f", t2 at clip({args.exposure[0]:g}·L2 {args.exposure[1]:+g})" if args.exposure else "",
+                          f", {args.exposure_at} at clip({args.exposure[0]:g}·L{args.exposure_at[1]} "
+                          f"{args.exposure[1]:+g})" if args.exposure else "",
                           f", lfsf settings from {args.config}" if args.config else "",
                           f", photographs from {args.images}" if args.images else ""])
         print(f"## Synthetic scenes, {w}×{h}, {args.grid}×{args.grid} {'RGB ' if args.colour else ''}views "

@@ -199,6 +199,18 @@ def test_compare_peers_exposure_changes_t2_for_every_method(capsys):
     assert "--exposure" in capsys.readouterr().err
 
 
+
+def test_compare_peers_exposure_at_t1_changes_t1_for_every_method():
+    """``--exposure-at t1``: t1 at the other exposure, t2 as rendered."""
+    from lfsf import synth
+
+    seen = _views_handed_over("paper", "--exposure", "0.5", "0.02", "--exposure-at", "t1")
+    clean1, clean2, _ = synth.render_scene("paper", size=(48, 32), grid=3)
+    (a1, a2), = seen
+    np.testing.assert_allclose(a1, np.clip(clean1.views * 0.5 + 0.02, 0.0, 1.0), atol=1e-6)
+    np.testing.assert_array_equal(a2, clean2.views)
+
+
 def test_compare_peers_config_sets_every_lfsf_run(tmp_path, monkeypatch, capsys):
     """``--config FILE.toml`` sets the settings of every lfsf run (over the `paper`
     preset; the flow-only and two-view runs keep their own circles); a missing file or an
