@@ -3,8 +3,8 @@
 import argparse
 import io as io_module
 import json
-import re
 import os
+import re
 import subprocess
 import sys
 
