@@ -229,7 +229,7 @@ def centre_view(views: np.ndarray) -> np.ndarray:
 #: Two light fields whose brightest values are more than this factor apart were scaled
 #: differently (one in [0, 1], the other in counts; or integers of another width, as
 #: uint8 against int64, which scales by 2^63 − 1): the estimate would be meaningless.
-#: 16 is four stops, twice what the estimator's exposure matching undoes (a gain of 4).
+#: 16 is four stops, beyond the three that the estimator's exposure matching undoes (a gain of 8).
 _SCALED_APART = 16.0
 
 

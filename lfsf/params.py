@@ -88,8 +88,8 @@ class Params:
             to flat pixels, gives I1(p) ≈ g·I2(p + u) + b. Where that moves the t2
             intensities by more than EXPOSURE_CHANGE (0.4 % of the range), t2's grey views
             (after any stretch to [0, 1]) become g·L2 + b before they are sampled; below it
-            nothing changes (:func:`lfsf.estimate._exposure_change`). Gains beyond two
-            stops (g outside [1/4, 4]) are refused, and the progress says so. Views shorter than
+            nothing changes (:func:`lfsf.estimate._exposure_change`). Gains beyond three
+            stops (g outside [1/8, 8]) are refused, and the progress says so. Views shorter than
             120 px along the longer side skip it: the pilot is too small to tell there.
             With θ = 0.5 half the structure stays in the matched images, so a gain of 0.99
             on t2 alone took `paper`'s flow EPE 0.067 → 0.094 and 0.95 to 0.34 (160×120).

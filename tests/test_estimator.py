@@ -639,14 +639,15 @@ def test_the_exposure_fit_recovers_a_known_gain_and_offset():
     assert estimate._exposure_change(c1, c2, "cpu")[2] < 0.75 * estimate.EXPOSURE_CHANGE
 
 
-def test_the_exposure_fit_undoes_changes_of_up_to_two_stops_either_way_and_says_when_it_refuses():
+def test_the_exposure_fit_undoes_changes_of_up_to_three_stops_either_way_and_says_when_it_refuses():
     """t2 at 0.4 of t1's exposure (g = 2.5, beyond the one stop once allowed: refused,
-    and the flow was ruined) is fitted, and so is t1 at 0.4 of t2's (g = 0.4); at 0.2
-    (g = 5) the gain is fitted too, but refused as beyond EXPOSURE_MAX_GAIN, and the note
-    says so. Measured here, the largest error of the map over t2's range as a fraction
-    of t1's: 0.0027 at 0.4 (0.029 before the pilot saw t2 scaled to t1's gradients, and
-    0.053 with t1 the darker); the gain at 0.2: 4.98 and 0.204 (before: refused, the
-    two slopes disagreeing)."""
+    and the flow was ruined) is fitted, and so is t1 at 0.4 of t2's (g = 0.4), and 0.2
+    either way (g = 5, beyond the two stops allowed until the thirty-first session); at
+    0.1 (g = 10) the gain is fitted too, but refused as beyond EXPOSURE_MAX_GAIN, and the
+    note says so. Measured here, the largest error of the map over t2's range as a
+    fraction of t1's: 0.0027 at 0.4 (0.029 before the pilot saw t2 scaled to t1's
+    gradients, and 0.053 with t1 the darker); the gain at 0.2: 5.03 and 0.201, at 0.1:
+    9.97 and 0.102."""
     from lfsf import estimate
 
     lf1, lf2 = shift_lightfields(h=96, w=128)
@@ -656,10 +657,15 @@ def test_the_exposure_fit_undoes_changes_of_up_to_two_stops_either_way_and_says_
     assert abs(g / 2.5 - 1) < 0.02 and np.abs(g * x + b - x / 0.4).max() < 0.01, (g, b)
     g, b, change = estimate._exposure_change((0.4 * c1).astype(np.float32), c2, "cpu")
     assert abs(g / 0.4 - 1) < 0.02 and np.abs(g * x / 0.4 + b - x).max() < 0.4 * 0.01, (g, b)
-    for pair in ((c1, (0.2 * c2).astype(np.float32)), ((0.2 * c1).astype(np.float32), c2)):
+    g, b, change = estimate._exposure_change(c1, (0.2 * c2).astype(np.float32), "cpu")
+    assert abs(g / 5.0 - 1) < 0.02 and change > estimate.EXPOSURE_CHANGE, (g, b)
+    g, b, change = estimate._exposure_change((0.2 * c1).astype(np.float32), c2, "cpu")
+    assert abs(g / 0.2 - 1) < 0.02 and change > estimate.EXPOSURE_CHANGE, (g, b)
+    for pair in ((c1, (0.1 * c2).astype(np.float32)), ((0.1 * c1).astype(np.float32), c2)):
         notes = []
         assert estimate._exposure_change(*pair, "cpu", note=notes.append) == (1.0, 0.0, 0.0)
         assert len(notes) == 1 and notes[0].startswith("exposure: not matched, the gain fitted"), notes
+        assert "beyond the 8× (either way)" in notes[0], notes
 
 
 def test_a_darker_t1_is_matched_as_a_darker_t2_is():
