@@ -70,6 +70,9 @@ class Outcome:
     seconds: float = 0.0
     reason: str = ""
     warm: bool = False
+    #: The estimator's notes on the pair (:class:`lfsf.estimate.Note`: an exposure matched
+    #: or refused, the views' gains matched, …), to be reported with it.
+    notes: tuple[str, ...] = ()
 
 
 @dataclass
@@ -266,7 +269,7 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
     is spent only on a worker that died. ``_after`` is not used (a dependency a caller may
     give Dask; lfsf submits a warm-started pair only once the one before it has ended).
     """
-    from lfsf.estimate import estimate_scene_flow, predict_next
+    from lfsf.estimate import Note, estimate_scene_flow, predict_next
     from lfsf.io import check_pair, read_lightfield
 
     out = Path(out)
@@ -289,7 +292,9 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
         if warm_start and pair.previous is not None:
             init = _previous_estimate(out / pair.previous, lf1.centre.shape[:2])
             init = None if init is None else predict_next(init)
-        sf = estimate_scene_flow(lf1, lf2, params, device=_worker_device(device), init=init)
+        notes = []
+        sf = estimate_scene_flow(lf1, lf2, params, device=_worker_device(device), init=init,
+                                 progress=lambda line: notes.append(str(line)) if isinstance(line, Note) else None)
         sf.save(tmp)
         if final.exists():  # an incomplete result left by hand or by an older version
             if not _holds_only_results(final):
@@ -297,7 +302,8 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
                                  f"{', '.join(sorted(p.name for p in final.iterdir())[:5])}); not replaced")
             shutil.rmtree(final)
         os.replace(tmp, final)
-        return Outcome(pair.name, "done", time.perf_counter() - t0, replaced, warm=init is not None)
+        return Outcome(pair.name, "done", time.perf_counter() - t0, replaced, warm=init is not None,
+                       notes=tuple(notes))
     except Exception as exc:  # noqa: BLE001 - every failure of a pair is reported, the batch goes on
         reason = _reason(exc)
         return Outcome(pair.name, "failed", time.perf_counter() - t0, reason)
@@ -535,7 +541,8 @@ def _write_failed(out: Path, pairs: Sequence[Pair], summary: Summary) -> None:
 
 class ProgressBar:
     """One bar over the pairs with the time left, on a terminal; one line per pair in a
-    log; nothing with ``quiet``. Failures are always reported, with their reason."""
+    log; nothing with ``quiet``. Failures are always reported, with their reason; the
+    estimator's notes on a pair (an exposure matched or refused, …) but with ``quiet``."""
 
     def __init__(self, total: int, quiet: bool = False, stream=None, width: int = 30):
         self.stream = stream or sys.stderr
@@ -556,6 +563,9 @@ class ProgressBar:
             self._line(f"[{finished}/{total}] {outcome.name}: {outcome.status}"
                        + (f" in {outcome.seconds:.1f} s" if outcome.status == "done" else "")
                        + f"; about {_duration(left)} left")
+        if not self.quiet:  # what the estimator decided about the pair's input, on a terminal too
+            for note in outcome.notes:
+                self._line(f"pair {outcome.name}: {note}")
         if self.live:
             filled = int(round(self.width * finished / total))
             bar = "#" * filled + "." * (self.width - filled)

@@ -575,3 +575,26 @@ def test_a_rerun_skips_only_results_of_its_own_settings_that_read(frames, tmp_pa
     assert [(o.status, o.reason) for o in summary.outcomes] == [("done", batch.REPLACED)]
     assert settings() == flow
     assert [o.status for o in batch.run_batch(pairs, out, flow, device="cpu").outcomes] == ["skipped"]
+
+
+def test_a_pairs_notes_are_reported_with_it(tmp_path, monkeypatch):
+    """The estimator's notes on a pair (here: t2 at half the exposure, matched) come back
+    in its Outcome and are printed with it, in a log as on a terminal; a batch job had
+    no word of them."""
+    import io
+
+    monkeypatch.setattr(batch, "have_dask", lambda: False)
+    lf1, lf2, _ = synth.render_scene("slanted", size=(128, 96), grid=3, device="cpu")
+    write_lightfield(lf1, tmp_path / "a.npz")
+    write_lightfield((0.5 * lf2.views).astype(np.float32), tmp_path / "b.npz")
+    manifest = _manifest(tmp_path / "m.csv", [(tmp_path / "a.npz", tmp_path / "b.npz", "dark")])
+    summary = batch.run_batch(batch.pairs_from_sources([manifest]), tmp_path / "out", PARAMS, device="cpu")
+    (outcome,) = summary.outcomes
+    assert outcome.status == "done" and len(outcome.notes) == 1, outcome
+    found = re.match(r"exposure: t2 matched to t1 by I ↦ ([0-9.]+)·I", outcome.notes[0])
+    assert found and abs(float(found.group(1)) - 2.0) < 0.1, outcome.notes
+    for quiet in (False, True):
+        stream = io.StringIO()
+        batch.ProgressBar(1, quiet=quiet, stream=stream)(outcome, 1, 1)
+        lines = stream.getvalue().splitlines()
+        assert lines[1:] == ([] if quiet else [f"lfsf batch: pair dark: {outcome.notes[0]}"]), lines
