@@ -206,15 +206,14 @@ def _estimated_with(folder: Path, params) -> bool:
     ``params`` (None: the `paper` preset): its sceneflow.npz reads, maps and all, and
     the settings it records are these. Anything else (other settings, a file cut short
     or not lfsf's) is no result of this run, and a re-run estimates the pair again."""
-    import json
-
+    from lfsf.evaluate import recorded_settings
     from lfsf.params import Params
 
     try:
         with np.load(folder / "sceneflow.npz") as z:
-            recorded = Params(**json.loads(str(z["params"]))["params"])
             for key in ("disp1", "disp2", "u", "v"):
                 z[key]
+        recorded = Params(**recorded_settings(folder))
     except Exception:  # noqa: BLE001 - whatever fails to read is no result of this run
         return False
     return recorded == (Params.preset("paper") if params is None else params)

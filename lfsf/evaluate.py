@@ -205,9 +205,11 @@ def load_estimate(path: str | Path) -> dict[str, np.ndarray]:
     raise ValueError(f"{path}: not a result (expected a folder, .npz, .pfm or .flo)")
 
 
-def flow_only(path: str | Path) -> bool:
-    """Whether a result (a folder of ``lfsf run`` or its ``sceneflow.npz``) was estimated
-    with one circle (``--preset flow``): its disparities are zeros, not estimates."""
+def recorded_settings(path: str | Path) -> dict | None:
+    """The settings a result (a folder of ``lfsf run`` or its ``sceneflow.npz``) records
+    it was estimated with (:meth:`lfsf.estimate.SceneFlow.save`), as a dict of
+    :class:`lfsf.params.Params` fields; None where there is no ``sceneflow.npz`` or it
+    records none that reads."""
     import json
 
     from lfsf import io
@@ -215,12 +217,20 @@ def flow_only(path: str | Path) -> bool:
     path = Path(path)
     path = path / "sceneflow.npz" if path.is_dir() else path
     if path.suffix.lower() != ".npz" or not path.is_file():
-        return False
+        return None
     try:
         _, arrays = io._read_npz_arrays(path, ("params",))
-        return json.loads(str(arrays["params"]))["params"]["circles"] == 1
+        settings = json.loads(str(arrays["params"]))["params"]
     except (KeyError, TypeError, ValueError):
-        return False
+        return None
+    return settings if isinstance(settings, dict) else None
+
+
+def flow_only(path: str | Path) -> bool:
+    """Whether a result (a folder of ``lfsf run`` or its ``sceneflow.npz``) was estimated
+    with one circle (``--preset flow``): its disparities are zeros, not estimates."""
+    settings = recorded_settings(path)
+    return settings is not None and settings.get("circles") == 1
 
 
 def load_ground_truth(path: str | Path) -> tuple[dict[str, np.ndarray], int]:
