@@ -30,10 +30,22 @@ HCI_BORDER = 15
 SYNTH_BORDER = 8
 
 
+def _float_map(a) -> np.ndarray:
+    """A map as float64, a masked array's masked pixels as NaN (np.asarray would drop the
+    mask and score what lies under it): not scored in a ground truth, wrong in an
+    estimate, as any non-finite value."""
+    if np.ma.isMaskedArray(a):
+        return np.ma.filled(a.astype(np.float64), np.nan)
+    return np.asarray(a, dtype=np.float64)
+
+
 def _bool_mask(mask, name: str) -> np.ndarray:
     """A ground truth's mask (``valid``, ``occluded``) as given, checked: bool, or
     integers that are all 0 and 1. A float or string mask read by truthiness would count
-    NaN and "False" as true (and 255 too, were any nonzero integer taken)."""
+    NaN and "False" as true (and 255 too, were any nonzero integer taken). A masked
+    array's masked pixels are left out of what is scored: not valid, or occluded."""
+    if np.ma.isMaskedArray(mask):
+        mask = np.ma.filled(mask, mask.dtype.type(name == "occluded"))
     mask = np.asarray(mask)
     if mask.dtype != bool and not (mask.dtype.kind in "iu" and np.isin(mask, (0, 1)).all()):
         raise ValueError(f"the {name} mask must be bool (or 0 and 1), got dtype {mask.dtype}"
@@ -87,8 +99,8 @@ def _check_pair(name, est, ref):
 
 def disparity_errors(est, gt, valid=None, border: int = 0) -> dict[str, float]:
     """MSE, MSE×100 and BadPix(0.07) (%) of a disparity map over valid, finite pixels."""
-    est = np.asarray(est, dtype=np.float64)
-    gt = np.asarray(gt, dtype=np.float64)
+    est = _float_map(est)
+    gt = _float_map(gt)
     _check_pair("disparity", est, gt)
     m = _mask(gt.shape, valid, border, np.isfinite(gt))
     n = int(m.sum())
@@ -106,7 +118,7 @@ def disparity_errors(est, gt, valid=None, border: int = 0) -> dict[str, float]:
 
 def flow_errors(u, v, gt_u, gt_v, valid=None, border: int = 0) -> dict[str, float]:
     """Mean end-point error and the MSE of each component over valid, finite pixels."""
-    u, v, gt_u, gt_v = (np.asarray(a, dtype=np.float64) for a in (u, v, gt_u, gt_v))
+    u, v, gt_u, gt_v = (_float_map(a) for a in (u, v, gt_u, gt_v))
     _check_pair("flow", u, gt_u)
     _check_pair("flow", v, gt_v)
     if v.shape != u.shape:
@@ -159,7 +171,7 @@ def evaluate(estimate, gt: dict, border: int = SYNTH_BORDER) -> dict[str, dict[s
             raise ValueError(f"occluded mask has shape {occluded.shape}, expected {tuple(shape)}")
         seen = ~occluded
         if valid is not None:
-            seen &= np.asarray(valid, dtype=bool)
+            seen &= _bool_mask(valid, "valid").astype(bool)
         for name, score, maps in (("disp2", disparity_errors, ("disp2",)), ("flow", flow_errors, ("u", "v"))):
             if name in out:
                 try:

@@ -236,3 +236,34 @@ def test_arguments_of_the_wrong_kind_are_value_errors():
     half[:, :4] = 1
     assert E.evaluate(maps, {**maps, "occluded": half}, border=0)["flow_noc"]["pixels"] == 24
 
+
+
+def test_masked_arrays_keep_their_masks():
+    """np.asarray drops a masked array's mask: what lay under it was scored."""
+    rng = np.random.default_rng(0)
+    gt = rng.random((12, 12))
+    est = gt + 0.1
+    hole = np.zeros((12, 12), bool)
+    hole[2:5, 3:9] = True
+    est_holes = est.copy()
+    est_holes[hole] = 1e3
+    # masked ground truth pixels are not scored, as NaN ones are not
+    masked_gt = np.ma.masked_array(np.where(hole, -50.0, gt), mask=hole)
+    by_nan = E.evaluate({"disp1": est}, {"disp1": np.where(hole, np.nan, gt)}, border=0)
+    assert E.evaluate({"disp1": est}, {"disp1": masked_gt}, border=0) == by_nan
+    # a masked valid mask's masked pixels are not valid
+    valid = np.ma.masked_array(np.ones((12, 12), bool), mask=hole)
+    assert E.evaluate({"disp1": est_holes}, {"disp1": gt, "valid": valid}, border=0) == \
+        E.evaluate({"disp1": est_holes}, {"disp1": gt, "valid": ~hole}, border=0)
+    # a masked estimate pixel is no estimate: wrong, as a NaN is
+    masked_est = np.ma.masked_array(est_holes, mask=hole)
+    assert E.evaluate({"disp1": masked_est}, {"disp1": gt}, border=0) == \
+        E.evaluate({"disp1": np.where(hole, np.nan, est)}, {"disp1": gt}, border=0)
+    u = np.ma.masked_array(np.ones((12, 12)), mask=hole)
+    flow = E.evaluate({"u": u, "v": np.zeros((12, 12))}, {"u": np.ones((12, 12)), "v": np.zeros((12, 12))},
+                    border=0)["flow"]
+    assert flow["epe"] == np.inf and flow["pixels"] == 144
+    # masked occluded pixels are left out of the noc rows
+    occluded = np.ma.masked_array(np.zeros((12, 12), bool), mask=hole)
+    noc = E.evaluate({"disp2": est_holes}, {"disp2": gt, "occluded": occluded}, border=0)["disp2_noc"]
+    assert noc["pixels"] == 144 - hole.sum() and noc["mse"] == pytest.approx(0.01)
