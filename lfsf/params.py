@@ -24,7 +24,8 @@ class Params:
         circles : M, the number of sampling circles (radii r_i = R·i/(M−1)); M = 1 uses
             the centre view alone (optical flow only).
         samples : N_i, positions on each circle; N_0 must be 1 (the centre view).
-        radius : R, the largest sampling radius in view steps; limited to the view grid.
+        radius : R, the largest sampling radius in view steps; limited to the view grid;
+            at least 0.25 with side samples (:data:`MIN_RADIUS`).
     Data term (§3)
         lambda1, lambda2, lambda3 : λ1 (stereo at t1), λ2 (stereo at t2), λ3 (flow).
             Each is divided by the number of samples, so the weights mean the same
@@ -341,6 +342,10 @@ class Params:
         need(sum(self.samples) <= MAX_SAMPLES,
              f"samples (N_i) may hold at most {MAX_SAMPLES} positions in all, got {sum(self.samples)}")
         need(self.radius > 0 or self.circles == 1, f"radius R must be positive, got {self.radius}")
+        # side samples within a few hundredths of a view step of the centre see no
+        # parallax: every A1 = −φ·∇W1 ≈ 0, and δ came out 0 without a word (R = 1e-9)
+        need(self.radius >= MIN_RADIUS or self.circles == 1,
+             f"radius R must be at least {MIN_RADIUS} view steps (the side samples' parallax), got {self.radius}")
         for name in ("lambda1", "lambda2", "lambda3", "lambda3_side", "alpha0", "alpha1", "gamma", "beta", "rof_weight", "eps"):
             value = getattr(self, name)
             need(value >= 0, f"{name} must be a finite number ≥ 0, got {value}")
@@ -417,6 +422,9 @@ class Params:
 
 # Upper bounds of the settings that size buffers or loops (:meth:`Params.validate`).
 MAX_SAMPLES = 256
+#: The least sampling radius R (view steps) with side samples: nearer the centre they see
+#: too little parallax for δ (the presets use 4 on a 9×9 grid).
+MIN_RADIUS = 0.25
 #: The magnitudes a real setting may have (or 0): within float32 (1.2e-38…3.4e38) with
 #: room for the products the kernels form. `fast` at 48×40 gave finite maps with every
 #: real setting at 1e-12 and at 1e12 that its own range allows, but flow_edge_weight at

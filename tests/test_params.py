@@ -71,6 +71,8 @@ BAD = [
     ("iterations", 10 ** 9), ("rof_iterations", 10 ** 9), ("warps", 10 ** 6), ("samples", (1, 8, 10_000)),
     ("final_iterations", 10 ** 9), ("final_iterations", -1), ("final_iterations", 2.5),
     ("view_gain_sigma", -1.0), ("view_gain_sigma", 1000.0), ("view_gain_sigma", math.inf), ("view_gain_sigma", True),
+    # side samples with no parallax to speak of (R = 1e-9 gave δ = 0 without a word)
+    ("radius", 1e-9), ("radius", 0.2),
 ]
 
 
@@ -202,3 +204,10 @@ def test_sample_offsets_take_a_square_grid_as_one_number():
     params = Params.preset("paper")
     for a, b in zip(params.sample_offsets(9), params.sample_offsets((9, 9))):
         np.testing.assert_array_equal(a, b)
+
+
+def test_the_least_radius_is_accepted_and_flow_only_needs_none():
+    from lfsf.params import MIN_RADIUS
+
+    assert Params(radius=MIN_RADIUS).radius == MIN_RADIUS
+    assert Params(circles=1, samples=(1,), radius=1e-9).circles == 1
