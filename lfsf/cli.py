@@ -228,7 +228,7 @@ def _result_names() -> tuple[str, ...]:
 def _preset_label(args) -> str:
     """What the settings came from, for a log line: "preset 'fast' and run.toml"."""
     config = getattr(args, "config", None)
-    if args.preset:
+    if args.preset is not None:
         return f"preset '{args.preset}'" + (f" and {config}" if config else "")
     return f"the settings of {config}" if config else "preset 'paper'"
 
@@ -239,7 +239,8 @@ def _params(args):
     if getattr(args, "config", None):
         # the file's preset = "…" or --preset (both, differing: an error), else paper
         return Params.from_toml(args.config, preset=args.preset)
-    return Params.preset(args.preset or "paper")
+    # (not `or`: --preset "" is a mistake to name, not the default)
+    return Params.preset("paper" if args.preset is None else args.preset)
 
 
 def cmd_run(args) -> int:

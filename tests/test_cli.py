@@ -252,6 +252,9 @@ def test_a_preset_in_the_config_file_meets_the_command_line(tmp_path, capsys):
         args = argparse.Namespace(preset=preset, config=config and tmp_path / config)
         assert cli._params(args) == Params.preset(want), (preset, config)
     assert cli._preset_label(argparse.Namespace(preset=None, config="f.toml")) == "the settings of f.toml"
+    # an empty name is a mistake, not the default (presets are matched exactly)
+    assert main(["run", "a.npz", "b.npz", "--out", str(tmp_path / "r"), "--preset", ""]) == 2
+    assert "unknown preset ''" in capsys.readouterr().err
 
 
 def test_nan_pixels_are_rejected_with_the_file_name(tmp_path):
