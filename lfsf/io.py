@@ -84,6 +84,12 @@ BT601_LUMA = (0.299, 0.587, 0.114)
 _IMAGE_SUFFIXES = {
     ".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".dng", ".raw", ".lfr", ".lfp",
 }
+#: Suffixes of file formats that lfsf does not write: :func:`write_lightfield` refuses to
+#: make a folder of views under such a name (an existing folder of that name is used).
+_OTHER_FILE_SUFFIXES = {
+    ".h5", ".hdf5", ".hdf", ".mat", ".npy", ".pkl", ".pickle", ".zip", ".tar", ".gz", ".bz2",
+    ".xz", ".json", ".txt", ".csv", ".exr", ".pfm", ".flo", ".webp", ".gif", ".mp4", ".avi",
+}
 _HCI_NAME = re.compile(r"input_Cam(\d+)\.png", re.IGNORECASE)
 _ROWCOL_NAME = re.compile(r"(.+)_(\d+)_(\d+)\.png", re.IGNORECASE)
 _LAYOUTS_LOOKED_FOR = (
@@ -694,6 +700,10 @@ def write_lightfield(lf_or_views, path: str | os.PathLike, *, bit_depth: int = 1
     if path.suffix.lower() in _IMAGE_SUFFIXES:
         raise ValueError(f"{path}: a light field is written to a folder or a .npz, not to a "
                          f"single image")
+    if path.suffix.lower() in _OTHER_FILE_SUFFIXES and not path.is_dir():
+        # a folder of PNG views under a file format's name (out.h5) misleads every reader
+        raise ValueError(f"{path}: lfsf writes a light field to a .npz or to a folder of PNG views, "
+                         f"not as {path.suffix}; give a .npz or a folder name")
     if bit_depth not in (8, 16):
         raise ValueError(f"{path}: expected bit_depth 8 or 16, got {bit_depth!r}")
     if layout not in ("hci", "rowcol"):

@@ -242,7 +242,11 @@ def _robust_range(values: np.ndarray) -> tuple[float, float]:
     finite = values[np.isfinite(values)]
     if finite.size == 0:
         return 0.0, 1.0
-    lo, hi = (float(x) for x in np.percentile(finite, [1.0, 99.0]))
+    # in units of the largest magnitude: percentiles of a map spanning ±1e308 interpolate
+    # between neighbours whose difference overflows
+    unit = float(np.max(np.abs(finite)))
+    unit = unit if unit > 0.0 else 1.0
+    lo, hi = (float(x) * unit for x in np.percentile(finite / unit, [1.0, 99.0]))
     if hi <= lo:
         pad = max(abs(lo) * 1e-3, 1e-6)
         lo, hi = lo - pad, hi + pad
@@ -371,6 +375,10 @@ def save_png(path: str | os.PathLike, img) -> None:
     img : array_like, shape (H, W) or (H, W, 3)
         ``uint8``, or float in [0, 1] (clipped; NaN written as 0).
     """
+    suffix = os.path.splitext(os.fspath(path))[1]
+    if suffix.lower() != ".png":   # (PNG bytes under another name mislead every reader)
+        raise ValueError(f"{os.fspath(path)}: save_png writes PNG files, so the name must end in .png"
+                         f"{f', not {suffix}' if suffix else ''}")
     img = _to_uint8_image(img)
     with atomic_path(path, suffix=".png") as tmp:
         iio.imwrite(tmp, img, extension=".png")

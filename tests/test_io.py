@@ -1231,3 +1231,14 @@ def test_a_set_of_results_is_written_through_a_symbolic_link(tmp_path):
     assert (tmp_path / "out" / "b.pfm").read_bytes() == b"new b"
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a.pfm", "b.pfm"]
     assert sorted(p.name for p in (tmp_path / "elsewhere").iterdir()) == ["a.pfm"]
+
+
+@pytest.mark.parametrize("name", ["lf.h5", "lf.mat", "lf.npy"])
+def test_write_lightfield_refuses_a_file_format_it_does_not_write(tmp_path, name):
+    """A folder of PNG views named lf.h5 was made without a word."""
+    views = np.zeros((3, 3, 8, 8), np.float32)
+    with pytest.raises(ValueError, match=f"not as {name[2:]}; give a .npz or a folder name"):
+        lio.write_lightfield(views, tmp_path / name)
+    assert not (tmp_path / name).exists()
+    (tmp_path / name).mkdir()          # a folder of that name that exists is the user's choice
+    assert lio.read_lightfield(lio.write_lightfield(views, tmp_path / name)).grid == (3, 3)

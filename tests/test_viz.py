@@ -302,6 +302,9 @@ def test_odd_maps_and_titles_are_handled_quickly_or_refused_clearly():
     one character at a time)."""
     import signal
 
+    # and with no range given: the percentiles' interpolation overflowed (ends inf and −inf)
+    assert (viz.disparity_to_color(np.array([[-1e308, 1e308]]))
+            == viz.disparity_to_color(np.array([[-1.0, 1.0]]))).all()
     rgb = viz.disparity_to_color(np.array([[-1e308, 1e308], [0.0, 1.0]]), vmin=-1e308, vmax=1e308)
     assert rgb[0, 0].tolist() == viz.disparity_to_color(np.array([[0.0, 1.0]]))[0, 0].tolist()
     assert (rgb[1, 0] == rgb[1, 1]).all()         # 0 and 1 are the same colour on that scale
@@ -343,3 +346,12 @@ def test_centre_views_beyond_0_1_are_shown_on_their_joint_scale():
     unit = viz.overview_figure(c1, c2, maps, maps, maps, maps)
     assert np.array_equal(viz.overview_figure(255.0 * c1, 255.0 * c2, maps, maps, maps, maps), unit)
     assert not np.array_equal(viz.overview_figure(0.5 * c1, 0.5 * c2, maps, maps, maps, maps), unit)
+
+
+@pytest.mark.parametrize("name", ["x.jpg", "x", "x.png.tmp"])
+def test_save_png_refuses_a_name_that_says_another_format(tmp_path, name):
+    with pytest.raises(ValueError, match="must end in .png"):
+        viz.save_png(tmp_path / name, np.zeros((4, 4), np.uint8))
+    assert list(tmp_path.iterdir()) == []
+    viz.save_png(tmp_path / "x.PNG", np.zeros((4, 4), np.uint8))
+    assert (tmp_path / "x.PNG").is_file()
