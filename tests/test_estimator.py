@@ -118,13 +118,18 @@ def test_flow_search_level_by_range_and_width():
 
     def level_width(w, h, flow_range=24.0):
         sizes = pyramid_sizes(h, w, Params())
-        return sizes[flow_search_level(sizes, flow_range)][1]
+        return sizes[flow_search_level(sizes, flow_range, Params().pyramid_scale)][1]
 
     assert level_width(640, 480) == 160  # the range allows 320; the width cap says 160
     assert level_width(320, 240) == 160
     assert level_width(160, 120) == 80  # ±24 px is ±12 at 80 px wide
     assert level_width(160, 120, flow_range=6.0) == 160
     assert level_width(12, 10) == 12  # one level: that one
+    # the range by the level's scale, not its rounded width: 159 px halve to 80 px, where
+    # 24 · 80 / 159 = 12.08 sent the search to the 40-px level (flow EPE 0.98 against 0.09)
+    for w in range(60, 321):
+        assert level_width(w, w * 3 // 4) == round(w / 2), w
+    assert level_width(159, 119) == 80 and level_width(155, 116) == 78
 
 
 def test_two_view_stereo_special_case():
