@@ -148,6 +148,14 @@ class Note(str):
 #: 0.134 / 1.269 / 0.143 → 0.273 / 0.189 / 1.136 / 0.168). A measured rule, not a law.
 FLOW_SEARCH_HALF = 12
 FLOW_SEARCH_WIDTH = 160
+#: … or which is scaled by at most this much: the width alone sent every image wider than
+#: 642 px to ⅛ of its size, 81 px for 648 px. Flow EPE (`paper` preset) with the search
+#: at ¼ against ⅛: 648×486 `large_motion` / `random-6` / `paper` 0.028 / 0.048 / 0.044
+#: against 0.036 / 0.064 / 0.048 (`random-2` 0.050 against 0.048); 760×570 0.029 / 0.036
+#: / 0.043 against 0.031 / 0.052 / 0.046; 960×720 0.034 / 0.041 / 0.050 against 0.035 /
+#: 0.045 / 0.051. Below 643 px the rule picks what it did: at 360×270 and 400×300 the ¼
+#: level (90, 100 px) beat the ½ one (180, 200 px) on 8 of 13 scenes (one tie).
+FLOW_SEARCH_SCALE = 0.25
 #: The flow search's largest half-width on its level: where the pyramid cannot bring the
 #: range down to this (``max_levels``), (2·64 + 1)² shifts per pixel would already take
 #: minutes at 640×480.
@@ -623,7 +631,7 @@ def flow_search_level(sizes: list[tuple[int, int]], flow_range: float, pyramid_s
     """The pyramid level (index into ``sizes``, (h, w) finest first, level k scaled by
     η_s^k = ``pyramid_scale`` ** k) of the flow search: the finest on which the whole range
     is at most FLOW_SEARCH_HALF pixels and which is at most FLOW_SEARCH_WIDTH pixels wide
-    (else the coarsest).
+    or scaled by at most FLOW_SEARCH_SCALE (else the coarsest).
 
     The range by the level's scale η_s^k, not by its rounded size: 159 px halve to 80, and
     24 · 80 / 159 = 12.08 px failed the range by the rounding alone. One image width in
@@ -631,7 +639,8 @@ def flow_search_level(sizes: list[tuple[int, int]], flow_range: float, pyramid_s
     lost fast objects (`large_motion` at 159×119, `paper` preset: flow EPE 0.98 against
     0.09 with the search on the 80-px level)."""
     return next((k for k, (_h, w) in enumerate(sizes)
-                 if flow_range * pyramid_scale ** k <= FLOW_SEARCH_HALF * (1 + 1e-9) and w <= FLOW_SEARCH_WIDTH),
+                 if flow_range * pyramid_scale ** k <= FLOW_SEARCH_HALF * (1 + 1e-9)
+                 and (w <= FLOW_SEARCH_WIDTH or pyramid_scale ** k <= FLOW_SEARCH_SCALE * (1 + 1e-9))),
                 len(sizes) - 1)
 
 

@@ -113,7 +113,7 @@ def test_flow_preset_is_flow_only_and_recovers_the_shift():
 
 def test_flow_search_level_by_range_and_width():
     """The flow search runs on the finest level where ±flow_range is at most 12 whole
-    pixels and that is at most 160 px wide."""
+    pixels and that is at most 160 px wide or ¼ of the image's width."""
     from lfsf.estimate import flow_search_level, pyramid_sizes
 
     def level_width(w, h, flow_range=24.0):
@@ -130,6 +130,8 @@ def test_flow_search_level_by_range_and_width():
     for w in range(60, 321):
         assert level_width(w, w * 3 // 4) == round(w / 2), w
     assert level_width(159, 119) == 80 and level_width(155, 116) == 78
+    # wider than 642 px: ¼ of the width, not ⅛ (the 160-px cap alone gave 81 px at 648)
+    assert level_width(648, 486) == 162 and level_width(960, 720) == 240 and level_width(400, 300) == 100
 
 
 def test_two_view_stereo_special_case():
