@@ -752,6 +752,25 @@ def test_the_exposure_fit_refuses_what_it_cannot_tell():
     assert estimate_scene_flow(lf1, darker, Params.preset("flow"), device="cpu").exposure is None
 
 
+def test_the_exposure_pilot_keeps_enough_rows_and_short_views_skip_it():
+    """Box-averaged to 160 px along the longer side, a 320×40 pair of one exposure left the
+    pilot 20 rows, and its fit read a 1.6 % change on `large_motion` (which the estimator
+    then applied); the averaging now keeps 48 rows. Views with fewer than 48 rows skip
+    the match (200×40: 0.76 % read), as those shorter than 120 px along the longer side
+    do."""
+    from lfsf import estimate, synth
+
+    lf1, lf2, _ = synth.render_scene("large_motion", size=(320, 40), grid=1, device="cpu")
+    assert estimate._exposure_change(lf1.centre, lf2.centre, "cpu")[2] < estimate.EXPOSURE_CHANGE
+    lf1, lf2, _ = synth.render_scene("large_motion", size=(200, 40), grid=1, device="cpu")
+    darker = lfsf.LightField((lf2.views * 0.9).astype(np.float32))
+    assert min(lf1.height, lf1.width) < estimate.EXPOSURE_MIN_SHORT <= 60
+    assert estimate_scene_flow(lf1, darker, Params.preset("flow"), device="cpu").exposure is None
+    lf1, lf2, _ = synth.render_scene("large_motion", size=(200, 60), grid=1, device="cpu")
+    darker = lfsf.LightField((lf2.views * 0.9).astype(np.float32))
+    assert estimate_scene_flow(lf1, darker, Params.preset("flow"), device="cpu").exposure is not None
+
+
 @pytest.mark.parametrize("side", [1.0, 0.3, 0.0])
 def test_data_weights_scale_the_side_samples_flow_rows_alone(side):
     """(λ1, λ2, λ3) / S per sample; the stereo rows of the centre sample are 0, and
