@@ -15,7 +15,7 @@ import numpy as np
 
 from lfsf import device as _device
 from lfsf._filters import gaussian_blur as _blur
-from lfsf.gains import GAIN_CHANGE, fit_reduced_gains, gain_change, reduction_factor, sampled_views
+from lfsf.gains import GAIN_CHANGE, MIN_VIEW_SIZE, fit_reduced_gains, gain_change, reduction_factor, sampled_views
 from lfsf.io import LightField, _check_pair_brightest, _refuse_non_finite, centre_view, luma, read_lightfield
 from lfsf.params import Params
 
@@ -917,7 +917,7 @@ def estimate_scene_flow(
                      f"by up to {100 * change:.1f} % of their range)")
         lap("exposure")
     gains = views1 = None
-    if params.view_gain_sigma > 0 and n_samples > 1:
+    if params.view_gain_sigma > 0 and n_samples > 1 and min(height, width) >= MIN_VIEW_SIZE:
         # the views' brightness matched to the centre's, the same fields at both times: fitted
         # on the t1 views reduced by block means (on the device, where they are sampled
         # below), and only for the views the samples read
