@@ -885,6 +885,11 @@ def estimate_scene_flow(
         raise ValueError(f"{lf1.source}: a {rows}×{cols} grid of views leaves no room for the sampling circles "
                          f"(M = {params.circles}): the disparities need at least 2 rows and 2 columns of views; "
                          "for the flow of the centre views alone, use --preset flow (or circles = 1 with samples = [1])")
+    if params.circles > 1 and radius < 1.0:
+        note(f"sampling radius R = {radius:g} view steps"
+             + (f" (the {rows}×{cols} grid allows no more than that of the {params.radius:g} asked)"
+                if radius < params.radius else "")
+             + ": the side samples see little parallax, and δ is less certain than with R ≥ 1")
     requested = params
     if params.visibility and one_sided(phis):
         params = params.replace(visibility=False)

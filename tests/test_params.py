@@ -72,7 +72,7 @@ BAD = [
     ("final_iterations", 10 ** 9), ("final_iterations", -1), ("final_iterations", 2.5),
     ("view_gain_sigma", -1.0), ("view_gain_sigma", 1000.0), ("view_gain_sigma", math.inf), ("view_gain_sigma", True),
     # side samples with no parallax to speak of (R = 1e-9 gave δ = 0 without a word)
-    ("radius", 1e-9), ("radius", 0.2),
+    ("radius", 1e-9), ("radius", 0.4),
 ]
 
 
