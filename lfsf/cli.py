@@ -294,7 +294,7 @@ def cmd_demo(args) -> int:
     finally:
         progress.done()
     t_est = time.perf_counter() - t0
-    errors = evaluate(sf.as_dict(), gt, border=SYNTH_BORDER)
+    errors = evaluate(sf, gt, border=SYNTH_BORDER)  # (flow only: the flow alone)
     _say(args, f"rendered in {t_render:.1f} s, estimated in {t_est:.1f} s")
     print(format_table(errors), flush=True)
     # the overview with the ground truth and the errors, in the one set of results

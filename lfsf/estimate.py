@@ -1015,8 +1015,9 @@ def estimate_scene_flow(
         flow_found = [wp.array(np.ascontiguousarray(a, np.float32), dtype=float, device=dev)
                       for a in (forward[..., 0], forward[..., 1], hidden)]
         lap("search")
-    say(f"{width}×{height}, {rows}×{cols} views, {n_samples} samples (R = {radius:g}), "
-        f"{len(sizes)} levels on {dev}")
+    say(f"{width}×{height}, {rows}×{cols} views, {n_samples} sample{'s' if n_samples != 1 else ''}"
+        + (f" (R = {radius:g})" if n_samples > 1 else "")
+        + f", {len(sizes)} level{'s' if len(sizes) != 1 else ''} on {dev}")
 
     # the unknowns: on the device between levels (x_dev, vec4), on the host (x) at the
     # start, at the end, and for flow only (whose solver holds (δ1, δ2) on the host)

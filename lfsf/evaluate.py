@@ -146,9 +146,14 @@ def evaluate(estimate, gt: dict, border: int = SYNTH_BORDER) -> dict[str, dict[s
 
     Raises ``ValueError`` for maps of different sizes, a negative ``border``, or when the
     border, the ``valid`` mask and non-finite ground truth leave no pixel to evaluate.
-    ``estimate`` may also be an :class:`lfsf.SceneFlow`."""
+    ``estimate`` may also be an :class:`lfsf.SceneFlow`; one estimated with one circle
+    (the flow of the centre views alone) is scored on its flow only: its δ1 and δ2 are
+    zeros, not estimates, as :func:`load_estimate` drops them from a saved one."""
     if hasattr(estimate, "as_dict"):
+        params = getattr(estimate, "params", None)
         estimate = estimate.as_dict()
+        if getattr(params, "circles", None) == 1:
+            estimate = {k: estimate[k] for k in ("u", "v")}
     for name, maps in (("estimate", estimate), ("ground truth", gt)):
         if not isinstance(maps, Mapping):     # (a string passed the `in` tests by substring)
             raise ValueError(f"the {name} must be a dict of maps{' or a SceneFlow' if name == 'estimate' else ''} "

@@ -146,6 +146,9 @@ def test_a_scene_flow_is_evaluated_as_its_maps():
     sf = SceneFlow(**maps, params=Params.preset("fast"), radius=4.0, device="cpu")
     assert E.evaluate(sf, gt, border=2) == E.evaluate(maps, gt, border=2)
     assert E.evaluate(sf, gt, border=2)["flow"]["epe"] == 0.5
+    # flow only (one circle): its zero disparities are not estimates, as in a saved result
+    sf = SceneFlow(**maps, params=Params.preset("flow"), radius=0.0, device="cpu")
+    assert set(E.evaluate(sf, gt, border=2)) == {"flow"}
 
 
 def test_colour_pfm_is_not_a_disparity_map(tmp_path):
