@@ -90,6 +90,30 @@ def either_above(
 
 
 @wp.kernel
+def hidden_or_leaving(
+    row0: int,
+    hidden: wp.array2d(dtype=float),
+    x: wp.array2d(dtype=wp.vec4),
+    # outputs
+    out: wp.array2d(dtype=float),
+):
+    """out = 1 where ``hidden`` > 0.5 or the flow (components 2, 3 of x) takes the pixel
+    out of the image, p + (u, v) beyond [0, w − 1] × [0, h − 1]; else 0. There the flow's
+    cost reads clamped pixels and says nothing of it, and the point has no match in the
+    image to find: a block search's value matched better by chance (a pan of 15 px:
+    the strip leaving the frame took flows of −11 px). Launch over (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    h = x.shape[0]
+    w = x.shape[1]
+    v = x[i, j]
+    xq = float(j) + v[2]
+    yq = float(i) + v[3]
+    leaves = xq < 0.0 or xq > float(w - 1) or yq < 0.0 or yq > float(h - 1)
+    out[i, j] = wp.where(hidden[i, j] > 0.5 or leaves, 1.0, 0.0)
+
+
+@wp.kernel
 def sample_at_flow(
     row0: int,
     image: wp.array2d(dtype=float),

@@ -719,10 +719,11 @@ def _fuse_flow(x, centre1, centre2, found_u, found_v, params: Params, device: st
     """Per pixel, keep the flow of x (the unknowns, a vec4 (h, w) device array, fused in
     place) or take the searched one (``found_u``, ``found_v``: float (h, w) device
     arrays), whichever matches better; keep it wherever ``hidden`` (float (h, w), > 0.5)
-    says the point is hidden at t2. There no match is the point's own: the search finds
-    the occluder or whatever matches by chance, which then matches better than the true
-    flow and moves the point with its occluder, where the geometric test of the later
-    warps no longer sees it hidden."""
+    says the point is hidden at t2, and where the flow so far takes it out of the image.
+    There no match is the point's own: the search finds the occluder or whatever matches
+    by chance, which then matches better than the true flow and moves the point with its
+    occluder, where the geometric test of the later warps no longer sees it hidden (or,
+    for a point leaving the image, with a flow of whatever it matched)."""
     from lfsf.kernels import fusion
 
     wp = _device.warp()
@@ -733,10 +734,14 @@ def _fuse_flow(x, centre1, centre2, found_u, found_v, params: Params, device: st
     r = params.search_radius
     new = _window_flow_cost(centre1, centre2, cand, r, device)
     cur = _window_flow_cost(centre1, centre2, x, r, device)
-    use = hidden is not None
-    _device.launch_rows(fusion.take_better, dim=shape,
-                        inputs=[cand, new, cur, FUSION_MARGIN, hidden if use else new, int(use), 2, 2], outputs=[x],
-                        device=device)
+    # kept also where the flow so far takes the point out of the image: no cost tells
+    # anything there, and whatever the search found inside is another point
+    keep = wp.empty(shape, dtype=float, device=device)
+    _device.launch_rows(fusion.hidden_or_leaving, dim=shape,
+                        inputs=[hidden if hidden is not None else wp.zeros(shape, dtype=float, device=device), x],
+                        outputs=[keep], device=device)
+    _device.launch_rows(fusion.take_better, dim=shape, inputs=[cand, new, cur, FUSION_MARGIN, keep, 1, 2, 2],
+                        outputs=[x], device=device)
 
 
 def _fuse_disparities(x, s1, s2, phis, found1, found2, params: Params, device: str) -> None:

@@ -575,6 +575,30 @@ def test_take_better_kernel_matches_numpy(device, first, count, use_hidden):
     np.testing.assert_array_equal(out.numpy(), ((a > 0.7) | (b > 0.8)).astype(np.float32))
 
 
+def test_hidden_or_leaving_kernel_matches_numpy(device):
+    """1 where the hidden mask says so or the flow takes the pixel out of the image
+    (p + (u, v) beyond [0, w − 1] × [0, h − 1]), else 0."""
+    from lfsf.kernels import fusion
+
+    r = rng(34)
+    h, w = 7, 10
+    x = r.normal(scale=4.0, size=(h, w, 4)).astype(np.float32)
+    x[0, 0, 2:] = (0.0, 0.0)                      # the corner itself: inside
+    x[h - 1, w - 1, 2:] = (0.0, 0.0)
+    x[2, w - 3, 2:] = (2.0, 0.0)                  # exactly onto the last column: inside
+    x[3, 1, 2:] = (-1.0001, 0.0)                  # just past the first: out
+    hidden = (r.random((h, w)) > 0.8).astype(np.float32)
+    out = wp.zeros((h, w), dtype=float, device=device)
+    launch(fusion.hidden_or_leaving, (h, w), [arr(hidden, float, device), arr(x, wp.vec4, device)], [out], device)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    xq, yq = xx + x[..., 2], yy + x[..., 3]
+    leaves = (xq < 0) | (xq > w - 1) | (yq < 0) | (yq > h - 1)
+    want = ((hidden > 0.5) | leaves).astype(np.float32)
+    assert 0 < leaves.sum() < leaves.size and (leaves & (hidden <= 0.5)).any()
+    assert not leaves[0, 0] and not leaves[2, w - 3] and leaves[3, 1]
+    np.testing.assert_array_equal(out.numpy(), want)
+
+
 def test_sample_at_flow_kernel_matches_the_host_bilinear(device):
     """image(p + (u, v)), clamped, against lfsf.estimate._sample_at_flow: bit for bit on
     the CPU (float64 weights, as NumPy takes them; the estimate is sensitive to them),
@@ -671,7 +695,8 @@ def test_disparity_fusion_on_the_device_is_the_host_rule(device, visibility):
 def test_flow_fusion_on_the_device_is_the_host_rule(device):
     """lfsf.estimate._fuse_flow against the NumPy rule it replaced: the flow takes the
     searched one where its windowed residual is below FUSION_MARGIN times the current
-    one, but not where the point is hidden at t2; the disparities are left alone."""
+    one, but not where the point is hidden at t2 nor where the current flow takes it out
+    of the image; the disparities are left alone."""
     from lfsf.estimate import FUSION_MARGIN, _fuse_flow, _window_flow_cost
     from lfsf.params import Params
 
@@ -682,8 +707,14 @@ def test_flow_fusion_on_the_device_is_the_host_rule(device):
     cand[..., 2], cand[..., 3] = fu, fv
     new = _window_flow_cost(c1, c2, arr(cand, wp.vec4, device), params.search_radius, device).numpy()
     cur = _window_flow_cost(c1, c2, arr(x, wp.vec4, device), params.search_radius, device).numpy()
+    h, w = fu.shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    xq, yq = xx + x[..., 2], yy + x[..., 3]
+    leaves = (xq < 0) | (xq > w - 1) | (yq < 0) | (yq > h - 1)
+    assert leaves.any() and not leaves.all()
     for mask in (None, hidden):
-        better = new < np.float32(FUSION_MARGIN) * cur
+        better = (new < np.float32(FUSION_MARGIN) * cur) & ~leaves
+        assert (new < np.float32(FUSION_MARGIN) * cur)[leaves].any()     # (a leaving flow it would have taken)
         if mask is not None:
             better &= ~(mask > 0.5)
         want = x.copy()
