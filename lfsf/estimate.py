@@ -1232,8 +1232,9 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str,
 
     A flow-only pilot (the ``flow`` preset with θ = EXPOSURE_THETA) on the views
     box-averaged by the largest whole factor that leaves at least EXPOSURE_SIZE px along
-    their longer side and EXPOSURE_MIN_SHORT along the shorter, t2 scaled by the ratio of the two views' mean gradients (within
-    EXPOSURE_MAX_GAIN either way), gives the correspondences p ↔ p + u.
+    their longer side and EXPOSURE_MIN_SHORT along the shorter, t2 scaled by the ratio of
+    the two views' mean gradients (within EXPOSURE_MAX_GAIN either way), gives the
+    correspondences p ↔ p + u.
     Over them, on the two views blurred by EXPOSURE_BLUR, L1 fits (iteratively
     reweighted least squares) of I1 on I2(p + u) and of I2(p + u) on I1 give g as the
     geometric mean of their slopes, and b is the weighted median of I1 − g·I2(p + u).

@@ -327,8 +327,8 @@ def test_colour_edges_sharpen_the_disparities_of_colour_light_fields():
     for δ2; over 12 scenes 0.87× and 0.93×, each scene better. The three had given 0.78×
     and 0.83× before the thirty-second session's flow fusion changed their baseline by
     chance: over the 12, 0.85× and 0.92× then); the flow is the same bit for bit, and
-    grey input (the same scenes' luma, also stored as RGB) never takes the step. Γ_t1 is the luma's throughout (``colour_tensor`` off), so that the
-    step is measured alone."""
+    grey input (the same scenes' luma, also stored as RGB) never takes the step. Γ_t1 is
+    the luma's throughout (``colour_tensor`` off), so that the step is measured alone."""
     from lfsf import evaluate, synth
 
     fast = Params.preset("fast").replace(colour_tensor=False)
@@ -807,7 +807,8 @@ def test_views_too_small_for_a_gain_fit_are_left_as_they_are():
     assert min(lf1.height, lf1.width) < MIN_VIEW_SIZE
     notes = []
     params = Params.preset("paper").replace(warps=1, iterations=5, final_iterations=5)
-    estimate_scene_flow(lf1, lf2, params, device="cpu", progress=lambda m: notes.append(m) if isinstance(m, Note) else None)
+    estimate_scene_flow(lf1, lf2, params, device="cpu",
+                        progress=lambda m: notes.append(m) if isinstance(m, Note) else None)
     assert not [n for n in notes if n.startswith("view gains")], notes
 
 
