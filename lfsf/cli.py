@@ -610,8 +610,6 @@ def entry() -> None:  # pragma: no cover - the installed command; tests call mai
     collect objects the interrupt left half made, and either could print a traceback
     after that line (imageio's PNG writer, cut off while being set up, did in 1 of 20
     interrupted runs)."""
-    import os
-
     status = main()
     if status == EXIT_INTERRUPTED:
         sys.stdout.flush()

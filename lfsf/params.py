@@ -348,7 +348,8 @@ class Params:
         # parallax: every A1 = −φ·∇W1 ≈ 0, and δ came out 0 without a word (R = 1e-9)
         need(self.radius >= MIN_RADIUS or self.circles == 1,
              f"radius R must be at least {MIN_RADIUS} view steps (the side samples' parallax), got {self.radius}")
-        for name in ("lambda1", "lambda2", "lambda3", "lambda3_side", "alpha0", "alpha1", "gamma", "beta", "rof_weight", "eps"):
+        for name in ("lambda1", "lambda2", "lambda3", "lambda3_side", "alpha0", "alpha1", "gamma", "beta",
+                     "rof_weight", "eps"):
             value = getattr(self, name)
             need(value >= 0, f"{name} must be a finite number ≥ 0, got {value}")
         need(self.alpha0 > 0 and self.alpha1 > 0, "alpha0 and alpha1 must be positive")
