@@ -670,6 +670,25 @@ def test_the_exposure_fit_recovers_a_known_gain_and_offset():
     assert estimate._exposure_change(c1, c2, "cpu")[2] < 0.75 * estimate.EXPOSURE_CHANGE
 
 
+def test_the_exposure_fit_on_a_pan_of_the_whole_scene():
+    """The whole scene moving 14 px right and 14 up at 320×240 (7 and 7 on the pilot's
+    160×120): with one exposure no change is found, and 0.9·L2 + 0.03 is undone. With the
+    pilot's search on 3×3 windows (EXPOSURE_SEARCH_RADIUS 1) its flow missed the pan
+    (EPE 5.6) and the fit read a change of 1.24 % here (2.6 % for 0.9·L2 + 0.03 × g
+    1.138); with 5×5 windows 0.001 %, and g 1.1116."""
+    from lfsf import estimate, synth
+
+    pan = synth.Scene("pan", "the whole scene moving 14 px right and 14 up", (
+        synth.Primitive("plane", (0.5, 0.5), 10.0, (3, 3), synth.Texture(20, 0.5, 0.4, (1, 1, 1), 101),
+                        shift=(14, -14)),))
+    lf1, lf2, _gt = synth.render_scene(pan, size=(320, 240), grid=1, supersample=1)
+    c1, c2 = lf1.centre, lf2.centre
+    assert estimate._exposure_change(c1, c2, "cpu")[2] < 0.25 * estimate.EXPOSURE_CHANGE
+    g, b, change = estimate._exposure_change(c1, (0.9 * c2 + 0.03).astype(np.float32), "cpu")
+    x = np.linspace(0.1, 0.9, 9)
+    assert np.abs(g * (0.9 * x + 0.03) + b - x).max() < 0.003, (g, b)
+
+
 def test_the_exposure_fit_undoes_changes_of_up_to_three_stops_either_way_and_says_when_it_refuses():
     """t2 at 0.4 of t1's exposure (g = 2.5, beyond the one stop once allowed: refused,
     and the flow was ruined) is fitted, and so is t1 at 0.4 of t2's (g = 0.4), and 0.2
