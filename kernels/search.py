@@ -558,6 +558,17 @@ def flow_cost(
 #: The largest window radius of :func:`flow_search` (its ring buffer of column sums).
 MAX_SEARCH_RADIUS = wp.constant(5)
 vec11 = wp.types.vector(length=11, dtype=wp.float32)
+#: :func:`flow_search`'s runner-up cost where it has none (float32's largest finite value).
+NO_COST = wp.constant(3.4e38)
+
+
+@wp.func
+def grid_apart(k: int, m: int, side: int, distance: int):
+    """Whether shifts k and m of a side × side grid (k = row·side + column) lie at least
+    ``distance`` steps apart along either axis."""
+    ky = k // side
+    my = m // side
+    return wp.abs(ky - my) >= distance or wp.abs((k - ky * side) - (m - my * side)) >= distance
 
 
 @wp.func
@@ -605,11 +616,14 @@ def flow_search(
     centre2: wp.array2d(dtype=float),
     half: int,
     radius: int,
+    distance: int,
     span: int,
     # outputs
     best_cost: wp.array2d(dtype=float),
     best_k: wp.array2d(dtype=int),
     best: wp.array2d(dtype=wp.vec2),
+    second_cost: wp.array2d(dtype=float),
+    second_k: wp.array2d(dtype=int),
 ):
     """Whole-pixel block matching without a cost volume: for every shift of the
     (2n+1)² grid (k = (dy+n)(2n+1) + (dx+n), n = ``half``) the windowed mean of
@@ -618,7 +632,15 @@ def flow_search(
     parabola through the minimum and its two neighbours: the same as :func:`flow_cost`,
     :func:`box_sum` and :func:`select_flow` in turn. Each thread walks ``span`` pixels
     of a row, the window's column sums kept in a ring so that each is computed once
-    per shift. Launch over (rows, ⌈columns / span⌉) (:func:`lfsf.device.row_span`)."""
+    per shift. Launch over (rows, ⌈columns / span⌉) (:func:`lfsf.device.row_span`).
+
+    Alongside, in the same pass, the runner-up of another place: the least cost (and its
+    k) among the shifts at least ``distance`` steps (along either axis) from the best so
+    far. When a new best arrives, the old one becomes the runner-up if it lies that far
+    away; a runner-up that the new best lies closer to than ``distance`` is dropped (3.4e38
+    and k = −1 until another comes), so the value may be higher than the least over all
+    the far shifts of the final best, never lower. A runner-up close to the best marks a
+    match that is not unique (a periodic texture, a flat region; ``lfsf.estimate``)."""
     i, c = wp.tid()
     i = i + row0
     w = centre1.shape[1]
@@ -640,9 +662,24 @@ def flow_search(
             for t in range(n):
                 acc += ring[(j + t) % n]
             value = acc / area
-            if k == 0 or value < best_cost[i, j]:
+            if k == 0:
                 best_cost[i, j] = value
                 best_k[i, j] = k
+                second_cost[i, j] = NO_COST
+                second_k[i, j] = -1
+            elif value < best_cost[i, j]:
+                kb = best_k[i, j]
+                if grid_apart(k, kb, side, distance):
+                    second_cost[i, j] = best_cost[i, j]
+                    second_k[i, j] = kb
+                elif second_k[i, j] >= 0 and not grid_apart(k, second_k[i, j], side, distance):
+                    second_cost[i, j] = NO_COST
+                    second_k[i, j] = -1
+                best_cost[i, j] = value
+                best_k[i, j] = k
+            elif value < second_cost[i, j] and grid_apart(k, best_k[i, j], side, distance):
+                second_cost[i, j] = value
+                second_k[i, j] = k
     for j in range(j0, j1):
         kmin = best_k[i, j]
         cmin = best_cost[i, j]

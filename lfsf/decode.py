@@ -52,6 +52,7 @@ from pathlib import Path
 import numpy as np
 
 from lfsf import device as _device
+from lfsf._filters import box_mean as _box_blur
 
 __all__ = [
     "HEX_ROW_HEIGHT",
@@ -428,23 +429,6 @@ def _gaussian_blur(image: np.ndarray, sigma: float) -> np.ndarray:
     kernel = np.exp(-0.5 * (x / sigma) ** 2)
     kernel /= kernel.sum()
     return _blur_axis(_blur_axis(image.astype(np.float32), kernel, 0), kernel, 1)
-
-
-def _box_blur(image: np.ndarray, width: int) -> np.ndarray:
-    """Mean over a width×width box (edge-replicated), by cumulative sums."""
-    r = max(1, width // 2)
-    out = image.astype(np.float64)
-    for axis in (0, 1):
-        pad = [(0, 0), (0, 0)]
-        pad[axis] = (r + 1, r)
-        c = np.cumsum(np.pad(out, pad, mode="edge"), axis=axis)
-        n = out.shape[axis]
-        hi = [slice(None), slice(None)]
-        lo = [slice(None), slice(None)]
-        hi[axis] = slice(2 * r + 1, 2 * r + 1 + n)
-        lo[axis] = slice(0, n)
-        out = (c[tuple(hi)] - c[tuple(lo)]) / (2 * r + 1)
-    return out.astype(np.float32)
 
 
 def _grey_white(white: RawImage) -> np.ndarray:

@@ -14,6 +14,7 @@ from typing import Callable
 import numpy as np
 
 from lfsf import device as _device
+from lfsf._filters import box_mean
 from lfsf._filters import gaussian_blur as _blur
 from lfsf.gains import GAIN_CHANGE, MIN_VIEW_SIZE, fit_reduced_gains, gain_change, reduction_factor, sampled_views
 from lfsf.io import LightField, _check_pair_brightest, _refuse_non_finite, centre_view, luma, read_lightfield
@@ -160,6 +161,22 @@ FLOW_SEARCH_SCALE = 0.25
 #: range down to this (``max_levels``), (2·64 + 1)² shifts per pixel would already take
 #: minutes at 640×480.
 MAX_FLOW_SEARCH_HALF = 64
+#: The flow search's match is ambiguous, and not fused (:func:`_fuse_flow`), in regions
+#: (most of the FLOW_AMBIGUITY_AREA² pixels around) where its windowed cost is at least
+#: this fraction of the least cost among the shifts at least FLOW_AMBIGUITY_DISTANCE
+#: steps away along either axis: a periodic texture or a flat region, where another place
+#: matches as well and the first in scan order won. Flow EPE, `paper` preset: a
+#: checkerboard (8-px squares) moving (3, 2) px 0.181 → 0.004 at 160×120, 1.28 → 0.003
+#: at 320×240; a textureless plane over half the image 5.74 → 3.37 and 8.40 → 1.38
+#: (OpenCV 0.89 and 0.82). Pixel by pixel, such near-ties are common on the 3×3 windows
+#: of ordinary textures too (1–4 % of the pixels where the search was right, on the
+#: 80×60 level at 160×120), and leaving those out lost fast objects (`random-8` 0.168–
+#: 0.226 → 0.291–0.357 over perturbed runs). As regions they change 6 of the 68 built-in
+#: and `random-0…63` scenes at 160×120 and 1 of 12 at 320×240, a few pixels each (EPE
+#: 1.002× and 1.000×, paired).
+FLOW_AMBIGUITY = 0.95
+FLOW_AMBIGUITY_DISTANCE = 3
+FLOW_AMBIGUITY_AREA = 5
 #: Searched matches from t1 to t2 and back agree to within this many pixels (of the
 #: search's level) where both see the same point (:func:`_hidden_matches`).
 MATCH_TOLERANCE = 1.0
@@ -663,10 +680,15 @@ def flow_search_half(flow_range: float, pyramid_scale: float, level: int) -> int
     return max(1, int(math.ceil(flow_range * pyramid_scale ** level * (1 - 1e-9))))
 
 
-def _flow_search(centre1, centre2, half: int, search_radius: int, device: str) -> np.ndarray:
+def _flow_search(centre1, centre2, half: int, search_radius: int, device: str, ambiguity: bool = False):
     """Whole-pixel block matching of the centre views over a (2n+1)² window of
     displacements (windowed |I1(p) − I2(p + u)|), refined to sub-pixel: (h, w, 2). One
-    pass over the shifts keeps each pixel's best; no cost volume is stored."""
+    pass over the shifts keeps each pixel's best; no cost volume is stored.
+
+    With ``ambiguity``, (flow, ambiguous): ambiguous (bool (h, w)) where, over most of the
+    FLOW_AMBIGUITY_AREA² pixels around, the best cost is at least FLOW_AMBIGUITY times
+    that of the runner-up at least FLOW_AMBIGUITY_DISTANCE steps away
+    (:func:`lfsf.kernels.search.flow_search`; both 0 count too)."""
     from lfsf.kernels import search
 
     wp = _device.warp()
@@ -675,9 +697,15 @@ def _flow_search(centre1, centre2, half: int, search_radius: int, device: str) -
     best_cost = wp.empty((h, w), dtype=float, device=device)
     best_k = wp.empty((h, w), dtype=int, device=device)
     best = wp.empty((h, w), dtype=wp.vec2, device=device)
-    _device.launch_rows(search.flow_search, dim=(h, per_row), inputs=[centre1, centre2, half, search_radius, span],
-                        outputs=[best_cost, best_k, best], device=device)
-    return best.numpy()
+    second_cost = wp.empty((h, w), dtype=float, device=device)
+    second_k = wp.empty((h, w), dtype=int, device=device)
+    _device.launch_rows(search.flow_search, dim=(h, per_row),
+                        inputs=[centre1, centre2, half, search_radius, FLOW_AMBIGUITY_DISTANCE, span],
+                        outputs=[best_cost, best_k, best, second_cost, second_k], device=device)
+    if not ambiguity:
+        return best.numpy()
+    tied = (best_cost.numpy() >= FLOW_AMBIGUITY * second_cost.numpy()).astype(np.float32)
+    return best.numpy(), box_mean(tied, FLOW_AMBIGUITY_AREA) > 0.5
 
 
 def _hidden_matches(forward: np.ndarray, backward: np.ndarray, tolerance: float = MATCH_TOLERANCE) -> np.ndarray:
@@ -1023,10 +1051,10 @@ def estimate_scene_flow(
                              f"±{MAX_FLOW_SEARCH_HALF}): lower flow_range, or allow more pyramid levels (max_levels)")
         tex = levels[k][0]
         c1, c2 = wp.clone(tex[0]), wp.clone(tex[n_samples])
-        forward = _flow_search(c1, c2, half, params.search_radius, dev)
+        forward, ambiguous = _flow_search(c1, c2, half, params.search_radius, dev, ambiguity=True)
         hidden = _hidden_matches(forward, _flow_search(c2, c1, half, params.search_radius, dev))
         flow_found = [wp.array(np.ascontiguousarray(a, np.float32), dtype=float, device=dev)
-                      for a in (forward[..., 0], forward[..., 1], hidden)]
+                      for a in (forward[..., 0], forward[..., 1], hidden, ambiguous)]
         lap("search")
     say(f"{width}×{height}, {rows}×{cols} views, {n_samples} sample{'s' if n_samples != 1 else ''}"
         + (f" (R = {radius:g})" if n_samples > 1 else "")
@@ -1052,7 +1080,7 @@ def estimate_scene_flow(
             x_dev = wp.array(np.ascontiguousarray(x, np.float32), dtype=wp.vec4, device=dev)
         # the searches fuse into x on the device (kernels.fusion)
         if flow_search:
-            found_u, found_v, found_hidden = flow_found
+            found_u, found_v, found_hidden, found_ambiguous = flow_found
             search_h, search_w = found_u.shape
             # not where the point is hidden at t2: by the searches (its match is another
             # point's), or by the estimate so far (its flow comes from the regulariser)
@@ -1061,8 +1089,13 @@ def estimate_scene_flow(
                                 inputs=[_resize_plane(found_hidden, (h, w), 1.0, dev), 0.01,
                                         solver.find_hidden_at(x_dev), 0.5],
                                 outputs=[hidden_here], device=dev)
+            # nor where the search's match was ambiguous (FLOW_AMBIGUITY)
+            unfused = wp.empty((h, w), dtype=float, device=dev)
+            _device.launch_rows(fusion.either_above, dim=(h, w),
+                                inputs=[_resize_plane(found_ambiguous, (h, w), 1.0, dev), 0.5, hidden_here, 0.5],
+                                outputs=[unfused], device=dev)
             _fuse_flow(x_dev, s1[0], s2[0], _resize_plane(found_u, (h, w), w / search_w, dev),
-                       _resize_plane(found_v, (h, w), h / search_h, dev), params, dev, hidden_here)
+                       _resize_plane(found_v, (h, w), h / search_h, dev), params, dev, unfused)
             lap("search")
         if search:
             scale = w / width

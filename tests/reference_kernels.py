@@ -867,6 +867,33 @@ def select_flow(cost, half: int) -> np.ndarray:
     return out
 
 
+def flow_runner_up(cost, half: int, distance: int) -> tuple[np.ndarray, np.ndarray]:
+    """The runner-up of flow_search over the (2n+1)² grid's costs (K, h, w), taken in
+    scan order k = 0 … K − 1: the least cost among shifts at least ``distance`` steps
+    (along either axis) from the best so far; the old best becomes it when a new best
+    lies that far from it, and it is dropped (3.4e38, k = −1) when a new best lies
+    closer to it. Returns (cost, k) as (h, w) arrays."""
+    cost = np.asarray(cost, np.float32)
+    side = 2 * half + 1
+
+    def apart(k, m):
+        return (np.abs(k // side - m // side) >= distance) | (np.abs(k % side - m % side) >= distance)
+
+    best, best_k = cost[0].copy(), np.zeros(cost.shape[1:], int)
+    second, second_k = np.full(cost.shape[1:], np.float32(3.4e38)), np.full(cost.shape[1:], -1)
+    for k in range(1, cost.shape[0]):
+        value = cost[k]
+        new_best = value < best
+        old_far = new_best & apart(k, best_k)
+        dropped = new_best & ~old_far & (second_k >= 0) & ~apart(k, second_k)
+        later = ~new_best & (value < second) & apart(k, best_k)
+        second = np.where(old_far, best, np.where(dropped, np.float32(3.4e38), np.where(later, value, second)))
+        second_k = np.where(old_far, best_k, np.where(dropped, -1, np.where(later, k, second_k)))
+        best = np.where(new_best, value, best)
+        best_k = np.where(new_best, k, best_k)
+    return second, second_k
+
+
 # --- geometric occlusion at t2 (kernels/occlusion.py) ---------------------------------------
 
 

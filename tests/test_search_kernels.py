@@ -75,7 +75,7 @@ def run_flow_cost(centre1, centre2, candidates, base, device, span=None):
     return cost.numpy()
 
 
-def run_flow_search(centre1, centre2, half, radius, device, span=None):
+def run_flow_search(centre1, centre2, half, radius, device, span=None, distance=3, runner_up=False):
     from lfsf.kernels import search
 
     h, w = centre1.shape
@@ -83,9 +83,13 @@ def run_flow_search(centre1, centre2, half, radius, device, span=None):
     best_cost = wp.zeros((h, w), dtype=float, device=device)
     best_k = wp.zeros((h, w), dtype=int, device=device)
     best = wp.zeros((h, w), dtype=wp.vec2, device=device)
+    second_cost = wp.zeros((h, w), dtype=float, device=device)
+    second_k = wp.zeros((h, w), dtype=int, device=device)
     launch(search.flow_search, (h, -(-w // span)),
-           [arr(centre1, float, device), arr(centre2, float, device), half, radius, span], [best_cost, best_k, best],
-           device)
+           [arr(centre1, float, device), arr(centre2, float, device), half, radius, distance, span],
+           [best_cost, best_k, best, second_cost, second_k], device)
+    if runner_up:
+        return best.numpy(), best_cost.numpy(), second_cost.numpy(), second_k.numpy()
     return best.numpy()
 
 
@@ -372,6 +376,35 @@ def test_flow_search_matches_reference(half, radius, span, device):
     cost = ref.box_mean(ref.flow_cost(centre1, centre2, grid, np.zeros((h, w, 4), np.float32)), radius)
     want = ref.select_flow(cost, half)
     close(got, want, atol=2e-5)
+
+
+@pytest.mark.parametrize("half,distance", [(2, 2), (3, 3), (4, 2)])
+def test_flow_search_runner_up_matches_reference(half, distance, device):
+    """flow_search's runner-up (the least cost at least ``distance`` steps from the best
+    so far, in scan order) against the sequential rule in NumPy; costs are rounded to a
+    16th so that ties occur and are broken the same way (first in scan order). Where it
+    was not dropped on the way, it is the least cost over all shifts that far from the
+    final best."""
+    r = rng(17)
+    h, w = 8, 11
+    centre1 = (np.round(r.random((h, w)) * 16) / 16).astype(np.float32)
+    centre2 = (np.round(r.random((h, w)) * 16) / 16).astype(np.float32)
+    centre2[:, 5:] = centre1[:, 5:]  # half the image moves by zero: a unique best
+    best, best_cost, second, second_k = run_flow_search(centre1, centre2, half, 0, device, None, distance, True)
+    grid = ref.flow_grid(half).astype(np.float32)
+    cost = ref.flow_cost(centre1, centre2, grid, np.zeros((h, w, 4), np.float32))
+    want, want_k = ref.flow_runner_up(cost, half, distance)
+    np.testing.assert_array_equal(second_k, want_k)
+    close(second, want, atol=1e-6)
+    close(best_cost, cost.min(0), atol=1e-6)
+    # the runner-up found is never below the least cost of the shifts that far away
+    side = 2 * half + 1
+    kb = np.argmin(cost, 0)
+    k = np.arange(side * side)[:, None, None]
+    far = (np.abs(k // side - kb // side) >= distance) | (np.abs(k % side - kb % side) >= distance)
+    least_far = np.where(far, cost, np.inf).min(0)
+    assert np.all(second >= least_far - 1e-6)
+    assert np.mean(np.isclose(second, least_far)) > 0.5
 
 
 # --- the searches ----------------------------------------------------------------------------
@@ -727,3 +760,31 @@ def test_flow_fusion_on_the_device_is_the_host_rule(device):
             np.testing.assert_array_equal(xs.numpy(), want)
         else:
             assert np.mean(xs.numpy() != want) < 0.02
+
+
+def test_flow_search_marks_flat_and_periodic_regions_ambiguous(device):
+    """``_flow_search(..., ambiguity=True)``: a textured image moving (2, 1) px whose left
+    third is flat and whose middle third is a checkerboard of 4-px squares (the motion
+    and (4, 4) px or 8 px along an axis from it match as well). The flat and the periodic
+    regions are marked ambiguous away from their edges, the textured third nowhere, and
+    the search's flow there is the motion (within 0.25 px: the parabola's refinement)."""
+    from lfsf.estimate import _flow_search
+
+    h, w = 40, 72
+    tex = _texture(12)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    shift = (2.0, 1.0)
+
+    def scene(x, y):
+        img = tex(x, y)
+        img = np.where(x < 24, 0.5, img)
+        board = 0.3 + 0.4 * ((np.floor(x / 4) + np.floor(y / 4)) % 2)
+        return np.where((x >= 24) & (x < 48), board, img).astype(np.float32)
+
+    c1, c2 = scene(xx, yy), scene(xx - shift[0], yy - shift[1])
+    flow, ambiguous = _flow_search(arr(c1, float, device), arr(c2, float, device), 9, 1, device, ambiguity=True)
+    inner = slice(12, h - 12)
+    assert ambiguous[inner, 3:20].all()
+    assert ambiguous[inner, 30:42].mean() > 0.9
+    assert not ambiguous[:, 54:].any()
+    np.testing.assert_allclose(flow[inner, 54:62], np.broadcast_to(shift, (h - 24, 8, 2)), atol=0.25)
