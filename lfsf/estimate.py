@@ -164,19 +164,26 @@ MAX_FLOW_SEARCH_HALF = 64
 #: The flow search's match is ambiguous, and not fused (:func:`_fuse_flow`), in regions
 #: (most of the FLOW_AMBIGUITY_AREA² pixels around) where its windowed cost is at least
 #: this fraction of the least cost among the shifts at least FLOW_AMBIGUITY_DISTANCE
-#: steps away along either axis: a periodic texture or a flat region, where another place
-#: matches as well and the first in scan order won. Flow EPE, `paper` preset: a
-#: checkerboard (8-px squares) moving (3, 2) px 0.181 → 0.004 at 160×120, 1.28 → 0.003
-#: at 320×240; a textureless plane over half the image 5.74 → 3.37 and 8.40 → 1.38
-#: (OpenCV 0.89 and 0.82). Pixel by pixel, such near-ties are common on the 3×3 windows
-#: of ordinary textures too (1–4 % of the pixels where the search was right, on the
-#: 80×60 level at 160×120), and leaving those out lost fast objects (`random-8` 0.168–
-#: 0.226 → 0.291–0.357 over perturbed runs). As regions they change 6 of the 68 built-in
-#: and `random-0…63` scenes at 160×120 and 1 of 12 at 320×240, a few pixels each (EPE
-#: 1.002× and 1.000×, paired).
+#: steps away along either axis, or where that runner-up's cost is below
+#: FLOW_AMBIGUITY_FLOOR times the standard deviation of the search's t1 image (another
+#: place matches almost exactly): a periodic texture, stripes (any shift along them
+#: matches), a flat region. There the first shift in scan order had won, and fused it
+#: replaced the right flow. Flow EPE, `paper` preset, 160×120 / 320×240: a checkerboard
+#: (8-px squares) moving (3, 2) px 0.181 / 1.28 → 0.004 / 0.003; diagonal stripes (12 px)
+#: 1.58 / 1.49 → 0.005 / 0.013; a textureless plane over half the image 5.74 / 8.40 →
+#: 0.53 / 0.77 (OpenCV: 0.050 / 0.020, 0.064 / 0.032, 0.89 / 0.82). Pixel by pixel the
+#: ratio's near-ties are common on the 3×3 windows of ordinary textures too (1–4 % of
+#: the pixels where the search was right, on the 80×60 level at 160×120), and leaving
+#: those out lost fast objects (`random-8` 0.168–0.226 → 0.291–0.357 over perturbed
+#: runs). As regions they change 6 of the 68 built-in and `random-0…63` scenes at
+#: 160×120 (a few pixels each; EPE 1.002× paired), 1 of 12 at 320×240 and 1 of
+#: `random-64…95`; the floor changes none of them (on `paper`, `random-8` and
+#: `weak_texture` the runner-up's cost is above 0.1 of the standard deviation at 95 % of
+#: the pixels).
 FLOW_AMBIGUITY = 0.95
 FLOW_AMBIGUITY_DISTANCE = 3
 FLOW_AMBIGUITY_AREA = 5
+FLOW_AMBIGUITY_FLOOR = 0.02
 #: Searched matches from t1 to t2 and back agree to within this many pixels (of the
 #: search's level) where both see the same point (:func:`_hidden_matches`).
 MATCH_TOLERANCE = 1.0
@@ -688,7 +695,8 @@ def _flow_search(centre1, centre2, half: int, search_radius: int, device: str, a
     With ``ambiguity``, (flow, ambiguous): ambiguous (bool (h, w)) where, over most of the
     FLOW_AMBIGUITY_AREA² pixels around, the best cost is at least FLOW_AMBIGUITY times
     that of the runner-up at least FLOW_AMBIGUITY_DISTANCE steps away
-    (:func:`lfsf.kernels.search.flow_search`; both 0 count too)."""
+    (:func:`lfsf.kernels.search.flow_search`), or the runner-up's is below
+    FLOW_AMBIGUITY_FLOOR times the standard deviation of ``centre1``."""
     from lfsf.kernels import search
 
     wp = _device.warp()
@@ -704,7 +712,9 @@ def _flow_search(centre1, centre2, half: int, search_radius: int, device: str, a
                         outputs=[best_cost, best_k, best, second_cost, second_k], device=device)
     if not ambiguity:
         return best.numpy()
-    tied = (best_cost.numpy() >= FLOW_AMBIGUITY * second_cost.numpy()).astype(np.float32)
+    second = second_cost.numpy()
+    floor = FLOW_AMBIGUITY_FLOOR * float(np.std(centre1.numpy()))
+    tied = ((best_cost.numpy() >= FLOW_AMBIGUITY * second) | (second < floor)).astype(np.float32)
     return best.numpy(), box_mean(tied, FLOW_AMBIGUITY_AREA) > 0.5
 
 
