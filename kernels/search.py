@@ -504,7 +504,11 @@ def select_disparity(
     best_cost: wp.array2d(dtype=float),
 ):
     """Winner-take-all over the candidates, refined by a parabola through the minimum
-    and its neighbours (candidates evenly spaced). Launch over (rows, columns)."""
+    and its neighbours (candidates evenly spaced). Ties go to the candidate nearest
+    zero (then the first): on an exactly flat region every candidate ties, and the first
+    had made the searched disparity there −range (a textureless half-image rendered
+    without noise, `paper` preset at 160×120: δ1 MSE 0.388, now 0.069; 0.051 with noise
+    of 10⁻⁶, where no two costs tie). Launch over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0
     n = cost.shape[0]
@@ -512,7 +516,7 @@ def select_disparity(
     cmin = cost[0, i, j]
     for k in range(1, n):
         c = cost[k, i, j]
-        if c < cmin:
+        if c < cmin or (c == cmin and wp.abs(candidates[k]) < wp.abs(candidates[kmin])):
             cmin = c
             kmin = k
     d = candidates[kmin]

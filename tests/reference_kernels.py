@@ -801,13 +801,15 @@ def parabola_vertex(cl, c0, cr):
 
 
 def select_disparity(cost, candidates):
-    """Winner-take-all (first minimum) over the candidates (K, h, w), moved to the vertex of
-    the parabola through the minimum and its two neighbours (when both exist and the
-    parabola is convex); returns (disparity, winning cost) as (h, w) arrays."""
+    """Winner-take-all over the candidates (K, h, w), ties to the candidate nearest zero
+    (then the first), moved to the vertex of the parabola through the minimum and its two
+    neighbours (when both exist and the parabola is convex); returns (disparity, winning
+    cost) as (h, w) arrays."""
     cost = np.asarray(cost, np.float64)
     cand = np.asarray(candidates, np.float64)
     n = cost.shape[0]
-    k = np.argmin(cost, axis=0)
+    tied = cost == cost.min(axis=0)
+    k = np.argmin(np.where(tied, np.abs(cand)[:, None, None], np.inf), axis=0)
     c0 = np.take_along_axis(cost, k[None], 0)[0]
     d = cand[k]
     interior = (k > 0) & (k < n - 1)

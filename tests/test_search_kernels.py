@@ -311,18 +311,22 @@ def test_select_disparity_matches_reference(device):
     step = 0.3
     candidates = (np.arange(n) * step - 0.8).astype(np.float32)
     cost = _costs_with_minima_everywhere(r, n, h, w)
+    cost[:, 3, :4] = 0.25  # every candidate ties (a flat region): the one nearest zero, 0.1
+    cost[:2, 3, 4:] = -2.0  # the first two tie: the second, nearer zero, refined half-way to the first
     best, best_cost = run_select_disparity(cost, candidates, device)
     want, want_cost = ref.select_disparity(cost, candidates)
+    np.testing.assert_array_equal(best[3, :4], candidates[3])
+    close(best[3, 4:], candidates[1] - 0.5 * step, atol=1e-6)
     close(best, want, atol=2e-6)
     np.testing.assert_array_equal(best_cost, np.min(cost, axis=0))
     np.testing.assert_array_equal(best_cost, want_cost.astype(np.float32))
-    k = np.argmin(cost, axis=0)
+    k = np.argmin(np.where(cost == cost.min(axis=0), np.abs(candidates)[:, None, None], np.inf), axis=0)
     np.testing.assert_array_equal(best[0], candidates[0])
     np.testing.assert_array_equal(best[1], candidates[-1])
     # the parabola moves at most half a step, towards the lower neighbour
     assert np.all(np.abs(best - candidates[k]) <= 0.5 * step + 1e-6)
     moved = np.abs(best - candidates[k]) > 1e-4
-    assert moved.sum() > h * w // 2
+    assert moved[[2, 4, 5]].sum() > 3 * w // 2  # the rows of random costs with an inner minimum
 
 
 def test_select_disparity_finds_the_vertex_of_a_sampled_parabola(device):
