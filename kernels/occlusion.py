@@ -216,3 +216,67 @@ def fill_hidden_motion(
         x[i, j] = v
         vb = x_bar[i, j]
         x_bar[i, j] = wp.vec4(vb[0], v[1], v[2], v[3])
+
+
+@wp.kernel
+def surface_motion_fit(
+    row0: int,
+    x: wp.array2d(dtype=wp.vec4),
+    untrusted: wp.array2d(dtype=float),
+    sigma: float,
+    depth_sigma: float,
+    radius: int,
+    stride: int,
+    ridge: float,
+    # outputs
+    fit: wp.array2d(dtype=wp.vec4),
+):
+    """The motion of p's surface, fitted from its neighbours: (u, v) and the depth change
+    D = δ2 − δ1 each as an affine function a + b·Δx + c·Δy of the offset Δ = q − p, by
+    weighted least squares over the pixels q = p + ``stride``·(k, l), |k|, |l| ≤
+    ``radius``, whose match is trusted (``untrusted`` ≤ 0.5), weight
+    exp(−(k² + l²)/2σ²) · exp(−(δ1(q) − δ1(p))²/2σ_d²) (σ = ``sigma`` in steps of the
+    stride, σ_d = ``depth_sigma``, 0: no depth weight; it keeps the fit on p's own
+    surface), with ``ridge``·Σw (``ridge`` > 0) added to the slopes' diagonal (Δ in
+    steps): the system stays solvable, and a fit from a thin strip of neighbours stays
+    near their mean. fit(p) = (δ1, δ1 + D(p),
+    u(p), v(p)), the fit's values at p; x(p) unchanged where the weights sum to 1e-3 or
+    less. A point whose own match went wrong (a surface's rim dragged along with its
+    neighbour by the coarse levels) gets its surface's motion carried over, turning and
+    scaling included. Launch over (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    h = x.shape[0]
+    w = x.shape[1]
+    v = x[i, j]
+    inv_s = 1.0 / (2.0 * sigma * sigma)
+    inv_d = float(0.0)
+    if depth_sigma > 0.0:
+        inv_d = 1.0 / (2.0 * depth_sigma * depth_sigma)
+    a = wp.mat33(0.0)  # Σ w·(1, k, l)ᵀ(1, k, l)
+    bu = wp.vec3(0.0)  # Σ w·u·(1, k, l)
+    bv = wp.vec3(0.0)
+    bd = wp.vec3(0.0)
+    for l in range(-radius, radius + 1):
+        ii = i + l * stride
+        if ii >= 0 and ii < h:
+            for k in range(-radius, radius + 1):
+                jj = j + k * stride
+                if jj >= 0 and jj < w:
+                    if untrusted[ii, jj] <= 0.5:
+                        q = x[ii, jj]
+                        dd = q[0] - v[0]
+                        g = wp.exp(-float(k * k + l * l) * inv_s - dd * dd * inv_d)
+                        e = wp.vec3(1.0, float(k), float(l))
+                        a += g * wp.outer(e, e)
+                        bu += g * q[2] * e
+                        bv += g * q[3] * e
+                        bd += g * (q[1] - q[0]) * e
+    out = v
+    if a[0, 0] > 1.0e-3:
+        a[1, 1] = a[1, 1] + ridge * a[0, 0]
+        a[2, 2] = a[2, 2] + ridge * a[0, 0]
+        inv = wp.inverse(a)
+        row = wp.vec3(inv[0, 0], inv[0, 1], inv[0, 2])  # the fit's value at Δ = 0: first row of A⁻¹ times b
+        out = wp.vec4(v[0], v[0] + wp.dot(row, bd), wp.dot(row, bu), wp.dot(row, bv))
+    fit[i, j] = out

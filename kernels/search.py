@@ -559,6 +559,43 @@ def flow_cost(
         cost[k, i, j] = value
 
 
+@wp.kernel
+def surface_block_cost(
+    row0: int,
+    centre1: wp.array2d(dtype=float),
+    centre2: wp.array2d(dtype=float),
+    x: wp.array2d(dtype=wp.vec4),
+    radius: int,
+    tolerance: float,
+    # outputs
+    cost: wp.array2d(dtype=float),
+):
+    """cost(p) = the mean of |I1(q) − I2(q + (u, v)(p))| over the pixels q of the
+    (2r+1)² window at p (clamped to the image) on p's surface, |δ1(q) − δ1(p)| ≤
+    ``tolerance`` (δ1, u, v: components 0, 2, 3 of x), each term 1 where q + (u, v)
+    leaves the image: how well p's flow, moved as a block, explains its own surface
+    around it. The window's pixels of another surface are left out, so a rim is judged
+    by its own texture. Launch over (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    h = x.shape[0]
+    w = x.shape[1]
+    v = x[i, j]
+    acc = float(0.0)
+    n = float(0.0)
+    for ii in range(wp.max(i - radius, 0), wp.min(i + radius + 1, h)):
+        for jj in range(wp.max(j - radius, 0), wp.min(j + radius + 1, w)):
+            if wp.abs(x[ii, jj][0] - v[0]) <= tolerance:
+                qx = float(jj) + v[2]
+                qy = float(ii) + v[3]
+                value = float(1.0)
+                if inside(centre2, qx, qy):
+                    value = wp.abs(centre1[ii, jj] - bilinear(centre2, qx, qy))
+                acc += value
+                n += 1.0
+    cost[i, j] = acc / n
+
+
 #: The largest window radius of :func:`flow_search` (its ring buffer of column sums).
 MAX_SEARCH_RADIUS = wp.constant(5)
 vec11 = wp.types.vector(length=11, dtype=wp.float32)

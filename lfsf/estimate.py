@@ -193,6 +193,18 @@ MATCH_TOLERANCE = 1.0
 #: on colour light fields δ1's tensor is the colour one and δ2's the luma's, see
 #: ``Params.colour_tensor``, which breaks it slightly at edges).
 FUSION_MARGIN = 0.8
+#: The end's fit of each surface's motion (:func:`_fit_surface_motion`): a pixel is a
+#: trusted source where its windowed flow residual is below SURFACE_FIT_GOOD times the
+#: standard deviation of the t1 centre's texture; the fit weighs its neighbours within
+#: SURFACE_FIT_RADIUS steps (stride: the width / SURFACE_FIT_WIDTH px, at least 1) by a
+#: Gaussian of SURFACE_FIT_SIGMA steps, slopes damped by SURFACE_FIT_RIDGE; it runs
+#: SURFACE_FIT_PASSES times.
+SURFACE_FIT_GOOD = 0.1
+SURFACE_FIT_SIGMA = 3.0
+SURFACE_FIT_RADIUS = 6
+SURFACE_FIT_WIDTH = 80
+SURFACE_FIT_RIDGE = 1.0
+SURFACE_FIT_PASSES = 2
 #: Light fields whose joint intensity range spans less than this are stretched to [0, 1]
 #: before anything else (:func:`_intensity_stretch`); wider ones are used as they are.
 #: Every built-in and random scene spans more (the least: `random-0`, 0.22 at 80×60 and
@@ -790,6 +802,48 @@ def _fuse_flow(x, centre1, centre2, found_u, found_v, params: Params, device: st
                         outputs=[x], device=device)
 
 
+def _fit_surface_motion(x, centre1, centre2, hidden, params: Params, device: str) -> None:
+    """Per pixel, keep δ2 and the flow of x (the unknowns, a vec4 (h, w) device array,
+    fused in place) or take those of its surface's motion fitted from the neighbours
+    whose match is trusted (:func:`lfsf.kernels.occlusion.surface_motion_fit`), whichever
+    explains the centre views better: the flow moved as a block over the window's pixels
+    of p's own surface (:func:`lfsf.kernels.search.surface_block_cost`, the
+    ``search_radius`` window, ``median_tolerance``), by ``FUSION_MARGIN``; never where
+    ``hidden`` (float (h, w) device array, > 0.5: the point has no match at t2).
+    The coarse levels blur a surface's rim into its neighbour's motion; where the
+    neighbour is the farther one, the rim's data then also finds the farther surface's
+    disparity at t2, and the warps cannot pull the pair back (a plane receding by 20 %:
+    its right rim, 2–3 px, moved with the backdrop)."""
+    from lfsf.kernels import fusion, occlusion, search
+
+    wp = _device.warp()
+    shape = x.shape
+    stride = max(1, int(round(shape[1] / SURFACE_FIT_WIDTH)))
+    floor = SURFACE_FIT_GOOD * float(np.std(centre1.numpy()))
+    fit = wp.empty_like(x)
+    cur = wp.empty(shape, dtype=float, device=device)
+    new = wp.empty(shape, dtype=float, device=device)
+    untrusted = wp.empty(shape, dtype=float, device=device)
+
+    def block_cost(flow, out):
+        _device.launch_rows(search.surface_block_cost, dim=shape,
+                            inputs=[centre1, centre2, flow, params.search_radius, params.median_tolerance],
+                            outputs=[out], device=device)
+
+    for _ in range(SURFACE_FIT_PASSES):
+        block_cost(x, cur)
+        # no source: a poor match, or a point hidden at t2 (its flow is the fill's)
+        _device.launch_rows(fusion.either_above, dim=shape, inputs=[cur, floor, hidden, 0.5], outputs=[untrusted],
+                            device=device)
+        _device.launch_rows(occlusion.surface_motion_fit, dim=shape,
+                            inputs=[x, untrusted, SURFACE_FIT_SIGMA, params.hidden_fill_depth, SURFACE_FIT_RADIUS,
+                                    stride, SURFACE_FIT_RIDGE],
+                            outputs=[fit], device=device)
+        block_cost(fit, new)
+        _device.launch_rows(fusion.take_better, dim=shape, inputs=[fit, new, cur, FUSION_MARGIN, hidden, 1, 1, 3],
+                            outputs=[x], device=device)
+
+
 def _fuse_disparities(x, s1, s2, phis, found1, found2, params: Params, device: str) -> None:
     """Per pixel, keep δ1 (δ2) of x (the unknowns, a vec4 (h, w) device array, fused in
     place) or take the searched one (``found1``, ``found2``: float (h, w) device arrays,
@@ -1140,6 +1194,14 @@ def estimate_scene_flow(
             # 320×240, 0.162 → 0.151)
             solver.median()
             lap("median")
+            if params.surface_fit and not solver.flow_only:
+                # each surface's motion carried to its rim (SURFACE_FIT_GOOD …)
+                hidden_end = wp.empty((h, w), dtype=float, device=dev)
+                _device.launch_rows(fusion.either_above, dim=(h, w),
+                                    inputs=[solver.hidden2, 0.5, hidden_here if hidden_here is not None
+                                            else solver.hidden2, 0.5], outputs=[hidden_end], device=dev)
+                _fit_surface_motion(solver.x, cen[0], cen[1], hidden_end, params, dev)
+                lap("median")
         if level > 0:
             fh, fw = sizes[level - 1]
             sx, sy = fw / w, fh / h

@@ -838,6 +838,27 @@ def flow_cost(centre1, centre2, candidates, base) -> np.ndarray:
     return out
 
 
+def surface_block_cost(centre1, centre2, x, radius: int, tolerance: float) -> np.ndarray:
+    """Mean |I1(q) − I2(q + (u, v)(p))| over the window's pixels q (clamped to the image)
+    with |δ1(q) − δ1(p)| ≤ tolerance, 1 per term leaving the image
+    (kernels/search.py surface_block_cost). Explicit loops."""
+    x = np.asarray(x, np.float64)
+    h, w = centre1.shape
+    out = np.zeros((h, w))
+    for i in range(h):
+        for j in range(w):
+            terms = []
+            for ii in range(max(i - radius, 0), min(i + radius + 1, h)):
+                for jj in range(max(j - radius, 0), min(j + radius + 1, w)):
+                    if abs(x[ii, jj, 0] - x[i, j, 0]) > tolerance:
+                        continue
+                    qx, qy = jj + x[i, j, 2], ii + x[i, j, 3]
+                    inside = 0 <= qx <= w - 1 and 0 <= qy <= h - 1
+                    terms.append(abs(centre1[ii, jj] - float(bilinear(np.asarray(centre2, np.float64), np.array(qx), np.array(qy)))) if inside else 1.0)
+            out[i, j] = np.mean(terms)
+    return out
+
+
 def flow_grid(half: int) -> np.ndarray:
     """The whole-pixel candidates (dx, dy) of select_flow, k = (dy+n)(2n+1) + (dx+n)."""
     r = np.arange(-half, half + 1)
@@ -968,6 +989,41 @@ def fill_hidden_motion(x, hidden, sigma, depth_sigma, radius, flagged=None):
             out[i, j, 1] = x[i, j, 0] + (num_d / den_d if den_d > 1e-6 else 0.0)
             if hidden[i, j] and den_f > 1e-6:
                 out[i, j, 2:] = num_f / den_f
+    return out
+
+
+def surface_motion_fit(x, untrusted, sigma, depth_sigma, radius, stride, ridge):
+    """(δ1, δ1 + D, u, v) at every p from weighted least-squares affine fits of u, v and
+    D = δ2 − δ1 in the offset (k, l) over the pixels q = p + stride·(k, l), not
+    ``untrusted`` (≤ 0.5),
+    |k|, |l| ≤ radius, in the image (kernels/occlusion.py surface_motion_fit): weight
+    exp(−(k² + l²)/2σ²)·exp(−(δ1(q) − δ1(p))²/2σ_d²) (σ_d = 0: none), ridge·Σw added to
+    the slopes' diagonal; x(p) where Σw ≤ 1e-3. Explicit loops, np.linalg.solve."""
+    x = np.asarray(x, np.float64)
+    good = np.asarray(untrusted) <= 0.5
+    h, w = good.shape
+    out = x.copy()
+    for i in range(h):
+        for j in range(w):
+            a = np.zeros((3, 3))
+            b = np.zeros((3, 3))  # columns: u, v, D
+            for l in range(-radius, radius + 1):
+                for k in range(-radius, radius + 1):
+                    ii, jj = i + l * stride, j + k * stride
+                    if not (0 <= ii < h and 0 <= jj < w) or not good[ii, jj]:
+                        continue
+                    g = np.exp(-(k * k + l * l) / (2.0 * sigma * sigma))
+                    if depth_sigma > 0:
+                        g *= np.exp(-(x[ii, jj, 0] - x[i, j, 0]) ** 2 / (2.0 * depth_sigma ** 2))
+                    e = np.array([1.0, k, l])
+                    a += g * np.outer(e, e)
+                    b += g * np.outer(e, [x[ii, jj, 2], x[ii, jj, 3], x[ii, jj, 1] - x[ii, jj, 0]])
+            if a[0, 0] <= 1e-3:
+                continue
+            a[1, 1] += ridge * a[0, 0]
+            a[2, 2] += ridge * a[0, 0]
+            u, v, d = np.linalg.solve(a, b)[0]
+            out[i, j] = (x[i, j, 0], x[i, j, 0] + d, u, v)
     return out
 
 

@@ -1961,6 +1961,50 @@ def _fill_hidden(x, hidden, sigma, radius, device, depth_sigma=0.0, flagged=None
     return xa.numpy(), xb.numpy()
 
 
+def test_surface_motion_fit_matches_reference(device):
+    """The affine fit of each pixel's surface motion from its trusted neighbours, against
+    its NumPy reference (strides 1 and 2, with and without the depth weight); and on a
+    surface whose flow is exactly affine (a plane turning and receding), the fit gives a
+    point whose own flow is wrong (``untrusted``) its surface's flow back, not its
+    neighbour surface's."""
+    from lfsf.kernels import occlusion
+
+    def fit(x, good, sigma, depth_sigma, radius, stride, ridge):
+        out = wp.empty(good.shape, dtype=wp.vec4, device=device)
+        launch(occlusion.surface_motion_fit, good.shape,
+               [arr(x, wp.vec4, device), arr(1.0 - good, float, device), float(sigma), float(depth_sigma), int(radius),
+                int(stride), float(ridge)], [out], device)
+        return out.numpy()
+
+    r = rng(11)
+    h, w = 11, 14
+    x = r.uniform(-2, 2, (h, w, 4)).astype(np.float32)
+    good = (r.random((h, w)) < 0.6).astype(np.float32)
+    good[:, 10:] = 0.0  # a strip with no trusted pixel within radius 1: x kept there
+    for sigma, depth_sigma, radius, stride, ridge in ((1.5, 0.0, 2, 1, 0.5), (2.0, 0.8, 3, 1, 4.0),
+                                                       (1.0, 0.5, 2, 2, 1.0), (1.0, 0.0, 1, 1, 0.25)):
+        got = fit(x, good, sigma, depth_sigma, radius, stride, ridge)
+        want = ref.surface_motion_fit(x, 1.0 - good, sigma, depth_sigma, radius, stride, ridge)
+        close(got, want, atol=2e-4)
+        np.testing.assert_array_equal(got[..., 0], x[..., 0])
+    np.testing.assert_array_equal(fit(x, good, 1.0, 0.0, 1, 1, 0.25)[:, 12], x[:, 12])
+    # two surfaces side by side: the left one (δ1 = 1) turns and recedes, u = 0.3 − 0.2·(j − 5),
+    # v = 0.1·(i − 6), D = −0.5 + 0.01·j; the right one (δ1 = −1) moves by (2, 0). The left
+    # surface's rim (columns 7, 8) has wrong flows, and is not trusted.
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    left = xx < 9
+    x = np.stack([np.where(left, 1.0, -1.0), np.where(left, 0.5 + 0.01 * xx, -1.0),
+                  np.where(left, 0.3 - 0.2 * (xx - 5), 2.0), np.where(left, 0.1 * (yy - 6), 0.0)], -1).astype(np.float32)
+    truth = x.copy()
+    x[:, 7:9, 2:] = (2.0, 0.0)  # the rim dragged along with the neighbour surface
+    x[:, 7:9, 1] = -1.0
+    good = np.ones((h, w), np.float32)
+    good[:, 7:9] = 0.0
+    got = fit(x, good, 3.0, 0.1, 6, 1, 1e-4)
+    close(got[:, 7:9], truth[:, 7:9], atol=1e-3)
+    close(got[:, 10:], truth[:, 10:], atol=1e-3)
+
+
 def test_fill_hidden_motion_matches_reference(device):
     """δ2 = δ1 + the weighted depth change, (u, v) the weighted flow of the visible pixels
     nearby, where hidden; every other value as it was (x and x̄), δ1 everywhere."""

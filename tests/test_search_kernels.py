@@ -364,6 +364,35 @@ def test_flow_cost_matches_reference(device, span):
     close(got[4, 1, 2], abs(float(centre1[1, 2]) - float(centre2[1, 2])), atol=1e-7)
 
 
+def test_surface_block_cost_matches_reference(device):
+    """The flow of each pixel moved as a block over the window's pixels of its own
+    surface, against its NumPy reference; a window of one surface is the plain block
+    cost, and a pixel's cost ignores the other surface's pixels whatever their match."""
+    from lfsf.kernels import search
+
+    def run(c1, c2, x, radius, tolerance):
+        out = wp.empty(c1.shape, dtype=float, device=device)
+        launch(search.surface_block_cost, c1.shape,
+               [arr(c1, float, device), arr(c2, float, device), arr(x, wp.vec4, device), int(radius), float(tolerance)],
+               [out], device)
+        return out.numpy()
+
+    r = rng(23)
+    h, w = 7, 10
+    c1 = r.random((h, w)).astype(np.float32)
+    c2 = r.random((h, w)).astype(np.float32)
+    x = r.uniform(-2.5, 2.5, (h, w, 4)).astype(np.float32)
+    x[..., 0] = np.where(np.arange(w) < 5, 1.0, -1.0)[None, :] + r.uniform(-0.2, 0.2, (h, w))
+    for radius, tolerance in ((0, 0.5), (1, 0.5), (2, 0.3), (1, 10.0)):
+        close(run(c1, c2, x, radius, tolerance), ref.surface_block_cost(c1, c2, x, radius, tolerance), atol=2e-6)
+    # the right surface's pixels (δ1 ≈ −1) change nothing of the left one's costs
+    x2 = x.copy()
+    x2[:, 5:, 2:] += 3.0
+    c1b = c1.copy()
+    c1b[:, 5:] = 0.0
+    close(run(c1b, c2, x2, 2, 0.5)[:, :4], run(c1, c2, x, 2, 0.5)[:, :4], atol=0)
+
+
 @pytest.mark.parametrize("span", [1, 3, 9])
 @pytest.mark.parametrize("half,radius", [(1, 0), (1, 1), (2, 2), (2, 5)])
 def test_flow_search_matches_reference(half, radius, span, device):
