@@ -813,7 +813,9 @@ def _fit_surface_motion(x, centre1, centre2, hidden, params: Params, device: str
     The coarse levels blur a surface's rim into its neighbour's motion; where the
     neighbour is the farther one, the rim's data then also finds the farther surface's
     disparity at t2, and the warps cannot pull the pair back (a plane receding by 20 %:
-    its right rim, 2–3 px, moved with the backdrop)."""
+    its right rim, 2–3 px, moved with the backdrop). The estimator runs it on the
+    finest level before its last warp, which refines what it carried over, and at the
+    end (``Params.surface_fit``)."""
     from lfsf.kernels import fusion, occlusion, search
 
     wp = _device.warp()
@@ -842,6 +844,22 @@ def _fit_surface_motion(x, centre1, centre2, hidden, params: Params, device: str
         block_cost(fit, new)
         _device.launch_rows(fusion.take_better, dim=shape, inputs=[fit, new, cur, FUSION_MARGIN, hidden, 1, 1, 3],
                             outputs=[x], device=device)
+
+
+def _fit_solver_surfaces(solver, centres, searched_hidden, params: Params, device: str) -> None:
+    """:func:`_fit_surface_motion` on a level solver's unknowns, with the level's centre
+    views (``centres``, (2, h, w)); never where the point is hidden at t2, by the
+    solver's last test (``hidden2``) or by the searches' (``searched_hidden``, float
+    (h, w), or None)."""
+    from lfsf.kernels import fusion
+
+    wp = _device.warp()
+    shape = solver.x.shape
+    hidden = wp.empty(shape, dtype=float, device=device)
+    _device.launch_rows(fusion.either_above, dim=shape,
+                        inputs=[solver.hidden2, 0.5, solver.hidden2 if searched_hidden is None else searched_hidden, 0.5],
+                        outputs=[hidden], device=device)
+    _fit_surface_motion(solver.x, centres[0], centres[1], hidden, params, device)
 
 
 def _fuse_disparities(x, s1, s2, phis, found1, found2, params: Params, device: str) -> None:
@@ -1173,7 +1191,13 @@ def estimate_scene_flow(
             solver.take_coarse(coarser, params.carry_duals and n_samples > 1)
             coarser = None
         lap("setup")
+        # each surface's motion carried to its rim (Params.surface_fit), on the finest level
+        fit_surfaces = level == 0 and params.surface_fit and not solver.flow_only
         for k in range(params.warps):
+            if fit_surfaces and k == params.warps - 1 and k > 0:
+                # before the last warp too, which then refines what it carried over
+                _fit_solver_surfaces(solver, cen, hidden_here, params, dev)
+                lap("median")
             solver.linearise()
             lap("linearise")
             last = level == 0 and k == params.warps - 1 and params.final_iterations > 0
@@ -1194,13 +1218,8 @@ def estimate_scene_flow(
             # 320×240, 0.162 → 0.151)
             solver.median()
             lap("median")
-            if params.surface_fit and not solver.flow_only:
-                # each surface's motion carried to its rim (SURFACE_FIT_GOOD …)
-                hidden_end = wp.empty((h, w), dtype=float, device=dev)
-                _device.launch_rows(fusion.either_above, dim=(h, w),
-                                    inputs=[solver.hidden2, 0.5, hidden_here if hidden_here is not None
-                                            else solver.hidden2, 0.5], outputs=[hidden_end], device=dev)
-                _fit_surface_motion(solver.x, cen[0], cen[1], hidden_end, params, dev)
+            if fit_surfaces:
+                _fit_solver_surfaces(solver, cen, hidden_here, params, dev)
                 lap("median")
         if level > 0:
             fh, fw = sizes[level - 1]
