@@ -193,12 +193,13 @@ MATCH_TOLERANCE = 1.0
 #: on colour light fields δ1's tensor is the colour one and δ2's the luma's, see
 #: ``Params.colour_tensor``, which breaks it slightly at edges).
 FUSION_MARGIN = 0.8
-#: The end's fit of each surface's motion (:func:`_fit_surface_motion`): a pixel is a
-#: trusted source where its windowed flow residual is below SURFACE_FIT_GOOD times the
-#: standard deviation of the t1 centre's texture; the fit weighs its neighbours within
-#: SURFACE_FIT_RADIUS steps (stride: the width / SURFACE_FIT_WIDTH px, at least 1) by a
-#: Gaussian of SURFACE_FIT_SIGMA steps, slopes damped by SURFACE_FIT_RIDGE; it runs
-#: SURFACE_FIT_PASSES times.
+#: The fit of each surface's motion (:func:`_fit_surface_motion`, ``Params.surface_fit``):
+#: a pixel is a source where its flow's block residual over its own surface is below
+#: SURFACE_FIT_GOOD times the standard deviation of the t1 centre view; the fit weighs
+#: the neighbours within SURFACE_FIT_RADIUS steps (a step: the width / SURFACE_FIT_WIDTH
+#: px, rounded, at least 1) by a Gaussian of SURFACE_FIT_SIGMA steps, slopes damped by
+#: SURFACE_FIT_RIDGE (steps²); SURFACE_FIT_PASSES passes each time. 13×13 neighbours at
+#: a step of 1/80 measured as 25×25 at 1/160, at a quarter of the time (docs/accuracy.md).
 SURFACE_FIT_GOOD = 0.1
 SURFACE_FIT_SIGMA = 3.0
 SURFACE_FIT_RADIUS = 6
@@ -948,11 +949,12 @@ def estimate_scene_flow(
     Special cases come from the same code: ``estimate_scene_flow(lf, lf)`` is stereo.
     With the ``paper`` preset the flow comes out within 0.01 px of zero and δ2 within
     0.01 of δ1 but near depth edges, where a sample's rows drop out at one time and not
-    the other (scene ``paper`` at 160×120, 9×9 views: flows above 0.01 px at 0.28 % of
-    the pixels, largest 0.095 px; |δ2 − δ1| at most 0.008). ``fast`` (3 warps of 30
-    iterations against 5 of 100) stops further from that fixed point: median flow
-    0.005 px, above 0.01 px at 23 % of the pixels, largest 0.22 px; |δ2 − δ1| above 0.01
-    at 0.3 %, largest 0.43. On colour light fields δ1's tensor is the colour one and
+    the other (scene ``paper`` at 160×120, 9×9 views, thirty-fourth session: flows above
+    0.01 px at 0.03 % of the pixels, largest 0.097 px; |δ2 − δ1| above 0.01 at 0.03 %,
+    largest 0.26, where ``surface_fit`` carried a fitted depth change along with the
+    flow; 0.030 without it). ``fast`` (3 warps of 30 iterations against 5 of 100) stops
+    further from that fixed point: median flow 0.001 px, above 0.01 px at 1.4 % of the
+    pixels, largest 0.23 px; |δ2 − δ1| above 0.01 at 0.06 %, largest 0.10. On colour light fields δ1's tensor is the colour one and
     δ2's the luma's, which adds a little (`random-5` in colour at 96×72, `fast`: largest
     flow 0.15 px against 0.09 with ``colour_tensor`` off). ``circles=1`` is optical flow
     of the centre views alone,
