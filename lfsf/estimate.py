@@ -803,14 +803,17 @@ def _fuse_flow(x, centre1, centre2, found_u, found_v, params: Params, device: st
                         outputs=[x], device=device)
 
 
-def _fit_surface_motion(x, centre1, centre2, hidden, params: Params, device: str) -> None:
-    """Per pixel, keep δ2 and the flow of x (the unknowns, a vec4 (h, w) device array,
+def _fit_surface_motion(x, centre1, centre2, samples2, phis, hidden, params: Params, device: str) -> None:
+    """Per pixel, keep the flow and δ2 of x (the unknowns, a vec4 (h, w) device array,
     fused in place) or take those of its surface's motion fitted from the neighbours
     whose match is trusted (:func:`lfsf.kernels.occlusion.surface_motion_fit`), whichever
-    explains the centre views better: the flow moved as a block over the window's pixels
-    of p's own surface (:func:`lfsf.kernels.search.surface_block_cost`, the
-    ``search_radius`` window, ``median_tolerance``), by ``FUSION_MARGIN``; never where
-    ``hidden`` (float (h, w) device array, > 0.5: the point has no match at t2).
+    matches better by ``FUSION_MARGIN``: the flow by the centre views (``centre1``,
+    ``centre2``), moved as a block over the window's pixels of p's own surface
+    (:func:`lfsf.kernels.search.surface_block_cost`, the ``search_radius`` window,
+    ``median_tolerance``); then δ2 at the flow so chosen by the t2 samples
+    (``samples2``, (S, h, w), at ``phis``; the plane sweep's windowed cost with the view
+    z-buffers). Never where ``hidden`` (float (h, w) device array, > 0.5: the point has
+    no match at t2).
     The coarse levels blur a surface's rim into its neighbour's motion; where the
     neighbour is the farther one, the rim's data then also finds the farther surface's
     disparity at t2, and the warps cannot pull the pair back (a plane receding by 20 %:
@@ -827,6 +830,8 @@ def _fit_surface_motion(x, centre1, centre2, hidden, params: Params, device: str
     cur = wp.empty(shape, dtype=float, device=device)
     new = wp.empty(shape, dtype=float, device=device)
     untrusted = wp.empty(shape, dtype=float, device=device)
+    fitted2 = wp.empty(shape, dtype=float, device=device)
+    current2 = wp.empty(shape, dtype=float, device=device)
 
     def block_cost(flow, out):
         _device.launch_rows(search.surface_block_cost, dim=shape,
@@ -843,7 +848,19 @@ def _fit_surface_motion(x, centre1, centre2, hidden, params: Params, device: str
                                     stride, SURFACE_FIT_RIDGE],
                             outputs=[fit], device=device)
         block_cost(fit, new)
-        _device.launch_rows(fusion.take_better, dim=shape, inputs=[fit, new, cur, FUSION_MARGIN, hidden, 1, 1, 3],
+        # the flow by the centre views; then δ2, at the flow now taken, by the t2 samples
+        # (as the plane sweep's δ2 is fused): where the flow alone moved, a rim's δ2 of
+        # the farther surface no longer matches; where it did not, δ2 keeps its value
+        _device.launch_rows(fusion.take_better, dim=shape, inputs=[fit, new, cur, FUSION_MARGIN, hidden, 1, 2, 2],
+                            outputs=[x], device=device)
+        _device.launch_rows(fusion.unknown_plane, dim=shape, inputs=[fit, 1], outputs=[fitted2], device=device)
+        _device.launch_rows(fusion.unknown_plane, dim=shape, inputs=[x, 1], outputs=[current2], device=device)
+        _device.launch_rows(fusion.with_plane, dim=shape, inputs=[x, 1, fitted2], outputs=[fit], device=device)
+        z2 = _view_zbuffer(fit, 1, True, phis, device) if params.visibility else None
+        r = params.search_radius
+        cur2 = _window_cost(samples2, phis, current2, x, r, device, z2, params.occlusion_margin)
+        new2 = _window_cost(samples2, phis, fitted2, x, r, device, z2, params.occlusion_margin)
+        _device.launch_rows(fusion.take_better, dim=shape, inputs=[fit, new2, cur2, FUSION_MARGIN, hidden, 1, 1, 1],
                             outputs=[x], device=device)
 
 
@@ -860,7 +877,7 @@ def _fit_solver_surfaces(solver, centres, searched_hidden, params: Params, devic
     _device.launch_rows(fusion.either_above, dim=shape,
                         inputs=[solver.hidden2, 0.5, solver.hidden2 if searched_hidden is None else searched_hidden, 0.5],
                         outputs=[hidden], device=device)
-    _fit_surface_motion(solver.x, centres[0], centres[1], hidden, params, device)
+    _fit_surface_motion(solver.x, centres[0], centres[1], solver.samples2, solver.phis, hidden, params, device)
 
 
 def _fuse_disparities(x, s1, s2, phis, found1, found2, params: Params, device: str) -> None:
@@ -950,11 +967,10 @@ def estimate_scene_flow(
     With the ``paper`` preset the flow comes out within 0.01 px of zero and δ2 within
     0.01 of δ1 but near depth edges, where a sample's rows drop out at one time and not
     the other (scene ``paper`` at 160×120, 9×9 views, thirty-fourth session: flows above
-    0.01 px at 0.03 % of the pixels, largest 0.097 px; |δ2 − δ1| above 0.01 at 0.03 %,
-    largest 0.26, where ``surface_fit`` carried a fitted depth change along with the
-    flow; 0.030 without it). ``fast`` (3 warps of 30 iterations against 5 of 100) stops
-    further from that fixed point: median flow 0.001 px, above 0.01 px at 1.4 % of the
-    pixels, largest 0.23 px; |δ2 − δ1| above 0.01 at 0.06 %, largest 0.10. On colour light fields δ1's tensor is the colour one and
+    0.01 px at 0.03 % of the pixels, largest 0.097 px; |δ2 − δ1| above 0.01 at 0.02 %,
+    largest 0.029). ``fast`` (3 warps of 30 iterations against 5 of 100) stops further
+    from that fixed point: median flow 0.001 px, above 0.01 px at 1.2 % of the pixels,
+    largest 0.22 px; |δ2 − δ1| above 0.01 at 0.15 %, largest 0.14. On colour light fields δ1's tensor is the colour one and
     δ2's the luma's, which adds a little (`random-5` in colour at 96×72, `fast`: largest
     flow 0.15 px against 0.09 with ``colour_tensor`` off). ``circles=1`` is optical flow
     of the centre views alone,

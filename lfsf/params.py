@@ -173,14 +173,14 @@ class Params:
             ``median_radius``'s does, up to 3.
         surface_fit : on the finest level, before its last warp and at the end, fit each
             surface's motion (an affine flow and depth change) from its pixels whose flow
-            matches the centre views well, and give it to the pixels it explains better
-            (an addition; :func:`lfsf.estimate._fit_surface_motion`). The coarse levels
-            blur a surface's rim into its neighbour's motion, and where the neighbour is
-            the farther one the rim's δ2 then takes the farther surface's disparity at t2
-            (a plane receding by 20 %: δ2 MSE 0.0092 → 0.0024). Paired geometric means of
-            δ1 / δ2 / EPE: 0.99 / 0.84 / 0.93× over the built-in scenes and
-            `random-0…95` at 160×120, 1.00 / 0.90 / 0.92× over 12 scenes at 320×240
-            (docs/accuracy.md). Flow only skips it.
+            matches the centre views well, and give it to the pixels it explains better,
+            the flow by the centre views, then δ2 by the t2 samples (an addition;
+            :func:`lfsf.estimate._fit_surface_motion`). The coarse levels blur a surface's
+            rim into its neighbour's motion, and where the neighbour is the farther one the
+            rim's δ2 then takes the farther surface's disparity at t2 (a plane receding by
+            20 %: δ2 MSE 0.0092 → 0.0038). Paired geometric means of δ1 / δ2 / EPE: 0.99 /
+            0.77 / 0.93× over the built-in scenes and `random-0…95` at 160×120, 1.00 / 0.87
+            / 0.91× over 12 scenes at 320×240 (docs/accuracy.md). Flow only skips it.
         colour_median_radius : r of the last step on colour light fields (an addition;
             0: off; grey input never takes it, nor grey views stored as RGB, see
             ``lfsf.estimate.GREY_CHROMA``): δ1 and δ2 are snapped to the colour

@@ -168,7 +168,7 @@ def test_a_receding_plane_keeps_its_rim_on_its_own_surface():
     the backdrop at t2, δ2 took the backdrop's disparity, and the warps could not pull
     the 2–3 px strip back: δ2 MSE 0.0092, above half of plenpy's (0.0055). The fit of
     each surface's motion from its trusted pixels (``Params.surface_fit``, before the
-    last warp and at the end) gives the strip its surface's motion: 0.0024."""
+    last warp and at the end) gives the strip its surface's motion: 0.0038."""
     from lfsf import evaluate, synth
 
     scene = synth.Scene("receding", "a plane receding by 20 %", (
@@ -369,14 +369,18 @@ def test_the_flow_median_runs_once_more_after_the_final_fill(monkeypatch):
 def test_the_depth_change_median_brings_delta2_closer_to_the_truth():
     """δ2 = δ1 + the median of δ2 − δ1 over the window's pixels on the same surface
     (``depth_change_radius``), at the end: against the same runs without it, over three
-    scenes at 96×72 (summed δ2 MSE, measured 0.59×), δ2 must fall by a quarter; δ1 and
-    the flow are the same bit for bit."""
+    scenes at 96×72 (summed δ2 MSE, measured 0.62×: 0.187 against 0.303), δ2 must fall
+    by a quarter; δ1 and the flow are the same bit for bit. With ``surface_fit`` off,
+    which since the thirty-fourth session does part of the same work before it: with it
+    on, the median measured 0.82× (0.187 against 0.228, the fit alone 0.228 against
+    0.303)."""
     from lfsf import evaluate, synth
 
     on = off = 0.0
     for name in ("paper", "large_motion", "random-2"):
         lf1, lf2, gt = synth.render_scene(name, size=(96, 72))
-        runs = [estimate_scene_flow(lf1, lf2, Params.preset("fast").replace(depth_change_radius=k), device="cpu")
+        runs = [estimate_scene_flow(lf1, lf2, Params.preset("fast").replace(depth_change_radius=k, surface_fit=False),
+                                    device="cpu")
                 for k in (2, 0)]
         on += evaluate.evaluate(runs[0].as_dict(), gt, border=8)["disp2"]["mse"]
         off += evaluate.evaluate(runs[1].as_dict(), gt, border=8)["disp2"]["mse"]
