@@ -239,9 +239,8 @@ def surface_motion_fit(
     stride, σ_d = ``depth_sigma``, 0: no depth weight; it keeps the fit on p's own
     surface), with ``ridge``·Σw (``ridge`` > 0) added to the slopes' diagonal (Δ in
     steps): the system stays solvable, and a fit from a thin strip of neighbours stays
-    near their mean. fit(p) = (δ1, δ1 + D(p),
-    u(p), v(p)), the fit's values at p; x(p) unchanged where the weights sum to 1e-3 or
-    less. A point whose own match went wrong (a surface's rim dragged along with its
+    near their mean. fit(p) = (δ1, δ1 + D(p), u(p), v(p)), the fit's values at p; x(p)
+    unchanged where the weights sum to 1e-3 or less. A point whose own match went wrong (a surface's rim dragged along with its
     neighbour by the coarse levels) gets its surface's motion carried over, turning and
     scaling included. Launch over (rows, columns)."""
     i, j = wp.tid()

@@ -831,7 +831,6 @@ def _fit_surface_motion(x, centre1, centre2, samples2, phis, hidden, params: Par
     new = wp.empty(shape, dtype=float, device=device)
     untrusted = wp.empty(shape, dtype=float, device=device)
     fitted2 = wp.empty(shape, dtype=float, device=device)
-    current2 = wp.empty(shape, dtype=float, device=device)
 
     def block_cost(flow, out):
         _device.launch_rows(search.surface_block_cost, dim=shape,
@@ -854,14 +853,7 @@ def _fit_surface_motion(x, centre1, centre2, samples2, phis, hidden, params: Par
         _device.launch_rows(fusion.take_better, dim=shape, inputs=[fit, new, cur, FUSION_MARGIN, hidden, 1, 2, 2],
                             outputs=[x], device=device)
         _device.launch_rows(fusion.unknown_plane, dim=shape, inputs=[fit, 1], outputs=[fitted2], device=device)
-        _device.launch_rows(fusion.unknown_plane, dim=shape, inputs=[x, 1], outputs=[current2], device=device)
-        _device.launch_rows(fusion.with_plane, dim=shape, inputs=[x, 1, fitted2], outputs=[fit], device=device)
-        z2 = _view_zbuffer(fit, 1, True, phis, device) if params.visibility else None
-        r = params.search_radius
-        cur2 = _window_cost(samples2, phis, current2, x, r, device, z2, params.occlusion_margin)
-        new2 = _window_cost(samples2, phis, fitted2, x, r, device, z2, params.occlusion_margin)
-        _device.launch_rows(fusion.take_better, dim=shape, inputs=[fit, new2, cur2, FUSION_MARGIN, hidden, 1, 1, 1],
-                            outputs=[x], device=device)
+        _take_better_disparity(x, 1, samples2, phis, fitted2, params, device, hidden)
 
 
 def _fit_solver_surfaces(solver, centres, searched_hidden, params: Params, device: str) -> None:
@@ -880,41 +872,49 @@ def _fit_solver_surfaces(solver, centres, searched_hidden, params: Params, devic
     _fit_surface_motion(solver.x, centres[0], centres[1], solver.samples2, solver.phis, hidden, params, device)
 
 
-def _fuse_disparities(x, s1, s2, phis, found1, found2, params: Params, device: str) -> None:
-    """Per pixel, keep δ1 (δ2) of x (the unknowns, a vec4 (h, w) device array, fused in
-    place) or take the searched one (``found1``, ``found2``: float (h, w) device arrays,
-    each in its own time's frame: δ2's is read at p + (u, v)), whichever matches better.
-    With ``params.visibility`` both are judged by the samples that the searched map's
-    view z-buffers leave visible (the same samples for both), else by the best half."""
+def _take_better_disparity(x, component: int, samples, phis, candidate, params: Params, device: str,
+                           hidden=None) -> None:
+    """Per pixel, keep δ1 (``component`` 0, judged by the t1 ``samples`` at p) or δ2
+    (1, by the t2 samples at p + (u, v)) of x (the unknowns, a vec4 (h, w) device array,
+    fused in place), or take ``candidate`` (float (h, w) device array) where it matches
+    better by ``FUSION_MARGIN``, and not where ``hidden`` (float (h, w), > 0.5; None:
+    anywhere). With ``params.visibility`` both values are judged by the samples that
+    the candidate map's view z-buffers leave visible (the same samples for both), else
+    by the best half (:func:`_window_cost`)."""
     from lfsf.kernels import fusion
 
     wp = _device.warp()
     shape = x.shape
-    no_flow = wp.zeros(shape, dtype=wp.vec4, device=device)
-    r = params.search_radius
-    vis = params.visibility
-    margin = params.occlusion_margin
-    current = wp.empty(shape, dtype=float, device=device)
+    at_t2 = component == 1
+    offset = x if at_t2 else wp.zeros(shape, dtype=wp.vec4, device=device)
     cand = wp.empty_like(x)
+    _device.launch_rows(fusion.with_plane, dim=shape, inputs=[x, component, candidate], outputs=[cand], device=device)
+    zbuf = _view_zbuffer(cand, component, at_t2, phis, device) if params.visibility else None
+    current = wp.empty(shape, dtype=float, device=device)
+    _device.launch_rows(fusion.unknown_plane, dim=shape, inputs=[x, component], outputs=[current], device=device)
+    r, margin = params.search_radius, params.occlusion_margin
+    cur = _window_cost(samples, phis, current, offset, r, device, zbuf, margin)
+    new = _window_cost(samples, phis, candidate, offset, r, device, zbuf, margin)
+    _device.launch_rows(fusion.take_better, dim=shape,
+                        inputs=[cand, new, cur, FUSION_MARGIN, new if hidden is None else hidden,
+                                int(hidden is not None), component, 1],
+                        outputs=[x], device=device)
+
+
+def _fuse_disparities(x, s1, s2, phis, found1, found2, params: Params, device: str) -> None:
+    """Per pixel, keep δ1 (δ2) of x (the unknowns, a vec4 (h, w) device array, fused in
+    place) or take the searched one (``found1``, ``found2``: float (h, w) device arrays,
+    each in its own time's frame: δ2's is read at p + (u, v)), whichever matches better
+    (:func:`_take_better_disparity`)."""
+    from lfsf.kernels import fusion
+
+    wp = _device.warp()
     # δ1: the searched map in the centre view at t1
-    _device.launch_rows(fusion.with_plane, dim=shape, inputs=[x, 0, found1], outputs=[cand], device=device)
-    z1 = _view_zbuffer(cand, 0, False, phis, device) if vis else None
-    _device.launch_rows(fusion.unknown_plane, dim=shape, inputs=[x, 0], outputs=[current], device=device)
-    cur1 = _window_cost(s1, phis, current, no_flow, r, device, z1, margin)
-    new1 = _window_cost(s1, phis, found1, no_flow, r, device, z1, margin)
-    _device.launch_rows(fusion.take_better, dim=shape, inputs=[cand, new1, cur1, FUSION_MARGIN, new1, 0, 0, 1],
-                        outputs=[x], device=device)
-    del z1
+    _take_better_disparity(x, 0, s1, phis, found1, params, device)
     # δ2: the searched map of t2's frame read where the point moves, p + (u, v)
-    cand2 = wp.empty(shape, dtype=float, device=device)
-    _device.launch_rows(fusion.sample_at_flow, dim=shape, inputs=[found2, x], outputs=[cand2], device=device)
-    _device.launch_rows(fusion.with_plane, dim=shape, inputs=[x, 1, cand2], outputs=[cand], device=device)
-    z2 = _view_zbuffer(cand, 1, True, phis, device) if vis else None
-    _device.launch_rows(fusion.unknown_plane, dim=shape, inputs=[x, 1], outputs=[current], device=device)
-    cur2 = _window_cost(s2, phis, current, x, r, device, z2, margin)
-    new2 = _window_cost(s2, phis, cand2, x, r, device, z2, margin)
-    _device.launch_rows(fusion.take_better, dim=shape, inputs=[cand, new2, cur2, FUSION_MARGIN, new2, 0, 1, 1],
-                        outputs=[x], device=device)
+    cand2 = wp.empty(x.shape, dtype=float, device=device)
+    _device.launch_rows(fusion.sample_at_flow, dim=x.shape, inputs=[found2, x], outputs=[cand2], device=device)
+    _take_better_disparity(x, 1, s2, phis, cand2, params, device)
 
 
 def estimate_scene_flow(
