@@ -90,6 +90,21 @@ def either_above(
 
 
 @wp.kernel
+def at_most(
+    row0: int,
+    a: wp.array2d(dtype=float),
+    most: float,
+    # outputs
+    out: wp.array2d(dtype=float),
+):
+    """out = 1 where a ≤ ``most``, else 0 (a mask of well-matched points). Launch over
+    (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    out[i, j] = wp.where(a[i, j] <= most, 1.0, 0.0)
+
+
+@wp.kernel
 def hidden_or_leaving(
     row0: int,
     hidden: wp.array2d(dtype=float),

@@ -803,6 +803,29 @@ def _fuse_flow(x, centre1, centre2, found_u, found_v, params: Params, device: st
                         outputs=[x], device=device)
 
 
+def _match_floor(centre1) -> float:
+    """The block cost (:func:`_surface_block_cost`) at or below which a point's flow
+    is trusted: ``SURFACE_FIT_GOOD`` × the standard deviation of the t1 centre view
+    ``centre1`` (a float (h, w) device array)."""
+    return SURFACE_FIT_GOOD * float(np.std(centre1.numpy()))
+
+
+def _surface_block_cost(centre1, centre2, x, params: Params, device: str, out=None):
+    """|I1 − I2| of the centre views over the ``search_radius`` window's pixels of each
+    pixel's own surface (δ1 within ``median_tolerance``), moved as a block by the
+    pixel's flow in x (the unknowns, a vec4 (h, w) device array)
+    (:func:`lfsf.kernels.search.surface_block_cost`): into ``out``, or a new float
+    (h, w) device array, returned."""
+    from lfsf.kernels import search
+
+    if out is None:
+        out = _device.warp().empty(x.shape, dtype=float, device=device)
+    _device.launch_rows(search.surface_block_cost, dim=x.shape,
+                        inputs=[centre1, centre2, x, params.search_radius, params.median_tolerance],
+                        outputs=[out], device=device)
+    return out
+
+
 def _fit_surface_motion(x, centre1, centre2, samples2, phis, hidden, params: Params, device: str) -> None:
     """Per pixel, keep the flow and δ2 of x (the unknowns, a vec4 (h, w) device array,
     fused in place) or take those of its surface's motion fitted from the neighbours
@@ -820,25 +843,20 @@ def _fit_surface_motion(x, centre1, centre2, samples2, phis, hidden, params: Par
     its right rim, 2–3 px, moved with the backdrop). The estimator runs it on the
     finest level before its last warp, which refines what it carried over, and at the
     end (``Params.surface_fit``)."""
-    from lfsf.kernels import fusion, occlusion, search
+    from lfsf.kernels import fusion, occlusion
 
     wp = _device.warp()
     shape = x.shape
     stride = max(1, int(round(shape[1] / SURFACE_FIT_WIDTH)))
-    floor = SURFACE_FIT_GOOD * float(np.std(centre1.numpy()))
+    floor = _match_floor(centre1)
     fit = wp.empty_like(x)
     cur = wp.empty(shape, dtype=float, device=device)
     new = wp.empty(shape, dtype=float, device=device)
     untrusted = wp.empty(shape, dtype=float, device=device)
     fitted2 = wp.empty(shape, dtype=float, device=device)
 
-    def block_cost(flow, out):
-        _device.launch_rows(search.surface_block_cost, dim=shape,
-                            inputs=[centre1, centre2, flow, params.search_radius, params.median_tolerance],
-                            outputs=[out], device=device)
-
     for _ in range(SURFACE_FIT_PASSES):
-        block_cost(x, cur)
+        _surface_block_cost(centre1, centre2, x, params, device, cur)
         # no source: a poor match, or a point hidden at t2 (its flow is the fill's)
         _device.launch_rows(fusion.either_above, dim=shape, inputs=[cur, floor, hidden, 0.5], outputs=[untrusted],
                             device=device)
@@ -846,7 +864,7 @@ def _fit_surface_motion(x, centre1, centre2, samples2, phis, hidden, params: Par
                             inputs=[x, untrusted, SURFACE_FIT_SIGMA, params.hidden_fill_depth, SURFACE_FIT_RADIUS,
                                     stride, SURFACE_FIT_RIDGE],
                             outputs=[fit], device=device)
-        block_cost(fit, new)
+        _surface_block_cost(centre1, centre2, fit, params, device, new)
         # the flow by the centre views; then δ2, at the flow now taken, by the t2 samples
         # (as the plane sweep's δ2 is fused): where the flow alone moved, a rim's δ2 of
         # the farther surface no longer matches; where it did not, δ2 keeps its value
@@ -901,20 +919,21 @@ def _take_better_disparity(x, component: int, samples, phis, candidate, params: 
                         outputs=[x], device=device)
 
 
-def _fuse_disparities(x, s1, s2, phis, found1, found2, params: Params, device: str) -> None:
+def _fuse_disparities(x, s1, s2, phis, found1, found2, params: Params, device: str, keep=None) -> None:
     """Per pixel, keep δ1 (δ2) of x (the unknowns, a vec4 (h, w) device array, fused in
     place) or take the searched one (``found1``, ``found2``: float (h, w) device arrays,
     each in its own time's frame: δ2's is read at p + (u, v)), whichever matches better
-    (:func:`_take_better_disparity`)."""
+    (:func:`_take_better_disparity`); keep both wherever ``keep`` (float (h, w) device
+    array, or None) is above 0.5."""
     from lfsf.kernels import fusion
 
     wp = _device.warp()
     # δ1: the searched map in the centre view at t1
-    _take_better_disparity(x, 0, s1, phis, found1, params, device)
+    _take_better_disparity(x, 0, s1, phis, found1, params, device, keep)
     # δ2: the searched map of t2's frame read where the point moves, p + (u, v)
     cand2 = wp.empty(x.shape, dtype=float, device=device)
     _device.launch_rows(fusion.sample_at_flow, dim=x.shape, inputs=[found2, x], outputs=[cand2], device=device)
-    _take_better_disparity(x, 1, s2, phis, cand2, params, device)
+    _take_better_disparity(x, 1, s2, phis, cand2, params, device, keep)
 
 
 def estimate_scene_flow(
@@ -1212,10 +1231,26 @@ def estimate_scene_flow(
         # each surface's motion carried to its rim (Params.surface_fit), on the finest level
         fit_surfaces = level == 0 and params.surface_fit and not solver.flow_only
         for k in range(params.warps):
-            if fit_surfaces and k == params.warps - 1 and k > 0:
-                # before the last warp too, which then refines what it carried over
-                _fit_solver_surfaces(solver, cen, hidden_here, params, dev)
-                lap("median")
+            if level == 0 and k == params.warps - 1 and k > 0:
+                if search and params.late_search:
+                    # the plane sweep's maps once more (Params.late_search): through the
+                    # cross-time rows a wrong flow at an outline drags δ1 and δ2 to the
+                    # other surface's depth over the warps. Only where the flow does not
+                    # match; elsewhere δ1 and δ2 stay the warps' own, finer than the
+                    # sweep's steps (a stereo pair, t1 = t2, whose flow matches everywhere,
+                    # keeps them). The last warp refines what this takes.
+                    matched = wp.empty((h, w), dtype=float, device=dev)
+                    _device.launch_rows(fusion.at_most, dim=(h, w),
+                                        inputs=[_surface_block_cost(cen[0], cen[1], solver.x, params, dev),
+                                                _match_floor(cen[0])],
+                                        outputs=[matched], device=dev)
+                    _fuse_disparities(solver.x, solver.samples1, solver.samples2, solver.phis, found[0], found[1],
+                                      params, dev, matched)
+                    lap("search")
+                if fit_surfaces:
+                    # before the last warp too, which then refines what it carried over
+                    _fit_solver_surfaces(solver, cen, hidden_here, params, dev)
+                    lap("median")
             solver.linearise()
             lap("linearise")
             last = level == 0 and k == params.warps - 1 and params.final_iterations > 0

@@ -639,6 +639,11 @@ def test_take_better_kernel_matches_numpy(device, first, count, use_hidden):
     out = wp.zeros((h, w), dtype=float, device=device)
     launch(fusion.either_above, (h, w), [arr(a, float, device), 0.7, arr(b, float, device), 0.8], [out], device)
     np.testing.assert_array_equal(out.numpy(), ((a > 0.7) | (b > 0.8)).astype(np.float32))
+    # and a mask of well-matched points, the threshold itself included
+    a[0, 0] = 0.5
+    launch(fusion.at_most, (h, w), [arr(a, float, device), 0.5], [out], device)
+    np.testing.assert_array_equal(out.numpy(), (a <= np.float32(0.5)).astype(np.float32))
+    assert 0 < out.numpy().sum() < out.size
 
 
 def test_hidden_or_leaving_kernel_matches_numpy(device):
