@@ -193,6 +193,14 @@ MATCH_TOLERANCE = 1.0
 #: on colour light fields δ1's tensor is the colour one and δ2's the luma's, see
 #: ``Params.colour_tensor``, which breaks it slightly at edges).
 FUSION_MARGIN = 0.8
+#: The late sweep fusion (``Params.late_search``) runs only where the flow does not
+#: match, and there δ1 and δ2 are suspect: the cross-time rows may have dragged them to
+#: the neighbouring surface's depth, which can match the t1 samples about as well (an
+#: outline pixel of `random-24`: 0.0119 against the sweep's 0.0121). The sweep's value
+#: is taken unless its cost is higher by more than this factor (160×120, against 0.8:
+#: δ1 / δ2 0.93 / 0.95× over 40 scenes, 0.94 / 0.94× over 64 others, 0.88 / 0.93× at
+#: 320×240; 0.95: 0.95 / 0.95×).
+LATE_SEARCH_MARGIN = 1.05
 #: The fit of each surface's motion (:func:`_fit_surface_motion`, ``Params.surface_fit``):
 #: a pixel is a source where its flow's block residual over its own surface is below
 #: SURFACE_FIT_GOOD times the standard deviation of the t1 centre view; the fit weighs
@@ -891,12 +899,12 @@ def _fit_solver_surfaces(solver, centres, searched_hidden, params: Params, devic
 
 
 def _take_better_disparity(x, component: int, samples, phis, candidate, params: Params, device: str,
-                           hidden=None) -> None:
+                           hidden=None, fusion_margin: float = FUSION_MARGIN) -> None:
     """Per pixel, keep δ1 (``component`` 0, judged by the t1 ``samples`` at p) or δ2
     (1, by the t2 samples at p + (u, v)) of x (the unknowns, a vec4 (h, w) device array,
-    fused in place), or take ``candidate`` (float (h, w) device array) where it matches
-    better by ``FUSION_MARGIN``, and not where ``hidden`` (float (h, w), > 0.5; None:
-    anywhere). With ``params.visibility`` both values are judged by the samples that
+    fused in place), or take ``candidate`` (float (h, w) device array) where its cost is
+    below ``fusion_margin`` times the current one, and not where ``hidden`` (float (h,
+    w), > 0.5; None: anywhere). With ``params.visibility`` both values are judged by the samples that
     the candidate map's view z-buffers leave visible (the same samples for both), else
     by the best half (:func:`_window_cost`)."""
     from lfsf.kernels import fusion
@@ -914,26 +922,27 @@ def _take_better_disparity(x, component: int, samples, phis, candidate, params: 
     cur = _window_cost(samples, phis, current, offset, r, device, zbuf, margin)
     new = _window_cost(samples, phis, candidate, offset, r, device, zbuf, margin)
     _device.launch_rows(fusion.take_better, dim=shape,
-                        inputs=[cand, new, cur, FUSION_MARGIN, new if hidden is None else hidden,
+                        inputs=[cand, new, cur, fusion_margin, new if hidden is None else hidden,
                                 int(hidden is not None), component, 1],
                         outputs=[x], device=device)
 
 
-def _fuse_disparities(x, s1, s2, phis, found1, found2, params: Params, device: str, keep=None) -> None:
+def _fuse_disparities(x, s1, s2, phis, found1, found2, params: Params, device: str, keep=None,
+                      fusion_margin: float = FUSION_MARGIN) -> None:
     """Per pixel, keep δ1 (δ2) of x (the unknowns, a vec4 (h, w) device array, fused in
     place) or take the searched one (``found1``, ``found2``: float (h, w) device arrays,
     each in its own time's frame: δ2's is read at p + (u, v)), whichever matches better
-    (:func:`_take_better_disparity`); keep both wherever ``keep`` (float (h, w) device
-    array, or None) is above 0.5."""
+    (:func:`_take_better_disparity`, by ``fusion_margin``); keep both wherever ``keep``
+    (float (h, w) device array, or None) is above 0.5."""
     from lfsf.kernels import fusion
 
     wp = _device.warp()
     # δ1: the searched map in the centre view at t1
-    _take_better_disparity(x, 0, s1, phis, found1, params, device, keep)
+    _take_better_disparity(x, 0, s1, phis, found1, params, device, keep, fusion_margin)
     # δ2: the searched map of t2's frame read where the point moves, p + (u, v)
     cand2 = wp.empty(x.shape, dtype=float, device=device)
     _device.launch_rows(fusion.sample_at_flow, dim=x.shape, inputs=[found2, x], outputs=[cand2], device=device)
-    _take_better_disparity(x, 1, s2, phis, cand2, params, device, keep)
+    _take_better_disparity(x, 1, s2, phis, cand2, params, device, keep, fusion_margin)
 
 
 def estimate_scene_flow(
@@ -1238,14 +1247,15 @@ def estimate_scene_flow(
                     # other surface's depth over the warps. Only where the flow does not
                     # match; elsewhere δ1 and δ2 stay the warps' own, finer than the
                     # sweep's steps (a stereo pair, t1 = t2, whose flow matches everywhere,
-                    # keeps them). The last warp refines what this takes.
+                    # keeps them); there ties go to the sweep (LATE_SEARCH_MARGIN). The
+                    # last warp refines what this takes.
                     matched = wp.empty((h, w), dtype=float, device=dev)
                     _device.launch_rows(fusion.at_most, dim=(h, w),
                                         inputs=[_surface_block_cost(cen[0], cen[1], solver.x, params, dev),
                                                 _match_floor(cen[0])],
                                         outputs=[matched], device=dev)
                     _fuse_disparities(solver.x, solver.samples1, solver.samples2, solver.phis, found[0], found[1],
-                                      params, dev, matched)
+                                      params, dev, matched, LATE_SEARCH_MARGIN)
                     lap("search")
                 if fit_surfaces:
                     # before the last warp too, which then refines what it carried over

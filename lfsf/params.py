@@ -208,9 +208,11 @@ class Params:
             last warp, where the flow does not match the centre views (an addition; needs
             ``disparity_search``). Through the cross-time rows (ρ3) a wrong flow at an
             outline drags δ1 and δ2 over the warps to the other surface's depth, which the
-            t1 samples alone do not give them. Paired geometric means of δ1 / δ2 / EPE:
-            0.79 / 0.85 / 0.98× over the built-in scenes and `random-0…31` at 160×120
-            (docs/accuracy.md); the stereo-only runs (t1 = t2) barely move.
+            t1 samples alone do not give them; there ties go to the sweep
+            (``lfsf.estimate.LATE_SEARCH_MARGIN``). Paired geometric means of δ1 / δ2 /
+            EPE: 0.73 / 0.80 / 0.97× over the built-in scenes, `random-0…31` and four
+            receding planes at 160×120, 0.88 / 0.86 / 0.99× over `random-32…95`, 0.81 /
+            0.86 / 0.99× over 13 scenes at 320×240 (docs/accuracy.md).
         disparity_range : the sweep covers ±this many px per view step (full resolution).
         search_radius : the sweep's matching costs are averaged over (2r+1)² windows.
         flow_search : likewise for the flow, with a whole-pixel block-matching search of
