@@ -904,9 +904,9 @@ def _take_better_disparity(x, component: int, samples, phis, candidate, params: 
     (1, by the t2 samples at p + (u, v)) of x (the unknowns, a vec4 (h, w) device array,
     fused in place), or take ``candidate`` (float (h, w) device array) where its cost is
     below ``fusion_margin`` times the current one, and not where ``hidden`` (float (h,
-    w), > 0.5; None: anywhere). With ``params.visibility`` both values are judged by the samples that
-    the candidate map's view z-buffers leave visible (the same samples for both), else
-    by the best half (:func:`_window_cost`)."""
+    w), > 0.5; None: anywhere). With ``params.visibility`` both values are judged by the
+    samples that the candidate map's view z-buffers leave visible (the same samples for
+    both), else by the best half (:func:`_window_cost`)."""
     from lfsf.kernels import fusion
 
     wp = _device.warp()
