@@ -42,6 +42,23 @@ def landing_pixel(v: wp.vec4, i: int, j: int, h: int, w: int):
     return ty, tx, ty >= 0 and ty < h and tx >= 0 and tx < w
 
 
+@wp.func
+def surface_rates(sigma: float, depth_sigma: float):
+    """(1/2σ², 1/2σ_d²) of :func:`surface_weight`; σ_d = 0: no depth weight (rate 0)."""
+    inv_d = float(0.0)
+    if depth_sigma > 0.0:
+        inv_d = 1.0 / (2.0 * depth_sigma * depth_sigma)
+    return wp.vec2(1.0 / (2.0 * sigma * sigma), inv_d)
+
+
+@wp.func
+def surface_weight(dist2: float, dd: float, rates: wp.vec2):
+    """exp(−dist²/2σ² − dd²/2σ_d²): a neighbour's weight, near in the image and in
+    depth (dd = δ1(q) − δ1(p)), which keeps a fill or fit on p's own surface; ``rates``
+    from :func:`surface_rates`."""
+    return wp.exp(-dist2 * rates[0] - dd * dd * rates[1])
+
+
 @wp.kernel
 def splat_depth(
     row0: int,
@@ -192,10 +209,7 @@ def fill_hidden_motion(
         h = x.shape[0]
         w = x.shape[1]
         v = x[i, j]
-        inv_s = 1.0 / (2.0 * sigma * sigma)
-        inv_d = float(0.0)
-        if depth_sigma > 0.0:
-            inv_d = 1.0 / (2.0 * depth_sigma * depth_sigma)
+        rates = surface_rates(sigma, depth_sigma)
         depth = wp.vec2(0.0)  # Σ g·(δ2 − δ1), Σ g over the pixels neither hidden nor flagged
         flow = wp.vec3(0.0)  # Σ g·u, Σ g·v, Σ g over the pixels not hidden
         for ii in range(wp.max(i - radius, 0), wp.min(i + radius + 1, h)):
@@ -203,7 +217,7 @@ def fill_hidden_motion(
                 if hidden[ii, jj] <= 0.5:
                     q = x[ii, jj]
                     dd = q[0] - v[0]
-                    g = wp.exp(-float((ii - i) * (ii - i) + (jj - j) * (jj - j)) * inv_s - dd * dd * inv_d)
+                    g = surface_weight(float((ii - i) * (ii - i) + (jj - j) * (jj - j)), dd, rates)
                     flow += g * wp.vec3(q[2], q[3], 1.0)
                     if flagged[ii, jj] <= 0.5:
                         depth += g * wp.vec2(q[1] - q[0], 1.0)
@@ -248,10 +262,7 @@ def surface_motion_fit(
     h = x.shape[0]
     w = x.shape[1]
     v = x[i, j]
-    inv_s = 1.0 / (2.0 * sigma * sigma)
-    inv_d = float(0.0)
-    if depth_sigma > 0.0:
-        inv_d = 1.0 / (2.0 * depth_sigma * depth_sigma)
+    rates = surface_rates(sigma, depth_sigma)
     a = wp.mat33(0.0)  # Σ w·(1, k, l)ᵀ(1, k, l)
     bu = wp.vec3(0.0)  # Σ w·u·(1, k, l)
     bv = wp.vec3(0.0)
@@ -265,7 +276,7 @@ def surface_motion_fit(
                     if untrusted[ii, jj] <= 0.5:
                         q = x[ii, jj]
                         dd = q[0] - v[0]
-                        g = wp.exp(-float(k * k + l * l) * inv_s - dd * dd * inv_d)
+                        g = surface_weight(float(k * k + l * l), dd, rates)
                         e = wp.vec3(1.0, float(k), float(l))
                         a += g * wp.outer(e, e)
                         bu += g * q[2] * e
