@@ -169,7 +169,8 @@ def bilinear_gradient(img: wp.array2d(dtype=float), x: float, y: float):
 @wp.func
 def interior(x: float, y: float, h: int, w: int):
     """(x, y) lies a pixel or more inside an h × w image, where
-    :func:`bilinear_with_gradient` reads its twelve pixels without clamping."""
+    :func:`bilinear_with_gradient` reads its twelve pixels and :func:`cubic_value` its
+    sixteen without clamping."""
     return x >= 1.0 and y >= 1.0 and x < float(w - 2) and y < float(h - 2)
 
 
@@ -212,6 +213,51 @@ def bilinear_with_gradient(img: wp.array2d(dtype=float), x: float, y: float):
     else:
         value = bilinear(img, x, y)
         g = bilinear_gradient(img, x, y)
+    return value, g
+
+
+@wp.func
+def cubic_weights(t: float):
+    """Catmull–Rom weights of the four pixels j − 1 … j + 2 at j + t (0 ≤ t < 1): the
+    cubic through them with central-difference slopes at j and j + 1."""
+    t2 = t * t
+    t3 = t2 * t
+    return wp.vec4(0.5 * (2.0 * t2 - t - t3), 0.5 * (2.0 - 5.0 * t2 + 3.0 * t3), 0.5 * (t + 4.0 * t2 - 3.0 * t3),
+                   0.5 * (t3 - t2))
+
+
+@wp.func
+def cubic_value(r0: wp.vec4, r1: wp.vec4, r2: wp.vec4, r3: wp.vec4, fx: float, fy: float):
+    """Catmull–Rom interpolation at (j + fx, i + fy) from the 4 × 4 pixels around it:
+    rows i − 1 … i + 2 (r0 … r3), each over columns j − 1 … j + 2 (separable: weights
+    along x, then along y). It passes through the pixels and reproduces polynomials of
+    degree 2 in each coordinate (Keys 1981), where bilinear interpolation reproduces
+    only degree 1: on the sampled textures of the synthetic scenes, at the true motion,
+    it leaves a residual |I2(p + u) − I1(p)| of a half to a third of bilinear
+    interpolation's."""
+    wx = cubic_weights(fx)
+    wy = cubic_weights(fy)
+    return wy[0] * wp.dot(wx, r0) + wy[1] * wp.dot(wx, r1) + wy[2] * wp.dot(wx, r2) + wy[3] * wp.dot(wx, r3)
+
+
+@wp.func
+def lookup_with_gradient(img: wp.array2d(dtype=float), x: float, y: float, cubic: int):
+    """A sample's value and gradient at a warped position (x, y), as the data term reads
+    them: the value by Catmull–Rom (:func:`cubic_value`) with ``cubic`` (``Params.cubic``)
+    where its 4 × 4 pixels lie inside the image (:func:`interior`), else bilinear; the
+    gradient always :func:`bilinear_gradient`'s central differences of bilinear samples,
+    a derivative that also smooths (the cubic's own derivative amplified the views'
+    noise). Within a pixel of a border both are :func:`bilinear_with_gradient`'s
+    (clamped)."""
+    value, g = bilinear_with_gradient(img, x, y)
+    if cubic != 0 and interior(x, y, img.shape[0], img.shape[1]):
+        j = int(x)
+        i = int(y)
+        value = cubic_value(wp.vec4(img[i - 1, j - 1], img[i - 1, j], img[i - 1, j + 1], img[i - 1, j + 2]),
+                            wp.vec4(img[i, j - 1], img[i, j], img[i, j + 1], img[i, j + 2]),
+                            wp.vec4(img[i + 1, j - 1], img[i + 1, j], img[i + 1, j + 1], img[i + 1, j + 2]),
+                            wp.vec4(img[i + 2, j - 1], img[i + 2, j], img[i + 2, j + 1], img[i + 2, j + 2]),
+                            x - float(j), y - float(i))
     return value, g
 
 

@@ -22,9 +22,9 @@ from typing import Any
 import warp as wp
 
 from . import data_term
-from .common import (HALF_PLANES, bilinear, bilinear_gradient, bilinear_taps, contiguous_row, float_run, footprint,
-                     footprint_visible, from_vec4, half_plane_mask, inside, interior, lane_vector, overload_unknowns,
-                     to_vec4)
+from .common import (HALF_PLANES, bilinear, bilinear_gradient, bilinear_taps, contiguous_row, cubic_value, float_run,
+                     footprint, footprint_visible, from_vec4, half_plane_mask, inside, interior, lane_vector,
+                     overload_unknowns, to_vec4)
 from .data_term import (CENTRE_OCCLUSION_FACTOR, COEFFICIENTS, DATA_LANES, DUALS, FLAG_BITS, OCCLUSION_FLOOR,
                         flag_vector, pixel_coefficients, second_pass, words_of)
 
@@ -57,18 +57,18 @@ PREFETCH_AHEAD = wp.constant(32)
 
 
 @wp.func
-def lookup_lanes(img: wp.array2d(dtype=float), run: wp.array(dtype=float), x: lanes_f, y: lanes_f):
-    """:func:`lfsf.kernels.common.bilinear_with_gradient` of ``img`` (its memory as the
-    1-D ``run``) at the group's positions: (values, ∂x, ∂y). Every lane takes the
-    interior formula at once (lanes outside the interior read at the safe position (1, 1),
-    so the image needs at least 4 rows and 4 columns), then the lanes within a pixel of
-    a border, if any, the clamped functions.
+def lookup_lanes(img: wp.array2d(dtype=float), run: wp.array(dtype=float), x: lanes_f, y: lanes_f, cubic: int):
+    """:func:`lfsf.kernels.common.lookup_with_gradient` of ``img`` (its memory as the
+    1-D ``run``) at the group's positions: (values, ∂x, ∂y), the values Catmull–Rom's
+    with ``cubic``. Every lane takes the interior formula at once (lanes outside the
+    interior read at the safe position (1, 1), so the image needs at least 4 rows and 4
+    columns), then the lanes within a pixel of a border, if any, the clamped functions.
 
     Where the group's lookups fall in one row, in consecutive columns (the pixels of a
     group warped by the same whole number of pixels: most groups, as δ and the flow
-    vary slowly), each of the twelve taps is one contiguous load for all the lanes
-    instead of a gather, which costs a load per lane (the gathers took most of the
-    coefficients' time). The same pixels are read either way."""
+    vary slowly), each of the twelve taps (sixteen, cubic) is one contiguous load for all
+    the lanes instead of a gather, which costs a load per lane (the gathers took most of
+    the coefficients' time). The same pixels are read either way."""
     h = img.shape[0]
     w = img.shape[1]
     value = lanes_f()
@@ -100,16 +100,22 @@ def lookup_lanes(img: wp.array2d(dtype=float), run: wp.array(dtype=float), x: la
     if apart == 0:
         # rows i − 1 … i + 2 over the columns the taps need (a lane outside the interior, read
         # at (1, 1) as in the gathers, can only be lane 0 here, and is redone below)
-        up = float_run(run.ptr, wp.int64(o0 - w), DATA_LANES + 1)
+        up = float_run(run.ptr, wp.int64(o0 - w - 1), DATA_LANES + 3)
         mid = float_run(run.ptr, wp.int64(o0 - 1), DATA_LANES + 3)
         low = float_run(run.ptr, wp.int64(o0 + w - 1), DATA_LANES + 3)
-        down = float_run(run.ptr, wp.int64(o0 + 2 * w), DATA_LANES + 1)
+        down = float_run(run.ptr, wp.int64(o0 + 2 * w - 1), DATA_LANES + 3)
         for f in range(DATA_LANES):
             v, gx, gy = bilinear_taps(mid[f], mid[f + 1], mid[f + 2], mid[f + 3], low[f], low[f + 1], low[f + 2],
-                                      low[f + 3], up[f], up[f + 1], down[f], down[f + 1], fx[f], fy[f])
+                                      low[f + 3], up[f + 1], up[f + 2], down[f + 1], down[f + 2], fx[f], fy[f])
             value[f] = v
             gx_out[f] = gx
             gy_out[f] = gy
+        if cubic != 0:
+            for f in range(DATA_LANES):
+                value[f] = cubic_value(wp.vec4(up[f], up[f + 1], up[f + 2], up[f + 3]),
+                                       wp.vec4(mid[f], mid[f + 1], mid[f + 2], mid[f + 3]),
+                                       wp.vec4(low[f], low[f + 1], low[f + 2], low[f + 3]),
+                                       wp.vec4(down[f], down[f + 1], down[f + 2], down[f + 3]), fx[f], fy[f])
     else:
         for f in range(DATA_LANES):
             k = o[f]
@@ -119,6 +125,14 @@ def lookup_lanes(img: wp.array2d(dtype=float), run: wp.array(dtype=float), x: la
             value[f] = v
             gx_out[f] = gx
             gy_out[f] = gy
+        if cubic != 0:
+            for f in range(DATA_LANES):
+                k = o[f]
+                value[f] = cubic_value(wp.vec4(run[k - w - 1], run[k - w], run[k - w + 1], run[k - w + 2]),
+                                       wp.vec4(run[k - 1], run[k], run[k + 1], run[k + 2]),
+                                       wp.vec4(run[k + w - 1], run[k + w], run[k + w + 1], run[k + w + 2]),
+                                       wp.vec4(run[k + 2 * w - 1], run[k + 2 * w], run[k + 2 * w + 1],
+                                               run[k + 2 * w + 2]), fx[f], fy[f])
     if border > 0:
         for f in range(DATA_LANES):
             if not interior(x[f], y[f], h, w):
@@ -204,6 +218,7 @@ def group_coefficients(
     zbuf2: wp.array3d(dtype=float),
     margin: float,
     use_zbuf: int,
+    cubic: int,
     coef: wp.array3d(dtype=float),
     flags: wp.array3d(dtype=wp.int32),
     grad_j2: wp.array3d(dtype=float),
@@ -237,7 +252,7 @@ def group_coefficients(
         i1[f] = i1_run[f]
         hid[f] = wp.where(hidden2[i, j0 + f] > 0.5, 1.0, 0.0)
     centre2 = samples2[0]
-    j2, gjx, gjy = lookup_lanes(centre2, float_run(samples2.ptr, wp.int64(0), h * w), xj, yj)
+    j2, gjx, gjy = lookup_lanes(centre2, float_run(samples2.ptr, wp.int64(0), h * w), xj, yj, cubic)
     grad_run = float_run(grad_j2.ptr, (wp.int64(i) * wp.int64(grad_j2.shape[1]) + wp.int64(g))
                          * wp.int64(grad_j2.shape[2]), 2 * lanes)
     in_j0 = lanes_f()
@@ -282,8 +297,8 @@ def group_coefficients(
         y1 = py - d1 * phi[1]
         x2 = xj - d2 * phi[0]
         y2 = yj - d2 * phi[1]
-        w1v, g1x, g1y = lookup_lanes(view1, float_run(samples1.ptr, wp.int64(s) * plane, h * w), x1, y1)
-        w2v, g2x, g2y = lookup_lanes(view2, float_run(samples2.ptr, wp.int64(s) * plane, h * w), x2, y2)
+        w1v, g1x, g1y = lookup_lanes(view1, float_run(samples1.ptr, wp.int64(s) * plane, h * w), x1, y1, cubic)
+        w2v, g2x, g2y = lookup_lanes(view2, float_run(samples2.ptr, wp.int64(s) * plane, h * w), x2, y2, cubic)
         # residuals against the point's appearance at t1, per half of the samples (where needed)
         if s > 0 and any_halves > 0:
             mask = half_plane_mask(phi)
@@ -424,6 +439,7 @@ def data_coefficients_groups(
     margin: float,
     use_zbuf: int,
     lanes: int,
+    cubic: int,
     # outputs
     coef: wp.array3d(dtype=float),
     flags: wp.array3d(dtype=wp.int32),
@@ -444,11 +460,11 @@ def data_coefficients_groups(
     j0 = g * lanes
     if lanes == DATA_LANES and j0 + lanes <= w and h >= 4:
         group_coefficients(i, g, samples1, samples2, phis, weights, x_hat, occlusion_ratio, hidden2, zbuf1, zbuf2,
-                           margin, use_zbuf, coef, flags, grad_j2, data_colsum, q)
+                           margin, use_zbuf, cubic, coef, flags, grad_j2, data_colsum, q)
     else:
         for j in range(j0, wp.min(j0 + lanes, w)):
             pixel_coefficients(i, j, samples1, samples2, phis, weights, x_hat, occlusion_ratio, hidden2, zbuf1, zbuf2,
-                               margin, use_zbuf, lanes, coef, flags, grad_j2, data_colsum, q)
+                               margin, use_zbuf, lanes, cubic, coef, flags, grad_j2, data_colsum, q)
 
 
 overload_unknowns(data_coefficients_groups, "x_hat", "data_colsum")

@@ -45,7 +45,7 @@ import warp as wp
 
 from lfsf.device import is_cpu
 
-from .common import (HALF_PLANES, add_residual, bilinear_with_gradient, from_vec4, half_plane_mask, lane_vector,
+from .common import (HALF_PLANES, add_residual, lookup_with_gradient, from_vec4, half_plane_mask, lane_vector,
                      half_plane_normal, in_half_plane, inside, overload_unknowns, store_apart, to_vec4, vec8, visible)
 
 wp.set_module_options({"enable_backward": False})
@@ -282,6 +282,7 @@ def pixel_coefficients(
     margin: float,
     use_zbuf: int,
     lanes: int,
+    cubic: int,
     coef: wp.array3d(dtype=float),
     flags: wp.array3d(dtype=wp.int32),
     grad_j2: wp.array3d(dtype=float),
@@ -299,7 +300,7 @@ def pixel_coefficients(
     xj = px + xh[2]
     yj = py + xh[3]
     centre2 = samples2[0]
-    j2, gj = bilinear_with_gradient(centre2, xj, yj)
+    j2, gj = lookup_with_gradient(centre2, xj, yj, cubic)
     grad_j2[i, g, lane] = gj[0]
     grad_j2[i, g, lanes + lane] = gj[1]
     in_j0 = inside(centre2, xj, yj)
@@ -326,8 +327,8 @@ def pixel_coefficients(
         y1 = py - xh[0] * phi[1]
         x2 = xj - xh[1] * phi[0]
         y2 = yj - xh[1] * phi[1]
-        w1v, g1 = bilinear_with_gradient(view1, x1, y1)
-        w2v, g2 = bilinear_with_gradient(view2, x2, y2)
+        w1v, g1 = lookup_with_gradient(view1, x1, y1, cubic)
+        w2v, g2 = lookup_with_gradient(view2, x2, y2, cubic)
         c = vec9()
         c[0] = -wp.dot(phi, g1)
         c[1] = i1 - w1v
@@ -401,6 +402,7 @@ def data_coefficients(
     margin: float,
     use_zbuf: int,
     lanes: int,
+    cubic: int,
     # outputs
     coef: wp.array3d(dtype=float),
     flags: wp.array3d(dtype=wp.int32),
@@ -435,8 +437,10 @@ def data_coefficients(
     ``zbuf1`` of δ̂1 at p, ``zbuf2`` of δ̂2 at p + û (:func:`lfsf.kernels.occlusion.splat_views`);
     a sample is left out where a point nearer by more than ``margin`` covers its warped
     position (:func:`lfsf.kernels.common.visible`). The best halves still give the
-    residual of the t2 samples for the test of the centre view at t2. Launch over (rows,
-    columns).
+    residual of the t2 samples for the test of the centre view at t2. With ``cubic`` 1
+    the warped samples' values are Catmull–Rom's, else bilinear
+    (:func:`lfsf.kernels.common.lookup_with_gradient`, ``Params.cubic``). Launch over
+    (rows, columns).
 
     One pass over the samples takes every row that the sample's own tests keep (in the
     image, seen by the z-buffers, not hidden). The best halves and the centre test,
@@ -451,7 +455,7 @@ def data_coefficients(
     """
     i, j = wp.tid()
     pixel_coefficients(i + row0, j, samples1, samples2, phis, weights, x_hat, occlusion_ratio, hidden2, zbuf1, zbuf2,
-                       margin, use_zbuf, lanes, coef, flags, grad_j2, data_colsum, q)
+                       margin, use_zbuf, lanes, cubic, coef, flags, grad_j2, data_colsum, q)
 
 
 def _dual_data_kernel(lanes: int):

@@ -177,13 +177,13 @@ def _copies(nbytes: int, dev: str, src=None, dst=None) -> dict[str, Callable[[],
 KERNEL_INPUTS = ("scene", "random")
 
 
-def _scene_solver(size, dev: str, scene: str = "paper"):
+def _scene_solver(size, dev: str, scene: str = "paper", params=None):
     """A finest-level solver (:class:`lfsf.solver.LevelSolver`) of the `paper` preset on
     ``scene`` rendered at ``size`` (9×9 views), linearised once at the ground truth: the
     sample stacks (texture parts, contrast normalised, as the estimator makes them), the
     view z-buffers, the hidden mask and the coefficients are those of a run's last warp,
-    so the data term's tests and lookups go as they do there. Returns (solver, t1
-    views as a (81, h, w) array)."""
+    so the data term's tests and lookups go as they do there (``params``: other settings
+    than the preset's). Returns (solver, t1 views as a (81, h, w) array)."""
     from lfsf import synth
     from lfsf.estimate import _normalise_contrast, _structure_texture, data_weights, sample_views
     from lfsf.params import Params
@@ -191,7 +191,7 @@ def _scene_solver(size, dev: str, scene: str = "paper"):
 
     wp = _device.warp()
     width, height = size
-    params = Params.preset("paper")
+    params = Params.preset("paper") if params is None else params
     lf1, lf2, gt = synth.render_scene(scene, size=(width, height), grid=9, device=dev)
     phis, _radius = params.sample_offsets((9, 9))
     n = len(phis)
@@ -301,7 +301,7 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
         p = solver.params
         coef_inputs = [solver.samples1, solver.samples2, solver.phis, solver.weights, solver.x_hat, p.occlusion_ratio,
                        solver.hidden2, solver.view_zbuf1, solver.view_zbuf2, solver.view_margin(),
-                       int(solver.view_zbuf1.shape[0] > 1), solver.lanes]
+                       int(solver.view_zbuf1.shape[0] > 1), solver.lanes, int(p.cubic)]
         coef_outputs = [solver.coef_store, solver.flags_store, solver.grad_j2_store, solver.data_colsum,
                         solver.q_store]
         data_step, dual_columns, (d_coef, d_flags, d_grad_j2, d_q), last = dual_data_launch(
@@ -311,7 +311,8 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
                        p.step_ratio, last]
         dual_outputs = [d_q, solver.data_grad]
     else:
-        coef_inputs = [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros, zbuf1, zbuf2, 0.25, 1, lanes]
+        coef_inputs = [stack1, stack2, wp_phis, weights, x_hat, 0.7, zeros, zbuf1, zbuf2, 0.25, 1, lanes,
+                       int(Params().cubic)]
         coef_outputs = [coef_store, flags_store, grad_j2_store, colsum, q_store]
         data_step, dual_columns, (d_coef, d_flags, d_grad_j2, d_q), last = dual_data_launch(
             lanes, dev, w, (coef_store, coef), (flags_store, flags), (grad_j2_store, grad_j2), (q_store, q))

@@ -243,7 +243,7 @@ class LevelSolver:
         _device.launch_rows(kernel, dim=(self.shape[0], columns),
                             inputs=[self.samples1, self.samples2, self.phis, self.weights, self.x_hat,
                                     p.occlusion_ratio, self.hidden2, self.view_zbuf1, self.view_zbuf2,
-                                    self.view_margin(), use_zbuf, self.lanes],
+                                    self.view_margin(), use_zbuf, self.lanes, int(p.cubic)],
                             outputs=[self.coef_store, self.flags_store, self.grad_j2_store, self.data_colsum,
                                      self.q_store],
                             device=self.device, bands=self.bands)

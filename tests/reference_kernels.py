@@ -42,6 +42,38 @@ def bilinear_gradient(img: np.ndarray, x, y) -> tuple[np.ndarray, np.ndarray]:
     return gx, gy
 
 
+def catmull_rom(img: np.ndarray, x, y) -> np.ndarray:
+    """Catmull–Rom interpolation of img at (x, y) from the 4 × 4 pixels around, for
+    positions whose 4 × 4 pixels lie in the image (1 ≤ x < w − 2, 1 ≤ y < h − 2): along
+    each axis the cubic Hermite segment between pixels k and k + 1 with the slopes
+    (p[k+1] − p[k−1]) / 2 and (p[k+2] − p[k]) / 2."""
+    img = np.asarray(img, np.float64)
+    x, y = np.broadcast_arrays(np.asarray(x, np.float64), np.asarray(y, np.float64))
+    j, i = np.floor(x).astype(int), np.floor(y).astype(int)
+
+    def segment(p0, p1, p2, p3, t):
+        m1, m2 = 0.5 * (p2 - p0), 0.5 * (p3 - p1)
+        return ((2 * t**3 - 3 * t**2 + 1) * p1 + (t**3 - 2 * t**2 + t) * m1 + (-2 * t**3 + 3 * t**2) * p2
+                + (t**3 - t**2) * m2)
+
+    rows = [segment(*(img[i + a, j + b] for b in (-1, 0, 1, 2)), x - j) for a in (-1, 0, 1, 2)]
+    return segment(*rows, y - i)
+
+
+def lookup_with_gradient(img: np.ndarray, x, y, cubic: bool = False):
+    """The data term's lookup (value, ∂x, ∂y): the value by Catmull–Rom where its 4 × 4
+    pixels lie in the image when ``cubic``, else (and always within a pixel of the
+    border) the clamped bilinear value; the gradient always :func:`bilinear_gradient`."""
+    x, y = np.broadcast_arrays(np.asarray(x, np.float64), np.asarray(y, np.float64))
+    h, w = np.shape(img)
+    value = bilinear(img, x, y)
+    gx, gy = bilinear_gradient(img, x, y)
+    if cubic:
+        interior = (x >= 1.0) & (y >= 1.0) & (x < w - 2.0) & (y < h - 2.0)
+        value = np.where(interior, catmull_rom(img, np.where(interior, x, 1.0), np.where(interior, y, 1.0)), value)
+    return value, gx, gy
+
+
 def inside(shape: tuple[int, int], x, y) -> np.ndarray:
     """True where (x, y) lies within the pixel centres of an image of ``shape`` (h, w)."""
     h, w = shape
@@ -217,7 +249,7 @@ def half_plane_members(phis) -> np.ndarray:
     return dots >= -1e-3 * np.linalg.norm(phis, axis=-1)[None, :]
 
 
-def visible_half(samples, phis, qx, qy, disparity, centre, ratio) -> dict:
+def visible_half(samples, phis, qx, qy, disparity, centre, ratio, cubic=False) -> dict:
     """The occlusion test of one light field, per pixel (MODEL.md addition, data_term docs).
 
     e_s = |L(q − δφ_s, φ_s) − centre| for the samples s ≥ 1 whose warped position lies in
@@ -229,6 +261,7 @@ def visible_half(samples, phis, qx, qy, disparity, centre, ratio) -> dict:
     Returns {best (h, w) int, mean_all (h, w), means (8, h, w) (inf where a half holds no
     sample), count (h, w), members (8, S), kept_mean (h, w): the mean residual of the
     samples kept (mean_all, or the best half's mean where occluded; 0 without samples)}.
+    ``cubic``: the samples read as the data term reads them (:func:`lookup_with_gradient`).
     """
     samples = np.asarray(samples, np.float64)
     phis = np.asarray(phis, np.float64)
@@ -243,7 +276,7 @@ def visible_half(samples, phis, qx, qy, disparity, centre, ratio) -> dict:
         xi, eta = phis[s]
         x, y = qx - disparity * xi, qy - disparity * eta
         valid = inside((h, w), x, y)
-        e = np.where(valid, np.abs(bilinear(samples[s], x, y) - centre), 0.0)
+        e = np.where(valid, np.abs(lookup_with_gradient(samples[s], x, y, cubic)[0] - centre), 0.0)
         total += e
         count += valid
         sums += members[:, s, None, None] * e
@@ -267,7 +300,7 @@ def kept_samples(best: np.ndarray, members: np.ndarray) -> np.ndarray:
 
 
 def data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio=0.0, details=None, hidden2=None,
-                      zbufs=None, margin=0.0):
+                      zbufs=None, margin=0.0, cubic=False):
     """A1…A9 (9, S, h, w), row weights (3, S, h, w) and data column sums (h, w, 4).
 
     W1 = L(p − δ̂1 φ, φ, t1), W2 = L(p + û − δ̂2 φ, φ, t2), J2 = L(p + û, 0, t2); sample 0 is
@@ -286,7 +319,8 @@ def data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio=
     Z2), view z-buffers (S, h, w) of δ̂1 at p and of δ̂2 at p + û (:func:`splat_views`):
     then sample s is kept in light field k where :func:`visible` by Z_k[s] (with
     ``margin``) instead of by the best half; the best half of t2 still gives the residual
-    of the centre test.
+    of the centre test. ``cubic``: W1, W2, J2 and their gradients by :func:`lookup_with_gradient`'s
+    Catmull–Rom (``Params.cubic``), else bilinear.
     """
     samples1 = np.asarray(samples1, np.float64)
     samples2 = np.asarray(samples2, np.float64)
@@ -296,11 +330,10 @@ def data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio=
     d1, d2, u, v = (x_hat[..., k] for k in range(4))
     xj, yj = px + u, py + v
     i1 = samples1[0]
-    j2 = bilinear(samples2[0], xj, yj)
-    gjx, gjy = bilinear_gradient(samples2[0], xj, yj)
+    j2, gjx, gjy = lookup_with_gradient(samples2[0], xj, yj, cubic)
     in_j = inside((h, w), xj, yj)
-    occ1 = visible_half(samples1, phis, px, py, d1, i1, occlusion_ratio)
-    occ2 = visible_half(samples2, phis, xj, yj, d2, i1, occlusion_ratio)
+    occ1 = visible_half(samples1, phis, px, py, d1, i1, occlusion_ratio, cubic)
+    occ2 = visible_half(samples2, phis, xj, yj, d2, i1, occlusion_ratio, cubic)
     keep1 = kept_samples(occ1["best"], occ1["members"])
     keep2 = kept_samples(occ2["best"], occ2["members"])
     if zbufs is not None:
@@ -323,10 +356,8 @@ def data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio=
         lam = weights[s]
         x1, y1 = px - d1 * xi, py - d1 * eta
         x2, y2 = xj - d2 * xi, yj - d2 * eta
-        w1 = bilinear(samples1[s], x1, y1)
-        g1x, g1y = bilinear_gradient(samples1[s], x1, y1)
-        w2 = bilinear(samples2[s], x2, y2)
-        g2x, g2y = bilinear_gradient(samples2[s], x2, y2)
+        w1, g1x, g1y = lookup_with_gradient(samples1[s], x1, y1, cubic)
+        w2, g2x, g2y = lookup_with_gradient(samples2[s], x2, y2, cubic)
         A[0, s] = -(xi * g1x + eta * g1y)
         A[1, s] = i1 - w1
         A[2, s] = -(xi * g2x + eta * g2y)

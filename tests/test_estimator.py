@@ -200,6 +200,27 @@ def test_outlines_keep_their_own_depth_where_the_flow_fails():
     assert np.all(on < 0.75 * off), (on, off)
 
 
+def test_cubic_lookups_leave_smaller_residuals_at_the_true_motion():
+    """``Params.cubic``: linearised at the ground truth of a rendered scene (the texture
+    parts, as a run's last warp has them), the stereo rows at t1 (ρ1 = I1(p) − W1) and
+    the cross-time rows (ρ3 = W1 − W2) are smaller with Catmull–Rom values than with
+    bilinear ones, whose low-pass at fractional positions the warps would otherwise fit
+    (measured 0.88× and 0.86× on `paper` at 160×120). The t2 stereo rows (ρ2 = J2 − W2,
+    both read at fractional positions) grow, 1.17×: docs/accuracy.md."""
+    from lfsf import bench
+
+    means = []
+    for cubic in (False, True):
+        solver, _ = bench._scene_solver((160, 120), "cpu", "paper", Params(cubic=cubic))
+        a, w = solver.data_rows()
+        inner = np.zeros(a.shape[2:], bool)
+        inner[8:-8, 8:-8] = True
+        means.append([np.abs(a[k])[(w[j] > 0) & inner].mean() for k, j in ((1, 0), (6, 2))])
+    (rho1_bilinear, rho3_bilinear), (rho1_cubic, rho3_cubic) = means
+    assert rho1_cubic < 0.93 * rho1_bilinear, (rho1_cubic, rho1_bilinear)
+    assert rho3_cubic < 0.93 * rho3_bilinear, (rho3_cubic, rho3_bilinear)
+
+
 def test_an_exactly_flat_region_is_not_given_the_searches_first_ties():
     """A textureless plane (exactly constant values) over the left half of the image,
     160×120, 5×5 views, the `fast` preset. Every disparity candidate and many flow shifts

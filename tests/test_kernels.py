@@ -432,7 +432,7 @@ def _data_inputs(seed, h=7, w=9):
 
 
 def _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device, occlusion_ratio=0.0, hidden2=None,
-                           zbufs=None):
+                           zbufs=None, cubic=False):
     """The kernel's coefficients as (S, h, w, 12) with the row weights w_k in [9:12] (w_k
     is λ_k where the kernel's row flag is set, else 0), and the column sums.
     ``zbufs``: (Z1, Z2) view z-buffers (S, h, w) to decide visibility by (margin
@@ -461,7 +461,7 @@ def _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device, occ
                [arr(samples1, float, device), arr(samples2, float, device), arr(phis, wp.vec2, device),
                 arr(weights, wp.vec3, device), arr(x_hat, wp.vec4, device), float(occlusion_ratio),
                 arr(hidden2, float, device), arr(z1, float, device), arr(z2, float, device), VIEW_MARGIN,
-                0 if zbufs is None else 1, lanes],
+                0 if zbufs is None else 1, lanes, int(cubic)],
                [coef, flags, grad_j2, colsum, q], device)
         # (h, w, S, 12): the seven stored, A8 and A9 rebuilt from ∇J2 as the kernels do, and the
         # row weights of the flags
@@ -485,15 +485,15 @@ VIEW_MARGIN = 0.25
 
 
 def _check_data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio, device, hidden2=None,
-                             zbufs=None):
+                             zbufs=None, cubic=False):
     """Kernel vs reference: A1…A9, the rows left out (exactly, from the row flags) and the
     column sums. Returns (kernel coef with the row weights in [9:12], reference W,
     reference occlusion details)."""
     coef, colsum = _run_data_coefficients(samples1, samples2, phis, weights, x_hat, device, occlusion_ratio,
-                                          hidden2, zbufs)
+                                          hidden2, zbufs, cubic)
     details = {}
     A, W, want_colsum = ref.data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio, details,
-                                              hidden2, zbufs, VIEW_MARGIN)
+                                              hidden2, zbufs, VIEW_MARGIN, cubic)
     for k in range(9):
         close(coef[..., k], A[k], atol=2e-5)
     for k in range(3):
@@ -611,14 +611,16 @@ def test_visible_asks_every_pixel_the_lookup_reads(device):
         np.testing.assert_array_equal(cost.numpy()[0], 0.0 if seen else 1.0, err_msg=f"{(x, y, d)}")
 
 
-def test_data_coefficients_with_view_zbuffers_match_reference(device):
+@pytest.mark.parametrize("cubic", [False, True])
+def test_data_coefficients_with_view_zbuffers_match_reference(device, cubic):
     """With view z-buffers the samples a nearer point covers are left out, instead of the
     worse half: kernel and reference agree on every row, and the decision differs from
     the best half's on some."""
     samples1, samples2, phis, weights, x_hat = _data_inputs(22)
     zbufs = tuple(np.where(np.isinf(z), -1e30, z).astype(np.float32)
                   for z in (ref.splat_views(x_hat, 0, False, phis), ref.splat_views(x_hat, 1, True, phis)))
-    coef, W, _ = _check_data_coefficients(samples1, samples2, phis, weights, x_hat, 0.7, device, zbufs=zbufs)
+    coef, W, _ = _check_data_coefficients(samples1, samples2, phis, weights, x_hat, 0.7, device, zbufs=zbufs,
+                                          cubic=cubic)
     _, W_half, _ = ref.data_coefficients(samples1, samples2, phis, weights, x_hat, 0.7)
     assert np.any((W[0] > 0) != (W_half[0] > 0)) and np.any((W[1] > 0) != (W_half[1] > 0))
     assert 0.2 < np.mean(W[0, 1:] > 0) < 1.0
@@ -639,9 +641,10 @@ def test_data_coefficients_leave_out_hidden_points(device):
     np.testing.assert_array_equal(coef[..., :10], coef0[..., :10])
 
 
-def test_data_coefficients_match_reference(device):
+@pytest.mark.parametrize("cubic", [False, True])
+def test_data_coefficients_match_reference(device, cubic):
     samples1, samples2, phis, weights, x_hat = _data_inputs(9)
-    coef, W, _ = _check_data_coefficients(samples1, samples2, phis, weights, x_hat, 0.0, device)
+    coef, W, _ = _check_data_coefficients(samples1, samples2, phis, weights, x_hat, 0.0, device, cubic=cubic)
     # the rows whose warps leave the image are switched off
     assert np.all(coef[1:, 0, 0, 9] == 0) and np.all(coef[1:, 0, 0, 11] == 0)
     assert np.all(coef[:, 3, 4, 10] == 0)
@@ -697,7 +700,8 @@ def _consecutive_share(x_hat, phis, lanes=8):
                                            (7, 45, (1, 8, 8)), (11, 37, (1, 16, 24))])
 @pytest.mark.parametrize("use_zbuf, ratio", [(0, 0.0), (0, 0.7), (1, 0.0), (1, 0.7)])
 @pytest.mark.parametrize("fields", ["random", "smooth"])
-def test_data_coefficients_groups_equal_pixel_by_pixel(h, w, samples, use_zbuf, ratio, fields, unknowns):
+@pytest.mark.parametrize("cubic", [0, 1])
+def test_data_coefficients_groups_equal_pixel_by_pixel(h, w, samples, use_zbuf, ratio, fields, cubic, unknowns):
     """On the CPU the coefficients run a group of 8 pixels at once in vector code
     (:data:`lfsf.kernels.data_groups.data_coefficients_groups`); groups cut by the row's
     end, and views of fewer than 4 rows, pixel by pixel. Every output (coefficients, row
@@ -749,7 +753,7 @@ def test_data_coefficients_groups_equal_pixel_by_pixel(h, w, samples, use_zbuf, 
         launch(kernel, (h, columns),
                [arr(samples1, float, "cpu"), arr(samples2, float, "cpu"), arr(phis, wp.vec2, "cpu"),
                 arr(weights, wp.vec3, "cpu"), x_in, ratio, arr(hidden2, float, "cpu"), arr(zbufs[0], float, "cpu"),
-                arr(zbufs[1], float, "cpu"), VIEW_MARGIN, use_zbuf, lanes],
+                arr(zbufs[1], float, "cpu"), VIEW_MARGIN, use_zbuf, lanes, cubic],
                [coef, flags, grad_j2, colsum, q], "cpu")
         runs.append([a.numpy() for a in (coef, flags, grad_j2, colsum, q)])
     assert data_groups.coefficients_kernel(w, lanes)[0] is data_groups.data_coefficients_groups
@@ -1310,7 +1314,7 @@ def test_warp_by_flow_matches_reference(device, unknowns):
     close(out.numpy(), ref.bilinear(img, px + x_hat[..., 2], py + x_hat[..., 3]), atol=1e-6)
 
 
-from lfsf.kernels.common import bilinear_with_gradient  # noqa: E402
+from lfsf.kernels.common import bilinear_with_gradient, lookup_with_gradient  # noqa: E402
 
 
 @wp.kernel
@@ -1319,6 +1323,65 @@ def _value_and_gradient(row0: int, img: wp.array2d(dtype=float), xs: wp.array(dt
     k = wp.tid() + row0
     v, g = bilinear_with_gradient(img, xs[k][0], xs[k][1])
     out[k] = wp.vec3(v, g[0], g[1])
+
+
+@wp.kernel
+def _lookup(row0: int, img: wp.array2d(dtype=float), xs: wp.array(dtype=wp.vec2), cubic: int,
+            out: wp.array(dtype=wp.vec3)):
+    k = wp.tid() + row0
+    v, g = lookup_with_gradient(img, xs[k][0], xs[k][1], cubic)
+    out[k] = wp.vec3(v, g[0], g[1])
+
+
+def _lookup_points(h, w, seed):
+    r = rng(seed)
+    return np.concatenate([
+        r.uniform(-1.5, [w + 0.5, h + 0.5], (200, 2)),           # everywhere, outside included
+        r.uniform(1.0, [w - 2.0, h - 2.0], (100, 2)),            # the 4 × 4 interior
+        [(1.0, 1.0), (w - 2.0, 3.0), (3.0, h - 2.0), (w - 2.0001, h - 2.0001), (0.0, 0.0), (w - 1.0, h - 1.0),
+         (2.0, 3.0)],
+    ]).astype(np.float32)
+
+
+@pytest.mark.parametrize("cubic", [0, 1])
+def test_lookup_with_gradient_matches_reference(device, cubic):
+    """The data term's lookup (``Params.cubic``): Catmull–Rom's value where its 4 × 4
+    pixels lie in the image, the clamped bilinear one elsewhere, and always the
+    central differences of bilinear samples, against the NumPy reference (a Hermite form
+    of the same cubic)."""
+    h, w = 7, 9
+    img = rng(38).random((h, w)).astype(np.float32)
+    pts = _lookup_points(h, w, 39)
+    out = wp.zeros(len(pts), dtype=wp.vec3, device=device)
+    launch(_lookup, len(pts), [arr(img, float, device), arr(pts, wp.vec2, device), cubic], [out], device)
+    want = ref.lookup_with_gradient(img, pts[:, 0], pts[:, 1], bool(cubic))
+    for k in range(3):
+        close(out.numpy()[:, k], want[k], atol=3e-6)
+    if cubic:  # (and it is not the bilinear value)
+        assert np.abs(out.numpy()[:, 0] - ref.bilinear(img, pts[:, 0], pts[:, 1])).max() > 0.01
+
+
+def test_cubic_lookup_reproduces_quadratics(device):
+    """Catmull–Rom interpolation reproduces polynomials of degree 2 in each coordinate
+    (Keys 1981) wherever it reads 4 × 4 pixels; bilinear interpolation does not (it is
+    exact only for bilinear functions)."""
+    h, w = 8, 10
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+
+    def f(x, y):
+        return 0.02 * x * x - 0.03 * x * y + 0.05 * y * y + 0.1 * x - 0.2 * y + 0.001 * x * x * y * y
+
+    img = f(xx, yy).astype(np.float32)
+    pts = rng(40).uniform(1.0, [w - 2.0, h - 2.0], (300, 2)).astype(np.float32)
+    want = f(pts[:, 0].astype(np.float64), pts[:, 1].astype(np.float64))
+    out = wp.zeros(len(pts), dtype=wp.vec3, device=device)
+    for cubic in (1, 0):
+        launch(_lookup, len(pts), [arr(img, float, device), arr(pts, wp.vec2, device), cubic], [out], device)
+        err = np.abs(out.numpy()[:, 0].astype(np.float64) - want).max()
+        if cubic:
+            assert err < 2e-5, err
+        else:
+            assert err > 1e-3, err
 
 
 def test_bilinear_with_gradient_is_bilinear_and_its_gradient(device):
