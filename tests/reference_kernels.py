@@ -319,8 +319,9 @@ def data_coefficients(samples1, samples2, phis, weights, x_hat, occlusion_ratio=
     Z2), view z-buffers (S, h, w) of δ̂1 at p and of δ̂2 at p + û (:func:`splat_views`):
     then sample s is kept in light field k where :func:`visible` by Z_k[s] (with
     ``margin``) instead of by the best half; the best half of t2 still gives the residual
-    of the centre test. ``cubic``: W1, W2, J2 and their gradients by :func:`lookup_with_gradient`'s
-    Catmull–Rom (``Params.cubic``), else bilinear.
+    of the centre test. ``cubic``: the values of W1, W2 and J2 by Catmull–Rom
+    (:func:`lookup_with_gradient`, ``Params.cubic``), else bilinear; the gradients are
+    bilinear samples' central differences either way.
     """
     samples1 = np.asarray(samples1, np.float64)
     samples2 = np.asarray(samples2, np.float64)
