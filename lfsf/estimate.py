@@ -834,7 +834,8 @@ def _surface_block_cost(centre1, centre2, x, params: Params, device: str, out=No
     return out
 
 
-def _fit_surface_motion(x, centre1, centre2, samples2, phis, hidden, params: Params, device: str) -> None:
+def _fit_surface_motion(x, centre1, centre2, samples2, phis, hidden, params: Params, device: str,
+                        floor: float | None = None) -> None:
     """Per pixel, keep the flow and δ2 of x (the unknowns, a vec4 (h, w) device array,
     fused in place) or take those of its surface's motion fitted from the neighbours
     whose match is trusted (:func:`lfsf.kernels.occlusion.surface_motion_fit`), whichever
@@ -850,13 +851,15 @@ def _fit_surface_motion(x, centre1, centre2, samples2, phis, hidden, params: Par
     disparity at t2, and the warps cannot pull the pair back (a plane receding by 20 %:
     its right rim, 2–3 px, moved with the backdrop). The estimator runs it on the
     finest level before its last warp, which refines what it carried over, and at the
-    end (``Params.surface_fit``)."""
+    end (``Params.surface_fit``). ``floor``: :func:`_match_floor` of ``centre1`` where the
+    caller has it (None: computed here)."""
     from lfsf.kernels import fusion, occlusion
 
     wp = _device.warp()
     shape = x.shape
     stride = max(1, int(round(shape[1] / SURFACE_FIT_WIDTH)))
-    floor = _match_floor(centre1)
+    if floor is None:
+        floor = _match_floor(centre1)
     fit = wp.empty_like(x)
     cur = wp.empty(shape, dtype=float, device=device)
     new = wp.empty(shape, dtype=float, device=device)
@@ -882,11 +885,12 @@ def _fit_surface_motion(x, centre1, centre2, samples2, phis, hidden, params: Par
         _take_better_disparity(x, 1, samples2, phis, fitted2, params, device, hidden)
 
 
-def _fit_solver_surfaces(solver, centres, searched_hidden, params: Params, device: str) -> None:
+def _fit_solver_surfaces(solver, centres, searched_hidden, params: Params, device: str,
+                         floor: float | None = None) -> None:
     """:func:`_fit_surface_motion` on a level solver's unknowns, with the level's centre
-    views (``centres``, (2, h, w)); never where the point is hidden at t2, by the
-    solver's last test (``hidden2``) or by the searches' (``searched_hidden``, float
-    (h, w), or None)."""
+    views (``centres``, (2, h, w)) and their ``floor`` (:func:`_match_floor`; None:
+    computed there); never where the point is hidden at t2, by the solver's last test
+    (``hidden2``) or by the searches' (``searched_hidden``, float (h, w), or None)."""
     from lfsf.kernels import fusion
 
     wp = _device.warp()
@@ -895,7 +899,8 @@ def _fit_solver_surfaces(solver, centres, searched_hidden, params: Params, devic
     _device.launch_rows(fusion.either_above, dim=shape,
                         inputs=[solver.hidden2, 0.5, solver.hidden2 if searched_hidden is None else searched_hidden, 0.5],
                         outputs=[hidden], device=device)
-    _fit_surface_motion(solver.x, centres[0], centres[1], solver.samples2, solver.phis, hidden, params, device)
+    _fit_surface_motion(solver.x, centres[0], centres[1], solver.samples2, solver.phis, hidden, params, device,
+                        floor)
 
 
 def _take_better_disparity(x, component: int, samples, phis, candidate, params: Params, device: str,
@@ -1239,9 +1244,12 @@ def estimate_scene_flow(
         lap("setup")
         # each surface's motion carried to its rim (Params.surface_fit), on the finest level
         fit_surfaces = level == 0 and params.surface_fit and not solver.flow_only
+        late_search = level == 0 and search and params.late_search
+        # the t1 centre view's match floor (a read back to the host), once for the level
+        floor = _match_floor(cen[0]) if fit_surfaces or late_search else None
         for k in range(params.warps):
             if level == 0 and k == params.warps - 1 and k > 0:
-                if search and params.late_search:
+                if late_search:
                     # the plane sweep's maps once more (Params.late_search): through the
                     # cross-time rows a wrong flow at an outline drags δ1 and δ2 to the
                     # other surface's depth over the warps. Only where the flow does not
@@ -1251,15 +1259,14 @@ def estimate_scene_flow(
                     # last warp refines what this takes.
                     matched = wp.empty((h, w), dtype=float, device=dev)
                     _device.launch_rows(fusion.at_most, dim=(h, w),
-                                        inputs=[_surface_block_cost(cen[0], cen[1], solver.x, params, dev),
-                                                _match_floor(cen[0])],
+                                        inputs=[_surface_block_cost(cen[0], cen[1], solver.x, params, dev), floor],
                                         outputs=[matched], device=dev)
                     _fuse_disparities(solver.x, solver.samples1, solver.samples2, solver.phis, found[0], found[1],
                                       params, dev, matched, LATE_SEARCH_MARGIN)
                     lap("search")
                 if fit_surfaces:
                     # before the last warp too, which then refines what it carried over
-                    _fit_solver_surfaces(solver, cen, hidden_here, params, dev)
+                    _fit_solver_surfaces(solver, cen, hidden_here, params, dev, floor)
                     lap("median")
             solver.linearise()
             lap("linearise")
@@ -1282,7 +1289,7 @@ def estimate_scene_flow(
             solver.median()
             lap("median")
             if fit_surfaces:
-                _fit_solver_surfaces(solver, cen, hidden_here, params, dev)
+                _fit_solver_surfaces(solver, cen, hidden_here, params, dev, floor)
                 lap("median")
         if level > 0:
             fh, fw = sizes[level - 1]
