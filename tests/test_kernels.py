@@ -1334,12 +1334,14 @@ def _lookup(row0: int, img: wp.array2d(dtype=float), xs: wp.array(dtype=wp.vec2)
 
 
 def _lookup_points(h, w, seed):
+    """Positions (x, y) to look an h × w image up at: anywhere (outside included), in the
+    unclamped interior, and on its bounds."""
     r = rng(seed)
     return np.concatenate([
         r.uniform(-1.5, [w + 0.5, h + 0.5], (200, 2)),           # everywhere, outside included
-        r.uniform(1.0, [w - 2.0, h - 2.0], (100, 2)),            # the 4 × 4 interior
+        r.uniform(1.0, [w - 2.0, h - 2.0], (100, 2)),            # the interior (the fast path, 4 × 4 pixels)
         [(1.0, 1.0), (w - 2.0, 3.0), (3.0, h - 2.0), (w - 2.0001, h - 2.0001), (0.0, 0.0), (w - 1.0, h - 1.0),
-         (2.0, 3.0)],
+         (2.0, 3.0)],                                            # the interior's bounds, corners, a whole pixel
     ]).astype(np.float32)
 
 
@@ -1390,12 +1392,7 @@ def test_bilinear_with_gradient_is_bilinear_and_its_gradient(device):
     differences of the interpolant, in the interior, at the borders and outside."""
     h, w = 6, 8
     img = rng(36).random((h, w)).astype(np.float32)
-    r = rng(37)
-    pts = np.concatenate([
-        r.uniform(-1.5, [w + 0.5, h + 0.5], (200, 2)),           # everywhere, outside included
-        r.uniform(1.0, [w - 2.0, h - 2.0], (100, 2)),            # the fast path
-        [(1.0, 1.0), (w - 2.0, 3.0), (3.0, h - 2.0), (w - 2.0001, h - 2.0001), (0.0, 0.0), (w - 1.0, h - 1.0)],
-    ]).astype(np.float32)
+    pts = _lookup_points(h, w, 37)
     out = wp.zeros(len(pts), dtype=wp.vec3, device=device)
     launch(_value_and_gradient, len(pts), [arr(img, float, device), arr(pts, wp.vec2, device)], [out], device)
     got = out.numpy()
