@@ -1,5 +1,7 @@
 """What counts as bad input, in one place."""
 
+import argparse
+
 #: The exceptions that mean bad input (a missing, unreadable or malformed file, a wrong
 #: setting, an output path that cannot be written: a file where a folder should be, a
 #: name too long, no permission): the CLI reports them in one line with exit status 2,
@@ -45,3 +47,12 @@ def interrupted(exc: BaseException) -> bool:
         seen.add(id(exc))
         exc = exc.__cause__ or exc.__context__
     return False
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse, with usage errors reported like every other bad input: one line
+    ``PROG: error: …`` (pointing to ``--help`` for the usage) and status 2. The ``lfsf``
+    commands and the scripts parse their options with it."""
+
+    def error(self, message):
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} ({self.prog} --help lists the options)\n")

@@ -124,10 +124,14 @@ def pairs_from_sources(sources: Sequence[str | os.PathLike], out: str | os.PathL
         raise ValueError("give at least one manifest CSV or folder of frames")
     out = None if out is None else Path(out).absolute()
     pairs: list[Pair] = []
+    given: set[Path] = set()
     for source in sources:
         path = Path(source).absolute()  # workers on other machines see the same names
         if not path.exists():
             raise FileNotFoundError(f"{path}: no such manifest or folder")
+        if path.resolve() in given:
+            raise ValueError(f"{path}: given twice; every pair would be estimated twice into one folder")
+        given.add(path.resolve())
         if path.is_dir() and out is not None and _within(path, out):
             raise ValueError(f"{out}: the output folder must not be the folder of frames {path} itself (or "
                              "inside one of its frames): the results would be read as frames")

@@ -13,16 +13,11 @@ import time
 import warnings
 from pathlib import Path
 
-from lfsf._errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, run_script
+from lfsf._errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, ArgumentParser, run_script
 from lfsf._files import output_file, output_folder
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse, with usage errors reported like every other bad input (status 2)."""
-
-    def error(self, message):  # pragma: no cover - exercised through main()
-        self.print_usage(sys.stderr)
-        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message}\n")
+_Parser = ArgumentParser
 
 
 def _log(args, message: str) -> None:
@@ -278,7 +273,7 @@ def cmd_demo(args) -> int:
     synth.check_render(args.size, args.grid, colour=args.colour)  # before any work
     width, height = args.size
     if min(width, height) <= 2 * SYNTH_BORDER:
-        raise ValueError(f"--size {width} {height}: the demo's errors leave out a {SYNTH_BORDER}-px border; "
+        raise ValueError(f"--size {width} {height}: the demo's errors leave out a border of {SYNTH_BORDER} px; "
                          f"give at least {2 * SYNTH_BORDER + 1} px each way")
     out = output_folder(args.out, create=False, names=_result_names())
     _say(args, f"lfsf demo: scene '{args.scene}', {width}×{height}, {args.grid}×{args.grid} "
@@ -383,7 +378,7 @@ def cmd_bench(args) -> int:
         from lfsf.evaluate import SYNTH_BORDER
 
         if min(size) <= 2 * SYNTH_BORDER:
-            raise ValueError(f"--size {size[0]} {size[1]}: the errors leave out a {SYNTH_BORDER}-px border; "
+            raise ValueError(f"--size {size[0]} {size[1]}: the errors leave out a border of {SYNTH_BORDER} px; "
                              f"give at least {2 * SYNTH_BORDER + 1} px each way")
     say = (lambda m: None) if args.quiet else (lambda m: _log(args, f"lfsf bench {args.kind}: {m}"))
     if args.kind == "pipeline":
@@ -483,7 +478,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--views", type=_positive, metavar="N",
                    help="N×N views spanning one lens pitch, at most the pitch rounded up (default: the largest "
                         "odd N not above the pitch)")
-    p.add_argument("--bayer", type=str.upper, choices=("RGGB", "BGGR", "GRBG", "GBRG", "NONE"),
+    p.add_argument("--bayer", type=lambda text: "none" if text.lower() == "none" else text.upper(),
+                   choices=("RGGB", "BGGR", "GRBG", "GBRG", "none"),
                    metavar="{RGGB,BGGR,GRBG,GBRG,none}",
                    help="Bayer pattern of a colour sensor (default: from the file's metadata; none: grey)")
     p.add_argument("--flip", action="store_true", help="negate the angular axes (optics that invert micro-images)")
@@ -495,7 +491,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "print the error table and write an overview picture.")
     p.add_argument("--scene", default="paper", help="scene name (see 'lfsf synth --list'; default paper)")
     p.add_argument("--size", nargs=2, type=_size, metavar=("W", "H"), default=(320, 240),
-                   help="view size (default 320 240)")
+                   help="view size (default 320 240; at least 17 each way: the errors leave out an 8-px border)")
     p.add_argument("--grid", type=_positive, default=9, metavar="N", help="N×N views (default 9)")
     p.add_argument("--colour", action="store_true",
                    help="RGB views (default grey): the estimate then also takes δ1's diffusion tensor from the "
@@ -527,7 +523,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "peers: flow-only lfsf, scene flow, OpenCV DualTVL1 and skimage TV-L1 with EPE.")
     p.add_argument("kind", nargs="?", default="pipeline", choices=("kernels", "pipeline", "peers"),
                    help="what to measure (default pipeline)")
-    p.add_argument("--size", nargs=2, type=_size, metavar=("W", "H"), help="view size (default 640 480)")
+    p.add_argument("--size", nargs=2, type=_size, metavar=("W", "H"),
+                   help="view size (default 640 480; pipeline and peers: at least 17 each way, their errors leave "
+                        "out an 8-px border)")
     p.add_argument("--repeats", type=_repeats, help="timed runs, at most 1000 (default 3; kernels 20)")
     p.add_argument("--inputs", choices=("scene", "random"),
                    help="kernels: what they run on, the arrays of a rendered scene's last warp (default) or "

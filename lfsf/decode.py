@@ -327,7 +327,11 @@ def _read_rawpy(path: Path) -> RawImage:
             black = np.asarray(raw.black_level_per_channel, np.float64)
             white = float(raw.white_level or data.max() or 1.0)
     except Exception as err:        # LibRaw errors for anything it does not know
-        raise ValueError(f"{path}: cannot read as a raw image ({type(err).__name__}: {err})") from err
+        kind = type(err).__name__
+        reason = {"LibRawFileUnsupportedError": "not a raw format that LibRaw knows",
+                  "LibRawIOError": "LibRaw could not read it: not a raw image, or a truncated one"}.get(kind)
+        raise ValueError(f"{path}: cannot read as a raw image "
+                         f"({reason + f'; {kind}' if reason else f'{kind}: {err}'})") from err
     bayer = None
     if pattern is not None and pattern.shape == (2, 2) and len(desc) >= 3:
         letters = "".join(desc[int(k)] for k in pattern.ravel()).upper()   # color_desc e.g. "RGBG"

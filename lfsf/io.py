@@ -1179,6 +1179,8 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
         if first_line.startswith("Could not find a backend"):
             # imageio's multi-line advice to install a video plugin does not apply
             reason = "no image format recognised"
+        elif isinstance(err, struct.error):  # a decoder's header read ran past the end
+            reason = "the file ends inside its header: truncated, or not an image"
         else:
             reason = f"{type(err).__name__}: {first_line}" if first_line else type(err).__name__
         raise ValueError(f"{path}: cannot read image ({reason})") from err

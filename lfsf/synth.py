@@ -260,6 +260,8 @@ def load_images(folder: str | Path) -> list[np.ndarray]:
     from lfsf.io import read_image
 
     folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"{folder}: not a folder; give the folder that holds the images")
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: no such folder of images")
     files = sorted(f for f in folder.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES)

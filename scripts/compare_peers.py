@@ -66,6 +66,7 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 DEFAULT_DATA = ROOT.parent / "shared" / "data"
 
+from lfsf._errors import ArgumentParser  # noqa: E402  (usage errors in one line)
 from lfsf import peers  # noqa: E402  (the peer wrappers)
 from lfsf._files import write_json_atomic  # noqa: E402
 
@@ -489,8 +490,8 @@ def real_table(rows) -> str:
 # ------------------------------------------------------------------------------ main
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(description=__doc__.split("\n\n")[0],
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--size", nargs=2, type=int, default=[160, 120], metavar=("W", "H"),
                    help="size of the synthetic views (default 160 120)")
     p.add_argument("--grid", type=int, default=9, help="views per side (default 9)")

@@ -34,6 +34,7 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+from lfsf._errors import ArgumentParser  # noqa: E402  (usage errors in one line)
 
 from compare_peers import selected_scenes  # noqa: E402  (the same scene selection)
 
@@ -42,8 +43,8 @@ STEPS = {"colour": ("colour_median_radius", True), "depth": ("depth_change_radiu
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(description=__doc__.split("\n\n")[0],
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--step", choices=sorted(STEPS), required=True, help="which step to measure")
     p.add_argument("--colour", action="store_true", help="RGB renderings (always for --step colour)")
     p.add_argument("--size", nargs=2, type=int, default=[160, 120], metavar=("W", "H"),

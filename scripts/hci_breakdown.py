@@ -38,6 +38,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from lfsf._errors import ArgumentParser  # noqa: E402  (usage errors in one line)
 
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "hci-antinous"
 BORDER = 15
@@ -48,8 +49,8 @@ REGIONS = (("wedge", slice(150, 225), slice(283, 335)),
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(description=__doc__.split("\n\n")[0],
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("data", nargs="?", default=str(DATA), help=f"the HCI folder (default {DATA})")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="a Params setting, VALUE as JSON (repeatable)")

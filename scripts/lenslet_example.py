@@ -24,13 +24,13 @@ The same steps on the command line, after step 1:
 
 from __future__ import annotations
 
-import argparse
 import math
 import time
 from pathlib import Path
 
 import numpy as np
 
+from lfsf._errors import ArgumentParser  # noqa: E402  (usage errors in one line)
 from lfsf import synth
 from lfsf._errors import run_script
 from lfsf._files import output_folder, savez_atomic
@@ -52,7 +52,7 @@ def _bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("out", type=Path)
     ap.add_argument("--scene", default="paper")
     ap.add_argument("--size", nargs=2, type=int, default=(160, 120), metavar=("W", "H"))

@@ -42,13 +42,14 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from lfsf._errors import ArgumentParser  # noqa: E402  (usage errors in one line)
 
 FIGURES = (("δ1 MSE", "disp1", "mse"), ("δ2 MSE", "disp2", "mse"), ("EPE", "flow", "epe"))
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(description=__doc__.split("\n\n")[0],
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("scenes", nargs="*", help="scene names (default: the built-in scenes)")
     p.add_argument("--size", type=int, nargs=2, default=(160, 120), metavar=("W", "H"))
     p.add_argument("--grid", type=int, default=9, help="views per side (default 9)")

@@ -23,6 +23,7 @@ import collections
 import sys
 import time
 from pathlib import Path
+from lfsf._errors import ArgumentParser  # noqa: E402  (usage errors in one line)
 
 
 class KernelTimes:
@@ -119,7 +120,7 @@ def table(report: dict) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scene", default="paper", help="a built-in scene or random-SEED (default paper)")
     p.add_argument("--size", type=int, nargs=2, default=(640, 480), metavar=("W", "H"))
     p.add_argument("--preset", default="paper")

@@ -11,10 +11,10 @@ pair has no predecessor, so it is the same in every mode and left out of the med
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import time
 
+from lfsf._errors import ArgumentParser  # noqa: E402  (usage errors in one line)
 from lfsf import synth
 from lfsf._errors import run_script
 from lfsf._files import output_file, write_json_atomic
@@ -46,7 +46,7 @@ def run(scene: str, frames: int, size, preset: str, warm_levels: list[int], devi
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scene", default="paper")
     ap.add_argument("--frames", type=int, default=5)
     ap.add_argument("--size", nargs=2, type=int, default=(320, 240), metavar=("W", "H"))

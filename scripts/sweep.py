@@ -34,7 +34,6 @@ defaults, tuned on the solid textures, are weakest (docs/accuracy.md).
 
 from __future__ import annotations
 
-import argparse
 import ast
 import itertools
 import math
@@ -44,6 +43,7 @@ import zlib
 
 import numpy as np
 
+from lfsf._errors import ArgumentParser  # noqa: E402  (usage errors in one line)
 import lfsf
 from lfsf import evaluate, synth
 from lfsf._errors import run_script
@@ -139,7 +139,7 @@ def geomean(values) -> float:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", nargs=2, type=int, default=(160, 120), metavar=("W", "H"))
     ap.add_argument("--grid", dest="views", type=int, default=9, help="N×N views")
     ap.add_argument("--scenes", nargs="*", default=None)

@@ -149,6 +149,14 @@ def test_bad_manifest_is_a_clear_error(tmp_path, rows, message):
         batch.pairs_from_sources([path])
 
 
+def test_a_source_given_twice_is_refused(tmp_path):
+    """Every pair would be named twice; the error said to name them in a manifest's third
+    column, which they already were."""
+    path = _manifest(tmp_path / "m.csv", [("a.npz", "b.npz", "first")])
+    with pytest.raises(ValueError, match=re.escape(f"{path}: given twice")):
+        batch.pairs_from_sources([path, tmp_path / "." / "m.csv"])
+
+
 def test_a_manifest_saved_with_a_byte_order_mark_reads_its_header(tmp_path):
     """Excel's "CSV UTF-8" starts with a BOM: the header was read as a pair ('\ufefft1')."""
     path = tmp_path / "m.csv"

@@ -26,7 +26,7 @@ def assert_clean_error(status, err, *needles):
     assert status == 2, err
     assert "Traceback" not in err
     lines = [ln for ln in err.strip().splitlines() if ln.strip()]
-    assert lines and "error:" in lines[-1], err
+    assert len(lines) == 1 and "error:" in lines[0], err
     for needle in needles:
         assert needle in err, (needle, err)
 
@@ -209,9 +209,19 @@ def test_eval_of_a_flow_only_result_leaves_its_zero_disparities_out(tmp_path, ca
         (["eval", "{tmp}/r", "{tmp}/gt.npz", "--json", "{tmp}/new/"], ["names a folder, not a file"]),
         (["bench", "kernels", "--json", "{tmp}/new/"], ["names a folder, not a file"]),
         (["bench", "kernels", "--repeats", "100000"], ["at most 1000 timed runs"]),
+        # argparse's own errors: one line too, not the usage block before it
+        (["run", "{tmp}/a.npz", "{tmp}/b.npz"], ["required: --out", "lfsf run --help"]),
+        (["synth", "paper", "--out", "{tmp}/x", "--size", "-80", "60"], ["at least 8 pixels, got -80"]),
+        (["decode", "{tmp}/a.npz", "--white", "{tmp}/a.npz", "--out", "{tmp}/x", "--bayer", "CMYK"],
+         ["invalid choice: 'CMYK'", "'none'"]),
+        (["synth", "paper", "--out", "{tmp}/x", "--images", "{tmp}/a.npz"], ["a.npz: not a folder"]),
+        (["decode", "{tmp}/text.raw", "--white", "{tmp}/text.raw", "--out", "{tmp}/x"],
+         ["text.raw: cannot read as a raw image (LibRaw could not read it"]),
     ],
 )
 def test_bad_input_is_one_clear_line_and_status_2(tmp_path, args, needles):
+    (tmp_path / "a.npz").write_bytes(b"")
+    (tmp_path / "text.raw").write_text("not a raw image\n")
     status, _, err = lfsf(*[a.format(tmp=tmp_path) for a in args])
     assert_clean_error(status, err, *needles)
     assert not (tmp_path / "x").exists() and not (tmp_path / "r").exists()

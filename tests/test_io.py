@@ -430,7 +430,9 @@ def test_corrupt_png_names_the_file(tmp_path):
     bad_crc = bytearray(good)
     bad_crc[40] ^= 0xFF                                          # inside IDAT
     cases = {"crc.png": (bytes(bad_crc), "CRC"), "short.png": (good[:60], "truncated"),
-             "junk.png": (b"not a png at all", "cannot read")}
+             "junk.png": (b"not a png at all", "cannot read"),
+             # two bytes: Pillow's header read raised struct.error ("unpack_from requires a buffer …")
+             "two.png": (b"xx", r"cannot read image \(the file ends inside its header: truncated, or not an image\)")}
     for name, (data, problem) in cases.items():
         (tmp_path / name).write_bytes(data)
         with pytest.raises(ValueError, match=f"{name}: .*{problem}"):
