@@ -17,9 +17,6 @@ from lfsf._errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, ArgumentParser, run_s
 from lfsf._files import output_file, output_folder
 
 
-_Parser = ArgumentParser
-
-
 def _log(args, message: str) -> None:
     if not getattr(args, "quiet", False):
         print(message, file=sys.stderr, flush=True)
@@ -417,9 +414,9 @@ def _estimator_options(p) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="lfsf", description="Scene flow from light fields (Heber & Pock, GCPR 2014).")
+    parser = ArgumentParser(prog="lfsf", description="Scene flow from light fields (Heber & Pock, GCPR 2014).")
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=ArgumentParser)
 
     p = sub.add_parser("synth", help="render a synthetic light-field pair with exact ground truth",
                        description="Render SCENE at t1 and t2 into DIR/lf1.npz, DIR/lf2.npz and its "
