@@ -41,6 +41,12 @@ class SceneFlow:
         Where t2's views were matched to t1's exposure (``Params.match_exposure``): they
         were replaced by g·L2 + b (intensities after any stretch to [0, 1]); None where
         they were used as given.
+    occluded : bool (H, W) or None
+        The points of the t1 centre view that the estimate does not see in the centre view
+        at t2: hidden there by a nearer point, or carried out of the image by their flow
+        (:meth:`lfsf.solver.LevelSolver.occluded_at`). No view observes their δ2 and flow,
+        which are filled in from their own surface's motion. None for flow only (no depth
+        to tell which point is nearer).
     """
 
     disp1: np.ndarray
@@ -52,6 +58,7 @@ class SceneFlow:
     device: str
     timings: dict = field(default_factory=dict)
     exposure: tuple[float, float] | None = None
+    occluded: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         # the maps as the files promise them (float32 H×W, one shape), whoever made this
@@ -67,6 +74,12 @@ class SceneFlow:
                 raise ValueError(f"SceneFlow: {name} is {maps[name].shape}, disp1 {maps['disp1'].shape}: the maps "
                                  "must have one shape")
             setattr(self, name, maps[name])
+        if self.occluded is not None:
+            occluded = np.asarray(self.occluded)
+            if occluded.dtype != bool or occluded.shape != maps["disp1"].shape:
+                raise ValueError(f"SceneFlow: occluded must be a bool map of the maps' shape {maps['disp1'].shape}, "
+                                 f"got {occluded.dtype} {occluded.shape}")
+            self.occluded = occluded
         if not isinstance(self.params, Params):
             raise ValueError(f"SceneFlow: params must be an lfsf.Params (the settings used), got "
                              f"{type(self.params).__name__}")
@@ -103,8 +116,9 @@ class SceneFlow:
             io.write_flo(tmp / "flow.flo", np.stack([self.u, self.v], -1))
             meta = {"params": self.params.as_dict(), "radius_used": self.radius, "device": self.device,
                     "timings": self.timings, "exposure": self.exposure}
+            extra = {} if self.occluded is None else {"occluded": self.occluded}
             with open(tmp / "sceneflow.npz", "wb") as f:
-                np.savez_compressed(f, **self.as_dict(), params=np.str_(json.dumps(meta)))
+                np.savez_compressed(f, **self.as_dict(), **extra, params=np.str_(json.dumps(meta)))
             lo, hi = _colour_range(self.disp1, self.disp2)
             for name in ("disp1", "disp2"):
                 viz.save_png(tmp / f"{name}.png", viz.disparity_to_color(getattr(self, name), lo, hi))
@@ -1312,9 +1326,11 @@ def estimate_scene_flow(
         x = _colour_edges(x, colour, params, dev)
         lap("median")
 
+    occluded = None if solver.flow_only else solver.occluded_at(x)
     return SceneFlow(
         disp1=x[..., 0].copy(), disp2=x[..., 1].copy(), u=x[..., 2].copy(), v=x[..., 3].copy(),
         params=requested, radius=float(radius), device=dev, timings=timings, exposure=exposure,
+        occluded=occluded,
     )
 
 

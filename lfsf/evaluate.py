@@ -12,7 +12,9 @@ Where the ground truth marks the points hidden at t2 (``occluded``, as ``lfsf sy
 writes it), δ2 and the flow are also scored over the points seen at t2 as well
 (``disp2_noc``, ``flow_noc``; "noc" as in KITTI's non-occluded figures): of a point the
 t2 frame hides, no view at t2 shows the motion, so the two sets tell apart the errors
-of matching and of filling in.
+of matching and of filling in. Where the estimate marks them too (``SceneFlow.occluded``,
+the key ``occluded`` of ``sceneflow.npz``), its mask is scored against the ground
+truth's: precision, recall and F1 (:func:`occlusion_scores`).
 """
 
 from __future__ import annotations
@@ -151,9 +153,12 @@ def evaluate(estimate, gt: dict, border: int = SYNTH_BORDER) -> dict[str, dict[s
     zeros, not estimates, as :func:`load_estimate` drops them from a saved one."""
     if hasattr(estimate, "as_dict"):
         params = getattr(estimate, "params", None)
+        occluded = getattr(estimate, "occluded", None)
         estimate = estimate.as_dict()
         if getattr(params, "circles", None) == 1:
             estimate = {k: estimate[k] for k in ("u", "v")}
+        if occluded is not None:
+            estimate["occluded"] = occluded
     for name, maps in (("estimate", estimate), ("ground truth", gt)):
         if not isinstance(maps, Mapping):     # (a string passed the `in` tests by substring)
             raise ValueError(f"the {name} must be a dict of maps{' or a SceneFlow' if name == 'estimate' else ''} "
@@ -183,7 +188,32 @@ def evaluate(estimate, gt: dict, border: int = SYNTH_BORDER) -> dict[str, dict[s
                     out[name + "_noc"] = score(*(estimate[k] for k in maps), *(gt[k] for k in maps), seen, border)
                 except ValueError:  # every point evaluated is hidden at t2: nothing to add
                     pass
+    if "occluded" in estimate and gt.get("occluded") is not None:
+        out["occluded"] = occlusion_scores(estimate["occluded"], gt["occluded"], valid, border)
     return out
+
+
+def occlusion_scores(est, gt, valid=None, border: int = 0) -> dict[str, float]:
+    """How an estimate's mask of the points not seen at t2 (``occluded``, bool) meets the
+    ground truth's, over the ``valid`` pixels without ``border``: precision (the share of
+    the points marked that are occluded), recall (the share of the occluded points
+    marked), their harmonic mean F1, and the pixels scored. Where either side marks none,
+    the share it divides by is 0 and so is the score (1 where both mark none)."""
+    est = _bool_mask(est, "estimate's occluded").astype(bool)
+    gt = _bool_mask(gt, "occluded").astype(bool)
+    if est.shape != gt.shape:
+        raise ValueError(f"the occluded masks differ in shape: estimate {est.shape}, ground truth {gt.shape}")
+    mask = _mask(gt.shape, valid, border, np.ones(gt.shape, bool))
+    e, g = est[mask], gt[mask]
+    hits = int(np.count_nonzero(e & g))
+    marked, occluded = int(np.count_nonzero(e)), int(np.count_nonzero(g))
+    if marked == 0 and occluded == 0:
+        precision = recall = f1 = 1.0
+    else:
+        precision = hits / marked if marked else 0.0
+        recall = hits / occluded if occluded else 0.0
+        f1 = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
+    return {"precision": precision, "recall": recall, "f1": f1, "pixels": int(mask.sum())}
 
 
 def load_estimate(path: str | Path) -> dict[str, np.ndarray]:
@@ -209,7 +239,7 @@ def load_estimate(path: str | Path) -> dict[str, np.ndarray]:
         return out
     suffix = path.suffix.lower()
     if suffix == ".npz":
-        out = _load_npz(path, VARIABLES)
+        out = _load_npz(path, VARIABLES + ("occluded",))
         if flow_only(path):     # its δ1 and δ2 are zeros, not estimates: scored they read as failures
             out.pop("disp1", None)
             out.pop("disp2", None)
@@ -296,7 +326,7 @@ def format_table(errors: dict[str, dict[str, float]]) -> str:
     is one, right under its variable's)."""
     lines = [f"{'variable':<9} {'MSE':>10} {'MSE×100':>9} {'BadPix.07':>9} {'EPE':>8} {'pixels':>8}"]
     order = [n for base in ("disp1", "disp2", "flow") for n in (base, base + "_noc") if n in errors]
-    for name in order + [n for n in errors if n not in order]:
+    for name in order + [n for n in errors if n not in order and n != "occluded"]:
         e = errors[name]
         if name == "flow_noc":
             lines.append(f"{'flow noc':<9} {'':>10} {'':>9} {'':>9} {e['epe']:>8.4f} {e['pixels']:>8d}")
@@ -310,4 +340,8 @@ def format_table(errors: dict[str, dict[str, float]]) -> str:
                          f"{'':>8} {e['pixels']:>8d}")
     if any(name.endswith("_noc") for name in errors):
         lines.append("noc: the points seen at t2 as well (the ground truth's 'occluded' left out)")
+    if "occluded" in errors:
+        e = errors["occluded"]
+        lines.append(f"occluded at t2: precision {e['precision']:.3f}, recall {e['recall']:.3f}, "
+                     f"F1 {e['f1']:.3f} over {e['pixels']} px")
     return "\n".join(lines)

@@ -346,6 +346,29 @@ class LevelSolver:
         return self.find_hidden_at(wp.array(np.ascontiguousarray(x, np.float32), dtype=wp.vec4,
                                             device=self.device)).numpy() > 0.5
 
+    def occluded_at(self, x: np.ndarray) -> np.ndarray:
+        """Where the points of an estimate x (h, w, 4) are not seen in the centre view at
+        t2, as a bool (h, w) array: hidden by a nearer point (:meth:`find_hidden`'s
+        z-buffer test with ``params.occlusion_margin``, without its spread over the
+        surface, which the estimator wants cautious and a result wants exact) or carried
+        out of the image by their flow, as the synthetic ground truth's ``occluded``.
+        Leaves the solver's state as it was but for x̂ and ``hidden2``, which
+        :meth:`linearise` sets afresh. Not defined for flow only (no depth): ValueError."""
+        from lfsf.kernels import fusion, occlusion
+
+        wp = _device.warp()
+        if self.flow_only:
+            raise ValueError("occluded_at needs the disparities: flow only estimates none")
+        self.x_hat.assign(np.ascontiguousarray(x, np.float32))
+        self.zbuf.fill_(occlusion.EMPTY)
+        _device.launch_rows(occlusion.splat_depth, dim=self.shape, inputs=[self.x_hat], outputs=[self.zbuf],
+                            device=self.device, bands=1)  # atomics: one launch
+        self._launch(occlusion.hidden_at_t2, inputs=[self.x_hat, self.zbuf, float(self.params.occlusion_margin)],
+                     outputs=[self.scratch1])
+        self._launch(fusion.hidden_or_leaving, inputs=[self.scratch1, self.x_hat], outputs=[self.hidden2])
+        wp.synchronize_device(self.device)
+        return self.hidden2.numpy() > 0.5
+
     def find_hidden_at(self, x):
         """:meth:`hidden_at_t2` on the device: x, the unknowns (δ1, δ2, u, v) as a vec4
         (h, w) device array; returns ``hidden2`` (float, 1 where hidden), which holds until

@@ -56,6 +56,36 @@ def test_flow_end_point_error_by_hand():
     assert e["mse_v"] == pytest.approx(16 / 6)
 
 
+def test_an_estimates_occlusion_mask_is_scored_against_the_ground_truths():
+    """``occluded`` in the estimate as well: precision, recall and F1 over the valid
+    pixels without the border, counted by hand; both empty is a perfect score, one empty
+    scores 0; a mask that is not bool (or 0 and 1) is an error."""
+    z = np.zeros((6, 7))
+    gt_occ = np.zeros((6, 7), bool)
+    gt_occ[1:3, 1:4] = True  # 6 px
+    est_occ = np.zeros((6, 7), bool)
+    est_occ[2:4, 1:4] = True  # 6 px, 3 of them right
+    est_occ[0, 0] = True  # in the border: not scored
+    valid = np.ones((6, 7), bool)
+    valid[3, 3] = False  # a wrong mark, not valid: not scored
+    gt = {"u": z, "v": z, "valid": valid, "occluded": gt_occ}
+    out = E.evaluate({"u": z, "v": z, "occluded": est_occ}, gt, border=0)["occluded"]
+    assert out == E.occlusion_scores(est_occ, gt_occ, valid, 0)
+    assert out["precision"] == pytest.approx(3 / 6) and out["recall"] == pytest.approx(3 / 6)
+    assert out["pixels"] == 41
+    inner = E.occlusion_scores(est_occ, gt_occ, valid, 1)
+    assert inner["precision"] == pytest.approx(3 / 5) and inner["recall"] == pytest.approx(3 / 6)
+    assert inner["f1"] == pytest.approx(2 * 0.6 * 0.5 / 1.1) and inner["pixels"] == 19
+    none = np.zeros((6, 7), bool)
+    assert E.occlusion_scores(none, none)["f1"] == 1.0
+    assert E.occlusion_scores(none, gt_occ) == {"precision": 0.0, "recall": 0.0, "f1": 0.0, "pixels": 42}
+    assert "occluded at t2: precision 0.500, recall 0.500, F1 0.500 over 41 px" in E.format_table(
+        E.evaluate({"u": z, "v": z, "occluded": est_occ}, gt, border=0))
+    assert "occluded" not in E.evaluate({"u": z, "v": z}, gt, border=0)  # no mask in the estimate
+    with pytest.raises(ValueError, match="must be bool"):
+        E.occlusion_scores(est_occ.astype(float) * 0.5, gt_occ)
+
+
 def test_points_hidden_at_t2_are_also_left_out_in_the_noc_rows():
     """With an ``occluded`` mask, δ2 and the flow are scored twice: over every valid pixel
     and over those seen at t2 as well; δ1 and ground truth without the mask only once."""

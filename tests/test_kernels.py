@@ -2009,6 +2009,31 @@ def test_solver_hidden_at_t2_is_the_geometric_test_of_the_estimate_given(device)
     assert not (solver.hidden2.numpy() > 0.5).any()
 
 
+def test_solver_occluded_at_marks_the_hidden_and_the_leaving_points(device):
+    """LevelSolver.occluded_at(x), the estimate's mask of the points not seen at t2: the
+    geometric test of :func:`ref.hidden_at_t2` without its spread (reach 0), and every
+    point whose flow carries it out of the image (p + (u, v) beyond the pixel centres),
+    as the synthetic ground truth's ``occluded``."""
+    from lfsf.params import Params
+
+    params = Params.preset("fast")
+    solver = _level_solver((24, 18), 3, params, device)
+    h, w = solver.shape
+    x = np.zeros((h, w, 4), np.float32)
+    x[6:12, 6:12, 0] = x[6:12, 6:12, 1] = 1.5  # a nearer square moving 3 px right
+    x[6:12, 6:12, 2] = 3.0
+    x[:, -2:, 2] = 2.6  # the last two columns move out of the image
+    x[:, -3, 2] = 1.5  # the one before them stays in it (to w − 1.5)
+    x[2, 2, 3] = -2.2  # and one point up, out of the top row
+    hidden = ref.hidden_at_t2(x, params.occlusion_margin, 0) > 0.5
+    jj, ii = np.meshgrid(np.arange(w), np.arange(h))
+    leaving = (jj + x[..., 2] > w - 1) | (ii + x[..., 3] < 0)
+    assert hidden[6:12, 12:15].all() and not hidden[6:12, 15:].any() and leaving.sum() == 2 * h + 1
+    np.testing.assert_array_equal(solver.occluded_at(x), hidden | leaving)
+    solver.linearise()  # the solver's own x̂ is tested again
+    assert not (solver.hidden2.numpy() > 0.5).any()
+
+
 def _fill_hidden(x, hidden, sigma, radius, device, depth_sigma=0.0, flagged=None):
     from lfsf.kernels import occlusion
 
