@@ -197,8 +197,9 @@ def occlusion_scores(est, gt, valid=None, border: int = 0) -> dict[str, float]:
     """How an estimate's mask of the points not seen at t2 (``occluded``, bool) meets the
     ground truth's, over the ``valid`` pixels without ``border``: precision (the share of
     the points marked that are occluded), recall (the share of the occluded points
-    marked), their harmonic mean F1, and the pixels scored. Where either side marks none,
-    the share it divides by is 0 and so is the score (1 where both mark none)."""
+    marked), their harmonic mean F1, the pixels scored, and of them the points marked
+    and the points occluded. Where either side marks none, the share it divides by is 0
+    and so is the score (1 where both mark none)."""
     est = _bool_mask(est, "estimate's occluded").astype(bool)
     gt = _bool_mask(gt, "occluded").astype(bool)
     if est.shape != gt.shape:
@@ -213,7 +214,8 @@ def occlusion_scores(est, gt, valid=None, border: int = 0) -> dict[str, float]:
         precision = hits / marked if marked else 0.0
         recall = hits / occluded if occluded else 0.0
         f1 = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
-    return {"precision": precision, "recall": recall, "f1": f1, "pixels": int(mask.sum())}
+    return {"precision": precision, "recall": recall, "f1": f1, "pixels": int(mask.sum()), "marked": marked,
+            "occluded": occluded}
 
 
 def load_estimate(path: str | Path) -> dict[str, np.ndarray]:
@@ -343,5 +345,5 @@ def format_table(errors: dict[str, dict[str, float]]) -> str:
     if "occluded" in errors:
         e = errors["occluded"]
         lines.append(f"occluded at t2: precision {e['precision']:.3f}, recall {e['recall']:.3f}, "
-                     f"F1 {e['f1']:.3f} over {e['pixels']} px")
+                     f"F1 {e['f1']:.3f} ({e['marked']} px marked, {e['occluded']} occluded of {e['pixels']})")
     return "\n".join(lines)
