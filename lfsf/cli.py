@@ -117,12 +117,12 @@ def cmd_synth(args) -> int:
         import numpy as np
 
         with np.load(paths["gt"]) as z:
-            gt = {k: z[k] for k in ("disp1", "disp2", "u", "v", "valid")}
+            gt = {k: z[k] for k in ("disp1", "disp2", "u", "v", "valid", "occluded")}
         c1 = read_lightfield(paths["lf1"]).centre
         c2 = read_lightfield(paths["lf2"]).centre
         overview_figure(c1, c2, gt["disp1"], gt["disp2"], gt["u"], gt["v"],
                         path=Path(args.out) / "preview.png", title=f"{args.scene}: ground truth",
-                        label="ground truth")
+                        label="ground truth", occluded=gt["occluded"].astype(bool))
         _log(args, f"wrote {Path(args.out) / 'preview.png'}")
     return 0
 

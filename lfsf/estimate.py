@@ -125,7 +125,7 @@ class SceneFlow:
             viz.save_png(tmp / "flow.png", viz.flow_to_color(self.u, self.v))
             if centre1 is not None and centre2 is not None:
                 viz.overview_figure(centre1, centre2, self.disp1, self.disp2, self.u, self.v, gt=gt,
-                                    path=tmp / "overview.png", title=title)
+                                    path=tmp / "overview.png", title=title, occluded=self.occluded)
         return [out / name for name in names]
 
 

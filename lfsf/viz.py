@@ -467,7 +467,25 @@ def _fmt(x: float) -> str:
     return f"{x:.3g}"
 
 
-def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="estimate") -> list[list[_Panel]]:
+#: The colour of the points not seen at t2 in the overview's mask panel.
+OCCLUDED_COLOUR = (255, 0, 255)
+
+
+def occluded_picture(centre1, occluded) -> np.ndarray:
+    """The t1 centre view (H, W) or (H, W, 3), dimmed to grey, with the points not seen at
+    t2 (``occluded``, bool (H, W)) in :data:`OCCLUDED_COLOUR`: uint8 (H, W, 3)."""
+    occluded = np.asarray(occluded)
+    shape = occluded.shape
+    if occluded.dtype != bool or occluded.ndim != 2:
+        raise ValueError(f"expected occluded as a bool (H, W) mask, got {occluded.dtype} {occluded.shape}")
+    rgb = _view_to_rgb("centre1", centre1, shape).astype(np.float32)
+    grey = 64.0 + 0.5 * rgb.mean(axis=2, keepdims=True)
+    out = np.where(occluded[..., None], np.asarray(OCCLUDED_COLOUR, np.float32), grey)
+    return np.clip(np.round(out), 0, 255).astype(np.uint8)
+
+
+def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="estimate",
+                     occluded=None) -> list[list[_Panel]]:
     """The overview's panels, row by row (see :func:`overview_figure`)."""
     shape = _check_map("disp1", disp1).shape
     est = {k: _check_map_shape(k, a, shape)
@@ -477,6 +495,10 @@ def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="
         _Panel("centre view t1", _view_to_rgb("centre1", centre1, shape)),
         _Panel("centre view t2", _view_to_rgb("centre2", centre2, shape)),
     ]]
+    if occluded is not None:
+        if np.shape(occluded) != shape:
+            raise ValueError(f"expected occluded of shape {shape}, got {np.shape(occluded)}")
+        rows[0].append(_Panel("not seen at t2 (magenta)", occluded_picture(centre1, occluded)))
     if max_flow is not None and not (math.isfinite(max_flow) and max_flow > 0):
         raise ValueError(f"expected max_flow as a finite number > 0, got {max_flow!r}")
 
@@ -628,7 +650,7 @@ def _draw_footer(canvas, draw, footer, x0, y0, pw, footer_h, font, text_at) -> N
 
 def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = None,
                     path: str | os.PathLike | None = None, title: str | None = None,
-                    max_flow: float | None = None, label: str = "estimate") -> np.ndarray:
+                    max_flow: float | None = None, label: str = "estimate", occluded=None) -> np.ndarray:
     """A labelled grid of panels showing a scene-flow result, optionally against truth.
 
     Rows: (1) centre views at t1 and t2; (2) estimated δ1, δ2 and flow; with ``gt`` also
@@ -661,6 +683,9 @@ def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = N
     label : str, optional
         What the maps of row 2 are, in their panel labels (``"ground truth"`` when the
         figure shows a synthetic scene's truth alone).
+    occluded : array_like of bool, shape (H, W), optional
+        The points not seen at t2 (``SceneFlow.occluded``): a third panel in row 1, the
+        t1 centre view dimmed with them in magenta (:func:`occluded_picture`).
 
     Returns
     -------
@@ -674,7 +699,7 @@ def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = N
     the 1st/99th percentiles of both maps' finite values together. Error maps of δ1 and
     δ2 share one scale (99th percentile of both), the end-point error has its own.
     """
-    rows = _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label)
+    rows = _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label, occluded)
     figure = _compose(rows, title)
     if path is not None:
         save_png(path, figure)

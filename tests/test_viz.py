@@ -214,6 +214,32 @@ def test_overview_panel_count_grows_with_ground_truth(tmp_path):
     assert plain.shape[1] > 3 * 4 * 64
 
 
+def test_overview_shows_the_points_not_seen_at_t2_beside_the_centre_views():
+    """With ``occluded`` a third panel joins row 1: the t1 centre view dimmed to grey and
+    the marked points in magenta, at the marked points only; the rest of the figure is
+    the same pixel for pixel. A mask of the wrong shape or type is an error."""
+    c1, c2, est, gt = _scene()
+    occluded = np.zeros(c1.shape, bool)
+    occluded[10:20, 30:40] = True
+    plain = viz.overview_figure(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], gt=gt)
+    marked = viz.overview_figure(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], gt=gt, occluded=occluded)
+    assert _count_panels(marked) == _count_panels(plain) + 1 and marked.shape == plain.shape
+    changed = np.any(marked != plain, axis=2)
+    ys, xs = np.nonzero(changed)
+    assert xs.min() > 2 * plain.shape[1] // 3  # only in the third column
+    magenta = np.all(marked == viz.OCCLUDED_COLOUR, axis=2)
+    factor = int(round(np.sqrt(magenta.sum() / occluded.sum())))  # the panel's upscaling
+    assert magenta.sum() == occluded.sum() * factor ** 2
+    picture = viz.occluded_picture(c1, occluded)
+    assert picture.shape == c1.shape + (3,) and (picture[occluded] == viz.OCCLUDED_COLOUR).all()
+    grey = picture[~occluded]
+    assert (grey[:, 0] == grey[:, 1]).all() and grey.min() >= 64  # dimmed, never black
+    with pytest.raises(ValueError, match="occluded of shape"):
+        viz.overview_figure(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], occluded=occluded[:-1])
+    with pytest.raises(ValueError, match="bool"):
+        viz.occluded_picture(c1, occluded.astype(float))
+
+
 def test_overview_is_written_as_readable_png_without_leftovers(tmp_path):
     c1, c2, est, gt = _scene()
     target = tmp_path / "figs" / "overview.png"
