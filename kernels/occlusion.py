@@ -84,18 +84,22 @@ def hidden_at_t2(
     x: wp.array2d(dtype=wp.vec4),
     zbuf: wp.array2d(dtype=float),
     margin: float,
+    outside: float,
     # outputs
     hidden: wp.array2d(dtype=float),
 ):
     """hidden[p] = 1 where the t2 pixel nearest to p + (u, v) is held by a point with δ1
-    larger than δ1(p) + margin, else 0 (also 0 where p + (u, v) leaves the image).
-    Launch over (rows, columns)."""
+    larger than δ1(p) + margin, else 0; ``outside`` where that pixel lies outside the
+    image (p + (u, v) beyond the pixels' edges): 0 for the estimator's test (no t2 view
+    to leave out), 1 for the points not seen at t2 (they left the image, as the
+    synthetic ground truth's ``occluded`` counts them). Launch over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0
     v = x[i, j]
     ty, tx, inside = landing_pixel(v, i, j, zbuf.shape[0], zbuf.shape[1])
-    out = float(0.0)
+    out = outside
     if inside:
+        out = 0.0
         if zbuf[ty, tx] > v[0] + margin:
             out = 1.0
     hidden[i, j] = out

@@ -447,7 +447,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("eval", help="errors of a result against ground truth",
                        description="Print MSE per variable, flow end-point error, disparity "
-                                   "BadPix(0.07) and MSE×100 over valid pixels.")
+                                   "BadPix(0.07) and MSE×100 over valid pixels; where the result and a gt.npz "
+                                   "both mark the points not seen at t2 ('occluded'), the result's mask's "
+                                   "precision, recall and F1.")
     p.add_argument("result", type=Path, help="a folder written by 'lfsf run', or a .npz/.pfm/.flo")
     p.add_argument("gt", type=Path, help="gt.npz of 'lfsf synth' or an HCI gt_disp_lowres.pfm")
     p.add_argument("--border", type=int, default=None,

@@ -44,9 +44,11 @@ class SceneFlow:
     occluded : bool (H, W) or None
         The points of the t1 centre view that the estimate does not see in the centre view
         at t2: hidden there by a nearer point, or carried out of the image by their flow
-        (:meth:`lfsf.solver.LevelSolver.occluded_at`). No view observes their δ2 and flow,
-        which are filled in from their own surface's motion. None for flow only (no depth
-        to tell which point is nearer).
+        (:meth:`lfsf.solver.LevelSolver.occluded_at`). No view at t2 observes their δ2 and
+        flow: where the estimator's own (more cautious) test found them hidden, these
+        come from the motion of their own surface (``Params.hidden_fill_sigma``), else
+        from the regulariser and the neighbours. None for flow only (no depth to tell
+        which point is nearer).
     """
 
     disp1: np.ndarray
@@ -1327,6 +1329,7 @@ def estimate_scene_flow(
         lap("median")
 
     occluded = None if solver.flow_only else solver.occluded_at(x)
+    lap("occlusion")
     return SceneFlow(
         disp1=x[..., 0].copy(), disp2=x[..., 1].copy(), u=x[..., 2].copy(), v=x[..., 3].copy(),
         params=requested, radius=float(radius), device=dev, timings=timings, exposure=exposure,

@@ -144,7 +144,10 @@ def evaluate(estimate, gt: dict, border: int = SYNTH_BORDER) -> dict[str, dict[s
     ground truth (the same keys, optional bool ``valid``). Only variables present in both
     are evaluated; the flow needs both ``u`` and ``v``. With an ``occluded`` mask in the
     ground truth, ``disp2_noc`` and ``flow_noc`` score δ2 and the flow again over the
-    points seen at t2 as well.
+    points seen at t2 as well; with one in the estimate too (bool; a SceneFlow's
+    ``occluded``), the row ``occluded`` scores it against the truth's
+    (:func:`occlusion_scores`: precision, recall, f1, pixels, marked_px, occluded_px,
+    and no MSE).
 
     Raises ``ValueError`` for maps of different sizes, a negative ``border``, or when the
     border, the ``valid`` mask and non-finite ground truth leave no pixel to evaluate.
@@ -198,7 +201,7 @@ def occlusion_scores(est, gt, valid=None, border: int = 0) -> dict[str, float]:
     ground truth's, over the ``valid`` pixels without ``border``: precision (the share of
     the points marked that are occluded), recall (the share of the occluded points
     marked), their harmonic mean F1, the pixels scored, and of them the points marked
-    and the points occluded. Where either side marks none, the share it divides by is 0
+    (``marked_px``) and the points occluded (``occluded_px``). Where either side marks none, the share it divides by is 0
     and so is the score (1 where both mark none)."""
     est = _bool_mask(est, "estimate's occluded").astype(bool)
     gt = _bool_mask(gt, "occluded").astype(bool)
@@ -214,8 +217,8 @@ def occlusion_scores(est, gt, valid=None, border: int = 0) -> dict[str, float]:
         precision = hits / marked if marked else 0.0
         recall = hits / occluded if occluded else 0.0
         f1 = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
-    return {"precision": precision, "recall": recall, "f1": f1, "pixels": int(mask.sum()), "marked": marked,
-            "occluded": occluded}
+    return {"precision": precision, "recall": recall, "f1": f1, "pixels": int(mask.sum()), "marked_px": marked,
+            "occluded_px": occluded}
 
 
 def load_estimate(path: str | Path) -> dict[str, np.ndarray]:
@@ -345,5 +348,5 @@ def format_table(errors: dict[str, dict[str, float]]) -> str:
     if "occluded" in errors:
         e = errors["occluded"]
         lines.append(f"occluded at t2: precision {e['precision']:.3f}, recall {e['recall']:.3f}, "
-                     f"F1 {e['f1']:.3f} ({e['marked']} px marked, {e['occluded']} occluded of {e['pixels']})")
+                     f"F1 {e['f1']:.3f} ({e['marked_px']} px marked, {e['occluded_px']} occluded of {e['pixels']})")
     return "\n".join(lines)

@@ -8,6 +8,7 @@ and filters (``median``) on request. :mod:`lfsf.estimate` drives it coarse to fi
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -331,7 +332,7 @@ class LevelSolver:
         self.zbuf.fill_(occlusion.EMPTY)
         _device.launch_rows(occlusion.splat_depth, dim=self.shape, inputs=[self.x_hat], outputs=[self.zbuf],
                             device=self.device, bands=1)  # atomics: one launch
-        self._launch(occlusion.hidden_at_t2, inputs=[self.x_hat, self.zbuf, margin], outputs=[self.scratch1])
+        self._launch(occlusion.hidden_at_t2, inputs=[self.x_hat, self.zbuf, margin, 0.0], outputs=[self.scratch1])
         self._launch(occlusion.spread_hidden, inputs=[self.x_hat, self.scratch1, margin, int(self.params.occlusion_reach)],
                      outputs=[self.hidden2])
 
@@ -349,24 +350,24 @@ class LevelSolver:
     def occluded_at(self, x: np.ndarray) -> np.ndarray:
         """Where the points of an estimate x (h, w, 4) are not seen in the centre view at
         t2, as a bool (h, w) array: hidden by a nearer point (:meth:`find_hidden`'s
-        z-buffer test with ``params.occlusion_margin``, without its spread over the
-        surface, which the estimator wants cautious and a result wants exact) or carried
-        out of the image by their flow, as the synthetic ground truth's ``occluded``.
+        z-buffer test with ``params.occlusion_margin``, its default where the setting is
+        0, without the test's spread over the surface, which the estimator wants cautious
+        and a result wants exact) or carried out of the image by their flow (their nearest
+        t2 pixel outside it), as the synthetic ground truth's ``occluded`` counts them.
         Leaves the solver's state as it was but for x̂ and ``hidden2``, which
         :meth:`linearise` sets afresh. Not defined for flow only (no depth): ValueError."""
-        from lfsf.kernels import fusion, occlusion
+        from lfsf.kernels import occlusion
 
-        wp = _device.warp()
         if self.flow_only:
             raise ValueError("occluded_at needs the disparities: flow only estimates none")
+        margin = self.params.occlusion_margin
+        if margin <= 0:  # the estimator's tests are off; the mask keeps the default's
+            margin = next(f.default for f in dataclasses.fields(self.params) if f.name == "occlusion_margin")
         self.x_hat.assign(np.ascontiguousarray(x, np.float32))
         self.zbuf.fill_(occlusion.EMPTY)
         _device.launch_rows(occlusion.splat_depth, dim=self.shape, inputs=[self.x_hat], outputs=[self.zbuf],
                             device=self.device, bands=1)  # atomics: one launch
-        self._launch(occlusion.hidden_at_t2, inputs=[self.x_hat, self.zbuf, float(self.params.occlusion_margin)],
-                     outputs=[self.scratch1])
-        self._launch(fusion.hidden_or_leaving, inputs=[self.scratch1, self.x_hat], outputs=[self.hidden2])
-        wp.synchronize_device(self.device)
+        self._launch(occlusion.hidden_at_t2, inputs=[self.x_hat, self.zbuf, margin, 1.0], outputs=[self.hidden2])
         return self.hidden2.numpy() > 0.5
 
     def find_hidden_at(self, x):

@@ -18,11 +18,12 @@ fmin/fmax handling of NaN costs more on the CPU.
 
 from __future__ import annotations
 
-import argparse
 import itertools
 from pathlib import Path
 
 import numpy as np
+
+from lfsf._errors import ArgumentParser  # (usage errors in one line)
 
 SIZES = (9, 25, 49)
 OUT = Path(__file__).resolve().parents[1] / "kernels" / "median_networks.py"
@@ -153,7 +154,7 @@ def emit(n: int) -> tuple[str, int]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--check", action="store_true", help="verify the networks only")
     args = parser.parse_args()
     for n in SIZES:

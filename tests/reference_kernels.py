@@ -952,11 +952,12 @@ def flow_runner_up(cost, half: int, distance: int) -> tuple[np.ndarray, np.ndarr
 # --- geometric occlusion at t2 (kernels/occlusion.py) ---------------------------------------
 
 
-def hidden_at_t2(x, margin, reach):
+def hidden_at_t2(x, margin, reach, outside=0.0):
     """(h, w) float: 1 where p is hidden at t2 or lies within ``reach`` pixels (a (2r+1)²
     window) of a hidden q with |δ1(q) − δ1(p)| ≤ margin; p is hidden where the pixel
     nearest to p + (u, v) is also the nearest landing pixel of a point whose δ1 exceeds
-    δ1(p) + margin. Explicit loops."""
+    δ1(p) + margin, and ``outside`` where that pixel lies outside the image. Explicit
+    loops."""
     x = np.asarray(x, np.float32)
     h, w = x.shape[:2]
 
@@ -974,7 +975,9 @@ def hidden_at_t2(x, margin, reach):
     for i in range(h):
         for j in range(w):
             ty, tx = target(i, j)
-            if 0 <= ty < h and 0 <= tx < w and zbuf[ty, tx] > x[i, j, 0] + margin:
+            if not (0 <= ty < h and 0 <= tx < w):
+                hidden[i, j] = outside
+            elif zbuf[ty, tx] > x[i, j, 0] + margin:
                 hidden[i, j] = 1.0
     out = hidden.copy()
     for i in range(h):

@@ -507,6 +507,10 @@ def test_an_error_raised_while_interrupted_counts_as_the_interrupt(monkeypatch, 
 
 @pytest.mark.parametrize("script,args,needle", [
     ("sweep.py", ["--vary", "warps"], "--vary expects"),
+    # argparse's own errors, one line too
+    ("sweep.py", ["--bogus"], "unrecognized arguments: --bogus (sweep.py --help lists the options)"),
+    ("compare_peers.py", ["--size", "160"], "expected 2 arguments"),
+    ("gen_median_networks.py", ["--bogus"], "unrecognized arguments: --bogus"),
     ("sweep.py", ["--vary", "warps=-1", "--scenes", "paper"], "warps must be in"),
     ("sweep.py", ["--seeds", "0"], "--seeds must be at least 1"),
     ("sweep.py", ["--seeds", "3"], "needs --perturb"),

@@ -72,14 +72,14 @@ def test_an_estimates_occlusion_mask_is_scored_against_the_ground_truths():
     out = E.evaluate({"u": z, "v": z, "occluded": est_occ}, gt, border=0)["occluded"]
     assert out == E.occlusion_scores(est_occ, gt_occ, valid, 0)
     assert out["precision"] == pytest.approx(3 / 6) and out["recall"] == pytest.approx(3 / 6)
-    assert (out["pixels"], out["marked"], out["occluded"]) == (41, 6, 6)
+    assert (out["pixels"], out["marked_px"], out["occluded_px"]) == (41, 6, 6)
     inner = E.occlusion_scores(est_occ, gt_occ, valid, 1)
     assert inner["precision"] == pytest.approx(3 / 5) and inner["recall"] == pytest.approx(3 / 6)
     assert inner["f1"] == pytest.approx(2 * 0.6 * 0.5 / 1.1) and inner["pixels"] == 19
     none = np.zeros((6, 7), bool)
     assert E.occlusion_scores(none, none)["f1"] == 1.0
     assert E.occlusion_scores(none, gt_occ) == {"precision": 0.0, "recall": 0.0, "f1": 0.0, "pixels": 42,
-                                                "marked": 0, "occluded": 6}
+                                                "marked_px": 0, "occluded_px": 6}
     assert E.occlusion_scores(est_occ, none)["f1"] == 0.0  # marks where none is: no recall to speak of
     assert "occluded at t2: precision 0.500, recall 0.500, F1 0.500 (6 px marked, 6 occluded of 41)" in E.format_table(
         E.evaluate({"u": z, "v": z, "occluded": est_occ}, gt, border=0))

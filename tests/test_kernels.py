@@ -1961,7 +1961,7 @@ def test_level_solver_reaches_the_minimum_of_the_linearised_energy(device, small
 # --- geometric occlusion at t2 -------------------------------------------------------------------
 
 
-def _hidden(x, margin, device, reach=0):
+def _hidden(x, margin, device, reach=0, outside=0.0):
     from lfsf.kernels import occlusion
 
     h, w = x.shape[:2]
@@ -1969,7 +1969,7 @@ def _hidden(x, margin, device, reach=0):
     zbuf = wp.full((h, w), occlusion.EMPTY, dtype=float, device=device)
     launch(occlusion.splat_depth, (h, w), [xa], [zbuf], device, bands=1)
     hidden = wp.zeros((h, w), dtype=float, device=device)
-    launch(occlusion.hidden_at_t2, (h, w), [xa, zbuf, float(margin)], [hidden], device)
+    launch(occlusion.hidden_at_t2, (h, w), [xa, zbuf, float(margin), float(outside)], [hidden], device)
     out = wp.zeros((h, w), dtype=float, device=device)
     launch(occlusion.spread_hidden, (h, w), [xa, hidden, float(margin), int(reach)], [out], device)
     return out.numpy()
@@ -1988,6 +1988,10 @@ def test_hidden_at_t2_matches_reference(device):
         np.testing.assert_array_equal(got, want)
         assert 0 < want.sum() < h * w
         assert reach > 0 or got[0, 0] == 0  # lands outside: hidden only by spreading
+    # the points not seen at t2: landing outside counts (SceneFlow.occluded)
+    want = ref.hidden_at_t2(x, 0.3, 0, outside=1.0)
+    np.testing.assert_array_equal(_hidden(x, 0.3, device, 0, outside=1.0), want)
+    assert want[0, 0] == 1 and want.sum() > ref.hidden_at_t2(x, 0.3, 0).sum()
 
 
 def test_solver_hidden_at_t2_is_the_geometric_test_of_the_estimate_given(device):
@@ -2012,8 +2016,9 @@ def test_solver_hidden_at_t2_is_the_geometric_test_of_the_estimate_given(device)
 def test_solver_occluded_at_marks_the_hidden_and_the_leaving_points(device):
     """LevelSolver.occluded_at(x), the estimate's mask of the points not seen at t2: the
     geometric test of :func:`ref.hidden_at_t2` without its spread (reach 0), and every
-    point whose flow carries it out of the image (p + (u, v) beyond the pixel centres),
-    as the synthetic ground truth's ``occluded``."""
+    point whose flow carries it out of the image (its nearest t2 pixel outside it, as
+    the synthetic ground truth's ``occluded`` counts them: beyond the pixels' edges,
+    not their centres)."""
     from lfsf.params import Params
 
     params = Params.preset("fast")
@@ -2023,13 +2028,19 @@ def test_solver_occluded_at_marks_the_hidden_and_the_leaving_points(device):
     x[6:12, 6:12, 0] = x[6:12, 6:12, 1] = 1.5  # a nearer square moving 3 px right
     x[6:12, 6:12, 2] = 3.0
     x[:, -2:, 2] = 2.6  # the last two columns move out of the image
-    x[:, -3, 2] = 1.5  # the one before them stays in it (to w − 1.5)
-    x[2, 2, 3] = -2.2  # and one point up, out of the top row
+    x[:, -3, 2] = 1.4  # the one before them stays in it (to w − 1.6)
+    x[:, -4, 2] = 0.3  # and, in the next column to the left, the part that moves less …
+    x[10:, -2:, 2] = 0.3  # … as do the lower rows of the last two: within half a pixel of the edge
+    x[2, 2, 3] = -2.8  # one point up, out of the top row (to row −0.8)
+    x[3, 3, 3] = -3.4  # and one just not (to row −0.4)
     hidden = ref.hidden_at_t2(x, params.occlusion_margin, 0) > 0.5
     jj, ii = np.meshgrid(np.arange(w), np.arange(h))
-    leaving = (jj + x[..., 2] > w - 1) | (ii + x[..., 3] < 0)
-    assert hidden[6:12, 12:15].all() and not hidden[6:12, 15:].any() and leaving.sum() == 2 * h + 1
-    np.testing.assert_array_equal(solver.occluded_at(x), hidden | leaving)
+    leaving = (jj + x[..., 2] >= w - 0.5) | (ii + x[..., 3] < -0.5)
+    assert hidden[6:12, 12:15].all() and not hidden[6:12, 15:].any() and leaving.sum() == 2 * 10 + 1
+    got = solver.occluded_at(x)
+    np.testing.assert_array_equal(got, hidden | leaving)
+    np.testing.assert_array_equal(got, ref.hidden_at_t2(x, params.occlusion_margin, 0, outside=1.0) > 0.5)
+    assert not got[10:, -1].any()  # 0.3 px from the last pixel centre: still in the image
     solver.linearise()  # the solver's own x̂ is tested again
     assert not (solver.hidden2.numpy() > 0.5).any()
 
