@@ -2051,18 +2051,25 @@ def test_fill_takes_for_hidden_the_points_that_land_behind_a_surface_close_in_de
     assert np.abs(u - 3.0).max() < 0.8, u
 
 
-def test_solver_hidden_at_t2_is_the_geometric_test_of_the_estimate_given(device):
-    """LevelSolver.hidden_at_t2(x) marks what :func:`ref.hidden_at_t2` marks for that x
-    (margin ``occlusion_margin``, spread ``occlusion_reach``), whatever the solver's own
-    state, and the next linearisation still tests the solver's own x̂."""
+def _square_moving_right(device):
+    """(params, a `fast` LevelSolver of 24×18, x): a nearer square (δ 1.5) moving 3 px
+    right over a still background at δ 0."""
     from lfsf.params import Params
 
     params = Params.preset("fast")
     solver = _level_solver((24, 18), 3, params, device)
-    h, w = solver.shape
-    x = np.zeros((h, w, 4), np.float32)
-    x[6:12, 6:12, 0] = x[6:12, 6:12, 1] = 1.5  # a nearer square moving 3 px right
+    x = np.zeros(solver.shape + (4,), np.float32)
+    x[6:12, 6:12, 0] = x[6:12, 6:12, 1] = 1.5
     x[6:12, 6:12, 2] = 3.0
+    return params, solver, x
+
+
+def test_solver_hidden_at_t2_is_the_geometric_test_of_the_estimate_given(device):
+    """LevelSolver.hidden_at_t2(x) marks what :func:`ref.hidden_at_t2` marks for that x
+    (margin ``occlusion_margin``, spread ``occlusion_reach``), whatever the solver's own
+    state, and the next linearisation still tests the solver's own x̂."""
+    params, solver, x = _square_moving_right(device)
+    h, w = solver.shape
     want = ref.hidden_at_t2(x, params.occlusion_margin, params.occlusion_reach) > 0.5
     assert want[6:12, 12:15].all() and want.sum() < h * w // 4
     np.testing.assert_array_equal(solver.hidden_at_t2(x), want)
@@ -2076,14 +2083,8 @@ def test_solver_occluded_at_marks_the_hidden_and_the_leaving_points(device):
     point whose flow carries it out of the image (its nearest t2 pixel outside it, as
     the synthetic ground truth's ``occluded`` counts them: beyond the pixels' edges,
     not their centres)."""
-    from lfsf.params import Params
-
-    params = Params.preset("fast")
-    solver = _level_solver((24, 18), 3, params, device)
+    params, solver, x = _square_moving_right(device)
     h, w = solver.shape
-    x = np.zeros((h, w, 4), np.float32)
-    x[6:12, 6:12, 0] = x[6:12, 6:12, 1] = 1.5  # a nearer square moving 3 px right
-    x[6:12, 6:12, 2] = 3.0
     x[:, -2:, 2] = 2.6  # the last two columns move out of the image
     x[:, -3, 2] = 1.4  # the one before them stays in it (to w − 1.6)
     x[:, -4, 2] = 0.3  # and, in the next column to the left, the part that moves less …
