@@ -106,51 +106,6 @@ def hidden_at_t2(
 
 
 @wp.kernel
-def count_landings(
-    row0: int,
-    x: wp.array2d(dtype=wp.vec4),
-    # outputs
-    counts: wp.array2d(dtype=float),
-):
-    """counts[t] += 1 for every point whose t2 position p + (u, v) is nearest to t
-    (rounded; :func:`landing_pixel`), none for the points landing outside. ``counts``
-    must be zeroed first. Uses atomics: launch in one piece (``bands=1`` on the CPU),
-    over (rows, columns)."""
-    i, j = wp.tid()
-    i = i + row0
-    ty, tx, inside = landing_pixel(x[i, j], i, j, counts.shape[0], counts.shape[1])
-    if inside:
-        wp.atomic_add(counts, ty, tx, 1.0)
-
-
-@wp.kernel
-def hidden_in_crowd(
-    row0: int,
-    x: wp.array2d(dtype=wp.vec4),
-    zbuf: wp.array2d(dtype=float),
-    counts: wp.array2d(dtype=float),
-    margin: float,
-    # outputs
-    hidden: wp.array2d(dtype=float),
-):
-    """hidden[p] = 1 (else unchanged) where two or more points land on the t2 pixel
-    nearest to p + (u, v) (``counts``, :func:`count_landings`) and one of them is nearer
-    than p by more than ``margin`` (``zbuf``, :func:`splat_depth`): p is hidden behind
-    it, however little nearer it is. A surface that only compresses lands one point on
-    a pixel, rarely two, and those at one depth; where two surfaces fold over each other
-    the farther one's points are hidden, which :func:`hidden_at_t2`'s wider margin
-    misses where the two lie close in depth. In place: each thread reads and writes its
-    own pixel. Launch over (rows, columns)."""
-    i, j = wp.tid()
-    i = i + row0
-    v = x[i, j]
-    ty, tx, inside = landing_pixel(v, i, j, zbuf.shape[0], zbuf.shape[1])
-    if inside:
-        if counts[ty, tx] > 1.5 and zbuf[ty, tx] > v[0] + margin:
-            hidden[i, j] = 1.0
-
-
-@wp.kernel
 def spread_hidden(
     row0: int,
     x: wp.array2d(dtype=wp.vec4),

@@ -45,10 +45,11 @@ class SceneFlow:
         The points of the t1 centre view that the estimate does not see in the centre view
         at t2: hidden there by a nearer point, or carried out of the image by their flow
         (:meth:`lfsf.solver.LevelSolver.occluded_at`). No view at t2 observes their δ2 and
-        flow: where the estimator's own (more cautious) test found them hidden, these
-        come from the motion of their own surface (``Params.hidden_fill_sigma``), else
-        from the regulariser and the neighbours. None for flow only (no depth to tell
-        which point is nearer).
+        flow: where the estimator's own test found them hidden, these come from the
+        motion of their own surface (``Params.hidden_fill_sigma``), else from the
+        regulariser and the neighbours. (The fill also takes points hidden by less than
+        this mask's margin, ``lfsf.solver.FILL_MARGIN``, which the mask leaves out.)
+        None for flow only (no depth to tell which point is nearer).
     """
 
     disp1: np.ndarray
@@ -906,7 +907,8 @@ def _fit_solver_surfaces(solver, centres, searched_hidden, params: Params, devic
     """:func:`_fit_surface_motion` on a level solver's unknowns, with the level's centre
     views (``centres``, (2, h, w)) and their ``floor`` (:func:`_match_floor`; None:
     computed there); never where the point is hidden at t2, by the solver's last test
-    (``hidden2``) or by the searches' (``searched_hidden``, float (h, w), or None)."""
+    (``hidden2``, after the fill also its ``FILL_MARGIN`` test) or by the searches'
+    (``searched_hidden``, float (h, w), or None)."""
     from lfsf.kernels import fusion
 
     wp = _device.warp()

@@ -59,7 +59,9 @@ class Params:
             surface around it that are seen at t2: δ2 = δ1 plus their depth change
             δ2 − δ1, (u, v) their flow, averaged with Gaussian weights of this σ (px, out
             to 3σ) times the depth weight of ``hidden_fill_depth``; where none is seen
-            there, δ2 = δ1 and the flow stays. 0: off (an addition to the paper,
+            there, δ2 = δ1 and the flow stays. The fill also takes the points whose t2
+            pixel holds a point nearer by more than ``lfsf.solver.FILL_MARGIN`` (0.02),
+            hidden by a surface close in depth. 0: off (an addition to the paper,
             :meth:`lfsf.solver.LevelSolver.fill_hidden`). δ2 alone, σ = 4, no depth weight
             (fourth session): δ2 MSE at 320×240 `large_motion` 0.144 → 0.030, `slanted`
             0.022 → 0.0033. After every warp it fed back into the flow (640×480 `paper`

@@ -21,15 +21,19 @@ from lfsf import device as _device
 #: than 2 (`large_motion` flow 0.105 → 0.141 at 320×240).
 MEDIAN_WIDTH = 320
 
-#: Before the fill (:meth:`LevelSolver.fill_hidden`), a point is also taken for hidden
-#: at t2 where another point lands on its t2 pixel and one of them is nearer by more than
-#: this (px per view step; :func:`lfsf.kernels.occlusion.hidden_in_crowd`): the
-#: geometric test's ``occlusion_margin`` (0.25) keeps compressing slopes out, and misses
-#: the points hidden by a surface close in depth, which then keep a flow that lands them
-#: where nothing else does. Thirty-seventh session, geometric means of δ1 / δ2 / EPE
-#: against the fill without it: 1.000 / 0.953 / 0.999 over 40 scenes at 160×120, 1.000 /
-#: 0.975 / 1.000 over `random-32…95`, 1.000 / 0.966 / 0.996 over 13 at 320×240.
-CROWD_MARGIN = 0.02
+#: The fill (:meth:`LevelSolver.fill_hidden`) also takes the points of the estimate whose
+#: t2 pixel holds a point nearer by more than this (px per view step; the z-buffer test
+#: :func:`lfsf.kernels.occlusion.hidden_at_t2` of the finest level's x, not spread). The
+#: linearisations' test keeps ``occlusion_margin`` (0.25), which spares the compressing
+#: slopes, and so misses the points hidden by a surface close in depth: they keep the
+#: flow that hid them. At this margin the farther of two points that a slope steeper than
+#: 0.02 px per view step a pixel lands together is taken too; on a smooth surface the
+#: fill gives it about its own motion. The points so taken are also left out of the
+#: surface fits that follow (as sources and as targets). Thirty-seventh session,
+#: geometric means of δ1 / δ2 / EPE against the fill without it: 1.000 / 0.953 / 0.999
+#: over 40 scenes at 160×120, 1.000 / 0.975 / 1.000 over `random-32…95`, 1.000 / 0.966 /
+#: 0.996 over 13 at 320×240, 1.000 / 0.935 / 0.990 with noise σ = 0.02.
+FILL_MARGIN = 0.02
 
 
 class LevelSolver:
@@ -401,31 +405,28 @@ class LevelSolver:
         and the regulariser alone reaches over to the occluder. ``flagged`` (bool (h, w),
         optional; or a float device array, 1 where flagged): points another test
         suspects hidden (the estimator's searches); their δ2 is set the same way. First the
-        points of x that land on a t2 pixel with another, one of them nearer by more than
-        ``CROWD_MARGIN``, join ``hidden2`` (:func:`lfsf.kernels.occlusion.hidden_in_crowd`),
-        which holds until the next :meth:`linearise`. The estimator calls it once, after
-        the finest level's last warp."""
-        from lfsf.kernels import occlusion
+        points of x whose t2 pixel holds a point nearer by more than ``FILL_MARGIN`` join
+        ``hidden2``, which holds until the next :meth:`linearise`. The estimator calls it
+        once, after the finest level's last warp."""
+        from lfsf.kernels import fusion, occlusion
 
         sigma = self.params.hidden_fill_sigma
         if sigma <= 0 or self.flow_only or self.params.occlusion_margin <= 0:
             return
+        if flagged is not None and tuple(flagged.shape) != self.shape:
+            raise ValueError(f"flagged must be {self.shape}, got {tuple(flagged.shape)}")
         wp = _device.warp()
         radius = int(math.ceil(3.0 * sigma))
         depth_sigma = self.params.hidden_fill_depth * self.level_scale
-        # the landings of x: the nearest δ1 (zbuf) and how many (scratch1) per t2 pixel
+        # the z-buffer test of x at FILL_MARGIN, joined to hidden2
         self.zbuf.fill_(occlusion.EMPTY)
-        self.scratch1.zero_()
-        for kernel, out in ((occlusion.splat_depth, self.zbuf), (occlusion.count_landings, self.scratch1)):
-            _device.launch_rows(kernel, dim=self.shape, inputs=[self.x], outputs=[out], device=self.device,
-                                bands=1)  # atomics: one launch
-        self._launch(occlusion.hidden_in_crowd, inputs=[self.x, self.zbuf, self.scratch1, CROWD_MARGIN],
-                     outputs=[self.hidden2])
+        _device.launch_rows(occlusion.splat_depth, dim=self.shape, inputs=[self.x], outputs=[self.zbuf],
+                            device=self.device, bands=1)  # atomics: one launch
+        self._launch(occlusion.hidden_at_t2, inputs=[self.x, self.zbuf, FILL_MARGIN, 0.0], outputs=[self.scratch1])
+        self._launch(fusion.either_above, inputs=[self.hidden2, 0.5, self.scratch1, 0.5], outputs=[self.hidden2])
         if flagged is None:
             self.scratch1.zero_()
         else:
-            if tuple(flagged.shape) != self.shape:
-                raise ValueError(f"flagged must be {self.shape}, got {tuple(flagged.shape)}")
             if isinstance(flagged, np.ndarray):
                 self.scratch1.assign(np.ascontiguousarray(flagged, np.float32))
             else:

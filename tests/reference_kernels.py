@@ -952,34 +952,6 @@ def flow_runner_up(cost, half: int, distance: int) -> tuple[np.ndarray, np.ndarr
 # --- geometric occlusion at t2 (kernels/occlusion.py) ---------------------------------------
 
 
-def hidden_in_crowd(x, hidden, margin):
-    """``hidden`` (h, w) float with 1 added where two or more points land on the t2 pixel
-    nearest to p + (u, v) and the nearest of them has δ1 above δ1(p) + margin
-    (:func:`lfsf.kernels.occlusion.count_landings`, ``hidden_in_crowd``). Explicit loops."""
-    x = np.asarray(x, np.float32)
-    h, w = x.shape[:2]
-
-    def target(i, j):
-        return (int(np.floor(np.float32(i) + x[i, j, 3] + np.float32(0.5))),
-                int(np.floor(np.float32(j) + x[i, j, 2] + np.float32(0.5))))
-
-    counts = np.zeros((h, w))
-    zbuf = np.full((h, w), -np.inf)
-    for i in range(h):
-        for j in range(w):
-            ty, tx = target(i, j)
-            if 0 <= ty < h and 0 <= tx < w:
-                counts[ty, tx] += 1
-                zbuf[ty, tx] = max(zbuf[ty, tx], x[i, j, 0])
-    out = np.array(hidden, np.float64)
-    for i in range(h):
-        for j in range(w):
-            ty, tx = target(i, j)
-            if 0 <= ty < h and 0 <= tx < w and counts[ty, tx] >= 2 and zbuf[ty, tx] > x[i, j, 0] + np.float32(margin):
-                out[i, j] = 1.0
-    return out
-
-
 def hidden_at_t2(x, margin, reach, outside=0.0):
     """(h, w) float: 1 where p is hidden at t2 or lies within ``reach`` pixels (a (2r+1)²
     window) of a hidden q with |δ1(q) − δ1(p)| ≤ margin; p is hidden where the pixel
