@@ -332,6 +332,19 @@ class LevelSolver:
         the synthetic scenes within their spread (docs/accuracy.md)."""
         return self.params.occlusion_margin * self.level_scale
 
+    def _zbuffer_test(self, x, margin: float, outside: float, out) -> None:
+        """:func:`lfsf.kernels.occlusion.hidden_at_t2` of the unknowns ``x`` (a vec4 (h, w)
+        device array) into ``out``: δ1 splatted where the points land at t2 (into
+        ``zbuf``), each point tested against its pixel's nearest with ``margin``,
+        ``outside`` where it lands outside the image. The linearisations' test, the
+        fill's and the reported mask all start from it."""
+        from lfsf.kernels import occlusion
+
+        self.zbuf.fill_(occlusion.EMPTY)
+        _device.launch_rows(occlusion.splat_depth, dim=self.shape, inputs=[x], outputs=[self.zbuf],
+                            device=self.device, bands=1)  # atomics: one launch
+        self._launch(occlusion.hidden_at_t2, inputs=[x, self.zbuf, margin, outside], outputs=[out])
+
     def find_hidden(self) -> None:
         """Mark the points of x̂ hidden at t2 by a nearer point (``hidden2``; all zero when
         ``params.occlusion_margin`` is 0). Its margin stays in level pixels: scaled like
@@ -343,10 +356,7 @@ class LevelSolver:
         if margin <= 0 or self.flow_only:  # flow only: no t2 view but the centre
             self.hidden2.zero_()
             return
-        self.zbuf.fill_(occlusion.EMPTY)
-        _device.launch_rows(occlusion.splat_depth, dim=self.shape, inputs=[self.x_hat], outputs=[self.zbuf],
-                            device=self.device, bands=1)  # atomics: one launch
-        self._launch(occlusion.hidden_at_t2, inputs=[self.x_hat, self.zbuf, margin, 0.0], outputs=[self.scratch1])
+        self._zbuffer_test(self.x_hat, margin, 0.0, self.scratch1)
         self._launch(occlusion.spread_hidden, inputs=[self.x_hat, self.scratch1, margin, int(self.params.occlusion_reach)],
                      outputs=[self.hidden2])
 
@@ -370,18 +380,13 @@ class LevelSolver:
         t2 pixel outside it), as the synthetic ground truth's ``occluded`` counts them.
         Leaves the solver's state as it was but for x̂ and ``hidden2``, which
         :meth:`linearise` sets afresh. Not defined for flow only (no depth): ValueError."""
-        from lfsf.kernels import occlusion
-
         if self.flow_only:
             raise ValueError("occluded_at needs the disparities: flow only estimates none")
         margin = self.params.occlusion_margin
         if margin <= 0:  # the estimator's tests are off; the mask keeps the default's
             margin = next(f.default for f in dataclasses.fields(self.params) if f.name == "occlusion_margin")
         self.x_hat.assign(np.ascontiguousarray(x, np.float32))
-        self.zbuf.fill_(occlusion.EMPTY)
-        _device.launch_rows(occlusion.splat_depth, dim=self.shape, inputs=[self.x_hat], outputs=[self.zbuf],
-                            device=self.device, bands=1)  # atomics: one launch
-        self._launch(occlusion.hidden_at_t2, inputs=[self.x_hat, self.zbuf, margin, 1.0], outputs=[self.hidden2])
+        self._zbuffer_test(self.x_hat, margin, 1.0, self.hidden2)
         return self.hidden2.numpy() > 0.5
 
     def find_hidden_at(self, x):
@@ -419,10 +424,7 @@ class LevelSolver:
         radius = int(math.ceil(3.0 * sigma))
         depth_sigma = self.params.hidden_fill_depth * self.level_scale
         # the z-buffer test of x at FILL_MARGIN, joined to hidden2
-        self.zbuf.fill_(occlusion.EMPTY)
-        _device.launch_rows(occlusion.splat_depth, dim=self.shape, inputs=[self.x], outputs=[self.zbuf],
-                            device=self.device, bands=1)  # atomics: one launch
-        self._launch(occlusion.hidden_at_t2, inputs=[self.x, self.zbuf, FILL_MARGIN, 0.0], outputs=[self.scratch1])
+        self._zbuffer_test(self.x, FILL_MARGIN, 0.0, self.scratch1)
         self._launch(fusion.either_above, inputs=[self.hidden2, 0.5, self.scratch1, 0.5], outputs=[self.hidden2])
         if flagged is None:
             self.scratch1.zero_()
