@@ -72,8 +72,12 @@ class Params:
             (EPE 2.6–2.7× over 12 scenes). With it (σ = 8, σ_d = 0.1, ninth session;
             geometric means over the scenes of ``compare_peers.py --random 8``, δ1
             unchanged): EPE 0.90×, 0.92×, 0.91× at 160×120, 320×240, 640×480, δ2 0.72×,
-            0.64×, 0.70×; δ2 is also filled where the searches flag the point hidden
-            (:meth:`lfsf.solver.LevelSolver.fill_hidden`'s ``flagged``).
+            0.64×, 0.70×; δ2 alone is also filled where the searches flag the point
+            hidden, and where its flow finds no match at t2
+            (:func:`lfsf.estimate._unmatched`: its t2 samples show another point; δ2
+            MSE 0.76×, 0.84×, 0.67× over 40 and 64 scenes at 160×120 and 13 at 320×240,
+            thirty-eighth session) (:meth:`lfsf.solver.LevelSolver.fill_hidden`'s
+            ``flagged``).
         cubic : the values of the samples at their warped positions (W1, W2, J2, §3) by
             Catmull–Rom cubic interpolation over 4 × 4 pixels (an addition to the
             paper); False: bilinear over 2 × 2 pixels, the paper's quadrilinear lookup

@@ -409,7 +409,9 @@ class LevelSolver:
         0: off, and ``params.hidden_fill_depth``). No view constrains the point at t2,
         and the regulariser alone reaches over to the occluder. ``flagged`` (bool (h, w),
         optional; or a float device array, 1 where flagged): points another test
-        suspects hidden (the estimator's searches); their δ2 is set the same way. First the
+        suspects hidden (the estimator's searches), or whose flow finds no match at t2
+        (:func:`lfsf.estimate._unmatched`); their δ2 is set the same way, their flow is
+        kept, and they are no source of the depth change. First the
         points of x whose t2 pixel holds a point nearer by more than ``FILL_MARGIN`` join
         ``hidden2``, which holds until the next :meth:`linearise`. The estimator calls it
         once, after the finest level's last warp."""

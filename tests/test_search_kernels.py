@@ -393,6 +393,48 @@ def test_surface_block_cost_matches_reference(device):
     close(run(c1b, c2, x2, 2, 0.5)[:, :4], run(c1, c2, x, 2, 0.5)[:, :4], atol=0)
 
 
+def test_unmatched_points_are_those_whose_flow_finds_no_match_at_t2(device):
+    """:func:`lfsf.estimate._unmatched`: the block residual of the surface block cost's
+    NumPy reference above the trust floor and above UNMATCHED_MEDIAN × its median. A
+    textured t1 moved by (2, 1) px to t2, the true flow given, except where a patch of
+    t2 was painted over with another texture: the points that land there, and only
+    those, have no match (besides those carried out of the image). With sensor noise (σ = 0.02) every residual rises above a
+    floor of 0.1 σ(I1), and the median's bound keeps the points that do match out."""
+    from lfsf import estimate
+    from lfsf.params import Params
+
+    h, w = 40, 48
+    tex = wave_texture(31, 6, (0.3, 0.9), 0.12)
+    other = wave_texture(32, 6, (0.3, 0.9), 0.12)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    c1 = tex(xx, yy).astype(np.float32)
+    c2 = tex(xx - 2.0, yy - 1.0).astype(np.float32)
+    c2[14:26, 20:32] = other(xx, yy)[14:26, 20:32]
+    x = np.zeros((h, w, 4), np.float32)
+    x[..., 0] = x[..., 1] = 0.5
+    x[..., 2], x[..., 3] = 2.0, 1.0
+    params = Params()
+    painted = np.zeros((h, w), bool)
+    painted[13:25, 18:30] = True  # the points of t1 that land in the painted patch
+    for noise in (0.0, 0.02):
+        n1 = (c1 + noise * rng(5).standard_normal((h, w))).astype(np.float32)
+        n2 = (c2 + noise * rng(6).standard_normal((h, w))).astype(np.float32)
+        floor = 0.1 * float(np.std(n1))
+        got = estimate._unmatched(arr(n1, float, device), arr(n2, float, device), arr(x, wp.vec4, device),
+                                  params, device, floor).numpy()
+        cost = ref.surface_block_cost(n1, n2, x, params.search_radius, params.median_tolerance)
+        limit = max(floor, estimate.UNMATCHED_MEDIAN * float(np.median(cost)))
+        near = (np.abs(cost - limit) < 1e-5 * limit)  # float32 against float64 at the bound
+        np.testing.assert_array_equal((got > 0.5)[~near], (cost > limit)[~near])
+        inner = np.zeros((h, w), bool)
+        inner[15:23, 20:28] = True
+        assert (got > 0.5)[inner].mean() > 0.9, noise
+        grown = np.zeros((h, w), bool)
+        grown[11:27, 16:32] = True  # the patch and the windows that reach into it
+        grown[:, w - 3:] = grown[h - 2:] = True  # the points carried out of the image, and their windows
+        assert not (got > 0.5)[~grown].any(), noise
+
+
 @pytest.mark.parametrize("span", [1, 3, 9])
 @pytest.mark.parametrize("half,radius", [(1, 0), (1, 1), (2, 2), (2, 5)])
 def test_flow_search_matches_reference(half, radius, span, device):
