@@ -596,6 +596,54 @@ def surface_block_cost(
     cost[i, j] = acc / n
 
 
+@wp.func
+def gradient_norm(image: wp.array2d(dtype=float), i: int, j: int):
+    """|∇I| at pixel (i, j): central differences, one-sided on the border (NumPy's
+    ``gradient``)."""
+    h = image.shape[0]
+    w = image.shape[1]
+    j0 = wp.max(j - 1, 0)
+    j1 = wp.min(j + 1, w - 1)
+    i0 = wp.max(i - 1, 0)
+    i1 = wp.min(i + 1, h - 1)
+    gx = float(0.0)
+    gy = float(0.0)
+    if j1 > j0:
+        gx = (image[i, j1] - image[i, j0]) / float(j1 - j0)
+    if i1 > i0:
+        gy = (image[i1, j] - image[i0, j]) / float(i1 - i0)
+    return wp.sqrt(gx * gx + gy * gy)
+
+
+@wp.kernel
+def cost_above(
+    row0: int,
+    cost: wp.array2d(dtype=float),
+    centre: wp.array2d(dtype=float),
+    slope: float,
+    above: float,
+    # outputs
+    out: wp.array2d(dtype=float),
+):
+    """out = 1 where cost(p) > ``slope`` · ḡ(p) + ``above``, else 0; ḡ the mean of
+    |∇I| (:func:`gradient_norm`) of ``centre`` over the 3 × 3 pixels at p (clamped to
+    the image). A block residual that a flow ``slope`` px off would leave grows with
+    the texture's gradient; above it, the flow is further off, or matches nothing.
+    Launch over (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    h = cost.shape[0]
+    w = cost.shape[1]
+    limit = above
+    if slope != 0.0:
+        g = float(0.0)
+        for di in range(-1, 2):
+            for dj in range(-1, 2):
+                g += gradient_norm(centre, wp.clamp(i + di, 0, h - 1), wp.clamp(j + dj, 0, w - 1))
+        limit += slope * g / 9.0
+    out[i, j] = wp.where(cost[i, j] > limit, 1.0, 0.0)
+
+
 #: The largest window radius of :func:`flow_search` (its ring buffer of column sums).
 MAX_SEARCH_RADIUS = wp.constant(5)
 vec11 = wp.types.vector(length=11, dtype=wp.float32)

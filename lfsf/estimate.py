@@ -232,11 +232,17 @@ SURFACE_FIT_WIDTH = 80
 SURFACE_FIT_RIDGE = 1.0
 SURFACE_FIT_PASSES = 2
 #: The points whose flow finds no match at t2 (:func:`_unmatched`): their block residual
-#: over their own surface is above the surface fit's trust floor (SURFACE_FIT_GOOD times
-#: the standard deviation of the t1 centre view) and above UNMATCHED_MEDIAN times the
-#: median residual of the image (so that sensor noise, which raises every residual,
-#: does not make every point unmatched). Their δ2 comes from the final fill.
+#: over their own surface is above UNMATCHED_MEDIAN times the median residual of the
+#: image (so that sensor noise, which raises every residual, does not make every point
+#: unmatched) and above the surface fit's trust floor (SURFACE_FIT_GOOD times the
+#: standard deviation of the t1 centre view); their δ2 comes from the final fill. Where
+#: it is also above what a flow UNMATCHED_SLOPE px off would leave (that many times the
+#: local mean |∇I1|), the flow is lost, and the fill gives the point its surface's
+#: motion as well. Paired against the final fill without them (δ1 bit-identical): δ2
+#: MSE 0.76 / 0.84 / 0.67× over 40 and 64 scenes at 160×120 and 13 at 320×240 by the
+#: first; EPE 0.996 / 0.994 / 0.979× by the second (thirty-eighth session).
 UNMATCHED_MEDIAN = 4.0
+UNMATCHED_SLOPE = 1.0
 #: Light fields whose joint intensity range spans less than this are stretched to [0, 1]
 #: before anything else (:func:`_intensity_stretch`); wider ones are used as they are.
 #: Every built-in and random scene spans more (the least: `random-0`, 0.22 at 80×60 and
@@ -858,25 +864,37 @@ def _surface_block_cost(centre1, centre2, x, params: Params, device: str, out=No
 
 
 def _unmatched(centre1, centre2, x, params: Params, device: str, floor: float | None = None):
-    """1 where the flow of x (the unknowns, a vec4 (h, w) device array) finds no match
-    at t2, else 0: a new float (h, w) device array. No match: the block residual of the
-    centre views over the point's own surface (:func:`_surface_block_cost`) is above
-    ``floor`` (:func:`_match_floor` of ``centre1``, the surface fit's trust floor; None:
-    computed here) and above ``UNMATCHED_MEDIAN`` times the image's median residual.
-    Such a point is hidden at t2 and its flow went elsewhere, or its flow is wrong; either
-    way its t2 samples, read at p + (u, v), show another point, and δ2 is that point's
-    disparity (on 40 scenes at 160×120 the final fill's δ2 for these points cut the δ2
-    MSE by a geometric mean of 0.76, docs/accuracy.md)."""
-    from lfsf.kernels import fusion
+    """The points of x (the unknowns, a vec4 (h, w) device array) whose flow finds no
+    match at t2, and of those the ones whose flow is lost: two new float (h, w) device
+    arrays, 1 where so, else 0. Both by the block residual of the centre views over
+    the point's own surface (:func:`_surface_block_cost`), above UNMATCHED_MEDIAN times
+    its median over the image (sensor noise raises every residual) and:
 
+    * no match: above ``floor`` (:func:`_match_floor` of ``centre1``, the surface fit's
+      trust floor; None: computed here). Such a point is hidden at t2 and its flow went
+      elsewhere, or its flow is off; either way its t2 samples, read at p + (u, v), show
+      another point, and δ2 is that point's disparity;
+    * lost: above what a flow UNMATCHED_SLOPE px off would leave there, that many times
+      the 3 × 3 mean of |∇I1| (:func:`lfsf.kernels.search.cost_above`). Its flow is
+      further off than the warps can pull it back, or the point is hidden at t2 and
+      its flow found another point.
+
+    The estimator gives the first δ2 from their surface and the second their surface's
+    motion too (:meth:`lfsf.solver.LevelSolver.fill_hidden`)."""
+    from lfsf.kernels import search
+
+    wp = _device.warp()
     cost = _surface_block_cost(centre1, centre2, x, params, device)
     if floor is None:
         floor = _match_floor(centre1)
-    limit = max(float(floor), UNMATCHED_MEDIAN * float(np.median(cost.numpy())))
-    out = _device.warp().empty(x.shape, dtype=float, device=device)
-    _device.launch_rows(fusion.either_above, dim=x.shape, inputs=[cost, limit, cost, limit], outputs=[out],
-                        device=device)
-    return out
+    noise = UNMATCHED_MEDIAN * float(np.median(cost.numpy()))
+    no_match = wp.empty(x.shape, dtype=float, device=device)
+    _device.launch_rows(search.cost_above, dim=x.shape, inputs=[cost, centre1, 0.0, max(float(floor), noise)],
+                        outputs=[no_match], device=device)
+    lost = wp.empty(x.shape, dtype=float, device=device)
+    _device.launch_rows(search.cost_above, dim=x.shape, inputs=[cost, centre1, UNMATCHED_SLOPE, noise],
+                        outputs=[lost], device=device)
+    return no_match, lost
 
 
 def _fit_surface_motion(x, centre1, centre2, samples2, phis, hidden, params: Params, device: str,
@@ -1326,14 +1344,16 @@ def estimate_scene_flow(
             # δ2 and flow of the points hidden at t2: once, at the end (Params.hidden_fill_sigma);
             # δ2 also where the searches or the level's start found the point hidden, and
             # where its flow finds no match at t2: its t2 samples, read at p + (u, v), show
-            # another point, and the δ2 they gave is that point's
-            flagged = hidden_here
+            # another point: the δ2 they gave is that point's. Where the flow is lost
+            # (further off than the warps pull back, or the point is hidden at t2 and its
+            # flow found another point), the fill gives it its surface's motion too
+            flagged, lost = hidden_here, None
             if not solver.flow_only and params.hidden_fill_sigma > 0:
-                flagged = _unmatched(cen[0], cen[1], solver.x, params, dev, floor)
+                flagged, lost = _unmatched(cen[0], cen[1], solver.x, params, dev, floor)
                 if hidden_here is not None:
                     _device.launch_rows(fusion.either_above, dim=(h, w), inputs=[hidden_here, 0.5, flagged, 0.5],
                                         outputs=[flagged], device=dev)
-            solver.fill_hidden(flagged)
+            solver.fill_hidden(flagged, lost)
             lap("iterate")
             # the flow's median once more, after the fill set the hidden points' flow (the
             # last warp's median came before it). It runs whether or not the fill changed

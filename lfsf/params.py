@@ -77,7 +77,9 @@ class Params:
             (:func:`lfsf.estimate._unmatched`: its t2 samples show another point; δ2
             MSE 0.76×, 0.84×, 0.67× over 40 and 64 scenes at 160×120 and 13 at 320×240,
             thirty-eighth session) (:meth:`lfsf.solver.LevelSolver.fill_hidden`'s
-            ``flagged``).
+            ``flagged``); δ2 and the flow where that flow is lost, its residual above
+            what a flow 1 px off would leave (EPE 0.996×, 0.994×, 0.979× on those sets;
+            ``hidden``).
         cubic : the values of the samples at their warped positions (W1, W2, J2, §3) by
             Catmull–Rom cubic interpolation over 4 × 4 pixels (an addition to the
             paper); False: bilinear over 2 × 2 pixels, the paper's quadrilinear lookup

@@ -401,7 +401,7 @@ class LevelSolver:
         self.find_hidden()
         return self.hidden2
 
-    def fill_hidden(self, flagged: np.ndarray | None = None) -> None:
+    def fill_hidden(self, flagged=None, hidden=None) -> None:
         """Where a point is hidden at t2 (``hidden2`` of the last linearisation), give it
         the motion of the points of its own surface around it that are seen at t2: δ2 =
         δ1 plus their depth change, (u, v) their flow
@@ -411,7 +411,9 @@ class LevelSolver:
         optional; or a float device array, 1 where flagged): points another test
         suspects hidden (the estimator's searches), or whose flow finds no match at t2
         (:func:`lfsf.estimate._unmatched`); their δ2 is set the same way, their flow is
-        kept, and they are no source of the depth change. First the
+        kept, and they are no source of the depth change. ``hidden`` (the same types,
+        optional): points to treat as hidden at t2 as well (the estimator's points whose
+        flow is lost), which join ``hidden2``. First the
         points of x whose t2 pixel holds a point nearer by more than ``FILL_MARGIN`` join
         ``hidden2``, which holds until the next :meth:`linearise`. The estimator calls it
         once, after the finest level's last warp."""
@@ -420,21 +422,29 @@ class LevelSolver:
         sigma = self.params.hidden_fill_sigma
         if sigma <= 0 or self.flow_only or self.params.occlusion_margin <= 0:
             return
-        if flagged is not None and tuple(flagged.shape) != self.shape:
-            raise ValueError(f"flagged must be {self.shape}, got {tuple(flagged.shape)}")
+        for name, mask in (("flagged", flagged), ("hidden", hidden)):
+            if mask is not None and tuple(mask.shape) != self.shape:
+                raise ValueError(f"{name} must be {self.shape}, got {tuple(mask.shape)}")
         wp = _device.warp()
         radius = int(math.ceil(3.0 * sigma))
         depth_sigma = self.params.hidden_fill_depth * self.level_scale
-        # the z-buffer test of x at FILL_MARGIN, joined to hidden2
+
+        def load(mask) -> None:  # into scratch1, as floats
+            if isinstance(mask, np.ndarray):
+                self.scratch1.assign(np.ascontiguousarray(mask, np.float32))
+            else:
+                wp.copy(self.scratch1, mask)
+
+        # the z-buffer test of x at FILL_MARGIN, joined to hidden2; then ``hidden``
         self._zbuffer_test(self.x, FILL_MARGIN, 0.0, self.scratch1)
         self._launch(fusion.either_above, inputs=[self.hidden2, 0.5, self.scratch1, 0.5], outputs=[self.hidden2])
+        if hidden is not None:
+            load(hidden)
+            self._launch(fusion.either_above, inputs=[self.hidden2, 0.5, self.scratch1, 0.5], outputs=[self.hidden2])
         if flagged is None:
             self.scratch1.zero_()
         else:
-            if isinstance(flagged, np.ndarray):
-                self.scratch1.assign(np.ascontiguousarray(flagged, np.float32))
-            else:
-                wp.copy(self.scratch1, flagged)
+            load(flagged)
         self._launch(occlusion.fill_hidden_motion, inputs=[self.hidden2, self.scratch1, sigma, depth_sigma, radius],
                      outputs=[self.x, self.x_bar])
 

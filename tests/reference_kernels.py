@@ -891,6 +891,16 @@ def surface_block_cost(centre1, centre2, x, radius: int, tolerance: float) -> np
     return out
 
 
+def cost_above(cost, centre, slope: float, above: float) -> np.ndarray:
+    """1 where cost > slope · (3×3 mean of |∇centre|, np.gradient, edges repeated) +
+    above, else 0 (kernels/search.py cost_above)."""
+    gy, gx = np.gradient(np.asarray(centre, np.float64))
+    g = np.pad(np.hypot(gx, gy), 1, mode="edge")
+    h, w = cost.shape
+    mean = sum(g[a:a + h, b:b + w] for a in range(3) for b in range(3)) / 9.0
+    return (cost > slope * mean + above).astype(np.float32)
+
+
 def flow_grid(half: int) -> np.ndarray:
     """The whole-pixel candidates (dx, dy) of select_flow, k = (dy+n)(2n+1) + (dx+n)."""
     r = np.arange(-half, half + 1)

@@ -2024,6 +2024,35 @@ def test_fill_takes_for_hidden_the_points_that_land_behind_a_surface_close_in_de
     assert np.abs(u - 3.0).max() < 0.8, u
 
 
+def test_fill_takes_the_points_given_as_hidden(device):
+    """``fill_hidden(hidden=…)``: points the caller calls hidden at t2 (the estimator's
+    points whose flow is lost) join ``hidden2`` and take the flow of their own strip's
+    other points (+3), where they held a wrong one (+7) that hid nothing; points left
+    alone keep theirs. As a bool array or a float device array alike."""
+    from lfsf.params import Params
+
+    params = Params.preset("fast")
+    for as_device in (False, True):
+        solver = _level_solver((24, 18), 3, params, device)
+        h, w = solver.shape
+        x = np.zeros((h, w, 4), np.float32)
+        x[5:13, 3:15, :2] = 1.0
+        x[5:13, 3:15, 2] = 3.0
+        x[5:13, 8:10, 2] = 7.0  # lands on background pixels that no nearer point takes
+        solver.set_state(x)
+        solver.linearise()
+        before = solver.hidden2.numpy() > 0.5
+        assert not before[5:13, 8:10].any()
+        lost = np.zeros((h, w), bool)
+        lost[5:13, 8:10] = True
+        solver.fill_hidden(hidden=wp.array(lost.astype(np.float32), dtype=float, device=device) if as_device else lost)
+        got = solver.hidden2.numpy() > 0.5
+        assert got[lost].all()
+        u = solver.unknowns()[..., 2]
+        assert np.abs(u[5:13, 8:10] - 3.0).max() < 0.3, u[5:13, 8:10]
+        np.testing.assert_array_equal(u[~got], x[..., 2][~got])
+
+
 def _square_moving_right(device):
     """(params, a `fast` LevelSolver of 24×18, x): a nearer square (δ 1.5) moving 3 px
     right over a still background at δ 0."""

@@ -393,9 +393,39 @@ def test_surface_block_cost_matches_reference(device):
     close(run(c1b, c2, x2, 2, 0.5)[:, :4], run(c1, c2, x, 2, 0.5)[:, :4], atol=0)
 
 
+@pytest.mark.parametrize("slope,above", [(0.0, 0.3), (1.0, 0.05), (2.5, 0.0)])
+def test_cost_above_matches_reference(device, slope, above):
+    """cost > slope · (3×3 mean of |∇I|) + above, against NumPy's gradient and a padded
+    mean; a ramp's gradient is its slope everywhere (one-sided differences on the
+    border included)."""
+    from lfsf.kernels import search
+
+    def run(cost, centre, slope, above):
+        out = wp.empty(cost.shape, dtype=float, device=device)
+        launch(search.cost_above, cost.shape, [arr(cost, float, device), arr(centre, float, device), float(slope),
+                                               float(above)], [out], device)
+        return out.numpy()
+
+    r = rng(41)
+    h, w = 7, 9
+    centre = r.random((h, w)).astype(np.float32)
+    cost = r.uniform(0.0, 1.2, (h, w)).astype(np.float32)
+    want = ref.cost_above(cost, centre, slope, above)
+    assert 0 < want.sum() < want.size
+    np.testing.assert_array_equal(run(cost, centre, slope, above), want)
+    ramp = (0.3 * np.arange(w)[None, :] + 0.4 * np.arange(h)[:, None]).astype(np.float32)  # |∇I| = 0.5
+    cost = np.full((h, w), 0.5 * slope + above, np.float32)
+    cost[::2] += 0.01
+    cost[1::2] -= 0.01
+    got = run(cost, ramp, slope, above)
+    np.testing.assert_array_equal(got[::2], 1.0)
+    np.testing.assert_array_equal(got[1::2], 0.0)
+
+
 def test_unmatched_points_are_those_whose_flow_finds_no_match_at_t2(device):
     """:func:`lfsf.estimate._unmatched`: the block residual of the surface block cost's
-    NumPy reference above the trust floor and above UNMATCHED_MEDIAN × its median. A
+    NumPy reference above the trust floor and above UNMATCHED_MEDIAN × its median (no
+    match), and above UNMATCHED_SLOPE × the 3×3 mean |∇I1| plus that bound (lost). A
     textured t1 moved by (2, 1) px to t2, the true flow given, except where a patch of
     t2 was painted over with another texture: the points that land there, and only
     those, have no match (besides those carried out of the image). With sensor noise (σ = 0.02) every residual rises above a
@@ -420,12 +450,21 @@ def test_unmatched_points_are_those_whose_flow_finds_no_match_at_t2(device):
         n1 = (c1 + noise * rng(5).standard_normal((h, w))).astype(np.float32)
         n2 = (c2 + noise * rng(6).standard_normal((h, w))).astype(np.float32)
         floor = 0.1 * float(np.std(n1))
-        got = estimate._unmatched(arr(n1, float, device), arr(n2, float, device), arr(x, wp.vec4, device),
-                                  params, device, floor).numpy()
+        got, lost = estimate._unmatched(arr(n1, float, device), arr(n2, float, device), arr(x, wp.vec4, device),
+                                        params, device, floor)
+        got, lost = got.numpy(), lost.numpy()
         cost = ref.surface_block_cost(n1, n2, x, params.search_radius, params.median_tolerance)
-        limit = max(floor, estimate.UNMATCHED_MEDIAN * float(np.median(cost)))
+        noise_bound = estimate.UNMATCHED_MEDIAN * float(np.median(cost))
+        limit = max(floor, noise_bound)
         near = (np.abs(cost - limit) < 1e-5 * limit)  # float32 against float64 at the bound
         np.testing.assert_array_equal((got > 0.5)[~near], (cost > limit)[~near])
+        # lost: above what a flow UNMATCHED_SLOPE px off would leave, by the local gradient
+        gy, gx = np.gradient(n1.astype(np.float64))
+        g = np.pad(np.hypot(gx, gy), 1, mode="edge")
+        mean = sum(g[a:a + h, b:b + w] for a in range(3) for b in range(3)) / 9.0
+        bound = estimate.UNMATCHED_SLOPE * mean + noise_bound
+        near = np.abs(cost - bound) < 1e-5 * bound
+        np.testing.assert_array_equal((lost > 0.5)[~near], (cost > bound)[~near])
         inner = np.zeros((h, w), bool)
         inner[15:23, 20:28] = True
         assert (got > 0.5)[inner].mean() > 0.9, noise
@@ -433,6 +472,9 @@ def test_unmatched_points_are_those_whose_flow_finds_no_match_at_t2(device):
         grown[11:27, 16:32] = True  # the patch and the windows that reach into it
         grown[:, w - 3:] = grown[h - 2:] = True  # the points carried out of the image, and their windows
         assert not (got > 0.5)[~grown].any(), noise
+        # (noise adds to the gradient, and so to what a flow 1 px off would leave: fewer are lost)
+        assert (lost > 0.5)[inner].mean() > (0.5 if noise == 0 else 0.2), noise
+        assert not (lost > 0.5)[~grown].any(), noise
 
 
 @pytest.mark.parametrize("span", [1, 3, 9])
