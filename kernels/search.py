@@ -622,6 +622,8 @@ def cost_above(
     centre: wp.array2d(dtype=float),
     slope: float,
     above: float,
+    x: wp.array2d(dtype=wp.vec4),
+    margin: float,
     # outputs
     out: wp.array2d(dtype=float),
 ):
@@ -629,7 +631,9 @@ def cost_above(
     |∇I| (:func:`gradient_norm`) of ``centre`` over the 3 × 3 pixels at p (clamped to
     the image). A block residual that a flow ``slope`` px off would leave grows with
     the texture's gradient; above it, the flow is further off, or matches nothing.
-    Launch over (rows, columns)."""
+    With ``margin`` ≥ 0, 0 also where p + (u, v) of x (components 2, 3) lies less than
+    ``margin`` px inside the image's outer pixel centres, or outside: there the block
+    residual holds terms that leave the image. Launch over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0
     h = cost.shape[0]
@@ -641,7 +645,14 @@ def cost_above(
             for dj in range(-1, 2):
                 g += gradient_norm(centre, wp.clamp(i + di, 0, h - 1), wp.clamp(j + dj, 0, w - 1))
         limit += slope * g / 9.0
-    out[i, j] = wp.where(cost[i, j] > limit, 1.0, 0.0)
+    flag = cost[i, j] > limit
+    if margin >= 0.0:
+        v = x[i, j]
+        qx = float(j) + v[2]
+        qy = float(i) + v[3]
+        if qx < margin or qy < margin or qx > float(w - 1) - margin or qy > float(h - 1) - margin:
+            flag = False
+    out[i, j] = wp.where(flag, 1.0, 0.0)
 
 
 #: The largest window radius of :func:`flow_search` (its ring buffer of column sums).

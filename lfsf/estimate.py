@@ -877,7 +877,9 @@ def _unmatched(centre1, centre2, x, params: Params, device: str, floor: float | 
     * lost: above what a flow UNMATCHED_SLOPE px off would leave there, that many times
       the 3 × 3 mean of |∇I1| (:func:`lfsf.kernels.search.cost_above`). Its flow is
       further off than the warps can pull it back, or the point is hidden at t2 and
-      its flow found another point.
+      its flow found another point. Not where p + (u, v) lies within ``search_radius``
+      px of the image's edge or beyond, where the residual's terms leave the image
+      (its surface's mean motion would not extrapolate a rotation or a zoom there).
 
     The estimator gives the first δ2 from their surface and the second their surface's
     motion too (:meth:`lfsf.solver.LevelSolver.fill_hidden`)."""
@@ -889,10 +891,12 @@ def _unmatched(centre1, centre2, x, params: Params, device: str, floor: float | 
         floor = _match_floor(centre1)
     noise = UNMATCHED_MEDIAN * float(np.median(cost.numpy()))
     no_match = wp.empty(x.shape, dtype=float, device=device)
-    _device.launch_rows(search.cost_above, dim=x.shape, inputs=[cost, centre1, 0.0, max(float(floor), noise)],
-                        outputs=[no_match], device=device)
+    _device.launch_rows(search.cost_above, dim=x.shape,
+                        inputs=[cost, centre1, 0.0, max(float(floor), noise), x, -1.0], outputs=[no_match],
+                        device=device)
     lost = wp.empty(x.shape, dtype=float, device=device)
-    _device.launch_rows(search.cost_above, dim=x.shape, inputs=[cost, centre1, UNMATCHED_SLOPE, noise],
+    _device.launch_rows(search.cost_above, dim=x.shape,
+                        inputs=[cost, centre1, UNMATCHED_SLOPE, noise, x, float(params.search_radius)],
                         outputs=[lost], device=device)
     return no_match, lost
 

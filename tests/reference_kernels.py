@@ -891,14 +891,21 @@ def surface_block_cost(centre1, centre2, x, radius: int, tolerance: float) -> np
     return out
 
 
-def cost_above(cost, centre, slope: float, above: float) -> np.ndarray:
+def cost_above(cost, centre, slope: float, above: float, x=None, margin: float = -1.0) -> np.ndarray:
     """1 where cost > slope · (3×3 mean of |∇centre|, np.gradient, edges repeated) +
-    above, else 0 (kernels/search.py cost_above)."""
+    above, else 0; with margin ≥ 0 also 0 where p + (u, v) of x lies less than margin
+    inside the outer pixel centres (kernels/search.py cost_above)."""
     gy, gx = np.gradient(np.asarray(centre, np.float64))
     g = np.pad(np.hypot(gx, gy), 1, mode="edge")
     h, w = cost.shape
     mean = sum(g[a:a + h, b:b + w] for a in range(3) for b in range(3)) / 9.0
-    return (cost > slope * mean + above).astype(np.float32)
+    out = cost > slope * mean + above
+    if margin >= 0:
+        qy, qx = np.mgrid[0:h, 0:w]
+        qx = qx + np.asarray(x[..., 2], np.float64)
+        qy = qy + np.asarray(x[..., 3], np.float64)
+        out &= (qx >= margin) & (qy >= margin) & (qx <= w - 1 - margin) & (qy <= h - 1 - margin)
+    return out.astype(np.float32)
 
 
 def flow_grid(half: int) -> np.ndarray:

@@ -393,33 +393,43 @@ def test_surface_block_cost_matches_reference(device):
     close(run(c1b, c2, x2, 2, 0.5)[:, :4], run(c1, c2, x, 2, 0.5)[:, :4], atol=0)
 
 
-@pytest.mark.parametrize("slope,above", [(0.0, 0.3), (1.0, 0.05), (2.5, 0.0)])
-def test_cost_above_matches_reference(device, slope, above):
+@pytest.mark.parametrize("slope,above,margin", [(0.0, 0.3, -1.0), (1.0, 0.05, -1.0), (2.5, 0.0, 1.0),
+                                                (1.0, 0.05, 0.0)])
+def test_cost_above_matches_reference(device, slope, above, margin):
     """cost > slope · (3×3 mean of |∇I|) + above, against NumPy's gradient and a padded
-    mean; a ramp's gradient is its slope everywhere (one-sided differences on the
-    border included)."""
+    mean, and 0 where p + (u, v) lies within ``margin`` of the image's edge or beyond
+    (margin ≥ 0); a ramp's gradient is its slope everywhere (one-sided differences on
+    the border included)."""
     from lfsf.kernels import search
 
-    def run(cost, centre, slope, above):
+    def run(cost, centre, x):
         out = wp.empty(cost.shape, dtype=float, device=device)
         launch(search.cost_above, cost.shape, [arr(cost, float, device), arr(centre, float, device), float(slope),
-                                               float(above)], [out], device)
+                                               float(above), arr(x, wp.vec4, device), float(margin)], [out], device)
         return out.numpy()
 
     r = rng(41)
     h, w = 7, 9
     centre = r.random((h, w)).astype(np.float32)
     cost = r.uniform(0.0, 1.2, (h, w)).astype(np.float32)
-    want = ref.cost_above(cost, centre, slope, above)
+    x = r.uniform(-3.0, 3.0, (h, w, 4)).astype(np.float32)
+    want = ref.cost_above(cost, centre, slope, above, x, margin)
     assert 0 < want.sum() < want.size
-    np.testing.assert_array_equal(run(cost, centre, slope, above), want)
+    np.testing.assert_array_equal(run(cost, centre, x), want)
+    if margin >= 0:  # the margin leaves out some that the residual alone would flag
+        assert (ref.cost_above(cost, centre, slope, above) > want).any()
     ramp = (0.3 * np.arange(w)[None, :] + 0.4 * np.arange(h)[:, None]).astype(np.float32)  # |∇I| = 0.5
     cost = np.full((h, w), 0.5 * slope + above, np.float32)
     cost[::2] += 0.01
     cost[1::2] -= 0.01
-    got = run(cost, ramp, slope, above)
-    np.testing.assert_array_equal(got[::2], 1.0)
-    np.testing.assert_array_equal(got[1::2], 0.0)
+    got = run(cost, ramp, np.zeros((h, w, 4), np.float32))
+    want = np.zeros((h, w), np.float32)
+    want[::2] = 1.0  # the rows with the residual above the bound
+    k = int(np.ceil(margin))
+    if k > 0:  # a still point is within the margin on the outer k rows and columns
+        want[:k] = want[h - k:] = 0.0
+        want[:, :k] = want[:, w - k:] = 0.0
+    np.testing.assert_array_equal(got, want)
 
 
 def test_unmatched_points_are_those_whose_flow_finds_no_match_at_t2(device):
@@ -464,7 +474,11 @@ def test_unmatched_points_are_those_whose_flow_finds_no_match_at_t2(device):
         mean = sum(g[a:a + h, b:b + w] for a in range(3) for b in range(3)) / 9.0
         bound = estimate.UNMATCHED_SLOPE * mean + noise_bound
         near = np.abs(cost - bound) < 1e-5 * bound
-        np.testing.assert_array_equal((lost > 0.5)[~near], (cost > bound)[~near])
+        edge = float(params.search_radius)  # p + (u, v) within the window's reach of the edge: never lost
+        qy, qx = np.mgrid[0:h, 0:w] + np.array([1.0, 2.0])[:, None, None]
+        inside = (qx >= edge) & (qy >= edge) & (qx <= w - 1 - edge) & (qy <= h - 1 - edge)
+        np.testing.assert_array_equal((lost > 0.5)[~near], ((cost > bound) & inside)[~near])
+        assert (cost > bound)[~inside].any()  # the edge's rule is tried
         inner = np.zeros((h, w), bool)
         inner[15:23, 20:28] = True
         assert (got > 0.5)[inner].mean() > 0.9, noise
