@@ -438,8 +438,9 @@ def test_unmatched_points_are_those_whose_flow_finds_no_match_at_t2(device):
     match), and above UNMATCHED_SLOPE × the 3×3 mean |∇I1| plus that bound (lost). A
     textured t1 moved by (2, 1) px to t2, the true flow given, except where a patch of
     t2 was painted over with another texture: the points that land there, and only
-    those, have no match (besides those carried out of the image). With sensor noise (σ = 0.02) every residual rises above a
-    floor of 0.1 σ(I1), and the median's bound keeps the points that do match out."""
+    those, have no match (besides those carried out of the image). With sensor noise
+    (σ = 0.02) every residual rises above a floor of 0.1 σ(I1), and the median's bound
+    keeps the points that do match out."""
     from lfsf import estimate
     from lfsf.params import Params
 
@@ -454,8 +455,6 @@ def test_unmatched_points_are_those_whose_flow_finds_no_match_at_t2(device):
     x[..., 0] = x[..., 1] = 0.5
     x[..., 2], x[..., 3] = 2.0, 1.0
     params = Params()
-    painted = np.zeros((h, w), bool)
-    painted[13:25, 18:30] = True  # the points of t1 that land in the painted patch
     for noise in (0.0, 0.02):
         n1 = (c1 + noise * rng(5).standard_normal((h, w))).astype(np.float32)
         n2 = (c2 + noise * rng(6).standard_normal((h, w))).astype(np.float32)
