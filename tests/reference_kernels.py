@@ -891,15 +891,20 @@ def surface_block_cost(centre1, centre2, x, radius: int, tolerance: float) -> np
     return out
 
 
-def cost_above(cost, centre, slope: float, above: float, x=None, margin: float = -1.0) -> np.ndarray:
-    """1 where cost > slope · (3×3 mean of |∇centre|, np.gradient, edges repeated) +
-    above, else 0; with margin ≥ 0 also 0 where p + (u, v) of x lies less than margin
-    inside the outer pixel centres (kernels/search.py cost_above)."""
+def gradient_mean(centre) -> np.ndarray:
+    """The 3×3 mean of |∇centre| (np.gradient, the edges repeated), as cost_above reads it."""
     gy, gx = np.gradient(np.asarray(centre, np.float64))
     g = np.pad(np.hypot(gx, gy), 1, mode="edge")
+    h, w = g.shape[0] - 2, g.shape[1] - 2
+    return sum(g[a:a + h, b:b + w] for a in range(3) for b in range(3)) / 9.0
+
+
+def cost_above(cost, centre, slope: float, above: float, x=None, margin: float = -1.0) -> np.ndarray:
+    """1 where cost > slope · :func:`gradient_mean` (centre) + above, else 0; with margin
+    ≥ 0 also 0 where p + (u, v) of x lies less than margin inside the outer pixel
+    centres (kernels/search.py cost_above)."""
     h, w = cost.shape
-    mean = sum(g[a:a + h, b:b + w] for a in range(3) for b in range(3)) / 9.0
-    out = cost > slope * mean + above
+    out = cost > slope * gradient_mean(centre) + above
     if margin >= 0:
         qy, qx = np.mgrid[0:h, 0:w]
         qx = qx + np.asarray(x[..., 2], np.float64)

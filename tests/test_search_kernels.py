@@ -468,10 +468,7 @@ def test_unmatched_points_are_those_whose_flow_finds_no_match_at_t2(device):
         near = (np.abs(cost - limit) < 1e-5 * limit)  # float32 against float64 at the bound
         np.testing.assert_array_equal((got > 0.5)[~near], (cost > limit)[~near])
         # lost: above what a flow UNMATCHED_SLOPE px off would leave, by the local gradient
-        gy, gx = np.gradient(n1.astype(np.float64))
-        g = np.pad(np.hypot(gx, gy), 1, mode="edge")
-        mean = sum(g[a:a + h, b:b + w] for a in range(3) for b in range(3)) / 9.0
-        bound = estimate.UNMATCHED_SLOPE * mean + noise_bound
+        bound = estimate.UNMATCHED_SLOPE * ref.gradient_mean(n1) + noise_bound
         near = np.abs(cost - bound) < 1e-5 * bound
         edge = float(params.search_radius)  # p + (u, v) within the window's reach of the edge: never lost
         qy, qx = np.mgrid[0:h, 0:w] + np.array([1.0, 2.0])[:, None, None]
