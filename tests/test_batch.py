@@ -333,15 +333,22 @@ def test_cluster_survives_a_worker_killed_mid_task(tmp_path):
 def test_ctrl_c_on_a_cluster_batch_is_one_line_not_the_workers_tracebacks(frames, tmp_path):
     """A terminal's Ctrl-C reaches the whole process group: each worker process printed
     a KeyboardInterrupt traceback (36–82 lines) before 'interrupted'. Sent here once a
-    pair is running, as a terminal would, to the group."""
+    pair is running, as a terminal would, to the group.
+
+    The batch starts with Ctrl-C answered, as a terminal's foreground job does: a test
+    run started in the background by a non-interactive shell (``pytest &``) has SIGINT
+    ignored, every process it starts inherits that, and the batch then rightly ran to its
+    end (exit 0), which made this test fail on such runs only."""
     import subprocess
     import sys
 
     folder, _ = frames
     out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-m", "lfsf", "batch", str(folder), "--out", str(out), "--workers", "2",
-                             "--preset", "fast"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+    answer_ctrl_c = "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); " \
+                    "from lfsf.cli import entry; sys.argv[0] = 'lfsf'; entry()"
+    proc = subprocess.Popen([sys.executable, "-c", answer_ctrl_c, "batch", str(folder), "--out", str(out),
+                             "--workers", "2", "--preset", "fast"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True)
     deadline = time.monotonic() + 120
     while not list(out.glob(".*.part-*")) and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.002)
