@@ -616,7 +616,6 @@ def dual_data_step_pixel(
     kernel, so the same results. Launch over (rows, width)."""
     i, j = wp.tid()
     i = i + row0
-    w = x_bar.shape[1]
     n = weights.shape[0]
     words = words_of(n)
     g = j // lanes

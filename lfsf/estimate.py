@@ -811,7 +811,7 @@ def _window_flow_cost(centre1, centre2, x, search_radius: int, device: str):
     return _windowed_cost(search.flow_cost, [centre1, centre2, zero, x], 1, (h, w), search_radius, device)[0]
 
 
-def _fuse_flow(x, centre1, centre2, found_u, found_v, params: Params, device: str, hidden=None) -> None:
+def _fuse_flow(x, centre1, centre2, found_u, found_v, params: Params, device: str, hidden) -> None:
     """Per pixel, keep the flow of x (the unknowns, a vec4 (h, w) device array, fused in
     place) or take the searched one (``found_u``, ``found_v``: float (h, w) device
     arrays), whichever matches better; keep it wherever ``hidden`` (float (h, w), > 0.5)
@@ -834,7 +834,7 @@ def _fuse_flow(x, centre1, centre2, found_u, found_v, params: Params, device: st
     # anything there, and whatever the search found inside is another point
     keep = wp.empty(shape, dtype=float, device=device)
     _device.launch_rows(fusion.hidden_or_leaving, dim=shape,
-                        inputs=[hidden if hidden is not None else wp.zeros(shape, dtype=float, device=device), x],
+                        inputs=[hidden, x],
                         outputs=[keep], device=device)
     _device.launch_rows(fusion.take_better, dim=shape, inputs=[cand, new, cur, FUSION_MARGIN, keep, 1, 2, 2],
                         outputs=[x], device=device)

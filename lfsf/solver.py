@@ -457,7 +457,7 @@ class LevelSolver:
         self._iteration.run(n)
 
     def _iteration_steps(self) -> list:
-        from lfsf.kernels import data_term, tgv
+        from lfsf.kernels import tgv
 
         p = self.params
         sigma_z = 1.0 / (2.0 * p.alpha0 * p.step_ratio)

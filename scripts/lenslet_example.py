@@ -37,7 +37,7 @@ from lfsf._files import output_folder, savez_atomic
 from lfsf.decode import Lattice, decode_files, synthetic_lenslet
 from lfsf.estimate import estimate_scene_flow
 from lfsf.evaluate import SYNTH_BORDER, evaluate, format_table
-from lfsf.io import LightField, write_png
+from lfsf.io import write_png
 from lfsf.params import Params
 
 

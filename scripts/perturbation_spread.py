@@ -34,7 +34,6 @@ Exit status 2 for bad arguments.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
