@@ -159,3 +159,66 @@ def sample_at_flow(
     top = (one - fx) * wp.float64(image[y0, x0]) + fx * wp.float64(image[y0, x1])
     bottom = (one - fx) * wp.float64(image[y1, x0]) + fx * wp.float64(image[y1, x1])
     out[i, j] = float((one - fy) * top + fy * bottom)
+
+
+@wp.kernel
+def shifted(
+    row0: int,
+    x: wp.array2d(dtype=wp.vec4),
+    dy: int,
+    dx: int,
+    # outputs
+    out: wp.array2d(dtype=wp.vec4),
+):
+    """out(p) = x(p + (dx, dy)), the pixel read clamped to the image (its edge pixels
+    repeated). Launch over (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    h = x.shape[0]
+    w = x.shape[1]
+    out[i, j] = x[wp.clamp(i + dy, 0, h - 1), wp.clamp(j + dx, 0, w - 1)]
+
+
+@wp.kernel
+def take_other_surface(
+    row0: int,
+    x: wp.array2d(dtype=wp.vec4),
+    candidate: wp.array2d(dtype=wp.vec4),
+    flow_new: wp.array2d(dtype=float),
+    flow_cur: wp.array2d(dtype=float),
+    t1_new: wp.array2d(dtype=float),
+    t1_cur: wp.array2d(dtype=float),
+    hidden: wp.array2d(dtype=float),
+    floor: float,
+    margin: float,
+    depth_gap: float,
+    flow_gap: float,
+    # outputs
+    best: wp.array2d(dtype=float),
+    out: wp.array2d(dtype=wp.vec4),
+):
+    """p takes the whole candidate state (δ1, δ2, u, v), another surface's, where that
+    explains both its t1 samples and the centre views better: its δ1 is more than
+    ``depth_gap`` from x's and its flow more than ``flow_gap`` px from x's; the flow
+    residual ``flow_new`` < ``margin`` · ``flow_cur``, with ``flow_cur`` above ``floor``
+    (a flow that matches leaves the pixel alone); the t1 cost ``t1_new`` < ``margin`` ·
+    ``t1_cur`` and below ``best`` (the lowest t1 cost taken so far, which this lowers);
+    and p is not ``hidden`` (> 0.5: hidden at t2, where the occluder matches better than
+    the point's own flow). x is read, ``out`` written. Launch over (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    if hidden[i, j] > 0.5 or flow_cur[i, j] <= floor:
+        return
+    s = t1_new[i, j]
+    if flow_new[i, j] >= margin * flow_cur[i, j] or s >= margin * t1_cur[i, j] or s >= best[i, j]:
+        return
+    v = x[i, j]
+    c = candidate[i, j]
+    if wp.abs(c[0] - v[0]) <= depth_gap:
+        return
+    du = c[2] - v[2]
+    dv = c[3] - v[3]
+    if du * du + dv * dv <= flow_gap * flow_gap:
+        return
+    best[i, j] = s
+    out[i, j] = c

@@ -243,6 +243,18 @@ SURFACE_FIT_PASSES = 2
 #: first; EPE 0.996 / 0.994 / 0.979× by the second (thirty-eighth session).
 UNMATCHED_MEDIAN = 4.0
 UNMATCHED_SLOPE = 1.0
+#: The outlines' relabelling (:func:`_relabel_outlines`, ``Params.outline_relabel``):
+#: each pixel's candidates are the states of the pixels within RELABEL_REACH px; one is
+#: taken only where its δ1 differs by more than RELABEL_DEPTH_GAP px per view step and its
+#: flow by more than RELABEL_FLOW_GAP px (surfaces whose motions differ by less are not
+#: told apart by the centre views: `weak_texture` at 320×240 had its δ1 MSE doubled
+#: without the flow gap), and where the pixel's flow residual is above RELABEL_FLOOR
+#: times the match floor (:func:`_match_floor`; without one, the flow of a stereo pair,
+#: zero up to rounding, found 'better' ones).
+RELABEL_REACH = 2
+RELABEL_DEPTH_GAP = 0.3
+RELABEL_FLOW_GAP = 1.0
+RELABEL_FLOOR = 0.1
 #: Light fields whose joint intensity range spans less than this are stretched to [0, 1]
 #: before anything else (:func:`_intensity_stretch`); wider ones are used as they are.
 #: Every built-in and random scene spans more (the least: `random-0`, 0.22 at 80×60 and
@@ -971,6 +983,57 @@ def _fit_solver_surfaces(solver, centres, searched_hidden, params: Params, devic
                         floor)
 
 
+def _relabel_outlines(solver, centres, params: Params, device: str, floor: float) -> None:
+    """Give an outline pixel the state (δ1, δ2, u, v) of a neighbour on the other side of
+    its depth edge where that explains its t1 samples and the centre views better
+    (:func:`lfsf.kernels.fusion.take_other_surface`, by ``FUSION_MARGIN`` on both).
+
+    A pixel of a surface's outline whose flow went with the neighbouring surface's is
+    dragged by the cross-time rows (ρ3) to that surface's depth too, and the pair (δ1,
+    flow) of the wrong surface then holds through the warps; the windowed fusions judge
+    such a pixel mostly by its neighbours, which are right. Here each of the
+    (2·RELABEL_REACH + 1)² − 1 neighbours' states, moved as a whole map, is judged at
+    the pixel by the t1 samples (best half, ``search_radius`` windows, the plane sweep's
+    cost) and by the flow residual of the centre views (likewise windowed). Never where
+    the point is hidden at t2 (the occluder then matches better than the point's own
+    flow), nor where the pixel's flow matches (the flow residual at most RELABEL_FLOOR ×
+    ``floor``): a stereo pair (t1 = t2), whose zero flow matches everywhere, is left as it
+    is, and so the stereo-only special case. ``centres``: the level's (2, h, w) centre
+    views; ``floor``: :func:`_match_floor` of the t1 one."""
+    from lfsf.kernels import fusion
+
+    wp = _device.warp()
+    x = solver.x
+    shape = x.shape
+    r = params.search_radius
+    zero = wp.zeros(shape, dtype=wp.vec4, device=device)
+    plane = wp.empty(shape, dtype=float, device=device)
+
+    def t1_cost(state):
+        _device.launch_rows(fusion.unknown_plane, dim=shape, inputs=[state, 0], outputs=[plane], device=device)
+        return _window_cost(solver.samples1, solver.phis, plane, zero, r, device)
+
+    hidden = solver.find_hidden_at(x)
+    flow_cur = _window_flow_cost(centres[0], centres[1], x, r, device)
+    t1_cur = t1_cost(x)
+    best = wp.full(shape, float("inf"), dtype=float, device=device)
+    out = wp.clone(x)
+    cand = wp.empty_like(x)
+    reach = RELABEL_REACH
+    for dy in range(-reach, reach + 1):
+        for dx in range(-reach, reach + 1):
+            if dy == 0 and dx == 0:
+                continue
+            _device.launch_rows(fusion.shifted, dim=shape, inputs=[x, dy, dx], outputs=[cand], device=device)
+            flow_new = _window_flow_cost(centres[0], centres[1], cand, r, device)
+            t1_new = t1_cost(cand)
+            _device.launch_rows(fusion.take_other_surface, dim=shape,
+                                inputs=[x, cand, flow_new, flow_cur, t1_new, t1_cur, hidden, RELABEL_FLOOR * floor,
+                                        FUSION_MARGIN, RELABEL_DEPTH_GAP, RELABEL_FLOW_GAP],
+                                outputs=[best, out], device=device)
+    wp.copy(x, out)
+
+
 def _take_better_disparity(x, component: int, samples, phis, candidate, params: Params, device: str,
                            hidden=None, fusion_margin: float = FUSION_MARGIN) -> None:
     """Per pixel, keep δ1 (``component`` 0, judged by the t1 ``samples`` at p) or δ2
@@ -1369,6 +1432,9 @@ def estimate_scene_flow(
             if fit_surfaces:
                 _fit_solver_surfaces(solver, cen, hidden_here, params, dev, floor)
                 lap("median")
+            if params.outline_relabel and not solver.flow_only:
+                _relabel_outlines(solver, cen, params, dev, _match_floor(cen[0]) if floor is None else floor)
+                lap("search")
         if level > 0:
             fh, fw = sizes[level - 1]
             sx, sy = fw / w, fh / h

@@ -1155,3 +1155,29 @@ def disparity_cost_visible(samples, phis, candidates, base, offset, zbuf, margin
             count += ok
         out[k] = np.where(count > 0, total / np.maximum(count, 1), 1.0)
     return out
+
+
+def shifted(x, dy: int, dx: int) -> np.ndarray:
+    """x(p + (dx, dy)) with the edge pixels repeated (kernels/fusion.py shifted)."""
+    h, w = x.shape[:2]
+    ii = np.clip(np.arange(h) + dy, 0, h - 1)
+    jj = np.clip(np.arange(w) + dx, 0, w - 1)
+    return x[ii][:, jj]
+
+
+def take_other_surface(x, cand, flow_new, flow_cur, t1_new, t1_cur, hidden, floor, margin, depth_gap, flow_gap,
+                       best, out):
+    """(best, out) after kernels/fusion.py take_other_surface: the candidate's whole state
+    where the pixel is not hidden, its flow residual is above floor and both costs fall
+    below margin times the current ones (the t1 cost also below best), with δ1 and the
+    flow apart by more than the gaps."""
+    f32 = np.float32
+    take = (hidden <= 0.5) & (flow_cur > f32(floor))
+    take &= (flow_new < f32(margin) * flow_cur) & (t1_new < f32(margin) * t1_cur) & (t1_new < best)
+    take &= np.abs(cand[..., 0] - x[..., 0]) > f32(depth_gap)
+    du, dv = cand[..., 2] - x[..., 2], cand[..., 3] - x[..., 3]
+    take &= du * du + dv * dv > f32(flow_gap) * f32(flow_gap)
+    best, out = best.copy(), out.copy()
+    best[take] = t1_new[take]
+    out[take] = cand[take]
+    return best, out

@@ -739,6 +739,53 @@ def test_take_better_kernel_matches_numpy(device, first, count, use_hidden):
     assert 0 < out.numpy().sum() < out.size
 
 
+def test_shifted_unknowns_match_numpy(device):
+    """The unknowns read at p + (dx, dy), the image's edge pixels repeated beyond it."""
+    from lfsf.kernels import fusion
+
+    x = rng(35).normal(size=(5, 7, 4)).astype(np.float32)
+    out = wp.zeros((5, 7), dtype=wp.vec4, device=device)
+    for dy, dx in ((0, 1), (-2, 1), (2, -2), (1, 0), (-1, -1), (6, -9)):
+        launch(fusion.shifted, (5, 7), [arr(x, wp.vec4, device), dy, dx], [out], device)
+        np.testing.assert_array_equal(out.numpy(), ref.shifted(x, dy, dx))
+    assert not np.array_equal(ref.shifted(x, 1, 0), x)
+
+
+def test_take_other_surface_matches_numpy(device):
+    """The candidate's whole state where it explains the pixel better by both costs, over
+    a pixel not hidden whose flow does not match, with δ1 and flow apart by the gaps; a
+    second candidate replaces the first only where its t1 cost is lower still."""
+    from lfsf.kernels import fusion
+
+    r = rng(36)
+    h, w = 9, 11
+    x = r.normal(size=(h, w, 4)).astype(np.float32)
+    hidden = (r.random((h, w)) > 0.8).astype(np.float32)
+    flow_cur, t1_cur = r.random((h, w)).astype(np.float32), r.random((h, w)).astype(np.float32)
+    floor, margin, depth_gap, flow_gap = 0.1, 0.8, 0.3, 1.0
+    best = np.full((h, w), np.inf, np.float32)
+    out = x.copy()
+    best_d, out_d = arr(best, float, device), arr(out, wp.vec4, device)
+    taken = []
+    for seed in (37, 38):
+        c = np.random.default_rng(seed)
+        cand = (x + c.normal(scale=1.0, size=x.shape)).astype(np.float32)
+        flow_new = (flow_cur * c.uniform(0.3, 1.2, (h, w))).astype(np.float32)
+        t1_new = (t1_cur * c.uniform(0.3, 1.2, (h, w))).astype(np.float32)
+        launch(fusion.take_other_surface, (h, w),
+               [arr(x, wp.vec4, device), arr(cand, wp.vec4, device), arr(flow_new, float, device),
+                arr(flow_cur, float, device), arr(t1_new, float, device), arr(t1_cur, float, device),
+                arr(hidden, float, device), floor, margin, depth_gap, flow_gap], [best_d, out_d], device)
+        before = out.copy()
+        best, out = ref.take_other_surface(x, cand, flow_new, flow_cur, t1_new, t1_cur, hidden, floor, margin,
+                                           depth_gap, flow_gap, best, out)
+        np.testing.assert_array_equal(best_d.numpy(), best)
+        np.testing.assert_array_equal(out_d.numpy(), out)
+        taken.append(np.any(out != before, axis=-1))
+    assert 0 < taken[0].sum() < h * w and taken[1].any()
+    np.testing.assert_array_equal(out[hidden > 0.5], x[hidden > 0.5])
+
+
 def test_hidden_or_leaving_kernel_matches_numpy(device):
     """1 where the hidden mask says so or the flow takes the pixel out of the image
     (p + (u, v) beyond [0, w − 1] × [0, h − 1]), else 0."""
