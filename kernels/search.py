@@ -794,3 +794,98 @@ def flow_search(
             dy = dy + parabola_vertex(window_shift_cost(centre1, centre2, i, j, kx - half, ky - 1 - half, radius), cmin,
                                       window_shift_cost(centre1, centre2, i, j, kx - half, ky + 1 - half, radius))
         best[i, j] = wp.vec2(dx, dy)
+
+
+@wp.kernel
+def relabel_active(
+    row0: int,
+    x: wp.array2d(dtype=wp.vec4),
+    hidden: wp.array2d(dtype=float),
+    flow_cost: wp.array2d(dtype=float),
+    floor: float,
+    depth_gap: float,
+    flow_gap: float,
+    reach: int,
+    # outputs
+    out: wp.array2d(dtype=float),
+):
+    """1 where p may take a neighbour's state (:func:`lfsf.kernels.fusion.take_other_surface`):
+    p is not ``hidden`` (> 0.5), its ``flow_cost`` is above ``floor``, and a pixel within
+    ``reach`` (read clamped to the image, as the shifted candidates are) has δ1 more than
+    ``depth_gap`` and a flow more than ``flow_gap`` px from p's; else 0. Launch over
+    (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    h = x.shape[0]
+    w = x.shape[1]
+    active = float(0.0)
+    if hidden[i, j] <= 0.5 and flow_cost[i, j] > floor:
+        v = x[i, j]
+        for dy in range(-reach, reach + 1):
+            for dx in range(-reach, reach + 1):
+                c = x[wp.clamp(i + dy, 0, h - 1), wp.clamp(j + dx, 0, w - 1)]
+                du = c[2] - v[2]
+                dv = c[3] - v[3]
+                if wp.abs(c[0] - v[0]) > depth_gap and du * du + dv * dv > flow_gap * flow_gap:
+                    active = 1.0
+    out[i, j] = active
+
+
+@wp.kernel
+def dilated(
+    row0: int,
+    mask: wp.array2d(dtype=float),
+    radius: int,
+    # outputs
+    out: wp.array2d(dtype=float),
+):
+    """1 where ``mask`` (> 0.5) holds a pixel of the (2·radius + 1)² window, else 0.
+    Launch over (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    h = mask.shape[0]
+    w = mask.shape[1]
+    found = float(0.0)
+    for ii in range(wp.max(i - radius, 0), wp.min(i + radius + 1, h)):
+        for jj in range(wp.max(j - radius, 0), wp.min(j + radius + 1, w)):
+            if mask[ii, jj] > 0.5:
+                found = 1.0
+    out[i, j] = found
+
+
+@wp.kernel
+def state_costs(
+    row0: int,
+    samples: wp.array3d(dtype=float),
+    phis: wp.array(dtype=wp.vec2),
+    centre1: wp.array2d(dtype=float),
+    centre2: wp.array2d(dtype=float),
+    x: wp.array2d(dtype=wp.vec4),
+    active: wp.array2d(dtype=float),
+    # outputs
+    cost: wp.array3d(dtype=float),
+):
+    """Per pixel p where ``active`` (> 0.5), the two costs of the state x(p):
+    cost[0, p] = the t1 samples' best-half cost of δ1 (:func:`disparity_cost` with no
+    flow and δ = δ1(p)) and cost[1, p] = the flow residual |I1(p) − I2(p + (u, v))|
+    (:func:`flow_cost`), the same values as those kernels give; 0 elsewhere (the
+    outlines' relabelling reads them only where the windows hold active pixels alone).
+    Launch over (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    t1 = float(0.0)
+    flow = float(0.0)
+    if active[i, j] > 0.5:
+        v = x[i, j]
+        qx = float(j)
+        qy = float(i)
+        centre = bilinear(samples[0], qx, qy)
+        sums, counts, total, count = half_plane_residuals(samples, phis, qx, qy, v[0], centre)
+        t1 = least_half_mean(sums, counts)
+        fx = float(j) + v[2]
+        fy = float(i) + v[3]
+        flow = float(1.0)
+        if inside(centre2, fx, fy):
+            flow = wp.abs(centre1[i, j] - bilinear(centre2, fx, fy))
+    cost[0, i, j] = t1
+    cost[1, i, j] = flow

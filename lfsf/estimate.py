@@ -1000,35 +1000,49 @@ def _relabel_outlines(solver, centres, params: Params, device: str, floor: float
     ``floor``): a stereo pair (t1 = t2), whose zero flow matches everywhere, is left as it
     is, and so the stereo-only special case. ``centres``: the level's (2, h, w) centre
     views; ``floor``: :func:`_match_floor` of the t1 one."""
-    from lfsf.kernels import fusion
+    from lfsf.kernels import fusion, search
 
     wp = _device.warp()
     x = solver.x
     shape = x.shape
     r = params.search_radius
-    zero = wp.zeros(shape, dtype=wp.vec4, device=device)
-    plane = wp.empty(shape, dtype=float, device=device)
-
-    def t1_cost(state):
-        _device.launch_rows(fusion.unknown_plane, dim=shape, inputs=[state, 0], outputs=[plane], device=device)
-        return _window_cost(solver.samples1, solver.phis, plane, zero, r, device)
-
+    reach = RELABEL_REACH
+    c1, c2 = centres[0], centres[1]
     hidden = solver.find_hidden_at(x)
-    flow_cur = _window_flow_cost(centres[0], centres[1], x, r, device)
-    t1_cur = t1_cost(x)
+    flow_cur = _window_flow_cost(c1, c2, x, r, device)
+    plane = wp.empty(shape, dtype=float, device=device)
+    _device.launch_rows(fusion.unknown_plane, dim=shape, inputs=[x, 0], outputs=[plane], device=device)
+    t1_cur = _window_cost(solver.samples1, solver.phis, plane, wp.zeros(shape, dtype=wp.vec4, device=device), r,
+                          device)
+    # the candidates' costs only where a pixel may take one (a few per cent of them, at
+    # outlines between surfaces that move apart) and within its windows' reach
+    active = wp.empty(shape, dtype=float, device=device)
+    _device.launch_rows(search.relabel_active, dim=shape,
+                        inputs=[x, hidden, flow_cur, RELABEL_FLOOR * floor, RELABEL_DEPTH_GAP, RELABEL_FLOW_GAP, reach],
+                        outputs=[active], device=device)
+    support = wp.empty(shape, dtype=float, device=device)
+    _device.launch_rows(search.dilated, dim=shape, inputs=[active, 2 * r], outputs=[support], device=device)
+    costs = wp.empty((2, *shape), dtype=float, device=device)  # t1, flow
+    smooth = wp.empty_like(costs)
+    box_sum, box_min = search.box_kernels(device)
+    span, per_row = _device.row_span(device, shape[1])
     best = wp.full(shape, float("inf"), dtype=float, device=device)
     out = wp.clone(x)
     cand = wp.empty_like(x)
-    reach = RELABEL_REACH
     for dy in range(-reach, reach + 1):
         for dx in range(-reach, reach + 1):
             if dy == 0 and dx == 0:
                 continue
             _device.launch_rows(fusion.shifted, dim=shape, inputs=[x, dy, dx], outputs=[cand], device=device)
-            flow_new = _window_flow_cost(centres[0], centres[1], cand, r, device)
-            t1_new = t1_cost(cand)
+            _device.launch_rows(search.state_costs, dim=shape, inputs=[solver.samples1, solver.phis, c1, c2, cand,
+                                                                       support], outputs=[costs], device=device)
+            if r > 0:  # over the shiftable windows, as _windowed_cost
+                _device.launch_rows(box_sum, dim=(2 * shape[0], per_row), inputs=[costs, r, span], outputs=[smooth],
+                                    device=device)
+                _device.launch_rows(box_min, dim=(2 * shape[0], per_row), inputs=[smooth, r, span], outputs=[costs],
+                                    device=device)
             _device.launch_rows(fusion.take_other_surface, dim=shape,
-                                inputs=[x, cand, flow_new, flow_cur, t1_new, t1_cur, hidden, RELABEL_FLOOR * floor,
+                                inputs=[x, cand, costs[1], flow_cur, costs[0], t1_cur, hidden, RELABEL_FLOOR * floor,
                                         FUSION_MARGIN, RELABEL_DEPTH_GAP, RELABEL_FLOW_GAP],
                                 outputs=[best, out], device=device)
     wp.copy(x, out)

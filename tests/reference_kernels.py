@@ -1181,3 +1181,28 @@ def take_other_surface(x, cand, flow_new, flow_cur, t1_new, t1_cur, hidden, floo
     best[take] = t1_new[take]
     out[take] = cand[take]
     return best, out
+
+
+def relabel_active(x, hidden, flow_cost, floor, depth_gap, flow_gap, reach) -> np.ndarray:
+    """1 where the pixel is not hidden, its flow cost is above floor and a pixel within
+    reach (read clamped) has δ1 and flow apart from its own by more than the gaps
+    (kernels/search.py relabel_active)."""
+    f32 = np.float32
+    found = np.zeros(x.shape[:2], bool)
+    for dy in range(-reach, reach + 1):
+        for dx in range(-reach, reach + 1):
+            c = shifted(x, dy, dx)
+            du, dv = c[..., 2] - x[..., 2], c[..., 3] - x[..., 3]
+            found |= (np.abs(c[..., 0] - x[..., 0]) > f32(depth_gap)) & (du * du + dv * dv > f32(flow_gap) ** 2)
+    return (found & (hidden <= 0.5) & (flow_cost > f32(floor))).astype(np.float32)
+
+
+def dilated(mask, radius: int) -> np.ndarray:
+    """1 where the (2·radius + 1)² window holds a pixel of mask > 0.5 (kernels/search.py dilated)."""
+    m = np.pad(mask > 0.5, radius)
+    h, w = mask.shape
+    out = np.zeros((h, w), bool)
+    for a in range(2 * radius + 1):
+        for b in range(2 * radius + 1):
+            out |= m[a:a + h, b:b + w]
+    return out.astype(np.float32)

@@ -364,6 +364,68 @@ def test_flow_cost_matches_reference(device, span):
     close(got[4, 1, 2], abs(float(centre1[1, 2]) - float(centre2[1, 2])), atol=1e-7)
 
 
+def test_state_costs_are_the_cost_kernels_values_where_active(device):
+    """The outlines' relabelling's costs of a state map: the t1 best-half cost of each
+    pixel's δ1 (disparity_cost with no flow) and its flow residual (flow_cost), the same
+    values as those kernels give, against their NumPy references too; 0 where not active."""
+    from lfsf.kernels import search
+
+    r = rng(39)
+    h, w = 7, 9
+    phis, samples, _c, base, _o = _cost_inputs(r, h, w)
+    centre1, centre2 = r.random((h, w)).astype(np.float32), r.random((h, w)).astype(np.float32)
+    x = r.uniform(-1.5, 1.5, (h, w, 4)).astype(np.float32)
+    x[..., 0] = base
+    x[2, 3, 2:] = (30.0, 0.0)  # carried out of the image: flow cost 1
+    active = (r.random((h, w)) > 0.3).astype(np.float32)
+    active[2, 3] = 1.0
+    cost = wp.zeros((2, h, w), dtype=float, device=device)
+    launch(search.state_costs, (h, w), [arr(samples, float, device), arr(phis, wp.vec2, device),
+                                        arr(centre1, float, device), arr(centre2, float, device),
+                                        arr(x, wp.vec4, device), arr(active, float, device)], [cost], device)
+    got = cost.numpy()
+    on = active > 0.5
+    zero = np.zeros((1,), np.float32)
+    t1 = run_disparity_cost(samples, phis, zero, base, np.zeros_like(x), device)[0]
+    flow = run_flow_cost(centre1, centre2, np.zeros((1, 2), np.float32), x, device)[0]
+    if D.is_cpu(device):
+        np.testing.assert_array_equal(got[0][on], t1[on])
+        np.testing.assert_array_equal(got[1][on], flow[on])
+    close(got[0][on], ref.disparity_cost(samples, phis, zero, base, np.zeros_like(x))[0][on], atol=2e-5)
+    close(got[1][on], ref.flow_cost(centre1, centre2, np.zeros((1, 2), np.float32), x)[0][on], atol=2e-6)
+    assert got[1][2, 3] == 1.0 and not got[:, ~on].any()
+
+
+def test_relabel_active_and_dilated_match_numpy(device):
+    """The pixels that may take a neighbour's state (not hidden, their flow cost above
+    the floor, a neighbour within reach apart by both gaps), and a mask's dilation."""
+    from lfsf.kernels import search
+
+    r = rng(40)
+    h, w = 10, 12
+    x = np.zeros((h, w, 4), np.float32)
+    x[:, 6:, 0] = 1.0                      # a depth edge between columns 5 and 6 ...
+    x[:, 6:, 2] = 2.0                      # ... that moves apart by 2 px
+    x[:5, 6:, 2] = 0.5                     # except in the upper rows (0.5 px: within the gap)
+    x += r.normal(scale=0.01, size=x.shape).astype(np.float32)
+    hidden = np.zeros((h, w), np.float32)
+    hidden[7, 5] = 1.0
+    flow_cost = r.random((h, w)).astype(np.float32)
+    floor = 0.2
+    out = wp.zeros((h, w), dtype=float, device=device)
+    launch(search.relabel_active, (h, w), [arr(x, wp.vec4, device), arr(hidden, float, device),
+                                           arr(flow_cost, float, device), floor, 0.3, 1.0, 2], [out], device)
+    want = ref.relabel_active(x, hidden, flow_cost, floor, 0.3, 1.0, 2)
+    np.testing.assert_array_equal(out.numpy(), want)
+    # (rows 0–2 are more than 2 rows from any edge pixel that moves apart)
+    assert want[5:, 3:9].any() and not want[:, :3].any() and not want[:3].any() and want[7, 5] == 0
+    for radius in (0, 1, 2):
+        d = wp.zeros((h, w), dtype=float, device=device)
+        launch(search.dilated, (h, w), [out, radius], [d], device)
+        np.testing.assert_array_equal(d.numpy(), ref.dilated(want, radius))
+    assert ref.dilated(want, 2).sum() > want.sum()
+
+
 def test_surface_block_cost_matches_reference(device):
     """The flow of each pixel moved as a block over the window's pixels of its own
     surface, against its NumPy reference; a window of one surface is the plain block
