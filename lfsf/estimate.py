@@ -573,24 +573,34 @@ def _windowed_cost(kernel, inputs, count: int, size, search_radius: int, device:
     it stays on the pixel's own side (a layered scene's δ1 MSE at one pixel from the
     edge fell from 3.95 to 0.85, HCI antinous MSE×100 from 9.9 to 5.0). ``columns``: how
     many columns a thread of ``kernel`` walks (default: :func:`lfsf.device.row_span`'s)."""
-    from lfsf.kernels import search
-
     wp = _device.warp()
     h, w = size
     cost = wp.empty((count, h, w), dtype=float, device=device)
-    span, per_row = _device.row_span(device, w)
-    lanes = span if columns is None else columns
+    lanes = _device.row_span(device, w)[0] if columns is None else columns
     _device.launch_rows(kernel, dim=(count * h, -(-w // lanes)), inputs=[*inputs, lanes], outputs=[cost],
                         device=device)
+    _best_windows(cost, search_radius, device)
+    return cost
+
+
+def _best_windows(cost, search_radius: int, device: str, smooth=None) -> None:
+    """Per-pixel costs (count, h, w), a device array, replaced in place by their means
+    over (2r+1)² windows, and of those the best window that holds the pixel (shiftable
+    windows, :func:`_windowed_cost`); left as they are with r ≤ 0. ``smooth``: scratch of
+    ``cost``'s shape (default: allocated here)."""
+    from lfsf.kernels import search
+
     if search_radius <= 0:
-        return cost
-    smooth = wp.empty_like(cost)
+        return
+    count, h, w = cost.shape
+    span, per_row = _device.row_span(device, w)
+    if smooth is None:
+        smooth = _device.warp().empty_like(cost)
     box_sum, box_min = search.box_kernels(device)
     _device.launch_rows(box_sum, dim=(count * h, per_row), inputs=[cost, search_radius, span],
                         outputs=[smooth], device=device)
     _device.launch_rows(box_min, dim=(count * h, per_row), inputs=[smooth, search_radius, span],
                         outputs=[cost], device=device)
-    return cost
 
 
 def sweep_shifts(candidates: np.ndarray, phis: np.ndarray) -> np.ndarray:
@@ -1024,8 +1034,6 @@ def _relabel_outlines(solver, centres, params: Params, device: str, floor: float
     _device.launch_rows(search.dilated, dim=shape, inputs=[active, 2 * r], outputs=[support], device=device)
     costs = wp.empty((2, *shape), dtype=float, device=device)  # t1, flow
     smooth = wp.empty_like(costs)
-    box_sum, box_min = search.box_kernels(device)
-    span, per_row = _device.row_span(device, shape[1])
     best = wp.full(shape, float("inf"), dtype=float, device=device)
     out = wp.clone(x)
     cand = wp.empty_like(x)
@@ -1036,11 +1044,7 @@ def _relabel_outlines(solver, centres, params: Params, device: str, floor: float
             _device.launch_rows(fusion.shifted, dim=shape, inputs=[x, dy, dx], outputs=[cand], device=device)
             _device.launch_rows(search.state_costs, dim=shape, inputs=[solver.samples1, solver.phis, c1, c2, cand,
                                                                        support], outputs=[costs], device=device)
-            if r > 0:  # over the shiftable windows, as _windowed_cost
-                _device.launch_rows(box_sum, dim=(2 * shape[0], per_row), inputs=[costs, r, span], outputs=[smooth],
-                                    device=device)
-                _device.launch_rows(box_min, dim=(2 * shape[0], per_row), inputs=[smooth, r, span], outputs=[costs],
-                                    device=device)
+            _best_windows(costs, r, device, smooth)
             _device.launch_rows(fusion.take_other_surface, dim=shape,
                                 inputs=[x, cand, costs[1], flow_cur, costs[0], t1_cur, hidden, RELABEL_FLOOR * floor,
                                         FUSION_MARGIN, RELABEL_DEPTH_GAP, RELABEL_FLOW_GAP],
