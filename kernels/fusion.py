@@ -179,6 +179,20 @@ def shifted(
     out[i, j] = x[wp.clamp(i + dy, 0, h - 1), wp.clamp(j + dx, 0, w - 1)]
 
 
+@wp.func
+def states_apart(v: wp.vec4, c: wp.vec4, depth_gap: float, flow_gap: float):
+    """Whether the state c = (δ1, δ2, u, v) lies on another surface than v, as the
+    outlines' relabelling tells them apart: δ1 more than ``depth_gap`` and the flow more
+    than ``flow_gap`` px apart."""
+    apart = False
+    if wp.abs(c[0] - v[0]) > depth_gap:
+        du = c[2] - v[2]
+        dv = c[3] - v[3]
+        if du * du + dv * dv > flow_gap * flow_gap:
+            apart = True
+    return apart
+
+
 @wp.kernel
 def take_other_surface(
     row0: int,
@@ -198,13 +212,14 @@ def take_other_surface(
     out: wp.array2d(dtype=wp.vec4),
 ):
     """p takes the whole candidate state (δ1, δ2, u, v), another surface's, where that
-    explains both its t1 samples and the centre views better: its δ1 is more than
-    ``depth_gap`` from x's and its flow more than ``flow_gap`` px from x's; the flow
-    residual ``flow_new`` < ``margin`` · ``flow_cur``, with ``flow_cur`` above ``floor``
-    (a flow that matches leaves the pixel alone); the t1 cost ``t1_new`` < ``margin`` ·
-    ``t1_cur`` and below ``best`` (the lowest t1 cost taken so far, which this lowers);
-    and p is not ``hidden`` (> 0.5: hidden at t2, where the occluder matches better than
-    the point's own flow). x is read, ``out`` written. Launch over (rows, columns)."""
+    explains both its t1 samples and the centre views better: it lies apart from x's
+    (:func:`states_apart`: δ1 by more than ``depth_gap``, the flow by more than
+    ``flow_gap`` px); the flow residual ``flow_new`` < ``margin`` · ``flow_cur``, with
+    ``flow_cur`` above ``floor`` (a flow that matches leaves the pixel alone); the t1
+    cost ``t1_new`` < ``margin`` · ``t1_cur`` and below ``best`` (the lowest t1 cost
+    taken so far, which this lowers); and p is not ``hidden`` (> 0.5: hidden at t2,
+    where the occluder matches better than the point's own flow). x is read, ``out``
+    written. Launch over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0
     if hidden[i, j] > 0.5 or flow_cur[i, j] <= floor:
@@ -212,13 +227,8 @@ def take_other_surface(
     s = t1_new[i, j]
     if flow_new[i, j] >= margin * flow_cur[i, j] or s >= margin * t1_cur[i, j] or s >= best[i, j]:
         return
-    v = x[i, j]
     c = candidate[i, j]
-    if wp.abs(c[0] - v[0]) <= depth_gap:
-        return
-    du = c[2] - v[2]
-    dv = c[3] - v[3]
-    if du * du + dv * dv <= flow_gap * flow_gap:
+    if not states_apart(x[i, j], c, depth_gap, flow_gap):
         return
     best[i, j] = s
     out[i, j] = c

@@ -23,6 +23,7 @@ from lfsf.device import is_cpu
 
 from .common import (HALF_PLANES, bilinear, contiguous_row, footprint_visible, half_plane_mask, half_plane_residuals,
                      inside, lane_vector, least_half_mean, vec8, visible)
+from .fusion import states_apart
 
 wp.set_module_options({"enable_backward": False})
 
@@ -811,9 +812,9 @@ def relabel_active(
 ):
     """1 where p may take a neighbour's state (:func:`lfsf.kernels.fusion.take_other_surface`):
     p is not ``hidden`` (> 0.5), its ``flow_cost`` is above ``floor``, and a pixel within
-    ``reach`` (read clamped to the image, as the shifted candidates are) has δ1 more than
-    ``depth_gap`` and a flow more than ``flow_gap`` px from p's; else 0. Launch over
-    (rows, columns)."""
+    ``reach`` (read clamped to the image, as the shifted candidates are) lies apart from
+    p's state by the same test (:func:`lfsf.kernels.fusion.states_apart`); else 0.
+    Launch over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0
     h = x.shape[0]
@@ -824,9 +825,7 @@ def relabel_active(
         for dy in range(-reach, reach + 1):
             for dx in range(-reach, reach + 1):
                 c = x[wp.clamp(i + dy, 0, h - 1), wp.clamp(j + dx, 0, w - 1)]
-                du = c[2] - v[2]
-                dv = c[3] - v[3]
-                if wp.abs(c[0] - v[0]) > depth_gap and du * du + dv * dv > flow_gap * flow_gap:
+                if states_apart(v, c, depth_gap, flow_gap):
                     active = 1.0
     out[i, j] = active
 
