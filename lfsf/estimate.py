@@ -1019,11 +1019,14 @@ def _relabel_outlines(solver, centres, params: Params, device: str, floor: float
     reach = RELABEL_REACH
     c1, c2 = centres[0], centres[1]
     hidden = solver.find_hidden_at(x)
-    flow_cur = _window_flow_cost(c1, c2, x, r, device)
-    plane = wp.empty(shape, dtype=float, device=device)
-    _device.launch_rows(fusion.unknown_plane, dim=shape, inputs=[x, 0], outputs=[plane], device=device)
-    t1_cur = _window_cost(solver.samples1, solver.phis, plane, wp.zeros(shape, dtype=wp.vec4, device=device), r,
-                          device)
+    # each state map's t1 cost and flow residual (t1, flow), over the shiftable windows
+    current = wp.empty((2, *shape), dtype=float, device=device)
+    smooth = wp.empty_like(current)
+    _device.launch_rows(search.state_costs, dim=shape, inputs=[solver.samples1, solver.phis, c1, c2, x,
+                                                               wp.full(shape, 1.0, dtype=float, device=device)],
+                        outputs=[current], device=device)
+    _best_windows(current, r, device, smooth)
+    t1_cur, flow_cur = current[0], current[1]
     # the candidates' costs only where a pixel may take one (a few per cent of them, at
     # outlines between surfaces that move apart) and within its windows' reach
     active = wp.empty(shape, dtype=float, device=device)
@@ -1032,8 +1035,7 @@ def _relabel_outlines(solver, centres, params: Params, device: str, floor: float
                         outputs=[active], device=device)
     support = wp.empty(shape, dtype=float, device=device)
     _device.launch_rows(search.dilated, dim=shape, inputs=[active, 2 * r], outputs=[support], device=device)
-    costs = wp.empty((2, *shape), dtype=float, device=device)  # t1, flow
-    smooth = wp.empty_like(costs)
+    costs = wp.empty_like(current)
     best = wp.full(shape, float("inf"), dtype=float, device=device)
     out = wp.clone(x)
     cand = wp.empty_like(x)
