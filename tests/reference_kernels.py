@@ -1165,6 +1165,14 @@ def shifted(x, dy: int, dx: int) -> np.ndarray:
     return x[ii][:, jj]
 
 
+def states_apart(x, cand, depth_gap, flow_gap) -> np.ndarray:
+    """Where the state cand lies apart from x: δ1 and the flow by more than the gaps
+    (kernels/fusion.py states_apart)."""
+    f32 = np.float32
+    du, dv = cand[..., 2] - x[..., 2], cand[..., 3] - x[..., 3]
+    return (np.abs(cand[..., 0] - x[..., 0]) > f32(depth_gap)) & (du * du + dv * dv > f32(flow_gap) * f32(flow_gap))
+
+
 def take_other_surface(x, cand, flow_new, flow_cur, t1_new, t1_cur, hidden, floor, margin, depth_gap, flow_gap,
                        best, out):
     """(best, out) after kernels/fusion.py take_other_surface: the candidate's whole state
@@ -1174,9 +1182,7 @@ def take_other_surface(x, cand, flow_new, flow_cur, t1_new, t1_cur, hidden, floo
     f32 = np.float32
     take = (hidden <= 0.5) & (flow_cur > f32(floor))
     take &= (flow_new < f32(margin) * flow_cur) & (t1_new < f32(margin) * t1_cur) & (t1_new < best)
-    take &= np.abs(cand[..., 0] - x[..., 0]) > f32(depth_gap)
-    du, dv = cand[..., 2] - x[..., 2], cand[..., 3] - x[..., 3]
-    take &= du * du + dv * dv > f32(flow_gap) * f32(flow_gap)
+    take &= states_apart(x, cand, depth_gap, flow_gap)
     best, out = best.copy(), out.copy()
     best[take] = t1_new[take]
     out[take] = cand[take]
@@ -1187,14 +1193,11 @@ def relabel_active(x, hidden, flow_cost, floor, depth_gap, flow_gap, reach) -> n
     """1 where the pixel is not hidden, its flow cost is above floor and a pixel within
     reach (read clamped) has δ1 and flow apart from its own by more than the gaps
     (kernels/search.py relabel_active)."""
-    f32 = np.float32
     found = np.zeros(x.shape[:2], bool)
     for dy in range(-reach, reach + 1):
         for dx in range(-reach, reach + 1):
-            c = shifted(x, dy, dx)
-            du, dv = c[..., 2] - x[..., 2], c[..., 3] - x[..., 3]
-            found |= (np.abs(c[..., 0] - x[..., 0]) > f32(depth_gap)) & (du * du + dv * dv > f32(flow_gap) ** 2)
-    return (found & (hidden <= 0.5) & (flow_cost > f32(floor))).astype(np.float32)
+            found |= states_apart(x, shifted(x, dy, dx), depth_gap, flow_gap)
+    return (found & (hidden <= 0.5) & (flow_cost > np.float32(floor))).astype(np.float32)
 
 
 def dilated(mask, radius: int) -> np.ndarray:
