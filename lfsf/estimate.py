@@ -1396,8 +1396,12 @@ def estimate_scene_flow(
         # each surface's motion carried to its rim (Params.surface_fit), on the finest level
         fit_surfaces = level == 0 and params.surface_fit and not solver.flow_only
         late_search = level == 0 and search and params.late_search
-        # the t1 centre view's match floor (a read back to the host), once for the level
-        floor = _match_floor(cen[0]) if fit_surfaces or late_search else None
+        # the t1 centre view's match floor (a read back to the host), once for the level:
+        # the late search and the surface fits read it, and at the end the fill's test of
+        # the unmatched points and the outlines' relabelling
+        floor = (_match_floor(cen[0]) if fit_surfaces or late_search or (
+            level == 0 and not solver.flow_only and (params.hidden_fill_sigma > 0 or params.outline_relabel))
+            else None)
         for k in range(params.warps):
             if level == 0 and k == params.warps - 1 and k > 0:
                 if late_search:
@@ -1453,7 +1457,7 @@ def estimate_scene_flow(
                 _fit_solver_surfaces(solver, cen, hidden_here, params, dev, floor)
                 lap("median")
             if params.outline_relabel and not solver.flow_only:
-                _relabel_outlines(solver, cen, params, dev, _match_floor(cen[0]) if floor is None else floor)
+                _relabel_outlines(solver, cen, params, dev, floor)
                 lap("search")
         if level > 0:
             fh, fw = sizes[level - 1]
