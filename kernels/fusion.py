@@ -179,6 +179,43 @@ def shifted(
     out[i, j] = x[wp.clamp(i + dy, 0, h - 1), wp.clamp(j + dx, 0, w - 1)]
 
 
+@wp.kernel
+def depth_nearby(
+    row0: int,
+    x: wp.array2d(dtype=wp.vec4),
+    component: int,
+    candidate: wp.array2d(dtype=float),
+    reach: int,
+    depth: float,
+    keep: wp.array2d(dtype=float),
+    use_keep: int,
+    # outputs
+    out: wp.array2d(dtype=float),
+):
+    """out = 0 where some pixel q within ``reach`` px of p (|Δi|, |Δj| ≤ ``reach``, read
+    clamped to the image) holds a value of the unknown ``component`` of x within
+    ``depth`` of ``candidate(p)`` (|x(q)[component] − candidate(p)| < ``depth``), and p
+    is not kept (``use_keep`` 0, or ``keep`` ≤ 0.5); else 1: a mask of the pixels that
+    keep their value (the ``hidden`` input of :func:`take_better`). A searched depth
+    is then taken only where a surface at that depth lies near. Launch over (rows,
+    columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    h = x.shape[0]
+    w = x.shape[1]
+    c = candidate[i, j]
+    kept = float(1.0)
+    for dy in range(-reach, reach + 1):
+        for dx in range(-reach, reach + 1):
+            q = x[wp.clamp(i + dy, 0, h - 1), wp.clamp(j + dx, 0, w - 1)]
+            if wp.abs(q[component] - c) < depth:
+                kept = 0.0
+    if use_keep != 0:
+        if keep[i, j] > 0.5:
+            kept = 1.0
+    out[i, j] = kept
+
+
 @wp.func
 def states_apart(v: wp.vec4, c: wp.vec4, depth_gap: float, flow_gap: float):
     """Whether the state c = (δ1, δ2, u, v) lies on another surface than v, as the

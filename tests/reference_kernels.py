@@ -1165,6 +1165,20 @@ def shifted(x, dy: int, dx: int) -> np.ndarray:
     return x[ii][:, jj]
 
 
+def depth_nearby(x, component: int, candidate, reach: int, depth: float, keep=None) -> np.ndarray:
+    """kernels/fusion.py depth_nearby: 0 where a pixel within ``reach`` (read with the
+    edge pixels repeated) holds x[..., component] within ``depth`` of the candidate at p
+    and p is not kept (``keep`` > 0.5), else 1."""
+    near = np.zeros(candidate.shape, bool)
+    for dy in range(-reach, reach + 1):
+        for dx in range(-reach, reach + 1):
+            near |= np.abs(shifted(x, dy, dx)[..., component] - candidate) < np.float32(depth)
+    out = (~near).astype(np.float32)
+    if keep is not None:
+        out[keep > 0.5] = 1.0
+    return out
+
+
 def states_apart(x, cand, depth_gap, flow_gap) -> np.ndarray:
     """Where the state cand lies apart from x: δ1 and the flow by more than the gaps
     (kernels/fusion.py states_apart)."""

@@ -848,6 +848,37 @@ def test_take_other_surface_matches_numpy(device):
     np.testing.assert_array_equal(out[hidden > 0.5], x[hidden > 0.5])
 
 
+def test_depth_nearby_matches_numpy(device):
+    """1 (keep) where no pixel within the reach holds the unknown within the depth of the
+    candidate, or where the keep mask says so; 0 where a candidate may be taken. Both
+    unknowns, with and without the mask, at the image's edges too (reads clamped)."""
+    from lfsf.kernels import fusion
+
+    r = rng(39)
+    h, w, reach, depth = 9, 12, 2, 0.3
+    x = r.normal(scale=1.5, size=(h, w, 4)).astype(np.float32)
+    candidate = r.normal(scale=1.5, size=(h, w)).astype(np.float32)
+    keep = (r.random((h, w)) > 0.7).astype(np.float32)
+    for component in (0, 1):
+        for mask in (None, keep):
+            out = wp.empty((h, w), dtype=float, device=device)
+            launch(fusion.depth_nearby, (h, w),
+                   [arr(x, wp.vec4, device), component, arr(candidate, float, device), reach, depth,
+                    arr(candidate if mask is None else mask, float, device), int(mask is not None)], [out], device)
+            expected = ref.depth_nearby(x, component, candidate, reach, depth, mask)
+            np.testing.assert_array_equal(out.numpy(), expected)
+            assert 0 < expected.sum() < h * w
+    # a candidate equal to a value two pixels away is near; three away, not
+    flat = np.zeros((h, w, 4), np.float32)
+    flat[4, 6, 0] = 2.0
+    candidate = np.full((h, w), 2.0, np.float32)
+    out = wp.empty((h, w), dtype=float, device=device)
+    launch(fusion.depth_nearby, (h, w), [arr(flat, wp.vec4, device), 0, arr(candidate, float, device), reach, depth,
+                                         arr(candidate, float, device), 0], [out], device)
+    ii, jj = np.mgrid[0:h, 0:w]
+    np.testing.assert_array_equal(out.numpy() == 0, (np.abs(ii - 4) <= 2) & (np.abs(jj - 6) <= 2))
+
+
 def test_hidden_or_leaving_kernel_matches_numpy(device):
     """1 where the hidden mask says so or the flow takes the pixel out of the image
     (p + (u, v) beyond [0, w − 1] × [0, h − 1]), else 0."""
