@@ -166,6 +166,8 @@ def main(argv=None) -> int:
             synth.get_scene(name)
         if not 0.0 <= args.noise < 0.5:
             raise ValueError(f"--noise must be in [0, 0.5), got {args.noise}")
+        if min(args.size) < 16 or args.grid < 3:
+            raise ValueError(f"--size must be at least 16 16 and --grid at least 3, got {args.size} and {args.grid}")
         if args.static and args.noise <= 0:
             raise ValueError("--static needs --noise: without it t2 would be t1 itself, the stereo-only case")
     except ValueError as exc:

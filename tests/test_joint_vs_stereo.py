@@ -26,4 +26,5 @@ def test_joint_vs_stereo_holds_the_flow_and_refuses_bad_arguments(tmp_path, caps
     assert script.main(["paper", "--noise", "-1"]) == 2
     assert script.main(["--random", "-2"]) == 2
     assert script.main(["paper", "--static"]) == 2
+    assert script.main(["paper", "--size", "0", "10"]) == 2
     assert "joint_vs_stereo:" in capsys.readouterr().err
