@@ -293,3 +293,46 @@ def guided_median_edges(
     else:
         out[i, j] = wp.vec4(guided_median_at(x, colours, i, j, 0, r, colour_sigma, jump, separation),
                             guided_median_at(x, colours, i, j, 1, r, colour_sigma, jump, separation), v[2], v[3])
+
+
+@wp.kernel
+def remove_speckles(
+    row0: int,
+    x: wp.array2d(dtype=wp.vec4),
+    radius: int,
+    depth: float,
+    support: int,
+    # outputs
+    out: wp.array2d(dtype=wp.vec4),
+):
+    """δ1 and δ2 (components 0 and 1 of x) each cleared of speckles: where fewer than
+    ``support`` of the (2r + 1)² window's pixels in the image (r = ``radius`` ≤ 3, p
+    itself counted) hold a value within ``depth`` of p's (|x(q) − x(p)| < ``depth``), p
+    takes the median of the window read clamped to the image, else keeps its value; u
+    and v as they are.
+    A depth that no surface around shares is a match of the data alone (an alias, a
+    fusion's stray pick), as a stereo matcher's speckle filter takes it. Launch over
+    (rows, columns)."""
+    i, j = wp.tid()
+    i = i + row0
+    h = x.shape[0]
+    w = x.shape[1]
+    v = x[i, j]
+    out_v = v
+    for k in range(2):
+        vals = vec49()
+        n = int(0)
+        near = int(0)
+        for dy in range(-radius, radius + 1):
+            for dx in range(-radius, radius + 1):
+                ii = i + dy
+                jj = j + dx
+                q = x[wp.clamp(ii, 0, h - 1), wp.clamp(jj, 0, w - 1)][k]
+                vals[n] = q
+                n += 1
+                if ii >= 0 and ii < h and jj >= 0 and jj < w:
+                    if wp.abs(q - v[k]) < depth:
+                        near += 1
+        if near < support:
+            out_v[k] = network_median(vals, radius)
+    out[i, j] = out_v

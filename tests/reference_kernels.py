@@ -1223,3 +1223,20 @@ def dilated(mask, radius: int) -> np.ndarray:
         for b in range(2 * radius + 1):
             out |= m[a:a + h, b:b + w]
     return out.astype(np.float32)
+
+
+def remove_speckles(x, radius: int, depth: float, support: int) -> np.ndarray:
+    """kernels/median.py remove_speckles: δ1 and δ2 each replaced by the (2r+1)² window's
+    median (edge pixels repeated) where fewer than ``support`` window pixels inside the
+    image hold a value within ``depth`` of the pixel's; u, v unchanged."""
+    h, w = x.shape[:2]
+    ii, jj = np.mgrid[0:h, 0:w]
+    out = x.copy()
+    offsets = [(dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)]
+    inside = np.stack([(ii + dy >= 0) & (ii + dy < h) & (jj + dx >= 0) & (jj + dx < w) for dy, dx in offsets])
+    for k in (0, 1):
+        stack = np.stack([shifted(x, dy, dx)[..., k] for dy, dx in offsets])
+        near = ((np.abs(stack - x[..., k]) < np.float32(depth)) & inside).sum(0)
+        median = np.median(stack, 0).astype(np.float32)
+        out[..., k] = np.where(near < support, median, x[..., k])
+    return out

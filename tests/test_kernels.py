@@ -1713,6 +1713,32 @@ def wp_vec4():
     return warp().vec4
 
 
+@pytest.mark.parametrize("radius", [2, 3])
+def test_remove_speckles_matches_reference(radius, device):
+    """δ1 and δ2 take the window's median where too few pixels around share their depth
+    (a few pixels' blob, stray values), keep it on surfaces and along a 2-pixel line;
+    the flow is copied. At the image's edges the window reads clamped."""
+    from lfsf.kernels import median
+
+    h, w = 16, 15
+    r = rng(41)
+    x = r.standard_normal((h, w, 4)).astype(np.float32) * 0.05
+    x[:, 8:, 0] += 2.0   # a depth edge: both sides keep their values
+    x[3:5, 2, 0] = 3.0   # a 2-pixel speckle in δ1
+    x[0, 0, 1] = -4.0    # a speckle in δ2 at the corner
+    x[:, 11:13, 1] += 1.0   # a line two pixels wide in δ2 (one pixel wide would go: 7 of 49)
+    x[10:, 3:6, 1] += 30 * r.standard_normal((6, 3)).astype(np.float32)  # stray values
+    out = arr(np.zeros((h, w, 4)), wp_vec4(), device)
+    depth, support = 0.3, 8
+    launch(median.remove_speckles, (h, w), [arr(x, wp_vec4(), device), radius, depth, support], [out], device)
+    got = out.numpy()
+    np.testing.assert_array_equal(got, ref.remove_speckles(x, radius, depth, support))
+    assert abs(got[3, 2, 0]) < 0.3 and abs(got[0, 0, 1]) < 0.3       # the speckles are gone
+    np.testing.assert_array_equal(got[:, 8:11, 0], x[:, 8:11, 0])      # the surfaces kept
+    np.testing.assert_array_equal(got[2:14, 11:13, 1], x[2:14, 11:13, 1])    # the line kept
+    np.testing.assert_array_equal(got[..., 2:], x[..., 2:])
+
+
 def test_median_keeps_to_the_centre_pixels_surface(device):
     """Across a depth edge, the median takes the flow of the centre pixel's own surface:
     a near object (δ1 = 1) moving by 3 px whose window is mostly background (δ1 = −1,
