@@ -233,9 +233,9 @@ LATE_SEARCH_MARGIN = 1.05
 LATE_SEARCH_REACH = 3
 LATE_SEARCH_DEPTH = 0.3
 #: The estimate's δ1 and δ2 cleared of speckles at the very end
-#: (:func:`lfsf.kernels.median.remove_speckles`): where fewer than SPECKLE_SUPPORT of the
-#: 7 × 7 pixels around (SPECKLE_RADIUS) hold a value within SPECKLE_DEPTH (px per view
-#: step) of the pixel's, it takes the window's median. A depth no surface around shares
+#: (``Params.speckle_radius``, :func:`lfsf.kernels.median.remove_speckles`): where fewer
+#: than SPECKLE_SUPPORT of the 7 × 7 pixels around (radius 3) hold a value within
+#: SPECKLE_DEPTH (px per view step) of the pixel's, it takes the window's median. A depth no surface around shares
 #: is a stray pick of the data alone: an alias of the sweeps' windows, a fusion's pick
 #: on a tie (`random-13` with photographs: a 3-pixel cluster at δ 3.16 in a background
 #: at −1.79). Paired geometric means of δ1 / δ2 / EPE at 160×120 against none (fortieth
@@ -244,7 +244,6 @@ LATE_SEARCH_DEPTH = 0.3
 #: least 3, 5 or 12 pixels in place of 8: 0.849, 0.919 (radius 2: 4 of 25, 0.756 / 0.915)
 #: and 0.707 with photographs, 0.952, ~0.92 and 0.921 for δ1 of the solid-textured ones;
 #: a depth of 0.2 or 0.5 (8 or 5 pixels): 0.776 / 0.951 and 0.797 / 0.939.
-SPECKLE_RADIUS = 3
 SPECKLE_DEPTH = 0.3
 SPECKLE_SUPPORT = 8
 #: The fit of each surface's motion (:func:`_fit_surface_motion`, ``Params.surface_fit``):
@@ -1522,8 +1521,8 @@ def estimate_scene_flow(
     if colour is not None and params.colour_median_radius > 0:
         x = _colour_edges(x, colour, params, dev)
         lap("median")
-    if n_samples > 1:
-        x = _remove_speckles(x, dev)
+    if n_samples > 1 and params.speckle_radius > 0:
+        x = _remove_speckles(x, params, dev)
         lap("median")
 
     occluded = None if solver.flow_only else solver.occluded_at(x)
@@ -1576,9 +1575,9 @@ def _depth_change_median(x: np.ndarray, params: Params, device: str) -> np.ndarr
     return result
 
 
-def _remove_speckles(x: np.ndarray, device: str) -> np.ndarray:
-    """δ1 and δ2 of x (H, W, 4) cleared of speckles (SPECKLE_RADIUS, SPECKLE_DEPTH,
-    SPECKLE_SUPPORT; :func:`lfsf.kernels.median.remove_speckles`)."""
+def _remove_speckles(x: np.ndarray, params: Params, device: str) -> np.ndarray:
+    """δ1 and δ2 of x (H, W, 4) cleared of speckles (``params.speckle_radius``,
+    SPECKLE_DEPTH, SPECKLE_SUPPORT; :func:`lfsf.kernels.median.remove_speckles`)."""
     from lfsf.kernels import median
 
     wp = _device.warp()
@@ -1586,7 +1585,7 @@ def _remove_speckles(x: np.ndarray, device: str) -> np.ndarray:
     out = wp.empty((h, w), dtype=wp.vec4, device=device)
     _device.launch_rows(median.remove_speckles, dim=(h, w),
                         inputs=[wp.array(np.ascontiguousarray(x, np.float32), dtype=wp.vec4, device=device),
-                                SPECKLE_RADIUS, SPECKLE_DEPTH, SPECKLE_SUPPORT],
+                                params.speckle_radius, SPECKLE_DEPTH, SPECKLE_SUPPORT],
                         outputs=[out], device=device)
     return out.numpy()
 

@@ -66,6 +66,7 @@ BAD = [
     ("colour_median_radius", 4), ("colour_median_radius", -1), ("colour_median_radius", 2.5),
     ("depth_change_radius", 4), ("depth_change_radius", -1),
     ("colour_median_separation", -0.5), ("colour_median_separation", math.nan),
+    ("speckle_radius", 4), ("speckle_radius", -1), ("speckle_radius", 1.5),
     # bounds on what sizes buffers and loops
     ("occlusion_reach", 1000), ("flow_range", 1e6), ("disparity_range", 1e6), ("hidden_fill_sigma", 1000.0),
     ("iterations", 10 ** 9), ("rof_iterations", 10 ** 9), ("warps", 10 ** 6), ("samples", (1, 8, 10_000)),
