@@ -235,15 +235,16 @@ LATE_SEARCH_DEPTH = 0.3
 #: The estimate's δ1 and δ2 cleared of speckles at the very end
 #: (``Params.speckle_radius``, :func:`lfsf.kernels.median.remove_speckles`): where fewer
 #: than SPECKLE_SUPPORT of the 7 × 7 pixels around (radius 3) hold a value within
-#: SPECKLE_DEPTH (px per view step) of the pixel's, it takes the window's median. A depth no surface around shares
-#: is a stray pick of the data alone: an alias of the sweeps' windows, a fusion's pick
-#: on a tie (`random-13` with photographs: a 3-pixel cluster at δ 3.16 in a background
-#: at −1.79). Paired geometric means of δ1 / δ2 / EPE at 160×120 against none (fortieth
-#: session): 20 scenes with photographs 0.729 / 0.790 / 1.000; the 40 solid-textured
-#: 0.903 / 0.966; `random-32…95` 0.953 / 0.954; 10 with noise σ = 0.02 0.884 / 0.917. At
-#: least 3, 5 or 12 pixels in place of 8: 0.849, 0.919 (radius 2: 4 of 25, 0.756 / 0.915)
-#: and 0.707 with photographs, 0.952, ~0.92 and 0.921 for δ1 of the solid-textured ones;
-#: a depth of 0.2 or 0.5 (8 or 5 pixels): 0.776 / 0.951 and 0.797 / 0.939.
+#: SPECKLE_DEPTH (px per view step) of the pixel's, it takes the window's median. A
+#: depth no surface around shares is a stray pick of the data alone: an alias of the
+#: sweeps' windows, a fusion's pick on a tie (`random-13` with photographs: a 3-pixel
+#: cluster at δ 3.16 in a background at −1.79). Paired geometric means of δ1 / δ2 / EPE
+#: at 160×120 against none (fortieth session): 20 scenes with photographs 0.729 / 0.790
+#: / 1.000; the 40 solid-textured 0.903 / 0.966; `random-32…95` 0.953 / 0.954; 10 with
+#: noise σ = 0.02 0.884 / 0.917. δ1 with photographs / solid-textured, at least 3, 5 or
+#: 12 pixels in place of 8: 0.849 / 0.952, 0.751 / 0.919, 0.707 / 0.921 (radius 2 with
+#: 4 of 25: 0.756 / 0.915); a depth of 0.2 (8 pixels) 0.776 / 0.951, 0.5 (5 pixels)
+#: 0.797 / 0.939.
 SPECKLE_DEPTH = 0.3
 SPECKLE_SUPPORT = 8
 #: The fit of each surface's motion (:func:`_fit_surface_motion`, ``Params.surface_fit``):
