@@ -135,9 +135,10 @@ def _names(module) -> dict[str, tuple[str, str]]:
     return found
 
 
-def build(arch: int = 90, out: Path | None = None, progress=None) -> list[dict]:
-    """Build every kernel module for compute capability ``arch`` into ``out`` (a
-    temporary folder if None) and return a row per kernel overload: module, kernel (its
+def build(arch: int = 90, out: Path | None = None, progress=None, modules=None) -> list[dict]:
+    """Build every kernel module (or those named in ``modules``, e.g. ["tgv"]) for
+    compute capability ``arch`` into ``out`` (a temporary folder if None) and return a
+    row per kernel overload: module, kernel (its
     name in its module, or Warp's key where the module has no name for it), overload
     ("vec4", "vec2" or ""), entry (the CUDA entry point), hash (the overload's 8 hex
     digits in it), registers, local_bytes, and the
@@ -157,6 +158,8 @@ def build(arch: int = 90, out: Path | None = None, progress=None) -> list[dict]:
         folder.mkdir(parents=True, exist_ok=True)
         rows = []
         for name, module in kernel_modules():
+            if modules is not None and name not in modules:
+                continue
             t0 = time.perf_counter()
             try:
                 paths = wp.compile_aot_module(module, arch=arch, module_dir=str(folder), use_ptx=False)

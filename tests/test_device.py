@@ -190,40 +190,6 @@ def test_captured_loop_runs_its_steps_n_times_in_order(bands):
     assert not np.array_equal(plain["x"].numpy(), start["x"])
 
 
-def _kernel_modules():
-    import importlib
-    import pkgutil
-
-    import warp as wp
-
-    import lfsf.kernels as kernels
-
-    names = []
-    for info in pkgutil.iter_modules(kernels.__path__):
-        module = importlib.import_module(f"lfsf.kernels.{info.name}")
-        if any(isinstance(v, wp.Kernel) for v in vars(module).values()):
-            names.append(info.name)
-    return names
-
-
-@pytest.mark.parametrize("name", _kernel_modules())
-def test_kernel_module_compiles_for_cuda(name, tmp_path):
-    """Every kernel module compiles to PTX for an sm_90 GPU (H100/H200) with Warp's
-    bundled NVRTC, with or without a GPU here: the CUDA instances of the kernels
-    (e.g. the one-lane plane sweep) at least build on a CPU-only machine. Running them
-    is what the tests on ``cuda:0`` do where one is present."""
-    import importlib
-
-    import warp as wp
-
-    wp.init()
-    if wp.get_cuda_toolkit_version() == (0, 0):
-        pytest.skip("this Warp build has no CUDA compiler")
-    module = importlib.import_module(f"lfsf.kernels.{name}")
-    paths = wp.compile_aot_module(module, arch=90, use_ptx=True, module_dir=tmp_path)
-    assert paths and all(p.exists() and p.stat().st_size > 0 for p in paths)
-
-
 def test_the_submodules_are_attributes_of_lfsf_imported_on_first_use():
     """``import lfsf`` then ``lfsf.synth.render_scene`` (an AttributeError before, reading
     as if the module did not exist), still without importing Warp until a submodule that
