@@ -135,23 +135,32 @@ def _names(module) -> dict[str, tuple[str, str]]:
     return found
 
 
+def nvrtc_archs() -> list[int]:
+    """The compute capabilities this Warp's NVRTC builds for (none where Warp came
+    without it, or is older than the functions this script needs)."""
+    import warp as wp
+
+    if not (hasattr(wp, "compile_aot_module") and hasattr(wp, "get_cuda_supported_archs")):
+        return []
+    wp.config.quiet = True
+    return list(wp.get_cuda_supported_archs())
+
+
 def build(arch: int = 90, out: Path | None = None, progress=None, modules=None) -> list[dict]:
     """Build every kernel module (or those named in ``modules``, e.g. ["tgv"]) for
     compute capability ``arch`` into ``out`` (a temporary folder if None) and return a
-    row per kernel overload: module, kernel (its
-    name in its module, or Warp's key where the module has no name for it), overload
-    ("vec4", "vec2" or ""), entry (the CUDA entry point), hash (the overload's 8 hex
-    digits in it), registers, local_bytes, and the
-    module's build seconds.
-    Raises BuildError naming the module that does not build; ValueError for an ``arch``
-    that this Warp's NVRTC cannot build for (none where Warp came without it)."""
+    row per kernel overload: module, kernel (its name in its module, or Warp's key where
+    the module has no name for it), overload ("vec4", "vec2" or ""), entry (the CUDA
+    entry point), hash (the overload's 8 hex digits in it), registers, local_bytes, and
+    the module's build seconds. Raises BuildError naming the module that does not build;
+    ValueError for an ``arch`` that this Warp cannot build for (:func:`nvrtc_archs`) or
+    a cubin whose attributes it does not read."""
     import warp as wp
 
-    wp.config.quiet = True
-    archs = wp.get_cuda_supported_archs()
+    archs = nvrtc_archs()
     if arch not in archs:
-        raise ValueError(f"this Warp ({wp.config.version}) cannot build CUDA code for sm_{arch}: "
-                         + (f"its NVRTC builds for {', '.join(map(str, archs))}" if archs else "it has no NVRTC"))
+        which = f"its NVRTC builds for {', '.join(map(str, archs))}" if archs else "no NVRTC or no compile_aot_module"
+        raise ValueError(f"this Warp ({wp.config.version}) cannot build CUDA code for sm_{arch}: {which}")
     say = progress or (lambda _m: None)
     with tempfile.TemporaryDirectory() as scratch:
         folder = Path(out) if out is not None else Path(scratch)
@@ -168,7 +177,11 @@ def build(arch: int = 90, out: Path | None = None, progress=None, modules=None) 
             seconds = time.perf_counter() - t0
             say(f"{name}: {seconds:.1f} s")
             names = _names(module)
-            for entry, resources in sorted(cubin_resources(paths[-1]).items()):
+            resources_of = cubin_resources(paths[-1])
+            if not resources_of:
+                raise ValueError(f"{paths[-1]}: no kernel's registers found in the cubin (a format this script "
+                                 "does not read)")
+            for entry, resources in sorted(resources_of.items()):
                 match = ENTRY.match(entry)
                 kernel, overload = names.get(match["hash"], (match["key"], ""))
                 rows.append({"module": name, "kernel": kernel, "overload": overload, "entry": entry,

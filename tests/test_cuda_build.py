@@ -24,7 +24,7 @@ def test_kernel_module_compiles_for_cuda(name, tmp_path):
     from lfsf.kernels import data_term, tgv
 
     script = load_script("cuda_build")
-    if ARCH not in wp.get_cuda_supported_archs():
+    if ARCH not in script.nvrtc_archs():
         pytest.skip(f"this Warp has no NVRTC for sm_{ARCH}")
     rows = script.build(ARCH, tmp_path, modules=[name])
     module = dict(script.kernel_modules())[name]
