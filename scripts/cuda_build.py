@@ -40,8 +40,9 @@ from pathlib import Path
 #: REGCOUNT and FRAME_SIZE, each a (symbol index, value) pair of 32-bit words.
 EIATTR_FRAME_SIZE = 0x11
 EIATTR_REGCOUNT = 0x2F
-#: .nv.info's formats: a value of its own length (EIFMT_SVAL), a half word (HVAL), none (NVAL).
-EIFMT_NVAL, EIFMT_HVAL, EIFMT_SVAL = 1, 3, 4
+#: .nv.info's formats: no value (EIFMT_NVAL, 2 bytes in all), a value of the length that
+#: follows (EIFMT_SVAL); the others (a byte, a half word) take 4 bytes in all.
+EIFMT_NVAL, EIFMT_SVAL = 1, 4
 
 #: A kernel's CUDA entry point as Warp names it: key, hash of the overload, suffix.
 ENTRY = re.compile(r"^(?P<key>.+)_(?P<hash>[0-9a-f]{8})_cuda_kernel_forward$")
@@ -138,11 +139,11 @@ def _names(module) -> dict[str, tuple[str, str]]:
 def nvrtc_archs() -> list[int]:
     """The compute capabilities this Warp's NVRTC builds for (none where Warp came
     without it, or is older than the functions this script needs)."""
-    import warp as wp
+    from lfsf import device
 
+    wp = device.warp()  # (initialised quietly: no banner, no driver warning)
     if not (hasattr(wp, "compile_aot_module") and hasattr(wp, "get_cuda_supported_archs")):
         return []
-    wp.config.quiet = True
     return list(wp.get_cuda_supported_archs())
 
 
