@@ -15,7 +15,8 @@ section):
   registers spilled under a cap, and arrays indexed at run time. Not zero marks a kernel
   whose speed on a GPU depends on it.
 
-Usage: ``python scripts/cuda_build.py [--arch 90] [--out DIR] [--json FILE]``. It prints a
+Usage: ``python scripts/cuda_build.py [--arch 90] [--out DIR] [--json FILE] [--modules
+NAME …]``. It prints a
 table of kernel, overload, registers and local bytes per module. Exit status 0; 1 when a
 module does not build (its error is printed); 2 for bad arguments or a Warp without NVRTC.
 ``--arch`` is a compute capability without its dot (90: H100 and H200, 80: A100, 89: L4 and
@@ -205,12 +206,20 @@ def main(argv=None) -> int:
     parser.add_argument("--arch", type=int, default=90, help="compute capability without the dot (default 90)")
     parser.add_argument("--out", type=Path, help="keep the .cu sources and cubins in this folder")
     parser.add_argument("--json", type=Path, help="write the rows as JSON to this file")
+    parser.add_argument("--modules", nargs="+", metavar="NAME",
+                        help="only these modules of lfsf.kernels (e.g. tgv data_term; default: all)")
     try:
         args = parser.parse_args(argv)
     except SystemExit as exit_:
         return 2 if exit_.code else 0
     try:
-        rows = build(args.arch, args.out, progress=lambda m: print(m, file=sys.stderr, flush=True))
+        if args.modules:
+            known = [name for name, _module in kernel_modules()]
+            unknown = sorted(set(args.modules) - set(known))
+            if unknown:
+                raise ValueError(f"no kernel module {', '.join(unknown)} in lfsf.kernels (it has {', '.join(known)})")
+        rows = build(args.arch, args.out, progress=lambda m: print(m, file=sys.stderr, flush=True),
+                     modules=args.modules)
     except ValueError as err:
         print(f"cuda_build: {err}", file=sys.stderr)
         return 2

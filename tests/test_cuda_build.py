@@ -56,3 +56,23 @@ def test_cuda_build_refuses_bad_input(tmp_path, capsys):
     assert script.main(["--arch", "12"]) == 2
     assert "cannot build CUDA code for sm_12" in capsys.readouterr().err
     assert script.main(["--arch", "ninety"]) == 2
+    assert script.main(["--modules", "pyramid", "nothing"]) == 2
+    assert "no kernel module nothing" in capsys.readouterr().err
+
+
+def test_cuda_build_writes_its_table_and_json(tmp_path, capsys):
+    """One module's build through the command: the table on stdout, the rows as JSON
+    (written whole), the .cu source and cubin kept in --out."""
+    import json
+
+    script = load_script("cuda_build")
+    if ARCH not in script.nvrtc_archs():
+        pytest.skip(f"this Warp has no NVRTC for sm_{ARCH}")
+    out = tmp_path / "rows.json"
+    assert script.main(["--modules", "pyramid", "--json", str(out), "--out", str(tmp_path / "build")]) == 0
+    report = json.loads(out.read_text())
+    assert report["arch"] == ARCH
+    assert {row["kernel"] for row in report["kernels"]} == {"downsample", "upsample", "upsample_unknowns"}
+    assert "| pyramid | downsample |" in capsys.readouterr().out
+    assert list((tmp_path / "build").glob("*.cubin")) and list((tmp_path / "build").glob("*.cu"))
+    assert not list(tmp_path.glob("*.tmp"))
