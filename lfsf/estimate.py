@@ -3,6 +3,7 @@ coarse-to-fine warping around :class:`lfsf.solver.LevelSolver` (MODEL.md §2–�
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import time
@@ -1438,12 +1439,10 @@ def estimate_scene_flow(
         # each surface's motion carried to its rim (Params.surface_fit), on the finest level
         fit_surfaces = level == 0 and params.surface_fit and not solver.flow_only
         late_search = level == 0 and search and params.late_search
-        # the t1 centre view's match floor (a read back to the host), once for the level:
-        # the late search and the surface fits read it, and at the end the fill's test of
-        # the unmatched points and the outlines' relabelling
-        floor = (_match_floor(cen[0]) if fit_surfaces or late_search or (
-            level == 0 and not solver.flow_only and (params.hidden_fill_sigma > 0 or params.outline_relabel))
-            else None)
+        # the t1 centre view's match floor (a read back to the host), read once for the
+        # level by the first of its readers (the late search, the surface fits, and at the
+        # end the fill's test of the unmatched points and the outlines' relabelling)
+        floor = functools.cache(functools.partial(_match_floor, cen[0]))
         for k in range(params.warps):
             if level == 0 and k == params.warps - 1 and k > 0:
                 if late_search:
@@ -1457,14 +1456,14 @@ def estimate_scene_flow(
                     # last warp refines what this takes.
                     matched = wp.empty((h, w), dtype=float, device=dev)
                     _device.launch_rows(fusion.at_most, dim=(h, w),
-                                        inputs=[_surface_block_cost(cen[0], cen[1], solver.x, params, dev), floor],
+                                        inputs=[_surface_block_cost(cen[0], cen[1], solver.x, params, dev), floor()],
                                         outputs=[matched], device=dev)
                     _fuse_disparities(solver.x, solver.samples1, solver.samples2, solver.phis, found[0], found[1],
                                       params, dev, matched, LATE_SEARCH_MARGIN, nearby=True)
                     lap("search")
                 if fit_surfaces:
                     # before the last warp too, which then refines what it carried over
-                    _fit_solver_surfaces(solver, cen, hidden_here, params, dev, floor)
+                    _fit_solver_surfaces(solver, cen, hidden_here, params, dev, floor())
                     lap("median")
             solver.linearise()
             lap("linearise")
@@ -1483,7 +1482,7 @@ def estimate_scene_flow(
             # flow found another point), the fill gives it its surface's motion too
             flagged, lost = hidden_here, None
             if not solver.flow_only and params.hidden_fill_sigma > 0:
-                flagged, lost = _unmatched(cen[0], cen[1], solver.x, params, dev, floor)
+                flagged, lost = _unmatched(cen[0], cen[1], solver.x, params, dev, floor())
                 if hidden_here is not None:
                     _device.launch_rows(fusion.either_above, dim=(h, w), inputs=[hidden_here, 0.5, flagged, 0.5],
                                         outputs=[flagged], device=dev)
@@ -1497,10 +1496,10 @@ def estimate_scene_flow(
             solver.median()
             lap("median")
             if fit_surfaces:
-                _fit_solver_surfaces(solver, cen, hidden_here, params, dev, floor)
+                _fit_solver_surfaces(solver, cen, hidden_here, params, dev, floor())
                 lap("median")
             if params.outline_relabel and not solver.flow_only:
-                _relabel_outlines(solver, cen, params, dev, floor)
+                _relabel_outlines(solver, cen, params, dev, floor())
                 lap("search")
         if level > 0:
             fh, fw = sizes[level - 1]
