@@ -1560,19 +1560,26 @@ def _depth_change_median(x: np.ndarray, params: Params, device: str) -> np.ndarr
     from lfsf.kernels import median
     from lfsf.solver import level_median_radius
 
-    wp = _device.warp()
-    h, w = x.shape[:2]
     x = np.asarray(x, np.float32)
     guide = x.copy()
     guide[..., 2] = guide[..., 3] = x[..., 1] - x[..., 0]
-    out = wp.empty((h, w), dtype=wp.vec4, device=device)
-    _device.launch_rows(median.median_flow, dim=(h, w),
-                        inputs=[wp.array(guide, dtype=wp.vec4, device=device),
-                                level_median_radius(params.depth_change_radius, w), params.median_tolerance],
-                        outputs=[out], device=device)
+    out = _map_step(median.median_flow, guide,
+                    [level_median_radius(params.depth_change_radius, x.shape[1]), params.median_tolerance], device)
     result = x.copy()
-    result[..., 1] = x[..., 0] + out.numpy()[..., 2]
+    result[..., 1] = x[..., 0] + out[..., 2]
     return result
+
+
+def _map_step(kernel, x: np.ndarray, inputs, device: str) -> np.ndarray:
+    """One of the end steps: ``kernel`` (x, then ``inputs``; out, both vec4 (H, W) maps)
+    launched over x (H, W, 4) on ``device``, its result back on the host."""
+    wp = _device.warp()
+    h, w = x.shape[:2]
+    out = wp.empty((h, w), dtype=wp.vec4, device=device)
+    _device.launch_rows(kernel, dim=(h, w),
+                        inputs=[wp.array(np.ascontiguousarray(x, np.float32), dtype=wp.vec4, device=device), *inputs],
+                        outputs=[out], device=device)
+    return out.numpy()
 
 
 def _remove_speckles(x: np.ndarray, params: Params, device: str) -> np.ndarray:
@@ -1580,14 +1587,7 @@ def _remove_speckles(x: np.ndarray, params: Params, device: str) -> np.ndarray:
     SPECKLE_DEPTH, SPECKLE_SUPPORT; :func:`lfsf.kernels.median.remove_speckles`)."""
     from lfsf.kernels import median
 
-    wp = _device.warp()
-    h, w = x.shape[:2]
-    out = wp.empty((h, w), dtype=wp.vec4, device=device)
-    _device.launch_rows(median.remove_speckles, dim=(h, w),
-                        inputs=[wp.array(np.ascontiguousarray(x, np.float32), dtype=wp.vec4, device=device),
-                                params.speckle_radius, SPECKLE_DEPTH, SPECKLE_SUPPORT],
-                        outputs=[out], device=device)
-    return out.numpy()
+    return _map_step(median.remove_speckles, x, [params.speckle_radius, SPECKLE_DEPTH, SPECKLE_SUPPORT], device)
 
 
 def _colour_edges(x: np.ndarray, colour: np.ndarray, params: Params, device: str) -> np.ndarray:
@@ -1596,15 +1596,9 @@ def _colour_edges(x: np.ndarray, colour: np.ndarray, params: Params, device: str
     from lfsf.kernels import median
 
     wp = _device.warp()
-    h, w = x.shape[:2]
-    out = wp.empty((h, w), dtype=wp.vec4, device=device)
-    _device.launch_rows(median.guided_median_edges, dim=(h, w),
-                        inputs=[wp.array(np.ascontiguousarray(x, np.float32), dtype=wp.vec4, device=device),
-                                wp.array(np.ascontiguousarray(colour), dtype=wp.vec3, device=device),
-                                params.colour_median_radius, COLOUR_SIGMA, COLOUR_JUMP,
-                                params.colour_median_separation],
-                        outputs=[out], device=device)
-    return out.numpy()
+    colours = wp.array(np.ascontiguousarray(colour), dtype=wp.vec3, device=device)
+    return _map_step(median.guided_median_edges, x, [colours, params.colour_median_radius, COLOUR_SIGMA, COLOUR_JUMP,
+                                                     params.colour_median_separation], device)
 
 
 def _intensity_stretch(lf1: LightField, lf2: LightField, ranges=None) -> tuple[float, float]:
