@@ -226,7 +226,11 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
     if inputs not in KERNEL_INPUTS:
         raise ValueError(f"inputs must be one of {', '.join(KERNEL_INPUTS)}, got {inputs!r}")
 
+    from lfsf.estimate import load_kernels
+    from lfsf.kernels import render
+
     wp = _device.warp()
+    load_kernels(dev, extra=[render])  # (the scene's renderer and the estimator's, several at once)
     width, height = size
     phis, _radius = Params.preset("paper").sample_offsets((9, 9))
     h, w, s = height, width, len(phis)

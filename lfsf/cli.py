@@ -261,8 +261,9 @@ def cmd_run(args) -> int:
 def cmd_demo(args) -> int:
     from lfsf import synth
     from lfsf.device import resolve_device
-    from lfsf.estimate import estimate_scene_flow
+    from lfsf.estimate import estimate_scene_flow, load_kernels
     from lfsf.evaluate import SYNTH_BORDER, evaluate, format_table
+    from lfsf.kernels import render
 
     device = resolve_device(args.device)
     params = _params(args)
@@ -275,6 +276,10 @@ def cmd_demo(args) -> int:
     out = output_folder(args.out, create=False, names=_result_names())
     _say(args, f"lfsf demo: scene '{args.scene}', {width}×{height}, {args.grid}×{args.grid} "
                f"{'RGB ' if args.colour else ''}views, {_preset_label(args)}, on {device}")
+    # the renderer's kernels and the estimator's compiled together (on a cold kernel cache)
+    compiled = load_kernels(device, extra=[render])
+    if compiled:
+        _say(args, compiled)
     t0 = time.perf_counter()
     lf1, lf2, gt = synth.render_scene(args.scene, size=(width, height), grid=args.grid, colour=args.colour,
                                       device=device)

@@ -144,6 +144,41 @@ def _ensure_loaded(kernel, device) -> None:
             _loaded.add(key)
 
 
+def preload(modules: Sequence, device) -> float:
+    """Compile the Warp kernels of the Python ``modules`` (e.g. :mod:`lfsf.kernels.tgv`)
+    for ``device``, or load them from Warp's kernel cache, several modules at once, and
+    return the seconds it took. Modules already loaded in this process are skipped.
+
+    Without this, Warp loads a module the first time one of its kernels is launched, so
+    the modules compile one after another. With a cold kernel cache, the estimator's
+    eleven modules took 13.7 s to compile one at a time and 8.2 s two at a time, on
+    this project's 2-core CPU. On a machine with more cores, the largest module's
+    compile time is the floor (`data_groups`, 2.8 s). With a warm cache, loading
+    them takes about 0.1 s either way.
+
+    Modules are loaded on :func:`cpu_threads` threads: the compiler runs in native code
+    and releases the GIL. With a Warp whose ``force_load`` cannot load in parallel (no
+    ``max_workers``), nothing is loaded here and 0 is returned; each module then loads
+    at its first launch, as before."""
+    import inspect
+
+    wp = warp()
+    if "max_workers" not in inspect.signature(wp.force_load).parameters:
+        return 0.0
+    import time
+
+    dev = wp.get_device(device)
+    wanted = [wp.get_module(m.__name__) for m in modules]
+    with _init_lock:
+        todo = [m for m in wanted if (id(m), str(dev)) not in _loaded]
+        if not todo:
+            return 0.0
+        start = time.perf_counter()
+        wp.force_load(device=dev, modules=todo, max_workers=min(len(todo), cpu_threads()))
+        _loaded.update((id(m), str(dev)) for m in todo)
+        return time.perf_counter() - start
+
+
 def vector_view(array, dtype, shape):
     """The memory of a contiguous Warp ``array`` seen as an array of ``dtype`` (e.g. the
     vectors of several floats that the lanes kernels read) with ``shape``. The view does

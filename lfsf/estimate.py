@@ -364,6 +364,32 @@ COLOUR_JUMP = 0.3
 GREY_CHROMA = 0.004
 
 
+def kernel_modules(device: str) -> list:
+    """The modules of :mod:`lfsf.kernels` whose kernels :func:`estimate_scene_flow` may
+    launch on ``device`` (it loads them all at once at its start, :func:`lfsf.device.preload`).
+    Whether each one is needed depends on the settings and the size: occlusion is not
+    used for flow alone, and gains is not used on small views. :mod:`lfsf.kernels.data_groups`
+    is only used where the data term keeps groups of pixels in vector registers (the CPU)."""
+    from lfsf.kernels import (data_groups, data_term, fusion, gains, median, occlusion, pyramid, rof, sampling,
+                              search, tgv)
+
+    modules = [sampling, rof, pyramid, search, fusion, gains, occlusion, data_term, tgv, median]
+    if not data_term.pixelwise(data_term.data_lanes(device)):
+        modules.append(data_groups)
+    return modules
+
+
+def load_kernels(device: str, extra=()) -> str | None:
+    """Compile, or read from Warp's kernel cache, the kernels of :func:`kernel_modules`
+    and of the modules ``extra`` for ``device``, several modules at once
+    (:func:`lfsf.device.preload`). Returns a progress line where that took a second or
+    more (it compiled them), else None."""
+    seconds = _device.preload([*kernel_modules(device), *extra], device)
+    if seconds < 1.0:
+        return None
+    return f"kernels compiled for {device} in {seconds:.1f} s (once: Warp's kernel cache keeps them)"
+
+
 def one_sided(phis) -> bool:
     """True where the side samples (φ ≠ 0) all lie in one open half-plane through the
     centre, as the single side view of two-view stereo (``circles=2, samples=(1, 1)``)
@@ -1258,6 +1284,12 @@ def estimate_scene_flow(
              + (f" (the {rows}×{cols} grid allows no more than that of the {params.radius:g} asked)"
                 if radius < params.radius else "")
              + ": the side samples see little parallax, and δ is less certain than with R ≥ 1")
+    # every kernel module compiled (or read from Warp's cache) now, several at once, rather
+    # than one at a time at each module's first launch
+    compiled = load_kernels(dev)
+    if compiled:
+        say(compiled)
+    lap("kernels")
     requested = params
     if params.visibility and one_sided(phis):
         params = params.replace(visibility=False)

@@ -202,3 +202,59 @@ def test_the_submodules_are_attributes_of_lfsf_imported_on_first_use():
             "try:\n    lfsf.nothing\nexcept AttributeError as e:\n    print(e)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.splitlines() == ["lfsf.synth flow_to_color True False", "module 'lfsf' has no attribute 'nothing'"]
+
+
+def test_preload_compiles_several_modules_at_once_into_the_cache(tmp_path):
+    """:func:`lfsf.device.preload` on a cold kernel cache compiles every module it is
+    given (each one's folder appears in the cache), the kernels then launch, and a second
+    call skips the modules already loaded (0 s)."""
+    import inspect
+    import subprocess
+    import sys
+
+    wp = D.warp()
+    if "max_workers" not in inspect.signature(wp.force_load).parameters:
+        pytest.skip("this Warp cannot load modules in parallel")
+    code = (
+        "import numpy as np\n"
+        "from lfsf import device as D\n"
+        "from lfsf.kernels import fusion, pyramid\n"
+        "wp = D.warp()\n"
+        "first = D.preload([pyramid, fusion], 'cpu')\n"
+        "again = D.preload([fusion, pyramid], 'cpu')\n"
+        "src = wp.array(np.arange(48, dtype=np.float32).reshape(1, 6, 8), dtype=float, device='cpu')\n"
+        "out = wp.empty((1, 6, 8), dtype=float, device='cpu')\n"
+        "D.launch_rows(pyramid.upsample, dim=(6, 8), inputs=[src, 2.0], outputs=[out], device='cpu')\n"
+        "print(first > 0.0, again == 0.0, np.array_equal(out.numpy(), 2 * src.numpy()))\n"
+    )
+    env = {**__import__("os").environ, "WARP_CACHE_PATH": str(tmp_path)}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["True", "True", "True"]
+    compiled = {p.name.rsplit("_", 1)[0] for p in tmp_path.rglob("wp_lfsf.kernels.*") if p.is_dir()}
+    assert compiled == {"wp_lfsf.kernels.pyramid", "wp_lfsf.kernels.fusion"}
+
+
+def test_the_estimator_preloads_every_kernel_module_it_imports():
+    """:func:`lfsf.estimate.kernel_modules` (what the estimator compiles at its start)
+    names every module with kernels that the estimator's code imports from
+    :mod:`lfsf.kernels`: one left out would still compile at its first launch, but alone."""
+    import ast
+    import importlib
+    from pathlib import Path
+
+    from lfsf.estimate import kernel_modules
+
+    root = Path(__file__).resolve().parents[1] / "lfsf"
+    imported = set()
+    for name in ("estimate.py", "solver.py", "gains.py", "_filters.py"):
+        for node in ast.walk(ast.parse((root / name).read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module == "lfsf.kernels":
+                imported.update(alias.name for alias in node.names)
+            elif isinstance(node, ast.ImportFrom) and (node.module or "").startswith("lfsf.kernels."):
+                imported.add(node.module.split(".")[2])
+    with_kernels = {n for n in imported if "@wp.kernel" in Path(importlib.import_module(f"lfsf.kernels.{n}").__file__)
+                    .read_text()}
+    assert {"data_term", "tgv", "search"} <= with_kernels  # (the walk found the imports)
+    assert with_kernels == {m.__name__.rsplit(".", 1)[1] for m in kernel_modules("cpu")}
+    assert "data_groups" not in {m.__name__.rsplit(".", 1)[1] for m in kernel_modules("cuda:0")}
