@@ -5,3 +5,7 @@ the algorithm; :mod:`lfsf` owns the buffers and launches them. Modules are impor
 their users (``from lfsf.kernels import render``) so that importing :mod:`lfsf` compiles
 nothing.
 """
+
+from lfsf.device import require_warp as _require_warp
+
+_require_warp()  # (a clear error where Warp is too old for these kernels, before a decorator fails)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import sys
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -45,12 +46,35 @@ def _stderr_filtered(drop: str):
                 print("\n".join(kept), file=sys.stderr)
 
 
+#: The oldest Warp that lfsf runs on (pyproject's ``warp-lang>=``). Its kernels use
+#: ``cuda_max_registers``, new in Warp 1.17. Warp 1.14 and 1.16 fail when the kernels are
+#: imported; 1.5 and 1.10 fail earlier, when Warp starts (``wp.LOG_ERROR``). The test
+#: suite and ``lfsf demo`` pass on 1.17 (forty-second session).
+MIN_WARP = (1, 17)
+
+
+def require_warp(version: str | None = None) -> None:
+    """Raise ImportError, naming the version found and the way to upgrade, where the
+    installed Warp (or ``version``) is older than :data:`MIN_WARP`. This gives a clear
+    message instead of an error somewhere inside Warp or a kernel decorator."""
+    if version is None:
+        import warp
+
+        version = getattr(warp, "__version__", None) or warp.config.version
+    parts = re.match(r"(\d+)\.(\d+)", str(version))
+    if parts and tuple(int(p) for p in parts.groups()) < MIN_WARP:
+        least = ".".join(map(str, MIN_WARP))
+        raise ImportError(f"lfsf needs warp-lang {least} or newer, and this Python has {version}: "
+                          f"pip install -U 'warp-lang>={least}'")
+
+
 def warp():
     """Import and initialise Warp quietly; return the module."""
     import warp as wp
 
     global _initialised
     if not _initialised:
+        require_warp()
         with _init_lock:
             # A machine without an NVIDIA driver is normal for us (CPU runs): keep Warp's
             # start-up banner and driver warning out of the output; asking for a CUDA
@@ -157,16 +181,10 @@ def preload(modules: Sequence, device) -> float:
     them takes about 0.1 s either way.
 
     Modules are loaded on :func:`cpu_threads` threads: the compiler runs in native code
-    and releases the GIL. With a Warp whose ``force_load`` cannot load in parallel (no
-    ``max_workers``), nothing is loaded here and 0 is returned; each module then loads
-    at its first launch, as before."""
-    import inspect
-
-    wp = warp()
-    if "max_workers" not in inspect.signature(wp.force_load).parameters:
-        return 0.0
+    and releases the GIL."""
     import time
 
+    wp = warp()
     dev = wp.get_device(device)
     wanted = [wp.get_module(m.__name__) for m in modules]
     with _init_lock:

@@ -208,13 +208,9 @@ def test_preload_compiles_several_modules_at_once_into_the_cache(tmp_path):
     """:func:`lfsf.device.preload` on a cold kernel cache compiles every module it is
     given (each one's folder appears in the cache), the kernels then launch, and a second
     call skips the modules already loaded (0 s)."""
-    import inspect
     import subprocess
     import sys
 
-    wp = D.warp()
-    if "max_workers" not in inspect.signature(wp.force_load).parameters:
-        pytest.skip("this Warp cannot load modules in parallel")
     code = (
         "import numpy as np\n"
         "from lfsf import device as D\n"
@@ -258,3 +254,28 @@ def test_the_estimator_preloads_every_kernel_module_it_imports():
     assert {"data_term", "tgv", "search"} <= with_kernels  # (the walk found the imports)
     assert with_kernels == {m.__name__.rsplit(".", 1)[1] for m in kernel_modules("cpu")}
     assert "data_groups" not in {m.__name__.rsplit(".", 1)[1] for m in kernel_modules("cuda:0")}
+
+
+def test_a_warp_too_old_is_a_clear_error(monkeypatch):
+    """An installed Warp older than MIN_WARP (pyproject's warp-lang>=) is an ImportError
+    naming the version found and the upgrade, raised before Warp starts, and again when
+    the kernels are imported (the estimator imports them before it starts Warp)."""
+    import importlib
+    import sys
+
+    import warp
+
+    least = ".".join(map(str, D.MIN_WARP))
+    D.require_warp(least)
+    D.require_warp("99.0.0")
+    for old in ("1.5.0", f"{D.MIN_WARP[0]}.{D.MIN_WARP[1] - 1}.2"):
+        with pytest.raises(ImportError, match=rf"lfsf needs warp-lang {least} or newer, and this Python has "
+                                              rf"{old}: pip install -U 'warp-lang>={least}'"):
+            D.require_warp(old)
+    monkeypatch.setattr(warp, "__version__", "1.5.0")
+    monkeypatch.setattr(D, "_initialised", False)
+    with pytest.raises(ImportError, match="this Python has 1.5.0"):
+        D.warp()
+    monkeypatch.delitem(sys.modules, "lfsf.kernels")
+    with pytest.raises(ImportError, match="this Python has 1.5.0"):
+        importlib.import_module("lfsf.kernels")
