@@ -208,6 +208,7 @@ def test_preload_compiles_several_modules_at_once_into_the_cache(tmp_path):
     """:func:`lfsf.device.preload` on a cold kernel cache compiles every module it is
     given (each one's folder appears in the cache), the kernels then launch, and a second
     call skips the modules already loaded (0 s)."""
+    import os
     import subprocess
     import sys
 
@@ -223,7 +224,7 @@ def test_preload_compiles_several_modules_at_once_into_the_cache(tmp_path):
         "D.launch_rows(pyramid.upsample, dim=(6, 8), inputs=[src, 2.0], outputs=[out], device='cpu')\n"
         "print(first > 0.0, again == 0.0, np.array_equal(out.numpy(), 2 * src.numpy()))\n"
     )
-    env = {**__import__("os").environ, "WARP_CACHE_PATH": str(tmp_path)}
+    env = {**os.environ, "WARP_CACHE_PATH": str(tmp_path)}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["True", "True", "True"]
@@ -261,6 +262,7 @@ def test_a_warp_too_old_is_a_clear_error(monkeypatch):
     naming the version found and the upgrade, raised before Warp starts, and again when
     the kernels are imported (the estimator imports them before it starts Warp)."""
     import importlib
+    import re
     import sys
 
     import warp
@@ -269,8 +271,8 @@ def test_a_warp_too_old_is_a_clear_error(monkeypatch):
     D.require_warp(least)
     D.require_warp("99.0.0")
     for old in ("1.5.0", f"{D.MIN_WARP[0]}.{D.MIN_WARP[1] - 1}.2"):
-        with pytest.raises(ImportError, match=rf"lfsf needs warp-lang {least} or newer, and this Python has "
-                                              rf"{old}: pip install -U 'warp-lang>={least}'"):
+        message = f"lfsf needs warp-lang {least} or newer, and this Python has {old}: pip install -U 'warp-lang>={least}'"
+        with pytest.raises(ImportError, match=re.escape(message)):
             D.require_warp(old)
     monkeypatch.setattr(warp, "__version__", "1.5.0")
     monkeypatch.setattr(D, "_initialised", False)
