@@ -150,6 +150,9 @@ def _manifest_pairs(path: Path) -> list[Pair]:
         text = path.read_text(encoding="utf-8-sig")    # (-sig: Excel's "CSV UTF-8" starts with a BOM)
     except UnicodeDecodeError:
         raise ValueError(f"{path}: not a text CSV manifest") from None
+    if "\0" in text:  # (before the csv module: Python 3.10's refuses the line with an error of its own)
+        line = text.count("\n", 0, text.index("\0")) + 1
+        raise ValueError(f"{path}: line {line} holds a NUL byte, which no path or name can")
     rows = [row for row in csv.reader(_io.StringIO(text)) if row and any(c.strip() for c in row)]
     if rows and [c.strip().lower() for c in rows[0][:2]] == ["t1", "t2"]:
         rows = rows[1:]
@@ -158,13 +161,11 @@ def _manifest_pairs(path: Path) -> list[Pair]:
     pairs = []
     for number, row in enumerate(rows, 1):
         cells = [c.strip() for c in row]
-        if any("\0" in c for c in cells):
-            raise ValueError(f"{path}: pair {number} holds a NUL byte, which no path or name can")
         if len(cells) not in (2, 3) or not cells[0] or not cells[1]:
             raise ValueError(f"{path}: pair {number} ({','.join(row)!r}) is not 't1,t2[,name]'")
         t1, t2 = ((path.parent / c) for c in cells[:2])
         name = cells[2] if len(cells) == 3 and cells[2] else _stem(t1)
-        if not name or name.startswith(".") or "/" in name or "\\" in name or "\0" in name:
+        if not name or name.startswith(".") or "/" in name or "\\" in name:
             raise ValueError(f"{path}: pair {number} has the name {name!r}, which cannot be a folder name")
         pairs.append(Pair(name, t1, t2))
     return pairs
@@ -451,6 +452,7 @@ def check_scheduler_address(address: str) -> None:
 
 
 def _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retries, report) -> list[Outcome]:
+    import asyncio
     import logging
 
     from distributed import Client, LocalCluster, as_completed
@@ -464,7 +466,7 @@ def _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retrie
                 raise ValueError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
             try:    # a scheduler without workers would take the tasks and wait for ever
                 client.wait_for_workers(1, timeout=WORKER_WAIT)
-            except (TimeoutError, OSError):
+            except (TimeoutError, asyncio.TimeoutError, OSError):  # (Python 3.10: asyncio's is another class)
                 raise ValueError(f"the Dask scheduler at {scheduler} has had no worker for {WORKER_WAIT}; "
                                  "start one (dask worker ADDRESS)") from None
         else:

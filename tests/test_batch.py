@@ -141,7 +141,8 @@ def test_manifest_with_and_without_header(tmp_path):
     ([("t1", "t2")], "names no pairs"),
     ([("a.npz", "b.npz", "same"), ("c.npz", "d.npz", "same")], "both named 'same'"),
     ([("a.npz", "b.npz", ".hidden")], "cannot be a folder name"),
-    ([("a.npz", "b\0.npz")], "pair 1 holds a NUL byte"),
+    ([("a.npz", "b\0.npz")], "line 1 holds a NUL byte"),
+    ([("t1", "t2"), ("a.npz", "b.npz"), ("c\0.npz", "d.npz")], "line 3 holds a NUL byte"),
 ])
 def test_bad_manifest_is_a_clear_error(tmp_path, rows, message):
     path = _manifest(tmp_path / "m.csv", rows)
