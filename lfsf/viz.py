@@ -397,13 +397,20 @@ _HEADER_RGB = (222, 226, 232)
 _TEXT_RGB = (0, 0, 0)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class _ColorBar:
-    """Footer: the colormap ``lut`` from ``lo`` to ``hi``, with the numbers beside it."""
+    """Footer: the colormap ``lut`` from ``lo`` to ``hi``, with the numbers beside it.
+    Two are equal where their colours and numbers are (a dataclass's own ``==`` compares
+    the arrays with ``==``, which Python 3.13 then asks for one truth value)."""
 
     lut: np.ndarray
     lo: float
     hi: float
+
+    def __eq__(self, other) -> bool:
+        if not isinstance(other, _ColorBar):
+            return NotImplemented
+        return (self.lo, self.hi) == (other.lo, other.hi) and np.array_equal(self.lut, other.lut)
 
 
 @dataclass(frozen=True)

@@ -269,6 +269,9 @@ def test_overview_error_panels_mean_and_valid_mask():
     assert rows[1][0].footer == rows[2][0].footer
     assert rows[1][1].footer == rows[2][1].footer
     assert rows[1][2].footer == rows[2][2].footer
+    bar = rows[1][0].footer  # (equal by colours and numbers, on every Python: 3.13's dataclass == failed)
+    assert bar == viz._ColorBar(bar.lut.copy(), bar.lo, bar.hi)
+    assert bar != viz._ColorBar(bar.lut, bar.lo, bar.hi + 1.0) and bar != viz._ColorBar(bar.lut[::-1], bar.lo, bar.hi)
 
 
 def test_overview_rejects_mismatched_shapes():
