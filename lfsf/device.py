@@ -156,16 +156,24 @@ def thread_pool() -> ThreadPoolExecutor:
         return _pool
 
 
-def _ensure_loaded(kernel, device) -> None:
-    # Compile/load the kernel's module once, before threads race to do it.
-    key = (id(kernel.module), str(device))
-    if key in _loaded:
-        return
+def _load(modules: Sequence, device) -> float:
+    """Compile or load the Warp modules ``modules`` on ``device`` (a Warp device), those
+    not loaded yet in this process, several at once; the seconds it took (0 where
+    nothing was left to load). Held under the lock, so that threads do not race to
+    compile a module."""
+    if all((id(m), str(device)) in _loaded for m in modules):
+        return 0.0
+    import time
+
     wp = warp()
     with _init_lock:
-        if key not in _loaded:
-            wp.load_module(kernel.module, device=device)
-            _loaded.add(key)
+        todo = [m for m in modules if (id(m), str(device)) not in _loaded]
+        if not todo:
+            return 0.0
+        start = time.perf_counter()
+        wp.force_load(device=device, modules=todo, max_workers=min(len(todo), cpu_threads()))
+        _loaded.update((id(m), str(device)) for m in todo)
+        return time.perf_counter() - start
 
 
 def preload(modules: Sequence, device) -> float:
@@ -182,19 +190,8 @@ def preload(modules: Sequence, device) -> float:
 
     Modules are loaded on :func:`cpu_threads` threads: the compiler runs in native code
     and releases the GIL."""
-    import time
-
     wp = warp()
-    dev = wp.get_device(device)
-    wanted = [wp.get_module(m.__name__) for m in modules]
-    with _init_lock:
-        todo = [m for m in wanted if (id(m), str(dev)) not in _loaded]
-        if not todo:
-            return 0.0
-        start = time.perf_counter()
-        wp.force_load(device=dev, modules=todo, max_workers=min(len(todo), cpu_threads()))
-        _loaded.update((id(m), str(dev)) for m in todo)
-        return time.perf_counter() - start
+    return _load([wp.get_module(m.__name__) for m in modules], wp.get_device(device))
 
 
 def vector_view(array, dtype, shape):
@@ -222,7 +219,7 @@ class RecordedRows:
         dims = (dim,) if isinstance(dim, int) else tuple(dim)
         dev = wp.get_device(device)
         parts = [(0, dims[0])] if dev.is_cuda else row_bands(dims[0], bands or cpu_threads())
-        _ensure_loaded(kernel, dev)
+        _load([kernel.module], dev)  # (once, before the bands' threads race to)
         self.launches = [
             wp.launch(kernel=kernel, dim=(stop - start, *dims[1:]), inputs=[start, *inputs],
                       outputs=list(outputs), device=dev, record_cmd=True)
@@ -368,7 +365,7 @@ def launch_rows(
     if len(parts) <= 1:
         wp.launch(kernel=kernel, dim=dims, inputs=[0, *inputs], outputs=list(outputs), device=dev)
         return
-    _ensure_loaded(kernel, dev)
+    _load([kernel.module], dev)  # (once, before the bands' threads race to)
     pool = thread_pool()
     futures = [
         pool.submit(
