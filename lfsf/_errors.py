@@ -2,12 +2,18 @@
 
 import argparse
 
+class DependencyError(ImportError):
+    """A package that lfsf needs is too old (or missing): the message names the package,
+    the version found and the ``pip install`` that mends it."""
+
+
 #: The exceptions that mean bad input (a missing, unreadable or malformed file, a wrong
 #: setting, an output path that cannot be written: a file where a folder should be, a
-#: name too long, no permission): the CLI reports them in one line with exit status 2,
+#: name too long, no permission; and a Python without what lfsf needs, a
+#: :class:`DependencyError`): the CLI reports them in one line with exit status 2,
 #: and a batch reports them as a failed pair's reason, both without a traceback. Every
 #: OSError names its file (``[Errno 36] File name too long: '…'``).
-BAD_INPUT_ERRORS = (ValueError, OSError)
+BAD_INPUT_ERRORS = (ValueError, OSError, DependencyError)
 
 
 #: Exit status of bad input, and of an interrupt (Ctrl-C).

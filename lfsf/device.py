@@ -16,6 +16,8 @@ import threading
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, Sequence
 
+from lfsf._errors import DependencyError
+
 ENV_DEVICE = "LFSF_DEVICE"
 ENV_THREADS = "LFSF_THREADS"
 
@@ -54,9 +56,10 @@ MIN_WARP = (1, 17)
 
 
 def require_warp(version: str | None = None) -> None:
-    """Raise ImportError, naming the version found and the way to upgrade, where the
-    installed Warp (or ``version``) is older than :data:`MIN_WARP`. This gives a clear
-    message instead of an error somewhere inside Warp or a kernel decorator."""
+    """Raise :class:`lfsf._errors.DependencyError` (an ImportError), naming the version
+    found and the way to upgrade, where the installed Warp (or ``version``) is older than
+    :data:`MIN_WARP`. This gives a clear message (from the CLI one line, status 2) instead
+    of an error somewhere inside Warp or a kernel decorator."""
     if version is None:
         import warp
 
@@ -64,7 +67,7 @@ def require_warp(version: str | None = None) -> None:
     parts = re.match(r"(\d+)\.(\d+)", str(version))
     if parts and tuple(int(p) for p in parts.groups()) < MIN_WARP:
         least = ".".join(map(str, MIN_WARP))
-        raise ImportError(f"lfsf needs warp-lang {least} or newer, and this Python has {version}: "
+        raise DependencyError(f"lfsf needs warp-lang {least} or newer, and this Python has {version}: "
                           f"pip install -U 'warp-lang>={least}'")
 
 

@@ -278,6 +278,25 @@ def test_a_warp_too_old_is_a_clear_error(monkeypatch):
     monkeypatch.setattr(D, "_initialised", False)
     with pytest.raises(ImportError, match="this Python has 1.5.0"):
         D.warp()
-    monkeypatch.delitem(sys.modules, "lfsf.kernels")
+    monkeypatch.delitem(sys.modules, "lfsf.kernels", raising=False)  # (imported or not before)
     with pytest.raises(ImportError, match="this Python has 1.5.0"):
         importlib.import_module("lfsf.kernels")
+
+
+def test_a_warp_too_old_is_one_line_from_the_cli(monkeypatch, tmp_path, capsys):
+    """From the command line a too-old Warp ends as bad input does: one line naming the
+    version and the upgrade, status 2, no traceback, nothing written."""
+    import warp
+
+    from lfsf.cli import main
+
+    monkeypatch.setattr(warp, "__version__", "1.5.0")
+    monkeypatch.setattr(D, "_initialised", False)
+    out = tmp_path / "scene"
+    status = main(["synth", "slanted", "--out", str(out), "--size", "32", "24", "--grid", "3", "--quiet"])
+    err = capsys.readouterr().err
+    assert status == 2
+    assert err.splitlines() == [f"lfsf synth: error: lfsf needs warp-lang {'.'.join(map(str, D.MIN_WARP))} or newer, "
+                                f"and this Python has 1.5.0: pip install -U 'warp-lang>="
+                                f"{'.'.join(map(str, D.MIN_WARP))}'"]
+    assert not out.exists()
