@@ -809,10 +809,14 @@ def flow_search_level(sizes: list[tuple[int, int]], flow_range: float, pyramid_s
                 len(sizes) - 1)
 
 
-def flow_search_half(flow_range: float, pyramid_scale: float, level: int) -> int:
+def flow_search_half(flow_range: float, pyramid_scale: float, level: int,
+                     size: tuple[int, int] | None = None) -> int:
     """The flow search's half-width in whole pixels on pyramid level ``level``: the range
-    at the level's scale η_s^k, rounded up (:func:`flow_search_level`)."""
-    return max(1, int(math.ceil(flow_range * pyramid_scale ** level * (1 - 1e-9))))
+    at the level's scale η_s^k, rounded up (:func:`flow_search_level`), and with the
+    level's ``size`` (h, w) at most its longer side less one: a longer shift moves every
+    window off the level (a flow_range of 512 px on a 64×48 image)."""
+    half = max(1, int(math.ceil(flow_range * pyramid_scale ** level * (1 - 1e-9))))
+    return half if size is None else min(half, max(1, max(size) - 1))
 
 
 def _flow_search(centre1, centre2, half: int, search_radius: int, device: str, ambiguity: bool = False):
@@ -1403,11 +1407,13 @@ def estimate_scene_flow(
     flow_search = params.flow_search
     if flow_search:
         k = flow_search_level(sizes, params.flow_range, params.pyramid_scale)
-        half = flow_search_half(params.flow_range, params.pyramid_scale, k)
+        half = flow_search_half(params.flow_range, params.pyramid_scale, k, sizes[k])
         if half > MAX_FLOW_SEARCH_HALF:
+            coarser = ("allow more pyramid levels (max_levels)" if params.max_levels and len(sizes) == params.max_levels
+                       else f"a smaller min_size ({params.min_size}) for coarser pyramid levels")
             raise ValueError(f"flow_range {params.flow_range:g} px needs a block search of ±{half} px on the "
                              f"{sizes[k][1]}×{sizes[k][0]} level ({(2 * half + 1) ** 2} shifts per pixel; at most "
-                             f"±{MAX_FLOW_SEARCH_HALF}): lower flow_range, or allow more pyramid levels (max_levels)")
+                             f"±{MAX_FLOW_SEARCH_HALF}): lower flow_range, or {coarser}")
         tex = levels[k][0]
         c1, c2 = wp.clone(tex[0]), wp.clone(tex[n_samples])
         forward, ambiguous = _flow_search(c1, c2, half, params.search_radius, dev, ambiguity=True)

@@ -301,28 +301,36 @@ def _validated_views(views, source: str) -> np.ndarray:
             array = array[..., 0]
     if array.size == 0:
         raise ValueError(f"{source}: expected a non-empty light field, got shape {array.shape}")
+    given = array
     array = np.ascontiguousarray(_to_unit_float32(array))
     # A float64 sum of float32 values cannot overflow, so it is finite exactly when every
     # value is: one cheap pass instead of a full boolean mask in the common case.
     if not np.isfinite(array.sum(dtype=np.float64)):
-        _refuse_non_finite(array, source)
+        _refuse_non_finite(array, source, given)
     return array
 
 
-def _refuse_non_finite(array: np.ndarray, source: str) -> None:
+def _refuse_non_finite(array: np.ndarray, source: str, given: np.ndarray | None = None) -> None:
     """Raise the ValueError that names how many of the views' values (``array``, [a, b, y,
     x] or [a, b, y, x, c]) are NaN or infinite, and the first view holding one; nothing if
-    none is."""
+    none is. Where ``given`` (the values before their conversion to float32) was finite
+    there, the values lay beyond float32's range, and the message says so."""
     bad = ~np.isfinite(array)
+    expected, what = "finite pixel values", "NaN or infinite pixel(s)"
+    if given is not None and given.shape == array.shape and given.dtype.kind == "f":
+        beyond = bad & np.isfinite(given)
+        if beyond.any():
+            bad = beyond
+            expected = f"pixel values within float32's range (±{float(np.finfo(np.float32).max):.3g})"
+            what = "pixel(s) beyond it"
     if bad.ndim == 5:
         bad = bad.any(axis=4)
     per_view = bad.sum(axis=(2, 3))
     bad_views = np.argwhere(per_view)
     if len(bad_views):
         first = tuple(int(i) for i in bad_views[0])
-        raise ValueError(f"{source}: expected finite pixel values, got {int(per_view.sum())} "
-                         f"NaN or infinite pixel(s) in {len(bad_views)} view(s), the first "
-                         f"in view (a, b) = {first}")
+        raise ValueError(f"{source}: expected {expected}, got {int(per_view.sum())} {what} in "
+                         f"{len(bad_views)} view(s), the first in view (a, b) = {first}")
 
 
 # --------------------------------------------------------------------------------------

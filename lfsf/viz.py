@@ -494,7 +494,9 @@ def occluded_picture(centre1, occluded) -> np.ndarray:
 def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="estimate",
                      occluded=None) -> list[list[_Panel]]:
     """The overview's panels, row by row (see :func:`overview_figure`)."""
-    shape = _check_map("disp1", disp1).shape
+    # the maps are the t1 centre view's: its (H, W) is what each must have (a map of
+    # another shape is named, not the first map taken as the measure)
+    shape = tuple(np.shape(centre1)[:2]) if np.ndim(centre1) in (2, 3) else _check_map("disp1", disp1).shape
     est = {k: _check_map_shape(k, a, shape)
            for k, a in (("disp1", disp1), ("disp2", disp2), ("u", u), ("v", v))}
     centre1, centre2 = _shown_together(centre1, centre2)

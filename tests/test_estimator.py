@@ -328,9 +328,15 @@ def test_bad_inputs_raise():
         estimate_scene_flow(lf1, lf2, QUICK, device=1)
     with pytest.raises(ValueError, match="init must be a SceneFlow or a dict"):
         estimate_scene_flow(lf1, lf2, QUICK, init=np.zeros((16, 16, 4), np.float32))
-    # one level: a 512-px range would be a block search of ±512 px at full resolution
-    with pytest.raises(ValueError, match="flow_range 512 px needs a block search"):
-        estimate_scene_flow(lf1, lf2, QUICK.replace(max_levels=1, flow_range=512), device="cpu")
+    # one level: a 512-px range would be a block search of ±512 px at full resolution, ±159 px
+    # within the image; the message names what keeps the pyramid from coarser levels
+    wide1, wide2 = shift_lightfields(h=120, w=160, grid=3)
+    with pytest.raises(ValueError, match=r"flow_range 512 px needs a block search of ±159 px .*more pyramid levels "
+                                         r"\(max_levels\)"):
+        estimate_scene_flow(wide1, wide2, QUICK.replace(max_levels=1, flow_range=512), device="cpu")
+    with pytest.raises(ValueError, match=r"flow_range 512 px needs a block search of ±159 px .*a smaller min_size "
+                                         r"\(100\)"):
+        estimate_scene_flow(wide1, wide2, QUICK.replace(min_size=100, flow_range=512), device="cpu")
     small = lfsf.LightField(np.zeros((3, 3, 16, 20), np.float32))
     with pytest.raises(ValueError, match="grid and view size"):
         estimate_scene_flow(lf1, small, QUICK)
@@ -340,6 +346,21 @@ def test_bad_inputs_raise():
         Params(rof_weight=0.0)
     with pytest.raises(ValueError, match="step_ratio"):
         Params(step_ratio=0.0)
+
+
+def test_a_flow_range_beyond_the_image_searches_the_whole_level():
+    """Every flow_range that Params takes runs on a small image: the block search's
+    half-width stops at its level's longer side less one (a longer shift moves every window
+    off the level), so 512 px on 64×48 gives the result of any range that already spans
+    the coarsest level."""
+    lf1, lf2 = shift_lightfields(h=48, w=64, grid=3)
+    params = QUICK.replace(iterations=20, warps=2)
+    assert lfsf.estimate.flow_search_half(512, 0.5, 2, (12, 16)) == 15
+    assert lfsf.estimate.flow_search_half(24, 0.5, 1, (60, 80)) == 12
+    runs = [estimate_scene_flow(lf1, lf2, params.replace(flow_range=r), device="cpu") for r in (512, 64)]
+    assert np.isfinite(runs[0].u).all()
+    for key in ("disp1", "disp2", "u", "v"):
+        assert np.array_equal(getattr(runs[0], key), getattr(runs[1], key)), key
 
 
 @pytest.mark.parametrize("scene", ["paper", "slanted"])

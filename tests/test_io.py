@@ -240,6 +240,14 @@ def test_lightfield_rejects_non_finite_and_says_where():
     assert message.startswith("lf.npz:")
     assert "2 NaN or infinite pixel(s) in 2 view(s)" in message
     assert "(1, 0)" in message
+    # finite values that float32 cannot hold are said to be that, not NaN or infinite
+    wide = np.zeros((2, 2, 4, 4))
+    wide[1, 0, 2, 2] = 1e300
+    wide[0, 1, 0, 0] = np.inf
+    with pytest.raises(ValueError, match=r"^lf.npz: expected pixel values within float32's range \(±3.4e\+38\), "
+                                         r"got 1 pixel\(s\) beyond it in 1 view\(s\), the first in view "
+                                         r"\(a, b\) = \(1, 0\)$"):
+        lio.LightField(wide, source="lf.npz")
 
 
 def test_check_pair():
@@ -1002,7 +1010,7 @@ def test_float64_views_beyond_float32_fail_without_an_overflow_warning(tmp_path)
     np.savez(tmp_path / "huge.npz", views=views)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        with pytest.raises(ValueError, match=r"huge.npz: expected finite pixel values.*\(1, 0\)"):
+        with pytest.raises(ValueError, match=r"huge.npz: expected pixel values within float32's range.*\(1, 0\)"):
             lio.read_lightfield(tmp_path / "huge.npz")
 
 

@@ -18,6 +18,8 @@ Expected wheel colours are derived by hand from the Middlebury reference code
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -278,6 +280,11 @@ def test_overview_rejects_mismatched_shapes():
     c1, c2, est, gt = _scene()
     with pytest.raises(ValueError, match="shape"):
         viz.overview_figure(c1, c2, est["disp1"], est["disp2"][:-1], est["u"], est["v"])
+    # the map of another shape is the one named, against the centre view's shape (disp1 is
+    # not the measure of the others)
+    with pytest.raises(ValueError, match=re.escape(f"expected disp1 of shape {c1.shape[:2]} (the centre view's), "
+                                                   f"got {est['disp1'][:-1].shape}")):
+        viz.overview_figure(c1, c2, est["disp1"][:-1], est["disp2"], est["u"], est["v"])
     with pytest.raises(ValueError, match="missing"):
         viz.overview_figure(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"],
                             gt={"disp1": gt["disp1"]})
