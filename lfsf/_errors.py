@@ -1,6 +1,7 @@
 """What counts as bad input, in one place."""
 
 import argparse
+import contextlib
 
 class DependencyError(ImportError):
     """A package that lfsf needs is too old (or missing): the message names the package,
@@ -16,43 +17,106 @@ class DependencyError(ImportError):
 BAD_INPUT_ERRORS = (ValueError, OSError, DependencyError)
 
 
-#: Exit status of bad input, and of an interrupt (Ctrl-C).
+#: Exit status of a run that could not finish (memory ran out), of bad input, of an
+#: interrupt (Ctrl-C) and of a SIGTERM (``kill``, ``timeout``, a batch system's job
+#: limit): 128 + the signal's number, as a shell gives.
+EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread by the handler :func:`terminate_as_interrupt`
+    sets, so that it unwinds as Ctrl-C does: temporary files are removed and a set of
+    outputs is put in place whole or not at all (:func:`lfsf._files.interrupts_held` holds
+    it back as it does SIGINT)."""
+
+
+@contextlib.contextmanager
+def terminate_as_interrupt():
+    """While the body runs, SIGTERM raises :class:`Terminated` (in the main thread; from
+    any other thread, or where SIGTERM is ignored, nothing changes)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        raise Terminated()
+
+    old = signal.getsignal(signal.SIGTERM)
+    if old == signal.SIG_IGN:
+        yield
+        return
+    signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old if old is not None else signal.SIG_DFL)
 
 
 def run_script(main, prog: str | None = None) -> int:
     """Run ``main()`` (a script's, or an ``lfsf`` command's) and return its exit status:
     bad input (a :data:`BAD_INPUT_ERRORS`) is one line ``PROG: error: …`` on stderr and
-    status 2, Ctrl-C ``PROG: interrupted`` and status 130. ``prog`` defaults to the
-    script's file name."""
+    status 2; memory that ran out one line and status 1; Ctrl-C ``PROG: interrupted``
+    and status 130, SIGTERM ``PROG: terminated`` and 143, both after the temporary files
+    are removed (:func:`terminate_as_interrupt`). ``prog`` defaults to the script's file
+    name."""
     import os
     import sys
 
     prog = prog or os.path.basename(sys.argv[0]) or "script"
     try:
-        return int(main() or 0)
-    except KeyboardInterrupt:
-        print(f"{prog}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        with terminate_as_interrupt():
+            return int(main() or 0)
+    except KeyboardInterrupt as exc:
+        return _stopped(prog, exc)
     except BAD_INPUT_ERRORS as exc:
-        if interrupted(exc):  # e.g. numpy's savez closing its zip file in a finally
-            print(f"{prog}: interrupted", file=sys.stderr)
-            return EXIT_INTERRUPTED
+        cause = interrupted(exc)
+        if cause is not None:  # e.g. numpy's savez closing its zip file in a finally
+            return _stopped(prog, cause)
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except (MemoryError, RuntimeError) as exc:
+        if not out_of_memory(exc):
+            raise
+        print(f"{prog}: error: out of memory ({str(exc).rstrip('.') or type(exc).__name__}): free memory, or give "
+              f"smaller light fields (the paper's setting takes about 1.1 GB at 640×480 with 9×9 views)",
+              file=sys.stderr)
+        return EXIT_FAILED
 
 
-def interrupted(exc: BaseException) -> bool:
-    """Whether a KeyboardInterrupt lies behind ``exc`` (raised while handling it, or in a
-    ``finally`` that ran because of it, as numpy's savez closing its zip file does)."""
+def out_of_memory(exc: BaseException) -> bool:
+    """Whether ``exc`` says that memory ran out: numpy's (or Python's) MemoryError, or
+    the RuntimeError of a Warp allocation that failed."""
+    return isinstance(exc, MemoryError) or (isinstance(exc, RuntimeError)
+                                            and str(exc).startswith("Failed to allocate"))
+
+
+def _stopped(prog: str, exc: KeyboardInterrupt) -> int:
+    import sys
+
+    if isinstance(exc, Terminated):
+        print(f"{prog}: terminated", file=sys.stderr)
+        return EXIT_TERMINATED
+    print(f"{prog}: interrupted", file=sys.stderr)
+    return EXIT_INTERRUPTED
+
+
+def interrupted(exc: BaseException) -> KeyboardInterrupt | None:
+    """The KeyboardInterrupt (or :class:`Terminated`) that lies behind ``exc`` (raised
+    while handling it, or in a ``finally`` that ran because of it, as numpy's savez
+    closing its zip file does), or None."""
     seen = set()
     while exc is not None and id(exc) not in seen:
         if isinstance(exc, KeyboardInterrupt):
-            return True
+            return exc
         seen.add(id(exc))
         exc = exc.__cause__ or exc.__context__
-    return False
+    return None
 
 
 class ArgumentParser(argparse.ArgumentParser):

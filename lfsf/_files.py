@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Iterator
@@ -102,7 +103,7 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         try:
             yield tmp_path
         except OSError as exc:
-            raise _named(exc, path) from exc
+            raise _named(exc, path, tmp_path) from exc
         # mkstemp makes the file private (0600); give it the mode a plain open() would.
         os.chmod(tmp_path, 0o666 & ~_umask())
         os.replace(tmp_path, path)
@@ -113,12 +114,20 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         raise
 
 
-def _named(exc: OSError, path: Path) -> OSError:
-    """``exc`` itself where it names a file; else the same error naming ``path``, what was
-    being written (a full disk's ``[Errno 28] No space left on device`` names none)."""
-    if exc.filename is not None or exc.errno is None:
+def _named(exc: OSError, path: Path, tmp: Path | None = None) -> OSError:
+    """The same error naming ``path``, what was being written, where it names no file (a
+    full disk's ``[Errno 28] No space left on device`` names none) or names the temporary
+    ``tmp`` or a file inside it (as its place under ``path``); else ``exc`` itself."""
+    if exc.errno is None:
         return exc
-    return type(exc)(exc.errno, exc.strerror or str(exc), os.fspath(path))
+    name = exc.filename
+    if name is None:
+        name = path
+    elif tmp is not None and (Path(name) == tmp or tmp in Path(name).parents):
+        name = path if Path(name) == tmp else path / Path(name).relative_to(tmp)
+    else:
+        return exc
+    return type(exc)(exc.errno, exc.strerror or str(exc), os.fspath(name))
 
 
 def _umask() -> int:
@@ -171,16 +180,17 @@ def savez_atomic(path: str | os.PathLike, compressed: bool = False, **arrays) ->
 
 @contextlib.contextmanager
 def interrupts_held():
-    """Hold Ctrl-C (SIGINT) back while the body runs, for the moves that put a set of
-    outputs in place: an interrupt between two of them would leave a mix of an old set
-    and a new one. A SIGINT that comes meanwhile is delivered when the body ends.
+    """Hold Ctrl-C (SIGINT) and SIGTERM back while the body runs, for the moves that put a
+    set of outputs in place: an interrupt between two of them would leave a mix of an old
+    set and a new one. A signal that comes meanwhile is delivered when the body ends.
 
-    The SIGINT handler is swapped for one that only notes the signal. (Masking SIGINT
+    The handlers are swapped for ones that only note the signal. (Masking the signals
     with ``pthread_sigmask`` is not enough: it masks the calling thread only, and the
-    kernel hands a process-wide SIGINT to any other thread, such as a worker of the
+    kernel hands a process-wide signal to any other thread, such as a worker of the
     CPU launch pool, whose C handler then raises KeyboardInterrupt in the main thread
     all the same.) Handlers can only be set from the main thread; elsewhere the body
-    runs unguarded, as Python delivers signals to the main thread only."""
+    runs unguarded, as Python delivers signals to the main thread only. A signal that
+    was ignored stays ignored."""
     import signal
     import threading
 
@@ -188,13 +198,54 @@ def interrupts_held():
         yield
         return
     caught = []
-    old = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    held = [s for s in (signal.SIGINT, signal.SIGTERM) if signal.getsignal(s) not in (signal.SIG_IGN, None)]
+    old = {s: signal.signal(s, lambda signum, frame: caught.append(signum)) for s in held}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, old)
-        if caught and old not in (signal.SIG_IGN, None):
-            signal.raise_signal(signal.SIGINT)
+        for s, handler in old.items():
+            signal.signal(s, handler)
+        for s in dict.fromkeys(caught):  # (each once, in the order they came)
+            signal.raise_signal(s)
+
+
+#: The start of the name of :func:`file_set`'s temporary folder, followed by this
+#: machine's name and the writing process's id (``.lfsf-set.HOST-PID.XXXXXXXX``).
+SET_PREFIX = ".lfsf-set."
+
+
+def _host() -> str:
+    import socket
+
+    return re.sub(r"[^A-Za-z0-9]", "", socket.gethostname())[:20] or "host"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)  # (signal 0: only whether the process is there)
+    except ProcessLookupError:
+        return False
+    except OSError:  # there, another user's
+        return True
+    return True
+
+
+def remove_dead_sets(out: Path) -> None:
+    """Remove the temporary folders in ``out`` that :func:`file_set` made for processes of
+    this machine that are gone (killed outright: SIGKILL, the out-of-memory killer, a
+    power cut), which nothing else would remove. A live process's, another machine's
+    (a shared file system) and any of another form are left; so is everything off POSIX,
+    where a process cannot be asked whether it is there."""
+    import shutil
+
+    if os.name != "posix":
+        return
+    host = _host()
+    with contextlib.suppress(OSError):
+        for path in Path(out).glob(f"{SET_PREFIX}*"):
+            made = re.fullmatch(re.escape(SET_PREFIX) + r"([A-Za-z0-9]+)-(\d+)\..+", path.name)
+            if made and made[1] == host and int(made[2]) != os.getpid() and not _alive(int(made[2])):
+                shutil.rmtree(path, ignore_errors=True)
 
 
 @contextlib.contextmanager
@@ -202,7 +253,8 @@ def file_set(out: Path, names):
     """A temporary folder inside ``out`` to write the files ``names`` (paths relative to
     ``out``) into; on success they are moved into place together, with Ctrl-C held back
     meanwhile (:func:`interrupts_held`), so that a failure or an interrupt leaves either
-    none of them or all of them, never a mix with an earlier set. Existing folders in
+    none of them or all of them, never a mix with an earlier set. The temporary folders
+    of killed processes are removed first (:func:`remove_dead_sets`). Existing folders in
     their place are refused before anything is written. A symbolic link in the place of
     a file is written through, as :func:`atomic_path` does: the link stays and the file
     it names is replaced."""
@@ -211,13 +263,14 @@ def file_set(out: Path, names):
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     _check_names(out, names)
+    remove_dead_sets(out)
     tmp = None
     try:
-        tmp = Path(tempfile.mkdtemp(prefix=".lfsf-set.", dir=out))
+        tmp = Path(tempfile.mkdtemp(prefix=f"{SET_PREFIX}{_host()}-{os.getpid()}.", dir=out))
         try:
             yield tmp
         except OSError as exc:
-            raise _named(exc, out) from exc
+            raise _named(exc, out, tmp) from exc
         with interrupts_held():
             for name in names:
                 (out / name).parent.mkdir(parents=True, exist_ok=True)

@@ -13,7 +13,7 @@ import time
 import warnings
 from pathlib import Path
 
-from lfsf._errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, ArgumentParser, run_script
+from lfsf._errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_TERMINATED, ArgumentParser, run_script
 from lfsf._files import output_file, output_folder
 
 
@@ -129,12 +129,26 @@ def cmd_synth(args) -> int:
 
 # --- eval ----------------------------------------------------------------------------------
 
+def _not_an_input(report: Path, result: Path, gt: Path) -> None:
+    """Refuse a report path that is the ground truth, the result or one of a result
+    folder's files: the JSON would replace what it reports on."""
+    from lfsf.batch import RESULT_FILES
+
+    target = report.resolve()
+    inputs = [gt, result] + ([result / name for name in (*RESULT_FILES, "overview.png")] if result.is_dir() else [])
+    for path in inputs:
+        if path.resolve() == target:
+            raise ValueError(f"{report}: the report would replace {path}, which it reports on; choose another "
+                             "--json file")
+
+
 def cmd_eval(args) -> int:
     from lfsf._files import write_json_atomic
     from lfsf.evaluate import evaluate, format_table, load_estimate, load_ground_truth
 
     if args.json:
         output_file(args.json)
+        _not_an_input(args.json, args.result, args.gt)
     estimate = load_estimate(args.result)
     gt, default_border = load_ground_truth(args.gt)
     border = default_border if args.border is None else args.border
@@ -315,6 +329,10 @@ def cmd_batch(args) -> int:
     from lfsf.device import resolve_device
 
     params = _params(args)
+    if args.scheduler is not None and args.workers is not None:
+        raise ValueError(f"--workers {args.workers} sets the processes of a local cluster; with --scheduler the "
+                         "scheduler's own workers run the pairs: give one of the two")
+    workers = args.workers or 1
     output_folder(args.out, create=False)  # made once there is a cluster to write into it
     if args.scheduler is not None:
         batch.check_scheduler_address(args.scheduler)
@@ -322,15 +340,15 @@ def cmd_batch(args) -> int:
         resolve_device(args.device)  # a device this machine lacks (or $LFSF_DEVICE's): one error before any work
     pairs = batch.pairs_from_sources(args.sources, out=args.out)
     batch.check_outputs(pairs, args.out)  # before the first line of the run
-    batch.check_dask(args.workers, args.scheduler)  # before the first line of the run
+    batch.check_dask(workers, args.scheduler)  # before the first line of the run
     where = (f"the Dask scheduler at {args.scheduler}" if args.scheduler
-             else f"a local Dask cluster of {args.workers} process{'es' if args.workers > 1 else ''}"
+             else f"a local Dask cluster of {workers} process{'es' if workers > 1 else ''}"
              if batch.have_dask() else "this process (Dask is not installed)")
     count = f"{len(pairs)} pair{'s' if len(pairs) != 1 else ''}"
     _log(args, f"lfsf batch: {count} to {args.out}, {_preset_label(args)}, on {where}"
                + (", each pair of a sequence starting from the one before" if args.warm_start else ""))
     bar = batch.ProgressBar(len(pairs), quiet=args.quiet)
-    summary = batch.run_batch(pairs, args.out, params, workers=args.workers, scheduler=args.scheduler,
+    summary = batch.run_batch(pairs, args.out, params, workers=workers, scheduler=args.scheduler,
                               device=args.device, warm_start=args.warm_start, progress=bar)
     print(f"lfsf batch: {summary.describe()}")
     if summary.failed:
@@ -512,8 +530,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "exit status is then 1.")
     p.add_argument("sources", nargs="+", type=Path, metavar="SOURCE", help="a manifest CSV or a folder of frames")
     p.add_argument("--out", type=_folder_name, required=True, help="output folder")
-    p.add_argument("--workers", type=_positive, default=1, metavar="N",
-                   help="processes of the local Dask cluster (default 1; without Dask, 1 runs in this process)")
+    p.add_argument("--workers", type=_positive, default=None, metavar="N",
+                   help="processes of the local Dask cluster (default 1; without Dask, 1 runs in this process; "
+                        "not with --scheduler)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler, e.g. tcp://host:8786")
     p.add_argument("--warm-start", action="store_true",
                    help="start each pair of a sequence from the previous pair's result (pairs run in order)")
@@ -607,13 +626,13 @@ class _PipeSafe:
 
 def entry() -> None:  # pragma: no cover - the installed command; tests call main()
     """The ``lfsf`` command (and ``python -m lfsf``): :func:`main`'s status as the exit
-    status. After Ctrl-C the process ends at once, once "interrupted" is printed: the
-    interpreter's shutdown would wait for the thread pool's bands still running and
-    collect objects the interrupt left half made, and either could print a traceback
-    after that line (imageio's PNG writer, cut off while being set up, did in 1 of 20
-    interrupted runs)."""
+    status. After Ctrl-C (or SIGTERM) the process ends at once, once "interrupted" (or
+    "terminated") is printed: the interpreter's shutdown would wait for the thread pool's
+    bands still running and collect objects the interrupt left half made, and either could
+    print a traceback after that line (imageio's PNG writer, cut off while being set up,
+    did in 1 of 20 interrupted runs)."""
     status = main()
-    if status == EXIT_INTERRUPTED:
+    if status in (EXIT_INTERRUPTED, EXIT_TERMINATED):
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(status)

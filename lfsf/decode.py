@@ -393,7 +393,8 @@ def read_raw(path: str | os.PathLike, *, role: str = "raw") -> RawImage:
             elif image.shape[2] in (3, 4):
                 image = image[..., :3]
             else:
-                raise ValueError(f"{path}: expected a grey or RGB image, got {image.shape[2]} channels")
+                raise ValueError(f"{path}: expected a grey or RGB image, got an array of shape {image.shape}: "
+                                 f"{image.shape[2]} channels, or a stack of images (pages of a TIFF)")
         if image.ndim not in (2, 3) or image.size == 0:
             raise ValueError(f"{path}: expected a 2-D sensor image, got shape {image.shape}")
         if image.dtype.kind in "iu":

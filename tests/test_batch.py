@@ -419,6 +419,19 @@ def test_cli_unreachable_scheduler_is_a_clear_error(frames, tmp_path, capsys):
     assert not out.exists()  # nothing written without a cluster
 
 
+def test_cli_workers_with_a_scheduler_is_a_clear_error(frames, tmp_path, capsys):
+    """--workers sets a local cluster's processes, which --scheduler does not start: both
+    together are refused (--workers was silently ignored), even --workers 1."""
+    folder, _ = frames
+    for n in ("3", "1"):
+        assert main(["batch", str(folder), "--out", str(tmp_path / "out"), "--scheduler", "tcp://127.0.0.1:1",
+                     "--workers", n, "--quiet"]) == 2
+        err = capsys.readouterr().err
+        assert err == (f"lfsf batch: error: --workers {n} sets the processes of a local cluster; with --scheduler "
+                       "the scheduler's own workers run the pairs: give one of the two\n"), err
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize("address", ["", "tls://127.0.0.1:1", "inproc://x", "tcp://127.0.0.1:abc",
                                      "tcp://127.0.0.1:8786/extra", "tcp://127.0.0.1:99999", "127.0.0.1"])
 def test_cli_malformed_scheduler_addresses_are_one_line(frames, tmp_path, capsys, address):
@@ -525,6 +538,23 @@ def test_an_incomplete_result_folder_with_other_files_is_not_replaced(frames, tm
                               device="cpu")
     assert [o.status for o in summary.outcomes] == ["failed"] and "notes.txt" in summary.outcomes[0].reason
     assert (tmp_path / "out" / "mine" / "notes.txt").read_text() == "keep me"
+
+
+def test_a_result_folder_left_by_a_killed_run_is_replaced(frames, tmp_path, monkeypatch):
+    """What a killed ``lfsf run`` leaves in a result folder (some results and its hidden
+    temporary folder of partial files) is lfsf's own: the pair is estimated and replaces
+    it (it failed as 'holds files that are not results of lfsf')."""
+    monkeypatch.setattr(batch, "have_dask", lambda: False)
+    folder, _ = frames
+    manifest = _manifest(tmp_path / "m.csv", [(folder / "f000.npz", folder / "f001.npz", "mine")])
+    left = tmp_path / "out" / "mine"
+    (left / ".lfsf-set.host-123.abcd1234").mkdir(parents=True)
+    (left / ".lfsf-set.host-123.abcd1234" / "disp1.pfm").write_bytes(b"partial")
+    (left / "disp1.png").write_bytes(b"an older result")
+    summary = batch.run_batch(batch.pairs_from_sources([manifest]), tmp_path / "out", PARAMS, workers=1,
+                              device="cpu")
+    assert [o.status for o in summary.outcomes] == ["done"], summary.outcomes
+    assert sorted(p.name for p in left.iterdir()) == sorted(batch.RESULT_FILES)
 
 
 def test_an_output_folder_inside_the_frames_is_not_a_frame(frames, tmp_path):

@@ -189,6 +189,24 @@ def test_eval_of_a_flow_only_result_leaves_its_zero_disparities_out(tmp_path, ca
     assert "disp1" not in report["errors"] and report["errors"]["flow"]["epe"] == 0.0
 
 
+@pytest.mark.parametrize("result,report", [("r", "gt.npz"), ("r/disp1.pfm", "gt.npz"), ("r", "link.npz"),
+                                           ("r", "r/sceneflow.npz"), ("r", "r/../r/disp1.pfm"),
+                                           ("r/disp1.pfm", "r/disp1.pfm")])
+def test_an_eval_report_may_not_replace_what_it_reports_on(tmp_path, capsys, result, report):
+    """``lfsf eval R GT --json X``: X the ground truth, the result, one of the result
+    folder's files or a link to one of them is refused (it silently replaced it)."""
+    (tmp_path / "gt.npz").write_bytes(b"the ground truth")
+    (tmp_path / "r").mkdir()
+    for name in ("sceneflow.npz", "disp1.pfm"):
+        (tmp_path / "r" / name).write_bytes(b"a result")
+    (tmp_path / "link.npz").symlink_to(tmp_path / "gt.npz")
+    status = main(["eval", str(tmp_path / result), str(tmp_path / "gt.npz"), "--json", str(tmp_path / report)])
+    err = capsys.readouterr().err
+    assert status == 2 and "which it reports on; choose another --json file" in err and err.count("\n") == 1, err
+    assert (tmp_path / "gt.npz").read_bytes() == b"the ground truth"
+    assert (tmp_path / "r" / "disp1.pfm").read_bytes() == (tmp_path / "r" / "sceneflow.npz").read_bytes() == b"a result"
+
+
 @pytest.mark.parametrize(
     "args,needles",
     [
@@ -588,17 +606,83 @@ def test_run_says_in_its_log_that_it_matched_t2s_exposure(tmp_path):
     assert status == 0 and err == "", err
 
 
-@pytest.mark.parametrize("status", [0, 2, 130])
+@pytest.mark.parametrize("status", [0, 2, 130, 143])
 def test_the_command_ends_at_once_after_an_interrupt(status):
-    """``lfsf.cli.entry`` (the installed command): after Ctrl-C (status 130) the process
-    ends without the interpreter's shutdown (no atexit, no thread joins, no collection
-    of what the interrupt left half made, whose errors printed tracebacks after
-    "interrupted"); any other status exits as usual."""
+    """``lfsf.cli.entry`` (the installed command): after Ctrl-C (status 130) or SIGTERM
+    (143) the process ends without the interpreter's shutdown (no atexit, no thread joins,
+    no collection of what the interrupt left half made, whose errors printed tracebacks
+    after "interrupted"); any other status exits as usual."""
     code = ("import atexit, lfsf.cli as c; atexit.register(lambda: print('shutdown ran', flush=True)); "
             f"c.main = lambda: {status}; c.entry()")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert proc.returncode == status, proc.stderr
-    assert ("shutdown ran" in proc.stdout) == (status != 130), proc.stdout
+    assert ("shutdown ran" in proc.stdout) == (status not in (130, 143)), proc.stdout
+
+
+def test_sigterm_is_held_back_while_a_set_of_outputs_moves_into_place():
+    """SIGTERM (``kill``, ``timeout``, a job limit) is held back as Ctrl-C is, and then
+    ends the command as an interrupt does: :class:`Terminated`, a KeyboardInterrupt."""
+    import signal
+
+    from lfsf._errors import Terminated, terminate_as_interrupt
+    from lfsf._files import interrupts_held
+
+    before = signal.getsignal(signal.SIGTERM)
+    done = []
+    with pytest.raises(Terminated):
+        with terminate_as_interrupt():
+            with interrupts_held():
+                os.kill(os.getpid(), signal.SIGTERM)
+                for _ in range(1000):  # bytecodes at which a pending signal would be raised
+                    pass
+                done.append("the body ran to its end")
+    assert done
+    assert signal.getsignal(signal.SIGTERM) == before  # (restored on the way out)
+
+
+def test_sigterm_while_results_are_written_leaves_none_and_exits_143(tmp_path, monkeypatch, capsys):
+    """A SIGTERM that comes while ``lfsf run`` writes its results (here once the first file
+    is in the temporary folder) removes that folder, as Ctrl-C does, and the command ends
+    with "terminated" and status 143: killed outright, it left a hidden ``.lfsf-set.*``
+    folder of partial files, which ``lfsf batch`` then refused to replace."""
+    import signal
+
+    views = np.random.default_rng(0).random((3, 3, 24, 32)).astype(np.float32)
+    np.savez(tmp_path / "a.npz", views=views)
+    write_pfm = io.write_pfm
+
+    def write_then_terminated(path, *args, **kwargs):
+        write_pfm(path, *args, **kwargs)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr(io, "write_pfm", write_then_terminated)
+    out = tmp_path / "r"
+    status = main(["run", str(tmp_path / "a.npz"), str(tmp_path / "a.npz"), "--out", str(out), "--preset", "flow",
+                   "--quiet"])
+    assert status == 143
+    assert capsys.readouterr().err.strip() == "lfsf run: terminated"
+    assert out.is_dir() and list(out.iterdir()) == []
+
+
+def test_the_temporary_folders_of_killed_runs_are_removed(tmp_path):
+    """A process killed outright (SIGKILL, the out-of-memory killer) leaves its temporary
+    folder; the next set written into the same folder removes those of processes of this
+    machine that are gone, and leaves a live one's, another machine's and any other."""
+    from lfsf import _files
+
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True).stdout.strip()
+    host = _files._host()
+    names = {"dead": f".lfsf-set.{host}-{gone}.abc", "live": f".lfsf-set.{host}-{os.getppid()}.abc",
+             "elsewhere": f".lfsf-set.{host}x-{gone}.abc", "older": ".lfsf-set.abc123"}
+    for name in names.values():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "disp1.pfm").write_bytes(b"partial")
+    with _files.file_set(tmp_path, ["a.txt"]) as tmp:
+        assert tmp.name.startswith(f".lfsf-set.{host}-{os.getpid()}.")
+        (tmp / "a.txt").write_text("new")
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert left == sorted([names["live"], names["elsewhere"], names["older"], "a.txt"])
 
 
 def test_a_warning_is_one_line_of_the_command(tmp_path):
@@ -627,3 +711,23 @@ def test_a_reader_that_goes_away_does_not_cost_the_results(tmp_path):
     assert proc.wait(timeout=300) == 0, err
     assert first.startswith(b"lfsf demo: scene 'paper'") and err == ""
     assert len(list((tmp_path / "d").iterdir())) == 8
+
+
+def test_memory_that_runs_out_is_one_line_and_status_1(capsys):
+    """numpy's MemoryError and Warp's failed allocation (a RuntimeError) end a command in
+    one line with status 1 (they were a traceback of 16 frames); any other RuntimeError
+    stays a traceback, a bug to see."""
+    from lfsf._errors import run_script
+
+    def numpy_out():
+        np.empty((1 << 40, 1 << 20), np.float32)
+
+    def warp_out():
+        raise RuntimeError("Failed to allocate 79872000 bytes on device 'cpu'")
+
+    for fn, said in ((numpy_out, "Unable to allocate"), (warp_out, "Failed to allocate 79872000 bytes on device 'cpu'")):
+        assert run_script(fn, prog="lfsf run") == 1
+        err = capsys.readouterr().err
+        assert err.startswith(f"lfsf run: error: out of memory ({said}") and err.count("\n") == 1, err
+    with pytest.raises(RuntimeError, match="a bug"):
+        run_script(lambda: (_ for _ in ()).throw(RuntimeError("a bug")), prog="lfsf run")

@@ -9,6 +9,7 @@ views; and the faults that must end in one clear message (exit status 2)."""
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -435,6 +436,18 @@ def test_unreadable_and_truncated_files_fail_clearly(lenslet_files, tmp_path, ca
     _fails(["decode", str(tmp_path / "missing.png"), "--white", white, "--out", str(tmp_path / "o")], capsys,
            "missing.png")
     assert not (tmp_path / "o").exists()
+
+
+def test_a_stack_of_images_is_not_taken_for_channels(tmp_path):
+    """A TIFF of two pages reads as (2, H, W): the message gives the shape and says what
+    it may be (it said "got W channels")."""
+    import tifffile
+
+    stack = tmp_path / "stack.tif"
+    tifffile.imwrite(stack, np.zeros((2, 12, 16), np.uint16))
+    with pytest.raises(ValueError, match=re.escape(f"{stack}: expected a grey or RGB image, got an array of shape "
+                                                   "(2, 12, 16): 16 channels, or a stack of images (pages of a TIFF)")):
+        D.read_raw(stack)
 
 
 def test_lytro_metadata_gives_pattern_and_levels(tmp_path):

@@ -1194,16 +1194,22 @@ def test_an_os_error_without_a_file_name_names_what_was_being_written(tmp_path, 
         if where == "atomic_path":
             with _files.atomic_path(tmp_path / "r.pfm") as tmp:
                 tmp.write_bytes(b"x")
-                raise exc
+                raise exc(tmp) if callable(exc) else exc
         with _files.file_set(tmp_path / "out", ["a.pfm"]) as tmp:
             (tmp / "a.pfm").write_bytes(b"x")
-            raise exc
+            raise exc(tmp / "a.pfm") if callable(exc) else exc
 
     target = os.fspath(tmp_path / ("r.pfm" if where == "atomic_path" else "out"))
     with pytest.raises(OSError) as raised:
         write(OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)))
     assert raised.value.errno == errno.ENOSPC and raised.value.filename == target
     assert str(raised.value) == f"[Errno 28] No space left on device: '{target}'"
+    # one that names the temporary file names the file it was to become (the temporary
+    # name, ".lfsf-set.HOST-PID.XXXX/a.pfm", means nothing to whoever reads the message)
+    named = os.fspath(tmp_path / ("r.pfm" if where == "atomic_path" else "out/a.pfm"))
+    with pytest.raises(OSError) as raised:
+        write(lambda tmp: OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), os.fspath(tmp)))
+    assert str(raised.value) == f"[Errno 28] No space left on device: '{named}'"
     with pytest.raises(OSError) as raised:
         write(FileNotFoundError(errno.ENOENT, "gone", "/else/where"))
     assert type(raised.value) is FileNotFoundError and raised.value.filename == "/else/where"
