@@ -103,7 +103,9 @@ class SceneFlow:
         centre views are given) into ``out``, as one set: all are written into a
         temporary folder inside ``out`` first and moved into place only when every one
         is complete, so a failure or an interrupt leaves none of them (and no mix with an
-        earlier run's). ``gt`` and ``title`` go to the overview (:func:`lfsf.viz.overview_figure`)."""
+        earlier run's). ``gt`` and ``title`` go to the overview (:func:`lfsf.viz.overview_figure`).
+        A flow-only result's (one circle) δ1 and δ2 pictures are plain grey
+        (:data:`lfsf.viz.NOT_ESTIMATED_GREY`), and said to be not estimated in the overview."""
         import json
 
         from lfsf import io, viz
@@ -123,13 +125,18 @@ class SceneFlow:
             extra = {} if self.occluded is None else {"occluded": self.occluded}
             with open(tmp / "sceneflow.npz", "wb") as f:
                 np.savez_compressed(f, **self.as_dict(), **extra, params=np.str_(json.dumps(meta)))
+            # a flow-only run's δ1 and δ2 are zeros, not estimates: drawn as a plain grey
+            estimated = self.params.circles > 1
             lo, hi = _colour_range(self.disp1, self.disp2)
             for name in ("disp1", "disp2"):
-                viz.save_png(tmp / f"{name}.png", viz.disparity_to_color(getattr(self, name), lo, hi))
+                picture = (viz.disparity_to_color(getattr(self, name), lo, hi) if estimated
+                           else np.full(self.disp1.shape + (3,), viz.NOT_ESTIMATED_GREY, np.uint8))
+                viz.save_png(tmp / f"{name}.png", picture)
             viz.save_png(tmp / "flow.png", viz.flow_to_color(self.u, self.v))
             if centre1 is not None and centre2 is not None:
                 viz.overview_figure(centre1, centre2, self.disp1, self.disp2, self.u, self.v, gt=gt,
-                                    path=tmp / "overview.png", title=title, occluded=self.occluded)
+                                    path=tmp / "overview.png", title=title, occluded=self.occluded,
+                                    disparities=estimated)
         return [out / name for name in names]
 
 

@@ -406,11 +406,23 @@ class _ColorBar:
     lut: np.ndarray
     lo: float
     hi: float
+    below: bool = False  # values below lo are drawn in lo's colour: the number reads "<=lo"
+    above: bool = False  # … and above hi in hi's: ">=hi" (the default font has no ≤, ≥)
+
+    @classmethod
+    def of(cls, lut: np.ndarray, lo: float, hi: float, *maps: np.ndarray) -> "_ColorBar":
+        """The bar from ``lo`` to ``hi``, its ends marked where a finite value of ``maps``
+        lies beyond them."""
+        finite = [m[np.isfinite(m)] for m in maps]
+        below = any(f.size and float(f.min()) < lo for f in finite)
+        above = any(f.size and float(f.max()) > hi for f in finite)
+        return cls(lut, lo, hi, bool(below), bool(above))
 
     def __eq__(self, other) -> bool:
         if not isinstance(other, _ColorBar):
             return NotImplemented
-        return (self.lo, self.hi) == (other.lo, other.hi) and np.array_equal(self.lut, other.lut)
+        return ((self.lo, self.hi, self.below, self.above) == (other.lo, other.hi, other.below, other.above)
+                and np.array_equal(self.lut, other.lut))
 
 
 @dataclass(frozen=True)
@@ -492,7 +504,7 @@ def occluded_picture(centre1, occluded) -> np.ndarray:
 
 
 def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="estimate",
-                     occluded=None) -> list[list[_Panel]]:
+                     occluded=None, disparities=True) -> list[list[_Panel]]:
     """The overview's panels, row by row (see :func:`overview_figure`)."""
     # the maps are the t1 centre view's: its (H, W) is what each must have (a map of
     # another shape is named, not the first map taken as the measure)
@@ -530,27 +542,29 @@ def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="
         # outside the mask the ground truth means nothing: draw it as invalid too
         truth = {k: np.where(valid, a, np.nan) for k, a in truth.items()}
 
-    ranges = {
-        k: _robust_range(np.concatenate([est[k].ravel()] + ([truth[k].ravel()] if truth else [])))
-        for k in ("disp1", "disp2")
-    }
+    # one range for δ1 and δ2 (and their truth): the same colour is the same disparity in
+    # every panel, as in the disp1.png and disp2.png of a result
+    shown = [est[k] for k in ("disp1", "disp2") if disparities] + [truth[k] for k in ("disp1", "disp2") if truth]
+    lo, hi = _robust_range(np.concatenate([m.ravel() for m in shown])) if shown else (0.0, 1.0)
     if max_flow is None:
         max_flow = _max_magnitude(est["u"], est["v"])
         if truth:
             max_flow = max(max_flow, _max_magnitude(truth["u"], truth["v"]))
     scale = max_flow if max_flow > 0 else None  # all-zero flow: flow_to_color draws white
 
-    def disparity_row(maps: Mapping[str, np.ndarray], tag: str) -> list[_Panel]:
+    def disparity_row(maps: Mapping[str, np.ndarray], tag: str, estimated: bool = True) -> list[_Panel]:
         row = []
         for k in ("disp1", "disp2"):
-            lo, hi = ranges[k]
-            row.append(_Panel(f"{k} {tag}", disparity_to_color(maps[k], lo, hi),
-                              _ColorBar(_DISPARITY_LUT, lo, hi)))
+            if estimated:
+                row.append(_Panel(f"{k} {tag}", disparity_to_color(maps[k], lo, hi),
+                                  _ColorBar.of(_DISPARITY_LUT, lo, hi, *shown)))
+            else:
+                row.append(_not_estimated(k, shape))
         row.append(_Panel(f"flow {tag}", flow_to_color(maps["u"], maps["v"], scale),
                           _WheelKey(max_flow)))
         return row
 
-    rows.append(disparity_row(est, label))
+    rows.append(disparity_row(est, label, disparities))
     if not truth:
         return rows
     rows.append(disparity_row(truth, "ground truth"))
@@ -565,14 +579,39 @@ def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="
     flow_scale = _error_scale(errors["flow"])
     error_row = []
     for k, title in (("disp1", "|disp1 - GT|"), ("disp2", "|disp2 - GT|"), ("flow", "flow EPE")):
+        if k != "flow" and not disparities:
+            error_row.append(_not_estimated(k, shape))
+            continue
         e = errors[k]
         finite = np.isfinite(e)
-        mean = f"{float(e[finite].mean()):.4g}" if finite.any() else "n/a"
+        mean = f"{float(e[finite].mean()):.3g}" if finite.any() else "n/a"
         vmax = flow_scale if k == "flow" else disp_scale
+        shared = (errors["flow"],) if k == "flow" else (errors["disp1"], errors["disp2"])
         error_row.append(_Panel(f"{title}  mean {mean}", error_to_color(e, vmax),
-                                _ColorBar(_ERROR_LUT, 0.0, vmax)))
+                                _ColorBar.of(_ERROR_LUT, 0.0, vmax, *shared)))
     rows.append(error_row)
     return rows
+
+
+#: The grey of a panel of a map that was not estimated (δ1, δ2 of a flow-only run).
+NOT_ESTIMATED_GREY = (200, 200, 200)
+
+
+def _not_estimated(name: str, shape: tuple[int, int]) -> _Panel:
+    return _Panel(f"{name}: not estimated (flow only)", np.full(shape + (3,), NOT_ESTIMATED_GREY, np.uint8))
+
+
+def _overview_notes(rows: list[list[_Panel]], gt, disparities: bool = True) -> str:
+    """The figure's last line: the units, and what the marks of its keys mean where
+    they appear."""
+    notes = ["disparities in px per view step, flow and its errors in px" if disparities or gt is not None
+             else "flow in px"]
+    bars = [p.footer for row in rows for p in row if isinstance(p.footer, _ColorBar)]
+    if any(b.below or b.above for b in bars):
+        notes.append("<= or >= at a bar's end: values beyond it take its colour")
+    if gt is not None:
+        notes.append("black: no ground truth there")
+    return "; ".join(notes)
 
 
 def _fit_text(draw: ImageDraw.ImageDraw, text: str, font, width: int) -> str:
@@ -593,8 +632,21 @@ def _fit_text(draw: ImageDraw.ImageDraw, text: str, font, width: int) -> str:
     return text[:fits] + ".."
 
 
-def _compose(rows: list[list[_Panel]], title: str | None) -> np.ndarray:
-    """Lay the panels out on a grid: header label, upscaled image, footer key."""
+def _wrap(draw: ImageDraw.ImageDraw, text: str, font, width: int) -> list[str]:
+    """``text`` in lines of at most ``width`` pixels, broken between words (a word wider
+    than that shortened by :func:`_fit_text`)."""
+    lines: list[str] = []
+    for word in text.split():
+        if lines and draw.textlength(f"{lines[-1]} {word}", font=font) <= width:
+            lines[-1] = f"{lines[-1]} {word}"
+        else:
+            lines.append(_fit_text(draw, word, font, width))
+    return lines
+
+
+def _compose(rows: list[list[_Panel]], title: str | None, notes: str | None = None) -> np.ndarray:
+    """Lay the panels out on a grid: header label, upscaled image, footer key; the
+    ``notes`` below, wrapped to the grid's width."""
     h, w = rows[0][0].image.shape[:2]
     # narrow images are enlarged for the labels, but never past _MAX_PANEL_HEIGHT: a
     # 3000×8 image would otherwise become a 360000-px-tall picture
@@ -610,7 +662,9 @@ def _compose(rows: list[list[_Panel]], title: str | None) -> np.ndarray:
     ncols = max(len(r) for r in rows)
     title_h = header_h if title else 0
     width = 2 * _MARGIN + ncols * pw + (ncols - 1) * _GAP
-    height = 2 * _MARGIN + title_h + len(rows) * cell_h + (len(rows) - 1) * _GAP
+    note_lines = _wrap(probe, notes, font, width - 2 * _MARGIN) if notes else []
+    notes_h = len(note_lines) * (line_h + _PAD) + (_PAD if note_lines else 0)
+    height = 2 * _MARGIN + title_h + len(rows) * cell_h + (len(rows) - 1) * _GAP + notes_h
 
     canvas = Image.new("RGB", (width, height), _BACKGROUND_RGB)
     draw = ImageDraw.Draw(canvas)
@@ -632,6 +686,10 @@ def _compose(rows: list[list[_Panel]], title: str | None) -> np.ndarray:
             canvas.paste(Image.fromarray(big), (x0, y0 + header_h))
             _draw_footer(canvas, draw, panel.footer, x0, y0 + header_h + ph, pw, footer_h,
                          font, text_at)
+    y = _MARGIN + title_h + len(rows) * cell_h + (len(rows) - 1) * _GAP + _PAD
+    for line in note_lines:
+        text_at(_MARGIN, y, line)
+        y += line_h + _PAD
     return np.asarray(canvas, dtype=np.uint8).copy()
 
 
@@ -644,7 +702,8 @@ def _draw_footer(canvas, draw, footer, x0, y0, pw, footer_h, font, text_at) -> N
         label = _fit_text(draw, label, font, pw - 3 * _PAD - inner)
         text_at(x0 + 2 * _PAD + inner, y0 + _PAD, label)
     elif isinstance(footer, _ColorBar):
-        lo, hi = _fmt(footer.lo), _fmt(footer.hi)
+        lo = ("<=" if footer.below else "") + _fmt(footer.lo)
+        hi = (">=" if footer.above else "") + _fmt(footer.hi)
         lo_w = math.ceil(draw.textlength(lo, font=font))
         hi_w = math.ceil(draw.textlength(hi, font=font))
         bar_x0 = x0 + 2 * _PAD + lo_w
@@ -659,7 +718,8 @@ def _draw_footer(canvas, draw, footer, x0, y0, pw, footer_h, font, text_at) -> N
 
 def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = None,
                     path: str | os.PathLike | None = None, title: str | None = None,
-                    max_flow: float | None = None, label: str = "estimate", occluded=None) -> np.ndarray:
+                    max_flow: float | None = None, label: str = "estimate", occluded=None,
+                    disparities: bool = True) -> np.ndarray:
     """A labelled grid of panels showing a scene-flow result, optionally against truth.
 
     Rows: (1) centre views at t1 and t2; (2) estimated δ1, δ2 and flow; with ``gt`` also
@@ -695,6 +755,10 @@ def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = N
     occluded : array_like of bool, shape (H, W), optional
         The points not seen at t2 (``SceneFlow.occluded``): a third panel in row 1, the
         t1 centre view dimmed with them in magenta (:func:`occluded_picture`).
+    disparities : bool, optional
+        False for a flow-only result (one circle, ``--preset flow``): its δ1 and δ2
+        are zeros, not estimates, and their panels (and error panels) say "not
+        estimated" on grey instead of drawing them.
 
     Returns
     -------
@@ -704,12 +768,15 @@ def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = N
 
     Notes
     -----
-    Disparity panels share one range per variable between estimate and ground truth:
-    the 1st/99th percentiles of both maps' finite values together. Error maps of δ1 and
-    δ2 share one scale (99th percentile of both), the end-point error has its own.
+    The disparity panels, δ1 and δ2, estimate and ground truth, share one range: the
+    1st/99th percentiles of all their finite values together (so the same colour is the
+    same disparity everywhere). Error maps of δ1 and δ2 share one scale (99th percentile
+    of both), the end-point error has its own. A bar's end value reads "<=" or ">=" where
+    values lie beyond it, drawn in its colour. A last line gives the units and those
+    marks' meaning.
     """
-    rows = _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label, occluded)
-    figure = _compose(rows, title)
+    rows = _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label, occluded, disparities)
+    figure = _compose(rows, title, _overview_notes(rows, gt, disparities))
     if path is not None:
         save_png(path, figure)
     return figure

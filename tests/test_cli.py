@@ -187,6 +187,11 @@ def test_eval_of_a_flow_only_result_leaves_its_zero_disparities_out(tmp_path, ca
     assert "not evaluated in" in out and "disp1, disp2 (a flow-only result" in out
     report = json.loads((tmp_path / "e.json").read_text())
     assert "disp1" not in report["errors"] and report["errors"]["flow"]["epe"] == 0.0
+    # nor are they drawn as a disparity (zeros in the colour map's purple): plain grey
+    from lfsf.viz import NOT_ESTIMATED_GREY
+
+    for name in ("disp1", "disp2"):
+        assert (io.read_image(tmp_path / "r" / f"{name}.png") == NOT_ESTIMATED_GREY).all()
 
 
 @pytest.mark.parametrize("result,report", [("r", "gt.npz"), ("r/disp1.pfm", "gt.npz"), ("r", "link.npz"),

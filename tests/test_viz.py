@@ -209,9 +209,12 @@ def test_overview_panel_count_grows_with_ground_truth(tmp_path):
     assert _count_panels(plain) == 5    # 2 centre views + disp1, disp2, flow
     assert _count_panels(full) == 11    # + 3 ground truth + 3 errors
     assert full.shape[1] == plain.shape[1]
-    # two more rows of equal height: the figure grows by twice the pitch of one row
-    row_pitch = (full.shape[0] - plain.shape[0]) // 2
-    assert row_pitch > 48 and full.shape[0] - plain.shape[0] == 2 * row_pitch
+    # two more rows of equal height: the grid grows by twice the pitch of one row (the
+    # grids alone, without the notes below them, which say more with ground truth)
+    grids = [viz._compose(viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], truth, None),
+                          None) for truth in (None, gt)]
+    row_pitch = (grids[1].shape[0] - grids[0].shape[0]) // 2
+    assert row_pitch > 48 and grids[1].shape[0] - grids[0].shape[0] == 2 * row_pitch
     # a 64-pixel-wide input is upscaled by an integer factor: panels are wider than it
     assert plain.shape[1] > 3 * 4 * 64
 
@@ -261,19 +264,26 @@ def test_overview_error_panels_mean_and_valid_mask():
     assert [len(r) for r in rows] == [2, 3, 3, 3]
     err1 = rows[3][0]
     expected = np.abs(est["disp1"] - gt["disp1"])[valid].mean()
-    assert f"mean {expected:.4g}" in err1.label
+    assert f"mean {expected:.3g}" in err1.label
     epe = np.hypot(est["u"] - gt["u"], est["v"] - gt["v"])[valid].mean()
-    assert f"mean {epe:.4g}" in rows[3][2].label
+    assert f"mean {epe:.3g}" in rows[3][2].label
     for panel in rows[3] + rows[2]:  # error and ground-truth panels: invalid is black
         assert (panel.image[:, :5] == 0).all()
         assert (panel.image[:, 5:].reshape(-1, 3) != 0).any(axis=1).all()
-    # estimate and ground truth share each disparity scale and the flow scale
-    assert rows[1][0].footer == rows[2][0].footer
-    assert rows[1][1].footer == rows[2][1].footer
+    # estimate and ground truth, δ1 and δ2 share one disparity scale; both flows one
+    assert rows[1][0].footer == rows[2][0].footer == rows[1][1].footer == rows[2][1].footer
     assert rows[1][2].footer == rows[2][2].footer
+    # … the 1st and 99th percentiles of all four maps' values, beyond which lie some: the
+    # ends are marked (the huge errors outside the mask are no disparities of the truth)
+    shown = [est["disp1"], est["disp2"], np.where(valid, gt["disp1"], np.nan), np.where(valid, gt["disp2"], np.nan)]
+    finite = np.concatenate([m[np.isfinite(m)] for m in shown])
+    assert np.allclose((rows[1][0].footer.lo, rows[1][0].footer.hi), np.percentile(finite, [1, 99]))
+    assert rows[1][0].footer.below and rows[1][0].footer.above
     bar = rows[1][0].footer  # (equal by colours and numbers, on every Python: 3.13's dataclass == failed)
-    assert bar == viz._ColorBar(bar.lut.copy(), bar.lo, bar.hi)
-    assert bar != viz._ColorBar(bar.lut, bar.lo, bar.hi + 1.0) and bar != viz._ColorBar(bar.lut[::-1], bar.lo, bar.hi)
+    assert bar == viz._ColorBar(bar.lut.copy(), bar.lo, bar.hi, bar.below, bar.above)
+    assert bar != viz._ColorBar(bar.lut, bar.lo, bar.hi + 1.0, bar.below, bar.above)
+    assert bar != viz._ColorBar(bar.lut[::-1], bar.lo, bar.hi, bar.below, bar.above)
+    assert bar != viz._ColorBar(bar.lut, bar.lo, bar.hi, bar.below, not bar.above)
 
 
 def test_overview_rejects_mismatched_shapes():
@@ -391,3 +401,51 @@ def test_save_png_refuses_a_name_that_says_another_format(tmp_path, name):
     assert list(tmp_path.iterdir()) == []
     viz.save_png(tmp_path / "x.PNG", np.zeros((4, 4), np.uint8))
     assert (tmp_path / "x.PNG").is_file()
+
+
+def test_the_overview_marks_clipped_bar_ends_and_says_its_units():
+    """A bar's end reads '<=' or '>=' where values lie beyond it (drawn in its colour:
+    a small near object above the 99th percentile looked like the backdrop's far end);
+    the last line gives the units and what the marks mean, and with ground truth what
+    black is."""
+    c1, c2, est, gt = _scene()
+    rows = viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], None, None)
+    bar = rows[1][0].footer
+    assert bar.below and bar.above  # (noisy maps: 1 % of the values lie beyond each end)
+    even = np.tile(np.linspace(0.0, 1.0, 64), (48, 1))
+    rows = viz._overview_panels(c1, c2, even, even, est["u"], est["v"], None, None)
+    bar = rows[1][0].footer
+    assert not bar.below and not bar.above or (bar.lo, bar.hi) != (0.0, 1.0)
+    assert viz._overview_notes(rows, None) == "disparities in px per view step, flow and its errors in px"
+    rows = viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], gt, None)
+    assert viz._overview_notes(rows, gt) == ("disparities in px per view step, flow and its errors in px; <= or >= at "
+                                             "a bar's end: values beyond it take its colour; black: no ground truth "
+                                             "there")
+    figure = viz.overview_figure(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], gt=gt)
+    grid = viz._compose(rows, None)
+    assert figure.shape[1] == grid.shape[1] and figure.shape[0] > grid.shape[0]  # the notes, below the grid
+    assert np.array_equal(figure[:grid.shape[0] - viz._MARGIN], grid[:grid.shape[0] - viz._MARGIN])
+
+
+def test_a_flow_only_overview_says_its_disparities_were_not_estimated():
+    """disparities=False (a flow-only run: δ1, δ2 are zeros): their panels, and their
+    error panels, are grey and say so, without a colour bar; the flow's are as before."""
+    c1, c2, est, gt = _scene()
+    zeros = np.zeros_like(est["disp1"])
+    for truth, expected in ((None, [2, 3]), (gt, [2, 3, 3, 3])):
+        rows = viz._overview_panels(c1, c2, zeros, zeros, est["u"], est["v"], truth, None, disparities=False)
+        assert [len(r) for r in rows] == expected
+        skipped = [rows[1][0], rows[1][1]] + ([rows[3][0], rows[3][1]] if truth else [])
+        for panel, name in zip(skipped, ["disp1", "disp2"] * 2):
+            assert panel.label == f"{name}: not estimated (flow only)" and panel.footer is None
+            assert (panel.image == viz.NOT_ESTIMATED_GREY).all()
+        full = viz._overview_panels(c1, c2, zeros, zeros, est["u"], est["v"], truth, None)
+
+        def same(a, b):
+            return a.label == b.label and np.array_equal(a.image, b.image) and a.footer == b.footer
+
+        assert same(rows[1][2], full[1][2])
+        if truth:
+            assert rows[2][0].label == "disp1 ground truth" and same(rows[3][2], full[3][2])
+    rows = viz._overview_panels(c1, c2, zeros, zeros, est["u"], est["v"], None, None, disparities=False)
+    assert viz._overview_notes(rows, None, disparities=False) == "flow in px"
