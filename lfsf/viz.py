@@ -604,8 +604,8 @@ def _not_estimated(name: str, shape: tuple[int, int]) -> _Panel:
 def _overview_notes(rows: list[list[_Panel]], gt, disparities: bool = True) -> str:
     """The figure's last line: the units, and what the marks of its keys mean where
     they appear."""
-    notes = ["disparities in px per view step, flow and its errors in px" if disparities or gt is not None
-             else "flow in px"]
+    flow = "flow and its errors in px" if gt is not None else "flow in px"
+    notes = [f"disparities in px per view step, {flow}" if disparities or gt is not None else flow]
     bars = [p.footer for row in rows for p in row if isinstance(p.footer, _ColorBar)]
     if any(b.below or b.above for b in bars):
         notes.append("<= or >= at a bar's end: values beyond it take its colour")

@@ -416,7 +416,7 @@ def test_the_overview_marks_clipped_bar_ends_and_says_its_units():
     rows = viz._overview_panels(c1, c2, even, even, est["u"], est["v"], None, None)
     bar = rows[1][0].footer
     assert not bar.below and not bar.above or (bar.lo, bar.hi) != (0.0, 1.0)
-    assert viz._overview_notes(rows, None) == "disparities in px per view step, flow and its errors in px"
+    assert viz._overview_notes(rows, None) == "disparities in px per view step, flow in px"
     rows = viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], gt, None)
     assert viz._overview_notes(rows, gt) == ("disparities in px per view step, flow and its errors in px; <= or >= at "
                                              "a bar's end: values beyond it take its colour; black: no ground truth "
