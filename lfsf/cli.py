@@ -261,15 +261,43 @@ def cmd_run(args) -> int:
     lf1 = read_lightfield(args.lf1)
     lf2 = read_lightfield(args.lf2)
     check_pair(lf1, lf2)
+    gt, border = _run_ground_truth(args, lf1)
     progress = _Progress(args)
     t0 = time.perf_counter()
     try:
         sf = estimate_scene_flow(lf1, lf2, params, device=device, progress=progress)
     finally:
         progress.done()
-    paths = sf.save(args.out, lf1.centre, lf2.centre)
-    _log(args, f"estimated in {time.perf_counter() - t0:.1f} s on {device}; wrote {len(paths)} files to {args.out}")
+    seconds = time.perf_counter() - t0
+    if gt is not None:
+        from lfsf.evaluate import evaluate, format_table
+
+        print(f"{args.out} against {args.gt} (border {border} px)")
+        print(format_table(evaluate(sf, gt, border=border)), flush=True)
+    rows, cols = lf1.grid
+    title = (f"lfsf run: {args.lf1.name} and {args.lf2.name} ({lf1.width}x{lf1.height}, {rows}x{cols} views, "
+             f"{_preset_label(args)})" + (f" against {args.gt.name}" if gt is not None else ""))
+    paths = sf.save(args.out, lf1.centre, lf2.centre, gt=gt, title=title)
+    _log(args, f"estimated in {seconds:.1f} s on {device}; wrote {len(paths)} files to {args.out}")
     return 0
+
+
+def _run_ground_truth(args, lf1):
+    """``lfsf run --gt``: the ground truth and its border (:func:`lfsf.evaluate.load_ground_truth`),
+    read and checked against the light field's view size before any work; (None, None)
+    without the option."""
+    if args.gt is None:
+        return None, None
+    from lfsf.evaluate import load_ground_truth
+
+    gt, border = load_ground_truth(args.gt)
+    shapes = {k: a.shape for k, a in gt.items()}
+    wrong = {k: s for k, s in shapes.items() if s != (lf1.height, lf1.width)}
+    if wrong:
+        k, s = next(iter(wrong.items()))
+        raise ValueError(f"{args.gt}: '{k}' is {s[1]}x{s[0]}, and the light field's views {args.lf1} are "
+                         f"{lf1.width}x{lf1.height}")
+    return gt, border
 
 
 def cmd_demo(args) -> int:
@@ -486,6 +514,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("lf1", type=Path, help="light field at t1 (folder of views or .npz)")
     p.add_argument("lf2", type=Path, help="light field at t2")
     p.add_argument("--out", type=_folder_name, required=True, help="output folder")
+    p.add_argument("--gt", type=Path, metavar="GT",
+                   help="ground truth (gt.npz of 'lfsf synth', or an HCI gt_disp_lowres.pfm): print the errors as "
+                        "'lfsf eval' does and add the truth and the errors to overview.png")
     _estimator_options(p)
     p.set_defaults(func=cmd_run)
 

@@ -526,11 +526,13 @@ def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="
     truth: dict[str, np.ndarray] = {}
     valid = np.ones(shape, dtype=bool)
     if gt is not None:
-        missing = [k for k in ("disp1", "disp2", "u", "v") if k not in gt]
-        if missing:
-            raise ValueError(f"expected gt with keys disp1, disp2, u, v; missing {missing}")
+        # any of δ1, δ2 and the flow (u and v together): an HCI benchmark's ground truth
+        # is δ1 alone; the panels of what it lacks say so
+        if not any(k in gt for k in ("disp1", "disp2", "u", "v")) or ("u" in gt) != ("v" in gt):
+            missing = [k for k in ("disp1", "disp2", "u", "v") if k not in gt]
+            raise ValueError(f"expected gt with keys disp1, disp2 and/or u with v; missing {missing}")
         truth = {k: _check_map_shape(f"gt[{k!r}]", gt[k], shape)
-                 for k in ("disp1", "disp2", "u", "v")}
+                 for k in ("disp1", "disp2", "u", "v") if k in gt}
         if gt.get("valid") is not None:
             mask = np.asarray(gt["valid"])
             if mask.shape != shape or mask.dtype != bool:
@@ -544,24 +546,26 @@ def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="
 
     # one range for δ1 and δ2 (and their truth): the same colour is the same disparity in
     # every panel, as in the disp1.png and disp2.png of a result
-    shown = [est[k] for k in ("disp1", "disp2") if disparities] + [truth[k] for k in ("disp1", "disp2") if truth]
+    shown = [est[k] for k in ("disp1", "disp2") if disparities] + [truth[k] for k in ("disp1", "disp2") if k in truth]
     lo, hi = _robust_range(np.concatenate([m.ravel() for m in shown])) if shown else (0.0, 1.0)
     if max_flow is None:
         max_flow = _max_magnitude(est["u"], est["v"])
-        if truth:
+        if "u" in truth:
             max_flow = max(max_flow, _max_magnitude(truth["u"], truth["v"]))
     scale = max_flow if max_flow > 0 else None  # all-zero flow: flow_to_color draws white
 
     def disparity_row(maps: Mapping[str, np.ndarray], tag: str, estimated: bool = True) -> list[_Panel]:
         row = []
         for k in ("disp1", "disp2"):
-            if estimated:
+            if k not in maps:
+                row.append(_blank(f"{k}: no ground truth", shape))
+            elif estimated:
                 row.append(_Panel(f"{k} {tag}", disparity_to_color(maps[k], lo, hi),
                                   _ColorBar.of(_DISPARITY_LUT, lo, hi, *shown)))
             else:
                 row.append(_not_estimated(k, shape))
-        row.append(_Panel(f"flow {tag}", flow_to_color(maps["u"], maps["v"], scale),
-                          _WheelKey(max_flow)))
+        row.append(_Panel(f"flow {tag}", flow_to_color(maps["u"], maps["v"], scale), _WheelKey(max_flow))
+                   if "u" in maps else _blank("flow: no ground truth", shape))
         return row
 
     rows.append(disparity_row(est, label, disparities))
@@ -569,24 +573,26 @@ def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="
         return rows
     rows.append(disparity_row(truth, "ground truth"))
 
-    errors = {
-        "disp1": np.abs(est["disp1"] - truth["disp1"]),
-        "disp2": np.abs(est["disp2"] - truth["disp2"]),
-        "flow": np.hypot(est["u"] - truth["u"], est["v"] - truth["v"]),
-    }
+    errors = {k: np.abs(est[k] - truth[k]) for k in ("disp1", "disp2") if k in truth}
+    if "u" in truth:
+        errors["flow"] = np.hypot(est["u"] - truth["u"], est["v"] - truth["v"])
     errors = {k: np.where(np.isfinite(e), e, np.nan) for k, e in errors.items()}
-    disp_scale = _error_scale(errors["disp1"], errors["disp2"])
-    flow_scale = _error_scale(errors["flow"])
+    disp_errors = [errors[k] for k in ("disp1", "disp2") if k in errors]
+    disp_scale = _error_scale(*disp_errors) if disp_errors else 1.0
+    flow_scale = _error_scale(errors["flow"]) if "flow" in errors else 1.0
     error_row = []
     for k, title in (("disp1", "|disp1 - GT|"), ("disp2", "|disp2 - GT|"), ("flow", "flow EPE")):
         if k != "flow" and not disparities:
             error_row.append(_not_estimated(k, shape))
             continue
+        if k not in errors:
+            error_row.append(_blank(f"{title}: no ground truth", shape))
+            continue
         e = errors[k]
         finite = np.isfinite(e)
         mean = f"{float(e[finite].mean()):.3g}" if finite.any() else "n/a"
         vmax = flow_scale if k == "flow" else disp_scale
-        shared = (errors["flow"],) if k == "flow" else (errors["disp1"], errors["disp2"])
+        shared = (errors["flow"],) if k == "flow" else tuple(errors[d] for d in ("disp1", "disp2") if d in errors)
         error_row.append(_Panel(f"{title}  mean {mean}", error_to_color(e, vmax),
                                 _ColorBar.of(_ERROR_LUT, 0.0, vmax, *shared)))
     rows.append(error_row)
@@ -597,8 +603,13 @@ def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="
 NOT_ESTIMATED_GREY = (200, 200, 200)
 
 
+def _blank(label: str, shape: tuple[int, int]) -> _Panel:
+    """A grey panel in place of a map that is not there."""
+    return _Panel(label, np.full(shape + (3,), NOT_ESTIMATED_GREY, np.uint8))
+
+
 def _not_estimated(name: str, shape: tuple[int, int]) -> _Panel:
-    return _Panel(f"{name}: not estimated (flow only)", np.full(shape + (3,), NOT_ESTIMATED_GREY, np.uint8))
+    return _blank(f"{name}: not estimated (flow only)", shape)
 
 
 def _overview_notes(rows: list[list[_Panel]], gt, disparities: bool = True) -> str:
@@ -740,8 +751,10 @@ def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = N
         Estimated flow of the centre view, pixels.
     gt : mapping, optional
         Ground truth with keys ``disp1``, ``disp2``, ``u``, ``v`` (same conventions and
-        shape), and optionally ``valid``, a bool (H, W) mask; pixels outside it are
-        drawn as invalid in the ground-truth and error panels and left out of the means.
+        shape), or some of them (``u`` with ``v``; an HCI benchmark's ``disp1`` alone:
+        the panels of the others say "no ground truth" on grey), and optionally
+        ``valid``, a bool (H, W) mask; pixels outside it are drawn as invalid in the
+        ground-truth and error panels and left out of the means.
     path : str or path-like, optional
         Where to write the figure as PNG (atomically).
     title : str, optional

@@ -736,3 +736,29 @@ def test_memory_that_runs_out_is_one_line_and_status_1(capsys):
         assert err.startswith(f"lfsf run: error: out of memory ({said}") and err.count("\n") == 1, err
     with pytest.raises(RuntimeError, match="a bug"):
         run_script(lambda: (_ for _ in ()).throw(RuntimeError("a bug")), prog="lfsf run")
+
+
+def test_run_with_ground_truth_prints_the_errors_and_draws_them(tmp_path, capsys):
+    """``lfsf run --gt``: the errors as ``lfsf eval`` prints them, and the truth and the
+    errors in overview.png (two more rows); a ground truth of another size is refused
+    before any work, as one line."""
+    from lfsf.evaluate import evaluate, format_table, load_estimate
+
+    assert main(["synth", "paper", "--out", str(tmp_path / "s"), "--size", "48", "36", "--grid", "3",
+                 "--quiet"]) == 0
+    lf1, lf2, gt = (str(tmp_path / "s" / n) for n in ("lf1.npz", "lf2.npz", "gt.npz"))
+    capsys.readouterr()
+    assert main(["run", lf1, lf2, "--out", str(tmp_path / "r"), "--preset", "fast", "--gt", gt, "--quiet"]) == 0
+    out = capsys.readouterr().out
+    with np.load(gt) as z:
+        truth = {k: z[k] for k in z.files}
+    assert format_table(evaluate(load_estimate(tmp_path / "r"), truth, border=8)).splitlines()[1] in out
+    assert out.startswith(f"{tmp_path / 'r'} against {gt} (border 8 px)\n")
+    assert main(["run", lf1, lf2, "--out", str(tmp_path / "plain"), "--preset", "fast", "--quiet"]) == 0
+    with_truth, plain = (io.read_image(tmp_path / d / "overview.png") for d in ("r", "plain"))
+    assert with_truth.shape[1] == plain.shape[1] and with_truth.shape[0] > plain.shape[0] + 2 * 36
+    np.savez(tmp_path / "small.npz", disp1=np.zeros((12, 16), np.float32))
+    status = main(["run", lf1, lf2, "--out", str(tmp_path / "x"), "--gt", str(tmp_path / "small.npz")])
+    err = capsys.readouterr().err
+    assert status == 2 and err.count("\n") == 1 and "'disp1' is 16x12, and the light field's views" in err, err
+    assert not (tmp_path / "x").exists()

@@ -295,9 +295,28 @@ def test_overview_rejects_mismatched_shapes():
     with pytest.raises(ValueError, match=re.escape(f"expected disp1 of shape {c1.shape[:2]} (the centre view's), "
                                                    f"got {est['disp1'][:-1].shape}")):
         viz.overview_figure(c1, c2, est["disp1"][:-1], est["disp2"], est["u"], est["v"])
-    with pytest.raises(ValueError, match="missing"):
-        viz.overview_figure(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"],
-                            gt={"disp1": gt["disp1"]})
+    for partial in ({"u": gt["u"]}, {"valid": np.ones(c1.shape[:2], bool)}):  # half a flow; no map at all
+        with pytest.raises(ValueError, match="missing"):
+            viz.overview_figure(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], gt=partial)
+
+
+def test_an_overview_against_part_of_a_ground_truth():
+    """An HCI benchmark's truth is δ1 alone: its row and its error show δ1, and the
+    panels of δ2 and the flow say that there is no ground truth for them."""
+    c1, c2, est, gt = _scene()
+    rows = viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], {"disp1": gt["disp1"]}, None)
+    assert [p.label for p in rows[2]] == ["disp1 ground truth", "disp2: no ground truth", "flow: no ground truth"]
+    assert [p.label.split("  ")[0] for p in rows[3]] == ["|disp1 - GT|", "|disp2 - GT|: no ground truth",
+                                                         "flow EPE: no ground truth"]
+    assert f"mean {np.abs(est['disp1'] - gt['disp1']).mean():.3g}" in rows[3][0].label
+    for panel in rows[2][1:] + rows[3][1:]:
+        assert (panel.image == viz.NOT_ESTIMATED_GREY).all() and panel.footer is None
+    # without the truth's flow, the estimate's flow is drawn on its own scale
+    alone = viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], None, None)
+    assert np.array_equal(rows[1][2].image, alone[1][2].image) and rows[1][2].footer == alone[1][2].footer
+    flow_only = viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"],
+                                     {"u": gt["u"], "v": gt["v"]}, None)
+    assert [p.label for p in flow_only[2]] == ["disp1: no ground truth", "disp2: no ground truth", "flow ground truth"]
 
 
 # --------------------------------------------------------------------------- save_png
