@@ -1,7 +1,9 @@
-"""What counts as bad input, in one place."""
+"""What counts as bad input, and how a command ends on it, on memory that runs out and on
+a signal, in one place."""
 
 import argparse
 import contextlib
+
 
 class DependencyError(ImportError):
     """A package that lfsf needs is too old (or missing): the message names the package,

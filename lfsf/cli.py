@@ -269,16 +269,20 @@ def cmd_run(args) -> int:
     finally:
         progress.done()
     seconds = time.perf_counter() - t0
-    if gt is not None:
-        from lfsf.evaluate import evaluate, format_table
-
-        print(f"{args.out} against {args.gt} (border {border} px)")
-        print(format_table(evaluate(sf, gt, border=border)), flush=True)
     rows, cols = lf1.grid
     title = (f"lfsf run: {args.lf1.name} and {args.lf2.name} ({lf1.width}x{lf1.height}, {rows}x{cols} views, "
              f"{_preset_label(args)})" + (f" against {args.gt.name}" if gt is not None else ""))
     paths = sf.save(args.out, lf1.centre, lf2.centre, gt=gt, title=title)
     _log(args, f"estimated in {seconds:.1f} s on {device}; wrote {len(paths)} files to {args.out}")
+    if gt is not None:  # (after the results are written: an error here loses none of them)
+        from lfsf.evaluate import evaluate, format_table
+
+        try:
+            errors = evaluate(sf, gt, border=border)
+        except ValueError as exc:
+            raise ValueError(f"{args.out} against {args.gt}: {exc}") from None
+        print(f"{args.out} against {args.gt} (border {border} px)")
+        print(format_table(errors), flush=True)
     return 0
 
 
