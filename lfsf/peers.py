@@ -82,11 +82,22 @@ _OPENCV_TVL1_GETTERS = {"tau": "getTau", "lambda": "getLambda", "theta": "getThe
                         "useInitialFlow": "getUseInitialFlow"}
 
 
-def opencv_tvl1_parameters() -> dict:
-    """The parameters of a default ``cv2.optflow.DualTVL1OpticalFlow_create()``."""
+def _opencv_dual_tvl1():
+    """A default ``cv2.optflow.DualTVL1OpticalFlow_create()``. ImportError where OpenCV is
+    missing, or installed without its contrib modules (``opencv-python`` has no
+    ``cv2.optflow``), so that a caller that skips a peer it lacks skips this one too."""
     import cv2
 
-    tv = cv2.optflow.DualTVL1OpticalFlow_create()
+    optflow = getattr(cv2, "optflow", None)
+    if optflow is None or not hasattr(optflow, "DualTVL1OpticalFlow_create"):
+        raise ImportError(f"OpenCV {getattr(cv2, '__version__', '')} lacks its contrib modules (cv2.optflow): "
+                          "pip install opencv-contrib-python-headless, or pip install -e '.[peers]'")
+    return optflow.DualTVL1OpticalFlow_create()
+
+
+def opencv_tvl1_parameters() -> dict:
+    """The parameters of a default ``cv2.optflow.DualTVL1OpticalFlow_create()``."""
+    tv = _opencv_dual_tvl1()
     out = {}
     for name, getter in _OPENCV_TVL1_GETTERS.items():
         if hasattr(tv, getter):
@@ -113,12 +124,10 @@ def opencv_tvl1(c1, c2) -> tuple[np.ndarray, np.ndarray]:
 
     OpenCV runs this on all cores (its own thread pool).
     """
-    import cv2
-
+    tv = _opencv_dual_tvl1()
     c1, c2 = _check_pair(c1, c2)
     q1 = (np.clip(c1, 0.0, 1.0) * 255).round().astype(np.uint8)
     q2 = (np.clip(c2, 0.0, 1.0) * 255).round().astype(np.uint8)
-    tv = cv2.optflow.DualTVL1OpticalFlow_create()
     flow = tv.calc(q1, q2, None)
     return (np.ascontiguousarray(flow[..., 0], dtype=np.float32),
             np.ascontiguousarray(flow[..., 1], dtype=np.float32))

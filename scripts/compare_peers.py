@@ -619,11 +619,16 @@ def main(argv=None) -> int:
             if args.methods == "lfsf":
                 print(f"error: {why}", file=sys.stderr)
                 return 2
-    if use_peers:  # import the peers once, outside the timings
-        import cv2  # noqa: F401
-        import skimage.registration  # noqa: F401
+    if use_peers:  # import the peers once, outside the timings (and before any run: all three are needed)
+        try:
+            peers._opencv_dual_tvl1()
+            import skimage.registration  # noqa: F401
 
-        peers.import_plenpy_lightfield()
+            peers.import_plenpy_lightfield()
+        except ImportError as exc:
+            print(f"error: the peers need OpenCV contrib, scikit-image and plenpy (pip install -e '.[peers]'): "
+                  f"{exc}; or compare lfsf alone with --methods lfsf", file=sys.stderr)
+            return 2
 
     rows = []
     if not args.no_synth:

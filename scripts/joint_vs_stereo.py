@@ -170,8 +170,17 @@ def main(argv=None) -> int:
             raise ValueError(f"--size must be at least 16 16 and --grid at least 3, got {args.size} and {args.grid}")
         if args.static and args.noise <= 0:
             raise ValueError("--static needs --noise: without it t2 would be t1 itself, the stereo-only case")
+        # the render's size and grid, the device and the report's file: before any run, not after
+        synth.check_render(tuple(args.size), args.grid)
+        from lfsf.device import resolve_device
+
+        resolve_device(args.device)
+        if args.json:
+            from lfsf._files import output_file
+
+            output_file(args.json)
     except ValueError as exc:
-        print(f"joint_vs_stereo: {exc}", file=sys.stderr)
+        print(f"joint_vs_stereo: error: {exc}", file=sys.stderr)
         return 2
     print(f"{args.preset}, {args.size[0]}×{args.size[1]}, {args.grid}×{args.grid} views"
           + (f", noise σ = {args.noise:g}" if args.noise > 0 else "")
@@ -200,4 +209,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from lfsf._errors import run_script
+
+    sys.exit(run_script(main))

@@ -105,8 +105,17 @@ def main(argv=None) -> int:
             synth.get_scene(name)
         if args.seeds < 1 or not 0.0 < args.epsilon < 0.1:
             raise ValueError("--seeds must be at least 1 and --epsilon in (0, 0.1)")
+        # the render's size and grid, the device and the report's file: before any run, not after
+        synth.check_render(tuple(args.size), args.grid)
+        from lfsf.device import resolve_device
+
+        resolve_device(args.device)
+        if args.json:
+            from lfsf._files import output_file
+
+            output_file(args.json)
     except ValueError as exc:
-        print(f"perturbation_spread: {exc}", file=sys.stderr)
+        print(f"perturbation_spread: error: {exc}", file=sys.stderr)
         return 2
     report = {"size": list(args.size), "grid": args.grid, "preset": args.preset, "epsilon": args.epsilon,
               "scenes": {}}
@@ -148,4 +157,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from lfsf._errors import run_script
+
+    sys.exit(run_script(main))

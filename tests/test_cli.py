@@ -551,6 +551,12 @@ def test_an_error_raised_while_interrupted_counts_as_the_interrupt(monkeypatch, 
     ("hci_breakdown.py", ["{tmp}"], "found no light-field views"),
     ("profile_kernels.py", ["--json", ""], "is a folder, not a file to write"),
     ("bench_decode.py", ["nope"], "expected 'cases' or 'illum [BAYER]'"),
+    # tracebacks (status 1), or a --json folder refused only after every run
+    ("perturbation_spread.py", ["--size", "0", "48"], "image width must be in 8…8192, got 0"),
+    ("perturbation_spread.py", ["--device", "cuda:3"], "unknown device 'cuda:3'"),
+    ("perturbation_spread.py", ["--json", "{tmp}"], "is a folder, not a file to write"),
+    ("joint_vs_stereo.py", ["--device", "cuda:3"], "unknown device 'cuda:3'"),
+    ("joint_vs_stereo.py", ["--json", "{tmp}"], "is a folder, not a file to write"),
 ])
 def test_scripts_answer_bad_options_in_one_line(tmp_path, script, args, needle):
     (tmp_path / "gt").write_text("a file")
@@ -762,3 +768,22 @@ def test_run_with_ground_truth_prints_the_errors_and_draws_them(tmp_path, capsys
     err = capsys.readouterr().err
     assert status == 2 and err.count("\n") == 1 and "'disp1' is 16x12, and the light field's views" in err, err
     assert not (tmp_path / "x").exists()
+
+
+def test_compare_peers_without_a_peer_says_so_in_one_line(tmp_path):
+    """A missing peer, or OpenCV without its contrib modules (plain opencv-python has no
+    cv2.optflow), is one line naming what to install before any run (it was a
+    ModuleNotFoundError traceback); `lfsf bench peers` gives such a peer a row saying so."""
+    (tmp_path / "cv2.py").write_text("__version__ = '4.9.0'  # OpenCV without its contrib modules\n")
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = {**os.environ, "LFSF_DEVICE": "", "PYTHONPATH": str(tmp_path)}
+    proc = subprocess.run([sys.executable, os.path.join(root, "scripts", "compare_peers.py"), "--size", "48", "40",
+                           "--scenes", "slanted"], capture_output=True, text=True, env=env)
+    assert_clean_error(proc.returncode, proc.stderr, "OpenCV 4.9.0 lacks its contrib modules (cv2.optflow)",
+                       "--methods lfsf")
+    code = ("import json, lfsf.bench as b; print(json.dumps([r for r in b.bench_peers((48, 40), 'cpu', 1) "
+            "if r['method'] == 'opencv DualTVL1']))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert proc.returncode == 0, proc.stderr
+    (row,) = json.loads(proc.stdout)
+    assert row["epe"] is None and "lacks its contrib modules" in row["note"], row
