@@ -137,8 +137,11 @@ def main(argv=None) -> int:
     print("|---|---|---|---|---|---|---|")
     print(f"| {parts['total']:.3f} | {parts['wedge']:.3f} | {parts['floor']:.3f} | {parts['head']:.3f} | "
           f"{parts['rest']:.3f} | {parts['off_by_more_than_1']:.3f} | {parts['badpix_0.07']:.2f} % |")
-    if args.save:
-        np.save(args.save, result.disp1)
+    if args.save:  # (atomically; its folder made if missing, as for every --json)
+        from lfsf._files import atomic_path
+
+        with atomic_path(args.save) as tmp:
+            np.save(tmp, result.disp1)
     return 0
 
 
