@@ -127,7 +127,8 @@ def bench_pipeline(size=(640, 480), device: str | None = None, repeats: int = 3,
         # two middle runs (they were the slower one's alone)
         middle = [timed[int(k)] for k in order[(len(seconds) - 1) // 2: len(seconds) // 2 + 1]]
         stages = {k: float(np.mean([run.timings.get(k, 0.0) for run in middle])) for k in median_run.timings}
-        errors = evaluate(median_run.as_dict(), gt, border=SYNTH_BORDER)
+        # (the SceneFlow itself: a flow-only setting's δ1, δ2 are zeros, not estimates, and unscored)
+        errors = evaluate(median_run, gt, border=SYNTH_BORDER)
         phis, _radius = params.sample_offsets(lf1.grid)
         rows.append({
             "setting": name,
@@ -480,7 +481,8 @@ def format_rows(kind: str, rows: list[dict]) -> str:
         lines = [head, "|" + "---|" * (6 + len(stages))]
         for r in rows:
             lines.append(f"| {r['setting']} | {r['device']} | {r['size'][0]}×{r['size'][1]} | {r['views']} | {sec(r)} | "
-                         f"{r['peak_rss_mb']:.0f} | " + " | ".join(f"{r['stages'].get(k, 0):.2f}" for k in stages) + " |")
+                         f"{r['peak_rss_mb']:.0f} | "
+                         + " | ".join(f"{r['stages'][k]:.2f}" if k in r["stages"] else "–" for k in stages) + " |")
         return "\n".join(lines)
     if kind == "kernels":
         lines = ["| kernel | device | seconds per launch median (min–max) | GB/s | memcpy GB/s | fraction | copy |",

@@ -441,7 +441,11 @@ def cmd_bench(args) -> int:
     else:
         rows = bench.bench_peers(size or (640, 480), device, repeats=args.repeats or 3, progress=say)
     print(bench.format_rows(args.kind, rows))
-    print(f"peak RSS {bench.peak_rss_mb():.0f} MB; {_machine()}")
+    # (the pipeline's rows hold each setting's own peak; the process's since the last
+    # setting began would be the last one's alone)
+    peak = (f"{max(r['peak_rss_mb'] for r in rows):.0f} MB (the largest setting's)" if args.kind == "pipeline"
+            else f"{bench.peak_rss_mb():.0f} MB")
+    print(f"peak RSS {peak}; {_machine()}")
     if args.json:
         write_json_atomic(args.json, rows)
     return 0

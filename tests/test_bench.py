@@ -136,6 +136,22 @@ def test_bench_pipeline_reports_stages_memory_and_the_estimators_errors():
     assert row["errors"]["flow"]["epe"] == pytest.approx(want["flow"]["epe"], abs=1e-5)
 
 
+def test_bench_pipeline_scores_a_flow_only_setting_on_its_flow_alone():
+    """Its δ1 and δ2 are zeros, not estimates: no disparity errors in its row (they were
+    scored, MSE 2.9 and BadPix 98 %), as lfsf eval leaves them out; the table draws a
+    stage that a setting does not run as '–', not 0.00."""
+    settings = (("paper", "paper", {}), ("flow only", "flow", {}))  # (the paper's views' gains: a stage of its own)
+    rows = bench.bench_pipeline((96, 72), "cpu", repeats=1, settings=settings)
+    assert {"disp1", "disp2", "flow"} <= set(rows[0]["errors"])
+    assert "flow" in rows[1]["errors"] and not {"disp1", "disp2"} & set(rows[1]["errors"])
+    table = bench.format_rows("pipeline", rows).splitlines()
+    stages = [c.strip() for c in table[0].split("|")[7:-1]]
+    missing = [k for k in rows[0]["stages"] if k not in rows[1]["stages"]]
+    assert missing, "the flow preset runs every stage of paper"
+    cells = [c.strip() for c in table[3].split("|")[7:-1]]
+    assert all(cells[stages.index(k)] == "–" for k in missing)
+
+
 def test_bench_command_writes_json(tmp_path):
     out = tmp_path / "k.json"
     proc = subprocess.run([sys.executable, "-m", "lfsf", "bench", "kernels", "--size", "16", "12", "--repeats", "2",
