@@ -582,7 +582,8 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Time repeated runs after a warm-up and print median and spread; --json writes "
                                    "the rows. pipeline: the estimator per setting (the paper's first) with per-stage "
                                    "seconds and peak RSS; kernels: the hot kernels' bandwidth against a plain copy; "
-                                   "peers: flow-only lfsf, scene flow, OpenCV DualTVL1 and skimage TV-L1 with EPE.")
+                                   "peers: lfsf flow-only (the paper's schedule), lfsf's flow preset, lfsf scene flow, OpenCV "
+                                   "DualTVL1 and skimage TV-L1 with EPE.")
     p.add_argument("kind", nargs="?", default="pipeline", choices=("kernels", "pipeline", "peers"),
                    help="what to measure (default pipeline)")
     p.add_argument("--size", nargs=2, type=_size, metavar=("W", "H"),
