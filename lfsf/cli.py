@@ -22,8 +22,16 @@ def _log(args, message: str) -> None:
         print(message, file=sys.stderr, flush=True)
 
 
+def _whole(text: str) -> int:
+    """A whole number, or argparse's error saying so (not "invalid _size value")."""
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+
+
 def _size(text: str) -> int:
-    value = int(text)
+    value = _whole(text)
     if value < 8:
         raise argparse.ArgumentTypeError(f"image size must be at least 8 pixels, got {value}")
     return value
@@ -51,7 +59,7 @@ def _repeats(text: str) -> int:
 
 
 def _positive(text: str) -> int:
-    value = int(text)
+    value = _whole(text)
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
     return value

@@ -53,7 +53,7 @@ def _bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def main(argv=None) -> int:
     ap = ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("out", type=Path)
+    ap.add_argument("out", type=Path, help="folder for the example's raw and white images, views and results")
     ap.add_argument("--scene", default="paper")
     ap.add_argument("--size", nargs=2, type=int, default=(160, 120), metavar=("W", "H"))
     ap.add_argument("--pitch", type=float, default=9.6, help="lens pitch in sensor pixels")

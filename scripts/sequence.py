@@ -47,19 +47,22 @@ def run(scene: str, frames: int, size, preset: str, warm_levels: list[int], devi
 
 def main(argv=None) -> int:
     ap = ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--scene", default="paper")
-    ap.add_argument("--frames", type=int, default=5)
-    ap.add_argument("--size", nargs=2, type=int, default=(320, 240), metavar=("W", "H"))
-    ap.add_argument("--preset", default="paper")
-    ap.add_argument("--warm-levels", nargs="+", type=int, default=[0, 2])
-    ap.add_argument("--device")
-    ap.add_argument("--json")
+    ap.add_argument("--scene", default="paper", help="the scene (default paper)")
+    ap.add_argument("--frames", type=int, default=5, help="light fields of the sequence, at least 3 (default 5)")
+    ap.add_argument("--size", nargs=2, type=int, default=(320, 240), metavar=("W", "H"),
+                    help="view size (default 320 240)")
+    ap.add_argument("--preset", default="paper", help="lfsf preset (default paper)")
+    ap.add_argument("--warm-levels", nargs="+", type=int, default=[0, 2], metavar="K",
+                    help="the warm starts compared with the cold one (each pair from scratch): each pair "
+                         "started from the one before on its K finest levels, 0 on all of them (default 0 2)")
+    ap.add_argument("--device", help="Warp device (default: lfsf's)")
+    ap.add_argument("--json", help="write every run's figures to this file")
     args = ap.parse_args(argv)
     if args.frames < 3:
         raise ValueError(f"--frames must be at least 3 (pair 0 is the cold start the others are compared with), "
                          f"got {args.frames}")
-    if any(k < 0 for k in args.warm_levels):
-        raise ValueError(f"--warm-levels must be ≥ 0, got {args.warm_levels}")
+    if any(k < 0 for k in args.warm_levels) or len(set(args.warm_levels)) < len(args.warm_levels):
+        raise ValueError(f"--warm-levels must be ≥ 0, each once, got {args.warm_levels}")
     synth.get_scene(args.scene)
     Params.preset(args.preset)
     if args.json:

@@ -235,6 +235,8 @@ def test_an_eval_report_may_not_replace_what_it_reports_on(tmp_path, capsys, res
         # argparse's own errors: one line too, not the usage block before it
         (["run", "{tmp}/a.npz", "{tmp}/b.npz"], ["required: --out", "lfsf run --help"]),
         (["synth", "paper", "--out", "{tmp}/x", "--size", "-80", "60"], ["at least 8 pixels, got -80"]),
+        (["synth", "paper", "--out", "{tmp}/x", "--size", "abc", "60"], ["--size: expected a whole number, got 'abc'"]),
+        (["bench", "--repeats", "y"], ["--repeats: expected a whole number, got 'y'"]),
         (["decode", "{tmp}/a.npz", "--white", "{tmp}/a.npz", "--out", "{tmp}/x", "--bayer", "CMYK"],
          ["invalid choice: 'CMYK'", "'none'"]),
         (["synth", "paper", "--out", "{tmp}/x", "--images", "{tmp}/a.npz"], ["a.npz: not a folder"]),
