@@ -387,6 +387,8 @@ def save_png(path: str | os.PathLike, img) -> None:
 # --------------------------------------------------------------------------- overview
 
 _MIN_PANEL_WIDTH = 240  # small inputs are upscaled (nearest) to at least this width
+_WHEEL_KEY = 32  # the flow panels' colour wheel, px across (16 was too small to read)
+_BAR_HEIGHT = 16  # a colour bar's height
 _MAX_PANEL_HEIGHT = 2048  # … but not taller than this (or their own height, if taller)
 _FONT_SIZE = 13
 _PAD = 4
@@ -668,14 +670,16 @@ def _compose(rows: list[list[_Panel]], title: str | None, notes: str | None = No
     top, bottom = probe.textbbox((0, 0), "Ag|0.9", font=font)[1::2]
     line_h = bottom - top
     header_h = line_h + 2 * _PAD
-    footer_h = max(line_h, 16) + 2 * _PAD
-    cell_h = header_h + ph + footer_h
+    footer_h = max(line_h, _WHEEL_KEY) + 2 * _PAD
+    # a row without keys (the centre views) gets no footer strip: no blank band under it
+    cells_h = [header_h + ph + (footer_h if any(p.footer is not None for p in row) else 0) for row in rows]
+    tops = [_MARGIN + (header_h if title else 0) + sum(cells_h[:r]) + r * _GAP for r in range(len(rows))]
     ncols = max(len(r) for r in rows)
-    title_h = header_h if title else 0
     width = 2 * _MARGIN + ncols * pw + (ncols - 1) * _GAP
     note_lines = _wrap(probe, notes, font, width - 2 * _MARGIN) if notes else []
     notes_h = len(note_lines) * (line_h + _PAD) + (_PAD if note_lines else 0)
-    height = 2 * _MARGIN + title_h + len(rows) * cell_h + (len(rows) - 1) * _GAP + notes_h
+    grid_end = tops[-1] + cells_h[-1]
+    height = grid_end + _MARGIN + notes_h
 
     canvas = Image.new("RGB", (width, height), _BACKGROUND_RGB)
     draw = ImageDraw.Draw(canvas)
@@ -688,7 +692,7 @@ def _compose(rows: list[list[_Panel]], title: str | None, notes: str | None = No
     if title:
         text_at(_MARGIN, _MARGIN + _PAD, _fit_text(draw, title, font, width - 2 * _MARGIN))
     for r, row in enumerate(rows):
-        y0 = _MARGIN + title_h + r * (cell_h + _GAP)
+        y0 = tops[r]
         for c, panel in enumerate(row):
             x0 = _MARGIN + c * (pw + _GAP)
             draw.rectangle([x0, y0, x0 + pw - 1, y0 + header_h - 1], fill=_HEADER_RGB)
@@ -697,7 +701,7 @@ def _compose(rows: list[list[_Panel]], title: str | None, notes: str | None = No
             canvas.paste(Image.fromarray(big), (x0, y0 + header_h))
             _draw_footer(canvas, draw, panel.footer, x0, y0 + header_h + ph, pw, footer_h,
                          font, text_at)
-    y = _MARGIN + title_h + len(rows) * cell_h + (len(rows) - 1) * _GAP + _PAD
+    y = grid_end + _PAD
     for line in note_lines:
         text_at(_MARGIN, y, line)
         y += line_h + _PAD
@@ -706,12 +710,14 @@ def _compose(rows: list[list[_Panel]], title: str | None, notes: str | None = No
 
 def _draw_footer(canvas, draw, footer, x0, y0, pw, footer_h, font, text_at) -> None:
     inner = footer_h - 2 * _PAD
+    top, bottom = draw.textbbox((0, 0), "Ag|0.9", font=font)[1::2]
+    text_y = y0 + (footer_h - (bottom - top)) // 2  # (text and bars centred in the strip)
     if isinstance(footer, _WheelKey):
         key = flow_wheel_legend(inner)
         canvas.paste(Image.fromarray(key), (x0 + _PAD, y0 + _PAD))
         label = f"full colour at |(u,v)| = {_fmt(footer.max_flow)} px"
         label = _fit_text(draw, label, font, pw - 3 * _PAD - inner)
-        text_at(x0 + 2 * _PAD + inner, y0 + _PAD, label)
+        text_at(x0 + 2 * _PAD + inner, text_y, label)
     elif isinstance(footer, _ColorBar):
         lo = ("<=" if footer.below else "") + _fmt(footer.lo)
         hi = (">=" if footer.above else "") + _fmt(footer.hi)
@@ -719,12 +725,13 @@ def _draw_footer(canvas, draw, footer, x0, y0, pw, footer_h, font, text_at) -> N
         hi_w = math.ceil(draw.textlength(hi, font=font))
         bar_x0 = x0 + 2 * _PAD + lo_w
         bar_w = pw - 4 * _PAD - lo_w - hi_w
-        text_at(x0 + _PAD, y0 + _PAD, lo)
-        text_at(bar_x0 + max(bar_w, 0) + _PAD, y0 + _PAD, hi)
+        text_at(x0 + _PAD, text_y, lo)
+        text_at(bar_x0 + max(bar_w, 0) + _PAD, text_y, hi)
         if bar_w > 0:
+            bar_h = min(inner, _BAR_HEIGHT)
             idx = np.round(np.linspace(0, len(footer.lut) - 1, bar_w)).astype(np.intp)
-            bar = np.repeat(footer.lut[idx][None], inner, axis=0)
-            canvas.paste(Image.fromarray(bar), (bar_x0, y0 + _PAD))
+            bar = np.repeat(footer.lut[idx][None], bar_h, axis=0)
+            canvas.paste(Image.fromarray(bar), (bar_x0, y0 + (footer_h - bar_h) // 2))
 
 
 def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = None,

@@ -468,3 +468,26 @@ def test_a_flow_only_overview_says_its_disparities_were_not_estimated():
             assert rows[2][0].label == "disp1 ground truth" and same(rows[3][2], full[3][2])
     rows = viz._overview_panels(c1, c2, zeros, zeros, est["u"], est["v"], None, None, disparities=False)
     assert viz._overview_notes(rows, None, disparities=False) == "flow in px"
+
+
+def test_rows_without_keys_have_no_footer_strip_and_the_wheel_is_readable():
+    """The centre views' row has no keys, so no blank footer band under it (a 30-px band
+    before the next row); the flow's colour wheel is _WHEEL_KEY px across (16 was too
+    small to make out its directions)."""
+    c1, c2, est, gt = _scene()
+    fig = viz.overview_figure(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], gt=gt)
+    mask = (fig == np.array(viz._HEADER_RGB, dtype=np.uint8)).all(axis=-1)
+    rows = np.flatnonzero(mask.sum(axis=1) >= 32)
+    tops = rows[np.concatenate([[True], np.diff(rows) > 1])]
+    assert len(tops) == 4
+    pitches = np.diff(tops)
+    assert pitches[1] == pitches[2] and pitches[1] - pitches[0] == viz._WHEEL_KEY + 2 * viz._PAD
+    rows_ = viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], gt, None)
+    grid = viz._compose(rows_, None)
+    wheel = viz.flow_wheel_legend(viz._WHEEL_KEY)
+    # the wheel is pasted into the flow panel's footer, somewhere: find it exactly
+    h, w = wheel.shape[:2]
+    found = any(np.array_equal(grid[y:y + h, x:x + w], wheel)
+                for y in range(grid.shape[0] - h) for x in range(2 * grid.shape[1] // 3, grid.shape[1] - w)
+                if np.array_equal(grid[y + h // 2, x + w // 2], wheel[h // 2, w // 2]))
+    assert found
