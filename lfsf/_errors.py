@@ -6,8 +6,8 @@ import contextlib
 
 
 class DependencyError(ImportError):
-    """A package that lfsf needs is too old (or missing): the message names the package,
-    the version found and the ``pip install`` that mends it."""
+    """A package that lfsf needs is too old (Warp, :func:`lfsf.device.require_warp`): the
+    message names the package, the version found and the ``pip install`` that mends it."""
 
 
 #: The exceptions that mean bad input (a missing, unreadable or malformed file, a wrong
@@ -50,14 +50,14 @@ def terminate_as_interrupt():
         raise Terminated()
 
     old = signal.getsignal(signal.SIGTERM)
-    if old == signal.SIG_IGN:
+    if old in (signal.SIG_IGN, None):  # (ignored, or a handler set from C: left as it is)
         yield
         return
-    signal.signal(signal.SIGTERM, handler)
     try:
+        signal.signal(signal.SIGTERM, handler)  # (inside the try: a SIGTERM right after it still restores)
         yield
     finally:
-        signal.signal(signal.SIGTERM, old if old is not None else signal.SIG_DFL)
+        signal.signal(signal.SIGTERM, old)
 
 
 def run_script(main, prog: str | None = None) -> int:

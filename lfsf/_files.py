@@ -198,26 +198,46 @@ def interrupts_held():
         yield
         return
     caught = []
-    held = [s for s in (signal.SIGINT, signal.SIGTERM) if signal.getsignal(s) not in (signal.SIG_IGN, None)]
-    old = {s: signal.signal(s, lambda signum, frame: caught.append(signum)) for s in held}
+    old: dict = {}
     try:
+        # (installed one by one inside the try, and restored each in a finally of its own:
+        # a signal whose handler raises between two of these calls leaves none swapped)
+        for s in (signal.SIGTERM, signal.SIGINT):
+            if signal.getsignal(s) not in (signal.SIG_IGN, None):
+                old[s] = signal.signal(s, lambda signum, frame: caught.append(signum))
         yield
     finally:
-        for s, handler in old.items():
-            signal.signal(s, handler)
-        for s in dict.fromkeys(caught):  # (each once, in the order they came)
+        _restore(list(old.items()))
+        # SIGTERM first, where both came: the first one delivered ends the unwinding
+        for s in sorted(set(caught), key=lambda s: s != signal.SIGTERM):
             signal.raise_signal(s)
 
 
+def _restore(handlers: list) -> None:
+    """Put back each (signal, handler) of ``handlers``, the rest even if a signal's
+    handler raises after the first."""
+    import signal
+
+    if handlers:
+        (s, handler), rest = handlers[0], handlers[1:]
+        try:
+            signal.signal(s, handler)
+        finally:
+            _restore(rest)
+
+
 #: The start of the name of :func:`file_set`'s temporary folder, followed by this
-#: machine's name and the writing process's id (``.lfsf-set.HOST-PID.XXXXXXXX``).
+#: machine's (:func:`_host`) and the writing process's id (``.lfsf-set.HOST-PID.XXXXXXXX``).
 SET_PREFIX = ".lfsf-set."
 
 
 def _host() -> str:
+    """This machine, as 12 hex digits of a hash of its full name (a cut-down name made
+    two machines one: ``ip-10-0-1-23…`` and ``ip-10-0-12-3…``)."""
+    import hashlib
     import socket
 
-    return re.sub(r"[^A-Za-z0-9]", "", socket.gethostname())[:20] or "host"
+    return hashlib.sha1(socket.gethostname().encode("utf-8", "surrogateescape")).hexdigest()[:12]
 
 
 def _alive(pid: int) -> bool:
@@ -230,21 +250,28 @@ def _alive(pid: int) -> bool:
     return True
 
 
+def dead_set(path: Path) -> bool:
+    """Whether ``path`` is a temporary folder of :func:`file_set` made by a process of this
+    machine that is gone (killed outright: SIGKILL, the out-of-memory killer, a power
+    cut). False for a live process's, another machine's (a shared file system), any of
+    another form, and anything off POSIX, where a process cannot be asked whether it is
+    there. (Containers that share a host name but not their process ids would see each
+    other's as gone: give them their own output folders.)"""
+    if os.name != "posix":
+        return False
+    made = re.fullmatch(re.escape(SET_PREFIX) + r"([0-9a-f]{12})-(\d+)\..+", path.name)
+    return (made is not None and made[1] == _host() and int(made[2]) != os.getpid()
+            and not _alive(int(made[2])) and path.is_dir())
+
+
 def remove_dead_sets(out: Path) -> None:
-    """Remove the temporary folders in ``out`` that :func:`file_set` made for processes of
-    this machine that are gone (killed outright: SIGKILL, the out-of-memory killer, a
-    power cut), which nothing else would remove. A live process's, another machine's
-    (a shared file system) and any of another form are left; so is everything off POSIX,
-    where a process cannot be asked whether it is there."""
+    """Remove the temporary folders in ``out`` that :func:`dead_set` finds, which nothing
+    else would remove."""
     import shutil
 
-    if os.name != "posix":
-        return
-    host = _host()
     with contextlib.suppress(OSError):
         for path in Path(out).glob(f"{SET_PREFIX}*"):
-            made = re.fullmatch(re.escape(SET_PREFIX) + r"([A-Za-z0-9]+)-(\d+)\..+", path.name)
-            if made and made[1] == host and int(made[2]) != os.getpid() and not _alive(int(made[2])):
+            if dead_set(path):
                 shutil.rmtree(path, ignore_errors=True)
 
 

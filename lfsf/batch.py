@@ -40,7 +40,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from lfsf._errors import BAD_INPUT_ERRORS
-from lfsf._files import SET_PREFIX, write_bytes_atomic
+from lfsf._files import dead_set, write_bytes_atomic
 
 #: The files of a complete result (those :meth:`lfsf.estimate.SceneFlow.save` writes
 #: without the centre views).
@@ -226,11 +226,11 @@ def _estimated_with(folder: Path, params) -> bool:
 
 def _holds_only_results(folder: Path) -> bool:
     """Whether ``folder`` holds nothing but (some of) a result's files, and the temporary
-    folders of an ``lfsf run`` into it that was killed (:data:`lfsf._files.SET_PREFIX`), so
-    that an incomplete result may be replaced without losing anything else."""
+    folders of an ``lfsf run`` into it that was killed (:func:`lfsf._files.dead_set`), so
+    that an incomplete result may be replaced without losing anything else. A live run's,
+    or another machine's, is not ours to remove."""
     names = set(RESULT_FILES) | {"overview.png"}
-    return folder.is_dir() and all(p.is_file() and p.name in names or p.is_dir() and p.name.startswith(SET_PREFIX)
-                                   for p in folder.iterdir())
+    return folder.is_dir() and all(p.is_file() and p.name in names or dead_set(p) for p in folder.iterdir())
 
 
 #: The longest pair name, in bytes: its temporary folder adds 24 (".", ".part-", a process

@@ -144,6 +144,8 @@ def _not_an_input(report: Path, result: Path, gt: Path) -> None:
 
     target = report.resolve()
     inputs = [gt, result] + ([result / name for name in (*RESULT_FILES, "overview.png")] if result.is_dir() else [])
+    if gt.is_dir():  # (the ground truth read from the folder: load_ground_truth's names)
+        inputs += [gt / "gt.npz", gt / "gt_disp_lowres.pfm"]
     for path in inputs:
         if path.resolve() == target:
             raise ValueError(f"{report}: the report would replace {path}, which it reports on; choose another "
@@ -302,6 +304,8 @@ def _run_ground_truth(args, lf1):
         return None, None
     from lfsf.evaluate import load_ground_truth
 
+    from lfsf.evaluate import evaluate
+
     gt, border = load_ground_truth(args.gt)
     shapes = {k: a.shape for k, a in gt.items()}
     wrong = {k: s for k, s in shapes.items() if s != (lf1.height, lf1.width)}
@@ -309,6 +313,14 @@ def _run_ground_truth(args, lf1):
         k, s = next(iter(wrong.items()))
         raise ValueError(f"{args.gt}: '{k}' is {s[1]}x{s[0]}, and the light field's views {args.lf1} are "
                          f"{lf1.width}x{lf1.height}")
+    # the evaluation that will follow, tried now on the truth itself as the estimate of what
+    # the settings estimate: a border that leaves no pixel, or nothing in common (a flow-only
+    # run against δ1 alone), refused before the work rather than after it
+    estimated = ("u", "v") if _params(args).circles == 1 else ("disp1", "disp2", "u", "v")
+    try:
+        evaluate({k: gt[k] for k in estimated if k in gt}, gt, border=border)
+    except ValueError as exc:
+        raise ValueError(f"{args.gt}: cannot score this run against it: {exc}") from None
     return gt, border
 
 

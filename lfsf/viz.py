@@ -616,14 +616,18 @@ def _not_estimated(name: str, shape: tuple[int, int]) -> _Panel:
 
 def _overview_notes(rows: list[list[_Panel]], gt, disparities: bool = True) -> str:
     """The figure's last line: the units, and what the marks of its keys mean where
-    they appear."""
-    flow = "flow and its errors in px" if gt is not None else "flow in px"
+    they appear (the flow's errors where drawn; black where the ground truth leaves
+    pixels out, by its ``valid`` mask or by values that are not finite)."""
+    flow = "flow and its errors in px" if gt is not None and "u" in gt and "v" in gt else "flow in px"
     notes = [f"disparities in px per view step, {flow}" if disparities or gt is not None else flow]
     bars = [p.footer for row in rows for p in row if isinstance(p.footer, _ColorBar)]
     if any(b.below or b.above for b in bars):
         notes.append("<= or >= at a bar's end: values beyond it take its colour")
     if gt is not None:
-        notes.append("black: no ground truth there")
+        valid = gt.get("valid")
+        maps = [np.asarray(gt[k], np.float64) for k in ("disp1", "disp2", "u", "v") if k in gt]
+        if (valid is not None and not np.all(valid)) or any(not np.isfinite(m).all() for m in maps):
+            notes.append("black: no ground truth there")
     return "; ".join(notes)
 
 

@@ -547,14 +547,29 @@ def test_a_result_folder_left_by_a_killed_run_is_replaced(frames, tmp_path, monk
     monkeypatch.setattr(batch, "have_dask", lambda: False)
     folder, _ = frames
     manifest = _manifest(tmp_path / "m.csv", [(folder / "f000.npz", folder / "f001.npz", "mine")])
+    import subprocess
+    import sys
+
+    from lfsf import _files
+
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True).stdout.strip()
     left = tmp_path / "out" / "mine"
-    (left / ".lfsf-set.host-123.abcd1234").mkdir(parents=True)
-    (left / ".lfsf-set.host-123.abcd1234" / "disp1.pfm").write_bytes(b"partial")
+    killed = left / f".lfsf-set.{_files._host()}-{gone}.abcd1234"
+    killed.mkdir(parents=True)
+    (killed / "disp1.pfm").write_bytes(b"partial")
     (left / "disp1.png").write_bytes(b"an older result")
-    summary = batch.run_batch(batch.pairs_from_sources([manifest]), tmp_path / "out", PARAMS, workers=1,
-                              device="cpu")
+    pairs = batch.pairs_from_sources([manifest])
+    summary = batch.run_batch(pairs, tmp_path / "out", PARAMS, workers=1, device="cpu")
     assert [o.status for o in summary.outcomes] == ["done"], summary.outcomes
     assert sorted(p.name for p in left.iterdir()) == sorted(batch.RESULT_FILES)
+    # a live run's (here this process's parent's) is not batch's to remove
+    live = left / f".lfsf-set.{_files._host()}-{os.getppid()}.abcd1234"
+    live.mkdir()
+    (left / "flow.png").unlink()
+    summary = batch.run_batch(pairs, tmp_path / "out", PARAMS, workers=1, device="cpu")
+    assert [o.status for o in summary.outcomes] == ["failed"] and live.name in summary.outcomes[0].reason
+    assert live.is_dir()
 
 
 def test_an_output_folder_inside_the_frames_is_not_a_frame(frames, tmp_path):

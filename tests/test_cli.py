@@ -686,8 +686,9 @@ def test_the_temporary_folders_of_killed_runs_are_removed(tmp_path):
     gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
                           text=True).stdout.strip()
     host = _files._host()
+    other = ("0" if host[0] != "0" else "1") + host[1:]  # another machine's
     names = {"dead": f".lfsf-set.{host}-{gone}.abc", "live": f".lfsf-set.{host}-{os.getppid()}.abc",
-             "elsewhere": f".lfsf-set.{host}x-{gone}.abc", "older": ".lfsf-set.abc123"}
+             "elsewhere": f".lfsf-set.{other}-{gone}.abc", "older": ".lfsf-set.abc123"}
     for name in names.values():
         (tmp_path / name).mkdir()
         (tmp_path / name / "disp1.pfm").write_bytes(b"partial")
@@ -770,6 +771,16 @@ def test_run_with_ground_truth_prints_the_errors_and_draws_them(tmp_path, capsys
     err = capsys.readouterr().err
     assert status == 2 and err.count("\n") == 1 and "'disp1' is 16x12, and the light field's views" in err, err
     assert not (tmp_path / "x").exists()
+    # nothing to score (a flow-only run against δ1 alone): refused before the estimate, not
+    # after it (evaluate's own checks, the border's too, tried on the truth itself)
+    from lfsf.io import write_pfm
+
+    write_pfm(tmp_path / "gt_disp_lowres.pfm", np.zeros((36, 48), np.float32))
+    status = main(["run", lf1, lf2, "--out", str(tmp_path / "x"), "--preset", "flow", "--gt",
+                   str(tmp_path / "gt_disp_lowres.pfm"), "--quiet"])
+    err = capsys.readouterr().err
+    assert status == 2 and "cannot score this run against it" in err and "no variable in common" in err, err
+    assert not (tmp_path / "x").exists()
 
 
 def test_compare_peers_without_a_peer_says_so_in_one_line(tmp_path):
@@ -789,3 +800,76 @@ def test_compare_peers_without_a_peer_says_so_in_one_line(tmp_path):
     assert proc.returncode == 0, proc.stderr
     (row,) = json.loads(proc.stdout)
     assert row["epe"] is None and "lacks its contrib modules" in row["note"], row
+
+
+def test_the_machine_in_a_temporary_folders_name_is_its_whole_name(monkeypatch):
+    """Host names that differ only in what a cut-down name dropped are two machines
+    (``ip-10-0-1-23`` and ``ip-10-0-12-3`` were one, and each took the other's live
+    folders for a dead process's)."""
+    import socket
+
+    from lfsf import _files
+
+    names = {}
+    for host in ("ip-10-0-1-23.ec2.internal", "ip-10-0-12-3.ec2.internal", "gpu-a100-partition-node01",
+                 "gpu-a100-partition-node02"):
+        monkeypatch.setattr(socket, "gethostname", lambda host=host: host)
+        names[host] = _files._host()
+    assert len(set(names.values())) == 4 and all(len(n) == 12 for n in names.values())
+
+
+def test_a_signal_while_the_handlers_are_put_back_leaves_none_swapped():
+    """interrupts_held: a SIGINT whose handler raises just after SIGINT's own handler is
+    back still puts SIGTERM's back (it was left swallowing every later SIGTERM); and
+    where both came while held, SIGTERM is the one delivered first."""
+    import signal
+
+    from lfsf import _files
+    from lfsf._errors import Terminated, terminate_as_interrupt
+
+    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
+    before = signal.getsignal(signal.SIGTERM)
+    try:
+        restore = _files._restore
+
+        def restore_then_interrupted(handlers):
+            def first_then_signal(items):
+                if not items:
+                    return
+                (s, h), rest = items[0], items[1:]
+                try:
+                    signal.signal(s, h)
+                    if s == signal.SIGINT:
+                        raise KeyboardInterrupt  # (as the handler would, once SIGINT's is back)
+                finally:
+                    restore(rest)
+            first_then_signal(sorted(handlers, key=lambda item: item[0] != signal.SIGINT))
+
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(_files, "_restore", restore_then_interrupted)
+            with pytest.raises(KeyboardInterrupt):
+                with _files.interrupts_held():
+                    pass
+        assert signal.getsignal(signal.SIGTERM) == before and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        with pytest.raises(Terminated):
+            with terminate_as_interrupt():
+                with _files.interrupts_held():
+                    os.kill(os.getpid(), signal.SIGINT)
+                    os.kill(os.getpid(), signal.SIGTERM)
+                    for _ in range(1000):
+                        pass
+        assert signal.getsignal(signal.SIGTERM) == before
+    finally:
+        signal.signal(signal.SIGINT, inherited)
+
+
+def test_an_eval_report_may_not_replace_the_truth_read_from_a_folder(tmp_path, capsys):
+    """GT given as a folder is read from its gt.npz (or gt_disp_lowres.pfm): --json naming
+    that file is refused too (it replaced the truth)."""
+    (tmp_path / "scene").mkdir()
+    (tmp_path / "scene" / "gt.npz").write_bytes(b"the ground truth")
+    (tmp_path / "est.npz").write_bytes(b"a result")
+    status = main(["eval", str(tmp_path / "est.npz"), str(tmp_path / "scene"), "--json",
+                   str(tmp_path / "scene" / "gt.npz")])
+    assert status == 2 and "which it reports on" in capsys.readouterr().err
+    assert (tmp_path / "scene" / "gt.npz").read_bytes() == b"the ground truth"

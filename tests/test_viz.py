@@ -438,8 +438,17 @@ def test_the_overview_marks_clipped_bar_ends_and_says_its_units():
     assert viz._overview_notes(rows, None) == "disparities in px per view step, flow in px"
     rows = viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], gt, None)
     assert viz._overview_notes(rows, gt) == ("disparities in px per view step, flow and its errors in px; <= or >= at "
-                                             "a bar's end: values beyond it take its colour; black: no ground truth "
-                                             "there")
+                                             "a bar's end: values beyond it take its colour")
+    # black only where the truth leaves pixels out; no flow errors without the truth's flow
+    valid = np.ones(c1.shape[:2], bool)
+    valid[:, :3] = False
+    masked = dict(gt, valid=valid)
+    rows = viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], masked, None)
+    assert viz._overview_notes(rows, masked).endswith("; black: no ground truth there")
+    hci = {"disp1": gt["disp1"]}
+    rows = viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], hci, None)
+    assert viz._overview_notes(rows, hci).startswith("disparities in px per view step, flow in px;")
+    rows = viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], gt, None)
     figure = viz.overview_figure(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], gt=gt)
     grid = viz._compose(rows, None)
     assert figure.shape[1] == grid.shape[1] and figure.shape[0] > grid.shape[0]  # the notes, below the grid
