@@ -126,13 +126,22 @@ class SceneFlow:
             with open(tmp / "sceneflow.npz", "wb") as f:
                 np.savez_compressed(f, **self.as_dict(), **extra, params=np.str_(json.dumps(meta)))
             # a flow-only run's δ1 and δ2 are zeros, not estimates: drawn as a plain grey
+            # (each picture says in its PNG text what its colours mean: no scale is drawn in it)
             estimated = self.params.circles > 1
             lo, hi = _colour_range(self.disp1, self.disp2)
-            for name in ("disp1", "disp2"):
-                picture = (viz.disparity_to_color(getattr(self, name), lo, hi) if estimated
-                           else np.full(self.disp1.shape + (3,), viz.NOT_ESTIMATED_GREY, np.uint8))
-                viz.save_png(tmp / f"{name}.png", picture)
-            viz.save_png(tmp / "flow.png", viz.flow_to_color(self.u, self.v))
+            for name, what in (("disp1", "disparity at t1"), ("disp2", "disparity at t2 of the t1 points")):
+                if estimated:
+                    picture = viz.disparity_to_color(getattr(self, name), lo, hi)
+                    comment = (f"{name} ({what}) in px per view step: {lo:.4g} (dark purple) to {hi:.4g} "
+                               "(yellow), values beyond in their colours; black: not finite")
+                else:
+                    picture = np.full(self.disp1.shape + (3,), viz.NOT_ESTIMATED_GREY, np.uint8)
+                    comment = f"{name}: not estimated (a flow-only run, one circle)"
+                viz.save_png(tmp / f"{name}.png", picture, text={"Comment": comment})
+            max_flow = viz._max_magnitude(self.u.astype(np.float64), self.v.astype(np.float64))  # (flow_to_color's)
+            viz.save_png(tmp / "flow.png", viz.flow_to_color(self.u, self.v),
+                         text={"Comment": f"flow (u, v) of the t1 centre view in px, Middlebury colour wheel: "
+                                          f"full colour at |(u,v)| = {max_flow:.4g} px"})
             if centre1 is not None and centre2 is not None:
                 viz.overview_figure(centre1, centre2, self.disp1, self.disp2, self.u, self.v, gt=gt,
                                     path=tmp / "overview.png", title=title, occluded=self.occluded,

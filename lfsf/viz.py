@@ -365,7 +365,7 @@ def _to_uint8_image(img) -> np.ndarray:
     raise ValueError(f"expected a uint8 image or a float image in [0, 1], got dtype {img.dtype}")
 
 
-def save_png(path: str | os.PathLike, img) -> None:
+def save_png(path: str | os.PathLike, img, text: Mapping[str, str] | None = None) -> None:
     """Write an image as PNG, atomically (the target appears only once complete).
 
     Parameters
@@ -374,6 +374,9 @@ def save_png(path: str | os.PathLike, img) -> None:
         Target file; missing parent folders are created.
     img : array_like, shape (H, W) or (H, W, 3)
         ``uint8``, or float in [0, 1] (clipped; NaN written as 0).
+    text : mapping of str to str, optional
+        Text chunks to store in the file (``{"Comment": …}``: what the colours mean,
+        which image viewers and ``PIL.Image.open(path).text`` show).
     """
     suffix = os.path.splitext(os.fspath(path))[1]
     if suffix.lower() != ".png":   # (PNG bytes under another name mislead every reader)
@@ -381,7 +384,15 @@ def save_png(path: str | os.PathLike, img) -> None:
                          f"{f', not {suffix}' if suffix else ''}")
     img = _to_uint8_image(img)
     with atomic_path(path, suffix=".png") as tmp:
-        iio.imwrite(tmp, img, extension=".png")
+        if text:
+            from PIL.PngImagePlugin import PngInfo
+
+            info = PngInfo()
+            for key, value in text.items():
+                info.add_text(str(key), str(value))
+            Image.fromarray(img).save(tmp, format="PNG", pnginfo=info)
+        else:
+            iio.imwrite(tmp, img, extension=".png")
 
 
 # --------------------------------------------------------------------------- overview

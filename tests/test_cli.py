@@ -187,11 +187,16 @@ def test_eval_of_a_flow_only_result_leaves_its_zero_disparities_out(tmp_path, ca
     assert "not evaluated in" in out and "disp1, disp2 (a flow-only result" in out
     report = json.loads((tmp_path / "e.json").read_text())
     assert "disp1" not in report["errors"] and report["errors"]["flow"]["epe"] == 0.0
-    # nor are they drawn as a disparity (zeros in the colour map's purple): plain grey
+    # nor are they drawn as a disparity (zeros in the colour map's purple): plain grey, and
+    # the picture's text says so
+    from PIL import Image
+
     from lfsf.viz import NOT_ESTIMATED_GREY
 
     for name in ("disp1", "disp2"):
         assert (io.read_image(tmp_path / "r" / f"{name}.png") == NOT_ESTIMATED_GREY).all()
+        assert Image.open(tmp_path / "r" / f"{name}.png").text["Comment"] == (
+            f"{name}: not estimated (a flow-only run, one circle)")
 
 
 @pytest.mark.parametrize("result,report", [("r", "gt.npz"), ("r/disp1.pfm", "gt.npz"), ("r", "link.npz"),
@@ -873,3 +878,29 @@ def test_an_eval_report_may_not_replace_the_truth_read_from_a_folder(tmp_path, c
                    str(tmp_path / "scene" / "gt.npz")])
     assert status == 2 and "which it reports on" in capsys.readouterr().err
     assert (tmp_path / "scene" / "gt.npz").read_bytes() == b"the ground truth"
+
+
+def test_a_results_pictures_say_what_their_colours_mean(tmp_path):
+    """disp1.png, disp2.png and flow.png draw no scale: each says its own in its PNG text
+    (the disparities' range, shared by both, and the flow's full-colour magnitude), which
+    viewers and PIL show; the pixels are those of the colour maps as before."""
+    import re
+
+    from PIL import Image
+
+    from lfsf import viz
+    from lfsf.estimate import SceneFlow, _colour_range
+
+    rng = np.random.default_rng(0)
+    d1, d2 = (rng.uniform(-2, 2, (24, 32)).astype(np.float32) for _ in range(2))
+    u, v = (rng.uniform(-3, 3, (24, 32)).astype(np.float32) for _ in range(2))
+    SceneFlow(d1, d2, u, v, params=Params.preset("fast"), radius=1.0, device="cpu").save(tmp_path)
+    lo, hi = _colour_range(d1, d2)
+    for name, d in (("disp1", d1), ("disp2", d2)):
+        comment = Image.open(tmp_path / f"{name}.png").text["Comment"]
+        assert f"in px per view step: {lo:.4g} (dark purple) to {hi:.4g} (yellow)" in comment, comment
+        assert np.array_equal(io.read_image(tmp_path / f"{name}.png"), viz.disparity_to_color(d, lo, hi))
+    comment = Image.open(tmp_path / "flow.png").text["Comment"]
+    said = float(re.search(r"full colour at \|\(u,v\)\| = ([0-9.]+) px", comment).group(1))
+    assert said == pytest.approx(float(np.hypot(u.astype(np.float64), v.astype(np.float64)).max()), rel=1e-3)
+    assert np.array_equal(io.read_image(tmp_path / "flow.png"), viz.flow_to_color(u, v))
