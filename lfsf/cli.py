@@ -141,11 +141,12 @@ def _not_an_input(report: Path, result: Path, gt: Path) -> None:
     """Refuse a report path that is the ground truth, the result or one of a result
     folder's files: the JSON would replace what it reports on."""
     from lfsf.batch import RESULT_FILES
+    from lfsf.evaluate import GT_FILES
 
     target = report.resolve()
     inputs = [gt, result] + ([result / name for name in (*RESULT_FILES, "overview.png")] if result.is_dir() else [])
-    if gt.is_dir():  # (the ground truth read from the folder: load_ground_truth's names)
-        inputs += [gt / "gt.npz", gt / "gt_disp_lowres.pfm"]
+    if gt.is_dir():  # (the ground truth read from the folder)
+        inputs += [gt / name for name in GT_FILES]
     for path in inputs:
         if path.resolve() == target:
             raise ValueError(f"{report}: the report would replace {path}, which it reports on; choose another "
@@ -271,7 +272,7 @@ def cmd_run(args) -> int:
     lf1 = read_lightfield(args.lf1)
     lf2 = read_lightfield(args.lf2)
     check_pair(lf1, lf2)
-    gt, border = _run_ground_truth(args, lf1)
+    gt, border = _run_ground_truth(args, lf1, params)
     progress = _Progress(args)
     t0 = time.perf_counter()
     try:
@@ -296,15 +297,13 @@ def cmd_run(args) -> int:
     return 0
 
 
-def _run_ground_truth(args, lf1):
+def _run_ground_truth(args, lf1, params):
     """``lfsf run --gt``: the ground truth and its border (:func:`lfsf.evaluate.load_ground_truth`),
     read and checked against the light field's view size before any work; (None, None)
     without the option."""
     if args.gt is None:
         return None, None
-    from lfsf.evaluate import load_ground_truth
-
-    from lfsf.evaluate import evaluate
+    from lfsf.evaluate import evaluate, load_ground_truth
 
     gt, border = load_ground_truth(args.gt)
     shapes = {k: a.shape for k, a in gt.items()}
@@ -316,7 +315,7 @@ def _run_ground_truth(args, lf1):
     # the evaluation that will follow, tried now on the truth itself as the estimate of what
     # the settings estimate: a border that leaves no pixel, or nothing in common (a flow-only
     # run against δ1 alone), refused before the work rather than after it
-    estimated = ("u", "v") if _params(args).circles == 1 else ("disp1", "disp2", "u", "v")
+    estimated = ("u", "v") if params.circles == 1 else ("disp1", "disp2", "u", "v")
     try:
         evaluate({k: gt[k] for k in estimated if k in gt}, gt, border=border)
     except ValueError as exc:

@@ -68,7 +68,7 @@ def require_warp(version: str | None = None) -> None:
     if parts and tuple(int(p) for p in parts.groups()) < MIN_WARP:
         least = ".".join(map(str, MIN_WARP))
         raise DependencyError(f"lfsf needs warp-lang {least} or newer, and this Python has {version}: "
-                          f"pip install -U 'warp-lang>={least}'")
+                              f"pip install -U 'warp-lang>={least}'")
 
 
 def warp():

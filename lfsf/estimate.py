@@ -138,10 +138,9 @@ class SceneFlow:
                     picture = np.full(self.disp1.shape + (3,), viz.NOT_ESTIMATED_GREY, np.uint8)
                     comment = f"{name}: not estimated (a flow-only run, one circle)"
                 viz.save_png(tmp / f"{name}.png", picture, text={"Comment": comment})
-            max_flow = viz._max_magnitude(self.u.astype(np.float64), self.v.astype(np.float64))  # (flow_to_color's)
             viz.save_png(tmp / "flow.png", viz.flow_to_color(self.u, self.v),
                          text={"Comment": f"flow (u, v) of the t1 centre view in px, Middlebury colour wheel: "
-                                          f"full colour at |(u,v)| = {max_flow:.4g} px"})
+                                          f"full colour at |(u,v)| = {viz.flow_scale(self.u, self.v):.4g} px"})
             if centre1 is not None and centre2 is not None:
                 viz.overview_figure(centre1, centre2, self.disp1, self.disp2, self.u, self.v, gt=gt,
                                     path=tmp / "overview.png", title=title, occluded=self.occluded,

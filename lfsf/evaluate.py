@@ -285,6 +285,10 @@ def flow_only(path: str | Path) -> bool:
     return settings is not None and settings.get("circles") == 1
 
 
+#: The files :func:`load_ground_truth` reads from a folder, the first there.
+GT_FILES = ("gt.npz", "gt_disp_lowres.pfm")
+
+
 def load_ground_truth(path: str | Path) -> tuple[dict[str, np.ndarray], int]:
     """Read ground truth: a ``gt.npz`` of ``lfsf synth`` or an HCI ``gt_disp_lowres.pfm``
     (disparity at t1 only). Returns the arrays and the default border for that kind."""
@@ -292,7 +296,7 @@ def load_ground_truth(path: str | Path) -> tuple[dict[str, np.ndarray], int]:
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")
     if path.is_dir():
-        for name in ("gt.npz", "gt_disp_lowres.pfm"):
+        for name in GT_FILES:
             if (path / name).exists():
                 return load_ground_truth(path / name)
         raise ValueError(f"{path}: no gt.npz or gt_disp_lowres.pfm in this folder")

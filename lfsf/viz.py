@@ -121,6 +121,12 @@ def _check_flow(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u.astype(np.float64), v.astype(np.float64)
 
 
+def flow_scale(u, v) -> float:
+    """The magnitude that :func:`flow_to_color` draws at full colour when given no
+    ``max_flow``: the largest valid ``|(u, v)|`` (0 where there is none)."""
+    return _max_magnitude(*_check_flow(u, v))
+
+
 def _flow_valid(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return (
         np.isfinite(u)

@@ -500,3 +500,17 @@ def test_rows_without_keys_have_no_footer_strip_and_the_wheel_is_readable():
                 for y in range(grid.shape[0] - h) for x in range(2 * grid.shape[1] // 3, grid.shape[1] - w)
                 if np.array_equal(grid[y + h // 2, x + w // 2], wheel[h // 2, w // 2]))
     assert found
+
+
+def test_flow_scale_is_the_full_colour_magnitude_flow_to_color_takes():
+    """viz.flow_scale (what a result's flow.png says it is drawn at) is flow_to_color's
+    own default: drawing at it gives the same picture, invalid vectors left out."""
+    rng = np.random.default_rng(1)
+    u, v = (rng.normal(0, 2, (12, 16)).astype(np.float32) for _ in range(2))
+    u[0, 0] = np.nan
+    v[1, 1] = 1e10  # (unknown flow, Middlebury's marker)
+    scale = viz.flow_scale(u, v)
+    ok = np.isfinite(u) & (np.abs(v) < 1e9)
+    assert scale == pytest.approx(float(np.hypot(u[ok].astype(np.float64), v[ok].astype(np.float64)).max()))
+    assert np.array_equal(viz.flow_to_color(u, v), viz.flow_to_color(u, v, scale))
+    assert viz.flow_scale(np.zeros((2, 2)), np.zeros((2, 2))) == 0.0
