@@ -599,6 +599,9 @@ def main(argv=None) -> int:
         if args.json:
             output_file(args.json)          # before the run, not after it
         scenes = selected_scenes(args)
+        if not scenes and not args.no_synth and not args.real:
+            raise ValueError("no scenes to compare: '--scenes' without names takes none; name some, "
+                             "add --random N, or compare the real data with --real")
         if args.images is not None:
             from lfsf import synth
 

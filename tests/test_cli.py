@@ -553,6 +553,7 @@ def test_an_error_raised_while_interrupted_counts_as_the_interrupt(monkeypatch, 
     ("compare_peers.py", ["--grid", "0"], "grid rows must be in 1…33, got 0"),
     ("compare_peers.py", ["--device", "gpu"], "unknown device 'gpu'"),
     ("compare_peers.py", ["--json", "{tmp}/gt/x.json"], "is a file, not a folder"),
+    ("compare_peers.py", ["--scenes", "--methods", "lfsf"], "no scenes to compare"),  # (an empty table)
     ("final_steps.py", ["--step", "depth", "--grid", "99"], "grid rows must be in 1…33, got 99"),
     ("hci_breakdown.py", ["{tmp}", "--save", "{tmp}/"], "give a file name ending in .npy"),
     ("hci_breakdown.py", ["{tmp}"], "found no light-field views"),
