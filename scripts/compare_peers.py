@@ -589,15 +589,10 @@ def main(argv=None) -> int:
             return 2
     IMAGES["list"] = None
     try:
-        from lfsf import synth
-        from lfsf._files import output_file
-        from lfsf.device import resolve_device
+        from lfsf._scripts import check_before_runs
 
-        synth.check_render(args.size, args.grid, colour=args.colour)   # (a bad --grid was a traceback)
-        if args.device is not None:
-            resolve_device(args.device)
-        if args.json:
-            output_file(args.json)          # before the run, not after it
+        # (a bad --grid was a traceback; a bad --json was refused only after the runs)
+        check_before_runs(args.size, args.grid, colour=args.colour, device=args.device, output=args.json)
         scenes = selected_scenes(args)
         if not scenes and not args.no_synth and not args.real:
             raise ValueError("no scenes to compare: '--scenes' without names takes none; name some, "

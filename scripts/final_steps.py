@@ -35,6 +35,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 from lfsf._errors import ArgumentParser  # noqa: E402  (usage errors in one line)
+from lfsf._scripts import check_before_runs  # noqa: E402
 
 from compare_peers import selected_scenes  # noqa: E402  (the same scene selection)
 
@@ -79,15 +80,7 @@ def main(argv=None) -> int:
         # (the errors leave out an 8-px border: smaller views leave nothing to evaluate)
         if min(args.size) < 32 or args.grid < 2:
             raise ValueError("--size needs at least 32×32 pixels and --grid at least 2 views per side")
-        synth.check_render(args.size, args.grid, colour=colour)
-        if args.device is not None:
-            from lfsf.device import resolve_device
-
-            resolve_device(args.device)
-        if args.json:
-            from lfsf._files import output_file
-
-            output_file(args.json)
+        check_before_runs(args.size, args.grid, colour=colour, device=args.device, output=args.json)
     except ValueError as err:
         parser.error(str(err))  # exit status 2
     rows = []

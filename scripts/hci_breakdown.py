@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 from lfsf._errors import ArgumentParser  # noqa: E402  (usage errors in one line)
+from lfsf._scripts import check_before_runs  # noqa: E402
 
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "hci-antinous"
 BORDER = 15
@@ -106,16 +107,9 @@ def main(argv=None) -> int:
     try:
         params = lfsf.Params.preset(args.preset).replace(**overrides)
         params.validate()
-        if args.device is not None:
-            from lfsf.device import resolve_device
-
-            resolve_device(args.device)
-        if args.save:
-            from lfsf._files import output_file
-
-            if not args.save.endswith(".npy"):   # np.save would add it: '.npy' alone for 'dir/'
-                raise ValueError(f"--save {args.save}: give a file name ending in .npy")
-            output_file(args.save)
+        if args.save and not args.save.endswith(".npy"):   # np.save would add it: '.npy' alone for 'dir/'
+            raise ValueError(f"--save {args.save}: give a file name ending in .npy")
+        check_before_runs(device=args.device, output=args.save)
     except (TypeError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -46,6 +46,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from lfsf._errors import ArgumentParser  # noqa: E402  (usage errors in one line)
+from lfsf._scripts import check_before_runs  # noqa: E402
 
 COLUMNS = ("joint", "stereo only", "joint, flow held")
 
@@ -171,14 +172,7 @@ def main(argv=None) -> int:
         if args.static and args.noise <= 0:
             raise ValueError("--static needs --noise: without it t2 would be t1 itself, the stereo-only case")
         # the render's size and grid, the device and the report's file: before any run, not after
-        synth.check_render(tuple(args.size), args.grid)
-        from lfsf.device import resolve_device
-
-        resolve_device(args.device)
-        if args.json:
-            from lfsf._files import output_file
-
-            output_file(args.json)
+        check_before_runs(args.size, args.grid, device=args.device, output=args.json)
     except ValueError as exc:
         print(f"joint_vs_stereo: error: {exc}", file=sys.stderr)
         return 2

@@ -42,6 +42,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from lfsf._errors import ArgumentParser  # noqa: E402  (usage errors in one line)
+from lfsf._scripts import check_before_runs  # noqa: E402
 
 FIGURES = (("δ1 MSE", "disp1", "mse"), ("δ2 MSE", "disp2", "mse"), ("EPE", "flow", "epe"))
 
@@ -106,14 +107,7 @@ def main(argv=None) -> int:
         if args.seeds < 1 or not 0.0 < args.epsilon < 0.1:
             raise ValueError("--seeds must be at least 1 and --epsilon in (0, 0.1)")
         # the render's size and grid, the device and the report's file: before any run, not after
-        synth.check_render(tuple(args.size), args.grid)
-        from lfsf.device import resolve_device
-
-        resolve_device(args.device)
-        if args.json:
-            from lfsf._files import output_file
-
-            output_file(args.json)
+        check_before_runs(args.size, args.grid, device=args.device, output=args.json)
     except ValueError as exc:
         print(f"perturbation_spread: error: {exc}", file=sys.stderr)
         return 2

@@ -24,6 +24,7 @@ import sys
 import time
 from pathlib import Path
 from lfsf._errors import ArgumentParser  # noqa: E402  (usage errors in one line)
+from lfsf._scripts import check_before_runs  # noqa: E402
 
 
 class KernelTimes:
@@ -138,11 +139,7 @@ def main(argv=None) -> int:
         if min(args.size) < 16:
             raise ValueError(f"--size must be at least 16×16, got {args.size[0]}×{args.size[1]}")
         Params.preset(args.preset)
-        synth.check_render(args.size, 9)
-        if args.json is not None:
-            from lfsf._files import output_file
-
-            output_file(args.json)
+        check_before_runs(args.size, 9, output=args.json)
         report = profile(args.scene, args.size, args.preset, args.device)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
