@@ -283,7 +283,7 @@ def cmd_run(args) -> int:
     rows, cols = lf1.grid
     title = (f"lfsf run: {args.lf1.name} and {args.lf2.name} ({lf1.width}x{lf1.height}, {rows}x{cols} views, "
              f"{_preset_label(args)})" + (f" against {args.gt.name}" if gt is not None else ""))
-    paths = sf.save(args.out, lf1.centre, lf2.centre, gt=gt, title=title)
+    paths = sf.save(args.out, lf1.centre, lf2.centre, gt=gt, title=title, border=border or 0)
     _log(args, f"estimated in {seconds:.1f} s on {device}; wrote {len(paths)} files to {args.out}")
     if gt is not None:  # (after the results are written: an error here loses none of them)
         from lfsf.evaluate import evaluate, format_table
@@ -360,7 +360,7 @@ def cmd_demo(args) -> int:
     _say(args, f"rendered in {t_render:.1f} s, estimated in {t_est:.1f} s")
     print(format_table(errors), flush=True)
     # the overview with the ground truth and the errors, in the one set of results
-    sf.save(out, lf1.centre, lf2.centre, gt=gt,
+    sf.save(out, lf1.centre, lf2.centre, gt=gt, border=SYNTH_BORDER,
             title=f"lfsf demo: '{args.scene}' ({width}x{height}, {args.grid}x{args.grid} views)")
     _say(args, f"wrote {out / 'overview.png'} and the results (disp1.pfm, disp2.pfm, flow.flo, sceneflow.npz, "
                f"disp1.png, disp2.png, flow.png) to {out}")

@@ -97,13 +97,15 @@ class SceneFlow:
     def as_dict(self) -> dict[str, np.ndarray]:
         return {"disp1": self.disp1, "disp2": self.disp2, "u": self.u, "v": self.v}
 
-    def save(self, out: str | Path, centre1=None, centre2=None, gt=None, title: str | None = None) -> list[Path]:
+    def save(self, out: str | Path, centre1=None, centre2=None, gt=None, title: str | None = None,
+             border: int = 0) -> list[Path]:
         """Write ``disp1.pfm``, ``disp2.pfm``, ``flow.flo``, ``sceneflow.npz`` and the
         pictures ``disp1.png``, ``disp2.png``, ``flow.png`` (and ``overview.png`` when the
         centre views are given) into ``out``, as one set: all are written into a
         temporary folder inside ``out`` first and moved into place only when every one
         is complete, so a failure or an interrupt leaves none of them (and no mix with an
-        earlier run's). ``gt`` and ``title`` go to the overview (:func:`lfsf.viz.overview_figure`).
+        earlier run's). ``gt``, ``title`` and ``border`` (that its error means leave out, as
+        :func:`lfsf.evaluate.evaluate`'s) go to the overview (:func:`lfsf.viz.overview_figure`).
         A flow-only result's (one circle) δ1 and δ2 pictures are plain grey
         (:data:`lfsf.viz.NOT_ESTIMATED_GREY`), and said to be not estimated in the overview."""
         import json
@@ -144,7 +146,7 @@ class SceneFlow:
             if centre1 is not None and centre2 is not None:
                 viz.overview_figure(centre1, centre2, self.disp1, self.disp2, self.u, self.v, gt=gt,
                                     path=tmp / "overview.png", title=title, occluded=self.occluded,
-                                    disparities=estimated)
+                                    disparities=estimated, border=border)
         return [out / name for name in names]
 
 

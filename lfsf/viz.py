@@ -523,7 +523,7 @@ def occluded_picture(centre1, occluded) -> np.ndarray:
 
 
 def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="estimate",
-                     occluded=None, disparities=True) -> list[list[_Panel]]:
+                     occluded=None, disparities=True, border: int = 0) -> list[list[_Panel]]:
     """The overview's panels, row by row (see :func:`overview_figure`)."""
     # the maps are the t1 centre view's: its (H, W) is what each must have (a map of
     # another shape is named, not the first map taken as the measure)
@@ -591,6 +591,11 @@ def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="
     if not truth:
         return rows
     rows.append(disparity_row(truth, "ground truth"))
+    # the error panels' means: over the pixels lfsf eval scores (the border left out)
+    if isinstance(border, (bool, np.bool_)) or not isinstance(border, (int, np.integer)) or border < 0:
+        raise ValueError(f"expected border as a whole number of pixels, 0 or more, got {border!r}")
+    scored = np.zeros(shape, dtype=bool)
+    scored[border:shape[0] - border, border:shape[1] - border] = True
 
     errors = {k: np.abs(est[k] - truth[k]) for k in ("disp1", "disp2") if k in truth}
     if "u" in truth:
@@ -608,7 +613,7 @@ def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="
             error_row.append(_blank(f"{title}: no ground truth", shape))
             continue
         e = errors[k]
-        finite = np.isfinite(e)
+        finite = np.isfinite(e) & scored
         mean = f"{float(e[finite].mean()):.3g}" if finite.any() else "n/a"
         vmax = flow_scale if k == "flow" else disp_scale
         shared = (errors["flow"],) if k == "flow" else tuple(errors[d] for d in ("disp1", "disp2") if d in errors)
@@ -631,10 +636,11 @@ def _not_estimated(name: str, shape: tuple[int, int]) -> _Panel:
     return _blank(f"{name}: not estimated (flow only)", shape)
 
 
-def _overview_notes(rows: list[list[_Panel]], gt, disparities: bool = True) -> str:
+def _overview_notes(rows: list[list[_Panel]], gt, disparities: bool = True, border: int = 0) -> str:
     """The figure's last line: the units, and what the marks of its keys mean where
     they appear (the flow's errors where drawn; black where the ground truth leaves
-    pixels out, by its ``valid`` mask or by values that are not finite)."""
+    pixels out, by its ``valid`` mask or by values that are not finite; the border the
+    error means leave out)."""
     flow = "flow and its errors in px" if gt is not None and "u" in gt and "v" in gt else "flow in px"
     notes = [f"disparities in px per view step, {flow}" if disparities or gt is not None else flow]
     bars = [p.footer for row in rows for p in row if isinstance(p.footer, _ColorBar)]
@@ -645,6 +651,8 @@ def _overview_notes(rows: list[list[_Panel]], gt, disparities: bool = True) -> s
         maps = [np.asarray(gt[k], np.float64) for k in ("disp1", "disp2", "u", "v") if k in gt]
         if (valid is not None and not np.all(valid)) or any(not np.isfinite(m).all() for m in maps):
             notes.append("black: no ground truth there")
+        if border > 0:
+            notes.append(f"error means without the {border}-px border, as lfsf eval")
     return "; ".join(notes)
 
 
@@ -758,13 +766,13 @@ def _draw_footer(canvas, draw, footer, x0, y0, pw, footer_h, font, text_at) -> N
 def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = None,
                     path: str | os.PathLike | None = None, title: str | None = None,
                     max_flow: float | None = None, label: str = "estimate", occluded=None,
-                    disparities: bool = True) -> np.ndarray:
+                    disparities: bool = True, border: int = 0) -> np.ndarray:
     """A labelled grid of panels showing a scene-flow result, optionally against truth.
 
     Rows: (1) centre views at t1 and t2; (2) estimated δ1, δ2 and flow; with ``gt`` also
     (3) the ground truth on the same colour scales and (4) the errors ``|δ1 − δ1*|``,
-    ``|δ2 − δ2*|`` and the flow end-point error, their means over the valid pixels in
-    the labels. Each panel has a header strip with its label and a footer with its key:
+    ``|δ2 − δ2*|`` and the flow end-point error, their means in the labels (over the
+    valid pixels less ``border``, the pixels ``lfsf eval`` scores). Each panel has a header strip with its label and a footer with its key:
     a colour bar with its end values under disparity and error maps, the colour wheel
     and the full-saturation magnitude under flow.
 
@@ -800,6 +808,10 @@ def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = N
         False for a flow-only result (one circle, ``--preset flow``): its δ1 and δ2
         are zeros, not estimates, and their panels (and error panels) say "not
         estimated" on grey instead of drawing them.
+    border : int, optional
+        Pixels at each side that the error means leave out, as
+        :func:`lfsf.evaluate.evaluate` does (its ``border``: 8 for the synthetic scenes,
+        15 for HCI's). The maps are drawn whole; the notes line names the border.
 
     Returns
     -------
@@ -816,8 +828,8 @@ def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = N
     values lie beyond it, drawn in its colour. A last line gives the units and those
     marks' meaning.
     """
-    rows = _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label, occluded, disparities)
-    figure = _compose(rows, title, _overview_notes(rows, gt, disparities))
+    rows = _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label, occluded, disparities, border)
+    figure = _compose(rows, title, _overview_notes(rows, gt, disparities, border))
     if path is not None:
         save_png(path, figure)
     return figure
