@@ -47,7 +47,7 @@ from lfsf._files import dead_set, write_bytes_atomic
 RESULT_FILES = ("disp1.pfm", "disp2.pfm", "flow.flo", "sceneflow.npz", "disp1.png", "disp2.png", "flow.png")
 #: Light-field files a frame folder may hold (besides sub-folders of views).
 FRAME_SUFFIXES = (".npz",)
-INSTALL_HINT = "pip install -e '.[batch]' in the lfsf checkout (or: pip install 'dask[distributed]')"
+INSTALL_HINT = "pip install 'dask[distributed]' (or pip install -e '.[batch]' in the lfsf checkout)"
 
 
 @dataclass(frozen=True)
@@ -380,9 +380,11 @@ def check_dask(workers: int, scheduler: str | None) -> None:
         # only divide them, and multiply the memory (hundreds of MB each)
         raise ValueError(f"--workers {workers}: this machine has {cores} cores; give at most {cores}")
     if (workers > 1 or scheduler) and not have_dask():
-        asked = f"--workers {workers}" if workers > 1 else ""
-        asked += (" and " if asked and scheduler else "") + ("--scheduler" if scheduler else "")
-        raise ValueError(f"{asked} need Dask, which is not installed: {INSTALL_HINT}; or run with --workers 1")
+        # (--workers and --scheduler together are refused by the command line)
+        asked, instead = (("--scheduler", "leave out --scheduler") if scheduler else
+                          (f"--workers {workers}", "run with --workers 1"))
+        raise ValueError(f"{asked} needs Dask, which is not installed: {INSTALL_HINT}; or {instead} "
+                         "to run the pairs in this process")
 
 
 def run_batch(

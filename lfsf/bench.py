@@ -425,7 +425,7 @@ def bench_peers(size=(640, 480), device: str | None = None, repeats: int = 3, sc
                 progress: Callable[[str], None] | None = None) -> list[dict]:
     """Rows per method on the same synthetic pair: seconds (median, spread) and the flow
     end-point error over valid pixels (8-px border). Peers that are not installed get a
-    row saying so (``pip install -e '.[peers]'``)."""
+    row saying so, with :data:`lfsf.peers.INSTALL_HINT`."""
     from lfsf import peers, synth
     from lfsf.estimate import estimate_scene_flow
     from lfsf.evaluate import SYNTH_BORDER, evaluate
@@ -450,15 +450,28 @@ def bench_peers(size=(640, 480), device: str | None = None, repeats: int = 3, sc
         ("opencv DualTVL1", lambda: peers.opencv_tvl1(c1, c2)),
         ("skimage TV-L1", lambda: peers.skimage_tvl1(c1, c2)),
     ]
+    def not_installed(name: str) -> ImportError | None:
+        # a peer's import, tried before its progress line (which said "warm-up and 1 run"
+        # for a peer that then did not run)
+        try:
+            if name.startswith("opencv"):
+                peers._opencv_dual_tvl1()
+            elif name.startswith("skimage"):
+                import skimage.registration  # noqa: F401
+        except ImportError as exc:
+            return exc
+        return None
+
     rows = []
     for name, fn in methods:
-        say(f"{name}: warm-up and {repeats} run{'s' if repeats != 1 else ''}")
-        try:
-            seconds, (u, v) = time_repeated(fn, repeats, warmup=1)
-        except ImportError as exc:
+        missing = not_installed(name)
+        if missing is not None:
+            say(f"{name}: skipped, not installed")
             rows.append({"method": name, "epe": None, "seconds_median": None,
-                         "note": f"not installed ({exc}); pip install -e '.[peers]'"})
+                         "note": f"not installed ({missing}); {peers.INSTALL_HINT}"})
             continue
+        say(f"{name}: warm-up and {repeats} run{'s' if repeats != 1 else ''}")
+        seconds, (u, v) = time_repeated(fn, repeats, warmup=1)
         epe = evaluate({"u": u, "v": v}, gt, border=SYNTH_BORDER)["flow"]["epe"]
         rows.append({"method": name, "device": dev if name.startswith("lfsf") else "cpu", "size": [width, height],
                      "epe": round(float(epe), 5), **summarise(seconds)})

@@ -28,6 +28,11 @@ import sys
 import time
 import warnings
 
+#: How to install the peers, for messages where one is missing (from anywhere: the
+#: ``peers`` extra needs the lfsf checkout).
+INSTALL_HINT = ("pip install opencv-contrib-python-headless scikit-image plenpy "
+                "(or pip install -e '.[peers]' in the lfsf checkout)")
+
 import numpy as np
 
 #: ITU-R BT.601 luma weights, as ``lfsf.io.LightField.grey`` uses.
@@ -91,7 +96,7 @@ def _opencv_dual_tvl1():
     optflow = getattr(cv2, "optflow", None)
     if optflow is None or not hasattr(optflow, "DualTVL1OpticalFlow_create"):
         raise ImportError(f"OpenCV {getattr(cv2, '__version__', '')} lacks its contrib modules (cv2.optflow): "
-                          "pip install opencv-contrib-python-headless, or pip install -e '.[peers]'")
+                          "pip install opencv-contrib-python-headless")
     return optflow.DualTVL1OpticalFlow_create()
 
 

@@ -286,7 +286,7 @@ def photographs(source: str | Path) -> list[np.ndarray]:
     try:
         import skimage.data
     except ImportError:
-        raise ValueError("images from 'skimage' need scikit-image: pip install -e '.[peers]'") from None
+        raise ValueError("images from 'skimage' need scikit-image: pip install scikit-image") from None
     return [np.asarray(getattr(skimage.data, name)()) for name in SKIMAGE_IMAGES]
 
 

@@ -224,7 +224,7 @@ def test_in_process_run_matches_lfsf_run_and_reports_a_broken_pair(frames, tmp_p
     with np.load(out / "good" / "sceneflow.npz") as got:
         for key in ("disp1", "disp2", "u", "v"):
             np.testing.assert_allclose(got[key], getattr(sf, key), atol=1e-5)
-    with pytest.raises(ValueError, match="need Dask"):
+    with pytest.raises(ValueError, match="--workers 2 needs Dask"):
         batch.run_batch(batch.pairs_from_sources([manifest]), out, PARAMS, workers=2)
 
 
@@ -407,7 +407,10 @@ def test_cli_exit_status_1_when_a_pair_fails_and_2_for_bad_input(frames, tmp_pat
     assert main(["batch", str(tmp_path / "nowhere"), "--out", str(out)]) == 2
     assert "nowhere: no such manifest or folder" in capsys.readouterr().err
     assert main(["batch", str(manifest), "--out", str(out), "--workers", "2"]) == 2
-    assert "pip install -e '.[batch]'" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "pip install 'dask[distributed]'" in err and "or run with --workers 1" in err
+    assert main(["batch", str(manifest), "--out", str(out), "--scheduler", "tcp://127.0.0.1:1"]) == 2
+    assert "--scheduler needs Dask" in capsys.readouterr().err  # ("or leave out --scheduler")
 
 
 @needs_dask

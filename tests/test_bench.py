@@ -174,6 +174,27 @@ def test_bench_peers_rows_without_or_with_the_peers():
         assert r["epe"] is None and "not installed" in r["note"] or np.isfinite(r["epe"])
 
 
+def test_bench_peers_says_a_missing_peer_is_skipped_and_how_to_install_it(monkeypatch):
+    """A peer that is not installed: its progress line says "skipped" (it said "warm-up
+    and 1 run"), and its row says how to install it from anywhere (the extra's
+    ``pip install -e '.[peers]'`` works only in the checkout)."""
+    import sys
+
+    from lfsf import peers
+
+    def no_opencv():
+        raise ImportError("No module named 'cv2'")
+
+    monkeypatch.setattr(peers, "_opencv_dual_tvl1", no_opencv)
+    monkeypatch.setitem(sys.modules, "skimage.registration", None)  # (its import raises ImportError)
+    said = []
+    rows = bench.bench_peers((48, 32), "cpu", repeats=1, progress=said.append)
+    assert "opencv DualTVL1: skipped, not installed" in said and "skimage TV-L1: skipped, not installed" in said
+    assert not any(m.startswith(("opencv", "skimage")) and "run" in m for m in said)
+    for r in rows[3:]:
+        assert r["epe"] is None and "pip install opencv-contrib-python-headless scikit-image plenpy" in r["note"]
+
+
 def test_peak_rss_is_each_settings_own_where_it_can_be_reset():
     """bench pipeline gave every setting the process's peak so far (the paper setting's)."""
     import numpy as np
