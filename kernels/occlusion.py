@@ -15,7 +15,7 @@ Geometric occlusion at t2: which points of the t1 centre view are hidden at t2 i
 centre view, from the current scene flow itself (an addition to the paper).
 
 Every pixel p lands at p + (u, v) in the t2 centre view. Nearer points have larger
-disparities (MODEL.md §1), so a z-buffer of the largest disparity landing at each t2 pixel
+disparities (``help(lfsf)``, MODEL.md §1), so a z-buffer of the largest disparity landing at each t2 pixel
 says who is seen there; p is hidden where a point nearer by more than a margin lands on
 the pixel where p lands, and the hidden band then spreads ``reach`` pixels over its own
 surface (the band's edge pixels, whose flow is as wrong as the band's). The depth key is δ1, the point's disparity at

@@ -4,7 +4,7 @@ A scene is a list of convex textured primitives (plane patches, spheres, boxes),
 with a rigid pose per time. Views sit on a regular grid of pinhole cameras; the view at
 angular offset φ = (ξ, η) has its centre at (ξ·B, η·B, 0) and its sensor shifted by
 ``s·φ`` pixels, so that a point at depth Z appears at ``p − δ·φ`` with the disparity
-δ = f·B/Z − s (MODEL.md §1). World axes: x right, y down, z forward (away from the
+δ = f·B/Z − s (``help(lfsf)``, MODEL.md §1). World axes: x right, y down, z forward (away from the
 camera). Pixel (row i, column j) has its centre at image coordinates (x, y) = (j, i).
 
 Textures are solid: a function of the hit point in the object's own frame, so they move
@@ -324,7 +324,7 @@ def ground_truth(
     """Exact scene flow of the centre view (φ = 0) at each pixel centre.
 
     δ1: disparity at t1 of the point seen at p; the same point, moved rigidly with its
-    object, gives δ2 (its disparity at t2) and the flow u = p2 − p (MODEL.md §1).
+    object, gives δ2 (its disparity at t2) and the flow u = p2 − p (``help(lfsf)``, MODEL.md §1).
     ``valid`` is 0 where the pixel's footprint (centre and corners) sees more than one
     object (a depth edge); ``occluded`` is 1 where the point is hidden or out of the
     image at t2.

@@ -6,6 +6,23 @@ written as NVIDIA Warp kernels that run on the CPU and on CUDA.
 
 Importing :mod:`lfsf` is cheap: Warp is imported, and kernels are compiled, only when
 something that needs them is first used.
+
+Conventions (the docstrings' "MODEL.md §1"; MODEL.md is the project's restatement of
+the paper's model, kept beside the source checkout, not installed):
+
+* light fields are ``views[a, b, y, x]`` (grey) or ``views[a, b, y, x, c]`` (RGB),
+  float32 in [0, 1]: ``a`` the view row, ``b`` the view column of an A×B grid, the
+  centre at ``(a_c, b_c) = ((A − 1)/2, (B − 1)/2)``: the middle view, or along an
+  even side the mean of the middle two (or four) views; pixel ``x`` to the right,
+  ``y`` down;
+* ``δ1`` (``disp1``), pixels per view step: the point seen at centre pixel ``p`` at t1
+  appears in the view at angular offset ``φ = (ξ, η) = (b − b_c, a − a_c)`` at
+  ``p − δ1·φ`` (as in the HCI 4D benchmark);
+* the flow ``(u, v)``, pixels: that point appears in the centre view at t2 at
+  ``p + (u, v)``;
+* ``δ2`` (``disp2``): the disparity at t2 of that same point, indexed by its pixel
+  ``p`` at t1 (not the t2 disparity map);
+* ``occluded``: where the estimate does not see the point in the centre view at t2.
 """
 
 from __future__ import annotations

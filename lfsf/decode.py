@@ -4,7 +4,7 @@ A plenoptic camera puts a micro-lens array in front of its sensor; behind each l
 a small image of the main lens's aperture, the *micro-image*. A pixel's position within
 its micro-image says from which direction its ray came, the lens's position says where
 in the scene. Decoding turns the raw sensor image into the 4-D light field
-``views[a, b, y, x]`` of MODEL.md §1, in four stages, each a function here:
+``views[a, b, y, x]`` of ``help(lfsf)`` (MODEL.md §1), in four stages, each a function here:
 
 1. **Reading** (:func:`read_raw`): 16-bit PNG/TIFF, Lytro containers through imageio's
    Lytro plugins (which unpack the 10/12-bit sensor data and the metadata), other raw
@@ -35,7 +35,7 @@ Conventions
   invert, which negates it). View (a, b) has (ξ, η) = (b − (N−1)/2, a − (N−1)/2).
 * Output pixel (x, y) sits at lattice-plane position (u0 + x, v0 + y): the spatial unit
   is one lens pitch, along the lattice's axes. The decoded light field then follows
-  MODEL.md's disparity convention (a point at centre pixel p appears at p − δ·φ).
+  the disparity convention of ``help(lfsf)`` (a point at centre pixel p appears at p − δ·φ).
 
 >>> raw, white = synthetic_lenslet(source, Lattice.regular("hex", 14.2), (800, 600), views=9)  # doctest: +SKIP
 >>> lf = decode(raw, white, views=9)                                                          # doctest: +SKIP

@@ -24,7 +24,7 @@ from lfsf.params import Params
 
 @dataclass(eq=False, repr=False)
 class SceneFlow:
-    """The estimate for the centre view at t1 (MODEL.md §1 conventions).
+    """The estimate for the centre view at t1 (the conventions of ``help(lfsf)``, MODEL.md §1).
 
     Attributes
     ----------
@@ -1233,7 +1233,7 @@ def estimate_scene_flow(
     Returns
     -------
     SceneFlow
-        δ1, δ2, u, v of the centre view at t1 (MODEL.md §1).
+        δ1, δ2, u, v of the centre view at t1 (``help(lfsf)``, MODEL.md §1).
 
     Notes
     -----

@@ -2,7 +2,7 @@
 
 Light fields
     :class:`LightField` holds the sub-aperture views ``views[a, b, y, x]`` (grey) or
-    ``views[a, b, y, x, c]`` (RGB) as float32 in [0, 1] (MODEL.md §1).
+    ``views[a, b, y, x, c]`` (RGB) as float32 in [0, 1] (``help(lfsf)``, MODEL.md §1).
     :func:`read_lightfield` reads a folder in the HCI 4D benchmark layout, a folder of
     ``<name>_RR_CC.png`` views, or a ``.npz`` with key ``views``; :func:`write_lightfield`
     writes a ``.npz`` or a folder of 16-bit (or 8-bit) PNGs.
@@ -113,7 +113,7 @@ class LightField:
     ----------
     views : array_like, shape (A, B, H, W) or (A, B, H, W, C)
         ``views[a, b, y, x]`` (grey) or ``views[a, b, y, x, c]`` with C = 3 (RGB); ``a`` is
-        the view row (η = a − a_c), ``b`` the view column (ξ = b − b_c), MODEL.md §1.
+        the view row (η = a − a_c), ``b`` the view column (ξ = b − b_c), ``help(lfsf)``, MODEL.md §1.
         Stored as C-contiguous float32 with values meant to lie in [0, 1]: float input is
         converted (not copied when already float32 and C-contiguous), integer input is
         scaled by its dtype's maximum, a trailing channel axis of size 1 is dropped.
@@ -396,7 +396,28 @@ def _read_npz(path: Path) -> LightField:
     keys, arrays = _read_npz_arrays(path, ("views",))
     if "views" not in arrays:
         raise ValueError(f"{path}: expected an array under key 'views', found keys {keys}")
-    return LightField(arrays["views"], source=str(path), meta={"layout": "npz"})
+    lf = LightField(arrays["views"], source=str(path), meta={"layout": "npz"})
+    if arrays["views"].dtype.kind == "f":
+        _warn_out_of_unit_range(lf.views, path)
+    return lf
+
+
+#: Float views beyond these bounds are taken for values on another scale (8- or 16-bit
+#: numbers stored as floats), not for [0, 1] views with noise or an overshoot.
+_UNIT_RANGE_SLACK = (-0.5, 1.5)
+
+
+def _warn_out_of_unit_range(views: np.ndarray, path: Path) -> None:
+    """Warn where a file's float views lie far outside [0, 1], where lfsf expects them:
+    the structure–texture split's ROF weight (``Params.rof_weight``) is absolute, so on
+    another scale the texture parts, and the results, are not those of the same views
+    in [0, 1]."""
+    lo, hi = float(views.min()), float(views.max())
+    if lo < _UNIT_RANGE_SLACK[0] or hi > _UNIT_RANGE_SLACK[1]:
+        hint = (" (divide by 255, or 65535, if they are 8-bit or 16-bit values, or store them as "
+                "integers, which are scaled by their type's maximum)" if hi > _UNIT_RANGE_SLACK[1] else "")
+        warnings.warn(f"{path}: float views range {lo:.4g}…{hi:.4g}; lfsf expects float views in [0, 1]"
+                      f"{hint}", stacklevel=4)
 
 
 # A damaged .npz fails in the zip layer, in the decompressor (zlib for np.savez_compressed;

@@ -1,11 +1,11 @@
-"""Peer methods, wrapped so that their outputs are in lfsf's conventions (MODEL.md §1).
+"""Peer methods, wrapped so that their outputs are in lfsf's conventions (``help(lfsf)``, MODEL.md §1).
 
 Used by ``scripts/compare_peers.py`` (the acceptance comparison) and ``lfsf bench peers``, and checked by
 ``tests/test_peers.py``. Needs the ``peers`` extra (``pip install -e '.[peers]'``):
 OpenCV contrib, scikit-image and plenpy. Each peer is imported only when its wrapper is
 first called, so this module imports without them.
 
-Conventions (MODEL.md §1), which every wrapper returns:
+Conventions (``help(lfsf)``, MODEL.md §1), which every wrapper returns:
 
 * flow ``(u, v)``, float32 H×W: the point seen at pixel ``p`` of the first image is seen
   at ``p + (u, v)`` in the second image (x to the right, y down), i.e.
@@ -200,13 +200,13 @@ def plenpy_disparity(views, *, nan_guard: bool = True) -> np.ndarray:
     method="structure_tensor", fusion_method="tv_l1")``, defaults otherwise.
 
     Input: ``views[a, b, y, x]`` grey float in [0, 1] (a = view row, b = view column, as
-    MODEL.md §1), or colour ``[a, b, y, x, 3]`` (turned into BT.601 luma first), or an
+    ``help(lfsf)``, MODEL.md §1), or colour ``[a, b, y, x, 3]`` (turned into BT.601 luma first), or an
     ``lfsf.io.LightField``. plenpy's axes ``(u, v, s, t, ch)`` are then exactly ours
     ``(a, b, y, x, 1)``: its horizontal EPIs are ``L[u_c, :, s, :]`` (view column × x),
     its vertical ones ``L[:, v_c, :, t]`` (view row × y). Check: a plane with δ = 1 gives
     0.94 in this layout and −0.18 with only the image axes swapped.
 
-    Output: float32 H×W in lfsf's convention (px per view step, MODEL.md §1 sign).
+    Output: float32 H×W in lfsf's convention (px per view step, the sign of ``help(lfsf)``, MODEL.md §1).
     **Conversion rule: identity.** plenpy's output is already in our sign and unit:
 
     * source (``plenpy/lightfields.py``, ``_estimate_orientation_structure_tensor`` and

@@ -8,7 +8,7 @@ because they are what an estimator's difficulty depends on: the disparity range 
 baseline scales as 1/width, as the angular sampling of a plenoptic camera would) and the
 translational image motion of each object (``shift``, in pixels). Rotations are angles.
 
-The ground truth follows MODEL.md §1: ``disp1`` is the disparity δ1 (px per view step) of
+The ground truth follows the conventions of ``help(lfsf)`` (MODEL.md §1): ``disp1`` is the disparity δ1 (px per view step) of
 the point seen at each centre pixel at t1, ``u, v`` its flow to the centre view at t2,
 ``disp2`` its disparity at t2 (indexed by its t1 pixel), ``valid`` is false where a pixel
 straddles a depth edge, ``occluded`` is true where the point is hidden (or leaves the
@@ -621,7 +621,7 @@ def render_scene(
     -------
     lf1, lf2 : :class:`lfsf.io.LightField` at t1 and t2
     gt : dict of float32 (H, W) ``disp1``, ``disp2``, ``u``, ``v`` and bool ``valid``,
-        ``occluded`` (MODEL.md §1 conventions), plus the camera as scalars
+        ``occluded`` (the conventions of ``help(lfsf)``, MODEL.md §1), plus the camera as scalars
         (``focal``, ``baseline``, ``shift``)
     """
     lfs, gts = render_sequence(scene, 2, size=size, grid=grid, supersample=supersample, colour=colour,

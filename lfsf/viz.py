@@ -6,7 +6,7 @@ screen, and the only dependencies are NumPy, imageio and Pillow (no matplotlib).
 is written atomically (:func:`lfsf._files.atomic_path`), so an interrupted run never
 leaves a half-written picture.
 
-Conventions (see MODEL.md §1): pixel ``x`` to the right, ``y`` down; flow ``(u, v)`` moves
+Conventions (see ``help(lfsf)``, MODEL.md §1): pixel ``x`` to the right, ``y`` down; flow ``(u, v)`` moves
 the point seen at ``p`` in the centre view at t1 to ``p + (u, v)`` at t2; disparity in
 pixels per view step.
 
@@ -781,7 +781,7 @@ def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = N
     centre1, centre2 : array_like, shape (H, W) or (H, W, 3)
         Centre views at t1 and t2, float in [0, 1] or uint8.
     disp1, disp2 : array_like, shape (H, W)
-        Estimated disparities δ1 and δ2 (MODEL.md §1: δ2 is the t2 disparity of the
+        Estimated disparities δ1 and δ2 (``help(lfsf)``, MODEL.md §1: δ2 is the t2 disparity of the
         point seen at ``p`` at t1). NaN is drawn as invalid (black).
     u, v : array_like, shape (H, W)
         Estimated flow of the centre view, pixels.
