@@ -1074,7 +1074,15 @@ def test_the_exposure_pilot_keeps_enough_rows_and_short_views_skip_it():
     lf1, lf2, _ = synth.render_scene("large_motion", size=(200, 40), grid=1, device="cpu")
     darker = lfsf.LightField((lf2.views * 0.9).astype(np.float32))
     assert min(lf1.height, lf1.width) < estimate.EXPOSURE_MIN_SHORT <= 60
-    assert estimate_scene_flow(lf1, darker, Params.preset("flow"), device="cpu").exposure is None
+    notes = []
+    assert estimate_scene_flow(lf1, darker, Params.preset("flow"), device="cpu",
+                               progress=notes.append).exposure is None
+    # said (the progress promises a line for each decision about the input; a change of
+    # exposure left in costs the flow dearly), and not for one light field given twice
+    assert [n for n in notes if n.startswith("exposure: not matched (views of 200×40;")]
+    notes.clear()
+    estimate_scene_flow(lf1, lf1, Params.preset("flow"), device="cpu", progress=notes.append)
+    assert not [n for n in notes if "exposure" in n]
     lf1, lf2, _ = synth.render_scene("large_motion", size=(200, 60), grid=1, device="cpu")
     darker = lfsf.LightField((lf2.views * 0.9).astype(np.float32))
     assert estimate_scene_flow(lf1, darker, Params.preset("flow"), device="cpu").exposure is not None
