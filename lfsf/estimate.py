@@ -219,6 +219,63 @@ FLOW_AMBIGUITY = 0.95
 FLOW_AMBIGUITY_DISTANCE = 3
 FLOW_AMBIGUITY_AREA = 5
 FLOW_AMBIGUITY_FLOOR = 0.02
+#: Nor is any match fused in a region where the search's matches are noise: where the
+#: texture is finer than the search's level resolves (gravel, grass, a fine random
+#: texture), the level's downsampling aliases it, a true shift that falls between two of
+#: its pixels matches no whole-pixel shift, and each 3×3 window's best shift is some
+#: other one, won by chance. Such matches agree with none of their neighbours. A match
+#: is incoherent where fewer than FLOW_COHERENCE_SHARE of the other pixels within
+#: FLOW_COHERENCE_RADIUS have a match within 1 px of it (:func:`_coherent`), and nothing
+#: is fused where more than FLOW_INCOHERENT_REGION of the FLOW_INCOHERENT_AREA² pixels
+#: around are incoherent. There the matches had replaced a right flow of the
+#: coarse-to-fine warping: a whole-image shift of skimage's `gravel` by (1, 1), (3, 3),
+#: (5, 5) and (7, 2) px at 160×120, flow only with `paper`'s settings, had a flow EPE of
+#: 0.11, 0.54, 1.35 and 0.21 px, now 0.001–0.002 (the search off: 0.001); `grass` 0.005–0.09
+#: → 0.001–0.003; white noise blurred by σ = 1 px 0.58–2.3 → 0.001–0.10. A periodic
+#: texture (`brick`) stays wrong either way, its whole-period shifts being coherent
+#: (0.48–7.7 px against 0.61–4.6), and at 96×72 `grass` moved by (5, 5) lost (0.16 →
+#: 1.8 px) where the other three shifts and sizes gained. On the solid-
+#: textured scenes the matches of moving objects are often scattered too, and right
+#: (taking out the incoherent ones alone, or regions of 9² px more than 0.6 incoherent,
+#: lost their flow: `random-12` EPE 0.021 → 0.12, 1.2× over 24 scenes); the region of
+#: 25² px more than 0.85 incoherent leaves them as they were (`random-0…39` and the
+#: built-in scenes at 160×120 and 320×240: no pixel in such a region but 4 of
+#: `random-30`'s 80×60), and with photographs on the objects 18 of 20 at 160×120
+#: (`random-24` a little better; `random-34`, at 2.8 px already, δ1 / δ2 / EPE 1.20 /
+#: 1.17 / 1.05×) and the built-in four at 320×240 within chance (0.99 / 1.06 / 0.99).
+FLOW_COHERENCE_SHARE = 0.3
+FLOW_COHERENCE_RADIUS = 2
+FLOW_INCOHERENT_AREA = 25
+FLOW_INCOHERENT_REGION = 0.85
+
+
+def _coherent(flow: np.ndarray, share: float = FLOW_COHERENCE_SHARE, tolerance: float = 1.0) -> np.ndarray:
+    """Pixels whose flow (h, w, 2) at least ``share`` of the other pixels within
+    FLOW_COHERENCE_RADIUS (those inside the image) share to within ``tolerance`` px
+    (bool (h, w))."""
+    h, w = flow.shape[:2]
+    r = FLOW_COHERENCE_RADIUS
+    pad = np.pad(flow.astype(np.float32), ((r, r), (r, r), (0, 0)), constant_values=np.nan)
+    agree = np.zeros((h, w), np.int32)
+    inside = np.zeros((h, w), np.int32)
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            if dy or dx:
+                other = pad[r + dy:r + dy + h, r + dx:r + dx + w]
+                with np.errstate(invalid="ignore"):
+                    agree += np.hypot(other[..., 0] - flow[..., 0], other[..., 1] - flow[..., 1]) <= tolerance
+                inside += ~np.isnan(other[..., 0])
+    return agree >= share * inside
+
+
+def _incoherent_regions(flow: np.ndarray) -> np.ndarray:
+    """Where the flow search's matches (h, w, 2) are noise (bool (h, w)): more than
+    FLOW_INCOHERENT_REGION of the FLOW_INCOHERENT_AREA² pixels around are incoherent
+    (:func:`_coherent`)."""
+    incoherent = (~_coherent(flow)).astype(np.float32)
+    return box_mean(incoherent, FLOW_INCOHERENT_AREA) > FLOW_INCOHERENT_REGION
+
+
 #: Searched matches from t1 to t2 and back agree to within this many pixels (of the
 #: search's level) where both see the same point (:func:`_hidden_matches`).
 MATCH_TOLERANCE = 1.0
@@ -327,6 +384,10 @@ EXPOSURE_MIN_SIZE = 120
 #: changes of 0.47–1.57 % on 3 of 4 scenes at 320×40 (averaged to 160×20), 0.76 % and
 #: 0.72 % on `large_motion` at 200×40 and 120×40; at most 0.39 % with 60 or more rows.
 EXPOSURE_MIN_SHORT = 48
+#: … where such views' centre views differ in mean brightness by more than this share,
+#: the progress says that no match was made (moving scenes of one exposure: 0–2.7 % on
+#: the built-in scenes and `random-0…11` at 96×72).
+SMALL_VIEWS_BRIGHTNESS = 0.05
 #: The fit is refused where its two one-way slopes disagree, their product (r² for least
 #: squares) below this: on 16 pairs of one exposure at 160×120 it was 0.974 or more
 #: (median 0.998; with and without noise of σ = 0.02), and far below on mostly flat,
@@ -1342,12 +1403,15 @@ def estimate_scene_flow(
                 note(f"exposure: t2 matched to t1 by I ↦ {gain:.4f}·I {shift:+.4f} (it moved the intensities "
                      f"by up to {100 * change:.1f} % of their range)")
         lap("exposure")
-    elif params.match_exposure and lf1.views is not lf2.views and not np.array_equal(lf1.views, lf2.views):
-        # (small views: said, since a change of exposure then goes unmatched, and it costs
-        # the flow dearly: ×1.1 at 96×72 took the flow's EPE from 0.05 to 0.76)
-        note(f"exposure: not matched (views of {width}×{height}; measuring a change of exposure needs "
-             f"{EXPOSURE_MIN_SIZE} px along the longer side and {EXPOSURE_MIN_SHORT} along the shorter): a change "
-             "between the two captures stays in the data")
+    elif params.match_exposure:
+        # small views: said where the centre views' mean brightness differs, since a change
+        # of exposure then goes unmatched, and it costs the flow dearly (×1.1 at 96×72 took
+        # the flow's EPE from 0.05 to 0.76)
+        means = [float(np.mean(centre_view(lf.views))) for lf in (lf1, lf2)]
+        if min(means) > 0 and max(means) / min(means) > 1 + SMALL_VIEWS_BRIGHTNESS:
+            note(f"exposure: not matched, though t2's mean brightness is {100 * (means[1] / means[0] - 1):+.1f} % "
+                 f"of t1's (views of {width}×{height}; measuring a change of exposure needs {EXPOSURE_MIN_SIZE} px "
+                 f"along the longer side and {EXPOSURE_MIN_SHORT} along the shorter)")
     gains = views1 = None
     if params.view_gain_sigma > 0 and n_samples > 1 and min(height, width) >= MIN_VIEW_SIZE:
         # the views' brightness matched to the centre's, the same fields at both times: fitted
@@ -1441,6 +1505,8 @@ def estimate_scene_flow(
         c1, c2 = wp.clone(tex[0]), wp.clone(tex[n_samples])
         forward, ambiguous = _flow_search(c1, c2, half, params.search_radius, dev, ambiguity=True)
         hidden = _hidden_matches(forward, _flow_search(c2, c1, half, params.search_radius, dev))
+        # (unfused, as the ambiguous matches: where the matches are noise, FLOW_INCOHERENT_REGION)
+        ambiguous |= _incoherent_regions(forward)
         flow_found = [wp.array(np.ascontiguousarray(a, np.float32), dtype=float, device=dev)
                       for a in (forward[..., 0], forward[..., 1], hidden, ambiguous)]
         lap("search")
