@@ -230,11 +230,11 @@ FLOW_AMBIGUITY_FLOOR = 0.02
 #: around are incoherent. There the matches had replaced a right flow of the
 #: coarse-to-fine warping: a whole-image shift of skimage's `gravel` by (1, 1), (3, 3),
 #: (5, 5) and (7, 2) px at 160×120, flow only with `paper`'s settings, had a flow EPE of
-#: 0.11, 0.54, 1.35 and 0.21 px, now 0.001–0.002 (the search off: 0.001); `grass` 0.005–0.09
-#: → 0.001–0.003; white noise blurred by σ = 1 px 0.58–2.3 → 0.001–0.10. A periodic
-#: texture (`brick`) stays wrong either way, its whole-period shifts being coherent
-#: (0.48–7.7 px against 0.61–4.6), and at 96×72 `grass` moved by (5, 5) lost (0.16 →
-#: 1.8 px) where the other three shifts and sizes gained. On the solid-
+#: 0.17, 0.53, 1.40 and 0.21 px, now 0.001–0.005 (the search off: 0.001); `grass`
+#: 0.006–0.083 → 0.001–0.002; white noise blurred by σ = 1 px 0.007–1.50 → 0.001–0.013
+#: (``python scripts/fine_textures.py``). A periodic texture (`brick`) stays wrong either
+#: way, its whole-period shifts being coherent (0.45–6.7 px against 0.55–4.8), and at
+#: 96×72 `grass` moved by (5, 5) lost (0.16 → 1.8 px) where the other shifts gained. On the solid-
 #: textured scenes the matches of moving objects are often scattered too, and right
 #: (taking out the incoherent ones alone, or regions of 9² px more than 0.6 incoherent,
 #: lost their flow: `random-12` EPE 0.021 → 0.12, 1.2× over 24 scenes); the region of
