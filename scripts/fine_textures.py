@@ -93,7 +93,10 @@ def main(argv=None) -> int:
             raise ValueError(f"unknown texture(s) {unknown}; known: {list(TEXTURES)}")
         shifts = []
         for text in args.shifts:
-            du, dv = (int(v) for v in text.split(","))
+            try:
+                du, dv = (int(v) for v in text.split(","))
+            except ValueError:
+                raise ValueError(f"--shifts {text}: expected DU,DV, two whole numbers of pixels") from None
             if max(abs(du), abs(dv)) > MARGIN:
                 raise ValueError(f"--shifts {text}: at most {MARGIN} px each way")
             shifts.append((du, dv))
