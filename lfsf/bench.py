@@ -471,7 +471,12 @@ def bench_peers(size=(640, 480), device: str | None = None, repeats: int = 3, sc
                          "note": f"not installed ({missing}); {peers.INSTALL_HINT}"})
             continue
         say(f"{name}: warm-up and {repeats} run{'s' if repeats != 1 else ''}")
-        seconds, (u, v) = time_repeated(fn, repeats, warmup=1)
+        try:
+            seconds, (u, v) = time_repeated(fn, repeats, warmup=1)
+        except ImportError as exc:  # (one the check above does not try)
+            rows.append({"method": name, "epe": None, "seconds_median": None,
+                         "note": f"not installed ({exc}); {peers.INSTALL_HINT}"})
+            continue
         epe = evaluate({"u": u, "v": v}, gt, border=SYNTH_BORDER)["flow"]["epe"]
         rows.append({"method": name, "device": dev if name.startswith("lfsf") else "cpu", "size": [width, height],
                      "epe": round(float(epe), 5), **summarise(seconds)})

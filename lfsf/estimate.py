@@ -1408,10 +1408,11 @@ def estimate_scene_flow(
         # of exposure then goes unmatched, and it costs the flow dearly (×1.1 at 96×72 took
         # the flow's EPE from 0.05 to 0.76)
         means = [float(np.mean(centre_view(lf.views))) for lf in (lf1, lf2)]
-        if min(means) > 0 and max(means) / min(means) > 1 + SMALL_VIEWS_BRIGHTNESS:
-            note(f"exposure: not matched, though t2's mean brightness is {100 * (means[1] / means[0] - 1):+.1f} % "
-                 f"of t1's (views of {width}×{height}; measuring a change of exposure needs {EXPOSURE_MIN_SIZE} px "
-                 f"along the longer side and {EXPOSURE_MIN_SHORT} along the shorter)")
+        if means[0] > 0 and abs(means[1] / means[0] - 1) > SMALL_VIEWS_BRIGHTNESS:
+            note(f"exposure: not matched, though t2's mean brightness differs from t1's by "
+                 f"{100 * (means[1] / means[0] - 1):+.1f} % (views of {width}×{height}; measuring a change of "
+                 f"exposure needs {EXPOSURE_MIN_SIZE} px along the longer side and {EXPOSURE_MIN_SHORT} along the "
+                 "shorter)")
     gains = views1 = None
     if params.view_gain_sigma > 0 and n_samples > 1 and min(height, width) >= MIN_VIEW_SIZE:
         # the views' brightness matched to the centre's, the same fields at both times: fitted

@@ -55,14 +55,19 @@ def _bool_mask(mask, name: str) -> np.ndarray:
     return mask
 
 
+def check_border(border) -> int:
+    """``border`` as an int: a whole number of pixels, 0 or more (ValueError otherwise)."""
+    if isinstance(border, (bool, np.bool_)) or not isinstance(border, (int, np.integer)) or border < 0:
+        raise ValueError(f"the border must be a whole number of pixels, 0 or more, got {border!r}")
+    return int(border)
+
+
 def _mask(shape, valid, border: int, finite: np.ndarray) -> np.ndarray:
     """Pixels to evaluate: ``valid`` (all if None) and ``finite``, less the border.
 
     Raises ``ValueError`` for a negative border, and when no pixel is left, saying why.
     """
-    if isinstance(border, (bool, np.bool_)) or not isinstance(border, (int, np.integer)) or border < 0:
-        raise ValueError(f"the border must be a whole number of pixels, 0 or more, got {border!r}")
-    border = int(border)
+    border = check_border(border)
     if valid is not None:
         valid = _bool_mask(valid, "valid")
     mask = np.ones(shape, dtype=bool) if valid is None else valid.astype(bool)

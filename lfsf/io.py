@@ -392,13 +392,15 @@ def read_lightfield(path: str | os.PathLike) -> LightField:
                      f"views ({_LAYOUTS_LOOKED_FOR}) or a .npz with key 'views'")
 
 
-def _read_npz(path: Path) -> LightField:
+def _read_npz(path: Path, stacklevel: int = 4) -> LightField:
+    """The light field of a ``.npz`` (key ``views``); ``stacklevel`` for its warning of
+    float views far outside [0, 1]: the caller of :func:`read_lightfield`'s frame."""
     keys, arrays = _read_npz_arrays(path, ("views",))
     if "views" not in arrays:
         raise ValueError(f"{path}: expected an array under key 'views', found keys {keys}")
     lf = LightField(arrays["views"], source=str(path), meta={"layout": "npz"})
     if arrays["views"].dtype.kind == "f":
-        _warn_out_of_unit_range(lf.views, path)
+        _warn_out_of_unit_range(lf.views, path, stacklevel)
     return lf
 
 
@@ -407,7 +409,7 @@ def _read_npz(path: Path) -> LightField:
 _UNIT_RANGE_SLACK = (-0.5, 1.5)
 
 
-def _warn_out_of_unit_range(views: np.ndarray, path: Path) -> None:
+def _warn_out_of_unit_range(views: np.ndarray, path: Path, stacklevel: int) -> None:
     """Warn where a file's float views lie far outside [0, 1], where lfsf expects them:
     the structure–texture split's ROF weight (``Params.rof_weight``) is absolute, so on
     another scale the texture parts, and the results, are not those of the same views
@@ -417,7 +419,7 @@ def _warn_out_of_unit_range(views: np.ndarray, path: Path) -> None:
         hint = (" (divide by 255, or 65535, if they are 8-bit or 16-bit values, or store them as "
                 "integers, which are scaled by their type's maximum)" if hi > _UNIT_RANGE_SLACK[1] else "")
         warnings.warn(f"{path}: float views range {lo:.4g}…{hi:.4g}; lfsf expects float views in [0, 1]"
-                      f"{hint}", stacklevel=4)
+                      f"{hint}", stacklevel=stacklevel)
 
 
 # A damaged .npz fails in the zip layer, in the decompressor (zlib for np.savez_compressed;
@@ -512,7 +514,7 @@ def _read_folder(folder: Path) -> LightField:
         files, prefix = _rowcol_grid(folder, rowcol)
         meta = {"layout": "rowcol", "prefix": prefix}
     elif (folder / "views.npz").is_file():
-        return _read_npz(folder / "views.npz")
+        return _read_npz(folder / "views.npz", stacklevel=5)
     else:
         raise ValueError(f"{folder}: found no light-field views; looked for {_LAYOUTS_LOOKED_FOR}")
     return LightField(_read_view_grid(files), source=str(folder), meta=meta)

@@ -28,12 +28,12 @@ import sys
 import time
 import warnings
 
+import numpy as np
+
 #: How to install the peers, for messages where one is missing (from anywhere: the
 #: ``peers`` extra needs the lfsf checkout).
 INSTALL_HINT = ("pip install opencv-contrib-python-headless scikit-image plenpy "
                 "(or pip install -e '.[peers]' in the lfsf checkout)")
-
-import numpy as np
 
 #: ITU-R BT.601 luma weights, as ``lfsf.io.LightField.grey`` uses.
 _LUMA = np.asarray((0.299, 0.587, 0.114), dtype=np.float32)

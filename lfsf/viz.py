@@ -525,6 +525,9 @@ def occluded_picture(centre1, occluded) -> np.ndarray:
 def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="estimate",
                      occluded=None, disparities=True, border: int = 0) -> list[list[_Panel]]:
     """The overview's panels, row by row (see :func:`overview_figure`)."""
+    from lfsf.evaluate import check_border
+
+    border = check_border(border)
     # the maps are the t1 centre view's: its (H, W) is what each must have (a map of
     # another shape is named, not the first map taken as the measure)
     shape = tuple(np.shape(centre1)[:2]) if np.ndim(centre1) in (2, 3) else _check_map("disp1", disp1).shape
@@ -592,8 +595,6 @@ def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="
         return rows
     rows.append(disparity_row(truth, "ground truth"))
     # the error panels' means: over the pixels lfsf eval scores (the border left out)
-    if isinstance(border, (bool, np.bool_)) or not isinstance(border, (int, np.integer)) or border < 0:
-        raise ValueError(f"expected border as a whole number of pixels, 0 or more, got {border!r}")
     scored = np.zeros(shape, dtype=bool)
     scored[border:shape[0] - border, border:shape[1] - border] = True
 

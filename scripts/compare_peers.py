@@ -594,9 +594,10 @@ def main(argv=None) -> int:
         # (a bad --grid was a traceback; a bad --json was refused only after the runs)
         check_before_runs(args.size, args.grid, colour=args.colour, device=args.device, output=args.json)
         scenes = selected_scenes(args)
-        if not scenes and not args.no_synth and not args.real:
-            raise ValueError("no scenes to compare: '--scenes' without names takes none; name some, "
-                             "add --random N, or compare the real data with --real")
+        if not args.real and (args.no_synth or not scenes):
+            raise ValueError("nothing to compare: " + ("--no-synth without --real" if args.no_synth else
+                                                       "'--scenes' without names takes none; name some, add "
+                                                       "--random N") + ", or compare the real data with --real")
         if args.images is not None:
             from lfsf import synth
 

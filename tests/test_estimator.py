@@ -1079,8 +1079,8 @@ def test_the_exposure_pilot_keeps_enough_rows_and_short_views_skip_it():
                                progress=notes.append).exposure is None
     # said (the progress promises a line for each decision about the input; a change of
     # exposure left in costs the flow dearly), and not for one light field given twice
-    assert [n for n in notes if re.match(r"exposure: not matched, though t2's mean brightness is -1\d\.\d % of "
-                                         r"t1's \(views of 200×40;", n)]  # (-13.6 %: the scene moves too)
+    assert [n for n in notes if re.match(r"exposure: not matched, though t2's mean brightness differs from t1's by "
+                                         r"-1\d\.\d % \(views of 200×40;", n)]  # (-13.6 %: the scene moves too)
     notes.clear()
     estimate_scene_flow(lf1, lf1, Params.preset("flow"), device="cpu", progress=notes.append)
     assert not [n for n in notes if "exposure" in n]

@@ -476,8 +476,9 @@ def test_the_overview_error_means_are_over_the_pixels_lfsf_eval_scores():
     assert whole[-1][2].label != labels[2]  # (the border's pixels do count without it)
     assert viz._overview_notes(rows, truth, border=8).endswith("; error means without the 8-px border, as lfsf eval")
     assert "border" not in viz._overview_notes(whole, truth)
-    with pytest.raises(ValueError, match="border as a whole number"):
-        viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], truth, None, border=-1)
+    for gt in (truth, None):  # (checked without a ground truth too)
+        with pytest.raises(ValueError, match="border must be a whole number"):
+            viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], gt, None, border=-1)
 
 
 def test_a_flow_only_overview_says_its_disparities_were_not_estimated():
