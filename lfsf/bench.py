@@ -444,7 +444,7 @@ def bench_peers(size=(640, 480), device: str | None = None, repeats: int = 3, sc
 
     methods = [
         ("lfsf flow-only", lambda: lfsf_run(Params.preset("paper").replace(circles=1, samples=(1,)))),
-        # the `flow` preset: 3 warps of 20 iterations, steps balanced towards the duals
+        # the `flow` preset: 5 warps of 20 iterations, steps balanced towards the duals
         ("lfsf flow preset", lambda: lfsf_run(Params.preset("flow"))),
         ("lfsf scene flow", lambda: lfsf_run(Params.preset("paper"))),
         ("opencv DualTVL1", lambda: peers.opencv_tvl1(c1, c2)),
