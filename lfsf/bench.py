@@ -462,20 +462,22 @@ def bench_peers(size=(640, 480), device: str | None = None, repeats: int = 3, sc
             return exc
         return None
 
+    def skipped(name: str, exc: ImportError) -> dict:
+        return {"method": name, "epe": None, "seconds_median": None,
+                "note": f"not installed ({exc}); {peers.INSTALL_HINT}"}
+
     rows = []
     for name, fn in methods:
         missing = not_installed(name)
         if missing is not None:
             say(f"{name}: skipped, not installed")
-            rows.append({"method": name, "epe": None, "seconds_median": None,
-                         "note": f"not installed ({missing}); {peers.INSTALL_HINT}"})
+            rows.append(skipped(name, missing))
             continue
         say(f"{name}: warm-up and {repeats} run{'s' if repeats != 1 else ''}")
         try:
             seconds, (u, v) = time_repeated(fn, repeats, warmup=1)
         except ImportError as exc:  # (one the check above does not try)
-            rows.append({"method": name, "epe": None, "seconds_median": None,
-                         "note": f"not installed ({exc}); {peers.INSTALL_HINT}"})
+            rows.append(skipped(name, exc))
             continue
         epe = evaluate({"u": u, "v": v}, gt, border=SYNTH_BORDER)["flow"]["epe"]
         rows.append({"method": name, "device": dev if name.startswith("lfsf") else "cpu", "size": [width, height],

@@ -306,16 +306,15 @@ def _run_ground_truth(args, lf1, params):
     from lfsf.evaluate import evaluate, load_ground_truth
 
     gt, border = load_ground_truth(args.gt)
-    shapes = {k: a.shape for k, a in gt.items()}
-    wrong = {k: s for k, s in shapes.items() if s != (lf1.height, lf1.width)}
+    wrong = next(((k, a.shape) for k, a in gt.items() if a.shape != (lf1.height, lf1.width)), None)
     if wrong:
-        k, s = next(iter(wrong.items()))
+        k, s = wrong
         raise ValueError(f"{args.gt}: '{k}' is {s[1]}x{s[0]}, and the light field's views {args.lf1} are "
                          f"{lf1.width}x{lf1.height}")
     # the evaluation that will follow, tried now on the truth itself as the estimate of what
     # the settings estimate: a border that leaves no pixel, or nothing in common (a flow-only
     # run against δ1 alone), refused before the work rather than after it
-    estimated = ("u", "v") if params.circles == 1 else ("disp1", "disp2", "u", "v")
+    estimated = ("u", "v") if params.flow_only else ("disp1", "disp2", "u", "v")
     try:
         evaluate({k: gt[k] for k in estimated if k in gt}, gt, border=border)
     except ValueError as exc:

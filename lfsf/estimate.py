@@ -129,7 +129,7 @@ class SceneFlow:
                 np.savez_compressed(f, **self.as_dict(), **extra, params=np.str_(json.dumps(meta)))
             # a flow-only run's δ1 and δ2 are zeros, not estimates: drawn as a plain grey
             # (each picture says in its PNG text what its colours mean: no scale is drawn in it)
-            estimated = self.params.circles > 1
+            estimated = not self.params.flow_only
             lo, hi = _colour_range(self.disp1, self.disp2)
             for name, what in (("disp1", "disparity at t1"), ("disp2", "disparity at t2 of the t1 points")):
                 if estimated:

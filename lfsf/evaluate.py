@@ -62,6 +62,15 @@ def check_border(border) -> int:
     return int(border)
 
 
+def inner_pixels(shape, border) -> np.ndarray:
+    """Bool ``shape`` (h, w): the pixels more than ``border`` (:func:`check_border`) from
+    every edge, those an evaluation with that border scores."""
+    border = check_border(border)
+    mask = np.zeros(shape, dtype=bool)
+    mask[border:shape[0] - border, border:shape[1] - border] = True
+    return mask
+
+
 def _mask(shape, valid, border: int, finite: np.ndarray) -> np.ndarray:
     """Pixels to evaluate: ``valid`` (all if None) and ``finite``, less the border.
 
@@ -73,12 +82,7 @@ def _mask(shape, valid, border: int, finite: np.ndarray) -> np.ndarray:
     mask = np.ones(shape, dtype=bool) if valid is None else valid.astype(bool)
     if mask.shape != tuple(shape):
         raise ValueError(f"valid mask has shape {mask.shape}, expected {tuple(shape)}")
-    if border > 0:
-        mask[:border, :] = False
-        mask[-border:, :] = False
-        mask[:, :border] = False
-        mask[:, -border:] = False
-    mask &= finite
+    mask &= inner_pixels(shape, border) & finite
     if mask.any():
         return mask
     height, width = shape
@@ -163,7 +167,7 @@ def evaluate(estimate, gt: dict, border: int = SYNTH_BORDER) -> dict[str, dict[s
         params = getattr(estimate, "params", None)
         occluded = getattr(estimate, "occluded", None)
         estimate = estimate.as_dict()
-        if getattr(params, "circles", None) == 1:
+        if getattr(params, "flow_only", False):
             estimate = {k: estimate[k] for k in ("u", "v")}
         if occluded is not None:
             estimate["occluded"] = occluded

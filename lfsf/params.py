@@ -338,6 +338,12 @@ class Params:
             raise ValueError(f"unknown preset {name!r}: the presets are {', '.join(PRESETS)}")
         return cls(**PRESETS[name])
 
+    @property
+    def flow_only(self) -> bool:
+        """One circle (M = 1): the flow of the centre views alone, whose δ1 and δ2 are
+        zeros, not estimates (not drawn, nor scored)."""
+        return self.circles == 1
+
     def replace(self, **changes) -> "Params":
         """A copy with some settings changed (validated)."""
         unknown = set(changes) - {f.name for f in dataclasses.fields(self)}

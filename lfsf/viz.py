@@ -525,7 +525,7 @@ def occluded_picture(centre1, occluded) -> np.ndarray:
 def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="estimate",
                      occluded=None, disparities=True, border: int = 0) -> list[list[_Panel]]:
     """The overview's panels, row by row (see :func:`overview_figure`)."""
-    from lfsf.evaluate import check_border
+    from lfsf.evaluate import check_border, inner_pixels
 
     border = check_border(border)
     # the maps are the t1 centre view's: its (H, W) is what each must have (a map of
@@ -594,9 +594,7 @@ def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="
     if not truth:
         return rows
     rows.append(disparity_row(truth, "ground truth"))
-    # the error panels' means: over the pixels lfsf eval scores (the border left out)
-    scored = np.zeros(shape, dtype=bool)
-    scored[border:shape[0] - border, border:shape[1] - border] = True
+    scored = inner_pixels(shape, border)  # the error panels' means: over the pixels lfsf eval scores
 
     errors = {k: np.abs(est[k] - truth[k]) for k in ("disp1", "disp2") if k in truth}
     if "u" in truth:
@@ -730,7 +728,7 @@ def _compose(rows: list[list[_Panel]], title: str | None, notes: str | None = No
             big = np.repeat(np.repeat(panel.image, s, axis=0), s, axis=1)
             canvas.paste(Image.fromarray(big), (x0, y0 + header_h))
             _draw_footer(canvas, draw, panel.footer, x0, y0 + header_h + ph, pw, footer_h,
-                         font, text_at)
+                         font, text_at, line_h)
     y = grid_end + _PAD
     for line in note_lines:
         text_at(_MARGIN, y, line)
@@ -738,10 +736,9 @@ def _compose(rows: list[list[_Panel]], title: str | None, notes: str | None = No
     return np.asarray(canvas, dtype=np.uint8).copy()
 
 
-def _draw_footer(canvas, draw, footer, x0, y0, pw, footer_h, font, text_at) -> None:
+def _draw_footer(canvas, draw, footer, x0, y0, pw, footer_h, font, text_at, line_h: int) -> None:
     inner = footer_h - 2 * _PAD
-    top, bottom = draw.textbbox((0, 0), "Ag|0.9", font=font)[1::2]
-    text_y = y0 + (footer_h - (bottom - top)) // 2  # (text and bars centred in the strip)
+    text_y = y0 + (footer_h - line_h) // 2  # (text and bars centred in the strip)
     if isinstance(footer, _WheelKey):
         key = flow_wheel_legend(inner)
         canvas.paste(Image.fromarray(key), (x0 + _PAD, y0 + _PAD))
@@ -773,9 +770,10 @@ def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = N
     Rows: (1) centre views at t1 and t2; (2) estimated δ1, δ2 and flow; with ``gt`` also
     (3) the ground truth on the same colour scales and (4) the errors ``|δ1 − δ1*|``,
     ``|δ2 − δ2*|`` and the flow end-point error, their means in the labels (over the
-    valid pixels less ``border``, the pixels ``lfsf eval`` scores). Each panel has a header strip with its label and a footer with its key:
-    a colour bar with its end values under disparity and error maps, the colour wheel
-    and the full-saturation magnitude under flow.
+    valid pixels less ``border``, the pixels ``lfsf eval`` scores). Each panel has a
+    header strip with its label and a footer with its key: a colour bar with its end
+    values under disparity and error maps, the colour wheel and the full-saturation
+    magnitude under flow.
 
     Parameters
     ----------

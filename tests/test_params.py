@@ -212,3 +212,13 @@ def test_the_least_radius_is_accepted_and_flow_only_needs_none():
 
     assert Params(radius=MIN_RADIUS).radius == MIN_RADIUS
     assert Params(circles=1, samples=(1,), radius=1e-9).circles == 1
+
+
+def test_flow_only_is_one_circle_and_no_setting():
+    """``Params.flow_only`` (M = 1), what the scoring, the pictures and ``run --gt`` ask,
+    is derived, not a setting of its own."""
+    assert Params.preset("flow").flow_only and Params(circles=1, samples=(1,)).flow_only
+    assert not Params().flow_only and not Params.preset("fast").flow_only
+    assert "flow_only" not in Params().as_dict()
+    with pytest.raises(ValueError, match="unknown parameter"):
+        Params().replace(flow_only=True)
