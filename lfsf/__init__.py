@@ -40,6 +40,7 @@ _LAZY = {
     "Params": "lfsf.params",
     "estimate_scene_flow": "lfsf.estimate",
     "SceneFlow": "lfsf.estimate",
+    "Note": "lfsf.estimate",
     "predict_next": "lfsf.estimate",
     "render_scene": "lfsf.synth",
     "list_scenes": "lfsf.synth",

@@ -301,12 +301,25 @@ def _lytro_bayer(meta) -> str | None:
 
 
 def _read_lytro(path: Path, fmt: str, full_scale: float, default_bayer: str | None) -> RawImage:
+    import logging
+    import warnings
+
     import imageio.v2 as iio2
 
+    if path.suffix.lower() == ".raw" and not any(path.with_suffix(ext).is_file()
+                                                 for ext in (".txt", ".TXT", ".json", ".JSON")):
+        # (imageio's plugin logs its own line for this, twice and unprefixed: silenced below)
+        warnings.warn(f"{path}: no metadata file beside it ({path.stem}.txt or .json): black level 0, white "
+                      f"level full scale, Bayer pattern {default_bayer} (the camera's usual)", stacklevel=3)
+    logger = logging.getLogger("imageio")
+    level = logger.level
+    logger.setLevel(logging.ERROR)
     try:
         image = iio2.imread(path, format=fmt)
     except Exception as err:        # the plugins raise many kinds for a corrupt file
         raise ValueError(f"{path}: cannot read as {fmt} ({type(err).__name__}: {err})") from err
+    finally:
+        logger.setLevel(level)
     meta = dict(getattr(image, "meta", {}) or {})
     data = np.asarray(image, dtype=np.float64)
     if data.ndim != 2 or data.size == 0:

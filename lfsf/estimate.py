@@ -10,7 +10,7 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Union
 
 import numpy as np
 
@@ -97,6 +97,49 @@ class SceneFlow:
     def as_dict(self) -> dict[str, np.ndarray]:
         return {"disp1": self.disp1, "disp2": self.disp2, "u": self.u, "v": self.v}
 
+    @classmethod
+    def load(cls, path: str | Path) -> "SceneFlow":
+        """The result that :meth:`save` (or ``lfsf run``) wrote, from its folder or its
+        ``sceneflow.npz``: the maps, ``occluded``, and the settings, sampling radius,
+        device, timings and exposure it records. (:func:`lfsf.evaluate.load_estimate`
+        reads the maps alone, from the other files too.)
+
+        Raises
+        ------
+        FileNotFoundError
+            Where there is no such file or folder, or the folder has no ``sceneflow.npz``.
+        ValueError
+            Naming the file, where it is not a result of :meth:`save`.
+        """
+        import json
+
+        from lfsf import io
+
+        path = Path(path)
+        file = path / "sceneflow.npz" if path.is_dir() else path
+        if not file.is_file():
+            raise FileNotFoundError(f"{file}: no such file (SceneFlow.load reads the sceneflow.npz that "
+                                    "`lfsf run` and SceneFlow.save write)")
+        keys, arrays = io._read_npz_arrays(file, ("disp1", "disp2", "u", "v", "occluded", "params"))
+        missing = [k for k in ("disp1", "disp2", "u", "v", "params") if k not in arrays]
+        if missing:
+            raise ValueError(f"{file}: not a result of `lfsf run` or SceneFlow.save: no {', '.join(missing)} "
+                             f"(keys: {', '.join(keys)})")
+        try:
+            meta = json.loads(str(arrays["params"]))
+            params = Params().replace(**meta["params"])
+            radius, device = float(meta["radius_used"]), str(meta["device"])
+            timings, exposure = dict(meta.get("timings") or {}), meta.get("exposure")
+            exposure = None if exposure is None else (float(exposure[0]), float(exposure[1]))
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise ValueError(f"{file}: its recorded settings do not read as this version's ({exc})") from None
+        occluded = arrays.get("occluded")
+        try:
+            return cls(arrays["disp1"], arrays["disp2"], arrays["u"], arrays["v"], params, radius, device,
+                       timings, exposure, None if occluded is None else np.asarray(occluded))
+        except ValueError as exc:
+            raise ValueError(f"{file}: {exc}") from None
+
     def save(self, out: str | Path, centre1=None, centre2=None, gt=None, title: str | None = None,
              border: int = 0) -> list[Path]:
         """Write ``disp1.pfm``, ``disp2.pfm``, ``flow.flo``, ``sceneflow.npz`` and the
@@ -105,7 +148,9 @@ class SceneFlow:
         temporary folder inside ``out`` first and moved into place only when every one
         is complete, so a failure or an interrupt leaves none of them (and no mix with an
         earlier run's). ``gt``, ``title`` and ``border`` (that its error means leave out, as
-        :func:`lfsf.evaluate.evaluate`'s) go to the overview (:func:`lfsf.viz.overview_figure`).
+        :func:`lfsf.evaluate.evaluate`'s) go to the overview (:func:`lfsf.viz.overview_figure`):
+        ``gt`` or ``title`` without the centre views is an error. :meth:`load` reads the
+        result back.
         A flow-only result's (one circle) δ1 and δ2 pictures are plain grey
         (:data:`lfsf.viz.NOT_ESTIMATED_GREY`), and said to be not estimated in the overview."""
         import json
@@ -114,6 +159,9 @@ class SceneFlow:
         from lfsf._files import file_set, output_folder
         from lfsf.batch import RESULT_FILES
 
+        if (centre1 is None) != (centre2 is None) or (centre1 is None and (gt is not None or title is not None)):
+            raise ValueError("SceneFlow.save: overview.png needs both centre views (centre1, centre2); "
+                             "gt and title go into it")
         out = output_folder(out)
         names = list(RESULT_FILES)
         if centre1 is not None and centre2 is not None:
@@ -493,10 +541,37 @@ def _as_lightfield(lf, name: str) -> LightField:
         return lf
     if isinstance(lf, (str, os.PathLike)):
         return read_lightfield(lf)
-    if isinstance(lf, (bytes, bytearray)) or lf is None:
+    if isinstance(lf, (tuple, list)) and lf and all(isinstance(x, (str, os.PathLike)) for x in lf):
+        raise ValueError(f"{name}: got a {type(lf).__name__} of {len(lf)} paths; give each light field "
+                         "as its own argument: estimate_scene_flow('t1.npz', 't2.npz')")
+    if isinstance(lf, (bytes, bytearray)) or lf is None or np.ndim(lf) == 0:
         raise ValueError(f"{name}: expected a LightField, views (an array) or a path as str or "
                          f"path-like, got {type(lf).__name__} {lf!r:.60}")
     return LightField(np.asarray(lf), source=name)
+
+
+#: Float views beyond these bounds are taken for values on another scale (8- or 16-bit
+#: numbers stored as floats), not for [0, 1] views with noise or an overshoot.
+UNIT_RANGE_SLACK = (-0.5, 1.5)
+
+
+def _warn_out_of_unit_range(source: str, lo: float, hi: float, stretched: bool) -> None:
+    """Warn (at the caller of :func:`estimate_scene_flow`) where a light field's views lie
+    far outside [0, 1], where lfsf expects them: what is done with them, stretched to
+    [0, 1] by the pair's range (:func:`_intensity_stretch`) or used as they are, is not
+    the same as the views divided by their scale (a dark capture's 0…120 of 255 comes out
+    as 0…1, not 0…0.47; Γ and the ROF weight μ read intensities in [0, 1]). Integer
+    views are scaled by their type's maximum and never reach here."""
+    if UNIT_RANGE_SLACK[0] <= lo and hi <= UNIT_RANGE_SLACK[1]:
+        return
+    import warnings
+
+    done = ("stretched to [0, 1] by the two light fields' joint range" if stretched
+            else "used as they are")
+    hint = (" (divide by 255, or 65535, if they are 8-bit or 16-bit values, or give them as integers, "
+            "which are scaled by their type's maximum)" if hi > UNIT_RANGE_SLACK[1] else "")
+    warnings.warn(f"{source}: float views range {lo:.4g}…{hi:.4g}, where lfsf expects [0, 1]; {done}{hint}",
+                  stacklevel=3)
 
 
 def data_weights(params: Params, n_samples: int) -> np.ndarray:
@@ -1252,14 +1327,18 @@ def _fuse_disparities(x, s1, s2, phis, found1, found2, params: Params, device: s
     _take_better_disparity(x, 1, s2, phis, cand2, params, device, kept(1, cand2), fusion_margin)
 
 
+#: What :func:`estimate_scene_flow` takes for a light field.
+LightFieldLike = Union[LightField, np.ndarray, str, os.PathLike]
+
+
 def estimate_scene_flow(
-    lf1,
-    lf2,
-    params: Params | None = None,
+    lf1: LightFieldLike,
+    lf2: LightFieldLike,
+    params: Params | str | None = None,
     *,
     device: str | None = None,
     progress: ProgressFn | None = None,
-    init=None,
+    init: SceneFlow | Mapping[str, np.ndarray] | None = None,
 ) -> SceneFlow:
     """Estimate scene flow between two light fields (Heber & Pock, GCPR 2014).
 
@@ -1274,11 +1353,13 @@ def estimate_scene_flow(
         at least 2 rows and 2 columns of views (flow only, ``circles=1``, needs one).
         Light fields whose joint intensity range spans less than 0.2 or more than 2
         are stretched to [0, 1] first (e.g. 12-bit data stored in 16 bits, or counts
-        given as floats); the others are used as they are. Where t2 was captured at
+        given as floats; float views far outside [0, 1] are warned about); the others
+        are used as they are. Where t2 was captured at
         another exposure, its views are first matched to t1's by a gain and an offset
         (``Params.match_exposure``; the progress names them).
-    params : Params, optional
-        Settings (default: ``Params.preset("paper")``).
+    params : Params or str, optional
+        Settings, or a preset's name (``"fast"``: ``Params.preset("fast")``; default
+        ``"paper"``).
     device : str, optional
         ``cpu`` or ``cuda:N`` (default: :func:`lfsf.device.resolve_device`).
     progress : callable, optional
@@ -1339,9 +1420,10 @@ def estimate_scene_flow(
     def note(message: str) -> None:
         say(Note(message))
 
-    params = Params.preset("paper") if params is None else params
+    if params is None or isinstance(params, str):
+        params = Params.preset("paper" if params is None else params)
     if not isinstance(params, Params):
-        raise ValueError(f"params must be an lfsf.Params, got {type(params).__name__}")
+        raise ValueError(f"params must be an lfsf.Params or a preset's name, got {type(params).__name__}")
     lf1 = _as_lightfield(lf1, "light field 1")
     lf2 = _as_lightfield(lf2, "light field 2")
     # each light field's value range, taken once: the pair's check and the intensity stretch read it
@@ -1383,6 +1465,8 @@ def estimate_scene_flow(
 
     # sub-aperture images at the sample offsets, both times: (S, H, W) each
     offset, stretch = _intensity_stretch(lf1, lf2, ranges)
+    for lf, (lo, hi) in zip((lf1, lf2), ranges):
+        _warn_out_of_unit_range(lf.source, lo, hi, stretch != 1.0)
 
     def stretched(grey: np.ndarray) -> np.ndarray:
         if stretch == 1.0:

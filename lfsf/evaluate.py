@@ -183,8 +183,11 @@ def evaluate(estimate, gt: dict, border: int = SYNTH_BORDER) -> dict[str, dict[s
     if all(k in estimate and k in gt for k in ("u", "v")):
         out["flow"] = flow_errors(estimate["u"], estimate["v"], gt["u"], gt["v"], valid, border)
     if not out:
+        halves = [f"the {name} has {' but not '.join(keys)}" for name, maps in (("estimate", estimate), ("ground truth", gt))
+                  for keys in (("u", "v"), ("v", "u")) if keys[0] in maps and keys[1] not in maps]
         raise ValueError("the estimate and the ground truth have no variable in common "
-                         f"(estimate: {sorted(estimate)}, ground truth: {sorted(gt)})")
+                         f"(estimate: {sorted(estimate)}, ground truth: {sorted(gt)})"
+                         + (f"; the flow needs u and v together: {', '.join(halves)}" if halves else ""))
     occluded = gt.get("occluded")
     if occluded is not None and ("disp2" in out or "flow" in out):
         occluded = _bool_mask(occluded, "occluded").astype(bool)

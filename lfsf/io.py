@@ -202,7 +202,8 @@ class LightField:
         return LightField(luma(self.views), source=self.source, meta=self.meta)
 
     def view(self, a: int, b: int) -> np.ndarray:
-        """The view in grid row ``a``, column ``b`` (0-based; not a copy).
+        """The view in grid row ``a``, column ``b`` (0-based, negative from the end as in
+        NumPy; not a copy).
 
         Raises
         ------
@@ -210,7 +211,7 @@ class LightField:
             If ``(a, b)`` is outside the grid.
         """
         rows, cols = self.grid
-        if not (0 <= a < rows and 0 <= b < cols):
+        if not (-rows <= a < rows and -cols <= b < cols):
             raise IndexError(f"{self.source}: view ({a}, {b}) is outside the {rows}×{cols} grid")
         return self.views[a, b]
 
@@ -392,34 +393,12 @@ def read_lightfield(path: str | os.PathLike) -> LightField:
                      f"views ({_LAYOUTS_LOOKED_FOR}) or a .npz with key 'views'")
 
 
-def _read_npz(path: Path, stacklevel: int = 4) -> LightField:
-    """The light field of a ``.npz`` (key ``views``); ``stacklevel`` for its warning of
-    float views far outside [0, 1]: the caller of :func:`read_lightfield`'s frame."""
+def _read_npz(path: Path) -> LightField:
+    """The light field of a ``.npz`` (key ``views``)."""
     keys, arrays = _read_npz_arrays(path, ("views",))
     if "views" not in arrays:
         raise ValueError(f"{path}: expected an array under key 'views', found keys {keys}")
-    lf = LightField(arrays["views"], source=str(path), meta={"layout": "npz"})
-    if arrays["views"].dtype.kind == "f":
-        _warn_out_of_unit_range(lf.views, path, stacklevel)
-    return lf
-
-
-#: Float views beyond these bounds are taken for values on another scale (8- or 16-bit
-#: numbers stored as floats), not for [0, 1] views with noise or an overshoot.
-_UNIT_RANGE_SLACK = (-0.5, 1.5)
-
-
-def _warn_out_of_unit_range(views: np.ndarray, path: Path, stacklevel: int) -> None:
-    """Warn where a file's float views lie far outside [0, 1], where lfsf expects them:
-    the structure–texture split's ROF weight (``Params.rof_weight``) is absolute, so on
-    another scale the texture parts, and the results, are not those of the same views
-    in [0, 1]."""
-    lo, hi = float(views.min()), float(views.max())
-    if lo < _UNIT_RANGE_SLACK[0] or hi > _UNIT_RANGE_SLACK[1]:
-        hint = (" (divide by 255, or 65535, if they are 8-bit or 16-bit values, or store them as "
-                "integers, which are scaled by their type's maximum)" if hi > _UNIT_RANGE_SLACK[1] else "")
-        warnings.warn(f"{path}: float views range {lo:.4g}…{hi:.4g}; lfsf expects float views in [0, 1]"
-                      f"{hint}", stacklevel=stacklevel)
+    return LightField(arrays["views"], source=str(path), meta={"layout": "npz"})
 
 
 # A damaged .npz fails in the zip layer, in the decompressor (zlib for np.savez_compressed;
@@ -514,7 +493,7 @@ def _read_folder(folder: Path) -> LightField:
         files, prefix = _rowcol_grid(folder, rowcol)
         meta = {"layout": "rowcol", "prefix": prefix}
     elif (folder / "views.npz").is_file():
-        return _read_npz(folder / "views.npz", stacklevel=5)
+        return _read_npz(folder / "views.npz")
     else:
         raise ValueError(f"{folder}: found no light-field views; looked for {_LAYOUTS_LOOKED_FOR}")
     return LightField(_read_view_grid(files), source=str(folder), meta=meta)

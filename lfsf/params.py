@@ -479,10 +479,11 @@ class Params:
 
     def sample_offsets(self, grid: tuple[int, int]) -> tuple[np.ndarray, float]:
         """The angular offsets φ_ij = r_i (cos s_ij, sin s_ij) in view steps, centre first,
-        and the radius R actually used (at most the grid's half extent)."""
+        and the radius R actually used (at most the grid's half extent; 0 with one circle,
+        which samples the centre view alone)."""
         rows, cols = (grid, grid) if np.isscalar(grid) else grid    # (a square grid as one number)
         limit = min(rows - 1, cols - 1) / 2.0
-        radius = min(self.radius, limit)
+        radius = min(self.radius, limit) if self.circles > 1 else 0.0
         phis = [(0.0, 0.0)]
         if self.circles > 1 and radius > 0:
             for i in range(1, self.circles):

@@ -531,6 +531,11 @@ def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="
     # the maps are the t1 centre view's: its (H, W) is what each must have (a map of
     # another shape is named, not the first map taken as the measure)
     shape = tuple(np.shape(centre1)[:2]) if np.ndim(centre1) in (2, 3) else _check_map("disp1", disp1).shape
+    maps = {np.shape(a) for a in (disp1, disp2, u, v)}
+    if len(maps) == 1 and np.ndim(disp1) == 2 and np.shape(disp1) != shape:
+        # the four maps agree with each other: the centre view is the odd one
+        raise ValueError(f"expected centre1 of the maps' shape {np.shape(disp1)} (the views they were estimated "
+                         f"on), got {np.shape(centre1)}")
     est = {k: _check_map_shape(k, a, shape)
            for k, a in (("disp1", disp1), ("disp2", disp2), ("u", u), ("v", v))}
     centre1, centre2 = _shown_together(centre1, centre2)

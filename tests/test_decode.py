@@ -7,6 +7,7 @@ a few mrad of rotation, non-integer pitch and offset, vignetting, noise, with an
 without a Bayer mosaic); scene flow from decoded views against that from the source
 views; and the faults that must end in one clear message (exit status 2)."""
 
+import contextlib
 import json
 import math
 import re
@@ -466,6 +467,33 @@ def test_lytro_metadata_gives_pattern_and_levels(tmp_path):
     (tmp_path / "white.txt").write_text(json.dumps({"mosaic": {"tile": "r,gr:gb,b", "upperLeftPixel": "b"}}))
     image = D.read_raw(path)
     assert image.data.shape == (3280, 3280) and image.bayer == "BGGR"
+    # without it: one warning of ours naming the file and what is assumed; imageio's own
+    # log line ("No metadata file found …", twice, unprefixed, even with --quiet) silenced
+    (tmp_path / "white.txt").unlink()
+    with pytest.warns(UserWarning, match=r"white.raw: no metadata file beside it \(white.txt or .json\): black "
+                                         r"level 0, white level full scale, Bayer pattern BGGR") as caught:
+        with capture_logs("imageio") as logged:
+            image = D.read_raw(path)
+    assert image.bayer == "BGGR" and len(caught) == 1 and caught[0].filename == __file__ and logged == []
+
+
+@contextlib.contextmanager
+def capture_logs(name: str):
+    """The messages logged under ``name`` (at any level that passes) while the block runs."""
+    import logging
+
+    messages: list[str] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record):
+            messages.append(record.getMessage())
+
+    logger, handler = logging.getLogger(name), Keep()
+    logger.addHandler(handler)
+    try:
+        yield messages
+    finally:
+        logger.removeHandler(handler)
 
 
 def test_16_bit_tiff_decodes_like_the_png(lenslet_files, tmp_path):

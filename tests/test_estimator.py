@@ -824,6 +824,74 @@ def test_light_fields_may_be_given_as_paths(tmp_path):
             estimate_scene_flow(first, second, QUICK, device="cpu")
     with pytest.raises(ValueError, match="progress must be a callable"):
         estimate_scene_flow(lf1, lf2, QUICK, device="cpu", progress=5)
+    # two paths in one tuple read as an array of strings ('expected real-valued views, got
+    # dtype <U6'); a number as 'an array of 0 dimensions'
+    with pytest.raises(ValueError, match=r"light field 1: got a tuple of 2 paths; give each light field as its own"):
+        estimate_scene_flow(("lf1.npz", "lf2.npz"), lf2, QUICK, device="cpu")
+    with pytest.raises(ValueError, match=r"light field 2: expected a LightField, views \(an array\) or a path as str "
+                                         r"or path-like, got int 5"):
+        estimate_scene_flow(lf1, 5, QUICK, device="cpu")
+
+
+def test_the_progress_notes_class_is_public():
+    """The docstring of estimate_scene_flow's progress promises a Note: importable from lfsf."""
+    from lfsf.estimate import Note
+
+    assert lfsf.Note is Note and "Note" in lfsf.__all__ and "Note" in dir(lfsf)
+
+
+def test_params_may_be_a_presets_name():
+    lf1, lf2 = shift_lightfields(h=16, w=16, grid=3)
+    flow = Params.preset("flow")
+    named = estimate_scene_flow(lf1, lf2, "flow", device="cpu")
+    assert named.params == flow and named.radius == 0.0   # (one circle: the centre view alone)
+    np.testing.assert_array_equal(named.u, estimate_scene_flow(lf1, lf2, flow, device="cpu").u)
+    with pytest.raises(ValueError, match="unknown preset 'quick': the presets are paper, fast"):
+        estimate_scene_flow(lf1, lf2, "quick", device="cpu")
+
+
+def test_float_views_far_outside_the_unit_range_are_warned_about(tmp_path):
+    """Float views on another scale (8-bit values stored as floats) were taken without a
+    word when given as arrays, and warned about, saying the results would differ, when
+    read from a .npz, though the estimator stretches them to [0, 1]: now one warning
+    wherever they come from, at the caller's line, saying what is done with them. A
+    small overshoot (noise) is not warned about, nor are integer views."""
+    import warnings
+
+    lf1, lf2 = shift_lightfields(h=16, w=16, grid=3)
+    views = lf1.views
+    np.savez(tmp_path / "bytes.npz", views=views * 255)
+    flow = Params.preset("flow")
+    for name, first, second, said in (
+            ("unit", views, lf2, None), ("noisy", views * 1.2 - 0.1, lf2, None),
+            ("integers", (views * 255).astype(np.uint8), lf2, None),
+            ("bytes", views * 255, lf2.views * 255, "stretched to [0, 1] by the two light fields' joint range "
+                                                    "(divide by 255, or 65535"),
+            ("file", tmp_path / "bytes.npz", lf2.views * 255, "stretched to [0, 1]"),
+            ("beyond 1.5", views * 1.9, lf2.views * 1.9, "used as they are (divide by 255"),
+            ("negative", views - 1.0, lf2.views - 1.0, "used as they are")):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            estimate_scene_flow(first, second, flow, device="cpu")
+        caught = [w for w in caught if "where lfsf expects [0, 1]" in str(w.message)]
+        if said is None:
+            assert caught == [], name
+            continue
+        source = str(tmp_path / "bytes.npz") if name == "file" else "light field 1"
+        message = str(caught[0].message)
+        assert len(caught) == 2 and message.startswith(f"{source}: float views range "), (name, message)
+        assert said in message and caught[0].filename == __file__, (name, message, caught[0].filename)
+    assert all("where lfsf expects" not in str(w.message) for w in _warnings_of(lfsf.read_lightfield,
+                                                                                tmp_path / "bytes.npz"))
+
+
+def _warnings_of(call, *args):
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        call(*args)
+    return caught
 
 
 def test_a_narrow_intensity_range_is_stretched_like_12_bit_data_in_16_bits():
@@ -1176,6 +1244,50 @@ def test_a_scene_flow_holds_float32_maps_of_one_shape_and_its_settings(tmp_path)
         SceneFlow(**maps, params=None, radius=4.0, device="cpu")
     with pytest.raises(ValueError, match=r"SceneFlow: disp2 must be a non-empty 2-D map, got shape \(24,\)"):
         SceneFlow(**{**maps, "disp2": maps["disp2"].ravel()}, params=Params.preset("fast"), radius=4.0, device="cpu")
+
+
+def test_a_saved_scene_flow_loads_back_whole(tmp_path):
+    """SceneFlow.load gives back what save wrote: the maps, occluded, the settings, the
+    radius, the device, the timings and the exposure (load_estimate reads the maps alone,
+    recorded_settings a dict). A folder or file that is not a result is an error naming
+    it; so is saving the truth or a title without the centre views, which only the
+    overview would show (it was dropped without a word)."""
+    import json
+
+    from lfsf.estimate import SceneFlow
+
+    rng = np.random.default_rng(0)
+    maps = [rng.normal(size=(6, 8)).astype(np.float32) for _ in range(4)]
+    params = Params.preset("lytro").replace(warps=2)
+    sf = SceneFlow(*maps, params=params, radius=3.5, device="cpu", timings={"iterate": 1.25},
+                   exposure=(1.1, -0.02), occluded=rng.random((6, 8)) > 0.7)
+    sf.save(tmp_path / "r")
+    for path in (tmp_path / "r", tmp_path / "r" / "sceneflow.npz"):
+        back = SceneFlow.load(path)
+        assert all(np.array_equal(a, b) for a, b in zip(back.as_dict().values(), sf.as_dict().values()))
+        assert np.array_equal(back.occluded, sf.occluded) and back.params == params
+        assert (back.radius, back.device, back.timings, back.exposure) == (3.5, "cpu", {"iterate": 1.25}, (1.1, -0.02))
+    flow_only = SceneFlow(*maps, params=Params.preset("flow"), radius=0.0, device="cpu")
+    flow_only.save(tmp_path / "f")
+    back = SceneFlow.load(tmp_path / "f")
+    assert back.occluded is None and back.exposure is None and back.params.flow_only
+
+    with pytest.raises(FileNotFoundError, match=r"empty.sceneflow.npz: no such file \(SceneFlow.load reads"):
+        SceneFlow.load((tmp_path / "empty").mkdir() or tmp_path / "empty")
+    np.savez(tmp_path / "other.npz", views=np.zeros((2, 2, 4, 4)))
+    with pytest.raises(ValueError, match=r"other.npz: not a result of `lfsf run` or SceneFlow.save: no disp1, "
+                                         r"disp2, u, v, params \(keys: views\)"):
+        SceneFlow.load(tmp_path / "other.npz")
+    np.savez(tmp_path / "old.npz", **sf.as_dict(), params=np.str_(json.dumps({"params": {"lambda4": 1.0}})))
+    with pytest.raises(ValueError, match=r"old.npz: its recorded settings do not read as this version's "
+                                         r"\(unknown parameter\(s\) lambda4"):
+        SceneFlow.load(tmp_path / "old.npz")
+
+    lf = np.zeros((6, 8), np.float32)
+    for kwargs in ({"gt": {"disp1": maps[0]}}, {"title": "a run"}, {"centre1": lf}):
+        with pytest.raises(ValueError, match=r"SceneFlow.save: overview.png needs both centre views"):
+            sf.save(tmp_path / "bad", **kwargs)
+    assert not (tmp_path / "bad").exists()
 
 
 def _fine_texture_pair(h, w, du, dv):

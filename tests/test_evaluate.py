@@ -130,6 +130,11 @@ def test_evaluate_uses_common_variables_and_rejects_disjoint_ones():
     assert set(out) == {"disp1"}
     with pytest.raises(ValueError, match="no variable in common"):
         E.evaluate({"disp2": np.zeros((20, 20))}, gt)
+    # half a flow: said why, where 'u' in both read as a contradiction
+    with pytest.raises(ValueError, match=r"; the flow needs u and v together: the estimate has u but not v$"):
+        E.evaluate({"u": np.zeros((20, 20))}, gt)
+    with pytest.raises(ValueError, match=r"the flow needs u and v together: the ground truth has v but not u$"):
+        E.evaluate({"u": np.zeros((20, 20)), "v": np.zeros((20, 20))}, {"v": np.zeros((20, 20))})
     with pytest.raises(ValueError, match="estimate is 3×2"):
         E.evaluate({"disp1": np.zeros((2, 3))}, gt)
 

@@ -295,6 +295,10 @@ def test_overview_rejects_mismatched_shapes():
     with pytest.raises(ValueError, match=re.escape(f"expected disp1 of shape {c1.shape[:2]} (the centre view's), "
                                                    f"got {est['disp1'][:-1].shape}")):
         viz.overview_figure(c1, c2, est["disp1"][:-1], est["disp2"], est["u"], est["v"])
+    # where the four maps agree, the centre view is the one named (disp1 was)
+    with pytest.raises(ValueError, match=re.escape(f"expected centre1 of the maps' shape {est['disp1'].shape} (the "
+                                                   f"views they were estimated on), got (5, 5)")):
+        viz.overview_figure(np.zeros((5, 5)), c2, est["disp1"], est["disp2"], est["u"], est["v"])
     for partial in ({"u": gt["u"]}, {"valid": np.ones(c1.shape[:2], bool)}):  # half a flow; no map at all
         with pytest.raises(ValueError, match="missing"):
             viz.overview_figure(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], gt=partial)
