@@ -8,8 +8,10 @@ folder:
   to ``OUT/NAME`` only when every file is there, so a killed run never leaves a
   half-written result, and a result folder that exists is complete;
 * a re-run skips the pairs whose result folder is complete and was estimated with the
-  same settings; it estimates again, and replaces, one of other settings or whose
-  sceneflow.npz does not read;
+  same settings, from the same input files (the paths, sizes and modification times its
+  sceneflow.npz records) and with the same ``warm_start``; it estimates again, and
+  replaces, any other result, incomplete ones and those whose sceneflow.npz does not
+  read;
 * a pair that fails (bad input, an error in the estimate) is reported with its reason
   and the others go on; a worker process that dies in the middle of a task is replaced
   and the task runs again elsewhere (Dask retries it);
@@ -43,7 +45,8 @@ from lfsf._errors import BAD_INPUT_ERRORS
 from lfsf._files import dead_set, write_bytes_atomic
 
 #: The files of a complete result (those :meth:`lfsf.estimate.SceneFlow.save` writes
-#: without the centre views).
+#: without the centre views; with them, ``overview.png`` too, which results of earlier
+#: versions' batches lack).
 RESULT_FILES = ("disp1.pfm", "disp2.pfm", "flow.flo", "sceneflow.npz", "disp1.png", "disp2.png", "flow.png")
 #: Light-field files a frame folder may hold (besides sub-folders of views).
 FRAME_SUFFIXES = (".npz",)
@@ -93,7 +96,7 @@ class Summary:
         done = [o.seconds for o in self.outcomes if o.status == "done"]
         per_pair = f", {np.median(done):.1f} s per pair (median)" if done else ""
         replaced = sum(o.status == "done" and o.reason == REPLACED for o in self.outcomes)
-        again = (f" ({replaced} over a result of other settings or an unreadable one)" if replaced else "")
+        again = f" ({replaced} over an earlier result: {REPLACED_WHICH})" if replaced else ""
         return (f"{self.count('done')} done{again}, {self.count('skipped')} skipped (complete), "
                 f"{self.count('failed')} failed in {self.seconds:.1f} s{per_pair}")
 
@@ -103,8 +106,9 @@ class Summary:
 def pairs_from_sources(sources: Sequence[str | os.PathLike], out: str | os.PathLike | None = None) -> list[Pair]:
     """The pairs named by manifests and frame folders.
 
-    A manifest is a CSV file with ``t1,t2[,name]`` per line (a header line ``t1,t2…`` is
-    optional; relative paths are relative to the manifest's folder; the name defaults to
+    A manifest is a CSV file with ``t1,t2[,name]`` per line (a header line whose first
+    two cells are ``t1,t2`` is optional; blank lines and lines starting with ``#`` are
+    left out; relative paths are relative to the manifest's folder; the name defaults to
     t1's stem). A folder holds one light field per frame (a sub-folder of views or a
     ``.npz``), sorted by name; consecutive frames make the pairs, named after their first
     frame, each the successor of the one before. Paths come back absolute: on a cluster,
@@ -153,20 +157,25 @@ def _manifest_pairs(path: Path) -> list[Pair]:
     if "\0" in text:  # (before the csv module: Python 3.10's refuses the line with an error of its own)
         line = text.count("\n", 0, text.index("\0")) + 1
         raise ValueError(f"{path}: line {line} holds a NUL byte, which no path or name can")
-    rows = [row for row in csv.reader(_io.StringIO(text)) if row and any(c.strip() for c in row)]
-    if rows and [c.strip().lower() for c in rows[0][:2]] == ["t1", "t2"]:
+    # (line number, row), blank lines and comment lines (# …) left out; the line is where
+    # a row ends (a quoted cell may span lines)
+    reader = csv.reader(_io.StringIO(text))
+    rows = [(reader.line_num, row) for row in reader
+            if row and any(c.strip() for c in row) and not row[0].lstrip().startswith("#")]
+    if rows and [c.strip().lower() for c in rows[0][1][:2]] == ["t1", "t2"]:
         rows = rows[1:]
     if not rows:
         raise ValueError(f"{path}: the manifest names no pairs (expected lines 't1,t2[,name]')")
     pairs = []
-    for number, row in enumerate(rows, 1):
+    for line, row in rows:
         cells = [c.strip() for c in row]
         if len(cells) not in (2, 3) or not cells[0] or not cells[1]:
-            raise ValueError(f"{path}: pair {number} ({','.join(row)!r}) is not 't1,t2[,name]'")
+            raise ValueError(f"{path}: line {line} ({','.join(row)!r}) is not 't1,t2[,name]' (a header, if "
+                             "any, is 't1,t2[,name]' too)")
         t1, t2 = ((path.parent / c) for c in cells[:2])
         name = cells[2] if len(cells) == 3 and cells[2] else _stem(t1)
         if not name or name.startswith(".") or "/" in name or "\\" in name:
-            raise ValueError(f"{path}: pair {number} has the name {name!r}, which cannot be a folder name")
+            raise ValueError(f"{path}: line {line} names the pair {name!r}, which cannot be a folder name")
         pairs.append(Pair(name, t1, t2))
     return pairs
 
@@ -202,15 +211,34 @@ def is_complete(folder: Path) -> bool:
     return all((folder / name).is_file() for name in RESULT_FILES)
 
 
-#: An :class:`Outcome`'s reason where a pair was estimated again over a complete result.
-REPLACED = "replaced a result of other settings, or one whose sceneflow.npz does not read"
+#: Which earlier results a re-run estimates again and replaces.
+REPLACED_WHICH = "of other settings or inputs, incomplete, or unreadable"
+#: An :class:`Outcome`'s reason where a pair was estimated again over an earlier result.
+REPLACED = f"replaced an earlier result ({REPLACED_WHICH})"
 
 
-def _estimated_with(folder: Path, params) -> bool:
+def input_record(pair: Pair, warm_start: bool) -> dict:
+    """What a result records of how it came about, besides the settings, and a re-run
+    compares: each light field's absolute path and, for its file or each file of its
+    folder, the size and the modification time (ns), as ``make`` tells a changed input;
+    and whether the pair was to start from the previous one's result."""
+    def files(path: Path) -> list:
+        entries = sorted(path.iterdir()) if path.is_dir() else [path]
+        return [[e.name, e.stat().st_size, e.stat().st_mtime_ns] for e in entries if e.is_file()]
+
+    return {"t1": str(pair.t1), "t2": str(pair.t2), "t1_files": files(pair.t1), "t2_files": files(pair.t2),
+            "warm_start": bool(warm_start and pair.previous is not None)}
+
+
+def _estimated_with(folder: Path, params, inputs: dict) -> bool:
     """Whether the complete result in ``folder`` was estimated with the settings
-    ``params`` (None: the `paper` preset): its sceneflow.npz reads, maps and all, and
-    the settings it records are these. Anything else (other settings, a file cut short
-    or not lfsf's) is no result of this run, and a re-run estimates the pair again."""
+    ``params`` (None: the `paper` preset) from the inputs ``inputs``
+    (:func:`input_record`): its sceneflow.npz reads, maps and all, and records these.
+    Anything else (other settings, light fields changed, renamed or swapped since, a
+    file cut short or not lfsf's) is no result of this run, and a re-run estimates the
+    pair again."""
+    import json
+
     from lfsf.evaluate import recorded_settings
     from lfsf.params import Params
 
@@ -218,10 +246,13 @@ def _estimated_with(folder: Path, params) -> bool:
         with np.load(folder / "sceneflow.npz") as z:
             for key in ("disp1", "disp2", "u", "v"):
                 z[key]
+            recorded_inputs = json.loads(str(z["params"])).get("inputs")
         recorded = Params(**recorded_settings(folder))
     except Exception:  # noqa: BLE001 - whatever fails to read is no result of this run
         return False
-    return recorded == (Params.preset("paper") if params is None else params)
+    # (through JSON, as the record was: lists for tuples)
+    return (recorded == (Params.preset("paper") if params is None else params)
+            and recorded_inputs == json.loads(json.dumps(inputs)))
 
 
 def _holds_only_results(folder: Path) -> bool:
@@ -284,9 +315,11 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
     tmp = None
     try:  # all of it: a name too long for the file system fails here, in is_complete
         replaced = ""
-        if is_complete(final):
-            if _estimated_with(final, params):
-                return Outcome(pair.name, "skipped")
+        # (taken before reading them: a file changed while the pair runs is taken again)
+        inputs = input_record(pair, warm_start) if pair.t1.exists() and pair.t2.exists() else None
+        if is_complete(final) and inputs is not None and _estimated_with(final, params, inputs):
+            return Outcome(pair.name, "skipped")
+        if final.exists():
             replaced = REPLACED
         _remove_stale(out, pair.name)
         tmp = out / f".{pair.name}.part-{os.getpid()}-{uuid.uuid4().hex[:8]}"
@@ -301,8 +334,8 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
         notes = []
         sf = estimate_scene_flow(lf1, lf2, params, device=_worker_device(device), init=init,
                                  progress=lambda line: notes.append(str(line)) if isinstance(line, Note) else None)
-        sf.save(tmp)
-        if final.exists():  # an incomplete result left by hand or by an older version
+        sf.save(tmp, lf1.centre, lf2.centre, inputs=inputs)   # (with overview.png, as lfsf run)
+        if final.exists():  # an earlier result, complete or not, or one left by hand
             if not _holds_only_results(final):
                 raise ValueError(f"{final}: holds files that are not results of lfsf ("
                                  f"{', '.join(sorted(p.name for p in final.iterdir())[:5])}); not replaced")
@@ -466,7 +499,12 @@ def _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retrie
             check_scheduler_address(scheduler)
             try:
                 client = stack.enter_context(Client(scheduler, timeout="10s"))
-            except OSError as exc:
+            except MemoryError:
+                # a server that is not Dask's answered: its first bytes ("HTTP/1.1") read as
+                # a message length of exabytes, reported as out of memory
+                raise ValueError(f"cannot reach the Dask scheduler at {scheduler}: what answers there is not a "
+                                 "Dask scheduler (a dashboard's port, 8787, or another server's?)") from None
+            except (OSError, ValueError, TypeError) as exc:
                 raise ValueError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
             try:    # a scheduler without workers would take the tasks and wait for ever
                 client.wait_for_workers(1, timeout=WORKER_WAIT)

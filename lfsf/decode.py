@@ -81,6 +81,12 @@ BAYER_PATTERNS = {
 #: 3280×3280 at 12 bit), by which a ``.raw`` file is told apart from other raw formats.
 _LYTRO_RAW_BYTES = {7728 * 5368 * 10 // 8: ("LYTRO-ILLUM-RAW", 1023.0, "GRBG"),
                     3280 * 3280 * 12 // 8: ("LYTRO-F01-RAW", 4095.0, "BGGR")}
+#: Decoded views with more than this share of their values at SATURATED or above (the raw
+#: divided by the white, clipped at 1) are refused: the raw was brighter than the white
+#: nearly everywhere, as where the two are swapped (the views all came out ~1.0 without
+#: a word). An overexposed sky or highlight takes a part of the views, not half of them.
+SATURATED = 0.999
+MAX_SATURATED_SHARE = 0.5
 #: ``bayer`` for a grey (monochrome) sensor, overriding a pattern in the files' metadata.
 GREY = "none"
 #: The white image's floor, as a fraction of its bright level, below which it is not
@@ -919,6 +925,12 @@ def decode(raw, white, *, views: int | None = None, bayer: str | None = None, fl
                             outputs=[out], device=dev)
         result.append(np.clip(out.numpy(), 0.0, 1.0).reshape(n, n, height, width))
     array = result[0] if len(result) == 1 else np.stack(result, -1)
+    saturated = float(np.mean(array >= SATURATED))
+    if saturated > MAX_SATURATED_SHARE:
+        raise ValueError(f"{raw.source}: {100 * saturated:.0f} % of the decoded views' values are at full scale: "
+                         f"the raw image is brighter than the white image {white.source} nearly everywhere; "
+                         "were RAW and --white swapped? (the white image is a diffuse white scene, taken "
+                         "brighter than any raw)")
     return LightField(array, source=raw.source,
                       meta={"layout": "lenslet", "lattice": lattice, "plane_origin": (u0, v0), "flip": flip,
                             "bayer": pattern, "white_level": level})

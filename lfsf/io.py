@@ -122,7 +122,10 @@ class LightField:
     meta : dict
         Anything known about the light field, e.g. ``meta["layout"]`` (``"hci"``,
         ``"rowcol"``, ``"npz"``) and, for the HCI layout, ``meta["parameters"]``:
-        ``parameters.cfg`` as ``{section: {key: value}}``.
+        ``parameters.cfg`` as ``{section: {key: value}}``; views decoded from a lenslet
+        image (:func:`lfsf.decode.decode`, or a folder with ``lfsf decode``'s
+        ``decode.json``) have ``meta["lattice"]``, and the estimator keeps its samples
+        off the micro-images' rims (:data:`lfsf.estimate.RIM_FRACTION`).
 
     Raises
     ------
@@ -489,6 +492,9 @@ def _read_folder(folder: Path) -> LightField:
         cfg = folder / "parameters.cfg"
         if cfg.is_file():
             meta["parameters"] = _read_hci_parameters(cfg)
+        report = _read_decode_report(folder / "decode.json")
+        if report is not None:
+            meta["decode"], meta["lattice"] = report, report["lattice"]
     elif rowcol:
         files, prefix = _rowcol_grid(folder, rowcol)
         meta = {"layout": "rowcol", "prefix": prefix}
@@ -497,6 +503,24 @@ def _read_folder(folder: Path) -> LightField:
     else:
         raise ValueError(f"{folder}: found no light-field views; looked for {_LAYOUTS_LOOKED_FOR}")
     return LightField(_read_view_grid(files), source=str(folder), meta=meta)
+
+
+def _read_decode_report(path: Path) -> dict | None:
+    """``lfsf decode``'s report beside the views it wrote (the lattice, the number of
+    views across a lens, …), or None where there is none that reads as one: the views
+    are then taken as any others."""
+    import json
+
+    if not path.is_file():
+        return None
+    try:
+        report = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    if not (isinstance(report, dict) and isinstance(report.get("lattice"), dict)
+            and isinstance(report.get("views"), int)):
+        return None
+    return report
 
 
 def _listed(items: list) -> str:

@@ -17,9 +17,12 @@ The same steps on the command line, after step 1:
 
     lfsf decode DIR/raw1.png --white DIR/white.png --out DIR/views1 --views 9 --bayer GRBG
     lfsf decode DIR/raw2.png --white DIR/white.png --out DIR/views2 --views 9 --bayer GRBG
-    echo "radius = 3" > r3.toml
-    lfsf run DIR/views1 DIR/views2 --out DIR/result --config r3.toml
+    lfsf run DIR/views1 DIR/views2 --out DIR/result     # R = 3 by itself on 9 decoded views
     lfsf eval DIR/result DIR/gt.npz
+
+(``lfsf run`` keeps its samples off the micro-images' rims on decoded views,
+``lfsf.estimate.RIM_FRACTION``; ``--radius`` here sets R for both estimates, from the
+decoded and from the source views, for a like comparison.)
 """
 
 from __future__ import annotations

@@ -135,9 +135,17 @@ def test_manifest_with_and_without_header(tmp_path):
     assert all(p.previous is None for p in pairs)
 
 
+def test_a_manifest_may_hold_comment_lines(tmp_path):
+    """A line starting with # (after any spaces) is a comment; it ended the batch."""
+    path = _manifest(tmp_path / "m.csv", [("# t1, t2, name",), ("a.npz", "b.npz", "first"), ("  # c.npz", "d.npz")])
+    assert [(p.name, p.t1.name, p.t2.name) for p in batch.pairs_from_sources([path])] == [("first", "a.npz", "b.npz")]
+
+
 @pytest.mark.parametrize("rows, message", [
-    ([("only-one-column",)], "is not 't1,t2"),
+    ([("only-one-column",)], "line 1 ('only-one-column') is not 't1,t2[,name]'"),
     ([("a", "b", "c", "d")], "is not 't1,t2"),
+    # the line counted in the file, comments and blank lines too (it said "pair 2")
+    ([("# frames of day 1",), ("a.npz", "b.npz"), ("",), ("c.npz;d.npz",)], "line 4 ('c.npz;d.npz') is not"),
     ([("t1", "t2")], "names no pairs"),
     ([("a.npz", "b.npz", "same"), ("c.npz", "d.npz", "same")], "both named 'same'"),
     ([("a.npz", "b.npz", ".hidden")], "cannot be a folder name"),
@@ -422,6 +430,28 @@ def test_cli_unreachable_scheduler_is_a_clear_error(frames, tmp_path, capsys):
     assert not out.exists()  # nothing written without a cluster
 
 
+@needs_dask
+def test_a_server_that_is_not_a_scheduler_is_named_so(frames, tmp_path, capsys):
+    """An HTTP server at --scheduler's port (a dashboard's, a proxy) was reported as 'out
+    of memory (Unable to allocate 3.07 EiB …)', exit status 1: its reply's first bytes
+    had been read as a message length."""
+    import socketserver
+
+    class Http(socketserver.BaseRequestHandler):
+        def handle(self):
+            self.request.recv(1024)
+            self.request.sendall(b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n" * 4)
+
+    with socketserver.ThreadingTCPServer(("127.0.0.1", 0), Http) as server:
+        threading.Thread(target=server.serve_forever, daemon=True).start()
+        address = f"tcp://127.0.0.1:{server.server_address[1]}"
+        folder, _ = frames
+        code = main(["batch", str(folder), "--out", str(tmp_path / "out"), "--scheduler", address, "--quiet"])
+        server.shutdown()
+    err = capsys.readouterr().err
+    assert code == 2 and f"cannot reach the Dask scheduler at {address}" in err and "memory" not in err, err
+
+
 def test_cli_workers_with_a_scheduler_is_a_clear_error(frames, tmp_path, capsys):
     """--workers sets a local cluster's processes, which --scheduler does not start: both
     together are refused (--workers was silently ignored), even --workers 1."""
@@ -565,7 +595,7 @@ def test_a_result_folder_left_by_a_killed_run_is_replaced(frames, tmp_path, monk
     pairs = batch.pairs_from_sources([manifest])
     summary = batch.run_batch(pairs, tmp_path / "out", PARAMS, workers=1, device="cpu")
     assert [o.status for o in summary.outcomes] == ["done"], summary.outcomes
-    assert sorted(p.name for p in left.iterdir()) == sorted(batch.RESULT_FILES)
+    assert sorted(p.name for p in left.iterdir()) == sorted((*batch.RESULT_FILES, "overview.png"))
     # a live run's (here this process's parent's) is not batch's to remove
     live = left / f".lfsf-set.{_files._host()}-{os.getppid()}.abcd1234"
     live.mkdir()
@@ -631,7 +661,8 @@ def test_a_rerun_skips_only_results_of_its_own_settings_that_read(frames, tmp_pa
     assert [o.status for o in summary.outcomes] == ["skipped"] and _mtimes(out, "a") == before
     summary = batch.run_batch(pairs, out, flow, device="cpu")
     assert [(o.status, o.reason) for o in summary.outcomes] == [("done", batch.REPLACED)], summary.describe()
-    assert "1 done (1 over a result of other settings or an unreadable one)" in summary.describe()
+    assert ("1 done (1 over an earlier result: of other settings or inputs, incomplete, or unreadable)"
+            in summary.describe())
     assert settings() == flow and _leftovers(out) == []
     with open(out / "a" / "sceneflow.npz", "r+b") as f:
         f.truncate(50)
@@ -639,6 +670,47 @@ def test_a_rerun_skips_only_results_of_its_own_settings_that_read(frames, tmp_pa
     assert [(o.status, o.reason) for o in summary.outcomes] == [("done", batch.REPLACED)]
     assert settings() == flow
     assert [o.status for o in batch.run_batch(pairs, out, flow, device="cpu").outcomes] == ["skipped"]
+
+
+def test_a_rerun_estimates_again_what_changed_inputs_or_warm_start(frames, tmp_path, monkeypatch):
+    """A re-run kept, as complete, results estimated from light fields changed since, or
+    from a pair whose t1 and t2 were swapped in the manifest, or without the warm start
+    asked for now: its results record the inputs (paths, sizes, modification times) and
+    the warm start, and are estimated again where these differ. A result left incomplete
+    is counted as replaced too. Each result has its overview.png, as lfsf run writes it."""
+    import shutil
+
+    monkeypatch.setattr(batch, "have_dask", lambda: False)
+    folder, _ = frames
+    for k in range(3):
+        shutil.copy(folder / f"f00{k}.npz", tmp_path / f"f00{k}.npz")
+    frames_here, out = tmp_path / "seq", tmp_path / "out"
+    frames_here.mkdir()
+    for k in range(3):
+        shutil.copy(folder / f"f00{k}.npz", frames_here / f"f00{k}.npz")
+
+    def statuses(*sources, warm=False):
+        summary = batch.run_batch(batch.pairs_from_sources(sources), out, PARAMS, device="cpu", warm_start=warm)
+        return [(o.name, o.status, o.reason) for o in summary.outcomes]
+
+    first = [("f000", "done", ""), ("f001", "done", "")]
+    assert statuses(frames_here) == first and (out / "f001" / "overview.png").is_file()
+    assert statuses(frames_here) == [("f000", "skipped", ""), ("f001", "skipped", "")]
+    # frame 2 rendered again (new modification time): pair f001 reads it, f000 does not
+    os.utime(frames_here / "f002.npz", ns=(time.time_ns(), time.time_ns() + 10**9))
+    assert statuses(frames_here) == [("f000", "skipped", ""), ("f001", "done", batch.REPLACED)]
+    # warm starts asked for now: f001 follows f000 (f000, the first, starts cold as before)
+    assert statuses(frames_here, warm=True) == [("f000", "skipped", ""), ("f001", "done", batch.REPLACED)]
+    assert statuses(frames_here, warm=True)[1][1] == "skipped"
+    # a result cut short (a file gone) is re-estimated and counted as replaced
+    (out / "f000" / "flow.png").unlink()
+    assert statuses(frames_here, warm=True)[0] == ("f000", "done", batch.REPLACED)
+    # a manifest's pair swapped: another input, though every file is as it was
+    forward = _manifest(tmp_path / "m.csv", [(tmp_path / "f000.npz", tmp_path / "f001.npz", "p")])
+    assert statuses(forward) == [("p", "done", "")] and statuses(forward)[0][1] == "skipped"
+    backward = _manifest(tmp_path / "m.csv", [(tmp_path / "f001.npz", tmp_path / "f000.npz", "p")])
+    assert statuses(backward) == [("p", "done", batch.REPLACED)]
+    assert _leftovers(out) == []
 
 
 def test_a_pairs_notes_are_reported_with_it(tmp_path, monkeypatch):

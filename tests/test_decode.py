@@ -380,6 +380,8 @@ def test_cli_decode_writes_a_light_field(lenslet_files, tmp_path, capsys):
     report = json.loads((out / "decode.json").read_text())
     assert report["lattice"]["kind"] == "rect" and abs(report["lattice"]["pitch"] - 10.83) < 0.02
     assert report["bayer"] == "RGGB"
+    # read with its report: the estimator keeps off the micro-images' rims (the views.npz alone has none)
+    assert lf.meta["decode"] == report and lf.meta["lattice"] == report["lattice"] and "lattice" not in npz.meta
     white = D.read_raw(lenslet_files / "white.png", role="white").data
     assert report["white_level"] == pytest.approx(D.white_level(white), rel=1e-6) and 0.5 < report["white_level"] <= 1
     assert not list(out.glob(".*part*"))
@@ -409,6 +411,21 @@ def test_white_without_lattice_fails_clearly(kind, lenslet_files, tmp_path, caps
                    str(tmp_path / "out"), "--device", "cpu"], capsys, str(path))
     assert "no micro-lens lattice" in line
     assert not (tmp_path / "out").exists()
+
+
+def test_raw_and_white_swapped_fail_clearly(lenslet_files, tmp_path, capsys):
+    """The white image given as RAW and the raw as --white decoded, exit status 0, into
+    views of ~1.0 everywhere (the ratio clipped): a scene's lenslet image passes as a
+    white image, but the views say it."""
+    raw, white = str(lenslet_files / "raw.png"), str(lenslet_files / "white.png")
+    line = _fails(["decode", white, "--white", raw, "--out", str(tmp_path / "out"), "--views", "7",
+                   "--device", "cpu"], capsys, white, raw)
+    share = int(re.search(r"(\d+) % of the decoded views' values are at full scale", line).group(1))
+    assert share > 50 and "were RAW and --white swapped?" in line, line
+    assert not (tmp_path / "out").exists()
+    # the right way round, few are
+    views = decode(D.read_raw(raw), D.read_raw(white), views=7, bayer="RGGB", device="cpu").views
+    assert np.mean(views >= D.SATURATED) < 0.05
 
 
 def test_size_mismatch_fails_clearly(lenslet_files, tmp_path, capsys):
