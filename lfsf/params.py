@@ -499,6 +499,14 @@ class Params:
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
 
+    def __repr__(self) -> str:
+        """The settings that differ from the defaults (the `paper` preset), as a call
+        that makes the same Params: ``Params()`` for `paper`; all 60 of them made a repr
+        of 900 characters."""
+        changed = ", ".join(f"{f.name}={getattr(self, f.name)!r}" for f in dataclasses.fields(self)
+                            if getattr(self, f.name) != f.default)
+        return f"Params({changed})"
+
 
 # Upper bounds of the settings that size buffers or loops (:meth:`Params.validate`).
 MAX_SAMPLES = 256

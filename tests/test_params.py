@@ -222,3 +222,15 @@ def test_flow_only_is_one_circle_and_no_setting():
     assert "flow_only" not in Params().as_dict()
     with pytest.raises(ValueError, match="unknown parameter"):
         Params().replace(flow_only=True)
+
+
+def test_repr_names_only_the_settings_that_differ_and_makes_them_again():
+    """All 60 settings made a repr of 900 characters; now those that differ from the
+    defaults (the `paper` preset), as a call that gives the same Params."""
+    from lfsf.params import PRESETS
+
+    assert repr(Params()) == "Params()"
+    assert repr(Params().replace(lambda3=31.0, samples=(1, 6, 6))) == "Params(samples=(1, 6, 6), lambda3=31.0)"
+    for name in PRESETS:
+        params = Params.preset(name)
+        assert eval(repr(params), {"Params": Params}) == params, name
