@@ -35,6 +35,7 @@ import sys
 import time
 import traceback
 import uuid
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
@@ -489,6 +490,18 @@ def check_scheduler_address(address: str) -> None:
 
 
 def _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retries, report) -> list[Outcome]:
+    try:
+        return _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, retries, report)
+    finally:
+        if not scheduler and out.is_dir():
+            # the local cluster is closed by now: what its workers were writing when an
+            # interrupt (Ctrl-C, SIGTERM) ended them is no one's any more (a remote
+            # scheduler's workers go on with theirs, and their next attempt clears them)
+            for pair in pairs:
+                _remove_stale(out, pair.name)
+
+
+def _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, retries, report) -> list[Outcome]:
     import asyncio
     import logging
 
@@ -515,9 +528,13 @@ def _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retrie
             # one thread per worker: the estimator runs its own CPU threads
             threads = max(1, (os.cpu_count() or 1) // workers)
             # (the workers ignore Ctrl-C once started: lfsf._dask_worker)
-            cluster = stack.enter_context(LocalCluster(
-                n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                silence_logs=logging.ERROR, env={"LFSF_THREADS": str(threads)}, preload=["lfsf._dask_worker"]))
+            with warnings.catch_warnings():
+                # the scheduler's HTTP server (no dashboard here) takes another port where
+                # 8787 is taken, as by another cluster, and said so as a warning of the batch
+                warnings.filterwarnings("ignore", message=r"Port \d+ is already in use")
+                cluster = stack.enter_context(LocalCluster(
+                    n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                    silence_logs=logging.ERROR, env={"LFSF_THREADS": str(threads)}, preload=["lfsf._dask_worker"]))
             client = stack.enter_context(Client(cluster))
         out.mkdir(parents=True, exist_ok=True)  # only once there is a cluster to write into it
         futures = {}

@@ -368,6 +368,55 @@ def test_ctrl_c_on_a_cluster_batch_is_one_line_not_the_workers_tracebacks(frames
     assert _leftovers(out) == []
 
 
+@needs_dask
+def test_sigterm_on_a_cluster_batch_leaves_no_temporary_folder(tmp_path):
+    """SIGTERM (``kill``, ``timeout``, a job scheduler's limit) goes to the batch process
+    alone, which closes the local cluster: the pair its worker had begun, cut off, left
+    its hidden temporary folder (5 of 5 tries of a helper's, 3 of 3 here at 160×120); now
+    removed once the cluster is closed. Pairs of 128×96 views with the `paper` preset,
+    so that the second is still being estimated when the signal comes."""
+    import subprocess
+    import sys
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k, lf in enumerate(synth.render_sequence("paper", 3, size=(128, 96), grid=5, device="cpu")[0]):
+        write_lightfield(lf, folder / f"f{k:03d}.npz")
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-c", "import sys; from lfsf.cli import entry; sys.argv[0] = 'lfsf'; "
+                             "entry()", "batch", str(folder), "--out", str(out), "--workers", "1", "--quiet"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.monotonic() + 120
+    # the second pair begun (where the helper's tries stopped it)
+    while not ((out / "f000").is_dir() and list(out.glob(".f001.part-*"))) and proc.poll() is None \
+            and time.monotonic() < deadline:
+        time.sleep(0.002)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143 and err.strip().splitlines()[-1] == "lfsf batch: terminated", err
+    assert _leftovers(out) == []
+
+
+@needs_dask
+def test_a_taken_dashboard_port_is_not_the_users_concern(frames, tmp_path, capsys):
+    """With port 8787 taken (another cluster's dashboard), the local cluster's scheduler
+    put its HTTP server elsewhere and the batch printed 'warning: Port 8787 is already in
+    use. Perhaps you already have a cluster running? …', though it shows no dashboard."""
+    import socket
+
+    folder, _ = frames
+    with socket.socket() as taken:
+        try:
+            taken.bind(("0.0.0.0", 8787))
+            taken.listen()
+        except OSError:
+            pass    # taken already: as good
+        code = main(["batch", str(folder), "--out", str(tmp_path / "out"), "--workers", "1", "--quiet",
+                     "--preset", "flow"])
+    err = capsys.readouterr().err
+    assert code == 0 and "Port" not in err and "warning" not in err, err
+
+
 def test_more_local_workers_than_cores_are_refused():
     """--workers 1000 started a thousand processes, each with the estimator's memory."""
     cores = os.cpu_count() or 1
