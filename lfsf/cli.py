@@ -176,8 +176,7 @@ def cmd_eval(args) -> int:
         from lfsf.evaluate import flow_only
 
         if flow_only(args.result):
-            print(f"not evaluated in {args.result}: {', '.join(lacking)} (a flow-only result, circles = 1: "
-                  "its disparities are zeros, not estimates)")
+            print(_not_estimated_line(args.result, lacking))
         else:
             print(f"not evaluated, missing from {args.result}: {', '.join(lacking)} (the ground truth has them)")
     # and what the ground truth lacks: half a flow, or the mask of the pixels to score
@@ -197,6 +196,12 @@ def cmd_eval(args) -> int:
 
 
 # --- run and demo ----------------------------------------------------------------------------
+
+def _not_estimated_line(where, names) -> str:
+    """What a flow-only result's table leaves out, and why (``lfsf eval``, ``run --gt``, ``demo``)."""
+    return (f"not evaluated in {where}: {', '.join(names)} (a flow-only result, --preset flow or one "
+            "sampling circle: its disparities are zeros, not estimates)")
+
 
 class _Progress:
     """Progress lines on a terminal (each overwriting the last); silent in logs. The
@@ -294,6 +299,8 @@ def cmd_run(args) -> int:
             raise ValueError(f"{args.out} against {args.gt}: {exc}") from None
         print(f"{args.out} against {args.gt} (border {border} px)")
         print(format_table(errors), flush=True)
+        if params.flow_only and any(k in gt for k in ("disp1", "disp2")):
+            print(_not_estimated_line(args.out, [k for k in ("disp1", "disp2") if k in gt]), flush=True)
     return 0
 
 
@@ -358,9 +365,12 @@ def cmd_demo(args) -> int:
     errors = evaluate(sf, gt, border=SYNTH_BORDER)  # (flow only: the flow alone)
     _say(args, f"rendered in {t_render:.1f} s, estimated in {t_est:.1f} s")
     print(format_table(errors), flush=True)
+    if params.flow_only:
+        print(_not_estimated_line(out, ["disp1", "disp2"]), flush=True)
     # the overview with the ground truth and the errors, in the one set of results
     sf.save(out, lf1.centre, lf2.centre, gt=gt, border=SYNTH_BORDER,
-            title=f"lfsf demo: '{args.scene}' ({width}x{height}, {args.grid}x{args.grid} views)")
+            title=f"lfsf demo: '{args.scene}' ({width}x{height}, {args.grid}x{args.grid} "
+                  f"{'RGB ' if args.colour else ''}views, {_preset_label(args)})")
     _say(args, f"wrote {out / 'overview.png'} and the results (disp1.pfm, disp2.pfm, flow.flo, sceneflow.npz, "
                f"disp1.png, disp2.png, flow.png) to {out}")
     return 0

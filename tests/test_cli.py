@@ -791,6 +791,13 @@ def test_run_with_ground_truth_prints_the_errors_and_draws_them(tmp_path, capsys
     err = capsys.readouterr().err
     assert status == 2 and "cannot score this run against it" in err and "no variable in common" in err, err
     assert not (tmp_path / "x").exists()
+    # a flow-only run against the whole truth: the table of the flow, and (as lfsf eval
+    # says) which variables it leaves out and why; it said nothing of them
+    assert main(["run", lf1, lf2, "--out", str(tmp_path / "f"), "--preset", "flow", "--gt", gt, "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert "\ndisp1 " not in out and "\nflow " in out, out
+    assert out.rstrip().endswith(f"not evaluated in {tmp_path / 'f'}: disp1, disp2 (a flow-only result, "
+                                 "--preset flow or one sampling circle: its disparities are zeros, not estimates)")
 
 
 def test_compare_peers_without_a_peer_says_so_in_one_line(tmp_path):

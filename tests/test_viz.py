@@ -239,6 +239,14 @@ def test_overview_shows_the_points_not_seen_at_t2_beside_the_centre_views():
     assert picture.shape == c1.shape + (3,) and (picture[occluded] == viz.OCCLUDED_COLOUR).all()
     grey = picture[~occluded]
     assert (grey[:, 0] == grey[:, 1]).all() and grey.min() >= 64  # dimmed, never black
+    # whose mask it is, and an empty one said (a dimmed photo without a word on HCI)
+    def mask_label(mask, **kw):
+        return viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], None, None,
+                                    occluded=mask, **kw)[0][2].label
+
+    assert mask_label(occluded) == "estimate: not seen at t2 (magenta)"
+    assert mask_label(occluded, label="ground truth") == "ground truth: not seen at t2 (magenta)"
+    assert mask_label(np.zeros_like(occluded)) == "estimate: not seen at t2: none"
     with pytest.raises(ValueError, match="occluded of shape"):
         viz.overview_figure(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], occluded=occluded[:-1])
     with pytest.raises(ValueError, match="bool"):
@@ -478,8 +486,20 @@ def test_the_overview_error_means_are_over_the_pixels_lfsf_eval_scores():
     assert labels[0] == f"|disp1 - GT|  mean {np.abs(est['disp1'] - gt['disp1'])[inner].mean():.3g}"
     whole = viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], truth, None)
     assert whole[-1][2].label != labels[2]  # (the border's pixels do count without it)
-    assert viz._overview_notes(rows, truth, border=8).endswith("; error means without the 8-px border, as lfsf eval")
+    assert viz._overview_notes(rows, truth, border=8).endswith(
+        "; error means and scales without the 8-px border (paler), as lfsf eval")
     assert "border" not in viz._overview_notes(whole, truth)
+    # the scale too: a large error in the border alone (one wrong corner of HCI's 15 px had
+    # set a 2.8-px scale over errors mostly under 0.5) leaves it as it was
+    corner = dict(est, disp1=est["disp1"].copy())
+    corner["disp1"][:8, :8] += 50.0
+    spoilt = viz._overview_panels(c1, c2, corner["disp1"], est["disp2"], est["u"], est["v"], truth, None, border=8)
+    assert spoilt[-1][0].footer.hi == rows[-1][0].footer.hi and spoilt[-1][0].label == labels[0]
+    # … and the border drawn paler than the same errors inside
+    e = np.abs(est["disp1"] - gt["disp1"])
+    picture, drawn = rows[-1][0].image, viz.error_to_color(e, rows[-1][0].footer.hi)
+    assert np.array_equal(picture[inner], drawn[inner]) and (picture[:8] >= drawn[:8]).all()
+    assert (picture[:8].astype(int) - drawn[:8]).mean() > 20
     for gt in (truth, None):  # (checked without a ground truth too)
         with pytest.raises(ValueError, match="border must be a whole number"):
             viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], gt, None, border=-1)
