@@ -289,7 +289,8 @@ def cmd_run(args) -> int:
     title = (f"lfsf run: {args.lf1.name} and {args.lf2.name} ({lf1.width}x{lf1.height}, {rows}x{cols} views, "
              f"{_preset_label(args)})" + (f" against {args.gt.name}" if gt is not None else ""))
     paths = sf.save(args.out, lf1.centre, lf2.centre, gt=gt, title=title, border=border or 0)
-    _log(args, f"estimated in {seconds:.1f} s on {device}; wrote {len(paths)} files to {args.out}")
+    _log(args, f"estimated in {seconds:.1f} s on {device}; wrote {len(paths)} files to {args.out}"
+               + (" (disp1 and disp2: zeros, not estimated by a flow-only run)" if params.flow_only else ""))
     if gt is not None:  # (after the results are written: an error here loses none of them)
         from lfsf.evaluate import evaluate, format_table
 

@@ -798,6 +798,10 @@ def test_run_with_ground_truth_prints_the_errors_and_draws_them(tmp_path, capsys
     assert "\ndisp1 " not in out and "\nflow " in out, out
     assert out.rstrip().endswith(f"not evaluated in {tmp_path / 'f'}: disp1, disp2 (a flow-only result, "
                                  "--preset flow or one sampling circle: its disparities are zeros, not estimates)")
+    # and the line naming what it wrote says which of its files hold no estimate
+    assert main(["run", lf1, lf2, "--out", str(tmp_path / "g"), "--preset", "flow"]) == 0
+    assert "files to" in (err := capsys.readouterr().err) and err.rstrip().endswith(
+        "(disp1 and disp2: zeros, not estimated by a flow-only run)"), err
 
 
 def test_compare_peers_without_a_peer_says_so_in_one_line(tmp_path):
