@@ -435,6 +435,10 @@ def cmd_decode(args) -> int:
     _log(args, f"decoded {rows}×{cols} views of {lf.width}×{lf.height} pixels"
                f"{' (RGB)' if lf.is_colour else ''} in {time.perf_counter() - t0:.1f} s on {device}; "
                f"wrote {args.out} (HCI layout), {args.out / 'views.npz'} and {args.out / 'decode.json'}")
+    if not lf.is_colour and report["bayer"] is None and (args.bayer or "").lower() != "none":
+        # (a mosaic decoded as grey shows the filters' pattern in every view, without a word)
+        _log(args, "grey: no Bayer pattern was given (--bayer) or found in the file's metadata; "
+                   "if the sensor has colour filters, decode again with --bayer RGGB, GRBG, GBRG or BGGR")
     return 0
 
 

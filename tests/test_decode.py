@@ -387,6 +387,17 @@ def test_cli_decode_writes_a_light_field(lenslet_files, tmp_path, capsys):
     assert not list(out.glob(".*part*"))
 
 
+def test_cli_decode_says_when_it_took_the_sensor_for_grey(lenslet_files, tmp_path, capsys):
+    """A mosaic decoded without --bayer (a PNG has no metadata) came out grey, the filters'
+    pattern in every view, and only the missing '(RGB)' in the summary hinted at it."""
+    hint = "grey: no Bayer pattern was given (--bayer) or found in the file's metadata"
+    for extra, said in (([], True), (["--bayer", "none"], False), (["--bayer", "RGGB"], False)):
+        out = tmp_path / f"v{len(extra)}{extra[-1] if extra else ''}"
+        assert cli.main(["decode", str(lenslet_files / "raw.png"), "--white", str(lenslet_files / "white.png"),
+                         "--out", str(out), "--views", "5", "--device", "cpu", *extra]) == 0
+        assert (hint in capsys.readouterr().err) == said, extra
+
+
 def _fails(argv, capsys, *names):
     rc = cli.main(argv)
     err = capsys.readouterr().err.strip().splitlines()
