@@ -424,6 +424,9 @@ MAX_INTENSITY_RANGE = 2.0
 #: fitted map I ↦ g·I + b moves the t2 centre view's 5th or 95th percentile intensity by
 #: more than this fraction of the two centre views' joint range (:func:`_exposure_change`).
 EXPOSURE_CHANGE = 0.004
+#: The exposure pilot's warps (:func:`_exposure_change`; its other settings are the `flow`
+#: preset's): 3, as it was measured with, whatever that preset's own.
+EXPOSURE_WARPS = 3
 #: The exposure pilot (flow only) runs on centre views box-averaged by the largest whole
 #: factor that leaves at least this many pixels along their longer side (160–319) …
 EXPOSURE_SIZE = 160
@@ -1932,8 +1935,11 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str,
     h, w = a.shape
     if min(h, w) < 8:
         return 1.0, 0.0, 0.0
-    pilot = Params.preset("flow").replace(texture_theta=EXPOSURE_THETA, search_radius=EXPOSURE_SEARCH_RADIUS,
-                                          match_exposure=False)
+    # (3 warps, as the pilot was measured with: the `flow` preset's own went to 5 in the
+    # forty-fourth session, which took the pilot from 0.33 to 0.39 s at 640×480 for the
+    # same fit to 3e-4)
+    pilot = Params.preset("flow").replace(warps=EXPOSURE_WARPS, texture_theta=EXPOSURE_THETA,
+                                          search_radius=EXPOSURE_SEARCH_RADIUS, match_exposure=False)
     # the pilot sees t2 scaled to t1's mean gradient: the estimator scales both times by
     # t1's contrast (_normalise_contrast), so that unscaled a darker t1 would make t2's
     # texture outweigh the regulariser, and the pilot's flow failed where the same change
