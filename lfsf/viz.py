@@ -628,8 +628,8 @@ def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="
         vmax = flow_scale if k == "flow" else disp_scale
         shared = (inner["flow"],) if k == "flow" else tuple(inner[d] for d in ("disp1", "disp2") if d in inner)
         picture = error_to_color(e, vmax)
-        if not scored.all():  # the border that the means and the scale leave out, paler
-            picture[~scored] = (0.4 * picture[~scored] + 0.6 * 255).astype(np.uint8)
+        pale = ~scored & np.isfinite(e)  # the border that the means and the scale leave out (black stays black)
+        picture[pale] = (0.4 * picture[pale] + 0.6 * 255).astype(np.uint8)
         error_row.append(_Panel(f"{title}  mean {mean}", picture, _ColorBar.of(_ERROR_LUT, 0.0, vmax, *shared)))
     rows.append(error_row)
     return rows

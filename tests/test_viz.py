@@ -500,6 +500,12 @@ def test_the_overview_error_means_are_over_the_pixels_lfsf_eval_scores():
     picture, drawn = rows[-1][0].image, viz.error_to_color(e, rows[-1][0].footer.hi)
     assert np.array_equal(picture[inner], drawn[inner]) and (picture[:8] >= drawn[:8]).all()
     assert (picture[:8].astype(int) - drawn[:8]).mean() > 20
+    # where the truth has no value the border is black, as inside (the notes' "black: no ground truth")
+    holed = dict(truth, valid=valid.copy())
+    holed["valid"][:4, :4] = False
+    picture = viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], holed, None,
+                                   border=8)[-1][0].image
+    assert (picture[:4, :4] == 0).all() and (picture[4:8, 4:8] > 0).any()
     for gt in (truth, None):  # (checked without a ground truth too)
         with pytest.raises(ValueError, match="border must be a whole number"):
             viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], gt, None, border=-1)
