@@ -158,11 +158,12 @@ def _manifest_pairs(path: Path) -> list[Pair]:
     if "\0" in text:  # (before the csv module: Python 3.10's refuses the line with an error of its own)
         line = text.count("\n", 0, text.index("\0")) + 1
         raise ValueError(f"{path}: line {line} holds a NUL byte, which no path or name can")
-    # (line number, row), blank lines and comment lines (# …) left out; the line is where
-    # a row ends (a quoted cell may span lines)
+    # comment lines (# …, unquoted: a quoted "#name.npz" is a path) blanked, keeping the
+    # lines' numbers; (line number, row) of the rest but blank lines, the line where a row
+    # ends (a quoted cell may span lines)
+    text = "\n".join("" if line.lstrip().startswith("#") else line for line in text.split("\n"))
     reader = csv.reader(_io.StringIO(text))
-    rows = [(reader.line_num, row) for row in reader
-            if row and any(c.strip() for c in row) and not row[0].lstrip().startswith("#")]
+    rows = [(reader.line_num, row) for row in reader if row and any(c.strip() for c in row)]
     if rows and [c.strip().lower() for c in rows[0][1][:2]] == ["t1", "t2"]:
         rows = rows[1:]
     if not rows:
@@ -220,15 +221,18 @@ REPLACED = f"replaced an earlier result ({REPLACED_WHICH})"
 
 def input_record(pair: Pair, warm_start: bool) -> dict:
     """What a result records of how it came about, besides the settings, and a re-run
-    compares: each light field's absolute path and, for its file or each file of its
-    folder, the size and the modification time (ns), as ``make`` tells a changed input;
-    and whether the pair was to start from the previous one's result."""
+    compares: each light field's path (symbolic links resolved) and, for its file or each
+    file of its folder but hidden ones (``.DS_Store``, editors' swap files), the size and
+    the modification time (ns), as ``make`` tells a changed input; and whether the pair
+    was to start from the previous one's result. Light fields moved, or copied without
+    their times, are estimated again."""
     def files(path: Path) -> list:
         entries = sorted(path.iterdir()) if path.is_dir() else [path]
-        return [[e.name, e.stat().st_size, e.stat().st_mtime_ns] for e in entries if e.is_file()]
+        return [[e.name, e.stat().st_size, e.stat().st_mtime_ns] for e in entries
+                if e.is_file() and not (path.is_dir() and e.name.startswith("."))]
 
-    return {"t1": str(pair.t1), "t2": str(pair.t2), "t1_files": files(pair.t1), "t2_files": files(pair.t2),
-            "warm_start": bool(warm_start and pair.previous is not None)}
+    return {"t1": str(pair.t1.resolve()), "t2": str(pair.t2.resolve()), "t1_files": files(pair.t1),
+            "t2_files": files(pair.t2), "warm_start": bool(warm_start and pair.previous is not None)}
 
 
 def _estimated_with(folder: Path, params, inputs: dict) -> bool:
@@ -360,11 +364,28 @@ def _reason(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}{at}"
 
 
-def _remove_stale(out: Path, name: str) -> None:
-    """Temporary folders of earlier attempts at this pair (a killed worker's)."""
+def _remove_stale(out: Path, name: str, dead_only: bool = False) -> None:
+    """Temporary folders of earlier attempts at this pair (a killed worker's);
+    ``dead_only``: only those whose process (the id in their name) is gone."""
     if out.is_dir():
         for stale in out.glob(f".{glob.escape(name)}.part-*"):
-            shutil.rmtree(stale, ignore_errors=True)
+            if not (dead_only and _process_alive(stale.name)):
+                shutil.rmtree(stale, ignore_errors=True)
+
+
+def _process_alive(temporary: str) -> bool:
+    """Whether the process that made the temporary folder ``.NAME.part-PID-XXXXXXXX`` runs
+    (on this machine; a name without a process id reads as alive: it is not ours)."""
+    match = re.search(r"\.part-(\d+)-[0-9a-f]{8}$", temporary)
+    if match is None:
+        return True
+    try:
+        os.kill(int(match.group(1)), 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, ValueError):
+        return True
+    return True
 
 
 def _previous_estimate(folder: Path, shape) -> dict | None:
@@ -496,9 +517,10 @@ def _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retrie
         if not scheduler and out.is_dir():
             # the local cluster is closed by now: what its workers were writing when an
             # interrupt (Ctrl-C, SIGTERM) ended them is no one's any more (a remote
-            # scheduler's workers go on with theirs, and their next attempt clears them)
+            # scheduler's workers go on with theirs, and their next attempt clears them;
+            # another batch's into the same folder, alive, keeps its own)
             for pair in pairs:
-                _remove_stale(out, pair.name)
+                _remove_stale(out, pair.name, dead_only=True)
 
 
 def _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, retries, report) -> list[Outcome]:

@@ -830,7 +830,8 @@ def decode(raw, white, *, views: int | None = None, bayer: str | None = None, fl
     -------
     LightField
         ``views[a, b, y, x]`` (grey) or ``[a, b, y, x, c]`` (colour), float32 clipped to
-        [0, 1]; ``meta["lattice"]`` the :class:`Lattice`, ``meta["white_level"]`` the white's
+        [0, 1]; ``meta["lattice"]`` the :class:`Lattice`, ``meta["lens_views"]`` N (the
+        views across a lens), ``meta["white_level"]`` the white's
         bright level it was divided relative to (:func:`white_level`), ``meta["plane_origin"]`` the
         lattice-plane position (u0, v0) of output pixel (0, 0), in pitches;
         ``meta["bayer"]`` the pattern used (None: grey or RGB).
@@ -929,11 +930,11 @@ def decode(raw, white, *, views: int | None = None, bayer: str | None = None, fl
     if saturated > MAX_SATURATED_SHARE:
         raise ValueError(f"{raw.source}: {100 * saturated:.0f} % of the decoded views' values are at full scale: "
                          f"the raw image is brighter than the white image {white.source} nearly everywhere; "
-                         "were RAW and --white swapped? (the white image is a diffuse white scene, taken "
-                         "brighter than any raw)")
+                         "were RAW and --white swapped, or is the raw overexposed? (the white image is a "
+                         "diffuse white scene, taken brighter than any raw)")
     return LightField(array, source=raw.source,
-                      meta={"layout": "lenslet", "lattice": lattice, "plane_origin": (u0, v0), "flip": flip,
-                            "bayer": pattern, "white_level": level})
+                      meta={"layout": "lenslet", "lattice": lattice, "lens_views": n, "plane_origin": (u0, v0),
+                            "flip": flip, "bayer": pattern, "white_level": level})
 
 
 def decode_files(raw_path, white_path, out, *, views: int | None = None, bayer: str | None = None,

@@ -572,16 +572,35 @@ RIM_FRACTION = 2.0 / 3.0
 def _rim_radius(lf: LightField) -> float | None:
     """The largest sampling radius R (view steps) that keeps the samples off the
     micro-images' rims (:data:`RIM_FRACTION`), for a light field decoded from a lenslet
-    image (``meta["lattice"]``, a square grid of N views across a lens); None for others."""
-    rows, cols = lf.grid
-    if lf.meta.get("lattice") is None or rows != cols or rows < 2:
+    image with N views across a lens (``meta["lens_views"]``, which :func:`lfsf.decode.decode`
+    and a folder's ``decode.json`` give; kept where the views are cropped to the central
+    ones); None for others."""
+    n = lf.meta.get("lens_views")
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
         return None
-    return round(RIM_FRACTION * rows / 2.0, 6)
+    return round(RIM_FRACTION * int(n) / 2.0, 6)
 
 
 #: Float views beyond these bounds are taken for values on another scale (8- or 16-bit
 #: numbers stored as floats), not for [0, 1] views with noise or an overshoot.
 UNIT_RANGE_SLACK = (-0.5, 1.5)
+
+
+def pilot_estimate(lf1, lf2, params: Params, device: str) -> "SceneFlow":
+    """:func:`estimate_scene_flow` on views the estimator made itself (the exposure
+    pilot's, the view gains' pilot's), without its warning of views outside [0, 1]: the
+    user's views were warned about once already, and these, scaled by the pilot, are
+    none of theirs (a second pair of warnings named 'light field 1' and a range the user
+    never gave)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=UNIT_RANGE_WARNING)
+        return estimate_scene_flow(lf1, lf2, params, device=device)
+
+
+#: What the warning of float views outside [0, 1] says (:func:`_warn_out_of_unit_range`).
+UNIT_RANGE_WARNING = r".*, where lfsf expects \[0, 1\]"
 
 
 def _warn_out_of_unit_range(source: str, lo: float, hi: float, stretched: bool) -> None:
@@ -1468,12 +1487,13 @@ def estimate_scene_flow(
         raise ValueError(f"{lf1.source}: views of {width}×{height} pixels are too small (at least 8×8)")
 
     rim = _rim_radius(lf1)
-    if rim is not None and params.circles > 1 and params.radius > rim:
-        note(f"sampling radius R = {rim:g} view steps, not {params.radius:g}: the views were decoded from a "
-             f"lenslet image, {rows} across a lens, and those further out lie near the micro-images' rims, "
-             "where the neighbouring lenses mix in (RIM_FRACTION)")
     phis, radius = (params if rim is None else params.replace(radius=min(params.radius, rim))).sample_offsets(
         (rows, cols))
+    if rim is not None and params.circles > 1 and rim < min(params.radius, (min(rows, cols) - 1) / 2.0):
+        # (only where the rims, not the grid, set R: the grid's own limit has its note below)
+        note(f"sampling radius R = {radius:g} view steps, not {params.radius:g}: the views were decoded from a "
+             f"lenslet image, {lf1.meta['lens_views']} across a lens, and those further out lie near the "
+             "micro-images' rims, where the neighbouring lenses mix in (RIM_FRACTION)")
     if params.circles > 1 and radius <= 0:
         raise ValueError(f"{lf1.source}: a {rows}×{cols} grid of views leaves no room for the sampling circles "
                          f"(M = {params.circles}): the disparities need at least 2 rows and 2 columns of views; "
@@ -1946,8 +1966,8 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str,
     # the other way round was matched (t1 at 0.35× t2: EPE 10.6 against 0.13)
     pre = _mean_gradient(a) / max(_mean_gradient(b), 1e-12)
     pre = min(max(pre, 1.0 / EXPOSURE_MAX_GAIN), EXPOSURE_MAX_GAIN) if np.isfinite(pre) and pre > 0 else 1.0
-    flow = estimate_scene_flow(a[None, None].astype(np.float32), (pre * b)[None, None].astype(np.float32), pilot,
-                               device=device)
+    flow = pilot_estimate(a[None, None].astype(np.float32), (pre * b)[None, None].astype(np.float32), pilot,
+                          device)
     # clipped pixels (within 2 % of the ends of the values), and those the blur mixes them into
     edge = 0.02 * (hi - lo)
     clipped = [_blur(((img <= lo + edge) | (img >= hi - edge)).astype(np.float64), EXPOSURE_BLUR) for img in (a, b)]

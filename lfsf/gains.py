@@ -196,7 +196,7 @@ def fit_reduced_gains(small: np.ndarray, factor: int, sigma: float, device: str 
     single view, under 16 px, or a grid the pilot's circles do not fit). The pilot's
     disparity, then :func:`fit_gains_at`."""
     from lfsf import device as _device
-    from lfsf.estimate import estimate_scene_flow
+    from lfsf.estimate import pilot_estimate
     from lfsf.params import Params
 
     small = np.asarray(small, np.float32)
@@ -209,7 +209,7 @@ def fit_reduced_gains(small: np.ndarray, factor: int, sigma: float, device: str 
     if pilot.sample_offsets((rows, cols))[1] <= 0:  # a grid the pilot's circles do not fit (one row)
         return None
     dev = _device.resolve_device(device)
-    disparity = estimate_scene_flow(small, small, pilot, device=dev).disp1
+    disparity = pilot_estimate(small, small, pilot, dev).disp1
     return fit_gains_at(small, disparity, factor, sigma, dev, used)
 
 

@@ -124,8 +124,9 @@ class LightField:
         ``"rowcol"``, ``"npz"``) and, for the HCI layout, ``meta["parameters"]``:
         ``parameters.cfg`` as ``{section: {key: value}}``; views decoded from a lenslet
         image (:func:`lfsf.decode.decode`, or a folder with ``lfsf decode``'s
-        ``decode.json``) have ``meta["lattice"]``, and the estimator keeps its samples
-        off the micro-images' rims (:data:`lfsf.estimate.RIM_FRACTION`).
+        ``decode.json``) have ``meta["lattice"]`` and ``meta["lens_views"]`` (N views
+        across a lens), and the estimator keeps its samples off the micro-images' rims
+        (:data:`lfsf.estimate.RIM_FRACTION`).
 
     Raises
     ------
@@ -494,7 +495,7 @@ def _read_folder(folder: Path) -> LightField:
             meta["parameters"] = _read_hci_parameters(cfg)
         report = _read_decode_report(folder / "decode.json")
         if report is not None:
-            meta["decode"], meta["lattice"] = report, report["lattice"]
+            meta["decode"], meta["lattice"], meta["lens_views"] = report, report["lattice"], report["views"]
     elif rowcol:
         files, prefix = _rowcol_grid(folder, rowcol)
         meta = {"layout": "rowcol", "prefix": prefix}

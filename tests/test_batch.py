@@ -136,9 +136,45 @@ def test_manifest_with_and_without_header(tmp_path):
 
 
 def test_a_manifest_may_hold_comment_lines(tmp_path):
-    """A line starting with # (after any spaces) is a comment; it ended the batch."""
-    path = _manifest(tmp_path / "m.csv", [("# t1, t2, name",), ("a.npz", "b.npz", "first"), ("  # c.npz", "d.npz")])
-    assert [(p.name, p.t1.name, p.t2.name) for p in batch.pairs_from_sources([path])] == [("first", "a.npz", "b.npz")]
+    """A line starting with # (after any spaces) is a comment; it ended the batch. A
+    quoted first cell starting with # is a path."""
+    path = _manifest(tmp_path / "m.csv", [("# t1, t2, name",), ("a.npz", "b.npz", "first"), ("  # c.npz", "d.npz"),
+                                          ('"#e.npz"', "f.npz")])
+    assert [(p.name, p.t1.name, p.t2.name) for p in batch.pairs_from_sources([path])] == [
+        ("first", "a.npz", "b.npz"), ("#e", "#e.npz", "f.npz")]
+
+
+def test_the_input_record_leaves_out_hidden_files_and_resolves_links(tmp_path):
+    """A .DS_Store (or an editor's swap file) beside the views changed the record, and the
+    pair was estimated again; a link was recorded as the link, not what it names."""
+    views = tmp_path / "views"
+    views.mkdir()
+    (views / "input_Cam000.png").write_bytes(b"a view")
+    (tmp_path / "b.npz").write_bytes(b"a light field")
+    (tmp_path / "link.npz").symlink_to(tmp_path / "b.npz")
+    pair = batch.Pair("p", views, tmp_path / "link.npz")
+    before = batch.input_record(pair, False)
+    (views / ".DS_Store").write_bytes(b"finder")
+    assert batch.input_record(pair, False) == before
+    assert before["t2"] == str(tmp_path / "b.npz") and before["t1_files"][0][0] == "input_Cam000.png"
+    (views / "input_Cam000.png").write_bytes(b"another view")
+    assert batch.input_record(pair, False) != before
+
+
+def test_the_cleanup_after_a_cluster_keeps_a_live_processs_temporary_folder(tmp_path):
+    """After a local cluster closed, every pair's temporary folders were removed, those of
+    another batch still writing into the same folder too; now only a gone process's."""
+    import subprocess
+    import sys
+
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True).stdout.strip()
+    dead, live = tmp_path / f".p.part-{gone}-0123abcd", tmp_path / f".p.part-{os.getpid()}-0123abcd"
+    dead.mkdir(), live.mkdir()
+    batch._remove_stale(tmp_path, "p", dead_only=True)
+    assert not dead.exists() and live.exists()
+    batch._remove_stale(tmp_path, "p")          # (a pair's own start clears any)
+    assert not live.exists()
 
 
 @pytest.mark.parametrize("rows, message", [

@@ -844,14 +844,21 @@ def test_decoded_views_are_sampled_off_the_micro_images_rims():
     fast = Params.preset("fast")
     assert estimate_scene_flow(lf1, lf2, fast, device="cpu").radius == fast.radius == 4.0
     notes = []
-    decoded = [lfsf.LightField(lf.views, source=f"decoded {k}", meta={"lattice": {"pitch": 9.6}})
-               for k, lf in enumerate((lf1, lf2), 1)]
+    meta = {"lattice": {"pitch": 9.6}, "lens_views": 9}
+    decoded = [lfsf.LightField(lf.views, source=f"decoded {k}", meta=meta) for k, lf in enumerate((lf1, lf2), 1)]
     sf = estimate_scene_flow(*decoded, fast, device="cpu", progress=notes.append)
     assert sf.radius == RIM_FRACTION * 9 / 2 == 3.0 and sf.params == fast
-    assert [n for n in notes if isinstance(n, Note) and n.startswith("sampling radius R = 3 view steps, not 4: the "
-                                                                      "views were decoded from a lenslet image, 9 "
-                                                                      "across a lens")], notes
+    rim_notes = [n for n in notes if isinstance(n, Note) and "micro-images' rims" in n]
+    assert rim_notes == ["sampling radius R = 3 view steps, not 4: the views were decoded from a lenslet image, "
+                         "9 across a lens, and those further out lie near the micro-images' rims, where the "
+                         "neighbouring lenses mix in (RIM_FRACTION)"], notes
     assert estimate_scene_flow(*decoded, fast.replace(radius=2.0), device="cpu").radius == 2.0  # (less: as asked)
+    # cropped to the central 5×5 views (the lens still holds 9): the grid, not the rims,
+    # sets R = 2, and no rim note (N had been taken from the grid: R ≤ 5/3)
+    notes.clear()
+    cropped = [lfsf.LightField(lf.views[2:7, 2:7], source="cropped", meta=meta) for lf in (lf1, lf2)]
+    assert estimate_scene_flow(*cropped, fast, device="cpu", progress=notes.append).radius == 2.0
+    assert not [n for n in notes if "rims" in n], notes
 
 
 def test_the_progress_notes_class_is_public():
@@ -904,14 +911,20 @@ def test_float_views_far_outside_the_unit_range_are_warned_about(tmp_path):
         assert said in message and caught[0].filename == __file__, (name, message, caught[0].filename)
     assert all("where lfsf expects" not in str(w.message) for w in _warnings_of(lfsf.read_lightfield,
                                                                                 tmp_path / "bytes.npz"))
+    # views large enough for the exposure pilot (≥ 120 px): its own run on views it scaled
+    # warned twice more, naming 'light field 1' and a range the user never gave
+    big1, big2 = shift_lightfields(h=64, w=128, grid=3)
+    caught = [w for w in _warnings_of(estimate_scene_flow, big1.views * 1.8, big2.views * 1.8 + 0.01, "fast")
+              if "where lfsf expects" in str(w.message)]
+    assert len(caught) == 2 and all(w.filename == __file__ for w in caught), [str(w.message) for w in caught]
 
 
-def _warnings_of(call, *args):
+def _warnings_of(call, *args, **kwargs):
     import warnings
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        call(*args)
+        call(*args, **kwargs)
     return caught
 
 
