@@ -244,20 +244,19 @@ def _estimated_with(folder: Path, params, inputs: dict) -> bool:
     pair again."""
     import json
 
-    from lfsf.evaluate import recorded_settings
     from lfsf.params import Params
 
-    try:
+    try:  # (the file read once: its maps, and the record of its settings and inputs)
         with np.load(folder / "sceneflow.npz") as z:
             for key in ("disp1", "disp2", "u", "v"):
                 z[key]
-            recorded_inputs = json.loads(str(z["params"])).get("inputs")
-        recorded = Params(**recorded_settings(folder))
+            record = json.loads(str(z["params"]))
+        recorded = Params(**record["params"])
     except Exception:  # noqa: BLE001 - whatever fails to read is no result of this run
         return False
     # (through JSON, as the record was: lists for tuples)
     return (recorded == (Params.preset("paper") if params is None else params)
-            and recorded_inputs == json.loads(json.dumps(inputs)))
+            and record.get("inputs") == json.loads(json.dumps(inputs)))
 
 
 def _holds_only_results(folder: Path) -> bool:

@@ -584,6 +584,8 @@ def _rim_radius(lf: LightField) -> float | None:
 #: Float views beyond these bounds are taken for values on another scale (8- or 16-bit
 #: numbers stored as floats), not for [0, 1] views with noise or an overshoot.
 UNIT_RANGE_SLACK = (-0.5, 1.5)
+#: What the warning of float views outside [0, 1] says (:func:`_warn_out_of_unit_range`).
+UNIT_RANGE_WARNING = r".*, where lfsf expects \[0, 1\]"
 
 
 def pilot_estimate(lf1, lf2, params: Params, device: str) -> "SceneFlow":
@@ -597,10 +599,6 @@ def pilot_estimate(lf1, lf2, params: Params, device: str) -> "SceneFlow":
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=UNIT_RANGE_WARNING)
         return estimate_scene_flow(lf1, lf2, params, device=device)
-
-
-#: What the warning of float views outside [0, 1] says (:func:`_warn_out_of_unit_range`).
-UNIT_RANGE_WARNING = r".*, where lfsf expects \[0, 1\]"
 
 
 def _warn_out_of_unit_range(source: str, lo: float, hi: float, stretched: bool) -> None:

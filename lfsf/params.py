@@ -485,7 +485,7 @@ class Params:
         limit = min(rows - 1, cols - 1) / 2.0
         radius = min(self.radius, limit) if self.circles > 1 else 0.0
         phis = [(0.0, 0.0)]
-        if self.circles > 1 and radius > 0:
+        if radius > 0:
             for i in range(1, self.circles):
                 r = radius * i / (self.circles - 1)
                 n = self.samples[i]

@@ -622,9 +622,9 @@ def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="
         if k not in errors:
             error_row.append(_blank(f"{title}: no ground truth", shape))
             continue
-        e = errors[k]
-        finite = np.isfinite(e) & scored
-        mean = f"{float(e[finite].mean()):.3g}" if finite.any() else "n/a"
+        e, scored_e = errors[k], inner[k]
+        finite = np.isfinite(scored_e)
+        mean = f"{float(scored_e[finite].mean()):.3g}" if finite.any() else "n/a"
         vmax = flow_scale if k == "flow" else disp_scale
         shared = (inner["flow"],) if k == "flow" else tuple(inner[d] for d in ("disp1", "disp2") if d in inner)
         picture = error_to_color(e, vmax)
@@ -823,7 +823,8 @@ def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = N
     border : int, optional
         Pixels at each side that the error means leave out, as
         :func:`lfsf.evaluate.evaluate` does (its ``border``: 8 for the synthetic scenes,
-        15 for HCI's). The maps are drawn whole; the notes line names the border.
+        15 for HCI's). The maps are drawn whole; the error maps' colour scales leave the
+        border out too, and draw it paler. The notes line names the border.
 
     Returns
     -------
