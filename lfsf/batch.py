@@ -219,20 +219,30 @@ REPLACED_WHICH = "of other settings or inputs, incomplete, or unreadable"
 REPLACED = f"replaced an earlier result ({REPLACED_WHICH})"
 
 
-def input_record(pair: Pair, warm_start: bool) -> dict:
+def input_record(pair: Pair, warm_start: bool, out: str | os.PathLike | None = None) -> dict:
     """What a result records of how it came about, besides the settings, and a re-run
     compares: each light field's path (symbolic links resolved) and, for its file or each
     file of its folder but hidden ones (``.DS_Store``, editors' swap files), the size and
     the modification time (ns), as ``make`` tells a changed input; and whether the pair
     was to start from the previous one's result. Light fields moved, or copied without
-    their times, are estimated again."""
+    their times, are estimated again. With a warm start and ``out`` (the batch's output
+    folder), also the size and time of the previous pair's ``sceneflow.npz`` that it
+    starts from (None: none there): a pair whose predecessor was estimated again since
+    is estimated again too, from the new start."""
+    def stamp(path: Path) -> list:
+        return [path.stat().st_size, path.stat().st_mtime_ns]
+
     def files(path: Path) -> list:
         entries = sorted(path.iterdir()) if path.is_dir() else [path]
-        return [[e.name, e.stat().st_size, e.stat().st_mtime_ns] for e in entries
-                if e.is_file() and not (path.is_dir() and e.name.startswith("."))]
+        return [[e.name, *stamp(e)] for e in entries if e.is_file() and not (path.is_dir() and e.name.startswith("."))]
 
-    return {"t1": str(pair.t1.resolve()), "t2": str(pair.t2.resolve()), "t1_files": files(pair.t1),
-            "t2_files": files(pair.t2), "warm_start": bool(warm_start and pair.previous is not None)}
+    warm = bool(warm_start and pair.previous is not None)
+    record = {"t1": str(pair.t1.resolve()), "t2": str(pair.t2.resolve()), "t1_files": files(pair.t1),
+              "t2_files": files(pair.t2), "warm_start": warm}
+    if warm and out is not None:
+        start = Path(out) / pair.previous / "sceneflow.npz"
+        record["previous"] = stamp(start) if start.is_file() else None
+    return record
 
 
 def _estimated_with(folder: Path, params, inputs: dict) -> bool:
@@ -257,6 +267,16 @@ def _estimated_with(folder: Path, params, inputs: dict) -> bool:
     # (through JSON, as the record was: lists for tuples)
     return (recorded == (Params.preset("paper") if params is None else params)
             and record.get("inputs") == json.loads(json.dumps(inputs)))
+
+
+def _foreign_files(folder: Path) -> str:
+    """The reason a result folder is not replaced: the entries in it that are no result's
+    (the first five)."""
+    names = set(RESULT_FILES) | {"overview.png"}
+    foreign = sorted(p.name for p in folder.iterdir() if not (p.is_file() and p.name in names or dead_set(p)))
+    more = f" and {len(foreign) - 5} more" if len(foreign) > 5 else ""
+    return (f"{folder}: holds what lfsf does not write ({', '.join(foreign[:5])}{more}); not replaced: move it "
+            "away, or choose another --out")
 
 
 def _holds_only_results(folder: Path) -> bool:
@@ -301,6 +321,21 @@ def check_outputs(pairs: Sequence[Pair], out: str | os.PathLike) -> None:
             raise ValueError(f"{final}: the results of pair {pair.name!r} go into a folder there, but it is a file")
 
 
+def check_warm_start(pairs: Sequence[Pair], warm_start: bool) -> None:
+    """``warm_start`` needs a sequence: the frames of a folder, whose pairs follow one
+    another. A manifest's pairs stand alone (none starts from another's result).
+
+    Raises
+    ------
+    ValueError
+        ``warm_start`` where no pair follows another.
+    """
+    if warm_start and not any(pair.previous is not None for pair in pairs):
+        raise ValueError("--warm-start chains the pairs of a folder of frames, each starting from the one "
+                         "before; these pairs come from manifests, whose pairs stand alone: give the folder "
+                         "of frames, or leave --warm-start out")
+
+
 def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = None,
              warm_start: bool = False, _after=None) -> Outcome:
     """Estimate one pair and write its results to ``out/pair.name`` (skipped when complete).
@@ -320,7 +355,7 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
     try:  # all of it: a name too long for the file system fails here, in is_complete
         replaced = ""
         # (taken before reading them: a file changed while the pair runs is taken again)
-        inputs = input_record(pair, warm_start) if pair.t1.exists() and pair.t2.exists() else None
+        inputs = input_record(pair, warm_start, out) if pair.t1.exists() and pair.t2.exists() else None
         if is_complete(final) and inputs is not None and _estimated_with(final, params, inputs):
             return Outcome(pair.name, "skipped")
         if final.exists():
@@ -328,6 +363,8 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
         _remove_stale(out, pair.name)
         tmp = out / f".{pair.name}.part-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         tmp.mkdir(parents=True)
+        if final.exists() and not _holds_only_results(final):  # (before the work, which would be lost)
+            raise ValueError(_foreign_files(final))
         lf1 = read_lightfield(pair.t1)
         lf2 = read_lightfield(pair.t2)
         check_pair(lf1, lf2)
@@ -340,9 +377,8 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
                                  progress=lambda line: notes.append(str(line)) if isinstance(line, Note) else None)
         sf.save(tmp, lf1.centre, lf2.centre, inputs=inputs)   # (with overview.png, as lfsf run)
         if final.exists():  # an earlier result, complete or not, or one left by hand
-            if not _holds_only_results(final):
-                raise ValueError(f"{final}: holds files that are not results of lfsf ("
-                                 f"{', '.join(sorted(p.name for p in final.iterdir())[:5])}); not replaced")
+            if not _holds_only_results(final):  # (put there while the pair ran)
+                raise ValueError(_foreign_files(final))
             shutil.rmtree(final)
         os.replace(tmp, final)
         return Outcome(pair.name, "done", time.perf_counter() - t0, replaced, warm=init is not None,
@@ -475,6 +511,7 @@ def run_batch(
     t0 = time.perf_counter()
     report = progress or (lambda outcome, finished, total: None)
     check_outputs(pairs, out)
+    check_warm_start(pairs, warm_start)
     check_dask(workers, scheduler)
     if scheduler is None and workers == 1 and not have_dask():
         out.mkdir(parents=True, exist_ok=True)

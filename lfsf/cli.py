@@ -401,13 +401,14 @@ def cmd_batch(args) -> int:
         resolve_device(args.device)  # a device this machine lacks (or $LFSF_DEVICE's): one error before any work
     pairs = batch.pairs_from_sources(args.sources, out=args.out)
     batch.check_outputs(pairs, args.out)  # before the first line of the run
+    batch.check_warm_start(pairs, args.warm_start)
     batch.check_dask(workers, args.scheduler)  # before the first line of the run
     where = (f"the Dask scheduler at {args.scheduler}" if args.scheduler
              else f"a local Dask cluster of {workers} process{'es' if workers > 1 else ''}"
              if batch.have_dask() else "this process (Dask is not installed)")
     count = f"{len(pairs)} pair{'s' if len(pairs) != 1 else ''}"
     _log(args, f"lfsf batch: {count} to {args.out}, {_preset_label(args)}, on {where}"
-               + (", each pair of a sequence starting from the one before" if args.warm_start else ""))
+               + (", each pair of a folder's frames starting from the one before" if args.warm_start else ""))
     bar = batch.ProgressBar(len(pairs), quiet=args.quiet)
     summary = batch.run_batch(pairs, args.out, params, workers=workers, scheduler=args.scheduler,
                               device=args.device, warm_start=args.warm_start, progress=bar)
@@ -501,7 +502,8 @@ def _estimator_options(p) -> None:
     p.add_argument("--preset",
                    help="paper (17 views), fast, lytro, or flow (optical flow of the centre views alone) "
                         "(default paper, or the --config file's preset)")
-    p.add_argument("--config", type=Path, help="TOML file setting any parameter of lfsf.Params")
+    p.add_argument("--config", type=Path, help="TOML file setting any parameter of lfsf.Params, or a result "
+                   "(its folder or sceneflow.npz) whose recorded settings to use again")
     _device_options(p)
 
 
@@ -607,7 +609,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "not with --scheduler)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler, e.g. tcp://host:8786")
     p.add_argument("--warm-start", action="store_true",
-                   help="start each pair of a sequence from the previous pair's result (pairs run in order)")
+                   help="start each pair of a folder of frames from the previous pair's result (pairs run in "
+                        "order; a manifest's pairs stand alone)")
     _estimator_options(p)
     p.set_defaults(func=cmd_batch)
 

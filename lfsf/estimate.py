@@ -1483,6 +1483,10 @@ def estimate_scene_flow(
     height, width = lf1.height, lf1.width
     if min(height, width) < 8:
         raise ValueError(f"{lf1.source}: views of {width}×{height} pixels are too small (at least 8×8)")
+    if rows > height and cols > width:  # (120×160 views of 9×9 px: the axes the wrong way round)
+        raise ValueError(f"{lf1.source}: {rows}×{cols} views of {width}×{height} pixels, more views than pixels "
+                         "across: are the views ordered [y, x, a, b]? lfsf reads [a, b, y, x] (view row, view "
+                         "column, then the pixels); np.moveaxis(views, (2, 3), (0, 1)) turns them round")
 
     rim = _rim_radius(lf1)
     phis, radius = (params if rim is None else params.replace(radius=min(params.radius, rim))).sample_offsets(

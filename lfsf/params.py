@@ -357,7 +357,12 @@ class Params:
         """Settings from a TOML file (top-level keys, or a ``[params]`` table; a
         ``preset = "name"`` key picks the base), over ``base`` (default: the preset).
         ``preset``: a preset named elsewhere (``--preset``), the base where the file
-        names none; a file naming another is an error rather than silently winning."""
+        names none; a file naming another is an error rather than silently winning.
+
+        ``path`` may also be a result of ``lfsf run`` or ``lfsf batch`` (its folder or its
+        ``sceneflow.npz``): the settings it records it was estimated with, complete (no
+        preset may be named beside them), so that a result can be estimated again as it
+        was."""
         try:
             import tomllib
         except ModuleNotFoundError:  # Python 3.10
@@ -365,18 +370,33 @@ class Params:
         path = Path(path)
         if not path.exists():
             raise FileNotFoundError(f"{path}: no such file")
+        if path.suffix.lower() == ".npz" or (path.is_dir() and (path / "sceneflow.npz").is_file()):
+            return cls._from_result(path, preset)
         if path.is_dir():
-            raise ValueError(f"{path}: a folder, not a TOML file of settings")
+            raise ValueError(f"{path}: a folder, not a TOML file of settings (nor a result's, with a "
+                             "sceneflow.npz)")
         try:
             data = tomllib.loads(path.read_text())
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise ValueError(f"{path}: not valid TOML ({exc})") from None
         if "params" in data:
-            outside = sorted(k for k in data if k != "params")
+            outside = sorted(k for k in data if k not in ("params", "preset"))
+            tables = [k for k in outside if isinstance(data[k], dict)]
+            if tables:
+                raise ValueError(f"{path}: unknown table{'s' if len(tables) > 1 else ''} "
+                                 f"{', '.join(f'[{k}]' for k in tables)}; the settings go in [params] (or all "
+                                 "at the top level)")
             if outside:      # they would be dropped without a word
                 raise ValueError(f"{path}: settings both in [params] and at the top level "
                                  f"({', '.join(outside)}); put them all in one place")
-            data = data["params"]
+            table = data["params"]
+            if not isinstance(table, dict):
+                raise ValueError(f"{path}: [params] must be a table of settings, got {table!r}")
+            # preset = "…" at the top level beside [params] picks the base as it does inside
+            if "preset" in data and "preset" in table and data["preset"] != table["preset"]:
+                raise ValueError(f"{path}: preset = {data['preset']!r} at the top level but {table['preset']!r} "
+                                 "in [params]; name it in one place")
+            data = {**table, **({"preset": data["preset"]} if "preset" in data else {})}
         if not isinstance(data, dict):
             raise ValueError(f"{path}: [params] must be a table of settings, got {data!r}")
         data = dict(data)
@@ -391,6 +411,24 @@ class Params:
         except (ValueError, TypeError) as exc:
             raise ValueError(f"{path}: {exc}") from None
 
+    @classmethod
+    def _from_result(cls, path: Path, preset: str | None) -> "Params":
+        """The settings a result records (:meth:`from_toml` on a result's folder or
+        ``sceneflow.npz``)."""
+        from lfsf.evaluate import recorded_settings
+
+        settings = recorded_settings(path)
+        if settings is None:
+            raise ValueError(f"{path}: records no settings of lfsf (expected a result of lfsf run or batch: its "
+                             "folder or its sceneflow.npz, or a TOML file)")
+        if preset is not None:
+            raise ValueError(f"{path}: a result's recorded settings are complete; --preset {preset} beside them "
+                             "would be ignored: leave it out")
+        try:
+            return cls(**settings)
+        except (ValueError, TypeError) as exc:  # (a result of another version's settings)
+            raise ValueError(f"{path}: its recorded settings are not this version's: {exc}") from None
+
     # --- derived ---------------------------------------------------------------------------
 
     def validate(self) -> None:
@@ -403,11 +441,13 @@ class Params:
 
         # real settings in float32 with room to spare: the kernels compute in float32, and
         # λ = 1e39, α = 1e308 or step_ratio = 1e-308 made every map NaN without an error
+        positive = ("alpha0", "alpha1", "rof_weight", "eps", "step_ratio")  # (0 is refused below)
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             if f.type == "float" and value != 0:
                 need(MIN_REAL <= abs(value) <= MAX_REAL,
-                     f"{f.name} must be 0 or of magnitude {MIN_REAL:g}…{MAX_REAL:g}, got {value:g}")
+                     f"{f.name} must be {'positive and' if f.name in positive else '0 or'} of magnitude "
+                     f"{MIN_REAL:g}…{MAX_REAL:g}, got {value:g}")
         need(self.circles >= 1, f"circles (M) must be at least 1, got {self.circles}")
         need(len(self.samples) == self.circles,
              f"samples (N_i) must give one count per circle: M = {self.circles}, N = {self.samples}")
@@ -426,7 +466,7 @@ class Params:
         for name in ("lambda1", "lambda2", "lambda3", "lambda3_side", "alpha0", "alpha1", "gamma", "beta",
                      "rof_weight", "eps"):
             value = getattr(self, name)
-            need(value >= 0, f"{name} must be a finite number ≥ 0, got {value}")
+            need(value >= 0, f"{name} must be a finite number {'> 0' if name in positive else '≥ 0'}, got {value}")
         need(self.alpha0 > 0 and self.alpha1 > 0, "alpha0 and alpha1 must be positive")
         need(self.rof_weight > 0, f"rof_weight (μ) must be positive, got {self.rof_weight}")
         need(self.eps > 0, f"eps (ε) must be positive (the preconditioners divide by it), got {self.eps}")

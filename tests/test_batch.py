@@ -652,10 +652,33 @@ def test_an_incomplete_result_folder_with_other_files_is_not_replaced(frames, tm
     manifest = _manifest(tmp_path / "m.csv", [(folder / "f000.npz", folder / "f001.npz", "mine")])
     (tmp_path / "out" / "mine").mkdir(parents=True)
     (tmp_path / "out" / "mine" / "notes.txt").write_text("keep me")
+    (tmp_path / "out" / "mine" / "disp1.png").write_bytes(b"an older result")
+
+    def estimated(*args, **kwargs):
+        raise AssertionError("estimated, to be thrown away")
+
+    monkeypatch.setattr("lfsf.estimate.estimate_scene_flow", estimated)
     summary = batch.run_batch(batch.pairs_from_sources([manifest]), tmp_path / "out", PARAMS, workers=1,
                               device="cpu")
-    assert [o.status for o in summary.outcomes] == ["failed"] and "notes.txt" in summary.outcomes[0].reason
+    (outcome,) = summary.outcomes
+    # the reason names what is not lfsf's (it had named the folder's first five files,
+    # results among them), and comes before the pair is estimated (it came after)
+    assert outcome.status == "failed" and "notes.txt" in outcome.reason and "disp1.png" not in outcome.reason
     assert (tmp_path / "out" / "mine" / "notes.txt").read_text() == "keep me"
+
+
+def test_warm_start_with_manifests_alone_is_refused(frames, tmp_path, capsys):
+    """A manifest's pairs stand alone: --warm-start had been taken, announced in the
+    header, and ignored (every pair cold)."""
+    folder, _ = frames
+    manifest = _manifest(tmp_path / "m.csv", [(folder / "f000.npz", folder / "f001.npz"),
+                                              (folder / "f001.npz", folder / "f002.npz")])
+    with pytest.raises(ValueError, match="warm-start.*manifests"):
+        batch.run_batch(batch.pairs_from_sources([manifest]), tmp_path / "out", PARAMS, device="cpu",
+                        warm_start=True)
+    status = main(["batch", str(manifest), "--out", str(tmp_path / "out"), "--warm-start", "--preset", "fast"])
+    assert status == 2 and "manifests" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
 
 
 def test_a_result_folder_left_by_a_killed_run_is_replaced(frames, tmp_path, monkeypatch):
@@ -790,6 +813,13 @@ def test_a_rerun_estimates_again_what_changed_inputs_or_warm_start(frames, tmp_p
     # a result cut short (a file gone) is re-estimated and counted as replaced
     (out / "f000" / "flow.png").unlink()
     assert statuses(frames_here, warm=True)[0] == ("f000", "done", batch.REPLACED)
+    # warm-started, a pair estimated again passes its new result on: frame 0 rendered
+    # again redoes f000 and f001, which starts from f000's result (f001 had been kept,
+    # started from the old one)
+    assert statuses(frames_here, warm=True) == [("f000", "skipped", ""), ("f001", "skipped", "")]
+    os.utime(frames_here / "f000.npz", ns=(time.time_ns(), time.time_ns() + 2 * 10**9))
+    assert statuses(frames_here, warm=True) == [("f000", "done", batch.REPLACED), ("f001", "done", batch.REPLACED)]
+    assert statuses(frames_here, warm=True) == [("f000", "skipped", ""), ("f001", "skipped", "")]
     # a manifest's pair swapped: another input, though every file is as it was
     forward = _manifest(tmp_path / "m.csv", [(tmp_path / "f000.npz", tmp_path / "f001.npz", "p")])
     assert statuses(forward) == [("p", "done", "")] and statuses(forward)[0][1] == "skipped"

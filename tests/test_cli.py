@@ -187,6 +187,9 @@ def test_eval_of_a_flow_only_result_leaves_its_zero_disparities_out(tmp_path, ca
     assert "not evaluated in" in out and "disp1, disp2 (a flow-only result" in out
     report = json.loads((tmp_path / "e.json").read_text())
     assert "disp1" not in report["errors"] and report["errors"]["flow"]["epe"] == 0.0
+    # nor scored when its disp1.pfm is given alone (MSE 2.9, BadPix 98 %, without a word)
+    status = main(["eval", str(tmp_path / "r" / "disp1.pfm"), str(tmp_path / "gt.npz")])
+    assert status == 2 and "zeros, not an estimate" in capsys.readouterr().err
     # nor are they drawn as a disparity (zeros in the colour map's purple): plain grey, and
     # the picture's text says so
     from PIL import Image
@@ -446,6 +449,17 @@ def test_output_names_near_the_length_limit_still_get_a_temporary_name(tmp_path)
 def test_too_long_an_input_name_is_a_clear_error(tmp_path):
     status, _, err = lfsf("run", tmp_path / ("y" * 300 + ".npz"), tmp_path / "b.npz", "--out", tmp_path / "r")
     assert_clean_error(status, err, "too long")
+
+
+def test_views_with_their_axes_the_wrong_way_round_are_refused(tmp_path):
+    """An .npz stored as [y, x, a, b] (views of 9×9 px on a 40×48 grid) had been read and
+    estimated, status 0, into maps of 9×9 px."""
+    views = np.random.default_rng(0).random((40, 48, 9, 9)).astype(np.float32)
+    np.savez(tmp_path / "yxab.npz", views=views)
+    status, _, err = lfsf("run", tmp_path / "yxab.npz", tmp_path / "yxab.npz", "--out", tmp_path / "r",
+                          "--preset", "fast")
+    assert_clean_error(status, err, "yxab.npz", "40×48 views of 9×9 pixels", "[y, x, a, b]")
+    assert not (tmp_path / "r").exists()
 
 
 @pytest.mark.parametrize("frames", ["1", "0", "-3"])

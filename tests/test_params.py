@@ -168,10 +168,37 @@ def test_settings_both_in_a_params_table_and_at_the_top_level_are_an_error(tmp_p
     path = tmp_path / "mixed.toml"
     path.write_text('warps = 9\npreset = "fast"\n[params]\niterations = 40\n')
     with pytest.raises(ValueError, match=re.escape(f"{path}: settings both in [params] and at the top level "
-                                                   "(preset, warps)")):
+                                                   "(warps)")):
         Params.from_toml(path)
     path.write_text('[params]\npreset = "fast"\nwarps = 9\n')
     assert Params.from_toml(path) == Params.preset("fast").replace(warps=9)
+    # the preset at the top level, the settings in [params] (it had been called a setting
+    # at the top level), and a stray table named as one
+    path.write_text('preset = "fast"\n[params]\nwarps = 9\n')
+    assert Params.from_toml(path) == Params.preset("fast").replace(warps=9)
+    path.write_text('preset = "fast"\n[params]\npreset = "flow"\n')
+    with pytest.raises(ValueError, match="preset = 'fast' at the top level but 'flow' in \\[params\\]"):
+        Params.from_toml(path)
+    path.write_text('[params]\nwarps = 9\n[extra]\nfoo = 1\n')
+    with pytest.raises(ValueError, match=re.escape("unknown table [extra]")):
+        Params.from_toml(path)
+
+
+def test_a_results_recorded_settings_serve_as_the_config(tmp_path):
+    """A result (its folder or sceneflow.npz) gives back the settings it was estimated
+    with: --config on it had failed as 'not valid TOML'."""
+    from lfsf.estimate import SceneFlow
+
+    params = Params.preset("fast").replace(lambda3=7.5, warps=2)
+    zeros = np.zeros((8, 8), np.float32)
+    SceneFlow(zeros, zeros, zeros, zeros, params=params, radius=2.0, device="cpu").save(tmp_path / "r")
+    assert Params.from_toml(tmp_path / "r") == params
+    assert Params.from_toml(tmp_path / "r" / "sceneflow.npz") == params
+    with pytest.raises(ValueError, match="recorded settings are complete; --preset fast"):
+        Params.from_toml(tmp_path / "r", preset="fast")
+    np.savez(tmp_path / "other.npz", views=zeros)
+    with pytest.raises(ValueError, match="records no settings of lfsf"):
+        Params.from_toml(tmp_path / "other.npz")
 
 
 def test_a_folder_given_as_the_config_is_a_value_error(tmp_path):
@@ -196,9 +223,15 @@ def test_a_preset_named_both_on_the_command_line_and_in_the_file_must_agree(tmp_
                                          ("contrast", 1e308), ("flow_edge_weight", 1e12)])
 def test_real_settings_beyond_what_float32_kernels_can_carry_are_refused(name, value):
     """Each was accepted and made every map NaN (λ = 1e39 is past float32's 3.4e38)."""
-    with pytest.raises(ValueError, match=named(name) + r".*must be 0 or of magnitude 1e-12…1e\+09"):
+    # (a setting that must be positive is not told it may be 0: eps = 0 is refused)
+    may_be_zero = name not in ("alpha0", "step_ratio")
+    with pytest.raises(ValueError, match=named(name) + (r".*must be 0 or of magnitude" if may_be_zero else
+                                                        r".*must be positive and of magnitude") + r" 1e-12…1e\+09"):
         Params.preset("fast").replace(**{name: value})
     Params.preset("fast").replace(**{name: 1e9 if value > 1 else 1e-12})
+    if not may_be_zero:
+        with pytest.raises(ValueError, match="positive"):
+            Params.preset("fast").replace(**{name: 0.0})
 
 
 def test_sample_offsets_take_a_square_grid_as_one_number():
