@@ -37,17 +37,38 @@ def output_folder(path: str | os.PathLike, create: bool = True, names=()) -> Pat
             raise ValueError(f"{path}: cannot write results there: {part} is a broken symbolic link "
                              f"(to {os.readlink(part)})")
     existing = next(part for part in (path, *path.parents) if part.exists())
-    if existing != path and not os.access(existing, os.W_OK | os.X_OK):
-        raise ValueError(f"{path}: cannot make the output folder: {existing} is not writable")
+    if existing != path:
+        why = _unwritable(existing)
+        if why:
+            raise ValueError(f"{path}: cannot make the output folder: {existing} is not writable ({why})")
     if create:
         try:
             path.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise ValueError(f"{path}: cannot make the output folder ({exc.strerror or exc})") from None
-    if path.exists() and not os.access(path, os.W_OK | os.X_OK):
-        raise ValueError(f"{path}: the output folder is not writable")
+    if path.exists():
+        why = _unwritable(path)
+        if why:
+            raise ValueError(f"{path}: the output folder is not writable ({why})")
     _check_names(path, names)
     return path
+
+
+def _unwritable(folder: Path) -> str:
+    """Why nothing can be written in ``folder`` ("" if it can): a file made there and
+    removed at once. ``os.access`` answers yes to root for any folder of a read-only
+    file system (/sys, a read-only mount), where the run then failed after its work,
+    naming its temporary file."""
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return "permission denied"
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".lfsf-probe.", dir=folder)
+    except OSError as exc:
+        return exc.strerror or str(exc)
+    os.close(fd)
+    with contextlib.suppress(OSError):
+        os.unlink(probe)
+    return ""
 
 
 def _check_names(out: Path, names) -> None:
@@ -62,7 +83,10 @@ def output_file(path: str | os.PathLike) -> Path:
     path = Path(path)
     if path.is_dir():
         raise ValueError(f"{path}: is a folder, not a file to write")
-    output_folder(path.parent, create=False)
+    try:
+        output_folder(path.parent, create=False)
+    except ValueError as exc:
+        raise ValueError(f"{path}: cannot be written: {exc}") from None
     return path
 
 
@@ -85,7 +109,10 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         raise ValueError("an empty file name")
     path = Path(path)
     if is_special_file(path):                    # a device or a pipe (/dev/stdout)
-        yield path
+        try:
+            yield path
+        except OSError as exc:  # (/dev/full's "No space left on device" named no file)
+            raise _named(exc, path) from exc
         return
     if path.is_symlink():                        # the link stays; what it points to is written
         path = Path(os.path.realpath(path))

@@ -193,8 +193,14 @@ def _folder_pairs(folder: Path, out: Path | None = None) -> list[Pair]:
                     if not p.name.startswith(".") and (p.is_dir() or p.suffix.lower() in FRAME_SUFFIXES)
                     and not (out is not None and _within(out, p)))
     if len(frames) < 2:
+        from lfsf.io import read_lightfield
+
+        alone = ""
+        with contextlib.suppress(Exception):  # (a folder of views is one light field, not frames)
+            lf = read_lightfield(folder)
+            alone = f"; it is itself one light field ({lf.grid[0]}×{lf.grid[1]} views), not a folder of frames"
         raise ValueError(f"{folder}: a folder of frames needs at least two light fields (sub-folders of views "
-                         f"or .npz files), found {len(frames)}")
+                         f"or .npz files), found {len(frames)}{alone}")
     pairs, previous = [], None
     for a, b in zip(frames[:-1], frames[1:]):
         pairs.append(Pair(_stem(a), a, b, previous))

@@ -139,7 +139,7 @@ def bench_pipeline(size=(640, 480), device: str | None = None, repeats: int = 3,
             "stages": {k: round(v, 4) for k, v in stages.items()},
             "peak_rss_mb": round(peak_rss_mb(), 1),
             "peak_rss_scope": "setting" if own_peak else "process",
-            "errors": {k: {m: round(float(x), 5) for m, x in v.items()} for k, v in errors.items()},
+            "errors": {k: {m: _rounded(x) for m, x in v.items()} for k, v in errors.items()},
         })
     return rows
 
@@ -420,6 +420,14 @@ def bench_kernels(size=(640, 480), device: str | None = None, repeats: int = 20,
 
 
 # --- peers ---------------------------------------------------------------------------------
+
+def _rounded(value):
+    """An error figure for the JSON rows: counts (pixels, marked_px) whole, as ``lfsf eval
+    --json`` writes them, the rest to 5 decimals."""
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    return round(float(value), 5)
+
 
 def bench_peers(size=(640, 480), device: str | None = None, repeats: int = 3, scene: str = "paper",
                 progress: Callable[[str], None] | None = None) -> list[dict]:

@@ -51,6 +51,20 @@ def _file_name(text: str) -> Path:
     return Path(text)
 
 
+def _input_name(text: str) -> Path:
+    """An input file: '' would read as the current folder ('.')."""
+    if not text:
+        raise argparse.ArgumentTypeError("an empty file name")
+    return Path(text)
+
+
+def _device_name(text: str) -> str:
+    """A device: '' had been taken for the default without a word."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty device name (leave --device out for the default)")
+    return text
+
+
 def _repeats(text: str) -> int:
     value = _positive(text)
     if value > 1000:
@@ -154,6 +168,8 @@ def _not_an_input(report: Path, result: Path, gt: Path) -> None:
 
 
 def cmd_eval(args) -> int:
+    import numpy as np
+
     from lfsf._files import write_json_atomic
     from lfsf.evaluate import evaluate, format_table, load_estimate, load_ground_truth
 
@@ -181,6 +197,12 @@ def cmd_eval(args) -> int:
             print(f"not evaluated, missing from {args.result}: {', '.join(lacking)} (the ground truth has them)")
     # and what the ground truth lacks: half a flow, or the mask of the pixels to score
     notes = []
+    for name in ("disp1", "disp2", "u", "v"):  # (their errors print as inf, and null in the JSON)
+        if name in estimate:
+            bad = int(np.size(estimate[name]) - np.isfinite(estimate[name]).sum())
+            if bad:
+                notes.append(f"{args.result}: {name} holds {bad} NaN or infinite value{'s' if bad > 1 else ''}; "
+                             "where scored, its errors read inf")
     if ("u" in gt) != ("v" in gt):
         has, lacks = ("u", "v") if "u" in gt else ("v", "u")
         notes.append(f"flow not evaluated: {args.gt} has '{has}' but no '{lacks}'")
@@ -494,7 +516,8 @@ def _machine() -> str:
 
 def _device_options(p) -> None:
     """--device and --quiet, which every command that computes takes."""
-    p.add_argument("--device", help="cpu or cuda:N (default: $LFSF_DEVICE, else cuda:0 if present, else cpu)")
+    p.add_argument("--device", type=_device_name,
+                   help="cpu or cuda:N (default: $LFSF_DEVICE, else cuda:0 if present, else cpu)")
     p.add_argument("--quiet", action="store_true", help="no progress messages")
 
 
@@ -502,7 +525,7 @@ def _estimator_options(p) -> None:
     p.add_argument("--preset",
                    help="paper (17 views), fast, lytro, or flow (optical flow of the centre views alone) "
                         "(default paper, or the --config file's preset)")
-    p.add_argument("--config", type=Path, help="TOML file setting any parameter of lfsf.Params, or a result "
+    p.add_argument("--config", type=_input_name, help="TOML file setting any parameter of lfsf.Params, or a result "
                    "(its folder or sceneflow.npz) whose recorded settings to use again")
     _device_options(p)
 
@@ -646,7 +669,10 @@ def main(argv=None) -> int:
     # traceback (only Python's own start-up and this module's small imports come before)
     try:
         parser = build_parser()
-        args = parser.parse_args(argv)
+        args, extra = parser.parse_known_args(argv)
+        if extra:  # named by the command's own parser ("lfsf run: error: …", lfsf run --help), not lfsf's
+            commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
+            (commands.get(args.command) or parser).error(f"unrecognized arguments: {' '.join(extra)}")
     except KeyboardInterrupt:
         print("lfsf: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

@@ -502,6 +502,13 @@ def _read_folder(folder: Path) -> LightField:
     elif (folder / "views.npz").is_file():
         return _read_npz(folder / "views.npz")
     else:
+        # views named as lfsf reads them but in another image format: say so, not "none found"
+        as_png = [(name, Path(name).stem + ".png") for name in names if Path(name).suffix.lower() != ".png"]
+        other = [name for name, png in as_png if _HCI_NAME.fullmatch(png) or _ROWCOL_NAME.fullmatch(png)]
+        if other:
+            raise ValueError(f"{folder}: views are read from PNG files only; found {len(other)} named as views but "
+                             f"in another format ({other[0]}, …): convert them to PNG (8 or 16 bits), or give "
+                             "the views as an .npz")
         raise ValueError(f"{folder}: found no light-field views; looked for {_LAYOUTS_LOOKED_FOR}")
     return LightField(_read_view_grid(files), source=str(folder), meta=meta)
 

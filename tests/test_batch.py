@@ -849,3 +849,13 @@ def test_a_pairs_notes_are_reported_with_it(tmp_path, monkeypatch):
         batch.ProgressBar(1, quiet=quiet, stream=stream)(outcome, 1, 1)
         lines = stream.getvalue().splitlines()
         assert lines[1:] == ([] if quiet else [f"lfsf batch: pair dark: {outcome.notes[0]}"]), lines
+
+
+def test_a_light_field_given_as_a_folder_of_frames_is_named_as_one(frames, tmp_path):
+    """"found 0" had not said that the folder is itself one light field."""
+    from lfsf.io import read_lightfield
+
+    folder, _ = frames
+    write_lightfield(read_lightfield(folder / "f000.npz"), tmp_path / "views")
+    with pytest.raises(ValueError, match=r"found 0; it is itself one light field \(5×5 views\)"):
+        batch.pairs_from_sources([tmp_path / "views"])

@@ -134,6 +134,8 @@ def test_bench_pipeline_reports_stages_memory_and_the_estimators_errors():
     lf1, lf2, gt = synth.render_scene("paper", size=(48, 32), grid=9)
     want = evaluate(estimate_scene_flow(lf1, lf2, Params.preset("fast"), device="cpu").as_dict(), gt, border=8)
     assert row["errors"]["flow"]["epe"] == pytest.approx(want["flow"]["epe"], abs=1e-5)
+    # counts as whole numbers, as lfsf eval --json writes them (they were 652.0)
+    assert row["errors"]["flow"]["pixels"] == want["flow"]["pixels"] and type(row["errors"]["flow"]["pixels"]) is int
 
 
 def test_bench_pipeline_scores_a_flow_only_setting_on_its_flow_alone():

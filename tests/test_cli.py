@@ -7,6 +7,7 @@ import os
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -147,6 +148,35 @@ def test_eval_of_a_partial_result_says_what_it_left_out(tmp_path, capsys):
     assert json.loads((tmp_path / "e.json").read_text())["not_evaluated"] == ["disp2", "flow"]
     assert main(["eval", str(tmp_path / "gt.npz"), str(tmp_path / "gt.npz")]) == 0
     assert "not evaluated" not in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["run", "a.npz", "b.npz", "--out", "x", "--bogus"], "lfsf run: error: unrecognized arguments: --bogus (lfsf run --help"),
+    (["run", "a.npz", "b.npz", "--out", "x", "--device", ""], "lfsf run: error: argument --device: an empty device"),
+    (["run", "a.npz", "b.npz", "--out", "x", "--config", ""], "argument --config: an empty file name"),
+])
+def test_option_errors_are_the_commands_own(args, needle, capsys):
+    """An unknown option after a command had been lfsf's ('lfsf: error', lfsf --help);
+    --device '' had been the default without a word, --config '' the folder '.'."""
+    with pytest.raises(SystemExit) as info:
+        main(args)
+    assert info.value.code == 2 and needle in capsys.readouterr().err
+
+
+def test_eval_names_the_values_that_are_not_finite(tmp_path, capsys):
+    """A result with a NaN had printed inf (null in the JSON) without a word of why."""
+    from lfsf.estimate import SceneFlow
+
+    assert main(["synth", "paper", "--out", str(tmp_path), "--size", "48", "36", "--grid", "3", "--quiet"]) == 0
+    with np.load(tmp_path / "gt.npz") as gt:
+        maps = {k: gt[k].copy() for k in ("disp1", "disp2", "u", "v")}
+    maps["disp1"][18, 24] = np.nan
+    SceneFlow(**maps, params=Params.preset("fast"), radius=2.0, device="cpu").save(tmp_path / "r")
+    capsys.readouterr()
+    assert main(["eval", str(tmp_path / "r"), str(tmp_path / "gt.npz")]) == 0
+    out = capsys.readouterr().out
+    assert f"{tmp_path / 'r'}: disp1 holds 1 NaN or infinite value; where scored, its errors read inf" in out
+    assert "disp2 holds" not in out
 
 
 def test_eval_says_what_the_ground_truth_lacks(tmp_path, capsys):
@@ -380,6 +410,33 @@ def test_an_output_under_a_file_is_a_clear_error_before_any_work(tmp_path, args)
     assert_clean_error(status, err, "afile", "not a folder")
     assert "estimated" not in err and "rendered" not in out
     assert (tmp_path / "afile").read_text() == "not a folder"
+
+
+READ_ONLY = Path("/sys/kernel")
+
+
+@pytest.mark.skipif(not READ_ONLY.is_dir(), reason="no /sys (a read-only file system to write into)")
+@pytest.mark.parametrize("args", [
+    ["run", "{tmp}/a.npz", "{tmp}/a.npz", "--out", str(READ_ONLY)],
+    ["synth", "paper", "--out", str(READ_ONLY), "--size", "16", "16", "--grid", "3"],
+    ["eval", "{tmp}/r", "{tmp}/gt.npz", "--json", str(READ_ONLY / "x.json")],
+])
+def test_an_output_on_a_read_only_file_system_is_refused_before_any_work(tmp_path, args):
+    """As root, os.access says /sys is writable: the run did its work, then failed naming
+    its temporary file ([Errno 1] Operation not permitted: '/sys/kernel/.lfsf-set…')."""
+    np.savez(tmp_path / "a.npz", views=np.full((3, 3, 16, 16), 0.5, np.float32))
+    status, out, err = lfsf(*[a.format(tmp=tmp_path) for a in args])
+    assert_clean_error(status, err, str(READ_ONLY), "not writable")
+    assert ".lfsf-set" not in err and ".part" not in err and "rendered" not in out
+
+
+def test_a_full_device_is_named_in_the_error(tmp_path):
+    from lfsf._files import write_bytes_atomic
+
+    if not Path("/dev/full").exists():
+        pytest.skip("no /dev/full")
+    with pytest.raises(OSError, match="No space left on device: '/dev/full'"):
+        write_bytes_atomic("/dev/full", b"{}" * 10000)
 
 
 def test_results_are_written_as_one_set_or_not_at_all(tmp_path):

@@ -907,6 +907,16 @@ def test_folder_without_views_says_what_was_looked_for(tmp_path):
     assert "input_Cam000.png" in message and "_RR_CC.png" in message and "views.npz" in message
 
 
+@pytest.mark.parametrize("name", ["lf_01_01.tif", "input_Cam000.JPG"])
+def test_views_in_another_image_format_are_named_as_such(tmp_path, name):
+    """They had been "no light-field views" though named as views."""
+    (tmp_path / "v").mkdir()
+    (tmp_path / "v" / name).write_bytes(b"")
+    with pytest.raises(ValueError, match=re.escape(f"PNG files only; found 1 named as views but in another "
+                                                   f"format ({name}, …)")):
+        lio.read_lightfield(tmp_path / "v")
+
+
 def test_single_image_is_a_raw_lenslet_image(tmp_path):
     lio.write_png(tmp_path / "raw.png", np.zeros((4, 4), dtype=np.uint16))
     with pytest.raises(ValueError, match="lfsf decode"):
