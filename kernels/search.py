@@ -754,14 +754,23 @@ def flow_search(
         sy = k // side - half
         sx = k - (k // side) * side - half
         ring = vec11()
-        # the ring holds the column sums of columns j − r … j + r at slot (column + r) mod n
+        # the ring holds the column sums of columns j − r … j + r at slot (column + r) mod n;
+        # the slots stepped on, not taken mod n (an integer division each: 6 of them per
+        # pixel and shift had been most of the kernel's time)
+        slot = (j0 + n) % n  # column j0 − r's
         for t in range(-radius, radius):
-            ring[(j0 + t + radius + n) % n] = column_cost(centre1, centre2, i, j0 + t, sx, sy, radius)
+            ring[slot] = column_cost(centre1, centre2, i, j0 + t, sx, sy, radius)
+            slot = wp.where(slot == n - 1, 0, slot + 1)
+        first = j0 % n  # the slot of column j − r, the window's first
         for j in range(j0, j1):
-            ring[(j + 2 * radius) % n] = column_cost(centre1, centre2, i, j + radius, sx, sy, radius)
+            ring[slot] = column_cost(centre1, centre2, i, j + radius, sx, sy, radius)
+            slot = wp.where(slot == n - 1, 0, slot + 1)
             acc = float(0.0)
+            at = first
             for t in range(n):
-                acc += ring[(j + t) % n]
+                acc += ring[at]
+                at = wp.where(at == n - 1, 0, at + 1)
+            first = wp.where(first == n - 1, 0, first + 1)
             value = acc / area
             if k == 0:
                 best_cost[i, j] = value
