@@ -87,10 +87,13 @@ def upsample_unknowns(
     fine: wp.array2d(dtype=Any),
 ):
     """The unknowns of a coarser level on this one, on the device: component k of (δ1,
-    δ2, u, v) (flow only: (u, v)) set to scales[k] · ``coarse``'s interpolated bilinearly
-    at the fine pixel centres, as :func:`upsample` does each plane, for k < ``carried``;
-    the others left as they are (the TGV duals' flow parts, which a level starts at 0).
-    Launch over (fine rows, fine columns)."""
+    δ2, u, v) set to scales[k] · ``coarse``'s interpolated bilinearly at the fine pixel
+    centres, as :func:`upsample` does each plane, for k < ``carried``; the others left as
+    they are (the TGV duals' flow parts, which a level starts at 0). k always counts the
+    four of (δ1, δ2, u, v): arrays of vec2 (flow only) hold (u, v) as components 2 and 3
+    (:func:`lfsf.kernels.common.to_vec4`), so their scales go in ``scales[2]`` and
+    ``scales[3]`` and ``carried`` must be 4 to carry them. Launch over (fine rows, fine
+    columns)."""
     i, j = wp.tid()
     i = i + row0
     h = fine.shape[0]

@@ -8,7 +8,7 @@ Importing :mod:`lfsf` is cheap: Warp is imported, and kernels are compiled, only
 something that needs them is first used.
 
 Conventions (the docstrings' "MODEL.md §1"; MODEL.md is the project's restatement of
-the paper's model, kept beside the source checkout, not installed):
+the paper's model, ``docs/MODEL.md`` in the source checkout, not installed):
 
 * light fields are ``views[a, b, y, x]`` (grey) or ``views[a, b, y, x, c]`` (RGB),
   float32 in [0, 1]: ``a`` the view row, ``b`` the view column of an A×B grid, the

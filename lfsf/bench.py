@@ -495,6 +495,13 @@ def bench_peers(size=(640, 480), device: str | None = None, repeats: int = 3, sc
 
 # --- table ---------------------------------------------------------------------------------
 
+#: What the kernels table's columns mean (printed under it).
+KERNELS_KEY = ("GB/s: the bytes the kernel must read and write at least (its inputs and outputs once), over "
+               "its median time; memcpy GB/s: a plain copy's, read and write counted alike, timed in alternation "
+               "with the kernel; fraction: the first over the second (the target is 0.5); copy: the faster of "
+               "one wp.copy and a copy in row bands, which that rate is of.")
+
+
 def format_rows(kind: str, rows: list[dict]) -> str:
     """A Markdown table of benchmark rows."""
     def sec(r):
@@ -518,6 +525,8 @@ def format_rows(kind: str, rows: list[dict]) -> str:
         for r in rows:
             lines.append(f"| {r['kernel']} | {r['device']} | {sec(r)} | {r['gbytes_per_s']:.2f} | "
                          f"{r['memcpy_gbytes_per_s']:.2f} | {r['fraction_of_memcpy']:.2f} | {r.get('memcpy', 'wp.copy')} |")
+        lines.append("")
+        lines.append(KERNELS_KEY)
         return "\n".join(lines)
     lines = ["| method | seconds median (min–max) | flow EPE |", "|---|---|---|"]
     for r in rows:

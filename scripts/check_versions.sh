@@ -18,6 +18,10 @@
 # 2 for an unknown configuration or a missing interpreter.
 set -uo pipefail
 
+case "${1:-}" in
+    -h|--help) sed -n '2,18p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+esac
+
 repo="$(cd "$(dirname "$0")/.." && pwd)"
 work="${WORK:-$(mktemp -d /tmp/lfsf-versions.XXXXXX)}"
 configs=("$@")

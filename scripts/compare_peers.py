@@ -178,7 +178,8 @@ def _row(section, scene, method, *, disp1=None, disp2=None, flow=None, seconds=N
 
 
 def _error_text(exc: BaseException) -> str:
-    return f"{type(exc).__name__}: {exc}".splitlines()[0][:200]
+    """The error's first line, whole (cut at 200 characters, a row had ended mid-sentence)."""
+    return f"{type(exc).__name__}: {exc}".splitlines()[0]
 
 
 def _nonfinite(*arrays) -> int:
@@ -593,6 +594,9 @@ def main(argv=None) -> int:
 
         # (a bad --grid was a traceback; a bad --json was refused only after the runs)
         check_before_runs(args.size, args.grid, colour=args.colour, device=args.device, output=args.json)
+        if args.grid < 2:  # (lfsf's runs failed each in its row; plenpy still gave a δ1, and a bar from it)
+            raise ValueError(f"--grid must be at least 2 (the disparities need 2 rows and 2 columns of views), "
+                             f"got {args.grid}")
         scenes = selected_scenes(args)
         if not args.real and (args.no_synth or not scenes):
             raise ValueError("nothing to compare: " + ("--no-synth without --real" if args.no_synth else
@@ -680,9 +684,17 @@ def main(argv=None) -> int:
 
     failed = [r for r in rows if r.get("error")]
     if failed:
+        print(f"error: {len(failed)} run{'s' if len(failed) > 1 else ''} failed (their rows say why)", file=sys.stderr)
         return 1
     if args.check:
-        if not targets or any(t["status"] != "pass" for t in targets):
+        if not targets:
+            print("--check: no lfsf target was checked (none of its runs: --methods peers, or no scene)",
+                  file=sys.stderr)
+            return 1
+        missed = [t for t in targets if t["status"] != "pass"]
+        if missed:
+            print(f"--check: {len(missed)} of {len(targets)} targets not met (the targets table says which)",
+                  file=sys.stderr)
             return 1
     return 0
 

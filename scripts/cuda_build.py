@@ -129,7 +129,9 @@ def _names(module) -> dict[str, tuple[str, str]]:
             continue
         if kernel.is_generic:
             for signature, overload in kernel.overloads.items():
-                kind = "vec4" if "v4f4" in signature else "vec2" if "v2f4" in signature else signature
+                # (by the arrays' type, a2v4f4: a kernel may take a plain vec4 beside arrays of vec2,
+                # as pyramid.upsample_unknowns its scales)
+                kind = "vec4" if "a2v4f4" in signature else "vec2" if "a2v2f4" in signature else signature
                 if getattr(overload, "hash", None):
                     found.setdefault(overload.hash[:4].hex(), (attr, kind))
         elif getattr(kernel, "hash", None):

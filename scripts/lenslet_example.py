@@ -57,20 +57,23 @@ def _bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 def main(argv=None) -> int:
     ap = ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("out", type=Path, help="folder for the example's raw and white images, views and results")
-    ap.add_argument("--scene", default="paper")
-    ap.add_argument("--size", nargs=2, type=int, default=(160, 120), metavar=("W", "H"))
+    ap.add_argument("--scene", default="paper", help="the scene rendered (default paper)")
+    ap.add_argument("--size", nargs=2, type=int, default=(160, 120), metavar=("W", "H"),
+                    help="view size, lenses across and down (default 160 120)")
     ap.add_argument("--pitch", type=float, default=9.6, help="lens pitch in sensor pixels")
-    ap.add_argument("--kind", default="hex", choices=("hex", "rect"))
+    ap.add_argument("--kind", default="hex", choices=("hex", "rect"), help="lens lattice (default hex)")
     ap.add_argument("--bayer", default="GRBG", help="a Bayer pattern, or 'none' for a grey sensor")
     ap.add_argument("--radius", type=float, default=3.0,
                     help="R of the estimate: 3 keeps to the inner 7×7 views, as the rims of the "
                          "micro-images mix in the neighbouring lenses (default 3)")
-    ap.add_argument("--preset", default="paper")
+    ap.add_argument("--preset", default="paper", help="lfsf preset (default paper)")
     args = ap.parse_args(argv)
     # before any work: the sensor is pitch × the view size, so a pitch must be sized too
     if not (math.isfinite(args.pitch) and 8.0 <= args.pitch <= 32.0):  # (a Lytro: ~10, an Illum: ~14)
         raise ValueError(f"--pitch must be in 8…32 sensor pixels (9 views a lens), got {args.pitch}")
-    synth.check_render(args.size, 9, colour=args.bayer.lower() != "none")
+    from lfsf._scripts import check_before_runs
+
+    check_before_runs(args.size, 9, colour=args.bayer.lower() != "none")
     if (args.size[0] + 1.2) * args.pitch * (args.size[1] + 1.2) * args.pitch > 2 ** 28:
         raise ValueError(f"a sensor of {args.size[0]}×{args.size[1]} lenses of {args.pitch} px holds more "
                          "than 2^28 pixels; use a smaller --size or --pitch")

@@ -51,7 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = ArgumentParser(description=__doc__.split("\n\n")[0],
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("scenes", nargs="*", help="scene names (default: the built-in scenes)")
-    p.add_argument("--size", type=int, nargs=2, default=(160, 120), metavar=("W", "H"))
+    p.add_argument("--size", type=int, nargs=2, default=(160, 120), metavar=("W", "H"), help="view size (default 160 120)")
     p.add_argument("--grid", type=int, default=9, help="views per side (default 9)")
     p.add_argument("--preset", default="paper", help="lfsf preset (default paper)")
     p.add_argument("--seeds", type=int, default=4, help="perturbed runs per scene (default 4)")

@@ -123,7 +123,7 @@ def table(report: dict) -> str:
 def build_parser() -> argparse.ArgumentParser:
     p = ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scene", default="paper", help="a built-in scene or random-SEED (default paper)")
-    p.add_argument("--size", type=int, nargs=2, default=(640, 480), metavar=("W", "H"))
+    p.add_argument("--size", type=int, nargs=2, default=(640, 480), metavar=("W", "H"), help="view size (default 640 480)")
     p.add_argument("--preset", default="paper")
     p.add_argument("--device", default=None, help="cpu or cuda:N (default as lfsf run)")
     p.add_argument("--json", type=Path, default=None, help="also write the report to this JSON file")
@@ -139,7 +139,7 @@ def main(argv=None) -> int:
         if min(args.size) < 16:
             raise ValueError(f"--size must be at least 16×16, got {args.size[0]}×{args.size[1]}")
         Params.preset(args.preset)
-        check_before_runs(args.size, 9, output=args.json)
+        check_before_runs(args.size, 9, output=args.json, scored=False)
         report = profile(args.scene, args.size, args.preset, args.device)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -65,6 +65,9 @@ def main(argv=None) -> int:
         raise ValueError(f"--warm-levels must be ≥ 0, each once, got {args.warm_levels}")
     synth.get_scene(args.scene)
     Params.preset(args.preset)
+    from lfsf._scripts import check_before_runs
+
+    check_before_runs(args.size, 9, device=args.device)
     if args.json:
         output_file(args.json)  # before the runs, not after them
     rows = run(args.scene, args.frames, args.size, args.preset, args.warm_levels, args.device)

@@ -160,8 +160,8 @@ def main(argv=None) -> int:
     ap.add_argument("--perturb", type=float, default=0.0, metavar="SIGMA",
                     help="the noise of the copies after the first (intensities in [0, 1]; e.g. 0.001, "
                          "a quarter of an 8-bit step)")
-    ap.add_argument("--device", default=None)
-    ap.add_argument("--json", default=None)
+    ap.add_argument("--device", default=None, help="Warp device (default: lfsf's)")
+    ap.add_argument("--json", default=None, help="write every run's figures to this file")
     args = ap.parse_args(argv)
     if args.seeds < 1:
         raise ValueError(f"--seeds must be at least 1, got {args.seeds}")
@@ -173,6 +173,9 @@ def main(argv=None) -> int:
         raise ValueError("--perturb needs --seeds K ≥ 2 (copy 0 is the rendering itself, without noise)")
     if args.json:
         output_file(args.json)  # before the runs, not after them
+    from lfsf._scripts import check_before_runs
+
+    check_before_runs(args.size, args.views, device=args.device)
 
     base = lfsf.Params.preset(args.preset).replace(**parse_assignments(args.base))
     varies = [parse_vary(v) for v in args.vary]
@@ -186,6 +189,9 @@ def main(argv=None) -> int:
     else:
         for key, values in varies:
             settings += [{key: v} for v in values if getattr(base, key) != v]
+            same = [v for v in values if getattr(base, key) == v]
+            if same:  # (a value equal to the base is the base's row, run once)
+                print(f"note: {key}={same[0]!r} is the base's own value: its runs are the base row", file=sys.stderr)
 
     scenes = list(dict.fromkeys(args.scenes)) if args.scenes else list(synth.list_scenes())  # (each once)
     for s in scenes:

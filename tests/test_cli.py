@@ -640,6 +640,13 @@ def test_an_error_raised_while_interrupted_counts_as_the_interrupt(monkeypatch, 
     ("perturbation_spread.py", ["--json", "{tmp}"], "is a folder, not a file to write"),
     ("joint_vs_stereo.py", ["--device", "cuda:3"], "unknown device 'cuda:3'"),
     ("joint_vs_stereo.py", ["--json", "{tmp}"], "is a folder, not a file to write"),
+    # sizes whose 8-px border leaves nothing to score: refused after the work, or not at all
+    ("joint_vs_stereo.py", ["--size", "16", "16", "--grid", "3", "paper"], "--size must be at least 24 24"),
+    ("sweep.py", ["--size", "16", "16", "--scenes", "paper"], "--size must be at least 24 24"),
+    ("sequence.py", ["--size", "8", "8"], "--size must be at least 24 24"),
+    ("lenslet_example.py", ["{tmp}/lx", "--size", "16", "16"], "--size must be at least 24 24"),
+    # a grid without disparities: each lfsf row failed, cut mid-sentence, and plenpy still scored
+    ("compare_peers.py", ["--grid", "1", "--scenes", "paper", "--size", "96", "72"], "--grid must be at least 2"),
 ])
 def test_scripts_answer_bad_options_in_one_line(tmp_path, script, args, needle):
     (tmp_path / "gt").write_text("a file")

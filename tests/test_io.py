@@ -1270,3 +1270,14 @@ def test_write_lightfield_refuses_a_file_format_it_does_not_write(tmp_path, name
     assert not (tmp_path / name).exists()
     (tmp_path / name).mkdir()          # a folder of that name that exists is the user's choice
     assert lio.read_lightfield(lio.write_lightfield(views, tmp_path / name)).grid == (3, 3)
+
+
+def test_the_checkouts_model_is_the_workspaces():
+    """docs/MODEL.md is a copy of the workspace's ../shared/MODEL.md, which the docstrings
+    cite for the conventions (a clone had nothing to follow): kept the same."""
+    from conftest import ROOT
+
+    shared = ROOT.parent / "shared" / "MODEL.md"
+    if not shared.is_file():
+        pytest.skip(f"{shared} not present")
+    assert (ROOT / "docs" / "MODEL.md").read_bytes() == shared.read_bytes(), "copy ../shared/MODEL.md to docs/"
