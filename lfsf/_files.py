@@ -5,6 +5,7 @@ file behind."""
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import re
 import tempfile
@@ -61,13 +62,14 @@ def _unwritable(folder: Path) -> str:
     naming its temporary file."""
     if not os.access(folder, os.W_OK | os.X_OK):
         return "permission denied"
-    try:
-        fd, probe = tempfile.mkstemp(prefix=".lfsf-probe.", dir=folder)
-    except OSError as exc:
-        return exc.strerror or str(exc)
-    os.close(fd)
-    with contextlib.suppress(OSError):
-        os.unlink(probe)
+    with interrupts_held():  # (Ctrl-C between the two would leave the probe in the user's folder)
+        try:
+            fd, probe = tempfile.mkstemp(prefix=".lfsf-probe.", dir=folder)
+        except OSError as exc:  # (/proc answers "No such file or directory")
+            return "no file can be made there" if exc.errno == errno.ENOENT else exc.strerror or str(exc)
+        os.close(fd)
+        with contextlib.suppress(OSError):
+            os.unlink(probe)
     return ""
 
 

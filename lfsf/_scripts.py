@@ -5,8 +5,9 @@ import os
 
 
 #: The smallest views a script that scores its runs takes: the scores leave out an 8-px
-#: border (lfsf.evaluate.SYNTH_BORDER), and 16 px left nothing to score after the work.
-MIN_SCORED_SIZE = 24
+#: border (lfsf.evaluate.SYNTH_BORDER), and 16 px left nothing to score after the work
+#: (as ``lfsf demo`` and ``lfsf bench``).
+MIN_SCORED_SIZE = 17
 
 
 def check_before_runs(size=None, grid: int | None = None, *, colour: bool = False, device: str | None = None,

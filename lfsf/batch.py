@@ -57,12 +57,14 @@ INSTALL_HINT = "pip install 'dask[distributed]' (or pip install -e '.[batch]' in
 @dataclass(frozen=True)
 class Pair:
     """One task: light fields ``t1`` and ``t2``, results to ``OUT/name``. ``previous``
-    names the pair before it in the same sequence (for warm starts)."""
+    names the pair before it in the same sequence (for warm starts); ``sequence``: the
+    pair is one of a folder of frames (its first has no previous one), not a manifest's."""
 
     name: str
     t1: Path
     t2: Path
     previous: str | None = None
+    sequence: bool = False
 
 
 @dataclass
@@ -203,7 +205,7 @@ def _folder_pairs(folder: Path, out: Path | None = None) -> list[Pair]:
                          f"or .npz files), found {len(frames)}{alone}")
     pairs, previous = [], None
     for a, b in zip(frames[:-1], frames[1:]):
-        pairs.append(Pair(_stem(a), a, b, previous))
+        pairs.append(Pair(_stem(a), a, b, previous, sequence=True))
         previous = pairs[-1].name
     return pairs
 
@@ -329,14 +331,15 @@ def check_outputs(pairs: Sequence[Pair], out: str | os.PathLike) -> None:
 
 def check_warm_start(pairs: Sequence[Pair], warm_start: bool) -> None:
     """``warm_start`` needs a sequence: the frames of a folder, whose pairs follow one
-    another. A manifest's pairs stand alone (none starts from another's result).
+    another (two frames make one pair, which starts cold). A manifest's pairs stand alone
+    (none starts from another's result).
 
     Raises
     ------
     ValueError
         ``warm_start`` where no pair follows another.
     """
-    if warm_start and not any(pair.previous is not None for pair in pairs):
+    if warm_start and not any(pair.sequence or pair.previous is not None for pair in pairs):
         raise ValueError("--warm-start chains the pairs of a folder of frames, each starting from the one "
                          "before; these pairs come from manifests, whose pairs stand alone: give the folder "
                          "of frames, or leave --warm-start out")

@@ -670,9 +670,15 @@ def main(argv=None) -> int:
     try:
         parser = build_parser()
         args, extra = parser.parse_known_args(argv)
-        if extra:  # named by the command's own parser ("lfsf run: error: …", lfsf run --help), not lfsf's
+        if extra:
+            # after the command, named by the command's own parser ("lfsf run: error: …", lfsf run
+            # --help); before it (lfsf --quiet demo), by lfsf's
+            given = list(sys.argv[1:] if argv is None else argv)
+            at = given.index(args.command) if args.command in given else len(given)
             commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
-            (commands.get(args.command) or parser).error(f"unrecognized arguments: {' '.join(extra)}")
+            after = all(token in given[at + 1:] for token in extra)
+            owner = commands.get(args.command, parser) if after else parser
+            owner.error(f"unrecognized arguments: {' '.join(extra)}")
     except KeyboardInterrupt:
         print("lfsf: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

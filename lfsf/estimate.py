@@ -1483,7 +1483,9 @@ def estimate_scene_flow(
     height, width = lf1.height, lf1.width
     if min(height, width) < 8:
         raise ValueError(f"{lf1.source}: views of {width}×{height} pixels are too small (at least 8×8)")
-    if rows > height and cols > width:  # (120×160 views of 9×9 px: the axes the wrong way round)
+    # (120×160 views of 9×9 px: the axes the wrong way round; a scene rendered small on a
+    # large grid, 19×19 views of 17 px, is not)
+    if rows > AXES_RATIO * height and cols > AXES_RATIO * width:
         raise ValueError(f"{lf1.source}: {rows}×{cols} views of {width}×{height} pixels, more views than pixels "
                          "across: are the views ordered [y, x, a, b]? lfsf reads [a, b, y, x] (view row, view "
                          "column, then the pixels); np.moveaxis(views, (2, 3), (0, 1)) turns them round")
@@ -2012,6 +2014,11 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str,
     change = max(abs(gain * float(q) + shift - float(q)) for q in ends) / span
     return float(gain), float(shift), float(change)
 
+
+#: Views are taken for an array whose axes are the wrong way round ([y, x, a, b]) where
+#: the grid has this many times more rows and more columns of views than the views have
+#: pixels (a row of 120×160 views of 9×9 px).
+AXES_RATIO = 4
 
 #: The largest magnitude a starting disparity or flow may have (px): far beyond any image,
 #: and far from float32's end (u = 1e38 overflowed in the pyramid's upsampling, an

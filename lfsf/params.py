@@ -441,7 +441,10 @@ class Params:
 
         # real settings in float32 with room to spare: the kernels compute in float32, and
         # λ = 1e39, α = 1e308 or step_ratio = 1e-308 made every map NaN without an error
-        positive = ("alpha0", "alpha1", "rof_weight", "eps", "step_ratio")  # (0 is refused below)
+        # the real settings that 0 does not suit either (refused below): their message
+        # offers no 0
+        positive = ("alpha0", "alpha1", "rof_weight", "eps", "step_ratio", "pyramid_scale", "disparity_range",
+                    "flow_range") + (("radius",) if self.circles > 1 else ())
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             if f.type == "float" and value != 0:

@@ -679,6 +679,12 @@ def test_warm_start_with_manifests_alone_is_refused(frames, tmp_path, capsys):
     status = main(["batch", str(manifest), "--out", str(tmp_path / "out"), "--warm-start", "--preset", "fast"])
     assert status == 2 and "manifests" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+    # a folder of two frames is a sequence of one pair (which starts cold): taken
+    two = tmp_path / "two"
+    two.mkdir()
+    for name in ("f000.npz", "f001.npz"):
+        (two / name).write_bytes((folder / name).read_bytes())
+    batch.check_warm_start(batch.pairs_from_sources([two]), True)
 
 
 def test_a_result_folder_left_by_a_killed_run_is_replaced(frames, tmp_path, monkeypatch):

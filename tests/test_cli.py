@@ -152,6 +152,8 @@ def test_eval_of_a_partial_result_says_what_it_left_out(tmp_path, capsys):
 
 @pytest.mark.parametrize("args, needle", [
     (["run", "a.npz", "b.npz", "--out", "x", "--bogus"], "lfsf run: error: unrecognized arguments: --bogus (lfsf run --help"),
+    # before the command, lfsf's (the command's own --help lists --quiet)
+    (["--quiet", "demo"], "lfsf: error: unrecognized arguments: --quiet (lfsf --help"),
     (["run", "a.npz", "b.npz", "--out", "x", "--device", ""], "lfsf run: error: argument --device: an empty device"),
     (["run", "a.npz", "b.npz", "--out", "x", "--config", ""], "argument --config: an empty file name"),
 ])
@@ -641,10 +643,10 @@ def test_an_error_raised_while_interrupted_counts_as_the_interrupt(monkeypatch, 
     ("joint_vs_stereo.py", ["--device", "cuda:3"], "unknown device 'cuda:3'"),
     ("joint_vs_stereo.py", ["--json", "{tmp}"], "is a folder, not a file to write"),
     # sizes whose 8-px border leaves nothing to score: refused after the work, or not at all
-    ("joint_vs_stereo.py", ["--size", "16", "16", "--grid", "3", "paper"], "--size must be at least 24 24"),
-    ("sweep.py", ["--size", "16", "16", "--scenes", "paper"], "--size must be at least 24 24"),
-    ("sequence.py", ["--size", "8", "8"], "--size must be at least 24 24"),
-    ("lenslet_example.py", ["{tmp}/lx", "--size", "16", "16"], "--size must be at least 24 24"),
+    ("joint_vs_stereo.py", ["--size", "16", "16", "--grid", "3", "paper"], "--size must be at least 17 17"),
+    ("sweep.py", ["--size", "16", "16", "--scenes", "paper"], "--size must be at least 17 17"),
+    ("sequence.py", ["--size", "8", "8"], "--size must be at least 17 17"),
+    ("lenslet_example.py", ["{tmp}/lx", "--size", "16", "16"], "--size must be at least 17 17"),
     # a grid without disparities: each lfsf row failed, cut mid-sentence, and plenpy still scored
     ("compare_peers.py", ["--grid", "1", "--scenes", "paper", "--size", "96", "72"], "--grid must be at least 2"),
 ])
