@@ -319,11 +319,6 @@ def load_ground_truth(path: str | Path) -> tuple[dict[str, np.ndarray], int]:
         raise ValueError(f"{path}: no gt.npz or gt_disp_lowres.pfm in this folder")
     suffix = path.suffix.lower()
     if suffix == ".pfm":
-        if path.name.lower() in ("disp1.pfm", "disp2.pfm") and flow_only(path.parent):
-            # (scored, the zeros read as a failed estimate: MSE 2.9, BadPix 98 %)
-            raise ValueError(f"{path}: zeros, not an estimate: {path.parent / 'sceneflow.npz'} beside it is a "
-                             "flow-only result (--preset flow or one sampling circle); evaluate its flow.flo, or "
-                             "the folder")
         return {"disp1": _read_disparity_pfm(path)}, HCI_BORDER
     if suffix == ".npz":
         return _load_npz(path, VARIABLES + ("valid", "occluded")), SYNTH_BORDER
