@@ -87,8 +87,8 @@ def output_file(path: str | os.PathLike) -> Path:
         raise ValueError(f"{path}: is a folder, not a file to write")
     try:
         output_folder(path.parent, create=False)
-    except ValueError as exc:
-        raise ValueError(f"{path}: cannot be written: {exc}") from None
+    except ValueError as exc:  # (its folder's message, which names the folder, and the file's name)
+        raise ValueError(f"{exc}; {path.name} cannot be written there") from None
     return path
 
 

@@ -43,7 +43,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from lfsf._errors import BAD_INPUT_ERRORS
-from lfsf._files import dead_set, write_bytes_atomic
+from lfsf._files import SET_PREFIX, dead_set, write_bytes_atomic
 
 #: The files of a complete result (those :meth:`lfsf.estimate.SceneFlow.save` writes
 #: without the centre views; with them, ``overview.png`` too, which results of earlier
@@ -281,7 +281,8 @@ def _foreign_files(folder: Path) -> str:
     """The reason a result folder is not replaced: the entries in it that are no result's
     (the first five)."""
     names = set(RESULT_FILES) | {"overview.png"}
-    foreign = sorted(p.name for p in folder.iterdir() if not (p.is_file() and p.name in names or dead_set(p)))
+    foreign = sorted(p.name + (" (a running lfsf's temporary files)" if p.name.startswith(SET_PREFIX) else "")
+                     for p in folder.iterdir() if not (p.is_file() and p.name in names or dead_set(p)))
     more = f" and {len(foreign) - 5} more" if len(foreign) > 5 else ""
     return (f"{folder}: holds what lfsf does not write ({', '.join(foreign[:5])}{more}); not replaced: move it "
             "away, or choose another --out")

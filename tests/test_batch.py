@@ -716,6 +716,7 @@ def test_a_result_folder_left_by_a_killed_run_is_replaced(frames, tmp_path, monk
     (left / "flow.png").unlink()
     summary = batch.run_batch(pairs, tmp_path / "out", PARAMS, workers=1, device="cpu")
     assert [o.status for o in summary.outcomes] == ["failed"] and live.name in summary.outcomes[0].reason
+    assert f"{live.name} (a running lfsf's temporary files)" in summary.outcomes[0].reason
     assert live.is_dir()
 
 
