@@ -238,7 +238,8 @@ def input_record(pair: Pair, warm_start: bool, out: str | os.PathLike | None = N
     starts from (None: none there): a pair whose predecessor was estimated again since
     is estimated again too, from the new start."""
     def stamp(path: Path) -> list:
-        return [path.stat().st_size, path.stat().st_mtime_ns]
+        status = path.stat()
+        return [status.st_size, status.st_mtime_ns]
 
     def files(path: Path) -> list:
         entries = sorted(path.iterdir()) if path.is_dir() else [path]
@@ -277,24 +278,21 @@ def _estimated_with(folder: Path, params, inputs: dict) -> bool:
             and record.get("inputs") == json.loads(json.dumps(inputs)))
 
 
-def _foreign_files(folder: Path) -> str:
-    """The reason a result folder is not replaced: the entries in it that are no result's
-    (the first five)."""
+def _refuse_foreign(folder: Path) -> None:
+    """Raise ValueError unless the existing result folder ``folder`` holds nothing but
+    (some of) a result's files, and the temporary folders of an ``lfsf run`` into it that
+    was killed (:func:`lfsf._files.dead_set`), so that an incomplete result may be
+    replaced without losing anything else. A live run's, or another machine's, is not
+    ours to remove. The message names what else is there (the first five entries)."""
+    if not folder.is_dir():
+        raise ValueError(f"{folder}: the result's place holds a file, not a folder; not replaced")
     names = set(RESULT_FILES) | {"overview.png"}
     foreign = sorted(p.name + (" (a running lfsf's temporary files)" if p.name.startswith(SET_PREFIX) else "")
                      for p in folder.iterdir() if not (p.is_file() and p.name in names or dead_set(p)))
-    more = f" and {len(foreign) - 5} more" if len(foreign) > 5 else ""
-    return (f"{folder}: holds what lfsf does not write ({', '.join(foreign[:5])}{more}); not replaced: move it "
-            "away, or choose another --out")
-
-
-def _holds_only_results(folder: Path) -> bool:
-    """Whether ``folder`` holds nothing but (some of) a result's files, and the temporary
-    folders of an ``lfsf run`` into it that was killed (:func:`lfsf._files.dead_set`), so
-    that an incomplete result may be replaced without losing anything else. A live run's,
-    or another machine's, is not ours to remove."""
-    names = set(RESULT_FILES) | {"overview.png"}
-    return folder.is_dir() and all(p.is_file() and p.name in names or dead_set(p) for p in folder.iterdir())
+    if foreign:
+        more = f" and {len(foreign) - 5} more" if len(foreign) > 5 else ""
+        raise ValueError(f"{folder}: holds what lfsf does not write ({', '.join(foreign[:5])}{more}); not "
+                         "replaced: move it away, or choose another --out")
 
 
 #: The longest pair name, in bytes: its temporary folder adds 24 (".", ".part-", a process
@@ -373,8 +371,8 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
         _remove_stale(out, pair.name)
         tmp = out / f".{pair.name}.part-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         tmp.mkdir(parents=True)
-        if final.exists() and not _holds_only_results(final):  # (before the work, which would be lost)
-            raise ValueError(_foreign_files(final))
+        if final.exists():  # (before the work, which would be lost)
+            _refuse_foreign(final)
         lf1 = read_lightfield(pair.t1)
         lf2 = read_lightfield(pair.t2)
         check_pair(lf1, lf2)
@@ -387,8 +385,7 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
                                  progress=lambda line: notes.append(str(line)) if isinstance(line, Note) else None)
         sf.save(tmp, lf1.centre, lf2.centre, inputs=inputs)   # (with overview.png, as lfsf run)
         if final.exists():  # an earlier result, complete or not, or one left by hand
-            if not _holds_only_results(final):  # (put there while the pair ran)
-                raise ValueError(_foreign_files(final))
+            _refuse_foreign(final)  # (what was put there while the pair ran)
             shutil.rmtree(final)
         os.replace(tmp, final)
         return Outcome(pair.name, "done", time.perf_counter() - t0, replaced, warm=init is not None,
