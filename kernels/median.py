@@ -14,7 +14,8 @@ from typing import Any
 import warp as wp
 
 from .common import from_vec4, overload_unknowns, to_vec4
-from .median_networks import median9, median25, median49, vec49
+from .median_networks import (median9, median25, median49, pair_medians1, pair_medians2, pair_medians3,
+                              sorted_flow_column1, sorted_flow_column2, sorted_flow_column3, vec49)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -163,6 +164,77 @@ def median_flow(
 
 
 overload_unknowns(median_flow, "x", "out")
+
+
+@wp.kernel
+def sorted_flow_columns(
+    row0: int,
+    x: wp.array2d(dtype=Any),
+    radius: int,
+    # outputs
+    cu: wp.array3d(dtype=float),
+    cv: wp.array3d(dtype=float),
+):
+    """The plain median's first pass (:func:`plain_flow_medians`): u and v of the 2r+1
+    rows i − r … i + r of column j (clamped at the borders), sorted, to cu[i, j, 0 … 2r]
+    and cv[i, j, 0 … 2r]. Launch over (rows, columns); 1 ≤ r ≤ LOCAL_RADIUS."""
+    i, j = wp.tid()
+    i = i + row0
+    if radius == 1:
+        sorted_flow_column1(x, i, j, cu, cv)
+    elif radius == 2:
+        sorted_flow_column2(x, i, j, cu, cv)
+    else:
+        sorted_flow_column3(x, i, j, cu, cv)
+
+
+@wp.kernel
+def plain_flow_medians(
+    row0: int,
+    x: wp.array2d(dtype=Any),
+    radius: int,
+    cu: wp.array3d(dtype=float),
+    cv: wp.array3d(dtype=float),
+    # outputs
+    out: wp.array2d(dtype=Any),
+):
+    """:func:`median_flow` with every pixel of the window taking part (tolerance 0, or
+    flow only, where δ1 reads 0), the same values bit for bit, from the window columns
+    that :func:`sorted_flow_columns` sorted into cu and cv: a thread for the pixels
+    (i, 2p) and (i, 2p + 1), whose windows share 2r columns
+    (:func:`lfsf.kernels.median_networks.pair_medians3` and its kin). Min/max operations
+    a window and component: 32 to sort its column, half of the pair's 324 for the shared
+    ranks and 14 for its own column, 208 against :func:`median_flow`'s 614 at radius 3;
+    72 against 212 at radius 2.
+    Launch over (rows, ⌈columns / 2⌉); 1 ≤ r ≤ LOCAL_RADIUS."""
+    i, p = wp.tid()
+    i = i + row0
+    w = x.shape[1]
+    j = 2 * p
+    ul = float(0.0)
+    ur = float(0.0)
+    vl = float(0.0)
+    vr = float(0.0)
+    if radius == 1:
+        ul, ur = pair_medians1(cu, i, j, w)
+        vl, vr = pair_medians1(cv, i, j, w)
+    elif radius == 2:
+        ul, ur = pair_medians2(cu, i, j, w)
+        vl, vr = pair_medians2(cv, i, j, w)
+    else:
+        ul, ur = pair_medians3(cu, i, j, w)
+        vl, vr = pair_medians3(cv, i, j, w)
+    left = x[i, j]
+    a = to_vec4(left)
+    out[i, j] = from_vec4(wp.vec4(a[0], a[1], ul, vl), left)
+    if j + 1 < w:
+        right = x[i, j + 1]
+        b = to_vec4(right)
+        out[i, j + 1] = from_vec4(wp.vec4(b[0], b[1], ur, vr), right)
+
+
+overload_unknowns(sorted_flow_columns, "x")
+overload_unknowns(plain_flow_medians, "x", "out")
 
 
 #: Colour spread floor of :func:`guided_median_edges`' separation test (intensities in

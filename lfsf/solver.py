@@ -132,6 +132,8 @@ class LevelSolver:
         self.tau_x, self.tau_w0, self.tau_w1 = zeros4(), zeros4(), zeros4()
         self.sigma_y = zeros4()  # one step for both components of y (tgv_preconditioner)
         self.scratch = zeros4()
+        # the plain median's sorted window columns of u and v (median), made on its first use
+        self._median_columns: tuple | None = None
         # geometric occlusion at t2: z-buffer of δ2 and the hidden mask
         self.zbuf = wp.zeros((h, w), dtype=float, device=device)
         # geometric visibility of the side views: a z-buffer per sample, t1 and t2
@@ -500,7 +502,19 @@ class LevelSolver:
         if radius <= 0:
             return
         tolerance = self.params.median_tolerance * self.level_scale
-        self._launch(median.median_flow, inputs=[self.x, radius, tolerance], outputs=[self.scratch])
+        if radius <= median.LOCAL_RADIUS and (self.flow_only or tolerance <= 0):
+            # every pixel of the window takes part: the plain median from sorted columns
+            side = 2 * radius + 1
+            if self._median_columns is None or self._median_columns[0].shape[2] != side:
+                self._median_columns = tuple(wp.empty((*self.shape, side), dtype=float, device=self.device)
+                                             for _ in range(2))
+            columns = list(self._median_columns)
+            self._launch(median.sorted_flow_columns, inputs=[self.x, radius], outputs=columns)
+            _device.launch_rows(median.plain_flow_medians, dim=(self.shape[0], (self.shape[1] + 1) // 2),
+                                inputs=[self.x, radius, *columns], outputs=[self.scratch], device=self.device,
+                                bands=self.bands)
+        else:
+            self._launch(median.median_flow, inputs=[self.x, radius, tolerance], outputs=[self.scratch])
         wp.copy(self.x, self.scratch)
         wp.copy(self.x_bar, self.scratch)
 

@@ -1640,6 +1640,34 @@ def test_median_flow_matches_reference(radius, tolerance, device, unknowns):
         np.testing.assert_array_equal(got[..., :2], x[..., :2])
 
 
+@UNKNOWNS
+@pytest.mark.parametrize("radius", [1, 2, 3])
+@pytest.mark.parametrize("size", [(7, 9), (9, 4), (1, 1), (12, 15)])
+def test_plain_flow_medians_match_reference(radius, size, device, unknowns):
+    """The plain median from sorted columns (two passes, a thread for two pixels) is the
+    NumPy median of every window, bit for bit: odd and even widths (a last pair of one
+    pixel), images narrower and shorter than the window, ties."""
+    from lfsf.kernels import median
+
+    h, w = size
+    r = rng(29)
+    x = r.standard_normal((h, w, 4)).astype(np.float32)
+    x[..., 3] = np.round(x[..., 3] * 2) / 2  # many ties
+    x[: h // 2, : w // 2, 2] = 0.25  # a constant patch
+    if unknowns != "vec4":
+        x[..., :2] = 0
+    arr = unknowns_arr(x, unknowns, device)
+    columns = [wp.empty((h, w, 2 * radius + 1), dtype=float, device=device) for _ in range(2)]
+    launch(median.sorted_flow_columns, (h, w), [arr, radius], columns, device)
+    out = unknowns_zeros((h, w), unknowns, device)
+    launch(median.plain_flow_medians, (h, (w + 1) // 2), [arr, radius, *columns], [out], device)
+    got = out.numpy()
+    want = ref.median_flow(x, radius, 0.0)
+    np.testing.assert_array_equal(got, flow_part(want, unknowns).astype(np.float32))
+    if unknowns == "vec4":
+        np.testing.assert_array_equal(got[..., :2], x[..., :2])
+
+
 @pytest.mark.parametrize("radius", [1, 2, 3])
 def test_guided_median_edges_matches_reference(radius, device):
     """δ1 and δ2 take the colour-weighted median at their depth edges where the colours
