@@ -1493,20 +1493,25 @@ def estimate_scene_flow(
     rim = _rim_radius(lf1)
     phis, radius = (params if rim is None else params.replace(radius=min(params.radius, rim))).sample_offsets(
         (rows, cols))
-    if rim is not None and params.circles > 1 and rim < min(params.radius, (min(rows, cols) - 1) / 2.0):
+    grid_radius = params.grid_radius((rows, cols))
+    if rim is not None and params.circles > 1 and rim < grid_radius:
         # (only where the rims, not the grid, set R: the grid's own limit has its note below)
         note(f"sampling radius R = {radius:g} view steps, not {params.radius:g}: the views were decoded from a "
              f"lenslet image, {lf1.meta['lens_views']} across a lens, and those further out lie near the "
              "micro-images' rims, where the neighbouring lenses mix in (RIM_FRACTION)")
     if params.circles > 1 and radius <= 0:
+        axis = "column" if rows > cols else "row"
         raise ValueError(f"{lf1.source}: a {rows}×{cols} grid of views leaves no room for the sampling circles "
-                         f"(M = {params.circles}): the disparities need at least 2 rows and 2 columns of views; "
-                         "for the flow of the centre views alone, use --preset flow (or circles = 1 with samples = [1])")
-    if params.circles > 1 and radius < 1.0:
+                         f"(M = {params.circles}, N = {list(params.samples)}): samples off the grid's {axis} need "
+                         f"views beside it; on a one-{axis} rig, sample along it with circles = 2 and samples = "
+                         "[1, 2] (the views R steps either side of the centre), or, for the flow of the centre "
+                         "views alone, take the flow preset (circles = 1, samples = [1])")
+    cut = grid_radius < params.radius and (rim is None or grid_radius <= rim)  # (R set by the grid)
+    if params.circles > 1 and (cut or radius < 1.0):
         note(f"sampling radius R = {radius:g} view steps"
-             + (f" (the {rows}×{cols} grid allows no more than that of the {params.radius:g} asked)"
-                if radius < params.radius else "")
-             + ": the side samples see little parallax, and δ is less certain than with R ≥ 1")
+             + (f", not {params.radius:g} (all the {rows}×{cols} grid allows for these samples)" if cut else "")
+             + (": the side samples see little parallax, and δ is less certain than with R ≥ 1"
+                if radius < 1.0 else ""))
     # every kernel module compiled (or read from Warp's cache) now, several at once, rather
     # than one at a time at each module's first launch
     compiled = load_kernels(dev)

@@ -488,11 +488,11 @@ def _read_folder(folder: Path) -> LightField:
         raise ValueError(f"{folder}: holds views in two layouts, HCI ({hci[0][1]}, …) and row-column "
                          f"({rowcol[0][1]}, …); keep one light field per folder")
     if hci:
-        files = _hci_grid(folder, hci)
         meta = {"layout": "hci"}
         cfg = folder / "parameters.cfg"
         if cfg.is_file():
             meta["parameters"] = _read_hci_parameters(cfg)
+        files = _hci_grid(folder, hci, _hci_cameras(meta.get("parameters", {})))
         report = _read_decode_report(folder / "decode.json")
         if report is not None:
             meta["decode"], meta["lattice"], meta["lens_views"] = report, report["lattice"], report["views"]
@@ -542,7 +542,19 @@ def _listed_first(items, count: int) -> str:
     return ", ".join(str(i) for i in shown) + (f" and {more} more" if more > 0 else "")
 
 
-def _hci_grid(folder: Path, matches: list) -> list[list[Path]]:
+def _hci_cameras(parameters: dict) -> tuple[int, int] | None:
+    """(rows, cols) of the views as ``parameters.cfg`` gives them (``num_cams_y``,
+    ``num_cams_x`` of its [extrinsics]), or None where it does not."""
+    extrinsics = parameters.get("extrinsics", {})
+    rows, cols = extrinsics.get("num_cams_y"), extrinsics.get("num_cams_x")
+    if isinstance(rows, int) and isinstance(cols, int) and rows >= 1 and cols >= 1:
+        return rows, cols
+    return None
+
+
+def _hci_grid(folder: Path, matches: list, cameras: tuple[int, int] | None = None) -> list[list[Path]]:
+    """The HCI views input_CamNNN.png in rows of the grid: ``cameras`` (rows, cols) from
+    parameters.cfg, else a square grid of the views' count."""
     by_index: dict[int, str] = {}
     for m, name in matches:
         index = int(m.group(1))
@@ -557,11 +569,19 @@ def _hci_grid(folder: Path, matches: list) -> list[list[Path]]:
         raise ValueError(f"{folder}: the HCI views input_Cam000 … input_Cam{count - 1:03d} "
                          f"are incomplete, {count - len(by_index)} missing: "
                          f"{_listed_first(missing, count - len(by_index))}")
+    if cameras is not None:
+        rows, cols = cameras
+        if rows * cols != count:
+            raise ValueError(f"{folder}: parameters.cfg gives a grid of {rows}×{cols} views (num_cams_y × "
+                             f"num_cams_x), but there are {count} (input_Cam000 … input_Cam{count - 1:03d})")
+        return [[folder / by_index[r * cols + c] for c in range(cols)] for r in range(rows)]
     side = math.isqrt(count)
     if side * side != count:
         raise ValueError(f"{folder}: expected a square number of HCI views (e.g. {side}×{side} "
                          f"= {side * side} or {side + 1}×{side + 1} = {(side + 1) ** 2}), got "
-                         f"{count} (input_Cam000 … input_Cam{count - 1:03d})")
+                         f"{count} (input_Cam000 … input_Cam{count - 1:03d}); for a grid that is not square, "
+                         "give num_cams_x and num_cams_y in parameters.cfg's [extrinsics], name the views "
+                         "<name>_RR_CC.png, or give an .npz")
     return [[folder / by_index[r * side + c] for c in range(side)] for r in range(side)]
 
 

@@ -444,9 +444,11 @@ class Params:
         # the real settings that 0 does not suit either (refused below): their message
         # offers no 0
         positive = ("alpha0", "alpha1", "rof_weight", "eps", "step_ratio", "pyramid_scale", "disparity_range",
-                    "flow_range") + (("radius",) if self.circles > 1 else ())
+                    "flow_range")
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
+            if f.name == "radius" and self.circles > 1:  # (its own range, below)
+                continue
             if f.type == "float" and value != 0:
                 need(MIN_REAL <= abs(value) <= MAX_REAL,
                      f"{f.name} must be {'positive and' if f.name in positive else '0 or'} of magnitude "
@@ -461,11 +463,11 @@ class Params:
         # z-buffers, both sample stacks): 256 samples take ~7 GB at 640×480
         need(sum(self.samples) <= MAX_SAMPLES,
              f"samples (N_i) may hold at most {MAX_SAMPLES} positions in all, got {sum(self.samples)}")
-        need(self.radius > 0 or self.circles == 1, f"radius R must be positive, got {self.radius}")
         # side samples within a few hundredths of a view step of the centre see no
         # parallax: every A1 = −φ·∇W1 ≈ 0, and δ came out 0 without a word (R = 1e-9)
-        need(self.radius >= MIN_RADIUS or self.circles == 1,
-             f"radius R must be at least {MIN_RADIUS} view steps (the side samples' parallax), got {self.radius}")
+        need(MIN_RADIUS <= self.radius <= MAX_REAL or self.circles == 1,
+             f"radius R must be {MIN_RADIUS}…{MAX_REAL:g} view steps (at least {MIN_RADIUS}: the side samples' "
+             f"parallax; the grid of views may allow less, which is then used), got {self.radius:g}")
         for name in ("lambda1", "lambda2", "lambda3", "lambda3_side", "alpha0", "alpha1", "gamma", "beta",
                      "rof_weight", "eps"):
             value = getattr(self, name)
@@ -522,22 +524,46 @@ class Params:
 
     def sample_offsets(self, grid: tuple[int, int]) -> tuple[np.ndarray, float]:
         """The angular offsets φ_ij = r_i (cos s_ij, sin s_ij) in view steps, centre first,
-        and the radius R actually used (at most the grid's half extent; 0 with one circle,
-        which samples the centre view alone)."""
+        and the radius R actually used (:meth:`grid_radius`: as far as every sample stays
+        within the grid; 0 with one circle, which samples the centre view alone). The angles
+        s_ij = s_0 + 2πj / N_i start on the grid's long axis: s_0 = 0 (along the rows), or
+        90° on a grid taller than wide where a circle's samples turned by 90° are not the
+        same set (N_i not a multiple of 4: samples = [1, 2] on a vertical rig)."""
         rows, cols = (grid, grid) if np.isscalar(grid) else grid    # (a square grid as one number)
-        limit = min(rows - 1, cols - 1) / 2.0
-        radius = min(self.radius, limit) if self.circles > 1 else 0.0
+        radius = self.grid_radius((rows, cols))
         phis = [(0.0, 0.0)]
         if radius > 0:
-            for i in range(1, self.circles):
-                r = radius * i / (self.circles - 1)
-                n = self.samples[i]
-                for j in range(n):
-                    s = 2.0 * math.pi * j / n
-                    phis.append((r * math.cos(s), r * math.sin(s)))
+            for r, angles in self._circles((rows, cols), radius):
+                phis.extend((r * math.cos(s), r * math.sin(s)) for s in angles)
         out = np.asarray(phis, dtype=np.float32)
         out[np.abs(out) < 1e-6] = 0.0
         return out, radius
+
+    def grid_radius(self, grid: tuple[int, int]) -> float:
+        """The sampling radius R used on a rows × cols grid of views: ``radius``, or less
+        where a sample would fall outside the grid (each axis on its own: a sample along
+        the rows needs only columns of views, so a 1×N rig takes samples = [1, 2]); 0 with
+        one circle, or where no R fits (a sample off the axis of a one-row grid)."""
+        rows, cols = (grid, grid) if np.isscalar(grid) else grid
+        if self.circles <= 1:
+            return 0.0
+        half = ((cols - 1) / 2.0, (rows - 1) / 2.0)  # the grid's half extents along x and y
+        limit = float(self.radius)
+        for r, angles in self._circles((rows, cols), 1.0):
+            for s in angles:
+                for extent, component in zip(half, (math.cos(s), math.sin(s))):
+                    if abs(component) > 1e-6:
+                        limit = min(limit, extent / (r * abs(component)))
+        return limit
+
+    def _circles(self, grid: tuple[int, int], radius: float):
+        """(r_i, the angles s_ij) of the circles i = 1 … M − 1 at sampling radius R."""
+        rows, cols = grid
+        turned = rows > cols and any(n % 4 for n in self.samples[1:])
+        start = math.pi / 2 if turned else 0.0
+        for i in range(1, self.circles):
+            n = self.samples[i]
+            yield radius * i / (self.circles - 1), [start + 2.0 * math.pi * j / n for j in range(n)]
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)

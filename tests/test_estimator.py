@@ -807,6 +807,28 @@ def test_a_grid_without_room_for_the_circles_is_a_clear_error(grid):
     assert np.median(np.abs(interior(sf.u) - 1.5)) < 0.1
 
 
+@pytest.mark.parametrize("grid", [(1, 9), (9, 1), (2, 9)])
+def test_a_rig_of_one_row_or_column_samples_along_it(grid):
+    """samples = [1, 2] on a 1×N (N×1) rig: the two samples lie R steps either side of the
+    centre along the rig (turned by 90° on a vertical one), R up to the rig's half length,
+    and δ comes back; the default samples, which need views off the rig, are refused with
+    the way out named."""
+    lf1, lf2 = shift_lightfields(h=24, w=32, grid=9)
+    rows, cols = grid
+    cut = [lfsf.LightField(lf.views[4 - rows // 2:4 - rows // 2 + rows, 4 - cols // 2:4 - cols // 2 + cols],
+                           source="rig.npz") for lf in (lf1, lf2)]
+    along = QUICK.replace(circles=2, samples=(1, 2), radius=4.0)
+    phis, radius = along.sample_offsets(grid)
+    assert radius == 4.0
+    np.testing.assert_allclose(np.abs(phis), [[0, 0], [0, 4], [0, 4]] if rows > cols else [[0, 0], [4, 0], [4, 0]])
+    sf = estimate_scene_flow(*cut, along, device="cpu")
+    assert np.median(np.abs(interior(sf.disp1) - 0.6)) < 0.05
+    assert np.median(np.abs(interior(sf.u) - 1.5)) < 0.1
+    if min(grid) == 1:
+        with pytest.raises(ValueError, match=r"samples = \[1, 2\]"):
+            estimate_scene_flow(*cut, QUICK, device="cpu")
+
+
 def test_light_fields_may_be_given_as_paths(tmp_path):
     lf1, lf2 = shift_lightfields(h=24, w=32, grid=3)
     np.savez(tmp_path / "lf1.npz", views=lf1.views)
@@ -1208,9 +1230,10 @@ def test_views_too_small_for_a_gain_fit_are_left_as_they_are():
     assert not [n for n in notes if n.startswith("view gains")], notes
 
 
-def test_a_sampling_radius_below_one_view_step_is_noted():
+def test_a_sampling_radius_below_one_view_step_or_cut_by_the_grid_is_noted():
     """R < 1 (asked, or all a 2×2 grid allows) gives δ far less certain (`paper`, 9×9
-    views: δ1 MSE 0.096 at R = 0.5 against 0.0031 at 4); the progress says so."""
+    views: δ1 MSE 0.096 at R = 0.5 against 0.0031 at 4); the progress says so, and says
+    when the grid allows less than the R asked."""
     from lfsf import synth
     from lfsf.estimate import Note
 
@@ -1222,10 +1245,12 @@ def test_a_sampling_radius_below_one_view_step_is_noted():
 
     lf1, lf2, _ = synth.render_scene("paper", size=(48, 40), grid=2, device="cpu")
     assert notes(lf1, lf2, Params.preset("fast")) == [
-        "sampling radius R = 0.5 view steps (the 2×2 grid allows no more than that of the 4 asked): the side "
+        "sampling radius R = 0.5 view steps, not 4 (all the 2×2 grid allows for these samples): the side "
         "samples see little parallax, and δ is less certain than with R ≥ 1"]
     lf1, lf2, _ = synth.render_scene("paper", size=(48, 40), grid=3, device="cpu")
-    assert notes(lf1, lf2, Params.preset("fast")) == []                       # R = 1
+    assert notes(lf1, lf2, Params.preset("fast")) == [
+        "sampling radius R = 1 view steps, not 4 (all the 3×3 grid allows for these samples)"]
+    assert notes(lf1, lf2, Params.preset("fast").replace(radius=1.0)) == []   # as asked
     assert notes(lf1, lf2, Params.preset("fast").replace(radius=0.5)) == [
         "sampling radius R = 0.5 view steps: the side samples see little parallax, and δ is less certain than "
         "with R ≥ 1"]

@@ -733,6 +733,29 @@ def test_read_hci_folder(tmp_path):
     assert lf.meta["layout"] == "hci"
 
 
+def test_hci_folder_takes_its_grid_from_parameters_cfg(tmp_path):
+    """A rig that is not square, in the HCI layout: parameters.cfg's num_cams_x and
+    num_cams_y give the grid (the count alone read 9 views as 3×3); a count that does not
+    match them is an error naming both."""
+    folder = tmp_path / "rig"
+    folder.mkdir()
+    views = np.random.default_rng(5).integers(0, 256, (9, 4, 5)).astype(np.uint8)
+    for k in range(9):
+        iio.imwrite(folder / f"input_Cam{k:03d}.png", views[k])
+    for rows, cols in ((1, 9), (9, 1)):
+        (folder / "parameters.cfg").write_text(f"[extrinsics]\nnum_cams_x = {cols}\nnum_cams_y = {rows}\n")
+        lf = lio.read_lightfield(folder)
+        assert lf.grid == (rows, cols)
+        np.testing.assert_array_equal(lf.views.reshape(9, 4, 5), views / np.float32(255))
+    (folder / "parameters.cfg").write_text("[extrinsics]\nnum_cams_x = 5\nnum_cams_y = 2\n")
+    with pytest.raises(ValueError, match=r"rig: parameters.cfg gives a grid of 2×5 views .* but there are 9"):
+        lio.read_lightfield(folder)
+    (folder / "parameters.cfg").unlink()
+    (folder / "input_Cam008.png").unlink()
+    with pytest.raises(ValueError, match=r"square number of HCI views .* num_cams_x and num_cams_y in parameters"):
+        lio.read_lightfield(folder)
+
+
 def test_read_hci_folder_with_bad_parameters_warns(tmp_path):
     _hci_folder(tmp_path / "hci", 2)
     (tmp_path / "hci" / "parameters.cfg").write_text("no section header here\n")
