@@ -79,6 +79,19 @@ def _positive(text: str) -> int:
     return value
 
 
+def _grid_option(values: list[int]) -> tuple[int, int]:
+    """``--grid N`` (N×N views) or ``--grid ROWS COLS`` as (rows, cols), within the
+    renderer's bounds."""
+    from lfsf.synth import MAX_GRID
+
+    if len(values) > 2:
+        raise ValueError(f"--grid takes N (N×N views) or ROWS COLS, got {len(values)} numbers")
+    rows, cols = values if len(values) == 2 else values * 2
+    if max(rows, cols) > MAX_GRID:
+        raise ValueError(f"--grid must be at most {MAX_GRID} views a side, got {' '.join(map(str, values))}")
+    return rows, cols
+
+
 # --- synth ---------------------------------------------------------------------------------
 
 def cmd_synth(args) -> int:
@@ -98,6 +111,7 @@ def cmd_synth(args) -> int:
     if args.frames < 2:
         raise ValueError(f"--frames must be at least 2 (2: one pair), got {args.frames}")
     scene = synth.get_scene(args.scene)  # unknown scene: clear error before any work
+    args.grid = _grid_option(args.grid)
     synth.check_render(args.size, args.grid, args.supersample, args.frames, args.colour, args.noise)
     images = None
     if args.images is not None:  # photographs on the objects, each one's image and scale drawn by --image-seed
@@ -114,7 +128,7 @@ def cmd_synth(args) -> int:
     if args.frames > 2:
         if args.preview:
             raise ValueError("--preview is for a pair; a sequence (--frames) writes none")
-        _log(args, f"rendering {what} at {width}×{height}, {args.grid}×{args.grid} views, "
+        _log(args, f"rendering {what} at {width}×{height}, {args.grid[0]}×{args.grid[1]} views, "
                    f"{args.frames} frames, on {device} …")
         t0 = time.perf_counter()
         paths = synth.write_sequence(scene, args.out, args.frames, size=(width, height), grid=args.grid,
@@ -123,7 +137,7 @@ def cmd_synth(args) -> int:
         _log(args, f"wrote {len(paths['frames'])} frames to {Path(args.out) / 'frames'} and the ground truth of "
                    f"each pair to {Path(args.out) / 'gt'} in {time.perf_counter() - t0:.1f} s")
         return 0
-    _log(args, f"rendering {what} at {width}×{height}, {args.grid}×{args.grid} views, t1 and t2, on {device} …")
+    _log(args, f"rendering {what} at {width}×{height}, {args.grid[0]}×{args.grid[1]} views, t1 and t2, on {device} …")
     t0 = time.perf_counter()
     paths = synth.write_scene(scene, args.out, size=(width, height), grid=args.grid,
                               supersample=args.supersample, colour=args.colour, device=device, noise=args.noise,
@@ -171,7 +185,7 @@ def cmd_eval(args) -> int:
     import numpy as np
 
     from lfsf._files import write_json_atomic
-    from lfsf.evaluate import evaluate, format_table, load_estimate, load_ground_truth
+    from lfsf.evaluate import VARIABLES, evaluate, format_table, load_estimate, load_ground_truth
 
     if args.json:
         output_file(args.json)
@@ -207,7 +221,9 @@ def cmd_eval(args) -> int:
         has, lacks = ("u", "v") if "u" in gt else ("v", "u")
         notes.append(f"flow not evaluated: {args.gt} has '{has}' but no '{lacks}'")
     if Path(args.gt).suffix.lower() == ".npz" and "valid" not in gt:
-        notes.append(f"every pixel scored (but the border): {args.gt} holds no 'valid' mask")
+        finite = all(np.isfinite(gt[k]).all() for k in VARIABLES if k in gt)
+        notes.append(f"every {'' if finite else 'finite '}pixel scored (but the border): {args.gt} holds no "
+                     "'valid' mask" + ("" if finite else "; its NaN or infinite values are left out"))
     for note in notes:
         print(note)
     if args.json:
@@ -362,13 +378,14 @@ def cmd_demo(args) -> int:
     device = resolve_device(args.device)
     params = _params(args)
     synth.get_scene(args.scene)
+    args.grid = _grid_option(args.grid)
     synth.check_render(args.size, args.grid, colour=args.colour)  # before any work
     width, height = args.size
     if min(width, height) <= 2 * SYNTH_BORDER:
         raise ValueError(f"--size {width} {height}: the demo's errors leave out a border of {SYNTH_BORDER} px; "
                          f"give at least {2 * SYNTH_BORDER + 1} px each way")
     out = output_folder(args.out, create=False, names=_result_names())
-    _say(args, f"lfsf demo: scene '{args.scene}', {width}×{height}, {args.grid}×{args.grid} "
+    _say(args, f"lfsf demo: scene '{args.scene}', {width}×{height}, {args.grid[0]}×{args.grid[1]} "
                f"{'RGB ' if args.colour else ''}views, {_preset_label(args)}, on {device}")
     # the renderer's kernels and the estimator's compiled together (on a cold kernel cache)
     compiled = load_kernels(device, extra=[render])
@@ -392,7 +409,7 @@ def cmd_demo(args) -> int:
         print(_not_estimated_line(out, ["disp1", "disp2"]), flush=True)
     # the overview with the ground truth and the errors, in the one set of results
     sf.save(out, lf1.centre, lf2.centre, gt=gt, border=SYNTH_BORDER,
-            title=f"lfsf demo: '{args.scene}' ({width}x{height}, {args.grid}x{args.grid} "
+            title=f"lfsf demo: '{args.scene}' ({width}x{height}, {args.grid[0]}x{args.grid[1]} "
                   f"{'RGB ' if args.colour else ''}views, {_preset_label(args)})")
     _say(args, f"wrote {out / 'overview.png'} and the results (disp1.pfm, disp2.pfm, flow.flo, sceneflow.npz, "
                f"disp1.png, disp2.png, flow.png) to {out}")
@@ -543,7 +560,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=_folder_name, help="output folder")
     p.add_argument("--size", nargs=2, type=_size, metavar=("W", "H"), default=(640, 480),
                    help="view size in pixels (default 640 480)")
-    p.add_argument("--grid", type=_positive, default=9, metavar="N", help="N×N views (default 9)")
+    p.add_argument("--grid", type=_positive, nargs="+", default=[9], metavar="N",
+                   help="N×N views, or ROWS COLS (default 9)")
     p.add_argument("--supersample", type=_positive, default=2, metavar="K",
                    help="K×K rays per pixel (default 2)")
     p.add_argument("--colour", action="store_true", help="RGB views (default grey)")
@@ -611,7 +629,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scene", default="paper", help="scene name (see 'lfsf synth --list'; default paper)")
     p.add_argument("--size", nargs=2, type=_size, metavar=("W", "H"), default=(320, 240),
                    help="view size (default 320 240; at least 17 each way: the errors leave out an 8-px border)")
-    p.add_argument("--grid", type=_positive, default=9, metavar="N", help="N×N views (default 9)")
+    p.add_argument("--grid", type=_positive, nargs="+", default=[9], metavar="N",
+                   help="N×N views, or ROWS COLS (default 9)")
     p.add_argument("--colour", action="store_true",
                    help="RGB views (default grey): the estimate then also takes δ1's diffusion tensor from the "
                         "colours (Params.colour_tensor) and snaps δ1 and δ2 to the colour edges "

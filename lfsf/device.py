@@ -151,12 +151,27 @@ def cpu_threads() -> int:
 
 
 def thread_pool() -> ThreadPoolExecutor:
-    """The pool of :func:`cpu_threads` threads that banded CPU launches run on (made once)."""
+    """The pool of :func:`cpu_threads` threads that banded CPU launches run on (made once
+    per process: a child forked from a process that had one makes its own)."""
     global _pool
     with _init_lock:
         if _pool is None:
             _pool = ThreadPoolExecutor(max_workers=cpu_threads(), thread_name_prefix="lfsf-band")
         return _pool
+
+
+def _forked_child() -> None:
+    """In a child forked from this process (``multiprocessing``'s "fork" start, the
+    default on Linux before Python 3.14): the parent's pool is forgotten, whose threads
+    the child does not have (its launches waited for them for ever), and so is the
+    lock, which a thread of the parent may have held at the fork."""
+    global _pool, _init_lock
+    _pool = None
+    _init_lock = threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forked_child)
 
 
 def _load(modules: Sequence, device) -> float:

@@ -3,6 +3,7 @@ coarse-to-fine warping around :class:`lfsf.solver.LevelSolver` (MODEL.md §2–�
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import os
@@ -153,20 +154,43 @@ class SceneFlow:
         record in ``sceneflow.npz`` of the inputs (``lfsf batch``'s
         :func:`lfsf.batch.input_record`). :meth:`load` reads the result back.
         A flow-only result's (one circle) δ1 and δ2 pictures are plain grey
-        (:data:`lfsf.viz.NOT_ESTIMATED_GREY`), and said to be not estimated in the overview."""
-        import json
-
-        from lfsf import io, viz
-        from lfsf._files import file_set, output_folder
+        (:data:`lfsf.viz.NOT_ESTIMATED_GREY`), and said to be not estimated in the overview.
+        ``gt`` is a mapping of maps (:func:`lfsf.viz.ground_truth_maps`) or the path of a
+        ``gt.npz`` or a PFM (:func:`lfsf.evaluate.load_ground_truth`; ``border`` stays as
+        given), checked before the folder is made; a folder made for the result is removed
+        again if writing fails."""
+        from lfsf import viz
+        from lfsf._files import output_folder
         from lfsf.batch import RESULT_FILES
 
         if (centre1 is None) != (centre2 is None) or (centre1 is None and (gt is not None or title is not None)):
             raise ValueError("SceneFlow.save: overview.png needs both centre views (centre1, centre2); "
                              "gt and title go into it")
+        if isinstance(gt, (str, os.PathLike)):  # (a gt.npz or a PFM, as lfsf run --gt takes it)
+            from lfsf.evaluate import load_ground_truth
+
+            gt, _border = load_ground_truth(gt)
+        viz.ground_truth_maps(gt, self.disp1.shape)  # (checked before a folder is made)
+        made = not os.path.lexists(out)
         out = output_folder(out)
         names = list(RESULT_FILES)
         if centre1 is not None and centre2 is not None:
             names.append("overview.png")
+        try:
+            return self._save_files(out, names, centre1, centre2, gt, title, border, inputs)
+        except BaseException:
+            if made:  # (a folder made for this result, left empty by its failure)
+                with contextlib.suppress(OSError):
+                    out.rmdir()
+            raise
+
+    def _save_files(self, out: Path, names: list[str], centre1, centre2, gt, title, border, inputs) -> list[Path]:
+        """:meth:`save`'s files, into the folder ``out`` that it checked."""
+        import json
+
+        from lfsf import io, viz
+        from lfsf._files import file_set
+
         with file_set(out, names) as tmp:
             for name in ("disp1", "disp2"):
                 io.write_pfm(tmp / f"{name}.pfm", getattr(self, name))

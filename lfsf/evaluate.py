@@ -101,8 +101,16 @@ def _mask(shape, valid, border: int, finite: np.ndarray) -> np.ndarray:
 def _check_pair(name, est, ref):
     if est.ndim == ref.ndim == 2:
         if est.shape != ref.shape:
+            dy, dx = est.shape[0] - ref.shape[0], est.shape[1] - ref.shape[1]
+            hint = ""
+            if dy > 0 and dx > 0 and dy % 2 == 0 and dx % 2 == 0:  # a reference estimated on cropped views
+                y, x = dy // 2, dx // 2
+                cut = f"{x} px on every side" if x == y else f"{x} px left and right, {y} top and bottom"
+                hint = (f", the estimate less {cut} (a reference that crops its views?): to compare them, crop "
+                        f"the estimate, e.g. lfsf.io.write_pfm('cropped.pfm', lfsf.io.read_pfm('disp1.pfm')"
+                        f"[{y}:-{y}, {x}:-{x}])")
             raise ValueError(f"{name}: the estimate is {est.shape[1]}×{est.shape[0]} but the "
-                             f"ground truth is {ref.shape[1]}×{ref.shape[0]}")
+                             f"ground truth is {ref.shape[1]}×{ref.shape[0]}{hint}")
     else:
         raise ValueError(f"{name}: expected 2-D maps, got an estimate of shape {est.shape} and "
                          f"a ground truth of shape {ref.shape}")
@@ -235,7 +243,8 @@ def occlusion_scores(est, gt, valid=None, border: int = 0) -> dict[str, float]:
 
 def load_estimate(path: str | Path) -> dict[str, np.ndarray]:
     """Read a result: a folder written by ``lfsf run`` (``sceneflow.npz``, else
-    ``disp1.pfm``/``disp2.pfm``/``flow.flo``), or a ``.npz`` / ``.pfm`` / ``.flo`` file."""
+    ``disp1.pfm``/``disp2.pfm``/``flow.flo``), or a ``.npz`` / ``.pfm`` / ``.flo`` file. A
+    ``.pfm`` is δ1 (disp1), but for one named ``disp2.pfm``, which is δ2."""
     from lfsf import io
 
     path = Path(path)
@@ -267,7 +276,8 @@ def load_estimate(path: str | Path) -> dict[str, np.ndarray]:
             raise ValueError(f"{path}: zeros, not an estimate: {path.parent / 'sceneflow.npz'} beside it is a "
                              "flow-only result (--preset flow or one sampling circle); evaluate its flow.flo, or "
                              "the folder")
-        return {"disp1": _read_disparity_pfm(path)}
+        # (lfsf's own disp2.pfm is δ2; any other PFM is taken as δ1, as a benchmark's is)
+        return {"disp2" if path.name.lower() == "disp2.pfm" else "disp1": _read_disparity_pfm(path)}
     if suffix == ".flo":
         flow = io.read_flo(path)
         return {"u": flow[..., 0], "v": flow[..., 1]}

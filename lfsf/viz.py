@@ -553,26 +553,7 @@ def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="
     if max_flow is not None and not (math.isfinite(max_flow) and max_flow > 0):
         raise ValueError(f"expected max_flow as a finite number > 0, got {max_flow!r}")
 
-    truth: dict[str, np.ndarray] = {}
-    valid = np.ones(shape, dtype=bool)
-    if gt is not None:
-        # any of δ1, δ2 and the flow (u and v together): an HCI benchmark's ground truth
-        # is δ1 alone; the panels of what it lacks say so
-        if not any(k in gt for k in ("disp1", "disp2", "u", "v")) or ("u" in gt) != ("v" in gt):
-            missing = [k for k in ("disp1", "disp2", "u", "v") if k not in gt]
-            raise ValueError(f"expected gt with keys disp1, disp2 and/or u with v; missing {missing}")
-        truth = {k: _check_map_shape(f"gt[{k!r}]", gt[k], shape)
-                 for k in ("disp1", "disp2", "u", "v") if k in gt}
-        if gt.get("valid") is not None:
-            mask = np.asarray(gt["valid"])
-            if mask.shape != shape or mask.dtype != bool:
-                raise ValueError(
-                    f"expected gt['valid'] as a bool array of shape {shape}, "
-                    f"got {mask.dtype} {mask.shape}"
-                )
-            valid = mask.copy()
-        # outside the mask the ground truth means nothing: draw it as invalid too
-        truth = {k: np.where(valid, a, np.nan) for k, a in truth.items()}
+    truth, valid = ground_truth_maps(gt, shape)
 
     # one range for δ1 and δ2 (and their truth): the same colour is the same disparity in
     # every panel, as in the disp1.png and disp2.png of a result
@@ -772,6 +753,30 @@ def _draw_footer(canvas, draw, footer, x0, y0, pw, footer_h, font, text_at, line
             idx = np.round(np.linspace(0, len(footer.lut) - 1, bar_w)).astype(np.intp)
             bar = np.repeat(footer.lut[idx][None], bar_h, axis=0)
             canvas.paste(Image.fromarray(bar), (bar_x0, y0 + (footer_h - bar_h) // 2))
+
+
+def ground_truth_maps(gt, shape: tuple[int, int]) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """The ground truth's maps (any of δ1, δ2 and the flow, u with v; an HCI benchmark's is
+    δ1 alone), NaN outside its ``valid`` mask, and that mask (all true where it has none),
+    checked against the estimate's ``shape``: ({} and all true for ``gt`` None)."""
+    truth: dict[str, np.ndarray] = {}
+    valid = np.ones(shape, dtype=bool)
+    if gt is None:
+        return truth, valid
+    if not isinstance(gt, Mapping):
+        raise ValueError(f"expected gt as a mapping of maps (disp1, disp2, u, v, valid), got {type(gt).__name__} "
+                         "(lfsf.evaluate.load_ground_truth returns the maps and a border: (gt, border))")
+    if not any(k in gt for k in ("disp1", "disp2", "u", "v")) or ("u" in gt) != ("v" in gt):
+        missing = [k for k in ("disp1", "disp2", "u", "v") if k not in gt]
+        raise ValueError(f"expected gt with keys disp1, disp2 and/or u with v; missing {missing}")
+    truth = {k: _check_map_shape(f"gt[{k!r}]", gt[k], shape) for k in ("disp1", "disp2", "u", "v") if k in gt}
+    if gt.get("valid") is not None:
+        mask = np.asarray(gt["valid"])
+        if mask.shape != shape or mask.dtype != bool:
+            raise ValueError(f"expected gt['valid'] as a bool array of shape {shape}, got {mask.dtype} {mask.shape}")
+        valid = mask.copy()
+    # outside the mask the ground truth means nothing: draw it as invalid too
+    return {k: np.where(valid, a, np.nan) for k, a in truth.items()}, valid
 
 
 def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = None,

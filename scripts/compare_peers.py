@@ -602,6 +602,12 @@ def main(argv=None) -> int:
             raise ValueError("nothing to compare: " + ("--no-synth without --real" if args.no_synth else
                                                        "'--scenes' without names takes none; name some, add "
                                                        "--random N") + ", or compare the real data with --real")
+        data = Path(args.data)
+        if args.real and not ((data / "hci-antinous" / "gt_disp_lowres.pfm").exists()
+                              or (data / "lytro-illum-2067" / "epinet_disparity_estimate.pfm").exists()):
+            # (it had printed an empty table and exited 0)
+            raise ValueError(f"--real: no real data under {data} (hci-antinous/ or lytro-illum-2067/, as "
+                             "../shared/data/README.md lists them); give their folder with --data")
         if args.images is not None:
             from lfsf import synth
 

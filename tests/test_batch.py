@@ -846,7 +846,9 @@ def test_a_pairs_notes_are_reported_with_it(tmp_path, monkeypatch):
     write_lightfield(lf1, tmp_path / "a.npz")
     write_lightfield((0.5 * lf2.views).astype(np.float32), tmp_path / "b.npz")
     manifest = _manifest(tmp_path / "m.csv", [(tmp_path / "a.npz", tmp_path / "b.npz", "dark")])
-    summary = batch.run_batch(batch.pairs_from_sources([manifest]), tmp_path / "out", PARAMS, device="cpu")
+    # (R = 1, all the 3×3 grid allows: no note of a radius cut down)
+    summary = batch.run_batch(batch.pairs_from_sources([manifest]), tmp_path / "out", PARAMS.replace(radius=1.0),
+                              device="cpu")
     (outcome,) = summary.outcomes
     assert outcome.status == "done" and len(outcome.notes) == 1, outcome
     found = re.match(r"exposure: t2 matched to t1 by I ↦ ([0-9.]+)·I", outcome.notes[0])

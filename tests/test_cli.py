@@ -59,6 +59,13 @@ def test_synth_renders_a_random_scene_and_names_bad_ones(tmp_path):
     assert status == 2 and "random-N" in err and not (tmp_path / "x").exists(), err
 
 
+def test_synth_renders_a_grid_of_rows_and_columns(tmp_path):
+    """--grid ROWS COLS renders a rig that is not square (as render_scene's grid=(rows, cols))."""
+    status, _, err = lfsf("synth", "paper", "--out", tmp_path / "s", "--size", 40, 30, "--grid", 1, 5, "--quiet")
+    assert status == 0, err
+    assert np.load(tmp_path / "s" / "lf1.npz")["views"].shape == (1, 5, 30, 40)
+
+
 def test_synth_writes_pair_and_ground_truth(tmp_path):
     status, _, err = lfsf("synth", "slanted", "--out", tmp_path / "s", "--size", 40, 30, "--grid", 3)
     assert status == 0, err
@@ -198,6 +205,11 @@ def test_eval_says_what_the_ground_truth_lacks(tmp_path, capsys):
         f"flow not evaluated: {tmp_path / 'half.npz'} has 'v' but no 'u'"]
     assert main(["eval", str(tmp_path / "gt.npz"), str(tmp_path / "all.npz")]) == 0
     assert f"every pixel scored (but the border): {tmp_path / 'all.npz'} holds no 'valid' mask" in capsys.readouterr().out
+    gt["disp1"][3, 4] = np.nan  # (a truth with holes and no mask: its NaN are left out, and the note says so)
+    np.savez(tmp_path / "holes.npz", **{k: v for k, v in gt.items() if k != "valid"})
+    assert main(["eval", str(tmp_path / "gt.npz"), str(tmp_path / "holes.npz")]) == 0
+    assert (f"every finite pixel scored (but the border): {tmp_path / 'holes.npz'} holds no 'valid' mask; its NaN "
+            "or infinite values are left out") in capsys.readouterr().out
     assert main(["eval", str(tmp_path / "gt.npz"), str(tmp_path / "gt.npz")]) == 0
     out = capsys.readouterr().out
     assert "not evaluated" not in out and "every pixel" not in out
@@ -296,12 +308,13 @@ def test_bad_input_is_one_clear_line_and_status_2(tmp_path, args, needles):
     "args,needle",
     [
         (["synth", "paper", "--out", "{tmp}/x", "--size", "100000", "100000"], "image width must be in 8…8192"),
-        (["synth", "paper", "--out", "{tmp}/x", "--grid", "1000"], "grid rows must be in 1…33, got 1000"),
+        (["synth", "paper", "--out", "{tmp}/x", "--grid", "1000"], "--grid must be at most 33 views a side, got 1000"),
+        (["synth", "paper", "--out", "{tmp}/x", "--grid", "3", "4", "5"], "--grid takes N (N×N views) or ROWS COLS, got 3"),
         (["synth", "paper", "--out", "{tmp}/x", "--supersample", "50"], "supersample must be in 1…16"),
         (["synth", "paper", "--out", "{tmp}/x", "--frames", "300"], "more than the 2,147,483,648"),
         (["synth", "paper", "--out", "{tmp}/x", "--noise", "-1"], "noise sigma must be a finite number"),
         (["demo", "--out", "{tmp}/x", "--size", "320", "9000"], "image height must be in 8…8192"),
-        (["demo", "--out", "{tmp}/x", "--grid", "40"], "grid rows must be in 1…33"),
+        (["demo", "--out", "{tmp}/x", "--grid", "40"], "--grid must be at most 33 views a side, got 40"),
         (["demo", "--out", "{tmp}/x", "--size", "16", "12"], "give at least 17 px each way"),
         (["bench", "kernels", "--size", "10000", "10"], "image width must be in 8…8192"),
     ],
@@ -628,6 +641,7 @@ def test_an_error_raised_while_interrupted_counts_as_the_interrupt(monkeypatch, 
     ("compare_peers.py", ["--json", "{tmp}/gt/x.json"], "is a file, not a folder"),
     ("compare_peers.py", ["--scenes", "--methods", "lfsf"], "nothing to compare: '--scenes' without names"),
     ("compare_peers.py", ["--no-synth", "--methods", "lfsf"], "nothing to compare: --no-synth without --real"),
+    ("compare_peers.py", ["--real", "--no-synth", "--data", "{tmp}"], "--real: no real data under"),
     ("fine_textures.py", ["--textures", "wood"], "unknown texture(s) ['wood']"),
     ("fine_textures.py", ["--shifts", "30,0"], "--shifts 30,0: at most 20 px each way"),
     ("fine_textures.py", ["--shifts", "3"], "--shifts 3: expected DU,DV"),
@@ -806,7 +820,7 @@ def test_a_reader_that_goes_away_does_not_cost_the_results(tmp_path):
     """``lfsf demo | head -1``: once the reader has closed the pipe, what the demo prints
     is dropped, and it still writes its files and ends with status 0 (it had ended in
     "[Errno 32] Broken pipe", status 2, with nothing written)."""
-    proc = subprocess.Popen([sys.executable, "-m", "lfsf", "demo", "--size", "24", "24", "--grid", "3", "--preset",
+    proc = subprocess.Popen([sys.executable, "-m", "lfsf", "demo", "--size", "24", "24", "--grid", "9", "--preset",
                              "fast", "--out", str(tmp_path / "d")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             env={**os.environ, "LFSF_DEVICE": ""})
     first = proc.stdout.readline()

@@ -1,5 +1,7 @@
 """Device choice and banded CPU launches."""
 
+import os
+
 import numpy as np
 import pytest
 
@@ -300,3 +302,41 @@ def test_a_warp_too_old_is_one_line_from_the_cli(monkeypatch, tmp_path, capsys):
                                 f"and this Python has 1.5.0: pip install -U 'warp-lang>="
                                 f"{'.'.join(map(str, D.MIN_WARP))}'"]
     assert not out.exists()
+
+
+def _estimate_in_child(queue):
+    import lfsf
+    from lfsf import synth
+
+    lf1, lf2, _ = synth.render_scene("paper", size=(64, 48), grid=3, device="cpu")
+    sf = lfsf.estimate_scene_flow(lf1, lf2, "fast", device="cpu")
+    queue.put(sf.u.tobytes())
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork here")
+def test_a_forked_child_estimates_after_its_parent_did():
+    """multiprocessing's "fork" start after lfsf ran in the parent: the child had inherited
+    the parent's band pool without its threads, and its first banded launch waited for ever.
+    The child gives the parent's result."""
+    import multiprocessing
+    import warnings
+
+    import lfsf
+    from lfsf import synth
+
+    lf1, lf2, _ = synth.render_scene("paper", size=(64, 48), grid=3, device="cpu")
+    mine = lfsf.estimate_scene_flow(lf1, lf2, "fast", device="cpu").u
+    assert D._pool is not None  # (the parent's pool exists: what the child inherits)
+    context = multiprocessing.get_context("fork")
+    queue = context.Queue()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # (3.12+: fork of a process with threads)
+        child = context.Process(target=_estimate_in_child, args=(queue,))
+        child.start()
+    try:
+        got = queue.get(timeout=240)
+    finally:
+        child.join(timeout=10)
+        if child.is_alive():
+            child.kill()
+    assert got == mine.tobytes()

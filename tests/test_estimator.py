@@ -1347,6 +1347,17 @@ def test_a_saved_scene_flow_loads_back_whole(tmp_path):
         with pytest.raises(ValueError, match=r"SceneFlow.save: overview.png needs both centre views"):
             sf.save(tmp_path / "bad", **kwargs)
     assert not (tmp_path / "bad").exists()
+    # the truth as a path (as lfsf run --gt takes it), checked before the folder is made
+    from lfsf import io
+
+    io.write_pfm(tmp_path / "gt.pfm", maps[0])
+    assert (tmp_path / "g" / "overview.png") in sf.save(tmp_path / "g", lf, lf, gt=tmp_path / "gt.pfm")
+    for gt, error, needle in ((str(tmp_path / "none.pfm"), FileNotFoundError, "none.pfm: no such file"),
+                              ({"views": lf}, ValueError, "expected gt with keys disp1"),
+                              (({"disp1": maps[0]}, 15), ValueError, r"got tuple \(lfsf.evaluate.load_ground_truth")):
+        with pytest.raises(error, match=needle):
+            sf.save(tmp_path / "bad", lf, lf, gt=gt)
+        assert not (tmp_path / "bad").exists()
 
 
 def _fine_texture_pair(h, w, du, dv):

@@ -188,6 +188,25 @@ def test_a_scene_flow_is_evaluated_as_its_maps():
     assert set(E.evaluate(sf, gt, border=2)) == {"flow"}
 
 
+def test_a_results_disp2_pfm_is_scored_as_disp2(tmp_path):
+    """lfsf's own disp2.pfm is δ2 (it had been scored against the truth's δ1, and δ2
+    called missing); any other PFM, a benchmark's among them, is δ1."""
+    from lfsf import io
+
+    d1, d2 = np.full((20, 20), 0.5, np.float32), np.full((20, 20), -0.25, np.float32)
+    for name, a in (("disp1.pfm", d1), ("disp2.pfm", d2), ("mine.pfm", d1)):
+        io.write_pfm(tmp_path / name, a)
+    assert set(E.load_estimate(tmp_path / "disp2.pfm")) == {"disp2"}
+    gt = {"disp1": d1, "disp2": d2}
+    assert E.evaluate(E.load_estimate(tmp_path / "disp2.pfm"), gt, border=2)["disp2"]["mse"] == 0.0
+    for name in ("disp1.pfm", "mine.pfm"):
+        assert E.evaluate(E.load_estimate(tmp_path / name), gt, border=2)["disp1"]["mse"] == 0.0
+    # a reference on views cropped by k px a side: the message says so and how to crop
+    with pytest.raises(ValueError, match=r"20×20 but the ground truth is 14×16, the estimate less 3 px left and "
+                                         r"right, 2 top and bottom .*\[2:-2, 3:-3\]"):
+        E.evaluate({"disp1": d1}, {"disp1": d1[2:-2, 3:-3]})
+
+
 def test_colour_pfm_is_not_a_disparity_map(tmp_path):
     from lfsf import io
 
