@@ -327,7 +327,7 @@ def ground_truth(
     object, gives δ2 (its disparity at t2) and the flow u = p2 − p (``help(lfsf)``, MODEL.md §1).
     ``valid`` is 0 where the pixel's footprint (centre and corners) sees more than one
     object (a depth edge); ``occluded`` is 1 where the point is hidden or out of the
-    image at t2.
+    image at t2. Launch over (height, width).
     """
     i, j = wp.tid()
     i = i + row0

@@ -25,7 +25,9 @@ def rof_dual_step(
     # outputs
     p: wp.array3d(dtype=wp.vec2),
 ):
-    """p ← proj_{|p|≤1}(p + σ ∇ū), forward differences with Neumann boundary."""
+    """p ← proj_{|p|≤1}(p + σ ∇ū), forward differences with Neumann boundary, on each of
+    the n images of ū (n, h, w). Launch over (n·h, ⌈w / span⌉): a thread walks ``span``
+    pixels of a row."""
     r, c = wp.tid()
     r = r + row0
     h = u_bar.shape[1]
@@ -63,7 +65,8 @@ def rof_primal_step(
 ):
     """u ← (u + τ div p + (τ/μ) f) / (1 + τ/μ);  ū ← u_new + ϑ(u_new − u_old), ϑ = ``relax``
     (1 for the plain algorithm; the accelerated one of Chambolle & Pock (2011, Alg. 2)
-    lowers it with τ)."""
+    lowers it with τ), on each of the n images of f (n, h, w). Launch over (n·h, ⌈w /
+    span⌉): a thread walks ``span`` pixels of a row."""
     r, c = wp.tid()
     r = r + row0
     h = f.shape[1]
@@ -144,7 +147,9 @@ def texture_part(
     texture: wp.array3d(dtype=float),
 ):
     """texture = f − θ·structure, the structure read ``offset`` pixels down and right
-    (the margin of a padded structure image; 0 for none)."""
+    (the margin of a padded structure image; 0 for none), on each of the n images of f
+    (n, h, w). Launch over (n·h, w): the n images' rows one after another (a 3-D launch
+    over (n, h, w) would read its indices wrongly)."""
     r, j = wp.tid()
     r = r + row0
     h = f.shape[1]

@@ -20,25 +20,41 @@ BAD_INPUT_ERRORS = (ValueError, OSError, DependencyError)
 
 
 #: Exit status of a run that could not finish (memory ran out), of bad input, of an
-#: interrupt (Ctrl-C) and of a SIGTERM (``kill``, ``timeout``, a batch system's job
-#: limit): 128 + the signal's number, as a shell gives.
+#: interrupt (Ctrl-C), of a SIGTERM (``kill``, ``timeout``, a batch system's job limit)
+#: and of a SIGHUP (the terminal or ssh session gone, without nohup): 128 + the
+#: signal's number, as a shell gives.
 EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
 EXIT_TERMINATED = 143
+EXIT_HUNG_UP = 129
 
 
 class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised in the main thread by the handler :func:`terminate_as_interrupt`
-    sets, so that it unwinds as Ctrl-C does: temporary files are removed and a set of
-    outputs is put in place whole or not at all (:func:`lfsf._files.interrupts_held` holds
-    it back as it does SIGINT)."""
+    """SIGTERM (or SIGHUP: ``signum``), raised in the main thread by the handler
+    :func:`terminate_as_interrupt` sets, so that it unwinds as Ctrl-C does: temporary
+    files are removed and a set of outputs is put in place whole or not at all
+    (:func:`lfsf._files.interrupts_held` holds it back as it does SIGINT)."""
+
+    def __init__(self, signum: int | None = None):
+        super().__init__()
+        self.signum = signum
+
+
+def ending_signals() -> tuple:
+    """The signals besides SIGINT that end a command as an interrupt does: SIGTERM, and
+    SIGHUP where the system has it (the session that ran the command gone: it had left
+    its temporary folders behind)."""
+    import signal
+
+    return (signal.SIGTERM,) + ((signal.SIGHUP,) if hasattr(signal, "SIGHUP") else ())
 
 
 @contextlib.contextmanager
 def terminate_as_interrupt():
-    """While the body runs, SIGTERM raises :class:`Terminated` (in the main thread; from
-    any other thread, or where SIGTERM is ignored, nothing changes)."""
+    """While the body runs, SIGTERM and SIGHUP raise :class:`Terminated` (in the main
+    thread; from any other thread, or where the signal is ignored, as under ``nohup``,
+    nothing changes)."""
     import signal
     import threading
 
@@ -47,17 +63,19 @@ def terminate_as_interrupt():
         return
 
     def handler(signum, frame):
-        raise Terminated()
+        raise Terminated(signum)
 
-    old = signal.getsignal(signal.SIGTERM)
-    if old in (signal.SIG_IGN, None):  # (ignored, or a handler set from C: left as it is)
-        yield
-        return
+    old: list = []
     try:
-        signal.signal(signal.SIGTERM, handler)  # (inside the try: a SIGTERM right after it still restores)
+        for s in ending_signals():
+            previous = signal.getsignal(s)
+            if previous not in (signal.SIG_IGN, None):  # (ignored, or a handler set from C: left as it is)
+                signal.signal(s, handler)  # (inside the try: a signal right after it still restores)
+                old.append((s, previous))
         yield
     finally:
-        signal.signal(signal.SIGTERM, old)
+        for s, previous in reversed(old):
+            signal.signal(s, previous)
 
 
 def run_script(main, prog: str | None = None) -> int:
@@ -102,6 +120,11 @@ def _stopped(prog: str, exc: KeyboardInterrupt) -> int:
     import sys
 
     if isinstance(exc, Terminated):
+        import signal
+
+        if exc.signum == getattr(signal, "SIGHUP", None):
+            print(f"{prog}: hung up (SIGHUP)", file=sys.stderr)
+            return EXIT_HUNG_UP
         print(f"{prog}: terminated", file=sys.stderr)
         return EXIT_TERMINATED
     print(f"{prog}: interrupted", file=sys.stderr)

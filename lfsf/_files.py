@@ -42,6 +42,16 @@ def output_folder(path: str | os.PathLike, create: bool = True, names=()) -> Pat
         why = _unwritable(existing)
         if why:
             raise ValueError(f"{path}: cannot make the output folder: {existing} is not writable ({why})")
+        # the names of the folders still to make (stat says "no such file" of a name too
+        # long beneath a missing folder: it had failed only when made, after the work)
+        try:
+            longest = os.pathconf(existing, "PC_NAME_MAX")
+        except (OSError, ValueError):
+            longest = 255
+        for part in path.relative_to(existing).parts:
+            if len(os.fsencode(part)) > longest:
+                raise ValueError(f"{path}: cannot make the output folder: the name {part[:40]}… is "
+                                 f"{len(os.fsencode(part))} bytes long, more than the {longest} a name may have")
     if create:
         try:
             path.mkdir(parents=True, exist_ok=True)
@@ -77,6 +87,32 @@ def _check_names(out: Path, names) -> None:
     for name in names:
         if (out / name).is_dir():
             raise ValueError(f"{out / name}: is a folder; {name} cannot be written there")
+
+
+def refuse_replacing_inputs(out: str | os.PathLike, names, inputs, option: str = "--out") -> None:
+    """Before any work: none of the files ``names`` to be written into the folder ``out``
+    may be one of the files ``inputs`` (paths; folders and None are passed over), directly
+    or through a symbolic link there: the results would replace what they were made from
+    (a light field named sceneflow.npz, a ground truth disp1.pfm of an earlier result).
+
+    Raises
+    ------
+    ValueError
+        Naming the output and the input it would replace.
+    """
+    outputs = {os.path.realpath(Path(out) / name): Path(out) / name for name in names}
+    for path in inputs:
+        if path is None or not os.path.isfile(path):
+            continue
+        output = outputs.get(os.path.realpath(path))
+        if output is None:
+            continue
+        if os.path.abspath(output) == os.path.abspath(path):
+            raise ValueError(f"{path}: read by this run, and the results would replace it (they write "
+                             f"{output.name} into {out}); choose another {option}")
+        via = f", a link to {os.path.realpath(path)}" if os.path.islink(output) else ""
+        raise ValueError(f"{output}: the results would replace it{via}, and this run reads {path}; choose "
+                         f"another {option}")
 
 
 def output_file(path: str | os.PathLike) -> Path:
@@ -209,7 +245,7 @@ def savez_atomic(path: str | os.PathLike, compressed: bool = False, **arrays) ->
 
 @contextlib.contextmanager
 def interrupts_held():
-    """Hold Ctrl-C (SIGINT) and SIGTERM back while the body runs, for the moves that put a
+    """Hold Ctrl-C (SIGINT), SIGTERM and SIGHUP back while the body runs, for the moves that put a
     set of outputs in place: an interrupt between two of them would leave a mix of an old
     set and a new one. A signal that comes meanwhile is delivered when the body ends.
 
@@ -223,6 +259,8 @@ def interrupts_held():
     import signal
     import threading
 
+    from lfsf._errors import ending_signals
+
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -231,14 +269,14 @@ def interrupts_held():
     try:
         # (installed one by one inside the try, and restored each in a finally of its own:
         # a signal whose handler raises between two of these calls leaves none swapped)
-        for s in (signal.SIGTERM, signal.SIGINT):
+        for s in (*ending_signals(), signal.SIGINT):
             if signal.getsignal(s) not in (signal.SIG_IGN, None):
                 old[s] = signal.signal(s, lambda signum, frame: caught.append(signum))
         yield
     finally:
         _restore(list(old.items()))
-        # SIGTERM first, where both came: the first one delivered ends the unwinding
-        for s in sorted(set(caught), key=lambda s: s != signal.SIGTERM):
+        # SIGTERM (SIGHUP) first, where both came: the first one delivered ends the unwinding
+        for s in sorted(set(caught), key=lambda s: s == signal.SIGINT):
             signal.raise_signal(s)
 
 

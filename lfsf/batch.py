@@ -324,6 +324,9 @@ def check_outputs(pairs: Sequence[Pair], out: str | os.PathLike) -> None:
             if _within(source, final):
                 raise ValueError(f"{final}: the results of pair {pair.name!r} would replace the light field "
                                  f"{source}; choose another --out (or name the pair in the manifest)")
+        if final.is_symlink():  # (replaced whole after the estimate, which rmtree refuses on a link)
+            raise ValueError(f"{final}: the results of pair {pair.name!r} go into a folder there, but it is a "
+                             f"symbolic link (to {os.readlink(final)}); remove it, or choose another --out")
         if final.exists() and not final.is_dir():
             raise ValueError(f"{final}: the results of pair {pair.name!r} go into a folder there, but it is a file")
 
@@ -482,6 +485,12 @@ def check_dask(workers: int, scheduler: str | None) -> None:
                           (f"--workers {workers}", "run with --workers 1"))
         raise ValueError(f"{asked} needs Dask, which is not installed: {INSTALL_HINT}; or {instead} "
                          "to run the pairs in this process")
+    if not scheduler and have_dask():
+        try:
+            os.getcwd()
+        except OSError:  # (the local cluster's processes start there: 186 lines of their tracebacks)
+            raise ValueError("the current folder no longer exists, and the local Dask cluster's processes "
+                             "start in it: change to a folder that exists") from None
 
 
 def run_batch(
@@ -597,9 +606,13 @@ def _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, 
                 # the scheduler's HTTP server (no dashboard here) takes another port where
                 # 8787 is taken, as by another cluster, and said so as a warning of the batch
                 warnings.filterwarnings("ignore", message=r"Port \d+ is already in use")
-                cluster = stack.enter_context(LocalCluster(
-                    n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                    silence_logs=logging.ERROR, env={"LFSF_THREADS": str(threads)}, preload=["lfsf._dask_worker"]))
+                try:
+                    cluster = stack.enter_context(LocalCluster(
+                        n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                        silence_logs=logging.ERROR, env={"LFSF_THREADS": str(threads)},
+                        preload=["lfsf._dask_worker"]))
+                except (OSError, RuntimeError, TimeoutError) as exc:  # (its traceback says no more than this)
+                    raise RuntimeError(f"the local Dask cluster did not start ({_reason(exc)})") from None
             client = stack.enter_context(Client(cluster))
         out.mkdir(parents=True, exist_ok=True)  # only once there is a cluster to write into it
         futures = {}

@@ -7,14 +7,15 @@ status 2, never a traceback; every file is written under a temporary name and re
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 import time
 import warnings
 from pathlib import Path
 
-from lfsf._errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_TERMINATED, ArgumentParser, run_script
-from lfsf._files import output_file, output_folder
+from lfsf._errors import EXIT_BAD_INPUT, EXIT_HUNG_UP, EXIT_INTERRUPTED, EXIT_TERMINATED, ArgumentParser, run_script
+from lfsf._files import output_file, output_folder, refuse_replacing_inputs
 
 
 def _log(args, message: str) -> None:
@@ -312,6 +313,7 @@ def cmd_run(args) -> int:
     params = _params(args)
     # before any work; made when the results are written
     output_folder(args.out, create=False, names=_result_names())
+    refuse_replacing_inputs(args.out, _result_names(), [args.lf1, args.lf2, args.gt])
     lf1 = read_lightfield(args.lf1)
     lf2 = read_lightfield(args.lf2)
     check_pair(lf1, lf2)
@@ -705,26 +707,29 @@ def main(argv=None) -> int:
         parser.print_help(sys.stderr)
         return EXIT_BAD_INPUT
     prog = f"lfsf {args.command}"
-    stdout = sys.stdout
+    stdout, stderr = sys.stdout, sys.stderr
     try:
-        sys.stdout = _PipeSafe(stdout)
+        sys.stdout, sys.stderr = _PipeSafe(stdout, "stdout"), _PipeSafe(stderr, "stderr")
         with warnings.catch_warnings():  # (restores the default display on the way out)
             # a warning is one line like every other message, not Python's file:line and source
             warnings.showwarning = lambda message, *_rest, **_kw: print(f"{prog}: warning: {message}",
                                                                         file=sys.stderr)
             return run_script(lambda: args.func(args), prog=prog)
     finally:
-        sys.stdout = stdout
+        sys.stdout, sys.stderr = stdout, stderr
 
 
 class _PipeSafe:
-    """stdout for a command: where its reader has gone (``lfsf demo | head -1``), what is
-    printed later is dropped and the command goes on to write its files, instead of
-    ending in "[Errno 32] Broken pipe" with the results thrown away. The stream's file
-    descriptor then points at /dev/null, so that the interpreter's last flush is quiet."""
+    """stdout (stderr) for a command: where its reader has gone (``lfsf demo | head -1``,
+    ``lfsf batch … 2>&1 | head -1``), what is printed later is dropped and the command
+    goes on to write its files, instead of ending in "[Errno 32] Broken pipe" with the
+    results thrown away. The stream's file descriptor then points at /dev/null, so that
+    the interpreter's last flush is quiet. Any other failure to write (stdout on a full
+    disk) is an OSError that names the stream."""
 
-    def __init__(self, stream):
+    def __init__(self, stream, name: str):
         self._stream = stream
+        self._name = name
 
     def write(self, text):
         try:
@@ -732,12 +737,16 @@ class _PipeSafe:
         except BrokenPipeError:
             self._drop()
             return len(text)
+        except OSError as exc:
+            raise OSError(exc.errno, f"cannot write to {self._name}: {exc.strerror or exc}") from None
 
     def flush(self):
         try:
             self._stream.flush()
         except BrokenPipeError:
             self._drop()
+        except OSError as exc:
+            raise OSError(exc.errno, f"cannot write to {self._name}: {exc.strerror or exc}") from None
 
     def _drop(self):
         try:
@@ -751,18 +760,49 @@ class _PipeSafe:
         return getattr(self._stream, name)
 
 
+def _usable_streams() -> None:
+    """stdout and stderr as a command can use them: /dev/null in the place of one that is
+    closed (``>&-``, ``2>&-``: the first print, or Warp's start, which duplicates
+    descriptor 2, had ended in a traceback or silently), and text their encoding lacks
+    written as escapes (an ASCII stdout: the "×" of "MSE×100" had ended lfsf eval with
+    status 2, its report unwritten)."""
+    for fd, name in ((1, "stdout"), (2, "stderr")):
+        try:
+            os.fstat(fd)
+        except OSError:
+            null = os.open(os.devnull, os.O_WRONLY)
+            if null != fd:
+                os.dup2(null, fd)
+                os.close(null)
+            setattr(sys, name, open(fd, "w", closefd=False))
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(AttributeError, ValueError):
+            stream.reconfigure(errors="backslashreplace")
+
+
 def entry() -> None:  # pragma: no cover - the installed command; tests call main()
     """The ``lfsf`` command (and ``python -m lfsf``): :func:`main`'s status as the exit
-    status. After Ctrl-C (or SIGTERM) the process ends at once, once "interrupted" (or
-    "terminated") is printed: the interpreter's shutdown would wait for the thread pool's
+    status. After Ctrl-C (or SIGTERM, SIGHUP) the process ends at once, once "interrupted"
+    (or "terminated", "hung up") is printed: the interpreter's shutdown would wait for the thread pool's
     bands still running and collect objects the interrupt left half made, and either could
     print a traceback after that line (imageio's PNG writer, cut off while being set up,
     did in 1 of 20 interrupted runs)."""
+    _usable_streams()
     status = main()
-    if status in (EXIT_INTERRUPTED, EXIT_TERMINATED):
+    if status in (EXIT_INTERRUPTED, EXIT_TERMINATED, EXIT_HUNG_UP):
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(status)
+    # the command has ended and said so: a signal during the interpreter's shutdown (it
+    # joins the thread pool, about 0.25 s) is no interrupt of it any more (it had printed
+    # a traceback after the results' line, or turned status 0 into 130)
+    import signal
+
+    from lfsf._errors import ending_signals
+
+    for s in (signal.SIGINT, *ending_signals()):
+        with contextlib.suppress(OSError, ValueError):
+            signal.signal(s, signal.SIG_IGN)
     sys.exit(status)
 
 

@@ -37,7 +37,9 @@ Conventions
   is one lens pitch, along the lattice's axes. The decoded light field then follows
   the disparity convention of ``help(lfsf)`` (a point at centre pixel p appears at p − δ·φ).
 
->>> raw, white = synthetic_lenslet(source, Lattice.regular("hex", 14.2), (800, 600), views=9)  # doctest: +SKIP
+>>> from lfsf import synth                                                                     # doctest: +SKIP
+>>> lf1, _, _ = synth.render_scene("paper", size=(60, 45), grid=9)                            # doctest: +SKIP
+>>> raw, white = synthetic_lenslet(lf1.views, Lattice.regular("hex", 14.2), (800, 600), views=9)  # doctest: +SKIP
 >>> lf = decode(raw, white, views=9)                                                          # doctest: +SKIP
 """
 
@@ -961,14 +963,17 @@ def decode_files(raw_path, white_path, out, *, views: int | None = None, bayer: 
         names is a folder, or ``out`` holds views of another grid that these would mix
         with (delete them first).
     """
-    from lfsf._files import file_set, output_folder
+    from lfsf._files import file_set, output_folder, refuse_replacing_inputs
     from lfsf.io import _HCI_NAME, _refuse_mixed_views, _view_names, write_lightfield
 
     out = output_folder(out, create=False)
     if out.is_dir():
         for entry in out.iterdir():
-            if entry.is_dir() and (entry.name in ("views.npz", "decode.json") or _HCI_NAME.fullmatch(entry.name)):
-                raise ValueError(f"{entry}: is a folder; the decoded {entry.name} cannot be written there")
+            if entry.name in ("views.npz", "decode.json") or _HCI_NAME.fullmatch(entry.name):
+                if entry.is_dir():
+                    raise ValueError(f"{entry}: is a folder; the decoded {entry.name} cannot be written there")
+                # (the raw image or the white one there, or linked from there, would be replaced)
+                refuse_replacing_inputs(out, [entry.name], [raw_path, white_path])
     bayer = _bayer_option(bayer, "--bayer")
     if views is not None and isinstance(views, int) and views >= 1:
         _refuse_mixed_views(out, _view_names("hci", views, views))   # known: checked before the decode

@@ -72,7 +72,11 @@ def require_warp(version: str | None = None) -> None:
 
 
 def warp():
-    """Import and initialise Warp quietly; return the module."""
+    """Import and initialise Warp quietly; return the module. Warp's log level is then
+    ``wp.LOG_WARNING`` for the rest of the process: at Warp's own default (info) every
+    module's first load prints a line, which lfsf's commands and library calls would
+    print too. Code of a user's own that wants Warp's info lines sets
+    ``wp.config.log_level`` after lfsf's first call."""
     import warp as wp
 
     global _initialised

@@ -96,6 +96,9 @@ class SceneFlow:
         return f"SceneFlow({width}×{height}, R={self.radius:g}, device={self.device!r})"
 
     def as_dict(self) -> dict[str, np.ndarray]:
+        """The four maps δ1, δ2, u, v by name (``disp1``, ``disp2``, ``u``, ``v``), as
+        :func:`lfsf.evaluate.evaluate` and ``np.savez`` take them; ``occluded``, where
+        there is one, is not among them (``evaluate(sf, gt)`` scores it too)."""
         return {"disp1": self.disp1, "disp2": self.disp2, "u": self.u, "v": self.v}
 
     @classmethod
@@ -195,8 +198,11 @@ class SceneFlow:
             for name in ("disp1", "disp2"):
                 io.write_pfm(tmp / f"{name}.pfm", getattr(self, name))
             io.write_flo(tmp / "flow.flo", np.stack([self.u, self.v], -1))
+            from lfsf import __version__
+
+            # (the version that wrote it: settings added later read as their defaults)
             meta = {"params": self.params.as_dict(), "radius_used": self.radius, "device": self.device,
-                    "timings": self.timings, "exposure": self.exposure}
+                    "timings": self.timings, "exposure": self.exposure, "lfsf_version": __version__}
             if inputs is not None:
                 meta["inputs"] = inputs
             extra = {} if self.occluded is None else {"occluded": self.occluded}
@@ -222,6 +228,12 @@ class SceneFlow:
                 viz.overview_figure(centre1, centre2, self.disp1, self.disp2, self.u, self.v, gt=gt,
                                     path=tmp / "overview.png", title=title, occluded=self.occluded,
                                     disparities=estimated, border=border)
+            else:
+                # an earlier result's overview goes with the rest of it, once this set is
+                # written (it had stayed, showing that result beside this one's files)
+                stale = out / "overview.png"
+                if stale.is_file() or stale.is_symlink():
+                    stale.unlink()
         return [out / name for name in names]
 
 
@@ -568,6 +580,11 @@ def one_sided(phis) -> bool:
 
 def _as_lightfield(lf, name: str) -> LightField:
     if isinstance(lf, LightField):
+        if lf.source == "<array>":  # (made from an array: named as the argument it is, in messages)
+            import copy
+
+            lf = copy.copy(lf)
+            lf.source = name
         return lf
     if isinstance(lf, (str, os.PathLike)):
         return read_lightfield(lf)

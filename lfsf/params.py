@@ -570,7 +570,7 @@ class Params:
 
     def __repr__(self) -> str:
         """The settings that differ from the defaults (the `paper` preset), as a call
-        that makes the same Params: ``Params()`` for `paper`; all 60 of them made a repr
+        that makes the same Params: ``Params()`` for `paper`; all 51 of them made a repr
         of 900 characters."""
         changed = ", ".join(f"{f.name}={getattr(self, f.name)!r}" for f in dataclasses.fields(self)
                             if getattr(self, f.name) != f.default)

@@ -216,6 +216,14 @@ def test_pair_names_a_file_system_cannot_take_are_refused_before_any_work(tmp_pa
     batch.check_outputs([batch.Pair("é" * 100, tmp_path / "a.npz", tmp_path / "b.npz")], tmp_path / "out")
     with pytest.raises(ValueError, match="may not be named failed.csv"):
         batch.check_outputs([batch.Pair("failed.csv", tmp_path / "a.npz", tmp_path / "b.npz")], tmp_path / "out")
+    # a pair's folder that is a link (to an earlier result): it failed after the estimate ("Cannot call
+    # rmtree on a symbolic link")
+    (tmp_path / "out").mkdir()
+    (tmp_path / "elsewhere").mkdir()
+    (tmp_path / "out" / "f000").symlink_to(tmp_path / "elsewhere")
+    with pytest.raises(ValueError, match=r"out/f000: the results of pair 'f000' go into a folder there, but it is a "
+                                         r"symbolic link \(to .*elsewhere\)"):
+        batch.check_outputs([batch.Pair("f000", tmp_path / "a.npz", tmp_path / "b.npz")], tmp_path / "out")
     # run_pair on its own, given a name too long (255 bytes and more): a failed pair, not an OSError
     outcome = batch.run_pair(batch.Pair("a" * 300, tmp_path / "a.npz", tmp_path / "b.npz"), tmp_path / "out",
                              PARAMS)
@@ -868,3 +876,16 @@ def test_a_light_field_given_as_a_folder_of_frames_is_named_as_one(frames, tmp_p
     write_lightfield(read_lightfield(folder / "f000.npz"), tmp_path / "views")
     with pytest.raises(ValueError, match=r"found 0; it is itself one light field \(5×5 views\)"):
         batch.pairs_from_sources([tmp_path / "views"])
+
+
+def test_a_current_folder_gone_is_refused_before_the_local_cluster_starts(monkeypatch):
+    """The local Dask cluster's processes start in the current folder: where it has been
+    removed, they failed with 186 lines of tracebacks; now one line before any work."""
+    def gone():
+        raise FileNotFoundError(2, "No such file or directory")
+
+    monkeypatch.setattr(batch, "have_dask", lambda: True)
+    monkeypatch.setattr(batch.os, "getcwd", gone)
+    with pytest.raises(ValueError, match="the current folder no longer exists"):
+        batch.check_dask(1, None)
+    batch.check_dask(1, "tcp://localhost:8786")  # (a running scheduler's workers start where they are)

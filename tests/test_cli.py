@@ -5,6 +5,8 @@ import io as io_module
 import json
 import os
 import re
+import shlex
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -491,6 +493,20 @@ def test_an_output_folder_that_is_a_broken_link_is_refused_before_any_work(tmp_p
             output_folder(tmp_path / "out" / "r", create=create)
 
 
+def test_an_output_folder_name_too_long_beneath_a_missing_folder_is_refused_before_any_work(tmp_path):
+    """stat says "no such file" of a 256-byte name beneath a folder not made yet: the
+    name's length is checked, not left to the mkdir after the estimate (which also left
+    the folders above it behind)."""
+    from lfsf._files import output_folder
+
+    for create in (False, True):
+        with pytest.raises(ValueError, match=r"cannot make the output folder: the name q{40}… is 256 bytes long, "
+                                             r"more than the 255"):
+            output_folder(tmp_path / "x" / ("q" * 256) / "y", create=create)
+        assert not (tmp_path / "x").exists()
+    assert output_folder(tmp_path / "x" / ("q" * 255)).is_dir()
+
+
 def test_a_folder_where_a_result_goes_is_refused_before_the_estimate(tmp_path, monkeypatch, capsys):
     from lfsf import estimate
 
@@ -723,7 +739,7 @@ def test_run_says_in_its_log_that_it_matched_t2s_exposure(tmp_path):
     assert status == 0 and err == "", err
 
 
-@pytest.mark.parametrize("status", [0, 2, 130, 143])
+@pytest.mark.parametrize("status", [0, 2, 129, 130, 143])
 def test_the_command_ends_at_once_after_an_interrupt(status):
     """``lfsf.cli.entry`` (the installed command): after Ctrl-C (status 130) or SIGTERM
     (143) the process ends without the interpreter's shutdown (no atexit, no thread joins,
@@ -733,7 +749,19 @@ def test_the_command_ends_at_once_after_an_interrupt(status):
             f"c.main = lambda: {status}; c.entry()")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert proc.returncode == status, proc.stderr
-    assert ("shutdown ran" in proc.stdout) == (status not in (130, 143)), proc.stdout
+    assert ("shutdown ran" in proc.stdout) == (status not in (129, 130, 143)), proc.stdout
+
+
+@pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
+def test_a_signal_during_the_shutdown_after_the_command_ended_changes_nothing(signame):
+    """Once the command has ended (status 0, its results written and reported), a Ctrl-C
+    or SIGTERM in the interpreter's shutdown (here from an atexit handler, as it joins the
+    thread pool) had printed a traceback or turned the status into 130/143."""
+    code = ("import atexit, os, signal, time, lfsf.cli as c; "
+            f"atexit.register(lambda: (os.kill(os.getpid(), signal.{signame}), time.sleep(0.2))); "
+            "c.main = lambda: 0; c.entry()")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0 and proc.stderr == "", (proc.returncode, proc.stderr)
 
 
 def test_sigterm_is_held_back_while_a_set_of_outputs_moves_into_place():
@@ -757,11 +785,14 @@ def test_sigterm_is_held_back_while_a_set_of_outputs_moves_into_place():
     assert signal.getsignal(signal.SIGTERM) == before  # (restored on the way out)
 
 
-def test_sigterm_while_results_are_written_leaves_none_and_exits_143(tmp_path, monkeypatch, capsys):
+@pytest.mark.parametrize("name,status,said", [("SIGTERM", 143, "terminated"), ("SIGHUP", 129, "hung up (SIGHUP)")])
+def test_sigterm_while_results_are_written_leaves_none_and_exits_143(tmp_path, monkeypatch, capsys, name, status,
+                                                                       said):
     """A SIGTERM that comes while ``lfsf run`` writes its results (here once the first file
     is in the temporary folder) removes that folder, as Ctrl-C does, and the command ends
     with "terminated" and status 143: killed outright, it left a hidden ``.lfsf-set.*``
-    folder of partial files, which ``lfsf batch`` then refused to replace."""
+    folder of partial files, which ``lfsf batch`` then refused to replace. So does a
+    SIGHUP (an ssh session gone), with status 129."""
     import signal
 
     views = np.random.default_rng(0).random((3, 3, 24, 32)).astype(np.float32)
@@ -770,15 +801,16 @@ def test_sigterm_while_results_are_written_leaves_none_and_exits_143(tmp_path, m
 
     def write_then_terminated(path, *args, **kwargs):
         write_pfm(path, *args, **kwargs)
-        os.kill(os.getpid(), signal.SIGTERM)
+        os.kill(os.getpid(), getattr(signal, name))
 
     monkeypatch.setattr(io, "write_pfm", write_then_terminated)
     out = tmp_path / "r"
-    status = main(["run", str(tmp_path / "a.npz"), str(tmp_path / "a.npz"), "--out", str(out), "--preset", "flow",
-                   "--quiet"])
-    assert status == 143
-    assert capsys.readouterr().err.strip() == "lfsf run: terminated"
-    assert out.is_dir() and list(out.iterdir()) == []
+    got = main(["run", str(tmp_path / "a.npz"), str(tmp_path / "a.npz"), "--out", str(out), "--preset", "flow",
+                "--quiet"])
+    assert got == status
+    assert capsys.readouterr().err.strip() == f"lfsf run: {said}"
+    assert not out.exists()  # (nor the output folder it made for them)
+    assert not list(tmp_path.rglob(".lfsf-set*"))
 
 
 def test_the_temporary_folders_of_killed_runs_are_removed(tmp_path):
@@ -1014,3 +1046,56 @@ def test_a_results_pictures_say_what_their_colours_mean(tmp_path):
     said = float(re.search(r"full colour at \|\(u,v\)\| = ([0-9.]+) px", comment).group(1))
     assert said == pytest.approx(float(np.hypot(u.astype(np.float64), v.astype(np.float64)).max()), rel=1e-3)
     assert np.array_equal(io.read_image(tmp_path / "flow.png"), viz.flow_to_color(u, v))
+
+
+def test_results_never_replace_what_the_run_reads(tmp_path):
+    """lfsf run and decode refuse, before any work, an output that is one of their inputs:
+    a light field named sceneflow.npz in --out, a result file linked to an input, a
+    ground truth that is an earlier result's disp1.pfm, a raw image named as a view of the
+    folder it decodes into (each had been replaced by the results, status 0)."""
+    import hashlib
+
+    import imageio.v3 as iio
+
+    assert main(["synth", "paper", "--out", str(tmp_path / "d"), "--size", "24", "20", "--grid", "3", "--quiet"]) == 0
+    d = tmp_path / "d"
+    (tmp_path / "r").mkdir()
+    shutil.copy(d / "lf1.npz", tmp_path / "r" / "sceneflow.npz")
+    (tmp_path / "l").mkdir()
+    (tmp_path / "l" / "flow.flo").symlink_to(d / "lf2.npz")
+    (tmp_path / "g").mkdir()
+    shutil.copy(d / "gt.npz", tmp_path / "g" / "disp1.pfm")  # (any file: refused before it is read)
+    (tmp_path / "dc").mkdir()
+    for k in range(2):
+        iio.imwrite(tmp_path / "dc" / f"input_Cam00{k}.png", np.full((64, 64), 1000 * (k + 1), np.uint16))
+    digest = {p: hashlib.md5(p.read_bytes()).hexdigest() for p in tmp_path.rglob("*") if p.is_file()}
+    for args, needle in (
+            (["run", "r/sceneflow.npz", "d/lf2.npz", "--out", "r"], "r/sceneflow.npz: read by this run, and the results "
+                                                                    "would replace it"),
+            (["run", "d/lf1.npz", "d/lf2.npz", "--out", "l"], "l/flow.flo: the results would replace it, a link to"),
+            (["run", "d/lf1.npz", "d/lf2.npz", "--out", "g", "--gt", "g/disp1.pfm"], "g/disp1.pfm: read by this run"),
+            (["decode", "dc/input_Cam000.png", "--white", "dc/input_Cam001.png", "--out", "dc"], "read by this run")):
+        status, _, err = lfsf(*args, "--quiet", cwd=tmp_path)
+        assert_clean_error(status, err, needle)
+    assert {p: hashlib.md5(p.read_bytes()).hexdigest() for p in tmp_path.rglob("*") if p.is_file()} == digest
+
+
+def test_a_closed_or_ascii_stdout_and_a_closed_stderr_are_no_failure(tmp_path):
+    """``lfsf eval … >&-`` had ended in a traceback (print to a stdout that is None),
+    ``2>&-`` silently with status 1 before any work, and an ASCII stdout with status 2 on
+    the "×" of "MSE×100" (the --json report unwritten); a full stdout names stdout."""
+    gt = {k: np.zeros((20, 20), np.float32) for k in ("disp1", "disp2", "u", "v")}
+    np.savez(tmp_path / "gt.npz", **gt)
+    command = f"{shlex.quote(sys.executable)} -m lfsf eval gt.npz gt.npz --border 2 --json e.json"
+    env = {**os.environ, "LFSF_DEVICE": ""}
+    for redirect, extra in ((">&-", {}), ("2>&-", {}), ("", {"PYTHONIOENCODING": "ascii"})):
+        (tmp_path / "e.json").unlink(missing_ok=True)
+        proc = subprocess.run(["bash", "-c", f"{command} {redirect}"], cwd=tmp_path, capture_output=True, text=True,
+                              env={**env, **extra})
+        assert proc.returncode == 0 and "Traceback" not in proc.stderr, (redirect, proc.stderr)
+        assert (tmp_path / "e.json").exists()
+    assert r"MSE\xd7100" in proc.stdout
+    if os.path.exists("/dev/full"):
+        proc = subprocess.run(["bash", "-c", f"{command} > /dev/full"], cwd=tmp_path, capture_output=True, text=True,
+                              env=env)
+        assert proc.returncode == 2 and "cannot write to stdout: No space left on device" in proc.stderr, proc.stderr

@@ -829,6 +829,17 @@ def test_a_rig_of_one_row_or_column_samples_along_it(grid):
             estimate_scene_flow(*cut, QUICK, device="cpu")
 
 
+def test_light_fields_made_from_arrays_are_named_as_their_argument_in_messages():
+    """LightField(array) has the source "<array>": in the estimator's messages it is named
+    "light field 1" or "light field 2" (both had read "<array>")."""
+    lf1, lf2 = shift_lightfields(h=24, w=32, grid=3)
+    first, short = lfsf.LightField(lf1.views), lfsf.LightField(lf2.views[:, :, :20])
+    with pytest.raises(ValueError, match=r"^light field 2: expected the grid and view size of light field 1 \(a 3×3 "
+                                         r"grid of 32×24 views\), got a 3×3 grid of 32×20 views"):
+        estimate_scene_flow(first, short, QUICK, device="cpu")
+    assert first.source == short.source == "<array>"  # (theirs unchanged)
+
+
 def test_light_fields_may_be_given_as_paths(tmp_path):
     lf1, lf2 = shift_lightfields(h=24, w=32, grid=3)
     np.savez(tmp_path / "lf1.npz", views=lf1.views)
@@ -1321,6 +1332,8 @@ def test_a_saved_scene_flow_loads_back_whole(tmp_path):
     sf = SceneFlow(*maps, params=params, radius=3.5, device="cpu", timings={"iterate": 1.25},
                    exposure=(1.1, -0.02), occluded=rng.random((6, 8)) > 0.7)
     sf.save(tmp_path / "r")
+    with np.load(tmp_path / "r" / "sceneflow.npz") as saved:
+        assert json.loads(str(saved["params"]))["lfsf_version"] == lfsf.__version__
     for path in (tmp_path / "r", tmp_path / "r" / "sceneflow.npz"):
         back = SceneFlow.load(path)
         assert all(np.array_equal(a, b) for a, b in zip(back.as_dict().values(), sf.as_dict().values()))
@@ -1347,6 +1360,10 @@ def test_a_saved_scene_flow_loads_back_whole(tmp_path):
         with pytest.raises(ValueError, match=r"SceneFlow.save: overview.png needs both centre views"):
             sf.save(tmp_path / "bad", **kwargs)
     assert not (tmp_path / "bad").exists()
+    # a result saved without the centre views over one saved with them: the old overview goes
+    sf.save(tmp_path / "o", lf, lf)
+    sf.save(tmp_path / "o")
+    assert not (tmp_path / "o" / "overview.png").exists() and (tmp_path / "o" / "sceneflow.npz").exists()
     # the truth as a path (as lfsf run --gt takes it), checked before the folder is made
     from lfsf import io
 
