@@ -174,39 +174,61 @@ def sorted_flow_columns(
     # outputs
     cu: wp.array3d(dtype=float),
     cv: wp.array3d(dtype=float),
+    depth: wp.array2d(dtype=wp.vec2),
 ):
-    """The plain median's first pass (:func:`plain_flow_medians`): u and v of the 2r+1
-    rows i − r … i + r of column j (clamped at the borders), sorted, to cu[i, j, 0 … 2r]
-    and cv[i, j, 0 … 2r]. Launch over (rows, columns); 1 ≤ r ≤ LOCAL_RADIUS."""
+    """The first pass of :func:`flow_median_pairs`: u and v of the 2r+1 rows i − r … i + r
+    of column j (clamped at the borders), sorted, to cu[i, j, 0 … 2r] and cv[i, j, 0 …
+    2r], and their least and greatest δ1 to depth[i, j]. Launch over (rows, columns);
+    1 ≤ r ≤ LOCAL_RADIUS."""
     i, j = wp.tid()
     i = i + row0
     if radius == 1:
-        sorted_flow_column1(x, i, j, cu, cv)
+        sorted_flow_column1(x, i, j, cu, cv, depth)
     elif radius == 2:
-        sorted_flow_column2(x, i, j, cu, cv)
+        sorted_flow_column2(x, i, j, cu, cv, depth)
     else:
-        sorted_flow_column3(x, i, j, cu, cv)
+        sorted_flow_column3(x, i, j, cu, cv, depth)
+
+
+@wp.func
+def one_surface(depth: wp.array2d(dtype=wp.vec2), i: int, first: int, last: int, d1: float, tolerance: float):
+    """Whether every pixel of the window columns first … last (clamped) of row i's window
+    takes part in the median of a pixel whose δ1 is d1 (:func:`same_surface`), from the
+    columns' least and greatest δ1."""
+    w = depth.shape[1]
+    lo = d1
+    hi = d1
+    for j in range(first, last + 1):
+        extent = depth[i, wp.clamp(j, 0, w - 1)]
+        lo = wp.min(lo, extent[0])
+        hi = wp.max(hi, extent[1])
+    return tolerance <= 0.0 or (hi - d1 <= tolerance and d1 - lo <= tolerance)
 
 
 @wp.kernel
-def plain_flow_medians(
+def flow_median_pairs(
     row0: int,
     x: wp.array2d(dtype=Any),
     radius: int,
+    tolerance: float,
     cu: wp.array3d(dtype=float),
     cv: wp.array3d(dtype=float),
+    depth: wp.array2d(dtype=wp.vec2),
     # outputs
     out: wp.array2d(dtype=Any),
 ):
-    """:func:`median_flow` with every pixel of the window taking part (tolerance 0, or
-    flow only, where δ1 reads 0), the same values bit for bit, from the window columns
-    that :func:`sorted_flow_columns` sorted into cu and cv: a thread for the pixels
-    (i, 2p) and (i, 2p + 1), whose windows share 2r columns
-    (:func:`lfsf.kernels.median_networks.pair_medians3` and its kin). Min/max operations
-    a window and component: 32 to sort its column, half of the pair's 324 for the shared
-    ranks and 14 for its own column, 208 against :func:`median_flow`'s 614 at radius 3;
-    72 against 212 at radius 2.
-    Launch over (rows, ⌈columns / 2⌉); 1 ≤ r ≤ LOCAL_RADIUS."""
+    """:func:`median_flow` (the same values, for finite δ1; of −0 and +0, equal, either
+    may come out where the other did), a thread for the
+    pixels (i, 2p) and (i, 2p + 1), from the window columns that
+    :func:`sorted_flow_columns` sorted into cu and cv: where every pixel of a window is on
+    the centre pixel's surface (its δ1 within ``tolerance`` of the centre's, by the
+    columns' δ1 extents in ``depth``; always, flow only or at tolerance 0), the plain
+    median of the two windows, which share 2r columns
+    (:func:`lfsf.kernels.median_networks.pair_medians3` and its kin); at the pixels whose
+    window straddles a depth edge, :func:`gathered_flow_median`. Min/max operations a
+    window and component for the plain median: 32 to sort its column, half of the pair's
+    324 for the shared ranks and 14 for its own column, 208 against 614 at radius 3; 72
+    against 212 at radius 2. Launch over (rows, ⌈columns / 2⌉); 1 ≤ r ≤ LOCAL_RADIUS."""
     i, p = wp.tid()
     i = i + row0
     w = x.shape[1]
@@ -226,15 +248,19 @@ def plain_flow_medians(
         vl, vr = pair_medians3(cv, i, j, w)
     left = x[i, j]
     a = to_vec4(left)
+    if not one_surface(depth, i, j - radius, j + radius, a[0], tolerance):
+        ul, vl = gathered_flow_median(x, i, j, radius, tolerance)
     out[i, j] = from_vec4(wp.vec4(a[0], a[1], ul, vl), left)
     if j + 1 < w:
         right = x[i, j + 1]
         b = to_vec4(right)
+        if not one_surface(depth, i, j + 1 - radius, j + 1 + radius, b[0], tolerance):
+            ur, vr = gathered_flow_median(x, i, j + 1, radius, tolerance)
         out[i, j + 1] = from_vec4(wp.vec4(b[0], b[1], ur, vr), right)
 
 
 overload_unknowns(sorted_flow_columns, "x")
-overload_unknowns(plain_flow_medians, "x", "out")
+overload_unknowns(flow_median_pairs, "x", "out")
 
 
 #: Colour spread floor of :func:`guided_median_edges`' separation test (intensities in

@@ -1385,20 +1385,27 @@ def median49(vals: vec49):
 
 @wp.func
 def sorted_flow_column1(x: wp.array2d(dtype=Any), i: int, j: int, cu: wp.array3d(dtype=float),
-                         cv: wp.array3d(dtype=float)):
+                         cv: wp.array3d(dtype=float), depth: wp.array2d(dtype=wp.vec2)):
     """u and v (components 2, 3 of x as (δ1, δ2, u, v)) of rows i − 1 … i + 1 of column j, clamped
     at the borders, sorted into cu[i, j, 0 … 2] and cv[i, j, 0 … 2] (sorting network,
-    generated)."""
+    generated), and the least and greatest δ1 among them into depth[i, j]."""
     h = x.shape[0]
     p = to_vec4(x[wp.clamp(i + -1, 0, h - 1), j])
     u0 = p[2]
     v0 = p[3]
+    lo = p[0]
+    hi = p[0]
     p = to_vec4(x[wp.clamp(i + 0, 0, h - 1), j])
     u1 = p[2]
     v1 = p[3]
+    lo = at_most(lo, p[0])
+    hi = at_least(hi, p[0])
     p = to_vec4(x[wp.clamp(i + 1, 0, h - 1), j])
     u2 = p[2]
     v2 = p[3]
+    lo = at_most(lo, p[0])
+    hi = at_least(hi, p[0])
+    depth[i, j] = wp.vec2(lo, hi)
     t = at_most(u0, u1)
     u1 = at_least(u0, u1)
     u0 = t
@@ -1467,26 +1474,37 @@ def pair_medians1(c: wp.array3d(dtype=float), i: int, j: int, w: int):
 
 @wp.func
 def sorted_flow_column2(x: wp.array2d(dtype=Any), i: int, j: int, cu: wp.array3d(dtype=float),
-                         cv: wp.array3d(dtype=float)):
+                         cv: wp.array3d(dtype=float), depth: wp.array2d(dtype=wp.vec2)):
     """u and v (components 2, 3 of x as (δ1, δ2, u, v)) of rows i − 2 … i + 2 of column j, clamped
     at the borders, sorted into cu[i, j, 0 … 4] and cv[i, j, 0 … 4] (sorting network,
-    generated)."""
+    generated), and the least and greatest δ1 among them into depth[i, j]."""
     h = x.shape[0]
     p = to_vec4(x[wp.clamp(i + -2, 0, h - 1), j])
     u0 = p[2]
     v0 = p[3]
+    lo = p[0]
+    hi = p[0]
     p = to_vec4(x[wp.clamp(i + -1, 0, h - 1), j])
     u1 = p[2]
     v1 = p[3]
+    lo = at_most(lo, p[0])
+    hi = at_least(hi, p[0])
     p = to_vec4(x[wp.clamp(i + 0, 0, h - 1), j])
     u2 = p[2]
     v2 = p[3]
+    lo = at_most(lo, p[0])
+    hi = at_least(hi, p[0])
     p = to_vec4(x[wp.clamp(i + 1, 0, h - 1), j])
     u3 = p[2]
     v3 = p[3]
+    lo = at_most(lo, p[0])
+    hi = at_least(hi, p[0])
     p = to_vec4(x[wp.clamp(i + 2, 0, h - 1), j])
     u4 = p[2]
     v4 = p[3]
+    lo = at_most(lo, p[0])
+    hi = at_least(hi, p[0])
+    depth[i, j] = wp.vec2(lo, hi)
     t = at_most(u0, u1)
     u1 = at_least(u0, u1)
     u0 = t
@@ -1726,32 +1744,47 @@ def pair_medians2(c: wp.array3d(dtype=float), i: int, j: int, w: int):
 
 @wp.func
 def sorted_flow_column3(x: wp.array2d(dtype=Any), i: int, j: int, cu: wp.array3d(dtype=float),
-                         cv: wp.array3d(dtype=float)):
+                         cv: wp.array3d(dtype=float), depth: wp.array2d(dtype=wp.vec2)):
     """u and v (components 2, 3 of x as (δ1, δ2, u, v)) of rows i − 3 … i + 3 of column j, clamped
     at the borders, sorted into cu[i, j, 0 … 6] and cv[i, j, 0 … 6] (sorting network,
-    generated)."""
+    generated), and the least and greatest δ1 among them into depth[i, j]."""
     h = x.shape[0]
     p = to_vec4(x[wp.clamp(i + -3, 0, h - 1), j])
     u0 = p[2]
     v0 = p[3]
+    lo = p[0]
+    hi = p[0]
     p = to_vec4(x[wp.clamp(i + -2, 0, h - 1), j])
     u1 = p[2]
     v1 = p[3]
+    lo = at_most(lo, p[0])
+    hi = at_least(hi, p[0])
     p = to_vec4(x[wp.clamp(i + -1, 0, h - 1), j])
     u2 = p[2]
     v2 = p[3]
+    lo = at_most(lo, p[0])
+    hi = at_least(hi, p[0])
     p = to_vec4(x[wp.clamp(i + 0, 0, h - 1), j])
     u3 = p[2]
     v3 = p[3]
+    lo = at_most(lo, p[0])
+    hi = at_least(hi, p[0])
     p = to_vec4(x[wp.clamp(i + 1, 0, h - 1), j])
     u4 = p[2]
     v4 = p[3]
+    lo = at_most(lo, p[0])
+    hi = at_least(hi, p[0])
     p = to_vec4(x[wp.clamp(i + 2, 0, h - 1), j])
     u5 = p[2]
     v5 = p[3]
+    lo = at_most(lo, p[0])
+    hi = at_least(hi, p[0])
     p = to_vec4(x[wp.clamp(i + 3, 0, h - 1), j])
     u6 = p[2]
     v6 = p[3]
+    lo = at_most(lo, p[0])
+    hi = at_least(hi, p[0])
+    depth[i, j] = wp.vec2(lo, hi)
     t = at_most(u0, u1)
     u1 = at_least(u0, u1)
     u0 = t

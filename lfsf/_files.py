@@ -31,6 +31,7 @@ def output_folder(path: str | os.PathLike, create: bool = True, names=()) -> Pat
     if not os.fspath(path):
         raise ValueError("an empty folder name (it would be the current folder; give '.' for that)")
     path = Path(path)
+    _check_name_lengths(path, path.parts, NAME_MAX)  # (before any stat: one too long fails it)
     for part in (path, *path.parents):
         if part.exists() and not part.is_dir():
             raise ValueError(f"{path}: cannot write results there: {part} is a file, not a folder")
@@ -42,16 +43,14 @@ def output_folder(path: str | os.PathLike, create: bool = True, names=()) -> Pat
         why = _unwritable(existing)
         if why:
             raise ValueError(f"{path}: cannot make the output folder: {existing} is not writable ({why})")
-        # the names of the folders still to make (stat says "no such file" of a name too
-        # long beneath a missing folder: it had failed only when made, after the work)
+        # the names of the folders still to make, against the file system's own bound (stat
+        # says "no such file" of a name too long beneath a missing folder: it had failed
+        # only when made, after the work)
         try:
             longest = os.pathconf(existing, "PC_NAME_MAX")
-        except (OSError, ValueError):
-            longest = 255
-        for part in path.relative_to(existing).parts:
-            if len(os.fsencode(part)) > longest:
-                raise ValueError(f"{path}: cannot make the output folder: the name {part[:40]}… is "
-                                 f"{len(os.fsencode(part))} bytes long, more than the {longest} a name may have")
+        except (AttributeError, OSError, ValueError):  # (no pathconf on Windows)
+            longest = NAME_MAX
+        _check_name_lengths(path, path.relative_to(existing).parts, longest)
     if create:
         try:
             path.mkdir(parents=True, exist_ok=True)
@@ -63,6 +62,18 @@ def output_folder(path: str | os.PathLike, create: bool = True, names=()) -> Pat
             raise ValueError(f"{path}: the output folder is not writable ({why})")
     _check_names(path, names)
     return path
+
+
+#: The longest name (bytes) of a file or folder on the usual file systems (ext4, XFS,
+#: APFS, NTFS in UTF-16 units); :func:`output_folder` asks the file system where it can.
+NAME_MAX = 255
+
+
+def _check_name_lengths(path: Path, parts, longest: int) -> None:
+    for part in parts:
+        if len(os.fsencode(part)) > longest:
+            raise ValueError(f"{path}: cannot make the output folder: the name {part[:40]}… is "
+                             f"{len(os.fsencode(part))} bytes long, more than the {longest} a name may have")
 
 
 def _unwritable(folder: Path) -> str:
@@ -100,19 +111,24 @@ def refuse_replacing_inputs(out: str | os.PathLike, names, inputs, option: str =
     ValueError
         Naming the output and the input it would replace.
     """
-    outputs = {os.path.realpath(Path(out) / name): Path(out) / name for name in names}
+    outputs = [Path(out) / name for name in names]
     for path in inputs:
         if path is None or not os.path.isfile(path):
             continue
-        output = outputs.get(os.path.realpath(path))
+        # the same file: by name (resolved), or by the file system's own account of it (a
+        # name in another case on a file system that ignores case, a hard link)
+        output = next((o for o in outputs if os.path.realpath(o) == os.path.realpath(path)
+                       or (os.path.exists(o) and os.path.samefile(o, path))), None)
         if output is None:
             continue
         if os.path.abspath(output) == os.path.abspath(path):
             raise ValueError(f"{path}: read by this run, and the results would replace it (they write "
                              f"{output.name} into {out}); choose another {option}")
-        via = f", a link to {os.path.realpath(path)}" if os.path.islink(output) else ""
-        raise ValueError(f"{output}: the results would replace it{via}, and this run reads {path}; choose "
-                         f"another {option}")
+        if os.path.islink(output):
+            raise ValueError(f"{output}: a link to {os.path.realpath(path)}, which this run reads ({path}); the "
+                             f"results would be written through it: choose another {option}")
+        raise ValueError(f"{output}: the same file as {path}, which this run reads; the results would replace "
+                         f"it: choose another {option}")
 
 
 def output_file(path: str | os.PathLike) -> Path:
@@ -343,11 +359,12 @@ def remove_dead_sets(out: Path) -> None:
 
 
 @contextlib.contextmanager
-def file_set(out: Path, names):
+def file_set(out: Path, names, stale=()):
     """A temporary folder inside ``out`` to write the files ``names`` (paths relative to
     ``out``) into; on success they are moved into place together, with Ctrl-C held back
     meanwhile (:func:`interrupts_held`), so that a failure or an interrupt leaves either
-    none of them or all of them, never a mix with an earlier set. The temporary folders
+    none of them or all of them, never a mix with an earlier set. The files ``stale`` (an
+    earlier set's that this one does not replace) are removed in the same step. The temporary folders
     of killed processes are removed first (:func:`remove_dead_sets`). Existing folders in
     their place are refused before anything is written. A symbolic link in the place of
     a file is written through, as :func:`atomic_path` does: the link stays and the file
@@ -373,6 +390,9 @@ def file_set(out: Path, names):
                         shutil.copyfile(tmp / name, through)
                 else:
                     os.replace(tmp / name, out / name)
+            for name in stale:
+                if (out / name).is_file() or (out / name).is_symlink():
+                    (out / name).unlink()
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)

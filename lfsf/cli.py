@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import os
+import re
 import sys
 import time
 import warnings
@@ -80,16 +82,21 @@ def _positive(text: str) -> int:
     return value
 
 
-def _grid_option(values: list[int]) -> tuple[int, int]:
-    """``--grid N`` (N×N views) or ``--grid ROWS COLS`` as (rows, cols), within the
-    renderer's bounds."""
+def _grid(text: str) -> tuple[int, int]:
+    """``--grid N`` (N×N views) or ``--grid ROWSxCOLS`` (``1x9``: a rig of one row) as
+    (rows, cols), within the renderer's bounds."""
     from lfsf.synth import MAX_GRID
 
-    if len(values) > 2:
-        raise ValueError(f"--grid takes N (N×N views) or ROWS COLS, got {len(values)} numbers")
-    rows, cols = values if len(values) == 2 else values * 2
+    parts = re.split(r"[x×]", text.strip().lower())
+    if len(parts) > 2:
+        raise argparse.ArgumentTypeError(f"expected N or ROWSxCOLS (e.g. 9 or 1x9), got {text!r}")
+    try:
+        sizes = [_positive(part) for part in parts]
+    except argparse.ArgumentTypeError as exc:
+        raise argparse.ArgumentTypeError(f"expected N or ROWSxCOLS (e.g. 9 or 1x9), got {text!r}: {exc}") from None
+    rows, cols = sizes if len(sizes) == 2 else sizes * 2
     if max(rows, cols) > MAX_GRID:
-        raise ValueError(f"--grid must be at most {MAX_GRID} views a side, got {' '.join(map(str, values))}")
+        raise argparse.ArgumentTypeError(f"at most {MAX_GRID} views a side, got {text}")
     return rows, cols
 
 
@@ -112,7 +119,6 @@ def cmd_synth(args) -> int:
     if args.frames < 2:
         raise ValueError(f"--frames must be at least 2 (2: one pair), got {args.frames}")
     scene = synth.get_scene(args.scene)  # unknown scene: clear error before any work
-    args.grid = _grid_option(args.grid)
     synth.check_render(args.size, args.grid, args.supersample, args.frames, args.colour, args.noise)
     images = None
     if args.images is not None:  # photographs on the objects, each one's image and scale drawn by --image-seed
@@ -380,8 +386,12 @@ def cmd_demo(args) -> int:
     device = resolve_device(args.device)
     params = _params(args)
     synth.get_scene(args.scene)
-    args.grid = _grid_option(args.grid)
     synth.check_render(args.size, args.grid, colour=args.colour)  # before any work
+    rows, cols = args.grid
+    if params.circles > 1 and params.grid_radius((rows, cols)) <= 0:  # (refused by the estimate, after the render)
+        raise ValueError(f"--grid {rows}x{cols}: no room for the sampling circles (M = {params.circles}, N = "
+                         f"{list(params.samples)}); on a rig of one row, --config FILE.toml with circles = 2 and "
+                         "samples = [1, 2] samples along it, and --preset flow estimates the flow alone")
     width, height = args.size
     if min(width, height) <= 2 * SYNTH_BORDER:
         raise ValueError(f"--size {width} {height}: the demo's errors leave out a border of {SYNTH_BORDER} px; "
@@ -562,8 +572,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=_folder_name, help="output folder")
     p.add_argument("--size", nargs=2, type=_size, metavar=("W", "H"), default=(640, 480),
                    help="view size in pixels (default 640 480)")
-    p.add_argument("--grid", type=_positive, nargs="+", default=[9], metavar="N",
-                   help="N×N views, or ROWS COLS (default 9)")
+    p.add_argument("--grid", type=_grid, default=(9, 9), metavar="N|ROWSxCOLS",
+                   help="N×N views, or ROWSxCOLS: 1x9 a rig of one row (default 9)")
     p.add_argument("--supersample", type=_positive, default=2, metavar="K",
                    help="K×K rays per pixel (default 2)")
     p.add_argument("--colour", action="store_true", help="RGB views (default grey)")
@@ -631,8 +641,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scene", default="paper", help="scene name (see 'lfsf synth --list'; default paper)")
     p.add_argument("--size", nargs=2, type=_size, metavar=("W", "H"), default=(320, 240),
                    help="view size (default 320 240; at least 17 each way: the errors leave out an 8-px border)")
-    p.add_argument("--grid", type=_positive, nargs="+", default=[9], metavar="N",
-                   help="N×N views, or ROWS COLS (default 9)")
+    p.add_argument("--grid", type=_grid, default=(9, 9), metavar="N|ROWSxCOLS",
+                   help="N×N views, or ROWSxCOLS: 1x9 a rig of one row (default 9)")
     p.add_argument("--colour", action="store_true",
                    help="RGB views (default grey): the estimate then also takes δ1's diffusion tensor from the "
                         "colours (Params.colour_tensor) and snaps δ1 and δ2 to the colour edges "
@@ -723,9 +733,10 @@ class _PipeSafe:
     """stdout (stderr) for a command: where its reader has gone (``lfsf demo | head -1``,
     ``lfsf batch … 2>&1 | head -1``), what is printed later is dropped and the command
     goes on to write its files, instead of ending in "[Errno 32] Broken pipe" with the
-    results thrown away. The stream's file descriptor then points at /dev/null, so that
-    the interpreter's last flush is quiet. Any other failure to write (stdout on a full
-    disk) is an OSError that names the stream."""
+    results thrown away; so where the terminal has hung up (EIO), and on any failure of
+    stderr. The stream's file descriptor then points at /dev/null, so that the
+    interpreter's last flush is quiet. Any other failure to write stdout (a full disk) is
+    an OSError that names it."""
 
     def __init__(self, stream, name: str):
         self._stream = stream
@@ -734,19 +745,24 @@ class _PipeSafe:
     def write(self, text):
         try:
             return self._stream.write(text)
-        except BrokenPipeError:
-            self._drop()
-            return len(text)
         except OSError as exc:
-            raise OSError(exc.errno, f"cannot write to {self._name}: {exc.strerror or exc}") from None
+            self._failed(exc)
+            return len(text)
 
     def flush(self):
         try:
             self._stream.flush()
-        except BrokenPipeError:
-            self._drop()
         except OSError as exc:
-            raise OSError(exc.errno, f"cannot write to {self._name}: {exc.strerror or exc}") from None
+            self._failed(exc)
+
+    def _failed(self, exc: OSError):
+        """A reader gone (EPIPE), a terminal hung up (EIO): dropped from now on, as is
+        anything on stderr, whose diagnostics must not end the work; any other failure of
+        stdout (a full disk) raises, naming it."""
+        if isinstance(exc, BrokenPipeError) or exc.errno == errno.EIO or self._name == "stderr":
+            self._drop()
+            return
+        raise OSError(exc.errno, exc.strerror or str(exc), f"<{self._name}>") from None
 
     def _drop(self):
         try:
@@ -772,8 +788,10 @@ def _usable_streams() -> None:
         except OSError:
             null = os.open(os.devnull, os.O_WRONLY)
             if null != fd:
-                os.dup2(null, fd)
+                os.dup2(null, fd)  # (inheritable, as a standard stream is)
                 os.close(null)
+            else:  # (it took the closed descriptor's number, not inheritable: a child would lack it)
+                os.set_inheritable(fd, True)
             setattr(sys, name, open(fd, "w", closefd=False))
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(AttributeError, ValueError):
@@ -790,20 +808,27 @@ def entry() -> None:  # pragma: no cover - the installed command; tests call mai
     _usable_streams()
     status = main()
     if status in (EXIT_INTERRUPTED, EXIT_TERMINATED, EXIT_HUNG_UP):
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(status)
+        _exit_now(status)
     # the command has ended and said so: a signal during the interpreter's shutdown (it
-    # joins the thread pool, about 0.25 s) is no interrupt of it any more (it had printed
-    # a traceback after the results' line, or turned status 0 into 130)
+    # joins the thread pool, about 0.25 s) ends the process at once with the command's
+    # status (it had printed a traceback after the results' line, or turned status 0
+    # into 130)
     import signal
 
     from lfsf._errors import ending_signals
 
     for s in (signal.SIGINT, *ending_signals()):
         with contextlib.suppress(OSError, ValueError):
-            signal.signal(s, signal.SIG_IGN)
+            signal.signal(s, lambda signum, frame: _exit_now(status))
     sys.exit(status)
+
+
+def _exit_now(status: int) -> None:
+    """End the process with ``status`` at once, what is printed flushed first."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError, ValueError):
+            stream.flush()
+    os._exit(status)
 
 
 if __name__ == "__main__":  # pragma: no cover

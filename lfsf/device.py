@@ -32,19 +32,25 @@ def _stderr_filtered(drop: str):
     """Hold back what native code writes to file descriptor 2; re-emit all but lines with ``drop``."""
     import tempfile
 
-    sys.stderr.flush()
-    saved = os.dup(2)
+    if sys.stderr is not None:  # (None: pythonw, a daemon)
+        sys.stderr.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:  # (descriptor 2 closed: nothing to hold back)
+        yield
+        return
     with tempfile.TemporaryFile(mode="w+b") as buf:
         os.dup2(buf.fileno(), 2)
         try:
             yield
         finally:
-            sys.stderr.flush()
+            if sys.stderr is not None:
+                sys.stderr.flush()
             os.dup2(saved, 2)
             os.close(saved)
             buf.seek(0)
             kept = [ln for ln in buf.read().decode(errors="replace").splitlines() if drop not in ln]
-            if kept:
+            if kept and sys.stderr is not None:
                 print("\n".join(kept), file=sys.stderr)
 
 

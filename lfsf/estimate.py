@@ -3,7 +3,6 @@ coarse-to-fine warping around :class:`lfsf.solver.LevelSolver` (MODEL.md §2–�
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import math
 import os
@@ -160,8 +159,8 @@ class SceneFlow:
         (:data:`lfsf.viz.NOT_ESTIMATED_GREY`), and said to be not estimated in the overview.
         ``gt`` is a mapping of maps (:func:`lfsf.viz.ground_truth_maps`) or the path of a
         ``gt.npz`` or a PFM (:func:`lfsf.evaluate.load_ground_truth`; ``border`` stays as
-        given), checked before the folder is made; a folder made for the result is removed
-        again if writing fails."""
+        given), checked before the folder is made; the folders made for the result are
+        removed again if writing fails."""
         from lfsf import viz
         from lfsf._files import output_folder
         from lfsf.batch import RESULT_FILES
@@ -174,7 +173,7 @@ class SceneFlow:
 
             gt, _border = load_ground_truth(gt)
         viz.ground_truth_maps(gt, self.disp1.shape)  # (checked before a folder is made)
-        made = not os.path.lexists(out)
+        made = [p for p in (Path(out), *Path(out).parents) if not os.path.lexists(p)]  # (the folders to make)
         out = output_folder(out)
         names = list(RESULT_FILES)
         if centre1 is not None and centre2 is not None:
@@ -182,9 +181,11 @@ class SceneFlow:
         try:
             return self._save_files(out, names, centre1, centre2, gt, title, border, inputs)
         except BaseException:
-            if made:  # (a folder made for this result, left empty by its failure)
-                with contextlib.suppress(OSError):
-                    out.rmdir()
+            for folder in made:  # (the folders made for this result, left empty by its failure)
+                try:
+                    folder.rmdir()
+                except OSError:
+                    break
             raise
 
     def _save_files(self, out: Path, names: list[str], centre1, centre2, gt, title, border, inputs) -> list[Path]:
@@ -194,7 +195,11 @@ class SceneFlow:
         from lfsf import io, viz
         from lfsf._files import file_set
 
-        with file_set(out, names) as tmp:
+        # an earlier result's overview goes with the rest of it (it had stayed, showing that
+        # result beside this one's files)
+        # (only where an earlier result is: an overview.png of the user's own stays)
+        stale = [] if "overview.png" in names or not (out / "sceneflow.npz").is_file() else ["overview.png"]
+        with file_set(out, names, stale) as tmp:
             for name in ("disp1", "disp2"):
                 io.write_pfm(tmp / f"{name}.pfm", getattr(self, name))
             io.write_flo(tmp / "flow.flo", np.stack([self.u, self.v], -1))
@@ -228,12 +233,6 @@ class SceneFlow:
                 viz.overview_figure(centre1, centre2, self.disp1, self.disp2, self.u, self.v, gt=gt,
                                     path=tmp / "overview.png", title=title, occluded=self.occluded,
                                     disparities=estimated, border=border)
-            else:
-                # an earlier result's overview goes with the rest of it, once this set is
-                # written (it had stayed, showing that result beside this one's files)
-                stale = out / "overview.png"
-                if stale.is_file() or stale.is_symlink():
-                    stale.unlink()
         return [out / name for name in names]
 
 
@@ -1436,8 +1435,9 @@ def estimate_scene_flow(
         :func:`lfsf.read_lightfield`); colour is matched as luma, the t1 centre view's
         colours shape δ1's diffusion tensor (``Params.colour_tensor``), and at the end
         they place δ1's and δ2's depth edges (``Params.colour_median_radius``). The
-        disparities need
-        at least 2 rows and 2 columns of views (flow only, ``circles=1``, needs one).
+        disparities need views where the samples land (:meth:`lfsf.Params.grid_radius`):
+        the presets' need 2 rows and 2 columns of views; a rig of one row (column) takes
+        ``circles=2, samples=(1, 2)``; flow only, ``circles=1``, needs one view.
         Light fields whose joint intensity range spans less than 0.2 or more than 2
         are stretched to [0, 1] first (e.g. 12-bit data stored in 16 bits, or counts
         given as floats; float views far outside [0, 1] are warned about); the others
@@ -1541,12 +1541,17 @@ def estimate_scene_flow(
              f"lenslet image, {lf1.meta['lens_views']} across a lens, and those further out lie near the "
              "micro-images' rims, where the neighbouring lenses mix in (RIM_FRACTION)")
     if params.circles > 1 and radius <= 0:
+        flow = ("the flow of the centre views alone: the flow preset (--preset flow; circles = 1, "
+                "samples = [1])")
+        if rows == cols == 1:
+            raise ValueError(f"{lf1.source}: a single view leaves no room for the sampling circles (M = "
+                             f"{params.circles}): the disparities need two views or more; {flow}")
         axis = "column" if rows > cols else "row"
         raise ValueError(f"{lf1.source}: a {rows}×{cols} grid of views leaves no room for the sampling circles "
                          f"(M = {params.circles}, N = {list(params.samples)}): samples off the grid's {axis} need "
                          f"views beside it; on a one-{axis} rig, sample along it with circles = 2 and samples = "
-                         "[1, 2] (the views R steps either side of the centre), or, for the flow of the centre "
-                         "views alone, take the flow preset (circles = 1, samples = [1])")
+                         "[1, 2] (the views R steps either side of the centre; lfsf run --config FILE.toml "
+                         f"sets them), or {flow}")
     cut = grid_radius < params.radius and (rim is None or grid_radius <= rim)  # (R set by the grid)
     if params.circles > 1 and (cut or radius < 1.0):
         note(f"sampling radius R = {radius:g} view steps"
@@ -1874,14 +1879,16 @@ def _depth_change_median(x: np.ndarray, params: Params, device: str) -> np.ndarr
     at full resolution: the flow's median over one surface
     (:func:`lfsf.kernels.median.median_flow`, the same window, tolerance and ties) run on
     the depth change put in the flow's place."""
-    from lfsf.kernels import median
-    from lfsf.solver import level_median_radius
+    from lfsf.solver import flow_median, level_median_radius
 
+    wp = _device.warp()
     x = np.asarray(x, np.float32)
     guide = x.copy()
     guide[..., 2] = guide[..., 3] = x[..., 1] - x[..., 0]
-    out = _map_step(median.median_flow, guide,
-                    [level_median_radius(params.depth_change_radius, x.shape[1]), params.median_tolerance], device)
+    out = wp.empty(x.shape[:2], dtype=wp.vec4, device=device)
+    flow_median(wp.array(guide, dtype=wp.vec4, device=device),
+                level_median_radius(params.depth_change_radius, x.shape[1]), params.median_tolerance, out, device)
+    out = out.numpy()
     result = x.copy()
     result[..., 1] = x[..., 0] + out[..., 2]
     return result

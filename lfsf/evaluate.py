@@ -103,12 +103,13 @@ def _check_pair(name, est, ref):
         if est.shape != ref.shape:
             dy, dx = est.shape[0] - ref.shape[0], est.shape[1] - ref.shape[1]
             hint = ""
-            if dy > 0 and dx > 0 and dy % 2 == 0 and dx % 2 == 0:  # a reference estimated on cropped views
+            # a reference made on views cropped by a margin (EPINET's Lytro estimate: 11 px a
+            # side), not one of another resolution
+            if 0 < dy <= est.shape[0] // 3 and 0 < dx <= est.shape[1] // 3 and dy % 2 == 0 and dx % 2 == 0:
                 y, x = dy // 2, dx // 2
                 cut = f"{x} px on every side" if x == y else f"{x} px left and right, {y} top and bottom"
-                hint = (f", the estimate less {cut} (a reference that crops its views?): to compare them, crop "
-                        f"the estimate, e.g. lfsf.io.write_pfm('cropped.pfm', lfsf.io.read_pfm('disp1.pfm')"
-                        f"[{y}:-{y}, {x}:-{x}])")
+                hint = (f", {cut} smaller (a reference made on cropped views?): crop the estimate's maps "
+                        f"[{y}:-{y}, {x}:-{x}] to compare them")
             raise ValueError(f"{name}: the estimate is {est.shape[1]}×{est.shape[0]} but the "
                              f"ground truth is {ref.shape[1]}×{ref.shape[0]}{hint}")
     else:
@@ -193,9 +194,12 @@ def evaluate(estimate, gt: dict, border: int = SYNTH_BORDER) -> dict[str, dict[s
     if not out:
         halves = [f"the {name} has {' but not '.join(keys)}" for name, maps in (("estimate", estimate), ("ground truth", gt))
                   for keys in (("u", "v"), ("v", "u")) if keys[0] in maps and keys[1] not in maps]
+        disp2_only = set(estimate) <= {"disp2", "occluded"} and set(gt) <= {"disp1", "valid"}
         raise ValueError("the estimate and the ground truth have no variable in common "
                          f"(estimate: {sorted(estimate)}, ground truth: {sorted(gt)})"
-                         + (f"; the flow needs u and v together: {', '.join(halves)}" if halves else ""))
+                         + (f"; the flow needs u and v together: {', '.join(halves)}" if halves else "")
+                         + ("; a result's disp2.pfm is δ2 and a PFM ground truth δ1 (to score δ2 against it, "
+                            "copy disp2.pfm to another name)" if disp2_only else ""))
     occluded = gt.get("occluded")
     if occluded is not None and ("disp2" in out or "flow" in out):
         occluded = _bool_mask(occluded, "occluded").astype(bool)

@@ -291,6 +291,11 @@ def _to_unit_float32(array: np.ndarray) -> np.ndarray:
 
 
 def _validated_views(views, source: str) -> np.ndarray:
+    if isinstance(views, np.ma.MaskedArray) and np.ma.is_masked(views):
+        # (np.asarray drops the mask: the values under it were estimated from as any others)
+        raise ValueError(f"{source}: a masked array with {int(np.ma.count_masked(views))} masked values; lfsf "
+                         "needs a value at every pixel of every view: fill them (views.filled(...)) or crop "
+                         "them away")
     array = np.asarray(views)
     if array.dtype.kind not in "biuf":
         raise ValueError(f"{source}: expected real-valued views, got dtype {array.dtype}")
@@ -492,7 +497,7 @@ def _read_folder(folder: Path) -> LightField:
         cfg = folder / "parameters.cfg"
         if cfg.is_file():
             meta["parameters"] = _read_hci_parameters(cfg)
-        files = _hci_grid(folder, hci, _hci_cameras(meta.get("parameters", {})))
+        files = _hci_grid(folder, hci, _hci_cameras(meta.get("parameters", {}), cfg))
         report = _read_decode_report(folder / "decode.json")
         if report is not None:
             meta["decode"], meta["lattice"], meta["lens_views"] = report, report["lattice"], report["views"]
@@ -542,14 +547,27 @@ def _listed_first(items, count: int) -> str:
     return ", ".join(str(i) for i in shown) + (f" and {more} more" if more > 0 else "")
 
 
-def _hci_cameras(parameters: dict) -> tuple[int, int] | None:
-    """(rows, cols) of the views as ``parameters.cfg`` gives them (``num_cams_y``,
-    ``num_cams_x`` of its [extrinsics]), or None where it does not."""
-    extrinsics = parameters.get("extrinsics", {})
-    rows, cols = extrinsics.get("num_cams_y"), extrinsics.get("num_cams_x")
-    if isinstance(rows, int) and isinstance(cols, int) and rows >= 1 and cols >= 1:
-        return rows, cols
-    return None
+def _hci_cameras(parameters: dict, cfg: Path) -> tuple[int, int] | None:
+    """(rows, cols) of the views as ``parameters.cfg`` (``cfg``) gives them: ``num_cams_y``
+    and ``num_cams_x``, in any section (the benchmark's [extrinsics]); None where it names
+    neither. One without the other, or either not a whole number ≥ 1, is a ValueError
+    naming the file (read as a square grid instead, a 1×9 rig had been 3×3)."""
+    found = {key.lower(): value for section in parameters.values() for key, value in section.items()
+             if key.lower() in ("num_cams_x", "num_cams_y")}
+    if not found:
+        return None
+    counts = []
+    for key in ("num_cams_y", "num_cams_x"):
+        value = found.get(key)
+        if isinstance(value, float) and value.is_integer():  # (9.0)
+            value = int(value)
+        if not isinstance(value, int) or value < 1:
+            other = "num_cams_x" if key == "num_cams_y" else "num_cams_y"
+            why = f"it gives {other} but not {key}" if value is None else f"{key} = {found[key]!r}"
+            raise ValueError(f"{cfg}: {why}; the grid of views needs num_cams_x and num_cams_y as whole numbers "
+                             "≥ 1 (or no such line, for a square grid)")
+        counts.append(value)
+    return counts[0], counts[1]
 
 
 def _hci_grid(folder: Path, matches: list, cameras: tuple[int, int] | None = None) -> list[list[Path]]:

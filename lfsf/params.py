@@ -466,8 +466,8 @@ class Params:
         # side samples within a few hundredths of a view step of the centre see no
         # parallax: every A1 = −φ·∇W1 ≈ 0, and δ came out 0 without a word (R = 1e-9)
         need(MIN_RADIUS <= self.radius <= MAX_REAL or self.circles == 1,
-             f"radius R must be {MIN_RADIUS}…{MAX_REAL:g} view steps (at least {MIN_RADIUS}: the side samples' "
-             f"parallax; the grid of views may allow less, which is then used), got {self.radius:g}")
+             f"radius R must be {MIN_RADIUS}…{MAX_REAL:g} view steps (nearer the centre the side samples see "
+             f"too little parallax; a grid of views that allows less than R asked uses less), got {self.radius:g}")
         for name in ("lambda1", "lambda2", "lambda3", "lambda3_side", "alpha0", "alpha1", "gamma", "beta",
                      "rof_weight", "eps"):
             value = getattr(self, name)

@@ -132,7 +132,7 @@ class LevelSolver:
         self.tau_x, self.tau_w0, self.tau_w1 = zeros4(), zeros4(), zeros4()
         self.sigma_y = zeros4()  # one step for both components of y (tgv_preconditioner)
         self.scratch = zeros4()
-        # the plain median's sorted window columns of u and v (median), made on its first use
+        # the median's sorted window columns of u and v and their δ1 extents (median), made on its first use
         self._median_columns: tuple | None = None
         # geometric occlusion at t2: z-buffer of δ2 and the hidden mask
         self.zbuf = wp.zeros((h, w), dtype=float, device=device)
@@ -494,27 +494,14 @@ class LevelSolver:
     def median(self) -> None:
         """Median-filter the flow (u, v) of x over the pixels of a (2r+1)² window (r =
         :meth:`median_radius`) whose δ1 is within ``params.median_tolerance`` (scaled to the
-        level) of the centre pixel's."""
-        from lfsf.kernels import median
-
+        level) of the centre pixel's (:func:`flow_median`)."""
         wp = _device.warp()
         radius = self.median_radius()
         if radius <= 0:
             return
         tolerance = self.params.median_tolerance * self.level_scale
-        if radius <= median.LOCAL_RADIUS and (self.flow_only or tolerance <= 0):
-            # every pixel of the window takes part: the plain median from sorted columns
-            side = 2 * radius + 1
-            if self._median_columns is None or self._median_columns[0].shape[2] != side:
-                self._median_columns = tuple(wp.empty((*self.shape, side), dtype=float, device=self.device)
-                                             for _ in range(2))
-            columns = list(self._median_columns)
-            self._launch(median.sorted_flow_columns, inputs=[self.x, radius], outputs=columns)
-            _device.launch_rows(median.plain_flow_medians, dim=(self.shape[0], (self.shape[1] + 1) // 2),
-                                inputs=[self.x, radius, *columns], outputs=[self.scratch], device=self.device,
-                                bands=self.bands)
-        else:
-            self._launch(median.median_flow, inputs=[self.x, radius, tolerance], outputs=[self.scratch])
+        self._median_columns = flow_median(self.x, radius, tolerance, self.scratch, self.device, self.bands,
+                                           self._median_columns)
         wp.copy(self.x, self.scratch)
         wp.copy(self.x_bar, self.scratch)
 
@@ -665,6 +652,33 @@ def to_lanes(a: np.ndarray, lanes: int) -> np.ndarray:
     padded[:, :w] = a
     return np.ascontiguousarray(padded.reshape(h, groups, lanes, n, values).transpose(0, 1, 3, 4, 2)
                                 .reshape(h, groups, n * values * lanes))
+
+
+def flow_median(x, radius: int, tolerance: float, out, device: str, bands=None, columns=None):
+    """out = x with its flow median-filtered over the (2r+1)² windows' pixels on the centre
+    pixel's surface (δ1 within ``tolerance``; :func:`lfsf.kernels.median.median_flow`'s
+    values): for r ≤ LOCAL_RADIUS from sorted window columns, a thread for two pixels
+    (:func:`lfsf.kernels.median.flow_median_pairs`), into ``columns`` (the buffers of an
+    earlier call of the same radius and shape, or None to make them). Returns the buffers,
+    for the next call."""
+    from lfsf.kernels import median
+
+    wp = _device.warp()
+    h, w = x.shape
+    if radius > median.LOCAL_RADIUS:
+        _device.launch_rows(median.median_flow, dim=(h, w), inputs=[x, radius, tolerance], outputs=[out],
+                            device=device, bands=bands)
+        return columns
+    side = 2 * radius + 1
+    if columns is None or tuple(columns[0].shape) != (h, w, side):
+        columns = (wp.empty((h, w, side), dtype=float, device=device),
+                   wp.empty((h, w, side), dtype=float, device=device),
+                   wp.empty((h, w), dtype=wp.vec2, device=device))
+    _device.launch_rows(median.sorted_flow_columns, dim=(h, w), inputs=[x, radius], outputs=list(columns),
+                        device=device, bands=bands)
+    _device.launch_rows(median.flow_median_pairs, dim=(h, (w + 1) // 2), inputs=[x, radius, tolerance, *columns],
+                        outputs=[out], device=device, bands=bands)
+    return columns
 
 
 def level_median_radius(radius: int, width: int) -> int:

@@ -17,7 +17,7 @@ fmin/fmax handling of NaN costs more on the CPU.
 column of a window, its 2r+1 rows, is sorted once (a sorting network, 3, 9 and 16
 comparators) and serves the 2r+1 windows of its row that hold it. The windows of the
 pixels (i, j) and (i, j+1) share the 2r columns j − r + 1 … j + r; of those columns'
-(2r+1)·2r values only the ranks n//2 + 1 − (2r+1) … n//2 (0-based, n = (2r+1)²) can be
+(2r+1)·2r values only the 2r + 2 ranks n//2 − (2r+1) … n//2 (0-based, n = (2r+1)²) can be
 either window's median, whatever its own last column holds. The network that finds them
 is Batcher's sort with the comparators inside a column left out (the columns come
 sorted, one to a block of the next power of two wires, padded by ±∞ as
@@ -189,9 +189,27 @@ def run_pair(r: int, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return medians[0], medians[1]
 
 
+def check_pair_exhaustively(r: int) -> None:
+    """The pair network and the selections, on every window of sorted 0/1 columns (a column
+    is fixed by its count of ones: (2r+2)^(2r+1) windows, 2 097 152 at radius 3, each
+    window's own column in turn): by the 0–1 principle, which holds for any network of
+    min and max, they then select the median of any values."""
+    side = 2 * r + 1
+    total = (side + 1) ** side
+    ranks = np.arange(side)
+    for start in range(0, total, 1 << 17):
+        index = np.arange(start, min(total, start + (1 << 17)))
+        counts = np.stack([(index // (side + 1) ** c) % (side + 1) for c in range(side)], 1)
+        columns = (ranks[None, :, None] >= side - counts[:, None, :]).astype(np.float32)  # ascending
+        columns = np.concatenate([columns, columns[:, :, :1]], 2)  # (the right window's own column: the left's)
+        want = (counts.sum(1) > side * side // 2).astype(np.float32)
+        left, right = run_pair(r, columns)
+        assert np.array_equal(left, want) and np.array_equal(right, want), f"pair network {r} is wrong"
+
+
 def check_pair(r: int) -> None:
     """The column sort and the pair network select both windows' medians, on random, tied
-    and 0/1 windows."""
+    and 0/1 windows (:func:`check_pair_exhaustively` covers every 0/1 window)."""
     side = 2 * r + 1
     rng = np.random.default_rng(r)
     tests = [rng.standard_normal((2000, side, side + 1)), rng.integers(0, 3, (2000, side, side + 1)).astype(float),
@@ -272,19 +290,23 @@ def comparator_lines(ops: list[tuple], name: dict) -> tuple[list[str], int]:
 
 
 def emit_column(r: int) -> str:
-    """``sorted_flow_column{r}``: the window column's u and v sorted (column_network)."""
+    """``sorted_flow_column{r}``: the window column's u and v sorted (column_network), and
+    the least and greatest δ1 in it."""
     side = 2 * r + 1
     lines = [
         "@wp.func",
         f"def sorted_flow_column{r}(x: wp.array2d(dtype=Any), i: int, j: int, cu: wp.array3d(dtype=float),",
-        f"                         cv: wp.array3d(dtype=float)):",
+        "                         cv: wp.array3d(dtype=float), depth: wp.array2d(dtype=wp.vec2)):",
         f'    """u and v (components 2, 3 of x as (δ1, δ2, u, v)) of rows i − {r} … i + {r} of column j, clamped',
         f'    at the borders, sorted into cu[i, j, 0 … {side - 1}] and cv[i, j, 0 … {side - 1}] (sorting network,',
-        '    generated)."""',
+        '    generated), and the least and greatest δ1 among them into depth[i, j]."""',
         "    h = x.shape[0]",
     ]
     for t in range(side):
         lines += [f"    p = to_vec4(x[wp.clamp(i + {t - r}, 0, h - 1), j])", f"    u{t} = p[2]", f"    v{t} = p[3]"]
+        lines += ["    lo = p[0]", "    hi = p[0]"] if t == 0 else [
+            "    lo = at_most(lo, p[0])", "    hi = at_least(hi, p[0])"]
+    lines.append("    depth[i, j] = wp.vec2(lo, hi)")
     ops = column_network(side)
     for c in "uv":
         body, _ = comparator_lines(ops, name := {t: f"{c}{t}" for t in range(side)})
@@ -330,6 +352,7 @@ def main() -> None:
         check(n)
     for r in PAIR_LAYOUTS:
         check_pair(r)
+        check_pair_exhaustively(r)
     if args.check:
         print("networks verified:", ", ".join(str(n) for n in SIZES), "and the pairs of radius",
               ", ".join(str(r) for r in PAIR_LAYOUTS))

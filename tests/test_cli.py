@@ -62,8 +62,9 @@ def test_synth_renders_a_random_scene_and_names_bad_ones(tmp_path):
 
 
 def test_synth_renders_a_grid_of_rows_and_columns(tmp_path):
-    """--grid ROWS COLS renders a rig that is not square (as render_scene's grid=(rows, cols))."""
-    status, _, err = lfsf("synth", "paper", "--out", tmp_path / "s", "--size", 40, 30, "--grid", 1, 5, "--quiet")
+    """--grid ROWSxCOLS renders a rig that is not square (as render_scene's grid=(rows, cols));
+    the scene may follow the option (a --grid of several numbers had taken it as one)."""
+    status, _, err = lfsf("synth", "--grid", "1x5", "paper", "--out", tmp_path / "s", "--size", 40, 30, "--quiet")
     assert status == 0, err
     assert np.load(tmp_path / "s" / "lf1.npz")["views"].shape == (1, 5, 30, 40)
 
@@ -291,6 +292,10 @@ def test_an_eval_report_may_not_replace_what_it_reports_on(tmp_path, capsys, res
         (["synth", "paper", "--out", "{tmp}/x", "--size", "-80", "60"], ["at least 8 pixels, got -80"]),
         (["synth", "paper", "--out", "{tmp}/x", "--size", "abc", "60"], ["--size: expected a whole number, got 'abc'"]),
         (["bench", "--repeats", "y"], ["--repeats: expected a whole number, got 'y'"]),
+        (["synth", "paper", "--out", "{tmp}/x", "--grid", "1000"], ["argument --grid: at most 33 views a side, got 1000"]),
+        (["synth", "paper", "--out", "{tmp}/x", "--grid", "3x4x5"], ["argument --grid: expected N or ROWSxCOLS (e.g. 9 "
+                                                                    "or 1x9), got '3x4x5'"]),
+        (["demo", "--out", "{tmp}/x", "--grid", "40"], ["argument --grid: at most 33 views a side, got 40"]),
         (["decode", "{tmp}/a.npz", "--white", "{tmp}/a.npz", "--out", "{tmp}/x", "--bayer", "CMYK"],
          ["invalid choice: 'CMYK'", "'none'"]),
         (["synth", "paper", "--out", "{tmp}/x", "--images", "{tmp}/a.npz"], ["a.npz: not a folder"]),
@@ -310,13 +315,10 @@ def test_bad_input_is_one_clear_line_and_status_2(tmp_path, args, needles):
     "args,needle",
     [
         (["synth", "paper", "--out", "{tmp}/x", "--size", "100000", "100000"], "image width must be in 8…8192"),
-        (["synth", "paper", "--out", "{tmp}/x", "--grid", "1000"], "--grid must be at most 33 views a side, got 1000"),
-        (["synth", "paper", "--out", "{tmp}/x", "--grid", "3", "4", "5"], "--grid takes N (N×N views) or ROWS COLS, got 3"),
         (["synth", "paper", "--out", "{tmp}/x", "--supersample", "50"], "supersample must be in 1…16"),
         (["synth", "paper", "--out", "{tmp}/x", "--frames", "300"], "more than the 2,147,483,648"),
         (["synth", "paper", "--out", "{tmp}/x", "--noise", "-1"], "noise sigma must be a finite number"),
         (["demo", "--out", "{tmp}/x", "--size", "320", "9000"], "image height must be in 8…8192"),
-        (["demo", "--out", "{tmp}/x", "--grid", "40"], "--grid must be at most 33 views a side, got 40"),
         (["demo", "--out", "{tmp}/x", "--size", "16", "12"], "give at least 17 px each way"),
         (["bench", "kernels", "--size", "10000", "10"], "image width must be in 8…8192"),
     ],
@@ -1072,7 +1074,7 @@ def test_results_never_replace_what_the_run_reads(tmp_path):
     for args, needle in (
             (["run", "r/sceneflow.npz", "d/lf2.npz", "--out", "r"], "r/sceneflow.npz: read by this run, and the results "
                                                                     "would replace it"),
-            (["run", "d/lf1.npz", "d/lf2.npz", "--out", "l"], "l/flow.flo: the results would replace it, a link to"),
+            (["run", "d/lf1.npz", "d/lf2.npz", "--out", "l"], "l/flow.flo: a link to"),
             (["run", "d/lf1.npz", "d/lf2.npz", "--out", "g", "--gt", "g/disp1.pfm"], "g/disp1.pfm: read by this run"),
             (["decode", "dc/input_Cam000.png", "--white", "dc/input_Cam001.png", "--out", "dc"], "read by this run")):
         status, _, err = lfsf(*args, "--quiet", cwd=tmp_path)
@@ -1095,7 +1097,45 @@ def test_a_closed_or_ascii_stdout_and_a_closed_stderr_are_no_failure(tmp_path):
         assert proc.returncode == 0 and "Traceback" not in proc.stderr, (redirect, proc.stderr)
         assert (tmp_path / "e.json").exists()
     assert r"MSE\xd7100" in proc.stdout
+    # the stream put in place of a closed one passes to child processes (a batch's Dask workers
+    # had started without a stderr, and every pair failed), and the library runs without one
+    probe = ("import os, subprocess, sys; from lfsf.cli import _usable_streams; _usable_streams(); "
+             "print(os.get_inheritable(2), subprocess.run([sys.executable, '-c', 'import sys; print(sys.stderr "
+             "is not None)'], capture_output=True, text=True).stdout.strip())")
+    proc = subprocess.run(["bash", "-c", f"{shlex.quote(sys.executable)} -c {shlex.quote(probe)} 2>&-"],
+                          capture_output=True, text=True, env=env)
+    assert proc.stdout.split() == ["True", "True"], (proc.stdout, proc.stderr)
+    library = "import lfsf.device as d; d.warp(); print('ok')"
+    proc = subprocess.run(["bash", "-c", f"{shlex.quote(sys.executable)} -c {shlex.quote(library)} 2>&-"],
+                          capture_output=True, text=True, env=env)
+    assert proc.returncode == 0 and proc.stdout == "ok\n", (proc.returncode, proc.stdout)
     if os.path.exists("/dev/full"):
         proc = subprocess.run(["bash", "-c", f"{command} > /dev/full"], cwd=tmp_path, capture_output=True, text=True,
                               env=env)
-        assert proc.returncode == 2 and "cannot write to stdout: No space left on device" in proc.stderr, proc.stderr
+        assert proc.returncode == 2 and "No space left on device: '<stdout>'" in proc.stderr, proc.stderr
+
+
+def test_a_hung_up_terminal_or_a_failing_stderr_does_not_end_the_work():
+    """Writing to a terminal that has hung up raises EIO (an ssh session gone): dropped, as
+    a reader gone is, so that the SIGHUP that follows ends the command with 129 (it had
+    ended with status 1 on the message's own print); any failure of stderr is dropped;
+    a full stdout names stdout."""
+    import errno
+
+    from lfsf.cli import _PipeSafe
+
+    class Failing(io_module.StringIO):
+        def __init__(self, code):
+            super().__init__()
+            self.code = code
+
+        def write(self, text):
+            raise OSError(self.code, os.strerror(self.code))
+
+        def fileno(self):
+            raise io_module.UnsupportedOperation("no descriptor")
+
+    assert _PipeSafe(Failing(errno.EIO), "stdout").write("line\n") == 5
+    assert _PipeSafe(Failing(errno.ENOSPC), "stderr").write("line\n") == 5
+    with pytest.raises(OSError, match=r"No space left on device: '<stdout>'"):
+        _PipeSafe(Failing(errno.ENOSPC), "stdout").write("line\n")

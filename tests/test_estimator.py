@@ -801,7 +801,8 @@ def test_a_grid_without_room_for_the_circles_is_a_clear_error(grid):
     rows, cols = grid
     cut = [lfsf.LightField(lf.views[4 - rows // 2:4 - rows // 2 + rows, 4 - cols // 2:4 - cols // 2 + cols],
                            source="cut.npz") for lf in (lf1, lf2)]
-    with pytest.raises(ValueError, match=f"cut.npz: a {rows}×{cols} grid of views"):
+    needle = "a single view leaves no room" if grid == (1, 1) else f"a {rows}×{cols} grid of views leaves no room"
+    with pytest.raises(ValueError, match=f"cut.npz: {needle}"):
         estimate_scene_flow(*cut, QUICK, device="cpu")
     sf = estimate_scene_flow(*cut, Params.preset("flow"), device="cpu")
     assert np.median(np.abs(interior(sf.u) - 1.5)) < 0.1
@@ -1364,6 +1365,10 @@ def test_a_saved_scene_flow_loads_back_whole(tmp_path):
     sf.save(tmp_path / "o", lf, lf)
     sf.save(tmp_path / "o")
     assert not (tmp_path / "o" / "overview.png").exists() and (tmp_path / "o" / "sceneflow.npz").exists()
+    (tmp_path / "mine").mkdir()  # (a picture of the user's own, where no result was, stays)
+    (tmp_path / "mine" / "overview.png").write_bytes(b"mine")
+    sf.save(tmp_path / "mine")
+    assert (tmp_path / "mine" / "overview.png").read_bytes() == b"mine"
     # the truth as a path (as lfsf run --gt takes it), checked before the folder is made
     from lfsf import io
 
@@ -1375,6 +1380,9 @@ def test_a_saved_scene_flow_loads_back_whole(tmp_path):
         with pytest.raises(error, match=needle):
             sf.save(tmp_path / "bad", lf, lf, gt=gt)
         assert not (tmp_path / "bad").exists()
+    with pytest.raises(ValueError, match="expected centre1 of the maps' shape"):  # (the folders it made go)
+        sf.save(tmp_path / "made" / "x" / "y", lf[:3, :3], lf[:3, :3])
+    assert not (tmp_path / "made").exists()
 
 
 def _fine_texture_pair(h, w, du, dv):

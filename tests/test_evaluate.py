@@ -202,9 +202,13 @@ def test_a_results_disp2_pfm_is_scored_as_disp2(tmp_path):
     for name in ("disp1.pfm", "mine.pfm"):
         assert E.evaluate(E.load_estimate(tmp_path / name), gt, border=2)["disp1"]["mse"] == 0.0
     # a reference on views cropped by k px a side: the message says so and how to crop
-    with pytest.raises(ValueError, match=r"20×20 but the ground truth is 14×16, the estimate less 3 px left and "
-                                         r"right, 2 top and bottom .*\[2:-2, 3:-3\]"):
+    with pytest.raises(ValueError, match=r"20×20 but the ground truth is 14×16, 3 px left and right, 2 top and "
+                                         r"bottom smaller .* crop the estimate's maps \[2:-2, 3:-3\]"):
         E.evaluate({"disp1": d1}, {"disp1": d1[2:-2, 3:-3]})
+    with pytest.raises(ValueError, match=r"the ground truth is 10×10$"):  # (half the resolution: no crop)
+        E.evaluate({"disp1": d1}, {"disp1": d1[::2, ::2]})
+    with pytest.raises(ValueError, match=r"a result's disp2.pfm is δ2 and a PFM ground truth δ1"):
+        E.evaluate(E.load_estimate(tmp_path / "disp2.pfm"), {"disp1": d1})
 
 
 def test_colour_pfm_is_not_a_disparity_map(tmp_path):

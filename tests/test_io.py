@@ -747,9 +747,18 @@ def test_hci_folder_takes_its_grid_from_parameters_cfg(tmp_path):
         lf = lio.read_lightfield(folder)
         assert lf.grid == (rows, cols)
         np.testing.assert_array_equal(lf.views.reshape(9, 4, 5), views / np.float32(255))
+    (folder / "parameters.cfg").write_text("[extrinsics]\nnum_cams_x = 9.0\nnum_cams_y = 1.0\n")
+    assert lio.read_lightfield(folder).grid == (1, 9)
     (folder / "parameters.cfg").write_text("[extrinsics]\nnum_cams_x = 5\nnum_cams_y = 2\n")
     with pytest.raises(ValueError, match=r"rig: parameters.cfg gives a grid of 2×5 views .* but there are 9"):
         lio.read_lightfield(folder)
+    # (each had been read as a square 3×3 grid without a word)
+    for text, needle in (("num_cams_x = 9\n", "it gives num_cams_x but not num_cams_y"),
+                         ("num_cams_x = 9\nnum_cams_y = 0\n", "num_cams_y = 0"),
+                         ("num_cams_x = 9 # nine\nnum_cams_y = 1\n", "num_cams_x = '9 # nine'")):
+        (folder / "parameters.cfg").write_text("[meta]\n" + text)
+        with pytest.raises(ValueError, match=rf"parameters.cfg: {needle}; the grid of views needs num_cams_x"):
+            lio.read_lightfield(folder)
     (folder / "parameters.cfg").unlink()
     (folder / "input_Cam008.png").unlink()
     with pytest.raises(ValueError, match=r"square number of HCI views .* num_cams_x and num_cams_y in parameters"):
@@ -1304,3 +1313,12 @@ def test_the_checkouts_model_is_the_workspaces():
     if not shared.is_file():
         pytest.skip(f"{shared} not present")
     assert (ROOT / "docs" / "MODEL.md").read_bytes() == shared.read_bytes(), "copy ../shared/MODEL.md to docs/"
+
+
+def test_a_masked_array_with_masked_values_is_refused():
+    """np.asarray drops a masked array's mask, so its masked values were used as data."""
+    views = np.ma.masked_array(np.full((3, 3, 8, 8), 0.5, np.float32))
+    assert lio.LightField(views).views.shape == (3, 3, 8, 8)  # (nothing masked: as the values)
+    views[1, 1, 2, 3] = np.ma.masked
+    with pytest.raises(ValueError, match=r"<array>: a masked array with 1 masked values"):
+        lio.LightField(views)

@@ -1643,10 +1643,13 @@ def test_median_flow_matches_reference(radius, tolerance, device, unknowns):
 @UNKNOWNS
 @pytest.mark.parametrize("radius", [1, 2, 3])
 @pytest.mark.parametrize("size", [(7, 9), (9, 4), (1, 1), (12, 15)])
-def test_plain_flow_medians_match_reference(radius, size, device, unknowns):
-    """The plain median from sorted columns (two passes, a thread for two pixels) is the
-    NumPy median of every window, bit for bit: odd and even widths (a last pair of one
-    pixel), images narrower and shorter than the window, ties."""
+@pytest.mark.parametrize("tolerance", [0.0, 0.6])
+def test_flow_median_pairs_match_reference(radius, size, tolerance, device, unknowns):
+    """The median from sorted columns (two passes, a thread for two pixels) is the NumPy
+    median of every window's pixels on the centre's surface (equal values: −0 and +0 are
+    not told apart): odd and even
+    widths (a last pair of one pixel), images narrower and shorter than the window, ties,
+    and δ1 with depth edges (the windows that straddle one take the gathered median)."""
     from lfsf.kernels import median
 
     h, w = size
@@ -1654,15 +1657,17 @@ def test_plain_flow_medians_match_reference(radius, size, device, unknowns):
     x = r.standard_normal((h, w, 4)).astype(np.float32)
     x[..., 3] = np.round(x[..., 3] * 2) / 2  # many ties
     x[: h // 2, : w // 2, 2] = 0.25  # a constant patch
+    x[..., 0] = np.where(np.arange(w) < w // 2, 0.0, 1.0)[None] + 0.1 * r.standard_normal((h, w))  # a depth edge
     if unknowns != "vec4":
         x[..., :2] = 0
     arr = unknowns_arr(x, unknowns, device)
     columns = [wp.empty((h, w, 2 * radius + 1), dtype=float, device=device) for _ in range(2)]
-    launch(median.sorted_flow_columns, (h, w), [arr, radius], columns, device)
+    depth = wp.empty((h, w), dtype=wp.vec2, device=device)
+    launch(median.sorted_flow_columns, (h, w), [arr, radius], [*columns, depth], device)
     out = unknowns_zeros((h, w), unknowns, device)
-    launch(median.plain_flow_medians, (h, (w + 1) // 2), [arr, radius, *columns], [out], device)
+    launch(median.flow_median_pairs, (h, (w + 1) // 2), [arr, radius, tolerance, *columns, depth], [out], device)
     got = out.numpy()
-    want = ref.median_flow(x, radius, 0.0)
+    want = ref.median_flow(x, radius, tolerance)
     np.testing.assert_array_equal(got, flow_part(want, unknowns).astype(np.float32))
     if unknowns == "vec4":
         np.testing.assert_array_equal(got[..., :2], x[..., :2])
@@ -1803,6 +1808,12 @@ def test_median_networks_select_the_median_and_match_their_generator():
         gen.check(n)
         code, _ = gen.emit(n)
         assert code in text, f"kernels/median_networks.py is stale for n = {n}: run scripts/gen_median_networks.py"
+    for r in gen.PAIR_LAYOUTS:  # (the sorted-column networks of the plain median; r = 3's proof takes 30 s: --check)
+        gen.check_pair(r)
+        if r < 3:
+            gen.check_pair_exhaustively(r)
+        for code in (gen.emit_column(r), gen.emit_pair(r)[0]):
+            assert code in text, f"kernels/median_networks.py is stale for radius {r}: run scripts/gen_median_networks.py"
 
 
 # --- solver energy -------------------------------------------------------------------------
