@@ -557,6 +557,20 @@ def load_kernels(device: str, extra=()) -> str | None:
     return f"kernels compiled for {device} in {seconds:.1f} s (once: Warp's kernel cache keeps them)"
 
 
+#: The least sampling radius R (view steps) at which the view z-buffers
+#: (``Params.visibility``) are used: on the small grids that allow less, they left out
+#: more good rows than hidden ones. `fast` at 160×120, six scenes (paper, slanted,
+#: random-1, -2, -5, large_motion), δ1 MSE with them against without, forty-seventh
+#: session: R = 0.5 (2×2 views) 0.058/0.047/0.012/0.146/0.031/0.066 against
+#: 0.046/0.035/0.0065/0.080/0.015/0.046, better without on each; R = 1 (3×3) better
+#: without on each (large_motion 0.0105 → 0.0053, flow EPE 0.262 → 0.142; random-2's
+#: EPE 0.137 → 0.183 the one loss); R = 2 (5×5) mixed, geometric mean of the δ1 ratios
+#: 1.10 in favour of them (random-2 0.0051 against 0.0106); R = 4 (9×9) with them.
+#: Two samples either side (``samples=(1, 2)``) on a 1×2 rig (R = 0.5): without them
+#: δ1 0.05–0.13 against 0.13–0.42 on paper, slanted, random-2 and -5.
+VISIBILITY_MIN_RADIUS = 2.0
+
+
 def one_sided(phis) -> bool:
     """True where the side samples (φ ≠ 0) all lie in one open half-plane through the
     centre, as the single side view of two-view stereo (``circles=2, samples=(1, 1)``)
@@ -1568,6 +1582,9 @@ def estimate_scene_flow(
     if params.visibility and one_sided(phis):
         params = params.replace(visibility=False)
         note("view z-buffers off: the side samples lie on one side of the centre (Params.visibility)")
+    elif params.visibility and radius < VISIBILITY_MIN_RADIUS:
+        params = params.replace(visibility=False)
+        say(f"view z-buffers off at R = {radius:g} (below {VISIBILITY_MIN_RADIUS:g}: Params.visibility)")
     n_samples = len(phis)
     weights = data_weights(params, n_samples)
     wp_phis = wp.array(phis, dtype=wp.vec2, device=dev)

@@ -46,7 +46,9 @@ class Params:
             disparity there (HCI antinous MSE×100 19.8 with it alone). Not used where
             the side samples all lie on one side of the centre (two-view stereo,
             ``samples=(1, 1)``): a point hidden from them all keeps no data, and wrong
-            near values grow from there (:func:`lfsf.estimate.one_sided`).
+            near values grow from there (:func:`lfsf.estimate.one_sided`); nor where R is
+            below :data:`lfsf.estimate.VISIBILITY_MIN_RADIUS` (2: grids of fewer than 5×5
+            views), where they left out more good rows than hidden ones.
         occlusion_margin, occlusion_reach : geometric occlusion at t2 (an addition to
             the paper, :mod:`lfsf.kernels.occlusion`): a point counts as hidden in the t2
             centre view where a point nearer by more than ``occlusion_margin`` px per

@@ -1426,3 +1426,20 @@ def test_the_flow_search_is_called_noise_where_its_matches_agree_with_no_neighbo
     half[:, :w // 2] = noise[:, :w // 2]
     regions = estimate._incoherent_regions(half)
     assert regions[:, :20].all() and not regions[:, w // 2 + 13:].any()
+
+
+def test_the_view_z_buffers_are_used_from_a_sampling_radius_of_two():
+    """Below R = 2 (grids of fewer than 5×5 views) the view z-buffers are not used
+    (VISIBILITY_MIN_RADIUS: they left out more good rows than hidden ones there): the
+    estimate is visibility=False's; from R = 2 on they are."""
+    from lfsf import synth
+    from lfsf.estimate import VISIBILITY_MIN_RADIUS
+
+    assert VISIBILITY_MIN_RADIUS == 2.0
+    quick = Params.preset("fast").replace(warps=1, iterations=10, final_iterations=10)
+    for grid, same in ((3, True), (5, False)):
+        lf1, lf2, _ = synth.render_scene("paper", size=(48, 40), grid=grid, device="cpu")
+        on = estimate_scene_flow(lf1, lf2, quick, device="cpu")
+        off = estimate_scene_flow(lf1, lf2, quick.replace(visibility=False), device="cpu")
+        assert all(np.array_equal(a, b) for a, b in zip(on.as_dict().values(), off.as_dict().values())) == same
+        assert on.params.visibility  # (what was asked is what the result records)
