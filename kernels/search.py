@@ -21,8 +21,8 @@ import warp as wp
 
 from lfsf.device import is_cpu
 
-from .common import (HALF_PLANES, bilinear, contiguous_row, footprint_visible, half_plane_mask, half_plane_residuals,
-                     inside, lane_vector, least_half_mean, vec8, visible)
+from .common import (HALF_PLANES, bilinear, contiguous_row, float_run, footprint_visible, half_plane_mask,
+                     half_plane_residuals, inside, lane_vector, least_half_mean, vec8, visible)
 from .fusion import states_apart
 
 wp.set_module_options({"enable_backward": False})
@@ -791,6 +791,165 @@ def flow_search(
                 second_cost[i, j] = value
                 second_k[i, j] = k
     for j in range(j0, j1):
+        kmin = best_k[i, j]
+        cmin = best_cost[i, j]
+        ky = kmin // side
+        kx = kmin - ky * side
+        dx = float(kx - half)
+        dy = float(ky - half)
+        if kx > 0 and kx < side - 1:
+            dx = dx + parabola_vertex(window_shift_cost(centre1, centre2, i, j, kx - 1 - half, ky - half, radius), cmin,
+                                      window_shift_cost(centre1, centre2, i, j, kx + 1 - half, ky - half, radius))
+        if ky > 0 and ky < side - 1:
+            dy = dy + parabola_vertex(window_shift_cost(centre1, centre2, i, j, kx - half, ky - 1 - half, radius), cmin,
+                                      window_shift_cost(centre1, centre2, i, j, kx - half, ky + 1 - half, radius))
+        best[i, j] = wp.vec2(dx, dy)
+
+
+#: Columns :func:`flow_search_rows` takes at once (constant-length loops: vector code).
+SEARCH_CHUNK = wp.constant(16)
+vec16 = wp.types.vector(length=16, dtype=wp.float32)
+
+
+@wp.func
+def add_shifted_column(centre1: wp.array2d(dtype=float), centre2: wp.array2d(dtype=float), out: wp.array(dtype=float),
+                       q: int, yc: int, y: int, jj: int, sx: int, h: int, w: int):
+    """out[q] += :func:`shifted_cost` at row ``yc`` (its t2 row ``y``) of the clamped column ``jj``."""
+    jc = wp.clamp(jj, 0, w - 1)
+    x = jc + sx
+    v = float(1.0)
+    if x >= 0 and y >= 0 and x < w and y < h:
+        v = wp.abs(centre1[yc, jc] - centre2[y, x])
+    out[q] = out[q] + v
+
+
+@wp.func
+def row_column_costs(centre1: wp.array2d(dtype=float), centre2: wp.array2d(dtype=float), colc: wp.array2d(dtype=float),
+                     i: int, sx: int, sy: int, radius: int):
+    """colc[i, jj + r] = :func:`column_cost` (i, jj, sx, sy, r) of every column jj of
+    −r … w − 1 + r: the same terms added in the same order (t = −r … r), the columns whose
+    t2 pixel lies inside without clamping in chunks of SEARCH_CHUNK."""
+    h = centre1.shape[0]
+    w = centre1.shape[1]
+    r = radius
+    cw = w + 2 * r
+    base = wp.int64(i) * wp.int64(colc.shape[1])
+    out = float_run(colc.ptr, base, cw)
+    for q in range(cw):
+        out[q] = 0.0
+    lo = wp.max(0, -sx)  # columns lo … hi − 1: unclamped, their t2 pixel inside
+    hi = wp.min(w, w - sx)
+    if hi < lo:
+        hi = lo
+    for t in range(-r, r + 1):
+        yc = wp.clamp(i + t, 0, h - 1)
+        y = yc + sy
+        if y < 0 or y >= h:
+            for q in range(cw):
+                out[q] = out[q] + 1.0
+        else:
+            for q in range(0, lo + r):
+                add_shifted_column(centre1, centre2, out, q, yc, y, q - r, sx, h, w)
+            for q in range(hi + r, cw):
+                add_shifted_column(centre1, centre2, out, q, yc, y, q - r, sx, h, w)
+            m = hi - lo
+            chunks = m // SEARCH_CHUNK
+            a_at = wp.int64(yc) * wp.int64(w) + wp.int64(lo)
+            b_at = wp.int64(y) * wp.int64(w) + wp.int64(lo + sx)
+            o_at = base + wp.int64(lo + r)
+            for c in range(chunks):
+                at = wp.int64(c * SEARCH_CHUNK)
+                ca = float_run(centre1.ptr, a_at + at, SEARCH_CHUNK)
+                cb = float_run(centre2.ptr, b_at + at, SEARCH_CHUNK)
+                co = float_run(colc.ptr, o_at + at, SEARCH_CHUNK)
+                for x in range(SEARCH_CHUNK):
+                    co[x] = co[x] + wp.abs(ca[x] - cb[x])
+            for jj in range(lo + chunks * SEARCH_CHUNK, hi):
+                add_shifted_column(centre1, centre2, out, jj + r, yc, y, jj, sx, h, w)
+
+
+@wp.func
+def keep_best(k: int, value: float, i: int, j: int, side: int, distance: int, best_cost: wp.array2d(dtype=float),
+              best_k: wp.array2d(dtype=int), second_cost: wp.array2d(dtype=float), second_k: wp.array2d(dtype=int)):
+    """:func:`flow_search`'s update of the best and the runner-up at (i, j) by shift k's ``value``."""
+    if k == 0:
+        best_cost[i, j] = value
+        best_k[i, j] = k
+        second_cost[i, j] = NO_COST
+        second_k[i, j] = -1
+    elif value < best_cost[i, j]:
+        kb = best_k[i, j]
+        if grid_apart(k, kb, side, distance):
+            second_cost[i, j] = best_cost[i, j]
+            second_k[i, j] = kb
+        elif second_k[i, j] >= 0 and not grid_apart(k, second_k[i, j], side, distance):
+            second_cost[i, j] = NO_COST
+            second_k[i, j] = -1
+        best_cost[i, j] = value
+        best_k[i, j] = k
+    elif value < second_cost[i, j] and grid_apart(k, best_k[i, j], side, distance):
+        second_cost[i, j] = value
+        second_k[i, j] = k
+
+
+@wp.kernel
+def flow_search_rows(
+    row0: int,
+    centre1: wp.array2d(dtype=float),
+    centre2: wp.array2d(dtype=float),
+    half: int,
+    radius: int,
+    distance: int,
+    colc: wp.array2d(dtype=float),
+    # outputs
+    best_cost: wp.array2d(dtype=float),
+    best_k: wp.array2d(dtype=int),
+    best: wp.array2d(dtype=wp.vec2),
+    second_cost: wp.array2d(dtype=float),
+    second_k: wp.array2d(dtype=int),
+):
+    """:func:`flow_search` with a thread per row (the CPU's): per shift, the row's column
+    sums (:func:`row_column_costs`, into ``colc``, (rows, columns + 2r) scratch stored
+    contiguously, ``centre1`` and ``centre2`` too), then each window's mean as the ring's
+    sum (columns j − r … j + r in turn, from 0), SEARCH_CHUNK windows at once; the same
+    values, bests and runner-ups. Launch over (rows, 1)."""
+    i, c = wp.tid()
+    i = i + row0
+    w = centre1.shape[1]
+    side = 2 * half + 1
+    n = 2 * radius + 1
+    area = float(n * n)
+    base = wp.int64(i) * wp.int64(colc.shape[1])
+    row_at = wp.int64(i) * wp.int64(w)
+    chunks = w // SEARCH_CHUNK
+    for k in range(side * side):
+        sy = k // side - half
+        sx = k - (k // side) * side - half
+        row_column_costs(centre1, centre2, colc, i, sx, sy, radius)
+        for g in range(chunks):
+            j0 = g * SEARCH_CHUNK
+            acc = vec16()
+            for t in range(n):
+                cr = float_run(colc.ptr, base + wp.int64(j0 + t), SEARCH_CHUNK)
+                for x in range(SEARCH_CHUNK):
+                    acc[x] = acc[x] + cr[x]
+            value = acc / area
+            # the chunk's windows all at least their best and their runner-up so far change nothing:
+            # one test of the 16 in vector code, most shifts
+            bc = float_run(best_cost.ptr, row_at + wp.int64(j0), SEARCH_CHUNK)
+            sc = float_run(second_cost.ptr, row_at + wp.int64(j0), SEARCH_CHUNK)
+            lower = int(0)
+            for x in range(SEARCH_CHUNK):
+                lower = lower | wp.where(value[x] < wp.max(bc[x], sc[x]), 1, 0)
+            if k == 0 or lower != 0:
+                for x in range(SEARCH_CHUNK):
+                    keep_best(k, value[x], i, j0 + x, side, distance, best_cost, best_k, second_cost, second_k)
+        for j in range(chunks * SEARCH_CHUNK, w):
+            acc1 = float(0.0)
+            for t in range(n):
+                acc1 += colc[i, j + t]
+            keep_best(k, acc1 / area, i, j, side, distance, best_cost, best_k, second_cost, second_k)
+    for j in range(w):
         kmin = best_k[i, j]
         cmin = best_cost[i, j]
         ky = kmin // side

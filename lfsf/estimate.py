@@ -784,6 +784,22 @@ def sampling_launch(views, rows: int, cols: int, phis, out, device: str):
     return sampling.sample_subaperture_pixel, (h, w), [views, rows, cols, phis]
 
 
+def touched_views(phis, rows: int, cols: int) -> list[int]:
+    """The views (indices a·cols + b) that :func:`lfsf.kernels.sampling.sample_subaperture`
+    reads for the angular offsets ``phis``: the four around each sample (its a0, a1, b0,
+    b1, :func:`lfsf.kernels.sampling.four_views`), those of weight 0 among them too,
+    whose values it multiplies by 0. A superset of :func:`lfsf.gains.sampled_views`."""
+    used = set()
+    for xi, eta in np.asarray(phis, np.float32).reshape(-1, 2):
+        a = min(max(np.float32(0.5) * np.float32(rows - 1) + eta, np.float32(0.0)), np.float32(rows - 1))
+        b = min(max(np.float32(0.5) * np.float32(cols - 1) + xi, np.float32(0.0)), np.float32(cols - 1))
+        a0, b0 = min(int(a), max(rows - 2, 0)), min(int(b), max(cols - 2, 0))
+        for ai in (a0, min(a0 + 1, rows - 1)):
+            for bi in (b0, min(b0 + 1, cols - 1)):
+                used.add(ai * cols + bi)
+    return sorted(used)
+
+
 def sample_views(views, rows: int, cols: int, phis, out, device: str) -> None:
     """out[s] = the sub-aperture image at φ_s (``phis``) of ``views`` (:func:`sampling_launch`)."""
     kernel, dim, inputs = sampling_launch(views, rows, cols, phis, out, device)
@@ -850,6 +866,11 @@ def _downsample(stack, size, device: str):
     sigma = max(ratio / 3.0, 0.5)
     radius = int(math.ceil(3.0 * sigma))
     out = wp.empty((n, size[0], size[1]), dtype=float, device=device)
+    if _device.is_cpu(device):  # a row per thread, the window's weights kept along it
+        span, per_row = _device.row_span(device, size[1])
+        _device.launch_rows(pyramid.downsample_rows, dim=(n * size[0], per_row), inputs=[stack, sigma, radius, span],
+                            outputs=[out], device=device)
+        return out
     _device.launch_rows(pyramid.downsample, dim=(n * size[0], size[1]), inputs=[stack, sigma, radius],
                         outputs=[out], device=device)
     return out
@@ -863,11 +884,15 @@ def _upsample_state(arrays: list[np.ndarray], size, scales, device: str) -> list
     out = []
     for arr in arrays:
         h, w, _ = arr.shape
-        coarse = wp.array(np.ascontiguousarray(np.moveaxis(arr, -1, 0)), dtype=float, device=device)
-        fine = wp.empty((4, size[0], size[1]), dtype=float, device=device)
-        _device.launch_rows(pyramid.upsample, dim=(4 * size[0], size[1]), inputs=[coarse, 1.0], outputs=[fine],
-                            device=device)
-        out.append(np.moveaxis(fine.numpy(), 0, -1) * np.asarray(scales, np.float32))
+        # planes that are 0 everywhere (flow only: δ1, δ2) stay 0 (+0 · scale): not upsampled
+        live = [k for k in range(4) if np.any(arr[..., k])] or [0]
+        coarse = wp.array(np.ascontiguousarray(np.moveaxis(arr[..., live], -1, 0)), dtype=float, device=device)
+        fine = wp.empty((len(live), size[0], size[1]), dtype=float, device=device)
+        _device.launch_rows(pyramid.upsample, dim=(len(live) * size[0], size[1]), inputs=[coarse, 1.0],
+                            outputs=[fine], device=device)
+        full = np.zeros((size[0], size[1], 4), np.float32)
+        full[..., live] = np.moveaxis(fine.numpy(), 0, -1)
+        out.append(full * np.asarray(scales, np.float32))
     return out
 
 
@@ -1092,9 +1117,15 @@ def _flow_search(centre1, centre2, half: int, search_radius: int, device: str, a
     best = wp.empty((h, w), dtype=wp.vec2, device=device)
     second_cost = wp.empty((h, w), dtype=float, device=device)
     second_k = wp.empty((h, w), dtype=int, device=device)
-    _device.launch_rows(search.flow_search, dim=(h, per_row),
-                        inputs=[centre1, centre2, half, search_radius, FLOW_AMBIGUITY_DISTANCE, span],
-                        outputs=[best_cost, best_k, best, second_cost, second_k], device=device)
+    if _device.is_cpu(device):  # a row per thread, the row's column sums per shift in vector code
+        colc = wp.empty((h, w + 2 * search_radius), dtype=float, device=device)
+        _device.launch_rows(search.flow_search_rows, dim=(h, 1),
+                            inputs=[centre1, centre2, half, search_radius, FLOW_AMBIGUITY_DISTANCE, colc],
+                            outputs=[best_cost, best_k, best, second_cost, second_k], device=device)
+    else:
+        _device.launch_rows(search.flow_search, dim=(h, per_row),
+                            inputs=[centre1, centre2, half, search_radius, FLOW_AMBIGUITY_DISTANCE, span],
+                            outputs=[best_cost, best_k, best, second_cost, second_k], device=device)
     if not ambiguity:
         return best.numpy()
     second = second_cost.numpy()
@@ -1658,12 +1689,26 @@ def estimate_scene_flow(
         if t == 0 and views1 is not None:
             views, views1 = views1, None
         else:
-            grey = stretched(lf.grey().views.reshape(rows * cols, height, width))
+            # only the views the sampling reads (each sample's four around it, those of
+            # weight 0 too), in their places of an otherwise unfilled stack: flow only,
+            # the centre's four of 81, not the whole light field (its copy to the device
+            # had been most of the stage)
+            read = touched_views(phis, rows, cols)
+            flat = lf.views.reshape(rows * cols, height, width, *lf.views.shape[4:])[read]
+            grey = stretched(luma(flat) if lf.is_colour else flat)
             if t == 1 and exposure is not None:
                 grey = grey * np.float32(exposure[0])
                 grey += np.float32(exposure[1])
-            views = wp.array(np.ascontiguousarray(grey, dtype=np.float32), dtype=float, device=dev)
-            del grey
+            if len(read) == rows * cols:
+                views = wp.array(np.ascontiguousarray(grey, dtype=np.float32), dtype=float, device=dev)
+            else:
+                views = wp.empty((rows * cols, height, width), dtype=float, device=dev)
+                if _device.is_cpu(dev):
+                    views.numpy()[read] = grey  # (the device's memory itself)
+                else:
+                    for k, index in enumerate(read):
+                        views[index].assign(np.ascontiguousarray(grey[k], dtype=np.float32))
+            del grey, flat
         if gains is not None:
             fields, index, factor = gains
             _device.launch_rows(gain_kernels.apply_gains, dim=(index.shape[0] * height, width),

@@ -72,7 +72,7 @@ def test_cuda_build_writes_its_table_and_json(tmp_path, capsys):
     assert script.main(["--modules", "pyramid", "--json", str(out), "--out", str(tmp_path / "build")]) == 0
     report = json.loads(out.read_text())
     assert report["arch"] == ARCH
-    assert {row["kernel"] for row in report["kernels"]} == {"downsample", "upsample", "upsample_unknowns"}
+    assert {row["kernel"] for row in report["kernels"]} == {"downsample", "downsample_rows", "upsample", "upsample_unknowns"}
     assert "| pyramid | downsample |" in capsys.readouterr().out
     assert list((tmp_path / "build").glob("*.cubin")) and list((tmp_path / "build").glob("*.cu"))
     assert not list(tmp_path.glob("*.tmp"))

@@ -1443,3 +1443,26 @@ def test_the_view_z_buffers_are_used_from_a_sampling_radius_of_two():
         off = estimate_scene_flow(lf1, lf2, quick.replace(visibility=False), device="cpu")
         assert all(np.array_equal(a, b) for a, b in zip(on.as_dict().values(), off.as_dict().values())) == same
         assert on.params.visibility  # (what was asked is what the result records)
+
+
+@pytest.mark.parametrize("grid,preset", [((9, 9), "paper"), ((9, 9), "flow"), ((5, 9), "lytro"), ((2, 2), "fast"),
+                                         ((1, 9), None), ((8, 8), "fast")])
+def test_the_views_uploaded_are_all_that_the_sampling_reads(grid, preset):
+    """touched_views: with every other view NaN, the sub-aperture images are the same as
+    from the whole light field, bit for bit (only those views are copied to the device)."""
+    from lfsf.estimate import sample_views, touched_views
+
+    wp = lfsf.device.warp()
+    params = Params.preset(preset) if preset else Params.preset("fast").replace(circles=2, samples=(1, 2))
+    phis, _ = params.sample_offsets(grid)
+    rows, cols = grid
+    views = np.random.default_rng(3).random((rows * cols, 12, 16)).astype(np.float32)
+    holes = views.copy()
+    holes[[k for k in range(rows * cols) if k not in touched_views(phis, rows, cols)]] = np.nan
+    outs = []
+    for stack in (views, holes):
+        out = wp.empty((len(phis), 12, 16), dtype=float, device="cpu")
+        sample_views(wp.array(stack, dtype=float, device="cpu"), rows, cols, wp.array(phis, dtype=wp.vec2, device="cpu"),
+                     out, "cpu")
+        outs.append(out.numpy())
+    assert np.isfinite(outs[1]).all() and np.array_equal(outs[0], outs[1])

@@ -356,6 +356,24 @@ def test_downsample_matches_reference(fine, coarse, sigma, device):
     close(out1.numpy(), 0.3)
 
 
+@pytest.mark.parametrize("fine,coarse", [((480, 640), (240, 320)), ((75, 101), (38, 51)), ((33, 47), (9, 12)),
+                                         ((17, 23), (3, 4))])
+def test_downsample_rows_is_downsample_bit_for_bit(fine, coarse):
+    """The CPU's row kernel (the window's weights kept along the row) gives the per-pixel
+    kernel's values exactly: whole and fractional ratios, and windows beyond MEMO_SIDE."""
+    from lfsf.kernels import pyramid
+
+    ratio = max(fine[0] / coarse[0], fine[1] / coarse[1])
+    sigma = max(ratio / 3.0, 0.5)
+    radius = int(math.ceil(3.0 * sigma))
+    img = arr(rng(8).random((2, *fine)).astype(np.float32), float, "cpu")
+    a = wp.empty((2, *coarse), dtype=float, device="cpu")
+    b = wp.empty((2, *coarse), dtype=float, device="cpu")
+    launch(pyramid.downsample, (2 * coarse[0], coarse[1]), [img, sigma, radius], [a], "cpu")
+    launch(pyramid.downsample_rows, (2 * coarse[0], 1), [img, sigma, radius, coarse[1]], [b], "cpu")
+    assert np.array_equal(a.numpy().view(np.uint32), b.numpy().view(np.uint32))
+
+
 @pytest.mark.parametrize("coarse,fine,scale", [((4, 5), (9, 11), 2.25), ((3, 3), (6, 6), 2.0), ((5, 6), (7, 9), 1.0)])
 def test_upsample_matches_reference(coarse, fine, scale, device):
     from lfsf.kernels import pyramid

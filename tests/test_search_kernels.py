@@ -93,6 +93,27 @@ def run_flow_search(centre1, centre2, half, radius, device, span=None, distance=
     return best.numpy()
 
 
+@pytest.mark.parametrize("h,w,half,radius", [(13, 7, 3, 1), (20, 37, 12, 2), (9, 50, 20, 0), (31, 33, 4, 5),
+                                             (60, 80, 12, 2), (5, 5, 4, 2)])
+def test_flow_search_rows_is_flow_search_bit_for_bit(h, w, half, radius):
+    """The CPU's row kernel (the row's column sums per shift in vector code) leaves the
+    same best, best cost and runner-up as :func:`flow_search`, borders and shifts off the
+    image included."""
+    from lfsf.kernels import search
+
+    g = rng(11)
+    a = g.random((h, w)).astype(np.float32)
+    b = (np.roll(a, (2, 3), (0, 1)) + 0.05 * g.random((h, w))).astype(np.float32)
+    expected = run_flow_search(a, b, half, radius, "cpu", runner_up=True)
+    outs = [wp.zeros((h, w), dtype=t, device="cpu") for t in (float, int, wp.vec2, float, int)]
+    colc = wp.empty((h, w + 2 * radius), dtype=float, device="cpu")
+    launch(search.flow_search_rows, (h, 1), [arr(a, float, "cpu"), arr(b, float, "cpu"), half, radius, 3, colc],
+           outs, "cpu")
+    got = outs[2].numpy(), outs[0].numpy(), outs[3].numpy(), outs[4].numpy()
+    for x, y in zip(expected, got):
+        assert np.array_equal(x.view(np.uint8), y.view(np.uint8))
+
+
 # --- against the references ----------------------------------------------------------------
 
 
