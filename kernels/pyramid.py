@@ -13,6 +13,29 @@ from .common import bilinear, from_vec4, overload_unknowns, to_vec4
 wp.set_module_options({"enable_backward": False})
 
 
+@wp.func
+def gaussian_mean(fine: wp.array3d(dtype=float), n: int, cy: float, cx: float, iy: int, ix: int, radius: int,
+                  inv: float):
+    """The mean of image n of ``fine`` around (cy, cx), weighted by exp(−d² · inv) over the
+    (2r+1)² pixels around (iy, ix) inside the image (:data:`downsample`)."""
+    h = fine.shape[1]
+    w = fine.shape[2]
+    acc = float(0.0)
+    wsum = float(0.0)
+    for dy in range(-radius, radius + 1):
+        yy = iy + dy
+        if yy >= 0 and yy < h:
+            ey = float(yy) - cy
+            for dx in range(-radius, radius + 1):
+                xx = ix + dx
+                if xx >= 0 and xx < w:
+                    ex = float(xx) - cx
+                    wt = wp.exp(-(ex * ex + ey * ey) * inv)
+                    acc += wt * fine[n, yy, xx]
+                    wsum += wt
+    return acc / wsum
+
+
 @wp.kernel
 def downsample(
     row0: int,
@@ -37,21 +60,7 @@ def downsample(
     cy = (float(i) + 0.5) * float(h) / float(hc) - 0.5
     ix = int(wp.floor(cx + 0.5))
     iy = int(wp.floor(cy + 0.5))
-    inv = 1.0 / (2.0 * sigma * sigma)
-    acc = float(0.0)
-    wsum = float(0.0)
-    for dy in range(-radius, radius + 1):
-        yy = iy + dy
-        if yy >= 0 and yy < h:
-            ey = float(yy) - cy
-            for dx in range(-radius, radius + 1):
-                xx = ix + dx
-                if xx >= 0 and xx < w:
-                    ex = float(xx) - cx
-                    wt = wp.exp(-(ex * ex + ey * ey) * inv)
-                    acc += wt * fine[n, yy, xx]
-                    wsum += wt
-    coarse[n, i, j] = acc / wsum
+    coarse[n, i, j] = gaussian_mean(fine, n, cy, cx, iy, ix, radius, 1.0 / (2.0 * sigma * sigma))
 
 
 #: The most taps along an axis whose Gaussian weights :data:`downsample_rows` keeps from
@@ -76,7 +85,7 @@ def downsample_rows(
     kept while the next pixel's offsets from the fine pixels (ex, exactly compared) are
     the same (a whole ratio of sizes: every pixel of the row), not 25 exponentials a
     pixel; the same sums in the same order. Windows of more than MEMO_SIDE taps a side
-    take :data:`downsample`'s own loop. Launch over (n × coarse rows, ⌈coarse columns /
+    take :func:`gaussian_mean`, as :data:`downsample` does. Launch over (n × coarse rows, ⌈coarse columns /
     span⌉)."""
     r, c = wp.tid()
     r = r + row0
@@ -97,9 +106,9 @@ def downsample_rows(
     for j in range(j0, wp.min(wc, j0 + span)):
         cx = (float(j) + 0.5) * float(w) / float(wc) - 0.5
         ix = int(wp.floor(cx + 0.5))
-        acc = float(0.0)
-        wsum = float(0.0)
         if side <= MEMO_SIDE:
+            acc = float(0.0)
+            wsum = float(0.0)
             same = bool(have)
             for dx in range(-radius, radius + 1):
                 ex = float(ix + dx) - cx
@@ -122,19 +131,9 @@ def downsample_rows(
                             wt = table[(dy + radius) * side + dx + radius]
                             acc += wt * fine[n, yy, xx]
                             wsum += wt
+            coarse[n, i, j] = acc / wsum
         else:
-            for dy in range(-radius, radius + 1):
-                yy = iy + dy
-                if yy >= 0 and yy < h:
-                    ey = float(yy) - cy
-                    for dx in range(-radius, radius + 1):
-                        xx = ix + dx
-                        if xx >= 0 and xx < w:
-                            ex = float(xx) - cx
-                            wt = wp.exp(-(ex * ex + ey * ey) * inv)
-                            acc += wt * fine[n, yy, xx]
-                            wsum += wt
-        coarse[n, i, j] = acc / wsum
+            coarse[n, i, j] = gaussian_mean(fine, n, cy, cx, iy, ix, radius, inv)
 
 
 @wp.kernel

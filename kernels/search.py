@@ -710,6 +710,51 @@ def window_shift_cost(centre1: wp.array2d(dtype=float), centre2: wp.array2d(dtyp
     return acc / (n * n)
 
 
+@wp.func
+def keep_best(k: int, value: float, i: int, j: int, side: int, distance: int, best_cost: wp.array2d(dtype=float),
+              best_k: wp.array2d(dtype=int), second_cost: wp.array2d(dtype=float), second_k: wp.array2d(dtype=int)):
+    """The update of the best shift and the runner-up (one ``distance`` or more apart on
+    the grid of shifts) at (i, j) by shift k's ``value`` (:func:`flow_search`,
+    :func:`flow_search_rows`)."""
+    if k == 0:
+        best_cost[i, j] = value
+        best_k[i, j] = k
+        second_cost[i, j] = NO_COST
+        second_k[i, j] = -1
+    elif value < best_cost[i, j]:
+        kb = best_k[i, j]
+        if grid_apart(k, kb, side, distance):
+            second_cost[i, j] = best_cost[i, j]
+            second_k[i, j] = kb
+        elif second_k[i, j] >= 0 and not grid_apart(k, second_k[i, j], side, distance):
+            second_cost[i, j] = NO_COST
+            second_k[i, j] = -1
+        best_cost[i, j] = value
+        best_k[i, j] = k
+    elif value < second_cost[i, j] and grid_apart(k, best_k[i, j], side, distance):
+        second_cost[i, j] = value
+        second_k[i, j] = k
+
+
+@wp.func
+def refined_shift(centre1: wp.array2d(dtype=float), centre2: wp.array2d(dtype=float), i: int, j: int, kmin: int,
+                  cmin: float, half: int, radius: int):
+    """The best shift k (of cost ``cmin``) at (i, j) as (dx, dy), each refined by the
+    parabola through its neighbours' costs where it has both (:func:`flow_search`)."""
+    side = 2 * half + 1
+    ky = kmin // side
+    kx = kmin - ky * side
+    dx = float(kx - half)
+    dy = float(ky - half)
+    if kx > 0 and kx < side - 1:
+        dx = dx + parabola_vertex(window_shift_cost(centre1, centre2, i, j, kx - 1 - half, ky - half, radius), cmin,
+                                  window_shift_cost(centre1, centre2, i, j, kx + 1 - half, ky - half, radius))
+    if ky > 0 and ky < side - 1:
+        dy = dy + parabola_vertex(window_shift_cost(centre1, centre2, i, j, kx - half, ky - 1 - half, radius), cmin,
+                                  window_shift_cost(centre1, centre2, i, j, kx - half, ky + 1 - half, radius))
+    return wp.vec2(dx, dy)
+
+
 @wp.kernel
 def flow_search(
     row0: int,
@@ -771,39 +816,9 @@ def flow_search(
                 acc += ring[at]
                 at = wp.where(at == n - 1, 0, at + 1)
             first = wp.where(first == n - 1, 0, first + 1)
-            value = acc / area
-            if k == 0:
-                best_cost[i, j] = value
-                best_k[i, j] = k
-                second_cost[i, j] = NO_COST
-                second_k[i, j] = -1
-            elif value < best_cost[i, j]:
-                kb = best_k[i, j]
-                if grid_apart(k, kb, side, distance):
-                    second_cost[i, j] = best_cost[i, j]
-                    second_k[i, j] = kb
-                elif second_k[i, j] >= 0 and not grid_apart(k, second_k[i, j], side, distance):
-                    second_cost[i, j] = NO_COST
-                    second_k[i, j] = -1
-                best_cost[i, j] = value
-                best_k[i, j] = k
-            elif value < second_cost[i, j] and grid_apart(k, best_k[i, j], side, distance):
-                second_cost[i, j] = value
-                second_k[i, j] = k
+            keep_best(k, acc / area, i, j, side, distance, best_cost, best_k, second_cost, second_k)
     for j in range(j0, j1):
-        kmin = best_k[i, j]
-        cmin = best_cost[i, j]
-        ky = kmin // side
-        kx = kmin - ky * side
-        dx = float(kx - half)
-        dy = float(ky - half)
-        if kx > 0 and kx < side - 1:
-            dx = dx + parabola_vertex(window_shift_cost(centre1, centre2, i, j, kx - 1 - half, ky - half, radius), cmin,
-                                      window_shift_cost(centre1, centre2, i, j, kx + 1 - half, ky - half, radius))
-        if ky > 0 and ky < side - 1:
-            dy = dy + parabola_vertex(window_shift_cost(centre1, centre2, i, j, kx - half, ky - 1 - half, radius), cmin,
-                                      window_shift_cost(centre1, centre2, i, j, kx - half, ky + 1 - half, radius))
-        best[i, j] = wp.vec2(dx, dy)
+        best[i, j] = refined_shift(centre1, centre2, i, j, best_k[i, j], best_cost[i, j], half, radius)
 
 
 #: Columns :func:`flow_search_rows` takes at once (constant-length loops: vector code).
@@ -868,30 +883,6 @@ def row_column_costs(centre1: wp.array2d(dtype=float), centre2: wp.array2d(dtype
                 add_shifted_column(centre1, centre2, out, jj + r, yc, y, jj, sx, h, w)
 
 
-@wp.func
-def keep_best(k: int, value: float, i: int, j: int, side: int, distance: int, best_cost: wp.array2d(dtype=float),
-              best_k: wp.array2d(dtype=int), second_cost: wp.array2d(dtype=float), second_k: wp.array2d(dtype=int)):
-    """:func:`flow_search`'s update of the best and the runner-up at (i, j) by shift k's ``value``."""
-    if k == 0:
-        best_cost[i, j] = value
-        best_k[i, j] = k
-        second_cost[i, j] = NO_COST
-        second_k[i, j] = -1
-    elif value < best_cost[i, j]:
-        kb = best_k[i, j]
-        if grid_apart(k, kb, side, distance):
-            second_cost[i, j] = best_cost[i, j]
-            second_k[i, j] = kb
-        elif second_k[i, j] >= 0 and not grid_apart(k, second_k[i, j], side, distance):
-            second_cost[i, j] = NO_COST
-            second_k[i, j] = -1
-        best_cost[i, j] = value
-        best_k[i, j] = k
-    elif value < second_cost[i, j] and grid_apart(k, best_k[i, j], side, distance):
-        second_cost[i, j] = value
-        second_k[i, j] = k
-
-
 @wp.kernel
 def flow_search_rows(
     row0: int,
@@ -950,19 +941,7 @@ def flow_search_rows(
                 acc1 += colc[i, j + t]
             keep_best(k, acc1 / area, i, j, side, distance, best_cost, best_k, second_cost, second_k)
     for j in range(w):
-        kmin = best_k[i, j]
-        cmin = best_cost[i, j]
-        ky = kmin // side
-        kx = kmin - ky * side
-        dx = float(kx - half)
-        dy = float(ky - half)
-        if kx > 0 and kx < side - 1:
-            dx = dx + parabola_vertex(window_shift_cost(centre1, centre2, i, j, kx - 1 - half, ky - half, radius), cmin,
-                                      window_shift_cost(centre1, centre2, i, j, kx + 1 - half, ky - half, radius))
-        if ky > 0 and ky < side - 1:
-            dy = dy + parabola_vertex(window_shift_cost(centre1, centre2, i, j, kx - half, ky - 1 - half, radius), cmin,
-                                      window_shift_cost(centre1, centre2, i, j, kx - half, ky + 1 - half, radius))
-        best[i, j] = wp.vec2(dx, dy)
+        best[i, j] = refined_shift(centre1, centre2, i, j, best_k[i, j], best_cost[i, j], half, radius)
 
 
 @wp.kernel
