@@ -363,8 +363,8 @@ def _run_ground_truth(args, lf1, params):
     wrong = next(((k, a.shape) for k, a in gt.items() if a.shape != (lf1.height, lf1.width)), None)
     if wrong:
         k, s = wrong
-        raise ValueError(f"{args.gt}: '{k}' is {s[1]}x{s[0]}, and the light field's views {args.lf1} are "
-                         f"{lf1.width}x{lf1.height}")
+        raise ValueError(f"{args.gt}: '{k}' is {s[1]}×{s[0]}, and the light field's views {args.lf1} are "
+                         f"{lf1.width}×{lf1.height}")
     # the evaluation that will follow, tried now on the truth itself as the estimate of what
     # the settings estimate: a border that leaves no pixel, or nothing in common (a flow-only
     # run against δ1 alone), refused before the work rather than after it

@@ -526,8 +526,9 @@ def _rough_lattice(grey: np.ndarray, source: str):
     values = ac[py + half, px + half]
     best = values.max()
     if best < 0.25 * ac0:
-        raise _no_lattice(source, f"its strongest periodic component holds {best / ac0:.0%} of the "
-                                  f"contrast, less than 25 %")
+        # (an autocorrelation's peaks off the origin may be negative: an image of no period)
+        raise _no_lattice(source, f"its strongest periodic component holds {max(best / ac0, 0.0):.0%} of the "
+                                  f"contrast, less than 25%")
     strong = values >= 0.5 * best
     py, px = py[strong], px[strong]
     k = np.argmin(py ** 2 + px ** 2)

@@ -133,6 +133,9 @@ def resolve_device(device: str | None = None) -> str:
         key = "cuda:0"
     if key not in devices:
         source = "" if device not in (None, "") else f" (from ${ENV_DEVICE})"
+        if re.fullmatch(r"cuda:\d+", key):
+            cuda = "" if any(d.startswith("cuda") for d in devices) else " (Warp finds no CUDA device: no NVIDIA GPU or driver)"
+            raise ValueError(f"device '{name}'{source} is not on this machine, which has {', '.join(devices)}{cuda}")
         raise ValueError(f"unknown device '{name}'{source}: this machine has {', '.join(devices)}")
     return key
 

@@ -144,7 +144,7 @@ class SceneFlow:
             raise ValueError(f"{file}: {exc}") from None
 
     def save(self, out: str | Path, centre1=None, centre2=None, gt=None, title: str | None = None,
-             border: int = 0, inputs: dict | None = None) -> list[Path]:
+             border: int | None = None, inputs: dict | None = None) -> list[Path]:
         """Write ``disp1.pfm``, ``disp2.pfm``, ``flow.flo``, ``sceneflow.npz`` and the
         pictures ``disp1.png``, ``disp2.png``, ``flow.png`` (and ``overview.png`` when the
         centre views are given) into ``out``, as one set: all are written into a
@@ -158,9 +158,12 @@ class SceneFlow:
         A flow-only result's (one circle) δ1 and δ2 pictures are plain grey
         (:data:`lfsf.viz.NOT_ESTIMATED_GREY`), and said to be not estimated in the overview.
         ``gt`` is a mapping of maps (:func:`lfsf.viz.ground_truth_maps`) or the path of a
-        ``gt.npz`` or a PFM (:func:`lfsf.evaluate.load_ground_truth`; ``border`` stays as
-        given), checked before the folder is made; the folders made for the result are
-        removed again if writing fails."""
+        ``gt.npz`` or a PFM (:func:`lfsf.evaluate.load_ground_truth`), checked before the
+        folder is made; the folders made for the result are removed again if writing
+        fails. ``border`` left out (None) is what ``lfsf eval`` would leave out: the
+        border of ``gt``'s kind of file (8 px for a ``gt.npz``, the HCI benchmark's 15 for
+        a PFM), or 8 for a mapping (:data:`lfsf.evaluate.SYNTH_BORDER`, as
+        :func:`lfsf.evaluate.evaluate`)."""
         from lfsf import viz
         from lfsf._files import output_folder
         from lfsf.batch import RESULT_FILES
@@ -171,7 +174,12 @@ class SceneFlow:
         if isinstance(gt, (str, os.PathLike)):  # (a gt.npz or a PFM, as lfsf run --gt takes it)
             from lfsf.evaluate import load_ground_truth
 
-            gt, _border = load_ground_truth(gt)
+            gt, kind_border = load_ground_truth(gt)
+            border = kind_border if border is None else border
+        if border is None:
+            from lfsf.evaluate import SYNTH_BORDER
+
+            border = SYNTH_BORDER if gt is not None else 0
         viz.ground_truth_maps(gt, self.disp1.shape)  # (checked before a folder is made)
         made = [p for p in (Path(out), *Path(out).parents) if not os.path.lexists(p)]  # (the folders to make)
         out = output_folder(out)
@@ -1518,7 +1526,10 @@ def estimate_scene_flow(
     0.01 px at 0.03 % of the pixels, largest 0.097 px; |δ2 − δ1| above 0.01 at 0.02 %,
     largest 0.029). ``fast`` (3 warps of 30 iterations against 5 of 100) stops further
     from that fixed point: median flow 0.001 px, above 0.01 px at 1.2 % of the pixels,
-    largest 0.22 px; |δ2 − δ1| above 0.01 at 0.15 %, largest 0.14. On colour light fields δ1's tensor is the colour one and
+    largest 0.22 px; |δ2 − δ1| above 0.01 at 0.15 %, largest 0.14. On real views it stops
+    further still: HCI antinous at 256×256 (``lf.downsample(2)``), 8-px border, ``fast``:
+    median flow 0.003 px, above 0.01 px at 18 %, largest 0.51 px; |δ2 − δ1| above 0.01 at
+    3.3 %, largest 1.76 (``paper``: 0.0002 px, 0.03 %, 0.25 px; 0.02 %, 0.72). On colour light fields δ1's tensor is the colour one and
     δ2's the luma's, which adds a little (`random-5` in colour at 96×72, `fast`: largest
     flow 0.15 px against 0.09 with ``colour_tensor`` off). ``circles=1`` is optical flow
     of the centre views alone,
@@ -1568,7 +1579,11 @@ def estimate_scene_flow(
     rows, cols = lf1.grid
     height, width = lf1.height, lf1.width
     if min(height, width) < 8:
-        raise ValueError(f"{lf1.source}: views of {width}×{height} pixels are too small (at least 8×8)")
+        from lfsf.io import _stack_hint
+
+        # (an (N, H, W, 3) stack of colour views reads as a grid of N × H grey views 3 px wide)
+        raise ValueError(f"{lf1.source}: views of {width}×{height} pixels are too small (at least 8×8)"
+                         + (_stack_hint(lf1.views.shape) if not lf1.is_colour else ""))
     # (120×160 views of 9×9 px: the axes the wrong way round; a scene rendered small on a
     # large grid, 19×19 views of 17 px, is not)
     if rows > AXES_RATIO * height and cols > AXES_RATIO * width:

@@ -160,7 +160,15 @@ def flow_errors(u, v, gt_u, gt_v, valid=None, border: int = 0) -> dict[str, floa
 def evaluate(estimate, gt: dict, border: int = SYNTH_BORDER) -> dict[str, dict[str, float]]:
     """Errors of an estimate (a mapping with some of ``disp1, disp2, u, v``) against a
     ground truth (the same keys, optional bool ``valid``). Only variables present in both
-    are evaluated; the flow needs both ``u`` and ``v``. With an ``occluded`` mask in the
+    are evaluated; the flow needs both ``u`` and ``v``.
+
+    Returns ``{variable: {metric: value}}``: for ``disp1`` and ``disp2`` the keys
+    ``mse`` (px² per view step²), ``mse_x100``, ``badpix_0.07`` (in %) and ``pixels``
+    (:func:`disparity_errors`); for ``flow`` ``epe`` (px), ``mse_u``, ``mse_v`` and
+    ``pixels`` (:func:`flow_errors`). ``border`` (pixels left out at every edge) is 8 by
+    default, as for ``lfsf synth``'s ground truth; the HCI benchmark leaves out 15:
+    :func:`load_ground_truth` returns the border that fits the file it reads, which
+    ``lfsf eval`` uses. With an ``occluded`` mask in the
     ground truth, ``disp2_noc`` and ``flow_noc`` score δ2 and the flow again over the
     points seen at t2 as well; with one in the estimate too (bool; a SceneFlow's
     ``occluded``), the row ``occluded`` scores it against the truth's
@@ -217,6 +225,29 @@ def evaluate(estimate, gt: dict, border: int = SYNTH_BORDER) -> dict[str, dict[s
                     pass
     if "occluded" in estimate and gt.get("occluded") is not None:
         out["occluded"] = occlusion_scores(estimate["occluded"], gt["occluded"], valid, border)
+    return out
+
+
+def downsample_truth(gt: Mapping, factor: int) -> dict[str, np.ndarray]:
+    """A ground truth (:func:`load_ground_truth`'s dict) for views shrunk by
+    :meth:`lfsf.LightField.downsample` with the same ``factor``: δ1, δ2, u and v the
+    means of ``factor`` × ``factor`` blocks divided by ``factor`` (disparities in px per
+    view step and flows in px of the smaller views), ``valid`` where the whole block is,
+    ``occluded`` where any of it is. A block holding a NaN (no ground truth) is NaN, and
+    so left out. Other keys are dropped. The border to leave out shrinks too: the HCI
+    benchmark's 15 px are 8 at half size (``lfsf eval --border``, ``evaluate(border=…)``)."""
+    from lfsf.io import _check_factor, block_mean
+
+    if not isinstance(gt, Mapping):
+        raise ValueError(f"the ground truth must be a dict of maps (load_ground_truth), got {type(gt).__name__}")
+    k = _check_factor(factor, "the ground truth")
+    out: dict[str, np.ndarray] = {}
+    for name in VARIABLES:
+        if name in gt:
+            out[name] = block_mean(_float_map(gt[name]), k) / np.float32(k)
+    for name, keep in (("valid", lambda m: m == 1.0), ("occluded", lambda m: m > 0.0)):
+        if gt.get(name) is not None:
+            out[name] = keep(block_mean(_bool_mask(gt[name], name).astype(np.float32), k))
     return out
 
 

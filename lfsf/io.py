@@ -58,6 +58,7 @@ __all__ = [
     "LightField",
     "centre_view",
     "luma",
+    "block_mean",
     "check_pair",
     "read_lightfield",
     "write_lightfield",
@@ -205,6 +206,51 @@ class LightField:
             return self
         return LightField(luma(self.views), source=self.source, meta=self.meta)
 
+    def crop(self, top: int, left: int, height: int, width: int) -> "LightField":
+        """The same region of every view: rows ``top`` … ``top + height − 1`` and columns
+        ``left`` … ``left + width − 1`` (0-based). Disparities and flows keep their values
+        (px per view step, px); a ground-truth map is cropped alike, ``gt[top:top +
+        height, left:left + width]``.
+
+        Returns
+        -------
+        LightField
+            A copy, with the same ``source`` and ``meta``.
+
+        Raises
+        ------
+        ValueError
+            If the region is empty or reaches beyond the views (the message gives their
+            size).
+        """
+        for name, value in (("top", top), ("left", left), ("height", height), ("width", width)):
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+                raise ValueError(f"{self.source}: crop's {name} must be a whole number of pixels, got {value!r}")
+        if top < 0 or left < 0 or height < 1 or width < 1 or top + height > self.height or left + width > self.width:
+            raise ValueError(f"{self.source}: the crop of {width}×{height} px at column {left}, row {top} does "
+                             f"not lie within the {self.width}×{self.height} views")
+        views = self.views[:, :, top:top + height, left:left + width].copy()
+        return LightField(views, source=self.source, meta=self.meta)
+
+    def downsample(self, factor: int) -> "LightField":
+        """Every view shrunk ``factor`` times along each axis, each pixel the mean of a
+        ``factor`` × ``factor`` block (rows and columns left over at the bottom and right
+        are dropped). Disparities (px per view step) and flows (px) shrink by the same
+        factor: an estimate on the result is compared with a ground truth shrunk alike,
+        :func:`lfsf.evaluate.downsample_truth`.
+
+        Raises
+        ------
+        ValueError
+            If ``factor`` is not a whole number ≥ 1, or leaves views under 1 px.
+        """
+        k = _check_factor(factor, self.source)
+        if self.height // k < 1 or self.width // k < 1:
+            raise ValueError(f"{self.source}: a factor of {k} leaves nothing of {self.width}×{self.height} views")
+        if k == 1:
+            return LightField(self.views.copy(), source=self.source, meta=self.meta)
+        return LightField(block_mean(self.views, k, axes=(2, 3)), source=self.source, meta=self.meta)
+
     def view(self, a: int, b: int) -> np.ndarray:
         """The view in grid row ``a``, column ``b`` (0-based, negative from the end as in
         NumPy; not a copy).
@@ -218,6 +264,27 @@ class LightField:
         if not (-rows <= a < rows and -cols <= b < cols):
             raise IndexError(f"{self.source}: view ({a}, {b}) is outside the {rows}×{cols} grid")
         return self.views[a, b]
+
+
+def _check_factor(factor, source: str) -> int:
+    if isinstance(factor, (bool, np.bool_)) or not isinstance(factor, (int, np.integer)) or factor < 1:
+        raise ValueError(f"{source}: the factor must be a whole number, 1 or more, got {factor!r}")
+    return int(factor)
+
+
+def block_mean(array: np.ndarray, factor: int, axes=(0, 1)) -> np.ndarray:
+    """``array`` (float) shrunk ``factor`` times along two neighbouring ``axes``, each
+    value the mean of a ``factor`` × ``factor`` block (the rest at the ends dropped), as
+    float32 (a NaN in a block makes its mean NaN). :meth:`LightField.downsample`."""
+    a0, a1 = axes
+    if a1 != a0 + 1:
+        raise ValueError("block_mean: the axes must be neighbours")
+    array = np.asarray(array)
+    k = _check_factor(factor, "block_mean")
+    h, w = array.shape[a0] // k, array.shape[a1] // k
+    cut = array[(slice(None),) * a0 + (slice(0, h * k), slice(0, w * k))]
+    blocks = cut.reshape(array.shape[:a0] + (h, k, w, k) + array.shape[a1 + 1:])
+    return blocks.mean(axis=(a0 + 1, a0 + 3), dtype=np.float64).astype(np.float32)
 
 
 def luma(rgb: np.ndarray) -> np.ndarray:
@@ -247,15 +314,17 @@ _SCALED_APART = 16.0
 def check_pair(lf1: LightField, lf2: LightField) -> None:
     """Check that two light fields (times t1 and t2) can be matched against each other.
 
-    Their view grids and view sizes must agree, and their intensities must be scaled
-    alike. Colour is not compared: matching uses the luma of each (:meth:`LightField.grey`).
+    Their view grids and view sizes must agree, both must be grey or both RGB (the
+    estimator matches luma, but takes the t1 centre view's colours for δ1's diffusion
+    tensor and the depth edges: one grey light field beside an RGB one is most often a
+    frame saved the wrong way), and their intensities must be scaled alike.
 
     Raises
     ------
     ValueError
-        Naming both sources, if the grids or the view sizes differ, or if one light
-        field's brightest value is more than 16 times the other's (one in [0, 1], the
-        other in counts such as [0, 255]; uint8 against int64).
+        Naming both sources, if the grids or the view sizes differ, if one is grey and
+        the other RGB, or if one light field's brightest value is more than 16 times the
+        other's (one in [0, 1], the other in counts such as [0, 255]; uint8 against int64).
     """
     _check_pair_brightest(lf1, lf2, None)
 
@@ -270,6 +339,10 @@ def _check_pair_brightest(lf1: LightField, lf2: LightField, highs) -> None:
     if lf1.grid != lf2.grid or lf1.views.shape[2:4] != lf2.views.shape[2:4]:
         raise ValueError(f"{lf2.source}: expected the grid and view size of {lf1.source} "
                          f"({describe(lf1)}), got {describe(lf2)}")
+    if lf1.is_colour != lf2.is_colour:
+        kinds = ["RGB" if lf.is_colour else "grey" for lf in (lf1, lf2)]
+        raise ValueError(f"{lf2.source}: {kinds[1]} views, but those of {lf1.source} are {kinds[0]}: give both "
+                         "light fields in colour, or both grey (LightField.grey() makes the luma of an RGB one)")
     if highs is None:
         highs = [float(np.max(lf.views)) for lf in (lf1, lf2)]
     if min(highs) > 0.0 and max(highs) > _SCALED_APART * min(highs):   # (all black: no scale to compare)
@@ -277,6 +350,19 @@ def _check_pair_brightest(lf1: LightField, lf2: LightField, highs) -> None:
                          f"{lf1.source}: the two light fields look scaled differently (float views "
                          "belong in [0, 1]; integer ones are scaled by their type's maximum, so give "
                          "both the same type), or lie more than four stops apart in exposure")
+
+
+def _stack_hint(shape) -> str:
+    """A hint for views given as one stack (N, H, W) or (N, H, W, C) instead of a grid,
+    where N is a square number ("" otherwise)."""
+    if len(shape) not in (3, 4) or (len(shape) == 4 and shape[3] not in (1, 3)):
+        return ""
+    n = shape[0]
+    side = math.isqrt(n)
+    if side < 2 or side * side != n:
+        return ""
+    return (f": a stack of {n} views? give them as a {side}×{side} grid, row by row: "
+            f"views.reshape({side}, {side}, {', '.join(map(str, shape[1:]))})")
 
 
 def _to_unit_float32(array: np.ndarray) -> np.ndarray:
@@ -301,7 +387,7 @@ def _validated_views(views, source: str) -> np.ndarray:
         raise ValueError(f"{source}: expected real-valued views, got dtype {array.dtype}")
     if array.ndim not in (4, 5):
         raise ValueError(f"{source}: expected views of shape [a, b, y, x] or [a, b, y, x, c], "
-                         f"got an array of {array.ndim} dimensions, shape {array.shape}")
+                         f"got an array of {array.ndim} dimensions, shape {array.shape}" + _stack_hint(array.shape))
     if array.ndim == 5:
         channels = array.shape[4]
         if channels not in (1, 3):
@@ -395,9 +481,12 @@ def read_lightfield(path: str | os.PathLike) -> LightField:
     if suffix == ".npz":
         return _read_npz(path)
     if suffix in _IMAGE_SUFFIXES:
+        if _HCI_NAME.fullmatch(path.name) or _ROWCOL_NAME.fullmatch(path.name):
+            raise ValueError(f"{path}: one view of a light field; give the folder of all its views, "
+                             f"{path.parent}")
         raise ValueError(f"{path}: a single image is a raw lenslet image, which must be "
                          f"decoded first: run `lfsf decode {path} --white WHITE --out DIR` "
-                         f"and read DIR")
+                         f"and read DIR (one view of a light field? give the folder of all its views)")
     raise ValueError(f"{path}: unknown light-field format {suffix!r}; expected a folder of "
                      f"views ({_LAYOUTS_LOOKED_FOR}) or a .npz with key 'views'")
 

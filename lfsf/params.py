@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import numbers
 from dataclasses import dataclass
@@ -337,7 +338,9 @@ class Params:
         (M = 2, N = (1, 16)); ``flow``: optical flow of the centre views alone (M = 1),
         quick."""
         if not isinstance(name, str) or name not in PRESETS:
-            raise ValueError(f"unknown preset {name!r}: the presets are {', '.join(PRESETS)}")
+            guess = difflib.get_close_matches(name, list(PRESETS), n=1) if isinstance(name, str) else []
+            raise ValueError(f"unknown preset {name!r}{f' (did you mean {guess[0]!r}?)' if guess else ''}: the "
+                             f"presets are {', '.join(PRESETS)}")
         return cls(**PRESETS[name])
 
     @property
@@ -348,10 +351,14 @@ class Params:
 
     def replace(self, **changes) -> "Params":
         """A copy with some settings changed (validated)."""
-        unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
+        names = [f.name for f in dataclasses.fields(self)]
+        unknown = sorted(set(changes) - set(names))
         if unknown:
-            raise ValueError(f"unknown parameter(s) {', '.join(sorted(unknown))}; "
-                             f"known: {', '.join(f.name for f in dataclasses.fields(self))}")
+            guesses = {k: difflib.get_close_matches(k, names, n=1) for k in unknown}
+            meant = [f"{guess[0]} for {k}" for k, guess in guesses.items() if guess]
+            raise ValueError(f"unknown parameter(s) {', '.join(unknown)}"
+                             + (f" (did you mean {', '.join(meant)}?)" if meant else "")
+                             + f"; known: {', '.join(names)}")
         return dataclasses.replace(self, **changes)
 
     @classmethod
@@ -399,10 +406,21 @@ class Params:
                 raise ValueError(f"{path}: preset = {data['preset']!r} at the top level but {table['preset']!r} "
                                  "in [params]; name it in one place")
             data = {**table, **({"preset": data["preset"]} if "preset" in data else {})}
+        else:
+            tables = sorted(k for k in data if isinstance(data[k], dict))
+            if tables:   # ([param] for [params]: read as one setting named "param")
+                raise ValueError(f"{path}: unknown table{'s' if len(tables) > 1 else ''} "
+                                 f"{', '.join(f'[{k}]' for k in tables)}; the settings go in [params] (or all "
+                                 "at the top level)")
         if not isinstance(data, dict):
             raise ValueError(f"{path}: [params] must be a table of settings, got {data!r}")
         data = dict(data)
         named = data.pop("preset", None)
+        if named is not None and named not in PRESETS:   # (a typo, before any conflict with --preset)
+            try:
+                cls.preset(named)
+            except ValueError as exc:
+                raise ValueError(f"{path}: {exc}") from None
         if named is not None and preset is not None and named != preset:
             raise ValueError(f"{path}: preset = {named!r} here, but preset {preset!r} was given too "
                              "(--preset); name it in one place")

@@ -271,7 +271,7 @@ def test_an_eval_report_may_not_replace_what_it_reports_on(tmp_path, capsys, res
     "args,needles",
     [
         (["synth", "nowhere", "--out", "{tmp}/x"], ["unknown scene 'nowhere'"]),
-        (["synth", "paper", "--out", "{tmp}/x", "--device", "cuda:9"], ["unknown device 'cuda:9'"]),
+        (["synth", "paper", "--out", "{tmp}/x", "--device", "cuda:9"], ["device 'cuda:9' is not on this machine"]),
         (["synth", "paper", "--out", "{tmp}/x", "--size", "4", "4"], ["at least 8"]),
         (["eval", "{tmp}/missing", "{tmp}/gt.npz"], ["missing"]),
         (["run", "{tmp}/missing1", "{tmp}/missing2", "--out", "{tmp}/r"], ["missing1"]),
@@ -670,9 +670,9 @@ def test_an_error_raised_while_interrupted_counts_as_the_interrupt(monkeypatch, 
     ("bench_decode.py", ["nope"], "expected 'cases' or 'illum [BAYER]'"),
     # tracebacks (status 1), or a --json folder refused only after every run
     ("perturbation_spread.py", ["--size", "0", "48"], "image width must be in 8…8192, got 0"),
-    ("perturbation_spread.py", ["--device", "cuda:3"], "unknown device 'cuda:3'"),
+    ("perturbation_spread.py", ["--device", "cuda:3"], "device 'cuda:3' is not on this machine"),
     ("perturbation_spread.py", ["--json", "{tmp}"], "is a folder, not a file to write"),
-    ("joint_vs_stereo.py", ["--device", "cuda:3"], "unknown device 'cuda:3'"),
+    ("joint_vs_stereo.py", ["--device", "cuda:3"], "device 'cuda:3' is not on this machine"),
     ("joint_vs_stereo.py", ["--json", "{tmp}"], "is a folder, not a file to write"),
     # sizes whose 8-px border leaves nothing to score: refused after the work, or not at all
     ("joint_vs_stereo.py", ["--size", "16", "16", "--grid", "3", "paper"], "--size must be at least 17 17"),
@@ -907,7 +907,7 @@ def test_run_with_ground_truth_prints_the_errors_and_draws_them(tmp_path, capsys
     np.savez(tmp_path / "small.npz", disp1=np.zeros((12, 16), np.float32))
     status = main(["run", lf1, lf2, "--out", str(tmp_path / "x"), "--gt", str(tmp_path / "small.npz")])
     err = capsys.readouterr().err
-    assert status == 2 and err.count("\n") == 1 and "'disp1' is 16x12, and the light field's views" in err, err
+    assert status == 2 and err.count("\n") == 1 and "'disp1' is 16×12, and the light field's views" in err, err
     assert not (tmp_path / "x").exists()
     # nothing to score (a flow-only run against δ1 alone): refused before the estimate, not
     # after it (evaluate's own checks, the border's too, tried on the truth itself)

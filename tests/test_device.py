@@ -20,15 +20,24 @@ def test_environment_variable_chooses_device(monkeypatch):
     monkeypatch.setenv(D.ENV_DEVICE, "cpu")
     assert D.resolve_device() == "cpu"
     monkeypatch.setenv(D.ENV_DEVICE, "cuda:7")
-    with pytest.raises(ValueError, match=r"unknown device 'cuda:7' \(from \$LFSF_DEVICE\)"):
+    with pytest.raises(ValueError, match=r"device 'cuda:7' \(from \$LFSF_DEVICE\) is not on this machine"):
         D.resolve_device()
     assert D.resolve_device("cpu") == "cpu"  # the argument wins over the environment
 
 
-@pytest.mark.parametrize("name", ["cuda:9", "gpu", "tpu:0"])
+@pytest.mark.parametrize("name", ["gpu", "tpu:0", "cuda:x"])
 def test_unknown_device_is_a_clear_error(name):
-    with pytest.raises(ValueError, match="unknown device"):
+    with pytest.raises(ValueError, match=f"^unknown device '{name}': this machine has cpu"):
         D.resolve_device(name)
+
+
+def test_a_cuda_device_not_here_is_said_to_be_absent_not_unknown():
+    with pytest.raises(ValueError, match=r"^device 'cuda:9' is not on this machine, which has cpu"):
+        D.resolve_device("cuda:9")
+    if not D.warp().is_cuda_available():
+        with pytest.raises(ValueError, match=r"^device 'cuda' is not on this machine, which has cpu \(Warp finds no "
+                                             r"CUDA device: no NVIDIA GPU or driver\)$"):
+            D.resolve_device("cuda")
 
 
 @pytest.mark.parametrize("rows,bands", [(10, 3), (2, 8), (7, 1), (100, 7)])

@@ -322,7 +322,7 @@ def test_two_view_stereo_does_not_grow_wrong_near_blobs(scene):
 
 def test_bad_inputs_raise():
     lf1, lf2 = shift_lightfields(h=16, w=16, grid=3)
-    with pytest.raises(ValueError, match="unknown device"):
+    with pytest.raises(ValueError, match="device .cuda:42. is not on this machine"):
         estimate_scene_flow(lf1, lf2, QUICK, device="cuda:42")
     with pytest.raises(ValueError, match="device must be a name"):
         estimate_scene_flow(lf1, lf2, QUICK, device=1)
@@ -841,6 +841,16 @@ def test_light_fields_made_from_arrays_are_named_as_their_argument_in_messages()
     assert first.source == short.source == "<array>"  # (theirs unchanged)
 
 
+def test_a_stack_of_colour_views_is_told_how_to_make_a_grid():
+    """An (N, H, W, 3) stack reads as a grid of N × H grey views 3 px wide: the too-small
+    message says how to make it a grid."""
+    stack = lfsf.LightField(np.zeros((9, 16, 20, 3), np.float32))
+    with pytest.raises(ValueError, match=r"^light field 1: views of 3×20 pixels are too small \(at least 8×8\): a "
+                                         r"stack of 9 views\? give them as a 3×3 grid, row by row: "
+                                         r"views.reshape\(3, 3, 16, 20, 3\)$"):
+        estimate_scene_flow(stack, stack, QUICK, device="cpu")
+
+
 def test_light_fields_may_be_given_as_paths(tmp_path):
     lf1, lf2 = shift_lightfields(h=24, w=32, grid=3)
     np.savez(tmp_path / "lf1.npz", views=lf1.views)
@@ -1315,6 +1325,32 @@ def test_a_scene_flow_holds_float32_maps_of_one_shape_and_its_settings(tmp_path)
         SceneFlow(**maps, params=None, radius=4.0, device="cpu")
     with pytest.raises(ValueError, match=r"SceneFlow: disp2 must be a non-empty 2-D map, got shape \(24,\)"):
         SceneFlow(**{**maps, "disp2": maps["disp2"].ravel()}, params=Params.preset("fast"), radius=4.0, device="cpu")
+
+
+def test_save_leaves_out_the_border_that_lfsf_eval_leaves_out(tmp_path, monkeypatch):
+    """The overview's error means skip the border lfsf eval skips: 8 px for a mapping or
+    a gt.npz, the HCI benchmark's 15 for a PFM, unless a border is given (they had all
+    been over the whole image from Python, 0 px)."""
+    from lfsf import io, viz
+    from lfsf.estimate import SceneFlow
+
+    seen = []
+    drawn = viz.overview_figure
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs["border"])
+        return drawn(*args, **kwargs)
+
+    monkeypatch.setattr(viz, "overview_figure", spy)
+    zeros = np.zeros((40, 48), np.float32)
+    sf = SceneFlow(zeros, zeros, zeros, zeros, params=Params.preset("fast"), radius=2.0, device="cpu")
+    io.write_pfm(tmp_path / "gt.pfm", zeros + 0.5)
+    np.savez(tmp_path / "gt.npz", disp1=zeros, disp2=zeros, u=zeros, v=zeros)
+    truth = {"disp1": zeros, "disp2": zeros, "u": zeros, "v": zeros}
+    for k, (gt, border) in enumerate([(truth, None), (tmp_path / "gt.npz", None), (tmp_path / "gt.pfm", None),
+                                      (tmp_path / "gt.pfm", 3), (None, None)]):
+        sf.save(tmp_path / f"r{k}", zeros, zeros, gt=gt, border=border)
+    assert seen == [8, 8, 15, 3, 0]
 
 
 def test_a_saved_scene_flow_loads_back_whole(tmp_path):

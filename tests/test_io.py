@@ -217,7 +217,9 @@ def test_view_access_and_bounds():
 
 
 @pytest.mark.parametrize("views, message", [
-    (np.zeros((4, 4, 8)), "got an array of 3 dimensions"),
+    (np.zeros((4, 4, 8)), r"got an array of 3 dimensions, shape \(4, 4, 8\): a stack of 4 views\? give them as a "
+                          r"2×2 grid, row by row: views.reshape\(2, 2, 4, 8\)$"),
+    (np.zeros((5, 4, 8)), r"got an array of 3 dimensions, shape \(5, 4, 8\)$"),
     (np.zeros((1, 1, 2, 2, 3, 1)), "got an array of 6 dimensions"),
     (np.zeros((1, 1, 2, 2, 4)), "got 4"),
     (np.zeros((1, 1, 2, 2, 2)), "got 2"),
@@ -254,7 +256,14 @@ def test_lightfield_rejects_non_finite_and_says_where():
 
 def test_check_pair():
     lf = lio.LightField(np.zeros((3, 3, 4, 5, 3)), source="t1")
-    lio.check_pair(lf, lio.LightField(np.ones((3, 3, 4, 5)), source="t2"))   # grey vs RGB: fine
+    lio.check_pair(lf, lio.LightField(np.ones((3, 3, 4, 5, 3)), source="t2"))
+    # grey against RGB: the t1 colours would shape the estimate alone, the t2 ones be dropped
+    with pytest.raises(ValueError, match=r"^t2: grey views, but those of t1 are RGB: give both light fields in "
+                                         r"colour, or both grey \(LightField.grey\(\)"):
+        lio.check_pair(lf, lio.LightField(np.ones((3, 3, 4, 5)), source="t2"))
+    with pytest.raises(ValueError, match=r"^t1: RGB views, but those of t2 are grey"):
+        lio.check_pair(lio.LightField(np.ones((3, 3, 4, 5)), source="t2"), lf)
+    lio.check_pair(lf.grey(), lio.LightField(np.ones((3, 3, 4, 5)), source="t2"))
     for shape in [(3, 5, 4, 5), (3, 3, 4, 6), (3, 3, 5, 5)]:
         with pytest.raises(ValueError, match="^t2: expected .*t1") as info:
             lio.check_pair(lf, lio.LightField(np.zeros(shape), source="t2"))
@@ -1322,3 +1331,67 @@ def test_a_masked_array_with_masked_values_is_refused():
     views[1, 1, 2, 3] = np.ma.masked
     with pytest.raises(ValueError, match=r"<array>: a masked array with 1 masked values"):
         lio.LightField(views)
+
+
+def test_crop_and_downsample_take_the_same_region_and_block_means_of_every_view():
+    rng = np.random.default_rng(3)
+    views = rng.random((3, 2, 9, 11, 3)).astype(np.float32)
+    lf = lio.LightField(views, source="lf", meta={"layout": "npz"})
+    part = lf.crop(top=2, left=3, height=5, width=4)
+    np.testing.assert_array_equal(part.views, views[:, :, 2:7, 3:7])
+    assert part.source == "lf" and part.meta == {"layout": "npz"} and not np.shares_memory(part.views, views)
+    small = lf.downsample(2)
+    assert small.shape == (3, 2, 4, 5, 3)
+    # by hand: view (1, 0), pixel (3, 4), green
+    expected = views[1, 0, 6:8, 8:10, 1].astype(np.float64).mean()
+    assert small.views[1, 0, 3, 4, 1] == pytest.approx(expected, rel=1e-6)
+    np.testing.assert_array_equal(lf.downsample(1).views, views)
+    assert lf.downsample(4).shape[2:4] == (2, 2)
+    for bad in [dict(top=-1, left=0, height=2, width=2), dict(top=0, left=0, height=10, width=2),
+                dict(top=0, left=8, height=2, width=4), dict(top=0, left=0, height=0, width=2)]:
+        with pytest.raises(ValueError, match=r"^lf: the crop of \d+×\d+ px at column -?\d+, row -?\d+ does not lie "
+                                             r"within the 11×9 views"):
+            lf.crop(**bad)
+    with pytest.raises(ValueError, match=r"^lf: crop's height must be a whole number of pixels, got 2\.5"):
+        lf.crop(0, 0, 2.5, 2)
+    for factor in (0, 1.5, True):
+        with pytest.raises(ValueError, match=r"^lf: the factor must be a whole number, 1 or more"):
+            lf.downsample(factor)
+    with pytest.raises(ValueError, match=r"^lf: a factor of 10 leaves nothing of 11×9 views"):
+        lf.downsample(10)
+
+
+def test_a_downsampled_ground_truth_shrinks_its_disparities_and_flows_with_the_views():
+    """δ (px per view step) and the flow (px) of views shrunk by k are 1/k of the full
+    size's; valid only where the whole block is, occluded where any of it is."""
+    from lfsf import evaluate
+
+    disp = np.arange(16, dtype=np.float32).reshape(4, 4)
+    valid = np.ones((4, 4), bool)
+    valid[0, 1] = False
+    occluded = np.zeros((4, 4), bool)
+    occluded[3, 3] = True
+    disp[2, 0] = np.nan
+    small = evaluate.downsample_truth({"disp1": disp, "u": 2 * disp, "v": disp, "valid": valid,
+                                       "occluded": occluded, "other": disp}, 2)
+    assert sorted(small) == ["disp1", "occluded", "u", "v", "valid"]
+    np.testing.assert_allclose(small["disp1"], [[(0 + 1 + 4 + 5) / 8, (2 + 3 + 6 + 7) / 8], [np.nan, (10 + 11 + 14 + 15) / 8]])
+    np.testing.assert_allclose(small["u"], 2 * small["disp1"])
+    np.testing.assert_array_equal(small["valid"], [[False, True], [True, True]])
+    np.testing.assert_array_equal(small["occluded"], [[False, False], [False, True]])
+    with pytest.raises(ValueError, match="the factor must be a whole number"):
+        evaluate.downsample_truth({"disp1": disp}, 0)
+
+
+def test_a_single_image_is_told_apart_from_one_view_of_a_light_field(tmp_path):
+    image = np.zeros((8, 8), np.uint8)
+    for name in ("input_Cam040.png", "scene_05_05.png"):
+        lio.write_png(tmp_path / name, image)
+        with pytest.raises(ValueError, match=rf"^{re.escape(str(tmp_path / name))}: one view of a light field; give "
+                                             rf"the folder of all its views, {re.escape(str(tmp_path))}$"):
+            lio.read_lightfield(tmp_path / name)
+    lio.write_png(tmp_path / "raw.png", image)
+    with pytest.raises(ValueError, match=r"raw.png: a single image is a raw lenslet image, which must be decoded "
+                                         r"first: run `lfsf decode .*raw.png --white WHITE --out DIR` and read DIR "
+                                         r"\(one view of a light field\? give the folder of all its views\)$"):
+        lio.read_lightfield(tmp_path / "raw.png")

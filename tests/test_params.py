@@ -182,6 +182,20 @@ def test_settings_both_in_a_params_table_and_at_the_top_level_are_an_error(tmp_p
     path.write_text('[params]\nwarps = 9\n[extra]\nfoo = 1\n')
     with pytest.raises(ValueError, match=re.escape("unknown table [extra]")):
         Params.from_toml(path)
+    # typos: the table's name (its settings had been read as one named "param"), a
+    # setting's, the preset's, also beside --preset (it had read as a conflict)
+    path.write_text('[param]\nwarps = 9\n')
+    with pytest.raises(ValueError, match=re.escape(f"{path}: unknown table [param]; the settings go in [params]")):
+        Params.from_toml(path)
+    path.write_text('lamda3 = 2\nwarp = 3\nzzz = 1\n')
+    with pytest.raises(ValueError, match=re.escape(f"{path}: unknown parameter(s) lamda3, warp, zzz (did you mean "
+                                                   "lambda3 for lamda3, warps for warp?); known: circles")):
+        Params.from_toml(path)
+    path.write_text('preset = "fats"\n')
+    for given in (None, "fast", "paper"):
+        with pytest.raises(ValueError, match=re.escape(f"{path}: unknown preset 'fats' (did you mean 'fast'?): "
+                                                       "the presets are paper, fast")):
+            Params.from_toml(path, preset=given)
 
 
 def test_a_results_recorded_settings_serve_as_the_config(tmp_path):
