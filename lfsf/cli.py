@@ -324,6 +324,12 @@ def cmd_run(args) -> int:
     lf2 = read_lightfield(args.lf2)
     check_pair(lf1, lf2)
     gt, border = _run_ground_truth(args, lf1, params)
+    if args.downsample > 1:
+        full = f"{lf1.width}×{lf1.height}"
+        lf1, lf2 = lf1.downsample(args.downsample), lf2.downsample(args.downsample)
+        _log(args, f"views downsampled {full} → {lf1.width}×{lf1.height} (means of {args.downsample}×"
+                   f"{args.downsample} px): δ and the flow are in the smaller views' pixels"
+                   + (", the ground truth shrunk alike" if gt is not None else ""))
     progress = _Progress(args)
     t0 = time.perf_counter()
     try:
@@ -365,6 +371,14 @@ def _run_ground_truth(args, lf1, params):
         k, s = wrong
         raise ValueError(f"{args.gt}: '{k}' is {s[1]}×{s[0]}, and the light field's views {args.lf1} are "
                          f"{lf1.width}×{lf1.height}")
+    k = args.downsample
+    if k > 1:
+        if lf1.height // k < 1 or lf1.width // k < 1:   # (said of the light field, as its own downsample would)
+            lf1.downsample(k)
+        from lfsf.evaluate import downsample_truth
+
+        # the truth of the smaller views, and the border that leaves out as much of the scene
+        gt, border = downsample_truth(gt, k), -(-border // k)
     # the evaluation that will follow, tried now on the truth itself as the estimate of what
     # the settings estimate: a border that leaves no pixel, or nothing in common (a flow-only
     # run against δ1 alone), refused before the work rather than after it
@@ -613,6 +627,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gt", type=Path, metavar="GT",
                    help="ground truth (gt.npz of 'lfsf synth', or an HCI gt_disp_lowres.pfm): print the errors as "
                         "'lfsf eval' does and add the truth and the errors to overview.png")
+    p.add_argument("--downsample", type=_positive, default=1, metavar="K",
+                   help="estimate on views K times smaller, each pixel the mean of K×K (a quick look at large "
+                        "views); the results, and δ and the flow in them, are in the smaller views' pixels, and "
+                        "--gt is shrunk alike, its border too (default 1: the views as they are)")
     _estimator_options(p)
     p.set_defaults(func=cmd_run)
 

@@ -386,6 +386,33 @@ def test_run_writes_every_result_and_eval_reads_them(tmp_path):
     assert status == 0, err and "flow" in out
 
 
+def test_run_downsamples_the_views_and_the_ground_truth_alike(tmp_path, capsys):
+    """--downsample K: the estimate of the K times smaller views (what the library's
+    LightField.downsample gives), scored against the truth shrunk alike with the border
+    shrunk too; a factor that leaves no pixel is one clear line."""
+    from lfsf import SceneFlow, estimate_scene_flow, read_lightfield
+    from lfsf.evaluate import downsample_truth, evaluate, load_ground_truth
+
+    s = tmp_path / "s"
+    assert main(["synth", "paper", "--out", str(s), "--size", "64", "48", "--grid", "3", "--quiet"]) == 0
+    assert main(["run", str(s / "lf1.npz"), str(s / "lf2.npz"), "--out", str(tmp_path / "r"), "--preset", "fast",
+                 "--downsample", "2", "--gt", str(s / "gt.npz")]) == 0
+    out, err = capsys.readouterr()
+    assert "views downsampled 64×48 → 32×24 (means of 2×2 px)" in err and "ground truth shrunk alike" in err
+    assert "(border 4 px)" in out
+    saved = SceneFlow.load(tmp_path / "r")
+    lf1, lf2 = (read_lightfield(s / name).downsample(2) for name in ("lf1.npz", "lf2.npz"))
+    again = estimate_scene_flow(lf1, lf2, "fast", device="cpu")
+    np.testing.assert_array_equal(saved.u, again.u)
+    np.testing.assert_array_equal(saved.disp1, again.disp1)
+    truth, _ = load_ground_truth(s / "gt.npz")
+    epe = evaluate(again, downsample_truth(truth, 2), border=4)["flow"]["epe"]
+    assert f"{epe:.4f}" in out
+    status, _, err = lfsf("run", s / "lf1.npz", s / "lf2.npz", "--out", tmp_path / "r2", "--downsample", "50")
+    assert_clean_error(status, err, "a factor of 50 leaves nothing of 64×48 views")
+    assert not (tmp_path / "r2").exists()
+
+
 def test_config_file_sets_parameters_and_bad_ones_are_clear_errors(tmp_path):
     np.savez(tmp_path / "a.npz", views=np.full((3, 3, 16, 16), 0.5, np.float32))
     (tmp_path / "bad.toml").write_text("lambda9 = 3\n")
