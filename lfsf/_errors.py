@@ -78,6 +78,43 @@ def terminate_as_interrupt():
             signal.signal(s, previous)
 
 
+#: Seconds after which a signal whose exception was lost in a ``__del__`` is sent again
+#: (:func:`_interrupts_redelivered`).
+REDELIVERY_DELAY = 0.01
+
+
+@contextlib.contextmanager
+def _interrupts_redelivered():
+    """While the body runs, a KeyboardInterrupt (or :class:`Terminated`) that Python
+    could not raise, because its handler ran inside a ``__del__`` (a Warp array freed as
+    the signal that :func:`lfsf._files.interrupts_held` held back came through), is
+    delivered again, at the next point where it can unwind the command, instead of
+    "Exception ignored in …" with a traceback and the signal lost (status 0)."""
+    import os
+    import signal
+    import sys
+    import threading
+
+    previous = sys.unraisablehook
+
+    def hook(unraisable):
+        exc = unraisable.exc_value
+        if isinstance(exc, KeyboardInterrupt):
+            # the signal sent again a moment later, from another thread, when the main thread
+            # has left the hook (raise_signal or _thread.interrupt_main here run the handler
+            # at once, inside the hook, where its exception is lost as well)
+            signum = getattr(exc, "signum", None) or signal.SIGINT
+            threading.Timer(REDELIVERY_DELAY, os.kill, (os.getpid(), signum)).start()
+            return
+        previous(unraisable)
+
+    sys.unraisablehook = hook
+    try:
+        yield
+    finally:
+        sys.unraisablehook = previous
+
+
 def run_script(main, prog: str | None = None) -> int:
     """Run ``main()`` (a script's, or an ``lfsf`` command's) and return its exit status:
     bad input (a :data:`BAD_INPUT_ERRORS`) is one line ``PROG: error: …`` on stderr and
@@ -91,7 +128,7 @@ def run_script(main, prog: str | None = None) -> int:
 
     prog = prog or os.path.basename(sys.argv[0]) or "script"
     try:
-        with terminate_as_interrupt():
+        with terminate_as_interrupt(), _interrupts_redelivered():
             return int(main() or 0)
     except KeyboardInterrupt as exc:
         return _stopped(prog, exc)

@@ -7,6 +7,7 @@ status 2, never a traceback; every file is written under a temporary name and re
 from __future__ import annotations
 
 import argparse
+import atexit
 import contextlib
 import errno
 import os
@@ -823,21 +824,42 @@ def entry() -> None:  # pragma: no cover - the installed command; tests call mai
     bands still running and collect objects the interrupt left half made, and either could
     print a traceback after that line (imageio's PNG writer, cut off while being set up,
     did in 1 of 20 interrupted runs)."""
-    _usable_streams()
-    status = main()
-    if status in (EXIT_INTERRUPTED, EXIT_TERMINATED, EXIT_HUNG_UP):
-        _exit_now(status)
-    # the command has ended and said so: a signal during the interpreter's shutdown (it
-    # joins the thread pool, about 0.25 s) ends the process at once with the command's
-    # status (it had printed a traceback after the results' line, or turned status 0
-    # into 130)
     import signal
 
-    from lfsf._errors import ending_signals
+    from lfsf._errors import Terminated, _stopped, ending_signals
 
-    for s in (signal.SIGINT, *ending_signals()):
+    _usable_streams()
+
+    def late(signum, frame):
+        # as the command's own handlers would, where theirs have been put back and it has not
+        # yet ended (the default had killed the process by the signal, without a word)
+        raise KeyboardInterrupt if signum == signal.SIGINT else Terminated(signum)
+
+    handled = [s for s in (signal.SIGINT, *ending_signals()) if signal.getsignal(s) not in (signal.SIG_IGN, None)]
+    for s in handled:
+        with contextlib.suppress(OSError, ValueError):
+            signal.signal(s, late)
+    try:
+        status = main()
+    except KeyboardInterrupt as exc:  # (after the command's own handling)
+        status = _stopped("lfsf", exc)
+    if status in (EXIT_INTERRUPTED, EXIT_TERMINATED, EXIT_HUNG_UP):
+        _exit_now(status)
+    # the command has ended and said so: a signal during the interpreter's shutdown ends
+    # the process at once with the command's status while it joins the thread pool (about
+    # 0.25 s), and is ignored after that (at exit). It had printed a traceback after the
+    # results' line, or turned status 0 into 130; and a handler in Python is undone late
+    # in the shutdown, where a thread of a native library (a BLAS pool's) then took the
+    # signal with the default action: the process died by it.
+    def ignored():
+        for s in handled:
+            with contextlib.suppress(OSError, ValueError):
+                signal.signal(s, signal.SIG_IGN)
+
+    for s in handled:
         with contextlib.suppress(OSError, ValueError):
             signal.signal(s, lambda signum, frame: _exit_now(status))
+    atexit.register(ignored)  # (atexit runs once the threads are joined)
     sys.exit(status)
 
 

@@ -781,6 +781,35 @@ def test_the_command_ends_at_once_after_an_interrupt(status):
     assert ("shutdown ran" in proc.stdout) == (status not in (129, 130, 143)), proc.stdout
 
 
+@pytest.mark.parametrize("signame, status, said", [("SIGINT", 130, "interrupted"), ("SIGTERM", 143, "terminated")])
+def test_a_signal_whose_exception_is_lost_in_a_finaliser_still_ends_the_command(signame, status, said):
+    """A signal whose handler runs inside a ``__del__`` (a Warp array freed as it came)
+    raises there, where Python drops the exception: it had printed "Exception ignored in
+    …" with a traceback and the command went on to status 0. It is sent again and ends
+    the command as any other."""
+    code = ("import signal, time, lfsf.cli as c\n"
+            "class Freed:\n"
+            f"    def __del__(self): signal.raise_signal(signal.{signame})\n"
+            "def command():\n"
+            "    Freed()\n"
+            "    time.sleep(5)\n"
+            "    return 0\n"
+            "c.main = lambda: c.run_script(command, prog='lfsf x')\n"
+            "c.entry()\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert (proc.returncode, proc.stderr) == (status, f"lfsf x: {said}\n")
+
+
+def test_a_signal_between_the_commands_end_and_the_exit_is_the_commands_interrupt():
+    """Between the command's handlers being put back and its end (here, main returning)
+    a SIGTERM had the default action: the process died by the signal without a word."""
+    code = ("import os, signal, lfsf.cli as c\n"
+            "c.main = lambda: (os.kill(os.getpid(), signal.SIGTERM), 0)[1]\n"
+            "c.entry()\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert (proc.returncode, proc.stderr) == (143, "lfsf: terminated\n")
+
+
 @pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
 def test_a_signal_during_the_shutdown_after_the_command_ended_changes_nothing(signame):
     """Once the command has ended (status 0, its results written and reported), a Ctrl-C
