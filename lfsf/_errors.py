@@ -3,6 +3,7 @@ a signal, in one place."""
 
 import argparse
 import contextlib
+import errno
 
 
 class DependencyError(ImportError):
@@ -19,7 +20,7 @@ class DependencyError(ImportError):
 BAD_INPUT_ERRORS = (ValueError, OSError, DependencyError)
 
 
-#: Exit status of a run that could not finish (memory ran out), of bad input, of an
+#: Exit status of a run that could not finish (memory ran out, the disk is full), of bad input, of an
 #: interrupt (Ctrl-C), of a SIGTERM (``kill``, ``timeout``, a batch system's job limit)
 #: and of a SIGHUP (the terminal or ssh session gone, without nohup): 128 + the
 #: signal's number, as a shell gives.
@@ -118,7 +119,7 @@ def _interrupts_redelivered():
 def run_script(main, prog: str | None = None) -> int:
     """Run ``main()`` (a script's, or an ``lfsf`` command's) and return its exit status:
     bad input (a :data:`BAD_INPUT_ERRORS`) is one line ``PROG: error: …`` on stderr and
-    status 2; memory that ran out one line and status 1; Ctrl-C ``PROG: interrupted``
+    status 2; memory that ran out, or a full disk, one line and status 1; Ctrl-C ``PROG: interrupted``
     and status 130, SIGTERM ``PROG: terminated`` and 143, SIGHUP ``PROG: hung up
     (SIGHUP)`` and 129, each after the temporary files are removed
     (:func:`terminate_as_interrupt`). ``prog`` defaults to the script's file
@@ -136,6 +137,11 @@ def run_script(main, prog: str | None = None) -> int:
         cause = interrupted(exc)
         if cause is not None:  # e.g. numpy's savez closing its zip file in a finally
             return _stopped(prog, cause)
+        if isinstance(exc, OSError) and exc.errno in _FULL:  # (not bad input: the same run goes through elsewhere)
+            where = f"{exc.filename}: " if exc.filename else ""
+            print(f"{prog}: error: {where}no space left on the device ({exc.strerror}): free some, or write "
+                  "the outputs elsewhere (nothing was left half-written)", file=sys.stderr)
+            return EXIT_FAILED
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except (MemoryError, RuntimeError) as exc:
@@ -145,6 +151,10 @@ def run_script(main, prog: str | None = None) -> int:
               f"smaller light fields (the paper's setting takes about 1.1 GB at 640×480 with 9×9 views)",
               file=sys.stderr)
         return EXIT_FAILED
+
+
+#: The errno values of a full disk (or a quota reached): the run could not finish, status 1.
+_FULL = tuple(getattr(errno, name) for name in ("ENOSPC", "EDQUOT") if hasattr(errno, name))
 
 
 def out_of_memory(exc: BaseException) -> bool:

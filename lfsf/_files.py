@@ -368,15 +368,18 @@ def file_set(out: Path, names, stale=()):
     of killed processes are removed first (:func:`remove_dead_sets`). Existing folders in
     their place are refused before anything is written. A symbolic link in the place of
     a file is written through, as :func:`atomic_path` does: the link stays and the file
-    it names is replaced."""
+    it names is replaced. The folders made for ``out`` are removed again where the set
+    fails."""
     import shutil
 
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    _check_names(out, names)
-    remove_dead_sets(out)
+    made = [p for p in (out, *out.parents) if not os.path.lexists(p)]  # (removed again if the set fails)
     tmp = None
+    done = False
     try:
+        out.mkdir(parents=True, exist_ok=True)
+        _check_names(out, names)
+        remove_dead_sets(out)
         tmp = Path(tempfile.mkdtemp(prefix=f"{SET_PREFIX}{_host()}-{os.getpid()}.", dir=out))
         try:
             yield tmp
@@ -393,6 +396,11 @@ def file_set(out: Path, names, stale=()):
             for name in stale:
                 if (out / name).is_file() or (out / name).is_symlink():
                     (out / name).unlink()
+        done = True
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
+        if not done:  # (an interrupted or failed set had left the folders made for it, empty)
+            for folder in made:
+                with contextlib.suppress(OSError):
+                    folder.rmdir()

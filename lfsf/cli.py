@@ -145,29 +145,17 @@ def cmd_synth(args) -> int:
         _log(args, f"wrote {len(paths['frames'])} frames to {Path(args.out) / 'frames'} and the ground truth of "
                    f"each pair to {Path(args.out) / 'gt'} in {time.perf_counter() - t0:.1f} s")
         return 0
+    stale = Path(args.out) / synth.PREVIEW_NAME
+    stale = stale if not args.preview and stale.is_file() else None  # an earlier render's, beside this one's files
+    output_folder(args.out, create=False, names=list(synth.SCENE_FILES) + [synth.PREVIEW_NAME] * args.preview)
     _log(args, f"rendering {what} at {width}×{height}, {args.grid[0]}×{args.grid[1]} views, t1 and t2, on {device} …")
     t0 = time.perf_counter()
     paths = synth.write_scene(scene, args.out, size=(width, height), grid=args.grid,
                               supersample=args.supersample, colour=args.colour, device=device, noise=args.noise,
-                              images=images)
+                              images=images, preview=args.preview)
     _log(args, f"wrote {', '.join(str(p) for p in paths.values())} in {time.perf_counter() - t0:.1f} s")
-    stale = Path(args.out) / "preview.png"
-    if not args.preview and stale.is_file():  # an earlier render's picture beside this one's files
-        stale.unlink()
+    if stale is not None:
         _log(args, f"removed {stale}, an earlier render's (give --preview for this one's)")
-    if args.preview:
-        from lfsf.io import read_lightfield
-        from lfsf.viz import overview_figure
-        import numpy as np
-
-        with np.load(paths["gt"]) as z:
-            gt = {k: z[k] for k in ("disp1", "disp2", "u", "v", "valid", "occluded")}
-        c1 = read_lightfield(paths["lf1"]).centre
-        c2 = read_lightfield(paths["lf2"]).centre
-        overview_figure(c1, c2, gt["disp1"], gt["disp2"], gt["u"], gt["v"],
-                        path=Path(args.out) / "preview.png", title=f"{args.scene}: ground truth",
-                        label="ground truth", occluded=gt["occluded"].astype(bool))
-        _log(args, f"wrote {Path(args.out) / 'preview.png'}")
     return 0
 
 

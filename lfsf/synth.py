@@ -804,14 +804,17 @@ def write_scene(
     device: str | None = None,
     noise: float = 0.0,
     images=None,
+    preview: bool = False,
 ) -> dict[str, Path]:
     """Render a scene and write ``lf1.npz``, ``lf2.npz`` and ``gt.npz`` into ``out``.
 
     ``noise`` > 0 adds sensor noise of that standard deviation to every view
     (:func:`add_noise`, independent at t1 and t2, seeds 0 and 1); the ground truth is the
-    scene's. The three are written into a temporary folder and moved into place
-    together, so an interrupted write leaves none of them.
-    Returns the paths written.
+    scene's. ``preview``: also ``preview.png``, the ground truth drawn as
+    :func:`lfsf.viz.overview_figure` draws an estimate's; without it an earlier render's
+    ``preview.png`` is removed. The files are written into a temporary folder and moved
+    into place together, so an interrupted write leaves none of them (and no mix with
+    an earlier render's). Returns the paths written.
     """
     from lfsf._files import file_set, output_folder, savez_atomic
     from lfsf.io import write_lightfield
@@ -822,12 +825,27 @@ def write_scene(
                                 images=images)
     lf1, lf2 = add_noise(lf1, noise, seed=0), add_noise(lf2, noise, seed=1)
     out = Path(out)
-    names = {"lf1": "lf1.npz", "lf2": "lf2.npz", "gt": "gt.npz"}
-    with file_set(out, list(names.values())) as tmp:
+    names = dict(zip(("lf1", "lf2", "gt"), SCENE_FILES))
+    if preview:
+        names["preview"] = PREVIEW_NAME
+    name = get_scene(scene).name
+    with file_set(out, list(names.values()), stale=() if preview else (PREVIEW_NAME,)) as tmp:
         write_lightfield(lf1, tmp / names["lf1"])
         write_lightfield(lf2, tmp / names["lf2"])
-        savez_atomic(tmp / names["gt"], compressed=True, scene=np.str_(get_scene(scene).name), **gt)
+        savez_atomic(tmp / names["gt"], compressed=True, scene=np.str_(name), **gt)
+        if preview:
+            from lfsf.viz import overview_figure
+
+            overview_figure(lf1.centre, lf2.centre, gt["disp1"], gt["disp2"], gt["u"], gt["v"],
+                            path=tmp / PREVIEW_NAME, title=f"{name}: ground truth", label="ground truth",
+                            occluded=gt["occluded"].astype(bool))
     return {key: out / name for key, name in names.items()}
+
+
+#: The files :func:`write_scene` writes: the light fields at t1 and t2, the ground truth.
+SCENE_FILES = ("lf1.npz", "lf2.npz", "gt.npz")
+#: The picture of a rendered pair's ground truth (:func:`write_scene`'s ``preview``).
+PREVIEW_NAME = "preview.png"
 
 
 def write_sequence(
@@ -853,18 +871,19 @@ def write_sequence(
 
     noise = _noise_sigma(noise)  # a bad sigma: an error before any rendering
     output_folder(out, create=False)  # and an output that cannot be written
-    lfs, gts = render_sequence(scene, frames, size=size, grid=grid, supersample=supersample, colour=colour,
-                               device=device, images=images)
-    lfs = [add_noise(lf, noise, seed=k) for k, lf in enumerate(lfs)]
     out = Path(out)
-    frame_names = [f"frames/f{k:03d}.npz" for k in range(len(lfs))]
-    gt_names = [f"gt/f{k:03d}.npz" for k in range(len(gts))]
-    name = get_scene(scene).name
+    frame_names = [f"frames/f{k:03d}.npz" for k in range(frames)]
+    gt_names = [f"gt/f{k:03d}.npz" for k in range(frames - 1)]
+    # (before the render, as every check of the outputs)
     earlier = sorted(p.name for p in (out / "frames").glob("f*.npz") if f"frames/{p.name}" not in frame_names)
     if earlier:
         raise ValueError(f"{out / 'frames'}: holds frames of an earlier sequence ({', '.join(earlier[:3])}"
                          f"{' …' if len(earlier) > 3 else ''}) that a batch would pair with these; remove them "
                          "or choose another --out")
+    lfs, gts = render_sequence(scene, frames, size=size, grid=grid, supersample=supersample, colour=colour,
+                               device=device, images=images)
+    lfs = [add_noise(lf, noise, seed=k) for k, lf in enumerate(lfs)]
+    name = get_scene(scene).name
     with file_set(out, frame_names + gt_names) as tmp:
         (tmp / "frames").mkdir()
         (tmp / "gt").mkdir()

@@ -485,6 +485,23 @@ def test_a_full_device_is_named_in_the_error(tmp_path):
         write_bytes_atomic("/dev/full", b"{}" * 10000)
 
 
+def test_a_full_disk_is_one_line_and_status_1_not_bad_input(tmp_path, monkeypatch, capsys):
+    """A full disk had been "[Errno 28] No space left on device: '…'" and status 2, as if
+    the input were at fault; the same run goes through where there is room."""
+    import errno
+
+    from lfsf import synth
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "s" / "lf1.npz"))
+
+    monkeypatch.setattr(synth, "write_scene", full)
+    assert main(["synth", "paper", "--out", str(tmp_path / "s"), "--size", "16", "16", "--grid", "3"]) == 1
+    err = capsys.readouterr().err.splitlines()[-1]
+    assert err == (f"lfsf synth: error: {tmp_path / 's' / 'lf1.npz'}: no space left on the device (No space left on "
+                   "device): free some, or write the outputs elsewhere (nothing was left half-written)")
+
+
 def test_results_are_written_as_one_set_or_not_at_all(tmp_path):
     """A result that cannot be written (here a folder holds its name) leaves none of the
     others behind, and the message names it, not a temporary file."""
@@ -552,6 +569,42 @@ def test_synth_does_not_leave_an_earlier_renders_preview_beside_its_files(tmp_pa
     assert main(["synth", "paper", *common, "--preview"]) == 0 and (tmp_path / "preview.png").is_file()
     assert main(["synth", "slanted", *common]) == 0
     assert not (tmp_path / "preview.png").exists()
+
+
+def test_synth_preview_is_part_of_its_set_of_files(tmp_path, monkeypatch, capsys):
+    """preview.png had been drawn after the three files were in place: a folder in its
+    place failed the command (status 2) with them written, and an interrupt while it was
+    drawn left the new light fields beside an earlier render's preview. It is now checked
+    before the render and written with the others, or none are; the folders made for an
+    interrupted render go too."""
+    from lfsf import viz
+
+    common = ["--size", "16", "16", "--grid", "3", "--quiet", "--preview"]
+    (tmp_path / "a" / "preview.png").mkdir(parents=True)
+    assert main(["synth", "paper", "--out", str(tmp_path / "a"), *common]) == 2
+    assert "a/preview.png: is a folder" in capsys.readouterr().err
+    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["preview.png"]
+    assert main(["synth", "paper", "--out", str(tmp_path / "b"), *common]) == 0
+    before = {p.name: p.read_bytes() for p in (tmp_path / "b").iterdir()}
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(viz, "overview_figure", interrupted)
+    assert main(["synth", "slanted", "--out", str(tmp_path / "b"), *common]) == 130
+    assert {p.name: p.read_bytes() for p in (tmp_path / "b").iterdir()} == before
+    assert main(["synth", "slanted", "--out", str(tmp_path / "c" / "d"), *common]) == 130
+    assert not (tmp_path / "c").exists()
+
+
+def test_synth_refuses_an_earlier_sequences_frames_before_rendering(tmp_path, monkeypatch, capsys):
+    from lfsf import synth
+
+    common = ["--out", str(tmp_path), "--size", "16", "16", "--grid", "3", "--quiet"]
+    assert main(["synth", "paper", *common, "--frames", "4"]) == 0
+    monkeypatch.setattr(synth, "render_sequence", lambda *a, **k: pytest.fail("rendered before the check"))
+    assert main(["synth", "paper", *common, "--frames", "3"]) == 2
+    assert "holds frames of an earlier sequence (f003.npz)" in capsys.readouterr().err
 
 
 def test_output_names_near_the_length_limit_still_get_a_temporary_name(tmp_path):
@@ -1168,7 +1221,7 @@ def test_a_closed_or_ascii_stdout_and_a_closed_stderr_are_no_failure(tmp_path):
     if os.path.exists("/dev/full"):
         proc = subprocess.run(["bash", "-c", f"{command} > /dev/full"], cwd=tmp_path, capture_output=True, text=True,
                               env=env)
-        assert proc.returncode == 2 and "No space left on device: '<stdout>'" in proc.stderr, proc.stderr
+        assert proc.returncode == 1 and "error: <stdout>: no space left on the device" in proc.stderr, proc.stderr
 
 
 def test_a_hung_up_terminal_or_a_failing_stderr_does_not_end_the_work():
