@@ -517,6 +517,11 @@ EXPOSURE_SEARCH_RADIUS = 2
 #: unblurred fit reads as a gain above 1 (up to 1.9 % on `slanted` at 320×240; 0.5 % with
 #: σ = 3).
 EXPOSURE_BLUR = 3.0
+#: … and t2's by as much more as the scene grew from t1 to t2 (:func:`_flow_scale`), where
+#: that is more than this fraction: a zoom of 5 % with no change of exposure had read as
+#: 0.96·I + 0.02 (its flow's error doubled; 0.0375 → 0.0236 px with the `flow` preset, a
+#: textured plane at 160×120), 10 % as 0.92·I + 0.04 (0.068 → 0.034).
+EXPOSURE_SCALE_TOLERANCE = 0.02
 #: The disparity sweep runs at full resolution: depth edges are where its value matters.
 SWEEP_LEVEL = 0
 #: ROF runs on each image padded by this many pixels of odd reflection (at most the
@@ -2046,6 +2051,22 @@ def _l1_line(x: np.ndarray, y: np.ndarray, weight: np.ndarray, span: float) -> t
     return float(gain), float(shift)
 
 
+def _flow_scale(u: np.ndarray, v: np.ndarray, where: np.ndarray) -> float:
+    """How much the scene grew along each axis from t1 to t2 by the flow (u, v): the
+    median over ``where`` of √|det(1 + ∇(u, v))| (1 for a translation, 1.05 for a zoom of
+    5 %), within 1/2 … 2; 1 where it is within EXPOSURE_SCALE_TOLERANCE of 1 (the flow's
+    noise, and a change of blur too small to tell) or nothing is left to take it from."""
+    du_y, du_x = np.gradient(u.astype(np.float64))
+    dv_y, dv_x = np.gradient(v.astype(np.float64))
+    det = np.abs((1.0 + du_x) * (1.0 + dv_y) - du_y * dv_x)[where]
+    if det.size == 0:
+        return 1.0
+    scale = float(np.sqrt(np.median(det)))
+    if not np.isfinite(scale) or abs(scale - 1.0) < EXPOSURE_SCALE_TOLERANCE:
+        return 1.0
+    return min(max(scale, 0.5), 2.0)
+
+
 def _weighted_median(values: np.ndarray, weight: np.ndarray) -> float:
     """The value m minimising Σ weight·|values − m|."""
     order = np.argsort(values)
@@ -2104,13 +2125,20 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str,
                           device)
     # clipped pixels (within 2 % of the ends of the values), and those the blur mixes them into
     edge = 0.02 * (hi - lo)
-    clipped = [_blur(((img <= lo + edge) | (img >= hi - edge)).astype(np.float64), EXPOSURE_BLUR) for img in (a, b)]
-    a, b = _blur(a, EXPOSURE_BLUR), _blur(b, EXPOSURE_BLUR)
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
     x_at, y_at = xx + flow.u, yy + flow.v
     keep = (x_at >= 0) & (x_at <= w - 1) & (y_at >= 0) & (y_at <= h - 1)
     keep[:2] = keep[-2:] = False
     keep[:, :2] = keep[:, -2:] = False
+    # t2 blurred by as much more as the scene grew from t1 to t2 (its scale: the median of
+    # √|det(1 + ∇u)|), so that both blurs take in the same patch of the scene: alike, a
+    # surface that came nearer kept more contrast at t2 than at t1, which read as a gain
+    # (a zoom of 5 % as 0.96·I + 0.02, and the flow's error doubled)
+    scale = _flow_scale(flow.u, flow.v, keep)
+    blurs = (EXPOSURE_BLUR, EXPOSURE_BLUR * scale)
+    clipped = [_blur(((img <= lo + edge) | (img >= hi - edge)).astype(np.float64), sigma)
+               for img, sigma in zip((a, b), blurs)]
+    a, b = _blur(a, blurs[0]), _blur(b, blurs[1])
     warped = _bilinear(b, x_at, y_at)
     keep &= (clipped[0] < 0.01) & (_bilinear(clipped[1], x_at, y_at) < 0.01)
     if keep.sum() < 64:

@@ -1082,6 +1082,34 @@ def test_the_exposure_fit_recovers_a_known_gain_and_offset():
     assert estimate._exposure_change(c1, c2, "cpu")[2] < 0.75 * estimate.EXPOSURE_CHANGE
 
 
+def test_a_zoom_is_not_read_as_a_change_of_exposure():
+    """A surface 5 % larger at t2 (it came nearer), the same exposure: blurred alike in
+    their own frames, t2 kept more contrast than t1 and the fit read it as 0.96·I + 0.02
+    (a change of 1.8 % of the range, acted on; the flow's error doubled). t2 is blurred by
+    as much more as the scene grew (_flow_scale); a real change is still recovered."""
+    from lfsf import estimate
+
+    rng = np.random.default_rng(5)
+    k = rng.uniform(0.05, 0.35, (40, 2)) * rng.choice([-1, 1], (40, 2))
+    phase, amplitude = rng.uniform(0, 2 * np.pi, 40), rng.uniform(0.3, 1, 40)
+
+    def texture(x, y):
+        waves = sum(a * np.sin(kx * x + ky * y + f) for (kx, ky), f, a in zip(k, phase, amplitude))
+        return 0.5 + 0.4 * np.tanh(waves / 3)
+
+    yy, xx = np.mgrid[0:120, 0:160].astype(np.float64)
+    c1 = texture(xx, yy)
+    c2 = texture(79.5 + (xx - 79.5) / 1.05 + 1.0, 59.5 + (yy - 59.5) / 1.05 - 0.5)
+    g, b, change = estimate._exposure_change(c1, c2, "cpu")
+    assert change < 0.75 * estimate.EXPOSURE_CHANGE, (g, b, change)
+    g, b, change = estimate._exposure_change(c1, 0.8 * c2 + 0.05, "cpu")
+    x = np.linspace(0.1, 0.9, 9)
+    assert np.abs(g * (0.8 * x + 0.05) + b - x).max() < 0.01, (g, b)
+    assert estimate._flow_scale(np.full((9, 9), 2.0), np.full((9, 9), -1.0), np.ones((9, 9), bool)) == 1.0
+    zoom = 0.05 * (np.mgrid[0:9, 0:9][::-1] - 4.0)
+    assert estimate._flow_scale(zoom[0], zoom[1], np.ones((9, 9), bool)) == pytest.approx(1.05)
+
+
 def test_the_exposure_fit_on_a_pan_of_the_whole_scene():
     """The whole scene moving 14 px right and 14 up at 320×240 (7 and 7 on the pilot's
     160×120): with one exposure no change is found, and 0.9·L2 + 0.03 is undone. With the
