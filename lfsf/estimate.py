@@ -1602,7 +1602,7 @@ def estimate_scene_flow(
     grid_radius = params.grid_radius((rows, cols))
     if rim is not None and params.circles > 1 and rim < grid_radius:
         # (only where the rims, not the grid, set R: the grid's own limit has its note below)
-        note(f"sampling radius R = {radius:g} view steps, not {params.radius:g}: the views were decoded from a "
+        note(f"sampling radius R = {radius:g} {_view_steps(radius)}, not {params.radius:g}: the views were decoded from a "
              f"lenslet image, {lf1.meta['lens_views']} across a lens, and those further out lie near the "
              "micro-images' rims, where the neighbouring lenses mix in (RIM_FRACTION)")
     if params.circles > 1 and radius <= 0:
@@ -1619,7 +1619,7 @@ def estimate_scene_flow(
                          f"sets them), or {flow}")
     cut = grid_radius < params.radius and (rim is None or grid_radius <= rim)  # (R set by the grid)
     if params.circles > 1 and (cut or radius < 1.0):
-        note(f"sampling radius R = {radius:g} view steps"
+        note(f"sampling radius R = {radius:g} {_view_steps(radius)}"
              + (f", not {params.radius:g} (all the {rows}×{cols} grid allows for these samples)" if cut else "")
              + (": the side samples see little parallax, and δ is less certain than with R ≥ 1"
                 if radius < 1.0 else ""))
@@ -1635,7 +1635,8 @@ def estimate_scene_flow(
         note("view z-buffers off: the side samples lie on one side of the centre (Params.visibility)")
     elif params.visibility and radius < VISIBILITY_MIN_RADIUS:
         params = params.replace(visibility=False)
-        say(f"view z-buffers off at R = {radius:g} (below {VISIBILITY_MIN_RADIUS:g}: Params.visibility)")
+        if params.circles > 1:  # (flow only has no side views to buffer: nothing to say)
+            say(f"view z-buffers off at R = {radius:g} (below {VISIBILITY_MIN_RADIUS:g}: Params.visibility)")
     n_samples = len(phis)
     weights = data_weights(params, n_samples)
     wp_phis = wp.array(phis, dtype=wp.vec2, device=dev)
@@ -2182,6 +2183,11 @@ AXES_RATIO = 4
 #: and far from float32's end (u = 1e38 overflowed in the pyramid's upsampling, an
 #: IndexError).
 MAX_START_VALUE = 1e6
+
+
+def _view_steps(radius: float) -> str:
+    """"view step" or "view steps", as ``radius`` reads (R = 1 view step)."""
+    return "view step" if radius == 1 else "view steps"
 
 
 def _check_init(init, height: int, width: int) -> np.ndarray | None:

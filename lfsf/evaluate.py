@@ -413,6 +413,9 @@ def format_table(errors: dict[str, dict[str, float]]) -> str:
         lines.append("noc: the points seen at t2 as well (the ground truth's 'occluded' left out)")
     if "occluded" in errors:
         e = errors["occluded"]
-        lines.append(f"occluded at t2: precision {e['precision']:.3f}, recall {e['recall']:.3f}, "
-                     f"F1 {e['f1']:.3f} ({e['marked_px']} px marked, {e['occluded_px']} occluded of {e['pixels']})")
+        if e["marked_px"] == e["occluded_px"] == 0:  # (the scores are 1 by convention: nothing to tell apart)
+            lines.append(f"occluded at t2: none marked and none occluded of {e['pixels']} px")
+        else:
+            lines.append(f"occluded at t2: precision {e['precision']:.3f}, recall {e['recall']:.3f}, F1 "
+                         f"{e['f1']:.3f} ({e['marked_px']} px marked, {e['occluded_px']} occluded of {e['pixels']})")
     return "\n".join(lines)

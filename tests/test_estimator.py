@@ -1299,7 +1299,7 @@ def test_a_sampling_radius_below_one_view_step_or_cut_by_the_grid_is_noted():
         "samples see little parallax, and δ is less certain than with R ≥ 1"]
     lf1, lf2, _ = synth.render_scene("paper", size=(48, 40), grid=3, device="cpu")
     assert notes(lf1, lf2, Params.preset("fast")) == [
-        "sampling radius R = 1 view steps, not 4 (all the 3×3 grid allows for these samples)"]
+        "sampling radius R = 1 view step, not 4 (all the 3×3 grid allows for these samples)"]
     assert notes(lf1, lf2, Params.preset("fast").replace(radius=1.0)) == []   # as asked
     assert notes(lf1, lf2, Params.preset("fast").replace(radius=0.5)) == [
         "sampling radius R = 0.5 view steps: the side samples see little parallax, and δ is less certain than "
@@ -1507,6 +1507,12 @@ def test_the_view_z_buffers_are_used_from_a_sampling_radius_of_two():
         off = estimate_scene_flow(lf1, lf2, quick.replace(visibility=False), device="cpu")
         assert all(np.array_equal(a, b) for a, b in zip(on.as_dict().values(), off.as_dict().values())) == same
         assert on.params.visibility  # (what was asked is what the result records)
+    # the progress says so where it matters, not for flow only (no side views: R = 0)
+    for preset, said in (("fast", True), ("flow", False)):
+        lines = []
+        estimate_scene_flow(lf1.grey(), lf2.grey(), Params.preset(preset).replace(warps=1, iterations=5, final_iterations=0,
+                            radius=1.5), device="cpu", progress=lines.append)
+        assert any("view z-buffers off at R" in line for line in lines) == said, lines
 
 
 @pytest.mark.parametrize("grid,preset", [((9, 9), "paper"), ((9, 9), "flow"), ((5, 9), "lytro"), ((2, 2), "fast"),

@@ -84,6 +84,10 @@ def test_an_estimates_occlusion_mask_is_scored_against_the_ground_truths():
     assert "occluded at t2: precision 0.500, recall 0.500, F1 0.500 (6 px marked, 6 occluded of 41)" in E.format_table(
         E.evaluate({"u": z, "v": z, "occluded": est_occ}, gt, border=0))
     assert "occluded" not in E.evaluate({"u": z, "v": z}, gt, border=0)  # no mask in the estimate
+    # none marked, none occluded: the scores of 1 say nothing, and the line says so
+    still = {**gt, "occluded": np.zeros_like(gt_occ)}
+    table = E.format_table(E.evaluate({"u": z, "v": z, "occluded": np.zeros_like(est_occ)}, still, border=0))
+    assert "occluded at t2: none marked and none occluded of 41 px" in table and "precision" not in table
     with pytest.raises(ValueError, match="must be bool"):
         E.occlusion_scores(est_occ.astype(float) * 0.5, gt_occ)
 
