@@ -190,10 +190,18 @@ def _within(path: Path, folder: Path) -> bool:
     return path == folder or folder in path.parents
 
 
+def frame_order(path: Path) -> tuple:
+    """The key that orders a folder's frames: by name, numbers by value (``f2`` before
+    ``f10``, as a camera's unpadded counter names them; plain sorting had paired f1 with
+    f10 and f10 with f2), then by the name itself."""
+    parts = re.split(r"(\d+)", path.name)
+    return tuple((0, int(part), "") if k % 2 else (1, 0, part) for k, part in enumerate(parts)), path.name
+
+
 def _folder_pairs(folder: Path, out: Path | None = None) -> list[Pair]:
-    frames = sorted(p for p in folder.iterdir()
-                    if not p.name.startswith(".") and (p.is_dir() or p.suffix.lower() in FRAME_SUFFIXES)
-                    and not (out is not None and _within(out, p)))
+    frames = sorted((p for p in folder.iterdir()
+                     if not p.name.startswith(".") and (p.is_dir() or p.suffix.lower() in FRAME_SUFFIXES)
+                     and not (out is not None and _within(out, p))), key=frame_order)
     if len(frames) < 2:
         from lfsf.io import read_lightfield
 

@@ -261,6 +261,13 @@ class _Progress:
                 sys.stderr.flush()
             return
         line = f"[{time.perf_counter() - self.t0:6.1f} s] {message}"
+        if not isinstance(message, Note):
+            # within the terminal's width: a line that wraps is not overwritten by the next
+            import shutil
+
+            columns = shutil.get_terminal_size().columns - 1
+            if len(line) > columns:
+                line = line[:max(columns - 1, 0)] + "…"
         sys.stderr.write("\r" + line.ljust(self.width))
         if isinstance(message, Note):  # kept: the next line starts below it
             sys.stderr.write("\n")

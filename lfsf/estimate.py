@@ -1579,6 +1579,9 @@ def estimate_scene_flow(
     for lf, (lo, hi) in zip((lf1, lf2), ranges):
         if not (math.isfinite(lo) and math.isfinite(hi)):  # (written into its views after it was made)
             _refuse_non_finite(lf.views, lf.source)
+        if lo == hi:  # (the maps had come out as zeros, or anything, without a word)
+            raise ValueError(f"{lf.source}: every value of every view is {lo:g}: a blank light field (a black "
+                             "frame, a lens cap, a raw image of nothing), with nothing to match")
     _check_pair_brightest(lf1, lf2, [hi for _lo, hi in ranges])
     dev = _device.resolve_device(device)
     rows, cols = lf1.grid

@@ -647,9 +647,14 @@ def _noise_sigma(sigma) -> float:
     if not _is_number(sigma):
         raise ValueError(f"noise sigma must be a finite number ≥ 0, got {sigma!r}")
     sigma = float(sigma)
-    if not math.isfinite(sigma) or sigma < 0:
-        raise ValueError(f"noise sigma must be a finite number ≥ 0, got {sigma}")
+    if not math.isfinite(sigma) or not 0 <= sigma <= MAX_NOISE:
+        raise ValueError(f"noise sigma must be a number from 0 to {MAX_NOISE:g} (intensities in [0, 1]), got {sigma:g}")
     return sigma
+
+
+#: The most noise :func:`add_noise` takes: at σ = 1 every value is clipped noise, of
+#: which nothing of the scene is left to see (σ = 1000 was taken).
+MAX_NOISE = 1.0
 
 
 def add_noise(lf, sigma: float, seed: int = 0):

@@ -123,6 +123,15 @@ def test_folder_gives_consecutive_pairs_named_after_their_first_frame(frames):
     ]
 
 
+def test_frames_numbered_without_padding_pair_in_the_order_of_their_numbers(tmp_path):
+    """f1, f2, f10 (a camera's unpadded counter): plain sorting had paired f1 with f10
+    and f10 with f2."""
+    for name in ("f10.npz", "f2.npz", "f1.npz", "f9"):
+        (tmp_path / name).mkdir() if "." not in name else (tmp_path / name).write_bytes(b"")
+    pairs = batch.pairs_from_sources([tmp_path])
+    assert [(p.t1.name, p.t2.name) for p in pairs] == [("f1.npz", "f2.npz"), ("f2.npz", "f9"), ("f9", "f10.npz")]
+
+
 def test_manifest_with_and_without_header(tmp_path):
     a = _manifest(tmp_path / "a.csv", [("t1", "t2", "name"), ("x/one.npz", "x/two.npz", "first"), ("b.npz", "c.npz")])
     b = _manifest(tmp_path / "b.csv", [("d.npz", "e.npz", "other")])

@@ -317,7 +317,9 @@ def test_bad_input_is_one_clear_line_and_status_2(tmp_path, args, needles):
         (["synth", "paper", "--out", "{tmp}/x", "--size", "100000", "100000"], "image width must be in 8…8192"),
         (["synth", "paper", "--out", "{tmp}/x", "--supersample", "50"], "supersample must be in 1…16"),
         (["synth", "paper", "--out", "{tmp}/x", "--frames", "300"], "more than the 2,147,483,648"),
-        (["synth", "paper", "--out", "{tmp}/x", "--noise", "-1"], "noise sigma must be a finite number"),
+        (["synth", "paper", "--out", "{tmp}/x", "--noise", "-1"], "noise sigma must be a number from 0 to 1"),
+        (["synth", "paper", "--out", "{tmp}/x", "--noise", "1000"], "noise sigma must be a number from 0 to 1 "
+                                                                    "(intensities in [0, 1]), got 1000"),
         (["demo", "--out", "{tmp}/x", "--size", "320", "9000"], "image height must be in 8…8192"),
         (["demo", "--out", "{tmp}/x", "--size", "16", "12"], "give at least 17 px each way"),
         (["bench", "kernels", "--size", "10000", "10"], "image width must be in 8…8192"),
@@ -803,6 +805,16 @@ def test_the_estimators_notes_reach_a_log_and_the_progress_only_a_terminal(monke
         else:
             assert text == "lfsf run: exposure: not matched, the gain fitted (5.000) is beyond the 4× (either way) " \
                            "that is undone\n"
+    # on a narrow terminal a progress line is cut to its width (a line that wraps is not
+    # overwritten by the next); a note is whole
+    monkeypatch.setattr(sys, "stderr", _Stream(True))
+    monkeypatch.setenv("COLUMNS", "30")
+    progress = _Progress(argparse.Namespace(command="run", quiet=False))
+    progress("level 1/3 (40×30), warp 1/3, iteration 20 of 100")
+    progress(Note("a note longer than the terminal is wide, whole"))
+    lines = sys.stderr.getvalue().split("\n")
+    assert lines[0].startswith("\r[") and lines[0].split("\r")[1].endswith("…") and len(lines[0].split("\r")[1]) == 29
+    assert lines[0].endswith("a note longer than the terminal is wide, whole")
 
 
 def test_run_says_in_its_log_that_it_matched_t2s_exposure(tmp_path):

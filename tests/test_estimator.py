@@ -841,6 +841,16 @@ def test_light_fields_made_from_arrays_are_named_as_their_argument_in_messages()
     assert first.source == short.source == "<array>"  # (theirs unchanged)
 
 
+def test_a_blank_light_field_is_refused():
+    """Every value the same (a black frame, a raw image of nothing decoded): the maps had
+    come out as zeros without a word."""
+    lf1, _ = shift_lightfields(h=24, w=32, grid=3)
+    black = lfsf.LightField(np.zeros_like(lf1.views), source="black.npz")
+    for pair in ((lf1, black), (black, lf1)):
+        with pytest.raises(ValueError, match=r"^black.npz: every value of every view is 0: a blank light field"):
+            estimate_scene_flow(*pair, QUICK, device="cpu")
+
+
 def test_a_stack_of_colour_views_is_told_how_to_make_a_grid():
     """An (N, H, W, 3) stack reads as a grid of N × H grey views 3 px wide: the too-small
     message says how to make it a grid."""
