@@ -89,14 +89,16 @@ def _interrupts_redelivered():
     """While the body runs, a KeyboardInterrupt (or :class:`Terminated`) that Python
     could not raise, because its handler ran inside a ``__del__`` (a Warp array freed as
     the signal that :func:`lfsf._files.interrupts_held` held back came through), is
-    delivered again, at the next point where it can unwind the command, instead of
-    "Exception ignored in …" with a traceback and the signal lost (status 0)."""
+    sent again a moment later (REDELIVERY_DELAY), instead of "Exception ignored in …"
+    with a traceback and the signal lost (status 0). One not yet sent again when the body
+    ends is dropped: the command ended first, as with a signal after its end."""
     import os
     import signal
     import sys
     import threading
 
     previous = sys.unraisablehook
+    pending: list = []
 
     def hook(unraisable):
         exc = unraisable.exc_value
@@ -105,7 +107,10 @@ def _interrupts_redelivered():
             # has left the hook (raise_signal or _thread.interrupt_main here run the handler
             # at once, inside the hook, where its exception is lost as well)
             signum = getattr(exc, "signum", None) or signal.SIGINT
-            threading.Timer(REDELIVERY_DELAY, os.kill, (os.getpid(), signum)).start()
+            timer = threading.Timer(REDELIVERY_DELAY, os.kill, (os.getpid(), signum))
+            timer.daemon = True
+            pending.append(timer)
+            timer.start()
             return
         previous(unraisable)
 
@@ -114,6 +119,19 @@ def _interrupts_redelivered():
         yield
     finally:
         sys.unraisablehook = previous
+        for timer in pending:
+            timer.cancel()
+
+
+def quiet_interrupts_in_finalisers(unraisable) -> None:
+    """A ``sys.unraisablehook`` for a command's process once its work is over: a Ctrl-C
+    (or SIGTERM) whose handler ran inside a ``__del__`` of what the command left (Warp
+    arrays freed after it) is dropped without the traceback Python prints for it; any
+    other exception goes to Python's own hook."""
+    import sys
+
+    if not isinstance(unraisable.exc_value, KeyboardInterrupt):
+        sys.__unraisablehook__(unraisable)
 
 
 def run_script(main, prog: str | None = None) -> int:
@@ -139,8 +157,11 @@ def run_script(main, prog: str | None = None) -> int:
             return _stopped(prog, cause)
         if isinstance(exc, OSError) and exc.errno in _FULL:  # (not bad input: the same run goes through elsewhere)
             where = f"{exc.filename}: " if exc.filename else ""
+            # (what a command writes to files is written whole or not at all; its printed output is not)
+            kept = ("what was printed may be cut short" if str(exc.filename).startswith("<")
+                    else "nothing was left half-written")
             print(f"{prog}: error: {where}no space left on the device ({exc.strerror}): free some, or write "
-                  "the outputs elsewhere (nothing was left half-written)", file=sys.stderr)
+                  f"the outputs elsewhere ({kept})", file=sys.stderr)
             return EXIT_FAILED
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT

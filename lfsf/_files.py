@@ -358,6 +358,15 @@ def remove_dead_sets(out: Path) -> None:
                 shutil.rmtree(path, ignore_errors=True)
 
 
+def folders_to_make(path) -> list[Path]:
+    """The folders that making ``path`` (with its parents) creates, innermost first, to
+    remove again if what was to go in them fails: those of its absolute, normalised form
+    (``new/../existing`` names ``existing``, which exists: by the path as typed it had been
+    listed, and an empty folder of the user's removed)."""
+    path = Path(os.path.abspath(path))
+    return [p for p in (path, *path.parents) if not os.path.lexists(p)]
+
+
 @contextlib.contextmanager
 def file_set(out: Path, names, stale=()):
     """A temporary folder inside ``out`` to write the files ``names`` (paths relative to
@@ -373,7 +382,7 @@ def file_set(out: Path, names, stale=()):
     import shutil
 
     out = Path(out)
-    made = [p for p in (out, *out.parents) if not os.path.lexists(p)]  # (removed again if the set fails)
+    made = folders_to_make(out)  # (removed again if the set fails)
     tmp = None
     done = False
     try:

@@ -190,18 +190,27 @@ def _within(path: Path, folder: Path) -> bool:
     return path == folder or folder in path.parents
 
 
-def frame_order(path: Path) -> tuple:
-    """The key that orders a folder's frames: by name, numbers by value (``f2`` before
-    ``f10``, as a camera's unpadded counter names them; plain sorting had paired f1 with
-    f10 and f10 with f2), then by the name itself."""
-    parts = re.split(r"(\d+)", path.name)
-    return tuple((0, int(part), "") if k % 2 else (1, 0, part) for k, part in enumerate(parts)), path.name
+def frame_order(paths) -> list[Path]:
+    """A folder's frames in order: by name, but where every name is one counter between
+    the same prefix and suffix (``f1.npz``, ``f2.npz``, ``f10.npz``: a camera's unpadded
+    counter), by the counter's value (plain sorting had paired f1 with f10 and f10 with
+    f2). Not where the prefix ends in a point: ``t0.5``, ``t0.25`` are fractions, which
+    sort by name."""
+    paths = sorted(paths, key=lambda p: p.name)
+    # (a frame's name less .npz: a sub-folder f9 and a file f10.npz count alike)
+    parts = [re.fullmatch(r"(.*?)(\d+)(\D*)", p.stem if p.suffix.lower() in FRAME_SUFFIXES else p.name)
+             for p in paths]
+    if (all(parts) and len({(m.group(1), m.group(3)) for m in parts}) == 1
+            and not parts[0].group(1).endswith(".")):
+        order = {id(p): int(m.group(2)) for p, m in zip(paths, parts)}
+        return sorted(paths, key=lambda p: order[id(p)])
+    return paths
 
 
 def _folder_pairs(folder: Path, out: Path | None = None) -> list[Pair]:
-    frames = sorted((p for p in folder.iterdir()
-                     if not p.name.startswith(".") and (p.is_dir() or p.suffix.lower() in FRAME_SUFFIXES)
-                     and not (out is not None and _within(out, p))), key=frame_order)
+    frames = frame_order(p for p in folder.iterdir()
+                         if not p.name.startswith(".") and (p.is_dir() or p.suffix.lower() in FRAME_SUFFIXES)
+                         and not (out is not None and _within(out, p)))
     if len(frames) < 2:
         from lfsf.io import read_lightfield
 

@@ -145,8 +145,8 @@ def cmd_synth(args) -> int:
         _log(args, f"wrote {len(paths['frames'])} frames to {Path(args.out) / 'frames'} and the ground truth of "
                    f"each pair to {Path(args.out) / 'gt'} in {time.perf_counter() - t0:.1f} s")
         return 0
-    stale = Path(args.out) / synth.PREVIEW_NAME
-    stale = stale if not args.preview and stale.is_file() else None  # an earlier render's, beside this one's files
+    # an earlier render's picture, which this render replaces with the rest of its files
+    stale = None if args.preview or not synth.earlier_preview(args.out) else Path(args.out) / synth.PREVIEW_NAME
     output_folder(args.out, create=False, names=list(synth.SCENE_FILES) + [synth.PREVIEW_NAME] * args.preview)
     _log(args, f"rendering {what} at {width}×{height}, {args.grid[0]}×{args.grid[1]} views, t1 and t2, on {device} …")
     t0 = time.perf_counter()
@@ -181,19 +181,30 @@ def cmd_eval(args) -> int:
     import numpy as np
 
     from lfsf._files import write_json_atomic
-    from lfsf.evaluate import VARIABLES, evaluate, format_table, load_estimate, load_ground_truth
+    from lfsf.evaluate import (VARIABLES, downsample_truth, evaluate, format_table, load_estimate, load_ground_truth,
+                               recorded_downsample)
 
     if args.json:
         output_file(args.json)
         _not_an_input(args.json, args.result, args.gt)
     estimate = load_estimate(args.result)
     gt, default_border = load_ground_truth(args.gt)
+    # a result of lfsf run --downsample K against the truth of the light fields' size: the
+    # truth shrunk alike, and its border (K had been given to run alone, and eval failed)
+    k = recorded_downsample(args.result)
+    shape = next((np.shape(estimate[v]) for v in VARIABLES if v in estimate), None)
+    shrunk = k > 1 and shape is not None and all(
+        np.shape(a)[:2] != shape and (np.shape(a)[0] // k, np.shape(a)[1] // k) == shape
+        for name, a in gt.items() if name in VARIABLES)
+    if shrunk:
+        gt, default_border = downsample_truth(gt, k), -(-default_border // k)
     border = default_border if args.border is None else args.border
     try:
         errors = evaluate(estimate, gt, border=border)
     except ValueError as exc:
         raise ValueError(f"{args.result} against {args.gt}: {exc}") from None
-    print(f"{args.result} against {args.gt} (border {border} px)")
+    print(f"{args.result} against {args.gt} (border {border} px"
+          + (f"; estimated on views shrunk {k} times, the ground truth shrunk alike)" if shrunk else ")"))
     print(format_table(errors))
     # a partial result (one map written, another lost) should not pass for a whole one
     lacking = [name for name, keys in (("disp1", ("disp1",)), ("disp2", ("disp2",)), ("flow", ("u", "v")))
@@ -265,7 +276,10 @@ class _Progress:
             # within the terminal's width: a line that wraps is not overwritten by the next
             import shutil
 
-            columns = shutil.get_terminal_size().columns - 1
+            try:  # (stderr's terminal: stdout may be a file)
+                columns = os.get_terminal_size(sys.stderr.fileno()).columns - 1
+            except (AttributeError, OSError, ValueError):
+                columns = shutil.get_terminal_size().columns - 1
             if len(line) > columns:
                 line = line[:max(columns - 1, 0)] + "…"
         sys.stderr.write("\r" + line.ljust(self.width))
@@ -313,16 +327,29 @@ def cmd_run(args) -> int:
 
     device = resolve_device(args.device)
     params = _params(args)
+    if args.downsample is None:  # (a result given as --config was estimated as it recorded: on views so shrunk)
+        from lfsf.evaluate import recorded_downsample
+
+        args.downsample = recorded_downsample(args.config) if args.config else 1
     # before any work; made when the results are written
     output_folder(args.out, create=False, names=_result_names())
     refuse_replacing_inputs(args.out, _result_names(), [args.lf1, args.lf2, args.gt])
     lf1 = read_lightfield(args.lf1)
-    lf2 = read_lightfield(args.lf2)
+    # (one light field given twice, stereo: read once)
+    lf2 = lf1 if _same_file(args.lf1, args.lf2) else read_lightfield(args.lf2)
     check_pair(lf1, lf2)
+    k = args.downsample
+    if k > 1 and min(lf1.height, lf1.width) // k < MIN_VIEW_SIZE:
+        largest = min(lf1.height, lf1.width) // MIN_VIEW_SIZE
+        raise ValueError(f"--downsample {k}: the views of {args.lf1} are {lf1.width}×{lf1.height}, which that "
+                         f"leaves at {lf1.width // k}×{lf1.height // k}, under the {MIN_VIEW_SIZE}×{MIN_VIEW_SIZE} "
+                         f"px the estimate needs: " + (f"at most --downsample {largest}" if largest > 1 else
+                                                      "they are too small to shrink"))
     gt, border = _run_ground_truth(args, lf1, params)
     if args.downsample > 1:
         full = f"{lf1.width}×{lf1.height}"
-        lf1, lf2 = lf1.downsample(args.downsample), lf2.downsample(args.downsample)
+        lf1, lf2 = (lf1.downsample(args.downsample),) * 2 if lf2 is lf1 else (lf1.downsample(args.downsample),
+                                                                               lf2.downsample(args.downsample))
         _log(args, f"views downsampled {full} → {lf1.width}×{lf1.height} (means of {args.downsample}×"
                    f"{args.downsample} px): δ and the flow are in the smaller views' pixels"
                    + (", the ground truth shrunk alike" if gt is not None else ""))
@@ -336,7 +363,8 @@ def cmd_run(args) -> int:
     rows, cols = lf1.grid
     title = (f"lfsf run: {args.lf1.name} and {args.lf2.name} ({lf1.width}x{lf1.height}, {rows}x{cols} views, "
              f"{_preset_label(args)})" + (f" against {args.gt.name}" if gt is not None else ""))
-    paths = sf.save(args.out, lf1.centre, lf2.centre, gt=gt, title=title, border=border or 0)
+    paths = sf.save(args.out, lf1.centre, lf2.centre, gt=gt, title=title, border=border or 0,
+                    inputs={"downsample": args.downsample} if args.downsample > 1 else None)
     _log(args, f"estimated in {seconds:.1f} s on {device}; wrote {len(paths)} files to {args.out}"
                + (" (disp1 and disp2: zeros, not estimated by a flow-only run)" if params.flow_only else ""))
     if gt is not None:  # (after the results are written: an error here loses none of them)
@@ -351,6 +379,19 @@ def cmd_run(args) -> int:
         if params.flow_only and any(k in gt for k in ("disp1", "disp2")):
             print(_not_estimated_line(args.out, [k for k in ("disp1", "disp2") if k in gt]), flush=True)
     return 0
+
+
+#: The smallest views the estimator takes (px along the shorter side): what --downsample
+#: may leave.
+MIN_VIEW_SIZE = 8
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether two paths name one file or folder (False where either cannot be read)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
 
 
 def _run_ground_truth(args, lf1, params):
@@ -368,9 +409,7 @@ def _run_ground_truth(args, lf1, params):
         raise ValueError(f"{args.gt}: '{k}' is {s[1]}×{s[0]}, and the light field's views {args.lf1} are "
                          f"{lf1.width}×{lf1.height}")
     k = args.downsample
-    if k > 1:
-        if lf1.height // k < 1 or lf1.width // k < 1:   # (said of the light field, as its own downsample would)
-            lf1.downsample(k)
+    if k > 1:  # (a factor that leaves views too small is refused before: cmd_run)
         from lfsf.evaluate import downsample_truth
 
         # the truth of the smaller views, and the border that leaves out as much of the scene
@@ -623,10 +662,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gt", type=Path, metavar="GT",
                    help="ground truth (gt.npz of 'lfsf synth', or an HCI gt_disp_lowres.pfm): print the errors as "
                         "'lfsf eval' does and add the truth and the errors to overview.png")
-    p.add_argument("--downsample", type=_positive, default=1, metavar="K",
+    p.add_argument("--downsample", type=_positive, default=None, metavar="K",
                    help="estimate on views K times smaller, each pixel the mean of K×K (a quick look at large "
                         "views); the results, and δ and the flow in them, are in the smaller views' pixels, and "
-                        "--gt is shrunk alike, its border too (default 1: the views as they are)")
+                        "--gt is shrunk alike, its border too; the result records K, which lfsf eval and "
+                        "--config RESULT use (default 1: the views as they are; with --config RESULT, its K)")
     _estimator_options(p)
     p.set_defaults(func=cmd_run)
 
@@ -724,9 +764,10 @@ def main(argv=None) -> int:
             after = all(token in given[at + 1:] for token in extra)
             owner = commands.get(args.command, parser) if after else parser
             owner.error(f"unrecognized arguments: {' '.join(extra)}")
-    except KeyboardInterrupt:
-        print("lfsf: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    except KeyboardInterrupt as exc:  # (or SIGTERM, SIGHUP: entry's handlers raise Terminated)
+        from lfsf._errors import _stopped
+
+        return _stopped("lfsf", exc)
     if args.command is None:
         parser.print_help(sys.stderr)
         return EXIT_BAD_INPUT
@@ -830,6 +871,10 @@ def entry() -> None:  # pragma: no cover - the installed command; tests call mai
         # yet ended (the default had killed the process by the signal, without a word)
         raise KeyboardInterrupt if signum == signal.SIGINT else Terminated(signum)
 
+    from lfsf._errors import quiet_interrupts_in_finalisers
+
+    # (what the command leaves is freed after its own hooks are gone: a second Ctrl-C there)
+    sys.unraisablehook = quiet_interrupts_in_finalisers
     handled = [s for s in (signal.SIGINT, *ending_signals()) if signal.getsignal(s) not in (signal.SIG_IGN, None)]
     for s in handled:
         with contextlib.suppress(OSError, ValueError):

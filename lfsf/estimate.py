@@ -181,7 +181,9 @@ class SceneFlow:
 
             border = SYNTH_BORDER if gt is not None else 0
         viz.ground_truth_maps(gt, self.disp1.shape)  # (checked before a folder is made)
-        made = [p for p in (Path(out), *Path(out).parents) if not os.path.lexists(p)]  # (the folders to make)
+        from lfsf._files import folders_to_make
+
+        made = folders_to_make(out)  # (the folders to make)
         out = output_folder(out)
         names = list(RESULT_FILES)
         if centre1 is not None and centre2 is not None:
@@ -519,8 +521,9 @@ EXPOSURE_SEARCH_RADIUS = 2
 EXPOSURE_BLUR = 3.0
 #: … and t2's by as much more as the scene grew from t1 to t2 (:func:`_flow_scale`), where
 #: that is more than this fraction: a zoom of 5 % with no change of exposure had read as
-#: 0.96·I + 0.02 (its flow's error doubled; 0.0375 → 0.0236 px with the `flow` preset, a
-#: textured plane at 160×120), 10 % as 0.92·I + 0.04 (0.068 → 0.034).
+#: 0.96·I + 0.02 (its flow's error 1.6× as large: 0.0375 against 0.0236 px with the `flow`
+#: preset, a textured plane at 160×120), 10 % as 0.92·I + 0.04 (0.068 against 0.034). A
+#: scene that shrinks still reads as a gain of 1.5–2 % (from what, not found).
 EXPOSURE_SCALE_TOLERANCE = 0.02
 #: The disparity sweep runs at full resolution: depth edges are where its value matters.
 SWEEP_LEVEL = 0
@@ -1579,10 +1582,14 @@ def estimate_scene_flow(
     for lf, (lo, hi) in zip((lf1, lf2), ranges):
         if not (math.isfinite(lo) and math.isfinite(hi)):  # (written into its views after it was made)
             _refuse_non_finite(lf.views, lf.source)
-        if lo == hi:  # (the maps had come out as zeros, or anything, without a word)
-            raise ValueError(f"{lf.source}: every value of every view is {lo:g}: a blank light field (a black "
-                             "frame, a lens cap, a raw image of nothing), with nothing to match")
     _check_pair_brightest(lf1, lf2, [hi for _lo, hi in ranges])
+    for lf, (lo, hi) in zip((lf1, lf2), ranges):
+        # (the maps had come out as anything, without a word; the centre view first: one look for most)
+        if lo == hi or (not np.ptp(lf.views[lf.grid[0] // 2, lf.grid[1] // 2]).any()
+                        and not np.ptp(lf.views, axis=(2, 3)).any()):
+            what = f"every value of every view is {lo:g}" if lo == hi else "every view is of one value"
+            raise ValueError(f"{lf.source}: {what}: a blank light field (a black frame, a lens cap, a raw image of "
+                             "nothing, a flat field), with nothing to match")
     dev = _device.resolve_device(device)
     rows, cols = lf1.grid
     height, width = lf1.height, lf1.width
@@ -2088,7 +2095,8 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str,
     their longer side and EXPOSURE_MIN_SHORT along the shorter, t2 scaled by the ratio of
     the two views' mean gradients (within EXPOSURE_MAX_GAIN either way), gives the
     correspondences p ↔ p + u.
-    Over them, on the two views blurred by EXPOSURE_BLUR, L1 fits (iteratively
+    Over them, on the two views blurred by EXPOSURE_BLUR (t2's by as much more as the
+    scene grew, :func:`_flow_scale`), L1 fits (iteratively
     reweighted least squares) of I1 on I2(p + u) and of I2(p + u) on I1 give g as the
     geometric mean of their slopes, and b is the weighted median of I1 − g·I2(p + u).
     Each pixel is weighted by 1 / (1 + (|∇I1| / s)²), s the 75th percentile of |∇I1| (at

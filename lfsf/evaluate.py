@@ -110,6 +110,10 @@ def _check_pair(name, est, ref):
                 cut = f"{x} px on every side" if x == y else f"{x} px left and right, {y} top and bottom"
                 hint = (f", {cut} smaller (a reference made on cropped views?): crop the estimate's maps "
                         f"[{y}:-{y}, {x}:-{x}] to compare them")
+            k = ref.shape[0] // max(est.shape[0], 1)
+            if k >= 2 and ref.shape[0] // k == est.shape[0] and ref.shape[1] // k == est.shape[1]:
+                hint = (f", {k} times smaller (views shrunk by lfsf run --downsample {k}?): shrink the truth alike, "
+                        f"evaluate.downsample_truth(gt, {k})")
             raise ValueError(f"{name}: the estimate is {est.shape[1]}×{est.shape[0]} but the "
                              f"ground truth is {ref.shape[1]}×{ref.shape[0]}{hint}")
     else:
@@ -241,6 +245,12 @@ def downsample_truth(gt: Mapping, factor: int) -> dict[str, np.ndarray]:
     if not isinstance(gt, Mapping):
         raise ValueError(f"the ground truth must be a dict of maps (load_ground_truth), got {type(gt).__name__}")
     k = _check_factor(factor, "the ground truth")
+    shapes = {name: np.shape(gt[name]) for name in (*VARIABLES, "valid", "occluded") if gt.get(name) is not None}
+    if any(len(shape) != 2 for shape in shapes.values()) or len(set(shapes.values())) > 1:
+        raise ValueError(f"the ground truth's maps must be 2-D and of one size, got {shapes}")
+    shape = next(iter(shapes.values()), (0, 0))
+    if shape[0] // k < 1 or shape[1] // k < 1:
+        raise ValueError(f"the ground truth: a factor of {k} leaves nothing of its {shape[1]}×{shape[0]} maps")
     out: dict[str, np.ndarray] = {}
     for name in VARIABLES:
         if name in gt:
@@ -338,6 +348,27 @@ def recorded_settings(path: str | Path) -> dict | None:
     except (KeyError, TypeError, ValueError):
         return None
     return settings if isinstance(settings, dict) else None
+
+
+def recorded_downsample(path: str | Path) -> int:
+    """The factor ``lfsf run --downsample`` shrank a result's views by (a folder of
+    ``lfsf run`` or its ``sceneflow.npz``; 1 where none is recorded): its maps are that
+    many times smaller than the light fields, and a ground truth of the light fields'
+    size is shrunk alike to score them (:func:`downsample_truth`)."""
+    import json
+
+    from lfsf import io
+
+    path = Path(path)
+    path = path / "sceneflow.npz" if path.is_dir() else path
+    if path.suffix.lower() != ".npz" or not path.is_file():
+        return 1
+    try:
+        _, arrays = io._read_npz_arrays(path, ("params",))
+        factor = (json.loads(str(arrays["params"])).get("inputs") or {}).get("downsample", 1)
+    except (AttributeError, KeyError, TypeError, ValueError):
+        return 1
+    return factor if isinstance(factor, int) and not isinstance(factor, bool) and factor >= 1 else 1
 
 
 def flow_only(path: str | Path) -> bool:

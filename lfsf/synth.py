@@ -825,7 +825,8 @@ def write_scene(
     from lfsf.io import write_lightfield
 
     noise = _noise_sigma(noise)  # a bad sigma: an error before any rendering
-    output_folder(out, create=False)  # and an output that cannot be written
+    # and an output that cannot be written
+    output_folder(out, create=False, names=list(SCENE_FILES) + [PREVIEW_NAME] * bool(preview))
     lf1, lf2, gt = render_scene(scene, size=size, grid=grid, supersample=supersample, colour=colour, device=device,
                                 images=images)
     lf1, lf2 = add_noise(lf1, noise, seed=0), add_noise(lf2, noise, seed=1)
@@ -834,7 +835,7 @@ def write_scene(
     if preview:
         names["preview"] = PREVIEW_NAME
     name = get_scene(scene).name
-    with file_set(out, list(names.values()), stale=() if preview else (PREVIEW_NAME,)) as tmp:
+    with file_set(out, list(names.values()), stale=() if preview else earlier_preview(out)) as tmp:
         write_lightfield(lf1, tmp / names["lf1"])
         write_lightfield(lf2, tmp / names["lf2"])
         savez_atomic(tmp / names["gt"], compressed=True, scene=np.str_(name), **gt)
@@ -845,6 +846,14 @@ def write_scene(
                             path=tmp / PREVIEW_NAME, title=f"{name}: ground truth", label="ground truth",
                             occluded=gt["occluded"].astype(bool))
     return {key: out / name for key, name in names.items()}
+
+
+def earlier_preview(out) -> tuple[str, ...]:
+    """``(PREVIEW_NAME,)`` where ``out`` holds an earlier render's picture (a preview.png
+    beside a gt.npz), which a render without ``preview`` removes with the rest of the set
+    it replaces; () otherwise: a preview.png of the user's own stays."""
+    out = Path(out)
+    return (PREVIEW_NAME,) if (out / PREVIEW_NAME).is_file() and (out / SCENE_FILES[2]).is_file() else ()
 
 
 #: The files :func:`write_scene` writes: the light fields at t1 and t2, the ground truth.
@@ -875,6 +884,7 @@ def write_sequence(
     from lfsf.io import write_lightfield
 
     noise = _noise_sigma(noise)  # a bad sigma: an error before any rendering
+    frames = check_render(size, grid, supersample, frames, colour)["frames"]  # (and the rest: before the names)
     output_folder(out, create=False)  # and an output that cannot be written
     out = Path(out)
     frame_names = [f"frames/f{k:03d}.npz" for k in range(frames)]

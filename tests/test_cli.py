@@ -410,9 +410,24 @@ def test_run_downsamples_the_views_and_the_ground_truth_alike(tmp_path, capsys):
     truth, _ = load_ground_truth(s / "gt.npz")
     epe = evaluate(again, downsample_truth(truth, 2), border=4)["flow"]["epe"]
     assert f"{epe:.4f}" in out
-    status, _, err = lfsf("run", s / "lf1.npz", s / "lf2.npz", "--out", tmp_path / "r2", "--downsample", "50")
-    assert_clean_error(status, err, "a factor of 50 leaves nothing of 64×48 views")
-    assert not (tmp_path / "r2").exists()
+    # the result records K: lfsf eval shrinks the truth alike (it had failed on the sizes),
+    # and --config RESULT estimates as the result was
+    assert main(["eval", str(tmp_path / "r"), str(s / "gt.npz")]) == 0
+    out = capsys.readouterr().out
+    assert "(border 4 px; estimated on views shrunk 2 times, the ground truth shrunk alike)" in out
+    assert f"{epe:.4f}" in out
+    assert main(["run", str(s / "lf1.npz"), str(s / "lf2.npz"), "--out", str(tmp_path / "r3"), "--config",
+                 str(tmp_path / "r"), "--quiet"]) == 0
+    np.testing.assert_array_equal(SceneFlow.load(tmp_path / "r3").u, saved.u)
+    with pytest.raises(ValueError, match=r"the estimate is 32×24 but the ground truth is 64×48, 2 times smaller "
+                                         r"\(views shrunk by lfsf run --downsample 2\?\)"):
+        evaluate(saved, truth)
+    for k in ("7", "50"):  # (48 px: 8 at most 6 times smaller)
+        status, _, err = lfsf("run", s / "lf1.npz", s / "lf2.npz", "--out", tmp_path / "r2", "--downsample", k)
+        assert_clean_error(status, err, f"--downsample {k}: the views of {s / 'lf1.npz'} are 64×48, which that "
+                                        f"leaves at {64 // int(k)}×{48 // int(k)}, under the 8×8 px the estimate "
+                                        "needs: at most --downsample 6")
+        assert not (tmp_path / "r2").exists()
 
 
 def test_config_file_sets_parameters_and_bad_ones_are_clear_errors(tmp_path):
@@ -599,6 +614,30 @@ def test_synth_preview_is_part_of_its_set_of_files(tmp_path, monkeypatch, capsys
     assert not (tmp_path / "c").exists()
 
 
+def test_a_failed_set_keeps_folders_it_did_not_make_and_a_users_own_preview(tmp_path, monkeypatch):
+    """``new/../existing`` names ``existing``: listed by the path as typed, an empty
+    folder of the user's had been removed when the set failed. A preview.png with no
+    earlier render beside it is the user's: a render without --preview had removed it."""
+    from lfsf import synth
+    from lfsf._files import file_set
+
+    (tmp_path / "existing").mkdir()
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(KeyboardInterrupt):
+        with file_set(Path("new/../existing"), ["a.txt"]):
+            raise KeyboardInterrupt
+    assert (tmp_path / "existing").is_dir()
+    (tmp_path / "photos").mkdir()
+    (tmp_path / "photos" / "preview.png").write_bytes(b"mine")
+    synth.write_scene("slanted", tmp_path / "photos", size=(16, 16), grid=3, device="cpu")
+    assert (tmp_path / "photos" / "preview.png").read_bytes() == b"mine"
+    synth.write_scene("slanted", tmp_path / "photos", size=(16, 16), grid=3, device="cpu", preview=True)
+    synth.write_scene("slanted", tmp_path / "photos", size=(16, 16), grid=3, device="cpu")  # (an earlier render's)
+    assert not (tmp_path / "photos" / "preview.png").exists()
+    with pytest.raises(ValueError, match="frames .* must be a whole number, got 2.5"):
+        synth.write_sequence("slanted", tmp_path / "seq", 2.5, size=(16, 16), grid=3, device="cpu")
+
+
 def test_synth_refuses_an_earlier_sequences_frames_before_rendering(tmp_path, monkeypatch, capsys):
     from lfsf import synth
 
@@ -700,6 +739,16 @@ def test_ctrl_c_while_the_parser_is_built_is_an_interrupt(monkeypatch, capsys):
     assert cli.main(["demo"]) == 130
     err = capsys.readouterr().err
     assert err.strip() == "lfsf: interrupted", err
+
+    def terminated_build():  # (SIGTERM: the installed command's handler raises Terminated; it read "interrupted")
+        import signal
+
+        from lfsf._errors import Terminated
+        raise Terminated(signal.SIGTERM)
+
+    monkeypatch.setattr(cli, "build_parser", terminated_build)
+    assert cli.main(["demo"]) == 143
+    assert capsys.readouterr().err.strip() == "lfsf: terminated"
 
 
 def test_an_error_raised_while_interrupted_counts_as_the_interrupt(monkeypatch, capsys):

@@ -849,6 +849,11 @@ def test_a_blank_light_field_is_refused():
     for pair in ((lf1, black), (black, lf1)):
         with pytest.raises(ValueError, match=r"^black.npz: every value of every view is 0: a blank light field"):
             estimate_scene_flow(*pair, QUICK, device="cpu")
+    # views each of one value, not all the same (a flat field): as blank
+    flat = lfsf.LightField(np.broadcast_to(np.linspace(0.2, 0.8, 9, dtype=np.float32).reshape(3, 3, 1, 1),
+                                           lf1.views.shape).copy(), source="flat.npz")
+    with pytest.raises(ValueError, match=r"^flat.npz: every view is of one value: a blank light field"):
+        estimate_scene_flow(lf1, flat, QUICK, device="cpu")
 
 
 def test_a_stack_of_colour_views_is_told_how_to_make_a_grid():

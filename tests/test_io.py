@@ -255,15 +255,18 @@ def test_lightfield_rejects_non_finite_and_says_where():
 
 
 def test_check_pair():
-    lf = lio.LightField(np.zeros((3, 3, 4, 5, 3)), source="t1")
+    lf = lio.LightField(np.random.default_rng(0).random((3, 3, 4, 5, 3)), source="t1")
     lio.check_pair(lf, lio.LightField(np.ones((3, 3, 4, 5, 3)), source="t2"))
     # grey against RGB: the t1 colours would shape the estimate alone, the t2 ones be dropped
     with pytest.raises(ValueError, match=r"^t2: grey views, but those of t1 are RGB: give both light fields in "
-                                         r"colour, or both grey \(LightField.grey\(\)"):
+                                         r"colour, or both grey \(in Python LightField.grey\(\) makes the luma of "
+                                         r"an RGB one; lfsf decode --bayer none decodes a raw image grey\)$"):
         lio.check_pair(lf, lio.LightField(np.ones((3, 3, 4, 5)), source="t2"))
     with pytest.raises(ValueError, match=r"^t1: RGB views, but those of t2 are grey"):
         lio.check_pair(lio.LightField(np.ones((3, 3, 4, 5)), source="t2"), lf)
     lio.check_pair(lf.grey(), lio.LightField(np.ones((3, 3, 4, 5)), source="t2"))
+    # an RGB light field of three equal channels (grey saved as RGB) pairs with a grey one
+    lio.check_pair(lio.LightField(np.repeat(lf.grey().views[..., None], 3, -1)), lf.grey())
     for shape in [(3, 5, 4, 5), (3, 3, 4, 6), (3, 3, 5, 5)]:
         with pytest.raises(ValueError, match="^t2: expected .*t1") as info:
             lio.check_pair(lf, lio.LightField(np.zeros(shape), source="t2"))
@@ -1347,8 +1350,14 @@ def test_crop_and_downsample_take_the_same_region_and_block_means_of_every_view(
     assert small.views[1, 0, 3, 4, 1] == pytest.approx(expected, rel=1e-6)
     np.testing.assert_array_equal(lf.downsample(1).views, views)
     assert lf.downsample(4).shape[2:4] == (2, 2)
+    with pytest.raises(ValueError, match=r"^lf: the crop of 2×0 px is empty"):
+        lf.crop(top=0, left=0, height=0, width=2)
+    with pytest.raises(ValueError, match=r"^lf: the crop of 10×200 px at column 0, row 100 does not lie"):
+        lf.crop(np.uint8(100), 0, np.uint8(200), 10)   # (uint8: 100 + 200 had wrapped round to 44)
+    decoded = lio.LightField(views, meta={"lattice": 1, "plane_origin": (0, 0), "decode": {}, "lens_views": 5})
+    assert decoded.crop(0, 0, 4, 4).meta == decoded.downsample(2).meta == {"lens_views": 5}
     for bad in [dict(top=-1, left=0, height=2, width=2), dict(top=0, left=0, height=10, width=2),
-                dict(top=0, left=8, height=2, width=4), dict(top=0, left=0, height=0, width=2)]:
+                dict(top=0, left=8, height=2, width=4)]:
         with pytest.raises(ValueError, match=r"^lf: the crop of \d+×\d+ px at column -?\d+, row -?\d+ does not lie "
                                              r"within the 11×9 views"):
             lf.crop(**bad)
@@ -1381,6 +1390,12 @@ def test_a_downsampled_ground_truth_shrinks_its_disparities_and_flows_with_the_v
     np.testing.assert_array_equal(small["occluded"], [[False, False], [False, True]])
     with pytest.raises(ValueError, match="the factor must be a whole number"):
         evaluate.downsample_truth({"disp1": disp}, 0)
+    with pytest.raises(ValueError, match=r"^the ground truth: a factor of 5 leaves nothing of its 4×4 maps"):
+        evaluate.downsample_truth({"disp1": disp}, 5)
+    with pytest.raises(ValueError, match=r"maps must be 2-D and of one size"):
+        evaluate.downsample_truth({"disp1": disp, "u": disp[:2]}, 2)
+    np.testing.assert_allclose(lio.block_mean(np.arange(48.0).reshape(4, 4, 3), 2, axes=(-3, -2)),
+                               lio.block_mean(np.arange(48.0).reshape(4, 4, 3), 2))
 
 
 def test_a_single_image_is_told_apart_from_one_view_of_a_light_field(tmp_path):
