@@ -120,7 +120,10 @@ def cmd_synth(args) -> int:
     if args.frames < 2:
         raise ValueError(f"--frames must be at least 2 (2: one pair), got {args.frames}")
     scene = synth.get_scene(args.scene)  # unknown scene: clear error before any work
-    synth.check_render(args.size, args.grid, args.supersample, args.frames, args.colour, args.noise)
+    try:
+        synth.check_render(args.size, args.grid, args.supersample, args.frames, args.colour, args.noise)
+    except ValueError as exc:  # (the option named: "noise sigma" is the library's word)
+        raise ValueError(f"--noise: {exc}" if str(exc).startswith("noise sigma") else str(exc)) from None
     images = None
     if args.images is not None:  # photographs on the objects, each one's image and scale drawn by --image-seed
         if args.image_seed is not None and args.image_seed < 0:
@@ -418,6 +421,10 @@ def _run_ground_truth(args, lf1, params):
     # the settings estimate: a border that leaves no pixel, or nothing in common (a flow-only
     # run against δ1 alone), refused before the work rather than after it
     estimated = ("u", "v") if params.flow_only else ("disp1", "disp2", "u", "v")
+    if not any(name in gt for name in estimated):  # (said plainly: the general message spoke of disp2.pfm)
+        raise ValueError(f"{args.gt}: cannot score this run against it: it holds {', '.join(sorted(gt))} and a "
+                         f"{'flow-only run (one circle) estimates u and v' if params.flow_only else 'run estimates '}"
+                         f"{'' if params.flow_only else 'δ1, δ2, u and v'}; leave --gt out, or give a flow truth")
     try:
         evaluate({k: gt[k] for k in estimated if k in gt}, gt, border=border)
     except ValueError as exc:
@@ -630,8 +637,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="K > 2: a sequence moving at a constant rate, DIR/frames/f000.npz … and the ground truth "
                         "of each pair DIR/gt/f000.npz … (default 2: DIR/lf1.npz, DIR/lf2.npz, DIR/gt.npz)")
     p.add_argument("--noise", type=float, default=0.0, metavar="SIGMA",
-                   help="Gaussian sensor noise of this standard deviation (intensities in [0, 1]) on every "
-                        "view, independent per frame (default 0)")
+                   help="Gaussian sensor noise of this standard deviation (intensities in [0, 1]; 0 to 1) on "
+                        "every view, independent per frame (default 0)")
     p.add_argument("--images", type=Path, metavar="FOLDER",
                    help="photographs instead of the solid textures: every object shows one of FOLDER's images "
                         "(PNG, JPEG, TIFF), drawn with --image-seed; the geometry and ground truth stay the scene's")

@@ -266,8 +266,9 @@ def occlusion_scores(est, gt, valid=None, border: int = 0) -> dict[str, float]:
     ground truth's, over the ``valid`` pixels without ``border``: precision (the share of
     the points marked that are occluded), recall (the share of the occluded points
     marked), their harmonic mean F1, the pixels scored, and of them the points marked
-    (``marked_px``) and the points occluded (``occluded_px``). Where either side marks none, the share it divides by is 0
-    and so is the score (1 where both mark none)."""
+    (``marked_px``) and the points occluded (``occluded_px``). A share of nothing is None
+    (null in JSON): precision where none is marked, recall where none is occluded, F1
+    (2·hits / (marked + occluded)) where neither is; they had read 1.0 (or 0.0) there."""
     est = _bool_mask(est, "estimate's occluded").astype(bool)
     gt = _bool_mask(gt, "occluded").astype(bool)
     if est.shape != gt.shape:
@@ -276,12 +277,9 @@ def occlusion_scores(est, gt, valid=None, border: int = 0) -> dict[str, float]:
     e, g = est[mask], gt[mask]
     hits = int(np.count_nonzero(e & g))
     marked, occluded = int(np.count_nonzero(e)), int(np.count_nonzero(g))
-    if marked == 0 and occluded == 0:
-        precision = recall = f1 = 1.0
-    else:
-        precision = hits / marked if marked else 0.0
-        recall = hits / occluded if occluded else 0.0
-        f1 = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
+    precision = hits / marked if marked else None
+    recall = hits / occluded if occluded else None
+    f1 = 2 * hits / (marked + occluded) if marked + occluded else None
     return {"precision": precision, "recall": recall, "f1": f1, "pixels": int(mask.sum()), "marked_px": marked,
             "occluded_px": occluded}
 
@@ -444,9 +442,12 @@ def format_table(errors: dict[str, dict[str, float]]) -> str:
         lines.append("noc: the points seen at t2 as well (the ground truth's 'occluded' left out)")
     if "occluded" in errors:
         e = errors["occluded"]
-        if e["marked_px"] == e["occluded_px"] == 0:  # (the scores are 1 by convention: nothing to tell apart)
+        if e["marked_px"] == e["occluded_px"] == 0:  # (no score: nothing to tell apart)
             lines.append(f"occluded at t2: none marked and none occluded of {e['pixels']} px")
         else:
-            lines.append(f"occluded at t2: precision {e['precision']:.3f}, recall {e['recall']:.3f}, F1 "
-                         f"{e['f1']:.3f} ({e['marked_px']} px marked, {e['occluded_px']} occluded of {e['pixels']})")
+            def score(value):
+                return "n/a" if value is None else f"{value:.3f}"
+
+            lines.append(f"occluded at t2: precision {score(e['precision'])}, recall {score(e['recall'])}, F1 "
+                         f"{score(e['f1'])} ({e['marked_px']} px marked, {e['occluded_px']} occluded of {e['pixels']})")
     return "\n".join(lines)

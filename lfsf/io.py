@@ -99,6 +99,8 @@ _LAYOUTS_LOOKED_FOR = (
     "and views.npz"
 )
 _MAX_NAMES_LISTED = 8
+# Single images that are no raw lenslet image either (lossy, or 8-bit only): said so.
+_NOT_RAW_SUFFIXES = {".jpg", ".jpeg", ".bmp"}
 
 
 # --------------------------------------------------------------------------------------
@@ -512,6 +514,10 @@ def read_lightfield(path: str | os.PathLike) -> LightField:
         if _HCI_NAME.fullmatch(path.name) or _ROWCOL_NAME.fullmatch(path.name):
             raise ValueError(f"{path}: one view of a light field; give the folder of all its views, "
                              f"{path.parent}")
+        if suffix in _NOT_RAW_SUFFIXES:
+            raise ValueError(f"{path}: a single image, not a light field (a folder of its views: "
+                             f"{_LAYOUTS_LOOKED_FOR}), nor a raw lenslet image that lfsf decode reads (16-bit PNG or "
+                             "TIFF, Lytro .lfr/.lfp/.raw, a camera's raw format)")
         raise ValueError(f"{path}: a single image is a raw lenslet image, which must be "
                          f"decoded first: run `lfsf decode {path} --white WHITE --out DIR` "
                          f"and read DIR (one view of a light field? give the folder of all its views)")

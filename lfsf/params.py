@@ -354,11 +354,12 @@ class Params:
         names = [f.name for f in dataclasses.fields(self)]
         unknown = sorted(set(changes) - set(names))
         if unknown:
-            guesses = {k: difflib.get_close_matches(k, names, n=1) for k in unknown}
-            meant = [f"{guess[0]} for {k}" for k, guess in guesses.items() if guess]
+            guesses = {k: _nearest_names(k, names) for k in unknown}
+            meant = [f"{' or '.join(guess)} for {k}" for k, guess in guesses.items() if guess]
+            # (the 50-odd names only where some name has no near one: a line of 900 characters)
+            known = "" if all(guesses.values()) else f"; known: {', '.join(names)}"
             raise ValueError(f"unknown parameter(s) {', '.join(unknown)}"
-                             + (f" (did you mean {', '.join(meant)}?)" if meant else "")
-                             + f"; known: {', '.join(names)}")
+                             + (f" (did you mean {'; '.join(meant)}?)" if meant else "") + known)
         return dataclasses.replace(self, **changes)
 
     @classmethod
@@ -595,6 +596,14 @@ class Params:
         changed = ", ".join(f"{f.name}={getattr(self, f.name)!r}" for f in dataclasses.fields(self)
                             if getattr(self, f.name) != f.default)
         return f"Params({changed})"
+
+
+def _nearest_names(name: str, names) -> list[str]:
+    """The names nearest to ``name`` (difflib's measure, 0.6 at least), all those equally
+    near: ``lamda3`` → lambda3, ``lambda`` → lambda1, lambda2 and lambda3."""
+    scores = {n: difflib.SequenceMatcher(None, name, n).ratio() for n in difflib.get_close_matches(name, names, n=5)}
+    best = max(scores.values(), default=0.0)
+    return sorted(n for n, score in scores.items() if score >= best - 1e-9)
 
 
 # Upper bounds of the settings that size buffers or loops (:meth:`Params.validate`).

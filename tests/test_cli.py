@@ -317,9 +317,9 @@ def test_bad_input_is_one_clear_line_and_status_2(tmp_path, args, needles):
         (["synth", "paper", "--out", "{tmp}/x", "--size", "100000", "100000"], "image width must be in 8…8192"),
         (["synth", "paper", "--out", "{tmp}/x", "--supersample", "50"], "supersample must be in 1…16"),
         (["synth", "paper", "--out", "{tmp}/x", "--frames", "300"], "more than the 2,147,483,648"),
-        (["synth", "paper", "--out", "{tmp}/x", "--noise", "-1"], "noise sigma must be a number from 0 to 1"),
-        (["synth", "paper", "--out", "{tmp}/x", "--noise", "1000"], "noise sigma must be a number from 0 to 1 "
-                                                                    "(intensities in [0, 1]), got 1000"),
+        (["synth", "paper", "--out", "{tmp}/x", "--noise", "-1"], "--noise: noise sigma must be a number from 0 to 1"),
+        (["synth", "paper", "--out", "{tmp}/x", "--noise", "1000"], "--noise: noise sigma must be a number from 0 to "
+                                                                    "1 (intensities in [0, 1]), got 1000"),
         (["demo", "--out", "{tmp}/x", "--size", "320", "9000"], "image height must be in 8…8192"),
         (["demo", "--out", "{tmp}/x", "--size", "16", "12"], "give at least 17 px each way"),
         (["bench", "kernels", "--size", "10000", "10"], "image width must be in 8…8192"),
@@ -422,6 +422,11 @@ def test_run_downsamples_the_views_and_the_ground_truth_alike(tmp_path, capsys):
     with pytest.raises(ValueError, match=r"the estimate is 32×24 but the ground truth is 64×48, 2 times smaller "
                                          r"\(views shrunk by lfsf run --downsample 2\?\)"):
         evaluate(saved, truth)
+    io.write_pfm(tmp_path / "d1.pfm", truth["disp1"])  # (δ1 alone, as an HCI truth: nothing a flow run scores)
+    status, _, err = lfsf("run", s / "lf1.npz", s / "lf2.npz", "--out", tmp_path / "r4", "--preset", "flow",
+                          "--gt", tmp_path / "d1.pfm")
+    assert_clean_error(status, err, "d1.pfm: cannot score this run against it: it holds disp1 and a flow-only run "
+                                    "(one circle) estimates u and v; leave --gt out, or give a flow truth")
     for k in ("7", "50"):  # (48 px: 8 at most 6 times smaller)
         status, _, err = lfsf("run", s / "lf1.npz", s / "lf2.npz", "--out", tmp_path / "r2", "--downsample", k)
         assert_clean_error(status, err, f"--downsample {k}: the views of {s / 'lf1.npz'} are 64×48, which that "

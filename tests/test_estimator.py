@@ -859,7 +859,7 @@ def test_a_blank_light_field_is_refused():
 def test_a_stack_of_colour_views_is_told_how_to_make_a_grid():
     """An (N, H, W, 3) stack reads as a grid of N × H grey views 3 px wide: the too-small
     message says how to make it a grid."""
-    stack = lfsf.LightField(np.zeros((9, 16, 20, 3), np.float32))
+    stack = lfsf.LightField(np.random.default_rng(0).random((9, 16, 20, 3)).astype(np.float32))
     with pytest.raises(ValueError, match=r"^light field 1: views of 3×20 pixels are too small \(at least 8×8\): a "
                                          r"stack of 9 views\? give them as a 3×3 grid, row by row: "
                                          r"views.reshape\(3, 3, 16, 20, 3\)$"):

@@ -1405,6 +1405,12 @@ def test_a_single_image_is_told_apart_from_one_view_of_a_light_field(tmp_path):
         with pytest.raises(ValueError, match=rf"^{re.escape(str(tmp_path / name))}: one view of a light field; give "
                                              rf"the folder of all its views, {re.escape(str(tmp_path))}$"):
             lio.read_lightfield(tmp_path / name)
+    import imageio.v3 as iio
+
+    iio.imwrite(tmp_path / "photo.jpg", np.zeros((8, 8, 3), np.uint8))
+    with pytest.raises(ValueError, match=r"photo.jpg: a single image, not a light field \(a folder of its views: the "
+                                         r"HCI layout .*\), nor a raw lenslet image that lfsf decode reads"):
+        lio.read_lightfield(tmp_path / "photo.jpg")
     lio.write_png(tmp_path / "raw.png", image)
     with pytest.raises(ValueError, match=r"raw.png: a single image is a raw lenslet image, which must be decoded "
                                          r"first: run `lfsf decode .*raw.png --white WHITE --out DIR` and read DIR "
