@@ -421,10 +421,9 @@ def _run_ground_truth(args, lf1, params):
     # the settings estimate: a border that leaves no pixel, or nothing in common (a flow-only
     # run against δ1 alone), refused before the work rather than after it
     estimated = ("u", "v") if params.flow_only else ("disp1", "disp2", "u", "v")
-    if not any(name in gt for name in estimated):  # (said plainly: the general message spoke of disp2.pfm)
-        raise ValueError(f"{args.gt}: cannot score this run against it: it holds {', '.join(sorted(gt))} and a "
-                         f"{'flow-only run (one circle) estimates u and v' if params.flow_only else 'run estimates '}"
-                         f"{'' if params.flow_only else 'δ1, δ2, u and v'}; leave --gt out, or give a flow truth")
+    if params.flow_only and not any(name in gt for name in estimated):  # (the general message spoke of disp2.pfm)
+        raise ValueError(f"{args.gt}: cannot score this run against it: it holds {', '.join(sorted(gt))}, and a "
+                         "flow-only run (one circle) estimates u and v; leave --gt out, or give a flow truth")
     try:
         evaluate({k: gt[k] for k in estimated if k in gt}, gt, border=border)
     except ValueError as exc:
