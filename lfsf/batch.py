@@ -546,14 +546,20 @@ def run_batch(
     check_outputs(pairs, out)
     check_warm_start(pairs, warm_start)
     check_dask(workers, scheduler)
+    summaries: list[Summary] = []
+
+    def finish(outcomes) -> None:
+        summaries.append(Summary(outcomes, time.perf_counter() - t0))
+        _write_failed(out, pairs, summaries[-1])
+
     if scheduler is None and workers == 1 and not have_dask():
         out.mkdir(parents=True, exist_ok=True)
-        outcomes = _run_here(pairs, out, params, device, warm_start, report)
+        finish(_run_here(pairs, out, params, device, warm_start, report))
     else:
-        outcomes = _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retries, report)
-    summary = Summary(outcomes, time.perf_counter() - t0)
-    _write_failed(out, pairs, summary)
-    return summary
+        # (failed.csv written before the cluster closes: an interrupt while it closes, some
+        # seconds, had lost it)
+        _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retries, report, finish)
+    return summaries[-1]
 
 
 def _run_here(pairs, out, params, device, warm_start, report) -> list[Outcome]:
@@ -579,9 +585,9 @@ def check_scheduler_address(address: str) -> None:
                          "tcp://HOST:PORT with a port in 1…65535")
 
 
-def _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retries, report) -> list[Outcome]:
+def _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retries, report, finish) -> None:
     try:
-        return _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, retries, report)
+        _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, retries, report, finish)
     finally:
         if not scheduler and out.is_dir():
             # the local cluster is closed by now: what its workers were writing when an
@@ -592,7 +598,9 @@ def _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retrie
                 _remove_stale(out, pair.name, dead_only=True)
 
 
-def _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, retries, report) -> list[Outcome]:
+def _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, retries, report, finish) -> None:
+    """The pairs on a Dask cluster (a local one, or ``scheduler``'s); ``finish`` gets the
+    outcomes once all are in, before the cluster closes."""
     import asyncio
     import logging
 
@@ -667,7 +675,7 @@ def _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, 
             report(outcome, finished, len(pairs))
             for successor in after.pop(pairs[index].name, []):
                 queue.add(submit(successor))
-    return outcomes
+        finish(outcomes)
 
 
 def _dask_reason(exc: BaseException) -> str:

@@ -314,7 +314,9 @@ def test_warm_start_uses_the_previous_pair_and_stays_accurate(frames, tmp_path, 
 # --- a local cluster of 2 processes -------------------------------------------------------------
 
 @needs_dask
-def test_cluster_broken_pair_then_rerun_skips_complete_results(frames, tmp_path):
+def test_cluster_broken_pair_then_rerun_skips_complete_results(frames, tmp_path, monkeypatch):
+    import distributed
+
     folder, _ = frames
     pairs = batch.pairs_from_sources([folder])
     broken = tmp_path / "broken"
@@ -322,8 +324,14 @@ def test_cluster_broken_pair_then_rerun_skips_complete_results(frames, tmp_path)
     pairs.append(batch.Pair("broken", folder / "f000.npz", broken))
     out = tmp_path / "out"
     seen = []
+    # failed.csv is written before the cluster closes (an interrupt while it closed had lost it)
+    closing, close = [], distributed.Client.close
+    monkeypatch.setattr(distributed.Client, "close",
+                        lambda self, *a, **k: (closing.append((out / "failed.csv").exists()), close(self, *a, **k))[1])
     summary = batch.run_batch(pairs, out, PARAMS, workers=2, device="cpu",
                               progress=lambda o, finished, total: seen.append((finished, total)))
+    assert closing and closing[0], closing
+    monkeypatch.undo()
     assert sorted(seen) == [(k, 4) for k in range(1, 5)]
     assert {o.name: o.status for o in summary.outcomes} == {"f000": "done", "f001": "done", "f002": "done",
                                                             "broken": "failed"}
