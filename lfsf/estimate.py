@@ -475,18 +475,26 @@ EXPOSURE_WARPS = 3
 #: The exposure pilot (flow only) runs on centre views box-averaged by the largest whole
 #: factor that leaves at least this many pixels along their longer side (160–319) …
 EXPOSURE_SIZE = 160
-#: … and not at all on views whose longer side is shorter than this: at 64×48 the fit
-#: read changes of up to 1.5 % on pairs of one exposure, at 96×72 up to 0.5 %.
+#: … and on views whose longer side is shorter than this only where their mean
+#: brightness differs (SMALL_VIEWS_BRIGHTNESS, SMALL_VIEWS_CHANGE): at 64×48 the fit read
+#: changes of up to 1.5 % on pairs of one exposure, at 96×72 up to 0.5 %.
 EXPOSURE_MIN_SIZE = 120
 #: … nor on views whose shorter side is shorter than this, and the box-averaging leaves at
 #: least this many pixels along the shorter side: on pairs of one exposure the fit read
 #: changes of 0.47–1.57 % on 3 of 4 scenes at 320×40 (averaged to 160×20), 0.76 % and
 #: 0.72 % on `large_motion` at 200×40 and 120×40; at most 0.39 % with 60 or more rows.
 EXPOSURE_MIN_SHORT = 48
-#: … where such views' centre views differ in mean brightness by more than this share,
-#: the progress says that no match was made (moving scenes of one exposure: 0–2.7 % on
-#: the built-in scenes and `random-0…11` at 96×72).
+#: Views shorter than EXPOSURE_MIN_SIZE are fitted only where their centre views differ
+#: in mean brightness by more than this share (moving scenes of one exposure: 0–2.7 % on
+#: the built-in scenes and `random-0…11` at 96×72, 6.0 % on `large_motion` at 64×48);
+#: views too short to fit say so where it differs.
 SMALL_VIEWS_BRIGHTNESS = 0.05
+#: … and there the fit runs, but its change is acted on only beyond this share of the
+#: range (not EXPOSURE_CHANGE): on the built-in scenes and `random-0…11` of one exposure
+#: it read at most 1.3 % at 64×48 and 0.65 % at 96×72, and for t2 at 0.9 or 1.1 of t1's
+#: exposure at least 6.5 % (a helper's two layers at 119×71, ×1.1: flow EPE 0.571 unmatched,
+#: against 0.0138 at 120×71, where the fit ran).
+SMALL_VIEWS_CHANGE = 0.03
 #: The fit is refused where its two one-way slopes disagree, their product (r² for least
 #: squares) below this: on 16 pairs of one exposure at 160×120 it was 0.974 or more
 #: (median 0.998; with and without noise of σ = 0.02), and far below on mostly flat,
@@ -1665,27 +1673,33 @@ def estimate_scene_flow(
         return (grey - np.float32(offset)) * np.float32(stretch)
 
     exposure = None
-    if params.match_exposure and max(height, width) >= EXPOSURE_MIN_SIZE and min(height, width) >= EXPOSURE_MIN_SHORT:
+    large = max(height, width) >= EXPOSURE_MIN_SIZE
+    brighter = 0.0  # (small or short views: how far t2's mean brightness lies from t1's, as a share)
+    if params.match_exposure and not (large and min(height, width) >= EXPOSURE_MIN_SHORT):
+        means = [float(np.mean(centre_view(lf.views))) for lf in (lf1, lf2)]
+        brighter = means[1] / means[0] - 1 if means[0] > 0 else 0.0
+    if params.match_exposure and min(height, width) >= EXPOSURE_MIN_SHORT and (
+            large or abs(brighter) > SMALL_VIEWS_BRIGHTNESS):
         # the grey centre views alone (luma is linear: the luma of the centre is the centre of the luma)
         grey_centres = [stretched(luma(centre_view(lf.views)) if lf.is_colour else centre_view(lf.views))
                         for lf in (lf1, lf2)]
         if not np.array_equal(*grey_centres):
             gain, shift, change = _exposure_change(*grey_centres, dev, note=note)
-            if change > EXPOSURE_CHANGE:
+            if change > (EXPOSURE_CHANGE if large else SMALL_VIEWS_CHANGE):
                 exposure = (gain, shift)
                 note(f"exposure: t2 matched to t1 by I ↦ {gain:.4f}·I {shift:+.4f} (it moved the intensities "
                      f"by up to {100 * change:.1f} % of their range)")
+            elif not large:
+                note(f"exposure: not matched, though t2's mean brightness differs from t1's by {100 * brighter:+.1f} "
+                     f"%: on views of {width}×{height} the fit found a change of {100 * change:.1f} % of the range, "
+                     f"and views under {EXPOSURE_MIN_SIZE} px need {100 * SMALL_VIEWS_CHANGE:g} %")
         lap("exposure")
-    elif params.match_exposure:
-        # small views: said where the centre views' mean brightness differs, since a change
-        # of exposure then goes unmatched, and it costs the flow dearly (×1.1 at 96×72 took
-        # the flow's EPE from 0.05 to 0.76)
-        means = [float(np.mean(centre_view(lf.views))) for lf in (lf1, lf2)]
-        if means[0] > 0 and abs(means[1] / means[0] - 1) > SMALL_VIEWS_BRIGHTNESS:
-            note(f"exposure: not matched, though t2's mean brightness differs from t1's by "
-                 f"{100 * (means[1] / means[0] - 1):+.1f} % (views of {width}×{height}; measuring a change of "
-                 f"exposure needs {EXPOSURE_MIN_SIZE} px along the longer side and {EXPOSURE_MIN_SHORT} along the "
-                 "shorter)")
+    elif params.match_exposure and abs(brighter) > SMALL_VIEWS_BRIGHTNESS:
+        # views too short to fit: said, since a change of exposure then goes unmatched, and it
+        # costs the flow dearly (×1.1 at 96×72 took the flow's EPE from 0.05 to 0.76)
+        note(f"exposure: not matched, though t2's mean brightness differs from t1's by "
+             f"{100 * brighter:+.1f} % (views of {width}×{height}; measuring a change of "
+             f"exposure needs {EXPOSURE_MIN_SHORT} px along the shorter side)")
     gains = views1 = None
     if params.view_gain_sigma > 0 and n_samples > 1 and min(height, width) >= MIN_VIEW_SIZE:
         # the views' brightness matched to the centre's, the same fields at both times: fitted
