@@ -866,6 +866,9 @@ def decode(raw, white, *, views: int | None = None, bayer: str | None = None, fl
     if (raw.data.ndim == 3) != (white.data.ndim == 3):
         raise ValueError(f"{raw.source}: one of raw and white ({white.source}) is RGB and the other a "
                          f"single plane; give both as mosaics or both as RGB")
+    if ends["raw"][0] == ends["raw"][1] and not np.ptp(np.asarray(raw.data)):  # (it decoded to a blank light field)
+        raise ValueError(f"{raw.source}: every pixel of the raw image is {ends['raw'][0]:g}: a blank image (the lens "
+                         "cap on, or nothing read), with nothing to decode")
     bayer = _bayer_option(bayer, raw.source)
     pattern = None if bayer == GREY else bayer or raw.bayer or white.bayer
     if pattern is not None:

@@ -667,6 +667,9 @@ def test_images_outside_the_unit_range_are_refused():
     for bad, needle in ((white * 65535, "values run from"), (white - 1.0, "values run from")):
         with pytest.raises(ValueError, match=f"white: the white image's {needle}"):
             decode(raw, bad, views=9, device="cpu")
+    # a blank raw (the lens cap on): it had decoded with status 0 into a black light field
+    with pytest.raises(ValueError, match=r"^raw: every pixel of the raw image is 0: a blank image"):
+        decode(np.zeros_like(raw), white, views=9, device="cpu")
 
 
 
