@@ -367,6 +367,25 @@ def folders_to_make(path) -> list[Path]:
     return [p for p in (path, *path.parents) if not os.path.lexists(p)]
 
 
+def remove_made_folders(made: list[Path]) -> None:
+    """Remove the folders :func:`folders_to_make` listed (innermost first) where a failure
+    left them empty; the first that is not (or cannot go) stops it, as every folder above
+    holds it."""
+    for folder in made:
+        try:
+            folder.rmdir()
+        except OSError:
+            break
+
+
+def stale_picture(out, picture: str, marker: str) -> tuple[str, ...]:
+    """``(picture,)`` where ``out`` holds an earlier set's picture, known by the set's
+    ``marker`` file beside it, which a new set without a picture of its own removes with
+    the rest it replaces; () otherwise: a picture of that name of the user's own stays."""
+    out = Path(out)
+    return (picture,) if (out / picture).is_file() and (out / marker).is_file() else ()
+
+
 @contextlib.contextmanager
 def file_set(out: Path, names, stale=()):
     """A temporary folder inside ``out`` to write the files ``names`` (paths relative to
@@ -410,6 +429,4 @@ def file_set(out: Path, names, stale=()):
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
         if not done:  # (an interrupted or failed set had left the folders made for it, empty)
-            for folder in made:
-                with contextlib.suppress(OSError):
-                    folder.rmdir()
+            remove_made_folders(made)

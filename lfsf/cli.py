@@ -184,8 +184,8 @@ def cmd_eval(args) -> int:
     import numpy as np
 
     from lfsf._files import write_json_atomic
-    from lfsf.evaluate import (VARIABLES, downsample_truth, evaluate, format_table, load_estimate, load_ground_truth,
-                               recorded_downsample)
+    from lfsf.evaluate import (VARIABLES, downsample_border, downsample_truth, evaluate, format_table, load_estimate,
+                               load_ground_truth, recorded_downsample)
 
     if args.json:
         output_file(args.json)
@@ -200,7 +200,7 @@ def cmd_eval(args) -> int:
         np.shape(a)[:2] != shape and (np.shape(a)[0] // k, np.shape(a)[1] // k) == shape
         for name, a in gt.items() if name in VARIABLES)
     if shrunk:
-        gt, default_border = downsample_truth(gt, k), -(-default_border // k)
+        gt, default_border = downsample_truth(gt, k), downsample_border(default_border, k)
     border = default_border if args.border is None else args.border
     try:
         errors = evaluate(estimate, gt, border=border)
@@ -413,10 +413,9 @@ def _run_ground_truth(args, lf1, params):
                          f"{lf1.width}×{lf1.height}")
     k = args.downsample
     if k > 1:  # (a factor that leaves views too small is refused before: cmd_run)
-        from lfsf.evaluate import downsample_truth
+        from lfsf.evaluate import downsample_border, downsample_truth
 
-        # the truth of the smaller views, and the border that leaves out as much of the scene
-        gt, border = downsample_truth(gt, k), -(-border // k)
+        gt, border = downsample_truth(gt, k), downsample_border(border, k)  # (the truth of the smaller views)
     # the evaluation that will follow, tried now on the truth itself as the estimate of what
     # the settings estimate: a border that leaves no pixel, or nothing in common (a flow-only
     # run against δ1 alone), refused before the work rather than after it

@@ -181,7 +181,7 @@ class SceneFlow:
 
             border = SYNTH_BORDER if gt is not None else 0
         viz.ground_truth_maps(gt, self.disp1.shape)  # (checked before a folder is made)
-        from lfsf._files import folders_to_make
+        from lfsf._files import folders_to_make, remove_made_folders
 
         made = folders_to_make(out)  # (the folders to make)
         out = output_folder(out)
@@ -191,11 +191,7 @@ class SceneFlow:
         try:
             return self._save_files(out, names, centre1, centre2, gt, title, border, inputs)
         except BaseException:
-            for folder in made:  # (the folders made for this result, left empty by its failure)
-                try:
-                    folder.rmdir()
-                except OSError:
-                    break
+            remove_made_folders(made)  # (the folders made for this result, left empty by its failure)
             raise
 
     def _save_files(self, out: Path, names: list[str], centre1, centre2, gt, title, border, inputs) -> list[Path]:
@@ -203,12 +199,12 @@ class SceneFlow:
         import json
 
         from lfsf import io, viz
-        from lfsf._files import file_set
+        from lfsf._files import file_set, stale_picture
 
         # an earlier result's overview goes with the rest of it (it had stayed, showing that
         # result beside this one's files)
         # (only where an earlier result is: an overview.png of the user's own stays)
-        stale = [] if "overview.png" in names or not (out / "sceneflow.npz").is_file() else ["overview.png"]
+        stale = () if "overview.png" in names else stale_picture(out, "overview.png", "sceneflow.npz")
         with file_set(out, names, stale) as tmp:
             for name in ("disp1", "disp2"):
                 io.write_pfm(tmp / f"{name}.pfm", getattr(self, name))

@@ -261,6 +261,13 @@ def downsample_truth(gt: Mapping, factor: int) -> dict[str, np.ndarray]:
     return out
 
 
+def downsample_border(border: int, factor: int) -> int:
+    """The border of views shrunk ``factor`` times (:func:`downsample_truth`) that leaves
+    out at least as much of the scene as ``border`` px at full size: the HCI benchmark's
+    15 are 8 at half size."""
+    return -(-int(border) // int(factor))
+
+
 def occlusion_scores(est, gt, valid=None, border: int = 0) -> dict[str, float]:
     """How an estimate's mask of the points not seen at t2 (``occluded``, bool) meets the
     ground truth's, over the ``valid`` pixels without ``border``: precision (the share of
@@ -327,11 +334,10 @@ def load_estimate(path: str | Path) -> dict[str, np.ndarray]:
     raise ValueError(f"{path}: not a result (expected a folder, .npz, .pfm or .flo)")
 
 
-def recorded_settings(path: str | Path) -> dict | None:
-    """The settings a result (a folder of ``lfsf run`` or its ``sceneflow.npz``) records
-    it was estimated with (:meth:`lfsf.estimate.SceneFlow.save`), as a dict of
-    :class:`lfsf.params.Params` fields; None where there is no ``sceneflow.npz`` or it
-    records none that reads."""
+def _recorded(path: str | Path) -> dict:
+    """What a result (a folder of ``lfsf run`` or its ``sceneflow.npz``) records of how it
+    was made (:meth:`lfsf.estimate.SceneFlow.save`: the settings, the inputs, …), {}
+    where there is no ``sceneflow.npz`` or it records nothing that reads."""
     import json
 
     from lfsf import io
@@ -339,12 +345,21 @@ def recorded_settings(path: str | Path) -> dict | None:
     path = Path(path)
     path = path / "sceneflow.npz" if path.is_dir() else path
     if path.suffix.lower() != ".npz" or not path.is_file():
-        return None
+        return {}
     try:
         _, arrays = io._read_npz_arrays(path, ("params",))
-        settings = json.loads(str(arrays["params"]))["params"]
+        record = json.loads(str(arrays["params"]))
     except (KeyError, TypeError, ValueError):
-        return None
+        return {}
+    return record if isinstance(record, dict) else {}
+
+
+def recorded_settings(path: str | Path) -> dict | None:
+    """The settings a result (a folder of ``lfsf run`` or its ``sceneflow.npz``) records
+    it was estimated with (:meth:`lfsf.estimate.SceneFlow.save`), as a dict of
+    :class:`lfsf.params.Params` fields; None where there is no ``sceneflow.npz`` or it
+    records none that reads."""
+    settings = _recorded(path).get("params")
     return settings if isinstance(settings, dict) else None
 
 
@@ -353,19 +368,8 @@ def recorded_downsample(path: str | Path) -> int:
     ``lfsf run`` or its ``sceneflow.npz``; 1 where none is recorded): its maps are that
     many times smaller than the light fields, and a ground truth of the light fields'
     size is shrunk alike to score them (:func:`downsample_truth`)."""
-    import json
-
-    from lfsf import io
-
-    path = Path(path)
-    path = path / "sceneflow.npz" if path.is_dir() else path
-    if path.suffix.lower() != ".npz" or not path.is_file():
-        return 1
-    try:
-        _, arrays = io._read_npz_arrays(path, ("params",))
-        factor = (json.loads(str(arrays["params"])).get("inputs") or {}).get("downsample", 1)
-    except (AttributeError, KeyError, TypeError, ValueError):
-        return 1
+    inputs = _recorded(path).get("inputs")
+    factor = inputs.get("downsample", 1) if isinstance(inputs, dict) else 1
     return factor if isinstance(factor, int) and not isinstance(factor, bool) and factor >= 1 else 1
 
 

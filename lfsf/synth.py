@@ -852,8 +852,9 @@ def earlier_preview(out) -> tuple[str, ...]:
     """``(PREVIEW_NAME,)`` where ``out`` holds an earlier render's picture (a preview.png
     beside a gt.npz), which a render without ``preview`` removes with the rest of the set
     it replaces; () otherwise: a preview.png of the user's own stays."""
-    out = Path(out)
-    return (PREVIEW_NAME,) if (out / PREVIEW_NAME).is_file() and (out / SCENE_FILES[2]).is_file() else ()
+    from lfsf._files import stale_picture
+
+    return stale_picture(out, PREVIEW_NAME, SCENE_FILES[2])
 
 
 #: The files :func:`write_scene` writes: the light fields at t1 and t2, the ground truth.
