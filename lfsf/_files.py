@@ -386,6 +386,74 @@ def stale_picture(out, picture: str, marker: str) -> tuple[str, ...]:
     return (picture,) if (out / picture).is_file() and (out / marker).is_file() else ()
 
 
+def _keep_copy(path: Path, copy: Path) -> None:
+    """``copy`` made to hold what the file ``path`` (or the file a link there names) holds
+    now: a hard link where the file system allows one (nothing is copied), else a copy."""
+    import shutil
+
+    try:
+        os.link(os.path.realpath(path), copy)
+    except OSError:  # (no hard links there: FAT, some network file systems; or a file we may not link)
+        shutil.copy2(path, copy)
+
+
+def _put_in_place(out: Path, tmp: Path, names: list, stale: list) -> None:
+    """Move the files ``names`` from ``tmp`` into ``out`` and remove the files ``stale``
+    (an earlier set's) from it, all or nothing. Every file to be replaced is first kept
+    (:func:`_keep_copy`, in ``tmp``) and every file removed is moved there, so that where a
+    move fails (a file that cannot be replaced: immutable, another user's, open
+    elsewhere) every earlier file is put back before the error, which names the file in
+    ``out``. A symbolic link in the place of a file stays; the file it names is
+    replaced."""
+    import shutil
+
+    kept = tmp / ".earlier"
+    kept.mkdir()
+    earlier: dict = {}  # name → its kept copy
+    placed: list = []
+    removed: list = []  # (name, where it went)
+    name = None
+    try:
+        for k, name in enumerate(names):
+            if (out / name).is_file():  # (through a link too)
+                _keep_copy(out / name, kept / str(k))
+                earlier[name] = kept / str(k)
+        for name in names:
+            (out / name).parent.mkdir(parents=True, exist_ok=True)
+            if (out / name).is_symlink():  # the link stays; the file it names is replaced
+                with atomic_path(out / name) as through:
+                    shutil.copyfile(tmp / name, through)
+            else:
+                os.replace(tmp / name, out / name)
+            placed.append(name)  # (each move is whole or not at all)
+        for k, name in enumerate(stale):
+            os.replace(out / name, kept / f"stale-{k}")  # (removed with the temporary folder)
+            removed.append((name, kept / f"stale-{k}"))
+    except OSError as exc:
+        back = True  # every earlier file put back
+        for done, at in reversed(removed):
+            try:
+                os.replace(at, out / done)
+            except OSError:
+                back = False
+        for done in reversed(placed):
+            try:
+                if (out / done).is_symlink() and done in earlier:
+                    with atomic_path(out / done) as through:
+                        shutil.copyfile(earlier[done], through)
+                elif (out / done).is_symlink():  # (it named no file before)
+                    os.unlink(os.path.realpath(out / done))
+                elif done in earlier:
+                    os.replace(earlier[done], out / done)
+                elif os.path.lexists(out / done):
+                    os.unlink(out / done)
+            except OSError:
+                back = False
+        what = ("nothing was replaced: the earlier files are as they were" if back
+                else "some of the earlier files could not be put back")
+        raise OSError(exc.errno, f"{exc.strerror or exc} ({what})", os.fspath(out / name)) from exc
+
+
 @contextlib.contextmanager
 def file_set(out: Path, names, stale=()):
     """A temporary folder inside ``out`` to write the files ``names`` (paths relative to
@@ -414,16 +482,7 @@ def file_set(out: Path, names, stale=()):
         except OSError as exc:
             raise _named(exc, out, tmp) from exc
         with interrupts_held():
-            for name in names:
-                (out / name).parent.mkdir(parents=True, exist_ok=True)
-                if (out / name).is_symlink():  # the link stays; the file it names is replaced
-                    with atomic_path(out / name) as through:
-                        shutil.copyfile(tmp / name, through)
-                else:
-                    os.replace(tmp / name, out / name)
-            for name in stale:
-                if (out / name).is_file() or (out / name).is_symlink():
-                    (out / name).unlink()
+            _put_in_place(out, tmp, list(names), [n for n in stale if (out / n).is_file() or (out / n).is_symlink()])
         done = True
     finally:
         if tmp is not None:

@@ -724,8 +724,9 @@ class ProgressBar:
         self.failed += outcome.status == "failed"
         elapsed = time.perf_counter() - self.t0
         left = elapsed / finished * (total - finished)
-        if outcome.status == "failed":
-            self._line(f"pair {outcome.name} failed: {outcome.reason}")
+        if outcome.status == "failed":  # (counted in a log, as every other pair's line)
+            count = f"[{finished}/{total}] " if not self.live and not self.quiet else ""
+            self._line(f"{count}pair {outcome.name} failed: {outcome.reason}")
         elif not self.live and not self.quiet:
             self._line(f"[{finished}/{total}] {outcome.name}: {outcome.status}"
                        + (f" in {outcome.seconds:.1f} s" if outcome.status == "done" else "")

@@ -384,7 +384,7 @@ def bench_kernels(size=(640, 480), device: str | None = None, repeats: int = 20,
     if inputs == "scene":
         say(f"rendering the paper scene at {size[0]}×{size[1]} for the kernels' inputs")
     for name, run, nbytes in kernel_cases(size, dev, inputs):
-        say(f"{name}: {repeats} launches, each followed by the copies")
+        say(f"{name}: {repeats} launch{'es' if repeats != 1 else ''}, each followed by the copies")
         copies = _copies(nbytes // 2, dev)  # a copy of nbytes/2 reads and writes nbytes in all
         steps = {name: run, **copies}
         for fn in steps.values():  # warm-up

@@ -283,6 +283,10 @@ class _Progress:
                 columns = os.get_terminal_size(sys.stderr.fileno()).columns - 1
             except (AttributeError, OSError, ValueError):
                 columns = shutil.get_terminal_size().columns - 1
+            if columns < 1:  # (a terminal that reports no width: `script`, some containers)
+                columns = shutil.get_terminal_size().columns - 1
+            if columns < 1:
+                columns = 79
             if len(line) > columns:
                 line = line[:max(columns - 1, 0)] + "…"
         sys.stderr.write("\r" + line.ljust(self.width))
@@ -654,7 +658,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("result", type=Path, help="a folder written by 'lfsf run', or a .npz/.pfm/.flo")
     p.add_argument("gt", type=Path, help="gt.npz of 'lfsf synth' or an HCI gt_disp_lowres.pfm")
     p.add_argument("--border", type=int, default=None,
-                   help="pixels left out at each edge (default 15 for a .pfm, as the HCI benchmark; 8 for gt.npz)")
+                   help="pixels left out at each edge (default 15 for a .pfm, as the HCI benchmark; 8 for gt.npz; "
+                        "divided by K, rounded up, for a result of 'lfsf run --downsample K')")
     p.add_argument("--json", type=_file_name, help="also write the figures to this JSON file")
     p.set_defaults(func=cmd_eval)
 

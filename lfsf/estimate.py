@@ -18,7 +18,7 @@ from lfsf import device as _device
 from lfsf._filters import box_mean
 from lfsf._filters import gaussian_blur as _blur
 from lfsf.gains import GAIN_CHANGE, MIN_VIEW_SIZE, fit_reduced_gains, gain_change, reduction_factor, sampled_views
-from lfsf.io import LightField, _check_pair_brightest, _refuse_non_finite, centre_view, luma, read_lightfield
+from lfsf.io import LightField, _a, _check_pair_brightest, _refuse_non_finite, centre_view, luma, read_lightfield
 from lfsf.params import Params
 
 
@@ -171,16 +171,23 @@ class SceneFlow:
         if (centre1 is None) != (centre2 is None) or (centre1 is None and (gt is not None or title is not None)):
             raise ValueError("SceneFlow.save: overview.png needs both centre views (centre1, centre2); "
                              "gt and title go into it")
+        gt_path = None
         if isinstance(gt, (str, os.PathLike)):  # (a gt.npz or a PFM, as lfsf run --gt takes it)
             from lfsf.evaluate import load_ground_truth
 
+            gt_path = gt
             gt, kind_border = load_ground_truth(gt)
             border = kind_border if border is None else border
         if border is None:
             from lfsf.evaluate import SYNTH_BORDER
 
             border = SYNTH_BORDER if gt is not None else 0
-        viz.ground_truth_maps(gt, self.disp1.shape)  # (checked before a folder is made)
+        try:
+            viz.ground_truth_maps(gt, self.disp1.shape)  # (checked before a folder is made)
+        except ValueError as exc:
+            if gt_path is None:
+                raise
+            raise ValueError(f"{os.fspath(gt_path)}: {exc}") from None
         from lfsf._files import folders_to_make, remove_made_folders
 
         made = folders_to_make(out)  # (the folders to make)
@@ -1603,12 +1610,6 @@ def estimate_scene_flow(
         # (an (N, H, W, 3) stack of colour views reads as a grid of N × H grey views 3 px wide)
         raise ValueError(f"{lf1.source}: views of {width}×{height} pixels are too small (at least 8×8)"
                          + (_stack_hint(lf1.views.shape) if not lf1.is_colour else ""))
-    # (120×160 views of 9×9 px: the axes the wrong way round; a scene rendered small on a
-    # large grid, 19×19 views of 17 px, is not)
-    if rows > AXES_RATIO * height and cols > AXES_RATIO * width:
-        raise ValueError(f"{lf1.source}: {rows}×{cols} views of {width}×{height} pixels, more views than pixels "
-                         "across: are the views ordered [y, x, a, b]? lfsf reads [a, b, y, x] (view row, view "
-                         "column, then the pixels); np.moveaxis(views, (2, 3), (0, 1)) turns them round")
 
     rim = _rim_radius(lf1)
     phis, radius = (params if rim is None else params.replace(radius=min(params.radius, rim))).sample_offsets(
@@ -1626,7 +1627,7 @@ def estimate_scene_flow(
             raise ValueError(f"{lf1.source}: a single view leaves no room for the sampling circles (M = "
                              f"{params.circles}): the disparities need two views or more; {flow}")
         axis = "column" if rows > cols else "row"
-        raise ValueError(f"{lf1.source}: a {rows}×{cols} grid of views leaves no room for the sampling circles "
+        raise ValueError(f"{lf1.source}: {_a(rows)} {rows}×{cols} grid of views leaves no room for the sampling circles "
                          f"(M = {params.circles}, N = {list(params.samples)}): samples off the grid's {axis} need "
                          f"views beside it; on a one-{axis} rig, sample along it with circles = 2 and samples = "
                          "[1, 2] (the views R steps either side of the centre; lfsf run --config FILE.toml "
@@ -1650,7 +1651,7 @@ def estimate_scene_flow(
     elif params.visibility and radius < VISIBILITY_MIN_RADIUS:
         params = params.replace(visibility=False)
         if params.circles > 1:  # (flow only has no side views to buffer: nothing to say)
-            say(f"view z-buffers off at R = {radius:g} (below {VISIBILITY_MIN_RADIUS:g}: Params.visibility)")
+            note(f"view z-buffers off at R = {radius:g} (below {VISIBILITY_MIN_RADIUS:g}: Params.visibility)")
     n_samples = len(phis)
     weights = data_weights(params, n_samples)
     wp_phis = wp.array(phis, dtype=wp.vec2, device=dev)
@@ -2194,11 +2195,6 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str,
     change = max(abs(gain * float(q) + shift - float(q)) for q in ends) / span
     return float(gain), float(shift), float(change)
 
-
-#: Views are taken for an array whose axes are the wrong way round ([y, x, a, b]) where
-#: the grid has this many times more rows and more columns of views than the views have
-#: pixels (a row of 120×160 views of 9×9 px).
-AXES_RATIO = 4
 
 #: The largest magnitude a starting disparity or flow may have (px): far beyond any image,
 #: and far from float32's end (u = 1e38 overflowed in the pyramid's upsampling, an

@@ -88,7 +88,9 @@ def _mask(shape, valid, border: int, finite: np.ndarray) -> np.ndarray:
     height, width = shape
     inside = np.asarray(valid, dtype=bool) & finite if valid is not None else finite
     if 2 * border >= min(height, width):
-        why = f"a border of {border} px leaves nothing of a {width}×{height} map"
+        from lfsf.io import _a
+
+        why = f"a border of {border} px leaves nothing of {_a(width)} {width}×{height} map"
     elif valid is not None and not np.any(valid):
         why = "the ground truth's 'valid' mask is all false"
     elif not inside.any():

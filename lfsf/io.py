@@ -351,13 +351,39 @@ def check_pair(lf1: LightField, lf2: LightField) -> None:
     _check_pair_brightest(lf1, lf2, None)
 
 
+def _a(n: int) -> str:
+    """The article before the number ``n`` as read aloud: "an" for 8, 11, 18, 80–89, 800…,
+    else "a" ("an 8×9 grid", "a 9×9 grid")."""
+    digits = str(int(n))
+    return "an" if digits.startswith("8") or (len(digits) % 3 == 2 and digits[:2] in ("11", "18")) else "a"
+
+
+#: Views are taken for an array whose axes are the wrong way round ([y, x, a, b]) where
+#: the grid has this many times more rows and more columns of views than the views have
+#: pixels (a row of 120×160 views of 9×9 px).
+AXES_RATIO = 4
+
+
+def _check_axes(lf: LightField) -> None:
+    """A ValueError where ``lf``'s views look ordered [y, x, a, b] (:data:`AXES_RATIO`)."""
+    rows, cols = lf.grid
+    # (120×160 views of 9×9 px: the axes the wrong way round; a scene rendered small on a
+    # large grid, 19×19 views of 17 px, is not)
+    if rows > AXES_RATIO * lf.height and cols > AXES_RATIO * lf.width:
+        raise ValueError(f"{lf.source}: {rows}×{cols} views of {lf.width}×{lf.height} pixels, more views than pixels "
+                         "across: are the views ordered [y, x, a, b]? lfsf reads [a, b, y, x] (view row, view "
+                         "column, then the pixels); np.moveaxis(views, (2, 3), (0, 1)) turns them round")
+
+
 def _check_pair_brightest(lf1: LightField, lf2: LightField, highs) -> None:
     """:func:`check_pair` given each light field's brightest value (``highs``; None:
     found here), which the estimator has already taken for its intensity range."""
     def describe(lf: LightField) -> str:
         rows, cols = lf.grid
-        return f"a {rows}×{cols} grid of {lf.width}×{lf.height} views"
+        return f"{_a(rows)} {rows}×{cols} grid of {lf.width}×{lf.height} views"
 
+    for lf in (lf1, lf2):  # (each on its own first: else t2 is blamed for t1's axes)
+        _check_axes(lf)
     if lf1.grid != lf2.grid or lf1.views.shape[2:4] != lf2.views.shape[2:4]:
         raise ValueError(f"{lf2.source}: expected the grid and view size of {lf1.source} "
                          f"({describe(lf1)}), got {describe(lf2)}")
@@ -384,7 +410,7 @@ def _stack_hint(shape) -> str:
     side = math.isqrt(n)
     if side < 2 or side * side != n:
         return ""
-    return (f": a stack of {n} views? give them as a {side}×{side} grid, row by row: "
+    return (f": a stack of {n} views? give them as {_a(side)} {side}×{side} grid, row by row: "
             f"views.reshape({side}, {side}, {', '.join(map(str, shape[1:]))})")
 
 
@@ -421,8 +447,11 @@ def _validated_views(views, source: str) -> np.ndarray:
     if array.ndim == 5:
         channels = array.shape[4]
         if channels not in (1, 3):
+            # (channels before the pixels, [a, b, c, y, x], as a deep-learning loader gives them)
+            first = ("; are the channels before the pixels, [a, b, c, y, x]? np.moveaxis(views, 2, -1) "
+                     "puts them last" if array.shape[2] in (1, 3, 4) and channels > 4 else "")
             raise ValueError(f"{source}: expected 1 or 3 colour channels (grey or RGB; drop "
-                             f"alpha first), got {channels} in shape {array.shape}")
+                             f"alpha first), got {channels} in shape {array.shape}{first}")
         if channels == 1:
             array = array[..., 0]
     if array.size == 0:
@@ -693,6 +722,12 @@ def _hci_cameras(parameters: dict, cfg: Path) -> tuple[int, int] | None:
     return counts[0], counts[1]
 
 
+#: An HCI folder of at most this many views and no grid given is read as a square grid
+#: with a warning: 4, 9, 16 or 25 views may as well be a rig of one row (a helper's 1×9
+#: rig read as 3×3 gave δ1 errors 60 times as large, with status 0).
+SQUARE_NOTE_VIEWS = 25
+
+
 def _hci_grid(folder: Path, matches: list, cameras: tuple[int, int] | None = None) -> list[list[Path]]:
     """The HCI views input_CamNNN.png in rows of the grid: ``cameras`` (rows, cols) from
     parameters.cfg, else a square grid of the views' count."""
@@ -718,11 +753,19 @@ def _hci_grid(folder: Path, matches: list, cameras: tuple[int, int] | None = Non
         return [[folder / by_index[r * cols + c] for c in range(cols)] for r in range(rows)]
     side = math.isqrt(count)
     if side * side != count:
+        # a few short of the next square: likely its last views missing (input_Cam080.png of 9×9)
+        short = (side + 1) ** 2 - count
+        tail = "" if short > side else (f"; {_a(side + 1)} {side + 1}×{side + 1} grid misses " + _listed_first(
+            (f"input_Cam{i:03d}.png" for i in range(count, (side + 1) ** 2)), short))
         raise ValueError(f"{folder}: expected a square number of HCI views (e.g. {side}×{side} "
                          f"= {side * side} or {side + 1}×{side + 1} = {(side + 1) ** 2}), got "
-                         f"{count} (input_Cam000 … input_Cam{count - 1:03d}); for a grid that is not square, "
+                         f"{count} (input_Cam000 … input_Cam{count - 1:03d}){tail}; for a grid that is not square, "
                          "give num_cams_x and num_cams_y in parameters.cfg's [extrinsics], name the views "
                          "<name>_RR_CC.png, or give an .npz")
+    if count <= SQUARE_NOTE_VIEWS and not (folder / "decode.json").is_file():
+        warnings.warn(f"{folder}: {count} HCI views with no grid given (parameters.cfg's num_cams_x and "
+                      f"num_cams_y) are read as {_a(side)} {side}×{side} grid; a rig of one row or column of {count} "
+                      f"cameras needs them", stacklevel=4)
     return [[folder / by_index[r * side + c] for c in range(side)] for r in range(side)]
 
 
@@ -872,8 +915,9 @@ def write_lightfield(lf_or_views, path: str | os.PathLike, *, bit_depth: int = 1
     bit_depth : {16, 8}
         PNG sample depth; values are clipped to [0, 1] and rounded to the nearest level.
     layout : {"hci", "rowcol"}
-        ``"hci"``: ``input_Cam000.png …`` row-major (square grids only); ``"rowcol"``:
-        ``view_RR_CC.png``, 1-based, for any grid.
+        ``"hci"``: ``input_Cam000.png …`` row-major (square grids only), and a
+        ``parameters.cfg`` giving the grid (``num_cams_x``, ``num_cams_y``) where the
+        folder has none; ``"rowcol"``: ``view_RR_CC.png``, 1-based, for any grid.
 
     Returns
     -------
@@ -929,6 +973,10 @@ def write_lightfield(lf_or_views, path: str | os.PathLike, *, bit_depth: int = 1
     with ThreadPoolExecutor(max_workers=min(8, os.cpu_count() or 1)) as pool:
         for _ in pool.map(save, range(rows * cols)):
             pass
+    if layout == "hci" and not os.path.lexists(path / "parameters.cfg"):
+        # (the grid, which the views' count alone leaves open: 9 views may be a rig of one row)
+        write_bytes_atomic(path / "parameters.cfg",
+                           f"[extrinsics]\nnum_cams_x = {cols}\nnum_cams_y = {rows}\n".encode())
     return path
 
 

@@ -116,9 +116,12 @@ class Params:
             intensities by more than EXPOSURE_CHANGE (0.4 % of the range), t2's grey views
             (after any stretch to [0, 1]) become g·L2 + b before they are sampled; below it
             nothing changes (:func:`lfsf.estimate._exposure_change`). Gains beyond three
-            stops (g outside [1/8, 8]) are refused, and the progress says so. Views shorter than
-            120 px along the longer side or 48 px along the shorter skip it: the pilot is
-            too small to tell there.
+            stops (g outside [1/8, 8]) are refused, and the progress says so. Views under 48
+            px along the shorter side skip it; those under 120 px along the longer side
+            are fitted only where their centre views' mean brightness differs by more
+            than SMALL_VIEWS_BRIGHTNESS (5 %), and matched only where the fit moves the
+            intensities by more than SMALL_VIEWS_CHANGE (3 %): a pilot that small reads
+            changes of up to 1.5 % on pairs of one exposure.
             With θ = 0.5 half the structure stays in the matched images, so a gain of 0.99
             on t2 alone took `paper`'s flow EPE 0.067 → 0.094 and 0.95 to 0.34 (160×120).
         view_gain_sigma : σ (px) of the per-view gain fields (an addition to the paper;

@@ -652,7 +652,7 @@ def test_progress_bar_on_a_terminal_and_in_a_log():
     assert "[" + "#" * 30 + "]" in terminal and terminal.endswith("\n")
     log = streams["log"].getvalue().splitlines()
     assert log[0].startswith("lfsf batch: [1/3] a: done in 2.0 s; about ")
-    assert log[1] == "lfsf batch: pair b failed: b.npz: not a light field"
+    assert log[1] == "lfsf batch: [2/3] pair b failed: b.npz: not a light field"
     assert log[2].startswith("lfsf batch: [3/3] c: skipped")
     assert streams["quiet"].getvalue() == "lfsf batch: pair b failed: b.npz: not a light field\n"
 
@@ -878,14 +878,16 @@ def test_a_pairs_notes_are_reported_with_it(tmp_path, monkeypatch):
     summary = batch.run_batch(batch.pairs_from_sources([manifest]), tmp_path / "out", PARAMS.replace(radius=1.0),
                               device="cpu")
     (outcome,) = summary.outcomes
-    assert outcome.status == "done" and len(outcome.notes) == 1, outcome
-    found = re.match(r"exposure: t2 matched to t1 by I ↦ ([0-9.]+)·I", outcome.notes[0])
+    # (and the view z-buffers off at R = 1, said in a log as the README says)
+    assert outcome.status == "done" and len(outcome.notes) == 2, outcome
+    assert outcome.notes[0] == "view z-buffers off at R = 1 (below 2: Params.visibility)", outcome.notes
+    found = re.match(r"exposure: t2 matched to t1 by I ↦ ([0-9.]+)·I", outcome.notes[1])
     assert found and abs(float(found.group(1)) - 2.0) < 0.1, outcome.notes
     for quiet in (False, True):
         stream = io.StringIO()
         batch.ProgressBar(1, quiet=quiet, stream=stream)(outcome, 1, 1)
         lines = stream.getvalue().splitlines()
-        assert lines[1:] == ([] if quiet else [f"lfsf batch: pair dark: {outcome.notes[0]}"]), lines
+        assert lines[1:] == ([] if quiet else [f"lfsf batch: pair dark: {note}" for note in outcome.notes]), lines
 
 
 def test_a_light_field_given_as_a_folder_of_frames_is_named_as_one(frames, tmp_path):

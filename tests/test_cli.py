@@ -871,6 +871,20 @@ def test_the_estimators_notes_reach_a_log_and_the_progress_only_a_terminal(monke
     lines = sys.stderr.getvalue().split("\n")
     assert lines[0].startswith("\r[") and lines[0].split("\r")[1].endswith("…") and len(lines[0].split("\r")[1]) == 29
     assert lines[0].endswith("a note longer than the terminal is wide, whole")
+    # a terminal that says it is 0 columns wide (`script`, some containers) is taken for
+    # one of unknown width: the lines had all been cut to "…"
+    import os as _os
+
+    class _Described(_Stream):
+        def fileno(self):
+            return 2
+
+    monkeypatch.setattr(sys, "stderr", _Described(True))
+    monkeypatch.delenv("COLUMNS")
+    monkeypatch.setattr(_os, "get_terminal_size", lambda *a: _os.terminal_size((0, 0)))
+    progress = _Progress(argparse.Namespace(command="run", quiet=False))
+    progress("level 1/3 (40×30), warp 1/3")
+    assert sys.stderr.getvalue().endswith("level 1/3 (40×30), warp 1/3"), sys.stderr.getvalue()
 
 
 def test_run_says_in_its_log_that_it_matched_t2s_exposure(tmp_path):
@@ -1024,7 +1038,10 @@ def test_a_warning_is_one_line_of_the_command(tmp_path):
                           "--quiet")
     assert status == 0, err
     assert err.splitlines() == [f"lfsf run: warning: {tmp_path / 'hci' / 'parameters.cfg'}: ignored, not an INI "
-                                "file (File contains no section headers)"], err
+                                "file (File contains no section headers)",
+                                f"lfsf run: warning: {tmp_path / 'hci'}: 9 HCI views with no grid given "
+                                "(parameters.cfg's num_cams_x and num_cams_y) are read as a 3×3 grid; a rig of "
+                                "one row or column of 9 cameras needs them"], err
 
 
 def test_a_reader_that_goes_away_does_not_cost_the_results(tmp_path):

@@ -1305,6 +1305,39 @@ def test_a_set_of_results_is_written_through_a_symbolic_link(tmp_path):
     assert sorted(p.name for p in (tmp_path / "elsewhere").iterdir()) == ["a.pfm"]
 
 
+@pytest.mark.parametrize("fails", ["b.pfm", "c.pfm", "old.png"])
+def test_a_set_whose_move_fails_puts_the_earlier_files_back(tmp_path, monkeypatch, fails):
+    """A result file that cannot be replaced (immutable, another user's, open in a viewer
+    elsewhere) after others were: the earlier set is put back whole, and the error names
+    the file. (A helper's immutable sceneflow.npz had left disp1.pfm, disp2.pfm and
+    flow.flo of the new run beside the earlier run's sceneflow.npz and pictures.)"""
+    import errno
+    import os
+
+    from lfsf import _files
+
+    out = tmp_path / "out"
+    out.mkdir()
+    earlier = {"a.pfm": b"old a", "b.pfm": b"old b", "old.png": b"old picture", "mine.txt": b"the user's"}
+    for name, data in earlier.items():
+        (out / name).write_bytes(data)
+    replace = os.replace
+
+    def refused(src, dst, *args, **kwargs):
+        if Path(src) == out / fails or (Path(dst) == out / fails and fails != "old.png"):
+            raise PermissionError(errno.EPERM, os.strerror(errno.EPERM), os.fspath(src), os.fspath(dst))
+        return replace(src, dst, *args, **kwargs)
+
+    monkeypatch.setattr(_files.os, "replace", refused)
+    with pytest.raises(OSError) as raised:
+        with _files.file_set(out, ["a.pfm", "b.pfm", "c.pfm"], stale=["old.png"]) as tmp:
+            for name in ("a.pfm", "b.pfm", "c.pfm"):
+                (tmp / name).write_bytes(b"new " + name.encode())
+    assert raised.value.errno == errno.EPERM and raised.value.filename == os.fspath(out / fails)
+    assert "nothing was replaced: the earlier files are as they were" in str(raised.value)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == earlier
+
+
 @pytest.mark.parametrize("name", ["lf.h5", "lf.mat", "lf.npy"])
 def test_write_lightfield_refuses_a_file_format_it_does_not_write(tmp_path, name):
     """A folder of PNG views named lf.h5 was made without a word."""
@@ -1416,3 +1449,75 @@ def test_a_single_image_is_told_apart_from_one_view_of_a_light_field(tmp_path):
                                          r"first: run `lfsf decode .*raw.png --white WHITE --out DIR` and read DIR "
                                          r"\(one view of a light field\? give the folder of all its views\)$"):
         lio.read_lightfield(tmp_path / "raw.png")
+
+
+def test_a_small_hci_folder_without_its_grid_is_read_square_with_a_warning(tmp_path):
+    """Nine HCI views may be a rig of one row: read as 3×3 (the documented rule), with a
+    warning that says how to give the grid (a helper's 1×9 rig read as 3×3 gave δ1 errors
+    60 times as large, with status 0). lfsf's own writer gives the grid in
+    parameters.cfg, so its folders read back without one."""
+    import warnings
+
+    views = np.random.default_rng(0).random((3, 3, 12, 16)).astype(np.float32)
+    lio.write_lightfield(views, tmp_path / "own")
+    assert "num_cams_x = 3" in (tmp_path / "own" / "parameters.cfg").read_text()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert lio.read_lightfield(tmp_path / "own").grid == (3, 3)
+    (tmp_path / "own" / "parameters.cfg").unlink()
+    with pytest.warns(UserWarning, match=r"9 HCI views with no grid given .* read as a 3×3 grid; a rig of one row"):
+        assert lio.read_lightfield(tmp_path / "own").grid == (3, 3)
+    # a 1×9 rig with its grid given reads as one
+    (tmp_path / "own" / "parameters.cfg").write_text("[extrinsics]\nnum_cams_x = 9\nnum_cams_y = 1\n")
+    assert lio.read_lightfield(tmp_path / "own").grid == (1, 9)
+    # a user's parameters.cfg is left as it is
+    lio.write_lightfield(views, tmp_path / "own")
+    assert "num_cams_x = 9" in (tmp_path / "own" / "parameters.cfg").read_text()
+
+
+def test_hci_views_missing_at_the_end_are_named(tmp_path):
+    """80 of 9×9 views: the message names input_Cam080.png (it had only asked for a grid
+    that is not square)."""
+    views = np.random.default_rng(0).random((9, 9, 8, 8)).astype(np.float32)
+    lio.write_lightfield(views, tmp_path / "hci", bit_depth=8)
+    (tmp_path / "hci" / "parameters.cfg").unlink()
+    (tmp_path / "hci" / "input_Cam080.png").unlink()
+    with pytest.raises(ValueError, match=r"got 80 .*; a 9×9 grid misses input_Cam080\.png; for a grid"):
+        lio.read_lightfield(tmp_path / "hci")
+
+
+def test_a_pair_check_blames_the_light_field_whose_axes_are_turned(tmp_path):
+    """t1 stored [y, x, a, b], t2 right: the message is about t1's axes, not t2's size."""
+    rng = np.random.default_rng(0)
+    turned = lio.LightField(rng.random((48, 64, 9, 9)).astype(np.float32), source="t1.npz")
+    right = lio.LightField(rng.random((9, 9, 48, 64)).astype(np.float32), source="t2.npz")
+    for a, b in ((turned, right), (right, turned)):
+        with pytest.raises(ValueError, match=r"^t1\.npz: 48×64 views of 9×9 pixels.*\[y, x, a, b\]"):
+            lio.check_pair(a, b)
+
+
+def test_channels_before_the_pixels_are_told_how_to_move(tmp_path):
+    with pytest.raises(ValueError, match=r"got 96 in shape \(9, 9, 3, 72, 96\); are the channels before the "
+                                         r"pixels, \[a, b, c, y, x\]\? np\.moveaxis\(views, 2, -1\)"):
+        lio.LightField(np.zeros((9, 9, 3, 72, 96), np.float32))
+
+
+@pytest.mark.parametrize("n, article", [(1, "a"), (8, "an"), (9, "a"), (11, "an"), (18, "an"), (80, "an"),
+                                        (111, "a"), (800, "an")])
+def test_the_article_before_a_number(n, article):
+    assert lio._a(n) == article
+
+
+def test_saving_with_a_ground_truth_file_of_another_size_names_the_file(tmp_path):
+    """SceneFlow.save(…, gt=PATH) with a truth of another shape: the message names the
+    file (as lfsf run --gt's does), and no folder is made."""
+    from lfsf import Params
+    from lfsf.estimate import SceneFlow
+
+    zeros = np.zeros((12, 16), np.float32)
+    sf = SceneFlow(zeros, zeros, zeros, zeros, Params.preset("fast"), 1.0, "cpu")
+    np.savez(tmp_path / "gt.npz", disp1=np.zeros((24, 32), np.float32))
+    with pytest.raises(ValueError, match=r"^" + re.escape(str(tmp_path / "gt.npz")) + r": expected gt\['disp1'\] of "
+                                         r"shape \(12, 16\)"):
+        sf.save(tmp_path / "out", zeros, zeros, gt=tmp_path / "gt.npz")
+    assert not (tmp_path / "out").exists()
