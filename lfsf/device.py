@@ -272,29 +272,46 @@ class RecordedRows:
 
 class CapturedLoop:
     """Steps (callables that launch kernels, e.g. :class:`RecordedRows`) run ``n`` times
-    in order. Where every step is a single launch, the sequence is captured once as a
-    graph (``wp.ScopedCapture``: CUDA, and the CPU too) and replayed with
-    ``wp.capture_launch``, about 3 µs a kernel on the CPU; otherwise (row bands on the
-    CPU, or where capture fails) the steps are called in turn."""
+    in order. On CUDA, where every step is a single launch, the sequence is captured once
+    as a graph (``wp.ScopedCapture``) and replayed with ``wp.capture_launch``; otherwise
+    the steps are called in turn.
+
+    Not on the CPU: there a capture records every launch and copy of the process, from
+    any thread (Warp's CPU capture is process-wide), so estimates in two threads crashed
+    or mixed their maps (a helper, forty-ninth session: segmentation faults, δ1 off by
+    3.8 px), and a Ctrl-C inside Warp's ``capture_begin`` left it open for every later
+    call. Nor did it pay: the steps called in turn took 0.92–0.97 of the time
+    (:data:`CPU_CAPTURE` measurements). On CUDA a loop is captured only where no other
+    thread of the process (beyond lfsf's launch pool) could launch meanwhile, with
+    Ctrl-C held back, and a capture that fails is closed."""
 
     def __init__(self, steps: Sequence[Callable[[], None]], device: str | None = None):
         self.steps = list(steps)
         self.device = device
         self.graph = None
-        self._tried = not all(getattr(step, "single", False) for step in self.steps)
+        self._tried = (not all(getattr(step, "single", False) for step in self.steps)
+                       or (is_cpu(warp().get_device(device)) and not CPU_CAPTURE))
 
     def _capture(self) -> None:
         self._tried = True
+        if not _alone():  # (another thread's launches would go into the graph, or break it)
+            return
+        from lfsf._files import interrupts_held
+
         wp = warp()
-        try:
-            # the steps' modules are loaded (RecordedRows); loading every module first,
-            # the default, would compile all of lfsf's kernels for the device
-            with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
-                for step in self.steps:
-                    step()
-            self.graph = capture.graph
-        except Exception:  # capture unsupported here: replay the steps one by one
-            self.graph = None
+        with interrupts_held():  # (a Ctrl-C inside capture_begin had left the capture open)
+            try:
+                # the steps' modules are loaded (RecordedRows); loading every module first,
+                # the default, would compile all of lfsf's kernels for the device
+                with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
+                    for step in self.steps:
+                        step()
+                self.graph = capture.graph
+            except Exception:  # capture unsupported here: replay the steps one by one
+                self.graph = None
+                with contextlib.suppress(Exception):  # (closed, where the failure left it open)
+                    if wp.get_device(self.device).is_capturing:
+                        wp.capture_end(device=self.device)
 
     def run(self, n: int) -> None:
         if n <= 0:
@@ -308,6 +325,21 @@ class CapturedLoop:
             else:
                 for step in self.steps:
                     step()
+
+
+#: Paired medians of the estimator's time with the CPU loops called in turn over the time
+#: with them captured as graphs (forty-ninth session, this 2-core CPU, `paper`'s scene,
+#: alternating runs in one process): 160×120 `paper` 0.971, `fast` 0.956; 320×240
+#: `paper` 0.929; 640×480 `paper` 0.941, `flow` 0.915. The CPU no longer captures.
+CPU_CAPTURE = False
+
+
+def _alone() -> bool:
+    """Whether the calling thread is the only one of the process that could launch
+    kernels now: every other live thread is one of lfsf's launch pool (``lfsf-band``),
+    which only runs the caller's bands."""
+    me = threading.current_thread()
+    return all(t is me or t.name.startswith("lfsf-band") or not t.is_alive() for t in threading.enumerate())
 
 
 #: Images of fewer pixels than this are better launched in one piece on the CPU, without

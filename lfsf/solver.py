@@ -453,7 +453,7 @@ class LevelSolver:
     def iterate(self, n: int) -> None:
         """n preconditioned primal–dual iterations (Chambolle & Pock 2011). The three
         launches of an iteration are recorded on first use and replayed (as a captured
-        graph where each is one launch: CUDA, and small levels on the CPU)."""
+        graph on CUDA, :class:`lfsf.device.CapturedLoop`)."""
         if self._iteration is None:
             self._iteration = _device.CapturedLoop(self._iteration_steps(), device=self.device)
         self._iteration.run(n)

@@ -1,6 +1,8 @@
 """Device choice and banded CPU launches."""
 
 import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -113,8 +115,6 @@ def test_thread_count_from_environment(monkeypatch):
 
 
 def test_importing_lfsf_compiles_nothing_and_skips_warp():
-    import subprocess
-    import sys
 
     code = "import sys, lfsf; print('warp' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
@@ -150,7 +150,7 @@ def test_recorded_launches_replay_as_plain_launches(bands):
 
 
 @pytest.mark.parametrize("bands", [1, 2])
-def test_captured_loop_runs_its_steps_n_times_in_order(bands):
+def test_captured_loop_runs_its_steps_n_times_in_order(bands, monkeypatch):
     """Two dependent steps (the TGV dual then primal step) n times through CapturedLoop
     equal n rounds of plain launches; n = 0 runs nothing."""
     from lfsf.kernels import tgv
@@ -185,28 +185,61 @@ def test_captured_loop_runs_its_steps_n_times_in_order(bands):
         dual_step, primal_step = tgv.tgv_kernels("cpu")
         return [(dual_step, *dual), (primal_step, *primal)]
 
-    plain, replayed = buffers(), buffers()
+    plain = buffers()
     for _ in range(3):
         for kernel, inputs, outputs in args(plain):
             D.launch_rows(kernel, dim=(h, 1), inputs=inputs, outputs=outputs, device="cpu", bands=bands)
-    loop = D.CapturedLoop([D.RecordedRows(k, (h, 1), inputs=i, outputs=o, device="cpu", bands=bands)
-                           for k, i, o in args(replayed)], device="cpu")
-    loop.run(0)
-    np.testing.assert_array_equal(replayed["x"].numpy(), start["x"])
-    loop.run(2)
-    loop.run(1)
-    assert (loop.graph is not None) == (bands == 1)
-    for k in ("x", "w0", "w1", "y0", "z11"):
-        np.testing.assert_array_equal(replayed[k].numpy(), plain[k].numpy(), err_msg=k)
     assert not np.array_equal(plain["x"].numpy(), start["x"])
+    # the CPU calls the steps in turn (CPU_CAPTURE); captured (as CUDA does), where no other
+    # thread could launch meanwhile, the graph gives the same
+    for capture, alone in ((False, True), (True, True), (True, False)):
+        monkeypatch.setattr(D, "CPU_CAPTURE", capture)
+        monkeypatch.setattr(D, "_alone", lambda: alone)
+        replayed = buffers()
+        loop = D.CapturedLoop([D.RecordedRows(k, (h, 1), inputs=i, outputs=o, device="cpu", bands=bands)
+                               for k, i, o in args(replayed)], device="cpu")
+        loop.run(0)
+        np.testing.assert_array_equal(replayed["x"].numpy(), start["x"])
+        loop.run(2)
+        loop.run(1)
+        assert (loop.graph is not None) == (capture and alone and bands == 1)
+        for k in ("x", "w0", "w1", "y0", "z11"):
+            np.testing.assert_array_equal(replayed[k].numpy(), plain[k].numpy(), err_msg=k)
+    assert not D.warp().get_device("cpu").is_capturing
+
+
+def test_estimates_in_several_threads_give_their_own_results():
+    """Library calls are safe from several threads (README): four estimates running at
+    once, six times each, give what each gives alone. With the CPU's loops captured as
+    graphs this crashed the process (std::bad_alloc, a segmentation fault) or mixed the
+    maps within seconds: Warp's CPU capture records the launches of every thread. In a
+    child process, so that a crash fails this test alone."""
+    code = """
+import threading, numpy as np
+from lfsf import estimate_scene_flow, synth
+scenes, presets = ["paper", "slanted", "random-1", "random-2"], ["fast", "flow", "fast", "flow"]
+pairs = [synth.render_scene(s, size=(48, 36), grid=5, device="cpu")[:2] for s in scenes]
+alone = [estimate_scene_flow(*p, pr, device="cpu") for p, pr in zip(pairs, presets)]
+differ = []
+def work(k):
+    for _ in range(6):
+        sf = estimate_scene_flow(*pairs[k], presets[k], device="cpu")
+        differ.extend(n for n in ("disp1", "disp2", "u", "v") if not np.array_equal(getattr(sf, n), getattr(alone[k], n)))
+threads = [threading.Thread(target=work, args=(k,)) for k in range(4)]
+for t in threads:
+    t.start()
+for t in threads:
+    t.join()
+print("differ:", differ)
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0 and out.stdout.strip() == "differ: []", (out.returncode, out.stdout, out.stderr[-2000:])
 
 
 def test_the_submodules_are_attributes_of_lfsf_imported_on_first_use():
     """``import lfsf`` then ``lfsf.synth.render_scene`` (an AttributeError before, reading
     as if the module did not exist), still without importing Warp until a submodule that
     needs it is used; a name that is neither is an AttributeError."""
-    import subprocess
-    import sys
 
     code = ("import sys, lfsf; assert 'lfsf.synth' not in sys.modules; "
             "print(lfsf.synth.__name__, lfsf.viz.flow_to_color.__name__, 'synth' in dir(lfsf), 'warp' in sys.modules)\n"
@@ -220,8 +253,6 @@ def test_preload_compiles_several_modules_at_once_into_the_cache(tmp_path):
     given (each one's folder appears in the cache), the kernels then launch, and a second
     call skips the modules already loaded (0 s)."""
     import os
-    import subprocess
-    import sys
 
     code = (
         "import numpy as np\n"
@@ -274,7 +305,6 @@ def test_a_warp_too_old_is_a_clear_error(monkeypatch):
     the kernels are imported (the estimator imports them before it starts Warp)."""
     import importlib
     import re
-    import sys
 
     import warp
 
