@@ -51,6 +51,8 @@ class SceneFlow:
         regulariser and the neighbours. (The fill also takes points hidden by less than
         this mask's margin, ``lfsf.solver.FILL_MARGIN``, which the mask leaves out.)
         None for flow only (no depth to tell which point is nearer).
+
+    ``==`` is identity: compare two results' maps with ``np.array_equal`` (``as_dict()``).
     """
 
     disp1: np.ndarray
@@ -168,6 +170,7 @@ class SceneFlow:
         from lfsf._files import output_folder
         from lfsf.batch import RESULT_FILES
 
+        self.__post_init__()  # (maps changed since: a result that load would refuse is not written)
         if (centre1 is None) != (centre2 is None) or (centre1 is None and (gt is not None or title is not None)):
             raise ValueError("SceneFlow.save: overview.png needs both centre views (centre1, centre2); "
                              "gt and title go into it")

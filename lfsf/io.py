@@ -44,6 +44,7 @@ import tokenize
 import warnings
 import zipfile
 import zlib
+from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -146,6 +147,9 @@ class LightField:
     def __post_init__(self):
         self.source = str(self.source)
         self.views = _validated_views(self.views, self.source)
+        if self.meta is not None and not isinstance(self.meta, Mapping):
+            raise ValueError(f"{self.source}: meta must be a dict (what is known of the light field), got "
+                             f"{type(self.meta).__name__}")
         self.meta = dict(self.meta) if self.meta is not None else {}
 
     def __repr__(self) -> str:
@@ -263,9 +267,12 @@ class LightField:
         Raises
         ------
         IndexError
-            If ``(a, b)`` is outside the grid.
+            If ``(a, b)`` is outside the grid, or not whole numbers.
         """
         rows, cols = self.grid
+        for value in (a, b):  # (True had given a whole row of views; 4.5 NumPy's message)
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+                raise IndexError(f"{self.source}: a view's row and column are whole numbers, got ({a!r}, {b!r})")
         if not (-rows <= a < rows and -cols <= b < cols):
             raise IndexError(f"{self.source}: view ({a}, {b}) is outside the {rows}×{cols} grid")
         return self.views[a, b]

@@ -569,6 +569,8 @@ class Params:
         the rows needs only columns of views, so a 1×N rig takes samples = [1, 2]); 0 with
         one circle, or where no R fits (a sample off the axis of a one-row grid)."""
         rows, cols = (grid, grid) if np.isscalar(grid) else grid
+        if rows < 1 or cols < 1:  # (R had come out negative)
+            raise ValueError(f"a grid of views has at least one row and one column, got {rows}×{cols}")
         if self.circles <= 1:
             return 0.0
         half = ((cols - 1) / 2.0, (rows - 1) / 2.0)  # the grid's half extents along x and y

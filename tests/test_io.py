@@ -1521,3 +1521,34 @@ def test_saving_with_a_ground_truth_file_of_another_size_names_the_file(tmp_path
                                          r"shape \(12, 16\)"):
         sf.save(tmp_path / "out", zeros, zeros, gt=tmp_path / "gt.npz")
     assert not (tmp_path / "out").exists()
+
+
+def test_a_view_is_asked_for_by_whole_numbers():
+    lf = lio.LightField(np.zeros((3, 3, 8, 8), np.float32))
+    assert lf.view(-1, 2).shape == (8, 8)
+    for a in (True, 4.5, "a", np.bool_(False)):
+        with pytest.raises(IndexError, match="a view's row and column are whole numbers"):
+            lf.view(a, 0)
+
+
+def test_a_result_changed_after_it_was_made_is_checked_before_it_is_saved(tmp_path):
+    """save had written maps of two shapes, which load then refused."""
+    from lfsf import Params
+    from lfsf.estimate import SceneFlow
+
+    zeros = np.zeros((12, 16), np.float32)
+    sf = SceneFlow(zeros, zeros, zeros, zeros, Params.preset("fast"), 1.0, "cpu")
+    sf.disp1 = np.zeros((3, 3))
+    with pytest.raises(ValueError, match=r"disp2 is \(12, 16\), disp1 \(3, 3\): the maps must have one shape"):
+        sf.save(tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
+def test_meta_must_be_a_dict_and_a_grid_must_have_views():
+    from lfsf import Params
+
+    with pytest.raises(ValueError, match="meta must be a dict .*got list"):
+        lio.LightField(np.zeros((3, 3, 8, 8), np.float32), meta=[1])
+    for grid in (0, (0, 3), (3, -1)):
+        with pytest.raises(ValueError, match="a grid of views has at least one row and one column"):
+            Params.preset("fast").sample_offsets(grid)
