@@ -96,8 +96,8 @@ _HCI_NAME = re.compile(r"input_Cam(\d+)\.png", re.IGNORECASE)
 _ROWCOL_NAME = re.compile(r"(.+)_(\d+)_(\d+)\.png", re.IGNORECASE)
 _LAYOUTS_LOOKED_FOR = (
     "the HCI layout (input_Cam000.png, input_Cam001.png, … in row-major order), "
-    "views named <name>_RR_CC.png (1-based row and column, e.g. scene_01_01.png) "
-    "and views.npz"
+    "views named <name>_RR_CC.png (1-based row and column, e.g. scene_01_01.png), "
+    "or a views.npz"
 )
 _MAX_NAMES_LISTED = 8
 # Single images that are no raw lenslet image either (lossy, or 8-bit only): said so.
@@ -673,7 +673,11 @@ def _read_folder(folder: Path) -> LightField:
             raise ValueError(f"{folder}: views are read from PNG files only; found {len(other)} named as views but "
                              f"in another format ({other[0]}, …): convert them to PNG (8 or 16 bits), or give "
                              "the views as an .npz")
-        raise ValueError(f"{folder}: found no light-field views; looked for {_LAYOUTS_LOOKED_FOR}")
+        # PNGs named by a row and column in another way (01_01.png, cam-01-01.png): the rule they miss
+        near = [name for name in names if re.fullmatch(r"(?:.*[^0-9])?\d+[-_. ]\d+\.png", name, re.IGNORECASE)]
+        hint = (f"; {near[0]} is not named <name>_RR_CC.png: rename the views so, e.g. view_01_01.png"
+                if near else "")
+        raise ValueError(f"{folder}: found no light-field views; looked for {_LAYOUTS_LOOKED_FOR}{hint}")
     return LightField(_read_view_grid(files), source=str(folder), meta=meta)
 
 

@@ -1552,3 +1552,11 @@ def test_meta_must_be_a_dict_and_a_grid_must_have_views():
     for grid in (0, (0, 3), (3, -1)):
         with pytest.raises(ValueError, match="a grid of views has at least one row and one column"):
             Params.preset("fast").sample_offsets(grid)
+
+
+@pytest.mark.parametrize("name", ["01_01.png", "cam-01-01.png"])
+def test_views_named_by_row_and_column_another_way_are_told_the_rule(tmp_path, name):
+    """01_01.png or cam-01-01.png had got the generic "found no light-field views"."""
+    lio.write_png(tmp_path / name, np.zeros((8, 8), np.uint8))
+    with pytest.raises(ValueError, match=re.escape(f"; {name} is not named <name>_RR_CC.png: rename the views so")):
+        lio.read_lightfield(tmp_path)
