@@ -912,6 +912,20 @@ def _view_names(layout: str, rows: int, cols: int) -> list[str]:
             for r in range(1, rows + 1) for c in range(1, cols + 1)]
 
 
+def _shut_down(pool) -> None:
+    """``pool.shutdown(wait=True)``, waited out through Ctrl-C; the last interrupt is
+    raised afterwards."""
+    interrupt = None
+    while True:
+        try:
+            pool.shutdown(wait=True)
+            break
+        except KeyboardInterrupt as exc:
+            interrupt = exc
+    if interrupt is not None:
+        raise interrupt
+
+
 def write_lightfield(lf_or_views, path: str | os.PathLike, *, bit_depth: int = 16,
                      layout: str = "hci") -> Path:
     """Write a light field to a ``.npz`` or to a folder of PNG views.
@@ -981,9 +995,19 @@ def write_lightfield(lf_or_views, path: str | os.PathLike, *, bit_depth: int = 1
         quantised = np.rint(np.clip(view, 0.0, 1.0) * levels).astype(dtype)
         write_png(path / names[k], quantised)
 
-    with ThreadPoolExecutor(max_workers=min(8, os.cpu_count() or 1)) as pool:
-        for _ in pool.map(save, range(rows * cols)):
-            pass
+    pool = ThreadPoolExecutor(max_workers=min(8, os.cpu_count() or 1))
+    futures: list = []
+    try:
+        futures = [pool.submit(save, k) for k in range(rows * cols)]
+        for future in futures:
+            future.result()
+    finally:
+        # an error or Ctrl-C ends the writing: the views not begun are dropped, and those
+        # being written are waited for (a Ctrl-C during that wait too), so that no thread
+        # writes on into a folder that the caller removes (lfsf decode's temporary one)
+        for future in futures:
+            future.cancel()
+        _shut_down(pool)
     if layout == "hci" and not os.path.lexists(path / "parameters.cfg"):
         # (the grid, which the views' count alone leaves open: 9 views may be a rig of one row)
         write_bytes_atomic(path / "parameters.cfg",

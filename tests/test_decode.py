@@ -255,6 +255,19 @@ def test_calibration_is_subpixel_over_the_whole_sensor(kind):
     assert err.max() < 0.1, f"lens centres off by up to {err.max():.3f} px"
 
 
+@pytest.mark.parametrize("kind, pitch", [("rect", 7.0), ("rect", 14.0), ("hex", 8.0)])
+def test_the_white_level_does_not_depend_on_a_whole_number_pitch(kind, pitch):
+    """The white's level (its bright end) was read from every 7th row and column, which a
+    pitch of 7 px lines up with: the same dark place of every lens, a level of 0.052 for
+    0.998, and views 19 times too dark (a helper's decode)."""
+    lattice = Lattice.regular(kind, pitch, 0.0, (3.0, 3.0))
+    _, white = synthetic_lenslet(_texture_field(1), lattice, (int(37.2 * pitch), int(29.2 * pitch)), views=9,
+                                 vignetting=0.4, white_noise=0.001)
+    level = D.white_level(white)
+    top = float(np.percentile(white, 99.9))
+    assert abs(level - top) < 0.02 * top, (level, top)
+
+
 # --- decoded views against the source light field ------------------------------------------
 
 
@@ -386,6 +399,14 @@ def test_cli_decode_writes_a_light_field(lenslet_files, tmp_path, capsys):
     white = D.read_raw(lenslet_files / "white.png", role="white").data
     assert report["white_level"] == pytest.approx(D.white_level(white), rel=1e-6) and 0.5 < report["white_level"] <= 1
     assert not list(out.glob(".*part*"))
+    # the grid is given in parameters.cfg, in place of an earlier one that gave another (the
+    # folder had not read back: "parameters.cfg gives a grid of 9×9 views … but there are 49")
+    assert "num_cams_x = 7" in (out / "parameters.cfg").read_text()
+    (out / "parameters.cfg").write_text("[extrinsics]\nnum_cams_x = 9\nnum_cams_y = 9\n")
+    assert cli.main(["decode", str(lenslet_files / "raw.png"), "--white", str(lenslet_files / "white.png"),
+                     "--out", str(out), "--views", "7", "--bayer", "rggb", "--device", "cpu", "--quiet"]) == 0
+    assert lfsf.read_lightfield(out).grid == (7, 7)
+    assert not [p.name for p in out.iterdir() if p.name.startswith(".")]
 
 
 def test_cli_decode_says_when_it_took_the_sensor_for_grey(lenslet_files, tmp_path, capsys):
@@ -579,7 +600,7 @@ def test_interrupted_decode_writes_nothing(lenslet_files, tmp_path, monkeypatch,
     monkeypatch.setattr(lfsf.io, "write_png", real_write_png)
     assert cli.main(_decode_argv(lenslet_files, out, "--views", "7")) == 0
     before = {p.name: p.read_bytes() for p in out.iterdir()}
-    assert len(before) == 49 + 2
+    assert len(before) == 49 + 3  # (the views, parameters.cfg, views.npz, decode.json)
     monkeypatch.setattr(lfsf.io, "write_png", interrupted)
     calls.clear()
     assert cli.main(_decode_argv(lenslet_files, out, "--views", "7", "--bayer", "none")) == 130
