@@ -268,6 +268,37 @@ def test_the_white_level_does_not_depend_on_a_whole_number_pitch(kind, pitch):
     assert abs(level - top) < 0.02 * top, (level, top)
 
 
+@pytest.mark.parametrize("white_of, said", [
+    ((11.37, (5.3, 7.8)), None),                          # the raw's own white
+    ((11.37, (10.3, 10.8)), "does not fit it"),           # the lattice shifted
+    ((11.37 * 1.01, (5.3, 7.8)), "does not fit it"),      # another zoom: 1 % of pitch
+    ((11.37 * 1.007, (5.3, 7.8)), "fits part of the sensor only"),
+])
+def test_a_white_image_of_another_camera_setting_is_refused_or_warned_of(white_of, said):
+    """A white of another zoom, focus or camera had been decoded without a word into views
+    at 9–20 dB (a helper's raws): the raw must be darker at the rims of the white's
+    micro-images, as the white is."""
+    import warnings
+
+    pitch, origin = white_of
+    raw, _ = synthetic_lenslet(_texture_field(1), CASES["hex"], (520, 400), views=9, vignetting=0.5, noise=0.003,
+                               white_noise=0.002)
+    _, white = synthetic_lenslet(_texture_field(1), Lattice.regular("hex", pitch, 0.004, origin), (520, 400), views=9,
+                                 vignetting=0.5, white_noise=0.002)
+    raw, white = D.RawImage(raw, None, "raw.png"), D.RawImage(white, None, "white.png")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        if said == "does not fit it":
+            with pytest.raises(ValueError, match=r"^raw\.png: the white image white\.png does not fit it: the raw is "
+                                                 r"not darker at the rims of the white's micro-images"):
+                D._check_white_fits(raw, white, calibrate(white))
+        else:
+            D._check_white_fits(raw, white, calibrate(white))
+    messages = [str(w.message) for w in caught]
+    assert (messages == []) == (said != "fits part of the sensor only"), messages
+    assert all("fits part of the sensor only" in m for m in messages)
+
+
 # --- decoded views against the source light field ------------------------------------------
 
 
@@ -446,11 +477,17 @@ def test_white_without_lattice_fails_clearly(kind, lenslet_files, tmp_path, caps
     assert not (tmp_path / "out").exists()
 
 
-def test_raw_and_white_swapped_fail_clearly(lenslet_files, tmp_path, capsys):
+def test_raw_and_white_swapped_fail_clearly(lenslet_files, tmp_path, capsys, monkeypatch):
     """The white image given as RAW and the raw as --white decoded, exit status 0, into
-    views of ~1.0 everywhere (the ratio clipped): a scene's lenslet image passes as a
-    white image, but the views say it."""
+    views of ~1.0 everywhere (the ratio clipped). The raw's micro-images differ from lens
+    to lens, as no white image's do; where they did not (a flat scene), the views say it."""
     raw, white = str(lenslet_files / "raw.png"), str(lenslet_files / "white.png")
+    line = _fails(["decode", white, "--white", raw, "--out", str(tmp_path / "out"), "--views", "7",
+                   "--device", "cpu"], capsys, white, raw)
+    assert "not a white image: its neighbouring micro-images differ" in line
+    assert "were RAW (" in line and ") and --white swapped, or a scene given as --white?" in line, line
+    assert not (tmp_path / "out").exists()
+    monkeypatch.setattr(D, "WHITE_LENS_STEP", 1.0)  # (the views' test, behind it)
     line = _fails(["decode", white, "--white", raw, "--out", str(tmp_path / "out"), "--views", "7",
                    "--device", "cpu"], capsys, white, raw)
     share = int(re.search(r"(\d+) % of the decoded views' values are at full scale", line).group(1))
