@@ -299,6 +299,28 @@ def test_a_white_image_of_another_camera_setting_is_refused_or_warned_of(white_o
     assert all("fits part of the sensor only" in m for m in messages)
 
 
+def test_a_lattice_turned_far_from_the_sensors_rows_is_refused():
+    """A hexagonal lattice with its rows down the sensor (found turned by 30°) gave views of
+    12×4 px with status 0 (a helper)."""
+    lattice = Lattice.regular("hex", 11.37, math.radians(90.0), (5.3, 7.8))
+    raw, white = synthetic_lenslet(_texture_field(1), lattice, (400, 320), views=9, white_noise=0.002)
+    with pytest.raises(ValueError, match=r"white: the micro-lens lattice is turned by -?30\.0° from the sensor's rows; "
+                                         r"lfsf decode takes lattices within 10°"):
+        decode(D.RawImage(raw, None, "raw"), D.RawImage(white, None, "white"), device="cpu")
+
+
+@pytest.mark.parametrize("change, said", [(lambda w: w / 64.0, "about 10 bits of 16 in use?"),
+                                          (lambda w: np.minimum(1.6 * w, 1.0), "of the white image is at full scale")])
+def test_a_white_image_of_few_bits_or_clipped_is_warned_of(change, said):
+    """10-bit values in a 16-bit file decoded into views 64 times too dark, and a clipped
+    white into poor views, without a word (a helper)."""
+    raw, white = synthetic_lenslet(_texture_field(1), CASES["hex"], (400, 320), views=9, white_noise=0.002)
+    white = change(white)
+    with pytest.warns(UserWarning, match=re.escape(said)):
+        decode(D.RawImage(raw * float(np.max(white)), None, "raw"), D.RawImage(white, None, "white"), views=7,
+               device="cpu")
+
+
 # --- decoded views against the source light field ------------------------------------------
 
 
