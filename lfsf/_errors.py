@@ -163,6 +163,12 @@ def run_script(main, prog: str | None = None) -> int:
             print(f"{prog}: error: {where}no space left on the device ({exc.strerror}): free some, or write "
                   f"the outputs elsewhere ({kept})", file=sys.stderr)
             return EXIT_FAILED
+        if isinstance(exc, OSError) and exc.errno == errno.EFBIG:  # (a limit of this machine, not bad input)
+            where = f"{exc.filename}: " if exc.filename else ""
+            print(f"{prog}: error: {where}file too large ({exc.strerror}): beyond the file system's or this "
+                  "process's file-size limit (ulimit -f); write the outputs elsewhere (nothing was left "
+                  "half-written)", file=sys.stderr)
+            return EXIT_FAILED
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except (MemoryError, RuntimeError) as exc:

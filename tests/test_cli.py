@@ -522,6 +522,16 @@ def test_a_full_disk_is_one_line_and_status_1_not_bad_input(tmp_path, monkeypatc
     err = capsys.readouterr().err.splitlines()[-1]
     assert err == (f"lfsf synth: error: {tmp_path / 's' / 'lf1.npz'}: no space left on the device (No space left on "
                    "device): free some, or write the outputs elsewhere (nothing was left half-written)")
+    # a file-size limit (ulimit -f, a FAT disk's 4 GB) likewise: it had been "[Errno 27] File too large" and status 2
+
+    def too_large(*args, **kwargs):
+        raise OSError(errno.EFBIG, "File too large", str(tmp_path / "s" / "lf1.npz"))
+
+    monkeypatch.setattr(synth, "write_scene", too_large)
+    assert main(["synth", "paper", "--out", str(tmp_path / "s"), "--size", "16", "16", "--grid", "3"]) == 1
+    err = capsys.readouterr().err.splitlines()[-1]
+    assert err.startswith(f"lfsf synth: error: {tmp_path / 's' / 'lf1.npz'}: file too large (File too large): beyond "
+                          "the file system's or this process's file-size limit (ulimit -f)"), err
 
 
 def test_results_are_written_as_one_set_or_not_at_all(tmp_path):
