@@ -773,7 +773,7 @@ def _hci_grid(folder: Path, matches: list, cameras: tuple[int, int] | None = Non
                          f"{count} (input_Cam000 … input_Cam{count - 1:03d}){tail}; for a grid that is not square, "
                          "give num_cams_x and num_cams_y in parameters.cfg's [extrinsics], name the views "
                          "<name>_RR_CC.png, or give an .npz")
-    if count <= SQUARE_NOTE_VIEWS and not (folder / "decode.json").is_file():
+    if 4 <= count <= SQUARE_NOTE_VIEWS and not (folder / "decode.json").is_file():  # (one view is no rig)
         warnings.warn(f"{folder}: {count} HCI views with no grid given (parameters.cfg's num_cams_x and "
                       f"num_cams_y) are read as {_a(side)} {side}×{side} grid; a rig of one row or column of {count} "
                       f"cameras needs them", stacklevel=4)
