@@ -919,10 +919,10 @@ def _note_white_levels(white: "RawImage", high: float) -> None:
     import warnings
 
     if 0 < high < WHITE_FEW_BITS:
-        warnings.warn(f"{white.source}: its brightest values are {high:.4f} of the file's full scale "
-                      f"(about {max(1, round(math.log2(65535 * high)))} bits of 16 in use?): the views are as dark; "
-                      "scale the raw and the white image to full scale first for views that look right (the "
-                      "estimate does not mind)", stacklevel=3)
+        warnings.warn(f"{white.source}: its brightest values are {high:.4f} of the file's full scale (data of "
+                      f"{-round(math.log2(high))} bits fewer than the file holds, such as 10-bit values in a 16-bit "
+                      "file?): the views are as dark; scale the raw and the white image to full scale first for "
+                      "views that look right (the estimate does not mind)", stacklevel=3)
     clipped = float(np.mean(np.asarray(white.data)[::3, ::3] >= SATURATED))
     if clipped > WHITE_CLIPPED:
         warnings.warn(f"{white.source}: {100 * clipped:.0f} % of the white image is at full scale (clipped): the "

@@ -309,7 +309,7 @@ def test_a_lattice_turned_far_from_the_sensors_rows_is_refused():
         decode(D.RawImage(raw, None, "raw"), D.RawImage(white, None, "white"), device="cpu")
 
 
-@pytest.mark.parametrize("change, said", [(lambda w: w / 64.0, "about 10 bits of 16 in use?"),
+@pytest.mark.parametrize("change, said", [(lambda w: w / 64.0, "(data of 6 bits fewer than the file holds"),
                                           (lambda w: np.minimum(1.6 * w, 1.0), "of the white image is at full scale")])
 def test_a_white_image_of_few_bits_or_clipped_is_warned_of(change, said):
     """10-bit values in a 16-bit file decoded into views 64 times too dark, and a clipped
