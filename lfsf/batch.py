@@ -146,8 +146,9 @@ def pairs_from_sources(sources: Sequence[str | os.PathLike], out: str | os.PathL
     seen: dict[str, Pair] = {}
     for pair in pairs:
         if pair.name in seen:
-            raise ValueError(f"two pairs are both named {pair.name!r} ({seen[pair.name].t1} and {pair.t1}); "
-                             "name them in a manifest's third column")
+            first = seen[pair.name]
+            raise ValueError(f"two pairs are both named {pair.name!r} ({first.t1} → {first.t2} and {pair.t1} → "
+                             f"{pair.t2}); name them in a manifest's third column")
         seen[pair.name] = pair
     return pairs
 
@@ -604,6 +605,7 @@ def _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, 
     import asyncio
     import logging
 
+    import dask
     from distributed import Client, LocalCluster, as_completed
 
     with contextlib.ExitStack() as stack:
@@ -631,6 +633,9 @@ def _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, 
                 # the scheduler's HTTP server (no dashboard here) takes another port where
                 # 8787 is taken, as by another cluster, and said so as a warning of the batch
                 warnings.filterwarnings("ignore", message=r"Port \d+ is already in use")
+                # one pair a worker at a time (Dask holds 1.1 tasks a thread by default: a second pair
+                # queued on a worker that kept dying had failed with the pair that killed it)
+                stack.enter_context(dask.config.set({"distributed.scheduler.worker-saturation": 1.0}))
                 try:
                     cluster = stack.enter_context(LocalCluster(
                         n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
@@ -719,6 +724,7 @@ class ProgressBar:
         self.width = width
         self.t0 = time.perf_counter()
         self.failed = 0
+        self.noted: set = set()  # (each note once: the same for every pair of a sequence had repeated)
 
     def __call__(self, outcome: Outcome, finished: int, total: int) -> None:
         self.failed += outcome.status == "failed"
@@ -733,7 +739,9 @@ class ProgressBar:
                        + f"; about {_duration(left)} left")
         if not self.quiet:  # what the estimator decided about the pair's input, on a terminal too
             for note in outcome.notes:
-                self._line(f"pair {outcome.name}: {note}")
+                if note not in self.noted:
+                    self.noted.add(note)
+                    self._line(f"pair {outcome.name}: {note}")
         if self.live:
             filled = int(round(self.width * finished / total))
             bar = "#" * filled + "." * (self.width - filled)

@@ -911,3 +911,16 @@ def test_a_current_folder_gone_is_refused_before_the_local_cluster_starts(monkey
     with pytest.raises(ValueError, match="the current folder no longer exists"):
         batch.check_dask(1, None)
     batch.check_dask(1, "tcp://localhost:8786")  # (a running scheduler's workers start where they are)
+
+
+def test_a_note_said_of_an_earlier_pair_is_not_repeated():
+    """Every pair of a 3×3 sequence had repeated "sampling radius R = 1 view step, not 4"."""
+    import io
+
+    stream = io.StringIO()
+    bar = batch.ProgressBar(3, stream=stream)
+    same, other = "sampling radius R = 1 view step, not 4", "exposure: t2 matched to t1 by I ↦ 2.0·I"
+    for k, notes in enumerate([(same,), (same, other), (same,)], 1):
+        bar(batch.Outcome(f"f{k:03d}", "done", 1.0, notes=notes), k, 3)
+    lines = [line for line in stream.getvalue().splitlines() if ": [" not in line]
+    assert lines == [f"lfsf batch: pair f001: {same}", f"lfsf batch: pair f002: {other}"], lines
