@@ -442,3 +442,16 @@ def test_colour_must_be_a_bool(colour):
     must be True or False."""
     with pytest.raises(ValueError, match=r"colour must be True or False, got"):
         synth.render_scene("paper", size=(32, 24), grid=3, colour=colour)
+
+
+def test_a_sequence_beyond_the_estimators_ranges_is_warned_of(tmp_path):
+    """Ten frames of `paper` reach disparities no preset follows; the batch's last pairs
+    had been garbage without a word (a helper). Four frames keep within them."""
+    import warnings
+
+    with pytest.warns(UserWarning, match=r"from pair f00\d on, the ground truth reaches \|δ\| = .* beyond the "
+                                         r"estimator's defaults \(disparity_range 4, flow_range 24\)"):
+        synth.write_sequence("paper", tmp_path / "long", 10, size=(32, 24), grid=3, supersample=1, device="cpu")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        synth.write_sequence("paper", tmp_path / "short", 4, size=(32, 24), grid=3, supersample=1, device="cpu")
