@@ -668,18 +668,24 @@ def _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, 
         queue = as_completed([submit(index) for index in first])
         outcomes: list[Outcome | None] = [None] * len(pairs)
         finished = 0
-        for future in queue:
-            index = futures[future]
-            try:
-                outcome = future.result()
-            except Exception as exc:  # noqa: BLE001 - a task that died on every attempt
-                outcome = Outcome(pairs[index].name, "failed", reason=_dask_reason(exc))
-                _remove_stale(out, pairs[index].name)   # the last dead attempt's folder: no retry will
-            outcomes[index] = outcome
-            finished += 1
-            report(outcome, finished, len(pairs))
-            for successor in after.pop(pairs[index].name, []):
-                queue.add(submit(successor))
+        try:
+            for future in queue:
+                index = futures[future]
+                try:
+                    outcome = future.result()
+                except Exception as exc:  # noqa: BLE001 - a task that died on every attempt
+                    outcome = Outcome(pairs[index].name, "failed", reason=_dask_reason(exc))
+                    _remove_stale(out, pairs[index].name)   # the last dead attempt's folder: no retry will
+                outcomes[index] = outcome
+                finished += 1
+                report(outcome, finished, len(pairs))
+                for successor in after.pop(pairs[index].name, []):
+                    queue.add(submit(successor))
+        except KeyboardInterrupt:
+            # (the wait for the pairs begun had been silent, and a second Ctrl-C abandoned them)
+            if not scheduler and finished < len(pairs) and callable(getattr(report, "interrupted", None)):
+                report.interrupted()
+            raise
         finish(outcomes)
 
 
@@ -751,6 +757,12 @@ class ProgressBar:
             if finished == total:
                 self.stream.write("\n")
             self.stream.flush()
+
+    def interrupted(self) -> None:
+        """Said at a Ctrl-C while a local cluster's pairs in progress are finished."""
+        if not self.quiet:
+            self._line("interrupted: finishing the pairs in progress, which the next run skips (Ctrl-C again "
+                       "abandons them)")
 
     def _line(self, text: str) -> None:
         if self.live:

@@ -429,6 +429,9 @@ def test_ctrl_c_on_a_cluster_batch_is_one_line_not_the_workers_tracebacks(frames
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err
     assert "Traceback" not in err and err.strip().splitlines()[-1] == "lfsf batch: interrupted", err
+    # … said at once: the wait for the pairs begun had been silent, and a second Ctrl-C abandoned them
+    assert ("lfsf batch: interrupted: finishing the pairs in progress, which the next run skips (Ctrl-C again "
+            "abandons them)") in err.splitlines(), err
     assert _leftovers(out) == []
 
 
