@@ -235,8 +235,38 @@ def _stem(path: Path) -> str:
 # --- one task -------------------------------------------------------------------------------
 
 def is_complete(folder: Path) -> bool:
-    """Whether ``folder`` holds a complete result."""
-    return all((folder / name).is_file() for name in RESULT_FILES)
+    """Whether ``folder`` holds a complete result: every file there and whole
+    (:func:`_whole`: a truncated ``flow.flo`` or an emptied picture had counted as
+    complete, and a re-run skipped it)."""
+    return all((folder / name).is_file() and _whole(folder / name) for name in RESULT_FILES)
+
+
+def _whole(path: Path) -> bool:
+    """Whether a result file holds what its header promises: a PFM or FLO as many bytes
+    as its size says, anything else at least one byte (read: the headers alone)."""
+    import struct
+
+    try:
+        size = path.stat().st_size
+        if path.suffix == ".flo":
+            with open(path, "rb") as f:
+                head = f.read(12)
+            if len(head) < 12 or head[:4] != b"PIEH":
+                return False
+            width, height = struct.unpack("<ii", head[4:])
+            return size == 12 + 8 * width * height
+        if path.suffix == ".pfm":
+            with open(path, "rb") as f:
+                lines = [f.readline() for _ in range(3)]
+                header = f.tell()
+            kind, dims = lines[0].strip(), lines[1].split()
+            if kind not in (b"Pf", b"PF") or len(dims) != 2:
+                return False
+            channels = 3 if kind == b"PF" else 1
+            return size == header + 4 * channels * int(dims[0]) * int(dims[1])
+        return size > 0
+    except (OSError, ValueError, struct.error):
+        return False
 
 
 #: Which earlier results a re-run estimates again and replaces.

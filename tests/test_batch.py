@@ -927,3 +927,22 @@ def test_a_note_said_of_an_earlier_pair_is_not_repeated():
         bar(batch.Outcome(f"f{k:03d}", "done", 1.0, notes=notes), k, 3)
     lines = [line for line in stream.getvalue().splitlines() if ": [" not in line]
     assert lines == [f"lfsf batch: pair f001: {same}", f"lfsf batch: pair f002: {other}"], lines
+
+
+def test_a_result_with_a_truncated_or_emptied_file_is_not_complete(tmp_path):
+    """A truncated flow.flo or disp2.pfm, or an emptied picture, had counted as complete and
+    a re-run skipped the pair (a helper): each file must hold what its header promises."""
+    import shutil
+
+    from lfsf import Params
+    from lfsf.estimate import SceneFlow
+
+    r = np.random.default_rng(0)
+    maps = [r.random((12, 16)).astype(np.float32) for _ in range(4)]
+    SceneFlow(*maps, Params.preset("fast"), 1.0, "cpu").save(tmp_path / "whole")
+    assert batch.is_complete(tmp_path / "whole")
+    for name, size in (("flow.flo", 100), ("disp2.pfm", 1000), ("disp1.png", 0)):
+        shutil.copytree(tmp_path / "whole", tmp_path / name)
+        with open(tmp_path / name / name, "r+b") as f:
+            f.truncate(size)
+        assert not batch.is_complete(tmp_path / name), name
