@@ -564,7 +564,8 @@ def run_batch(
     scheduler : address of a running Dask scheduler (``tcp://host:8786``) instead
     device : for every task (default: each worker's own, one GPU per worker)
     warm_start : start each pair of a sequence from the previous one's result
-    retries : extra attempts for a task whose worker died
+    retries : Dask's extra attempts of a task that raised (one whose worker died is
+        tried again as the scheduler's ``allowed-failures`` say, 3 by default)
     progress : called after each pair with its outcome, the pairs finished and the total
 
     Returns
@@ -573,7 +574,14 @@ def run_batch(
     """
     out = Path(out).absolute()
     t0 = time.perf_counter()
-    report = progress or (lambda outcome, finished, total: None)
+    given = progress or (lambda outcome, finished, total: None)
+    known: list[Outcome] = []  # (this run's outcomes so far: what an interrupted run leaves in failed.csv)
+
+    def report(outcome: Outcome, finished: int, total: int) -> None:
+        known.append(outcome)
+        given(outcome, finished, total)
+
+    report.interrupted = getattr(given, "interrupted", None)  # type: ignore[attr-defined]
     check_outputs(pairs, out)
     check_warm_start(pairs, warm_start)
     check_dask(workers, scheduler)
@@ -583,14 +591,37 @@ def run_batch(
         summaries.append(Summary(outcomes, time.perf_counter() - t0))
         _write_failed(out, pairs, summaries[-1])
 
-    if scheduler is None and workers == 1 and not have_dask():
-        out.mkdir(parents=True, exist_ok=True)
-        finish(_run_here(pairs, out, params, device, warm_start, report))
-    else:
-        # (failed.csv written before the cluster closes: an interrupt while it closes, some
-        # seconds, had lost it)
-        _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retries, report, finish)
+    try:
+        if scheduler is None and workers == 1 and not have_dask():
+            out.mkdir(parents=True, exist_ok=True)
+            finish(_run_here(pairs, out, params, device, warm_start, report))
+        else:
+            # (failed.csv written before the cluster closes: an interrupt while it closes, some
+            # seconds, had lost it)
+            _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retries, report, finish)
+    except KeyboardInterrupt:  # (Ctrl-C, SIGTERM: lfsf's Terminated is one)
+        if not summaries and known and out.is_dir():
+            _update_failed(out, pairs, known)
+        raise
     return summaries[-1]
+
+
+def _update_failed(out: Path, pairs: Sequence[Pair], outcomes: list) -> None:
+    """``out/failed.csv`` after an interrupted run: an earlier run's rows of the pairs this
+    one has ended (done, skipped or failed again) dropped, this one's failures added;
+    the pairs it did not reach keep their rows. (It had been left as it was: pairs done
+    since were still listed as failed, and this run's failures were not.)"""
+    path = out / "failed.csv"
+    ended = {o.name for o in outcomes}
+    kept = []
+    with contextlib.suppress(OSError, UnicodeDecodeError, csv.Error):
+        with open(path, newline="", encoding="utf-8", errors="surrogateescape") as f:
+            kept = [row for row in csv.DictReader(f) if row.get("name") not in ended]
+    by_name = {p.name: p for p in pairs}
+    rows = [(r.get("name", ""), r.get("t1", ""), r.get("t2", ""), r.get("reason", "")) for r in kept]
+    rows += [(o.name, by_name[o.name].t1, by_name[o.name].t2, o.reason) for o in outcomes
+             if o.status == "failed" and o.name in by_name]
+    _write_failed_rows(path, rows)
 
 
 def _run_here(pairs, out, params, device, warm_start, report) -> list[Outcome]:
@@ -728,19 +759,21 @@ def _dask_reason(exc: BaseException) -> str:
 
 def _write_failed(out: Path, pairs: Sequence[Pair], summary: Summary) -> None:
     """``out/failed.csv`` lists this run's failures; it is removed when there are none."""
-    path = out / "failed.csv"
-    failed = summary.failed
-    if not failed:
+    by_name = {p.name: p for p in pairs}
+    _write_failed_rows(out / "failed.csv", [(o.name, by_name[o.name].t1, by_name[o.name].t2, o.reason)
+                                            for o in summary.failed])
+
+
+def _write_failed_rows(path: Path, rows: list) -> None:
+    """``failed.csv`` of (name, t1, t2, reason) ``rows``, removed where there are none."""
+    if not rows:
         with contextlib.suppress(FileNotFoundError):
             path.unlink()
         return
-    by_name = {p.name: p for p in pairs}
     text = _io.StringIO()
     writer = csv.writer(text)
     writer.writerow(["name", "t1", "t2", "reason"])
-    for outcome in failed:
-        pair = by_name[outcome.name]
-        writer.writerow([pair.name, pair.t1, pair.t2, outcome.reason])
+    writer.writerows(rows)
     # surrogateescape: a path of bytes that are not UTF-8 is written back as those bytes
     write_bytes_atomic(path, text.getvalue().encode("utf-8", "surrogateescape"))
 

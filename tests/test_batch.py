@@ -946,3 +946,34 @@ def test_a_result_with_a_truncated_or_emptied_file_is_not_complete(tmp_path):
         with open(tmp_path / name / name, "r+b") as f:
             f.truncate(size)
         assert not batch.is_complete(tmp_path / name), name
+
+
+def test_an_interrupted_run_brings_failed_csv_up_to_date(tmp_path, monkeypatch):
+    """failed.csv had been left as it was by an interrupted run: pairs done since were still
+    listed, this run's failures were not (a helper). Now the pairs this run ended are
+    taken out, its failures put in, and the pairs it did not reach keep their rows."""
+    import csv
+
+    monkeypatch.setattr(batch, "have_dask", lambda: False)
+    pairs = [batch.Pair(name, tmp_path / f"{name}1.npz", tmp_path / f"{name}2.npz")
+             for name in ("fixed", "broken", "stopped", "later")]
+    out = tmp_path / "out"
+    out.mkdir()
+    with open(out / "failed.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["name", "t1", "t2", "reason"])
+        w.writerow(["fixed", "a", "b", "cannot read"])
+        w.writerow(["later", "c", "d", "cannot read"])
+
+    def run_pair(pair, *args, **kwargs):
+        if pair.name == "stopped":
+            raise KeyboardInterrupt
+        return batch.Outcome(pair.name, "failed" if pair.name == "broken" else "done", 0.1,
+                             "broken.npz: not a light field" if pair.name == "broken" else "")
+
+    monkeypatch.setattr(batch, "run_pair", run_pair)
+    with pytest.raises(KeyboardInterrupt):
+        batch.run_batch(pairs, out, PARAMS, device="cpu")
+    with open(out / "failed.csv") as f:
+        rows = {r["name"]: r["reason"] for r in csv.DictReader(f)}
+    assert rows == {"later": "cannot read", "broken": "broken.npz: not a light field"}, rows
