@@ -694,6 +694,7 @@ def _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, 
                 # the scheduler's HTTP server (no dashboard here) takes another port where
                 # 8787 is taken, as by another cluster, and said so as a warning of the batch
                 warnings.filterwarnings("ignore", message=r"Port \d+ is already in use")
+                _start_resource_tracker_deaf_to_hangups()
                 # one pair a worker at a time (Dask holds 1.1 tasks a thread by default: a second pair
                 # queued on a worker that kept dying had failed with the pair that killed it)
                 stack.enter_context(dask.config.set({"distributed.scheduler.worker-saturation": 1.0}))
@@ -742,12 +743,32 @@ def _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, 
                 report(outcome, finished, len(pairs))
                 for successor in after.pop(pairs[index].name, []):
                     queue.add(submit(successor))
-        except KeyboardInterrupt:
-            # (the wait for the pairs begun had been silent, and a second Ctrl-C abandoned them)
-            if not scheduler and finished < len(pairs) and callable(getattr(report, "interrupted", None)):
+        except KeyboardInterrupt as exc:
+            # (the wait for the pairs begun had been silent, and a second Ctrl-C abandoned them;
+            # Ctrl-C alone: a SIGTERM or SIGHUP sent to the process group ends the workers too)
+            if (type(exc) is KeyboardInterrupt and not scheduler and finished < len(pairs)
+                    and callable(getattr(report, "interrupted", None))):
                 report.interrupted()
             raise
         finish(outcomes)
+
+
+def _start_resource_tracker_deaf_to_hangups() -> None:
+    """Start multiprocessing's resource tracker (which the local cluster's processes share)
+    with SIGHUP blocked, as it blocks SIGINT and SIGTERM itself: a hang-up sent to the
+    process group (an ssh session dropped) had killed it, and the one started again printed
+    a traceback for each semaphore it had not seen (six, into the log)."""
+    import signal
+
+    if not hasattr(signal, "SIGHUP") or not hasattr(signal, "pthread_sigmask"):
+        return
+    from multiprocessing import resource_tracker
+
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGHUP})
+    try:
+        resource_tracker.ensure_running()
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def _dask_reason(exc: BaseException) -> str:
