@@ -402,6 +402,24 @@ def test_cluster_survives_a_worker_killed_mid_task(tmp_path):
         assert np.isfinite(data["disp1"]).all()
 
 
+def _signal_a_running_cluster_batch(start: list, folder: Path, out: Path, signum: int):
+    """``lfsf batch FOLDER --out OUT --workers 2`` started by ``python START…`` in a session
+    of its own, ``signum`` sent to its process group once a pair is running; (the process,
+    its stderr)."""
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, *start, "batch", str(folder), "--out", str(out), "--workers", "2",
+                             "--preset", "fast"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    deadline = time.monotonic() + 120
+    while not list(out.glob(".*.part-*")) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.002)
+    os.killpg(proc.pid, signum)
+    _, err = proc.communicate(timeout=120)
+    return proc, err
+
+
 @needs_dask
 def test_ctrl_c_on_a_cluster_batch_is_one_line_not_the_workers_tracebacks(frames, tmp_path):
     """A terminal's Ctrl-C reaches the whole process group: each worker process printed
@@ -412,21 +430,11 @@ def test_ctrl_c_on_a_cluster_batch_is_one_line_not_the_workers_tracebacks(frames
     run started in the background by a non-interactive shell (``pytest &``) has SIGINT
     ignored, every process it starts inherits that, and the batch then rightly ran to its
     end (exit 0), which made this test fail on such runs only."""
-    import subprocess
-    import sys
-
     folder, _ = frames
     out = tmp_path / "out"
     answer_ctrl_c = "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); " \
                     "from lfsf.cli import entry; sys.argv[0] = 'lfsf'; entry()"
-    proc = subprocess.Popen([sys.executable, "-c", answer_ctrl_c, "batch", str(folder), "--out", str(out),
-                             "--workers", "2", "--preset", "fast"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, start_new_session=True)
-    deadline = time.monotonic() + 120
-    while not list(out.glob(".*.part-*")) and proc.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.002)
-    os.killpg(proc.pid, signal.SIGINT)
-    _, err = proc.communicate(timeout=120)
+    proc, err = _signal_a_running_cluster_batch(["-c", answer_ctrl_c], folder, out, signal.SIGINT)
     assert proc.returncode == 130, err
     assert "Traceback" not in err and err.strip().splitlines()[-1] == "lfsf batch: interrupted", err
     # … said at once: the wait for the pairs begun had been silent, and a second Ctrl-C abandoned them
@@ -442,19 +450,8 @@ def test_a_hang_up_of_a_cluster_batchs_process_group_is_one_line(frames, tmp_pat
     semaphore it had not seen (six of them) after "hung up". It is started with SIGHUP
     blocked now. (The workers die of it too, and Dask's own log may then say so, in some
     runs with a traceback of a closed connection: not checked here.)"""
-    import subprocess
-    import sys
-
     folder, _ = frames
-    out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-m", "lfsf", "batch", str(folder), "--out", str(out), "--workers", "2",
-                             "--preset", "fast"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
-    deadline = time.monotonic() + 120
-    while not list(out.glob(".*.part-*")) and proc.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.002)
-    os.killpg(proc.pid, signal.SIGHUP)
-    _, err = proc.communicate(timeout=120)
+    proc, err = _signal_a_running_cluster_batch(["-m", "lfsf"], folder, tmp_path / "out", signal.SIGHUP)
     assert proc.returncode == 129, err
     assert "resource_tracker" not in err and "KeyError" not in err, err
     assert "lfsf batch: hung up (SIGHUP)" in err.splitlines(), err
