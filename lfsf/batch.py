@@ -242,31 +242,21 @@ def is_complete(folder: Path) -> bool:
 
 
 def _whole(path: Path) -> bool:
-    """Whether a result file holds what its header promises: a PFM or FLO as many bytes
-    as its size says, anything else at least one byte (read: the headers alone)."""
-    import struct
+    """Whether a result file holds what its header promises: a PFM or FLO that
+    :func:`lfsf.io.read_pfm` or :func:`lfsf.io.read_flo` reads (the maps are small beside
+    the ``sceneflow.npz`` a re-run reads anyway), anything else at least one byte."""
+    from lfsf import io
 
     try:
-        size = path.stat().st_size
         if path.suffix == ".flo":
-            with open(path, "rb") as f:
-                head = f.read(12)
-            if len(head) < 12 or head[:4] != b"PIEH":
-                return False
-            width, height = struct.unpack("<ii", head[4:])
-            return size == 12 + 8 * width * height
-        if path.suffix == ".pfm":
-            with open(path, "rb") as f:
-                lines = [f.readline() for _ in range(3)]
-                header = f.tell()
-            kind, dims = lines[0].strip(), lines[1].split()
-            if kind not in (b"Pf", b"PF") or len(dims) != 2:
-                return False
-            channels = 3 if kind == b"PF" else 1
-            return size == header + 4 * channels * int(dims[0]) * int(dims[1])
-        return size > 0
-    except (OSError, ValueError, struct.error):
+            io.read_flo(path)
+        elif path.suffix == ".pfm":
+            io.read_pfm(path)
+        else:
+            return path.stat().st_size > 0
+    except (OSError, ValueError):
         return False
+    return True
 
 
 #: Which earlier results a re-run estimates again and replaces.

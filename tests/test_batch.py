@@ -963,7 +963,7 @@ def test_a_result_with_a_truncated_or_emptied_file_is_not_complete(tmp_path):
     maps = [r.random((12, 16)).astype(np.float32) for _ in range(4)]
     SceneFlow(*maps, Params.preset("fast"), 1.0, "cpu").save(tmp_path / "whole")
     assert batch.is_complete(tmp_path / "whole")
-    for name, size in (("flow.flo", 100), ("disp2.pfm", 1000), ("disp1.png", 0)):
+    for name, size in (("flow.flo", 100), ("disp2.pfm", 500), ("disp1.png", 0)):
         shutil.copytree(tmp_path / "whole", tmp_path / name)
         with open(tmp_path / name / name, "r+b") as f:
             f.truncate(size)
