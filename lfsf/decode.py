@@ -875,10 +875,15 @@ def _check_white_fits(raw: "RawImage", white: "RawImage", lattice: Lattice, samp
     left = np.clip(np.floor(lx).astype(np.int64), 0, w - 2)
     centre_values = 0.25 * (grey(white, top, left) + grey(white, top + 1, left) + grey(white, top, left + 1)
                             + grey(white, top + 1, left + 1))
-    pairs = {(a, b): k for k, (a, b) in enumerate(zip(li.tolist(), lj.tolist()))}
-    steps = [abs(centre_values[k] - centre_values[pairs[a, b + 1]]) for (a, b), k in pairs.items() if (a, b + 1) in pairs]
+    # (on the lenses' index grid, NaN where a lens lies off the sensor: lens (i, j) beside (i, j + 1))
+    steps = np.empty(0)
+    if len(li):
+        grid = np.full((np.ptp(li) + 1, np.ptp(lj) + 1), np.nan)
+        grid[li - li.min(), lj - lj.min()] = centre_values
+        steps = np.abs(np.diff(grid, axis=1))
+        steps = steps[np.isfinite(steps)]
     level = float(np.median(centre_values)) if len(centre_values) else 0.0
-    if steps and level > 0 and float(np.median(steps)) > WHITE_LENS_STEP * level:
+    if steps.size and level > 0 and float(np.median(steps)) > WHITE_LENS_STEP * level:
         raise ValueError(f"{white.source}: not a white image: its neighbouring micro-images differ by a median of "
                          f"{100 * float(np.median(steps)) / level:.0f} % (a white image is a diffuse white scene, "
                          f"alike in every micro-image but for a slow vignetting); were RAW ({raw.source}) and "
