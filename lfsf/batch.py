@@ -607,11 +607,8 @@ def _update_failed(out: Path, pairs: Sequence[Pair], outcomes: list) -> None:
     with contextlib.suppress(OSError, UnicodeDecodeError, csv.Error):
         with open(path, newline="", encoding="utf-8", errors="surrogateescape") as f:
             kept = [row for row in csv.DictReader(f) if row.get("name") not in ended]
-    by_name = {p.name: p for p in pairs}
-    rows = [(r.get("name", ""), r.get("t1", ""), r.get("t2", ""), r.get("reason", "")) for r in kept]
-    rows += [(o.name, by_name[o.name].t1, by_name[o.name].t2, o.reason) for o in outcomes
-             if o.status == "failed" and o.name in by_name]
-    _write_failed_rows(path, rows)
+    earlier = [(r.get("name", ""), r.get("t1", ""), r.get("t2", ""), r.get("reason", "")) for r in kept]
+    _write_failed_rows(path, pairs, [o for o in outcomes if o.status == "failed"], earlier)
 
 
 def _run_here(pairs, out, params, device, warm_start, report) -> list[Outcome]:
@@ -770,13 +767,14 @@ def _dask_reason(exc: BaseException) -> str:
 
 def _write_failed(out: Path, pairs: Sequence[Pair], summary: Summary) -> None:
     """``out/failed.csv`` lists this run's failures; it is removed when there are none."""
+    _write_failed_rows(out / "failed.csv", pairs, summary.failed)
+
+
+def _write_failed_rows(path: Path, pairs: Sequence[Pair], failed: list, earlier=()) -> None:
+    """``failed.csv``: the rows ``earlier`` (name, t1, t2, reason), then a row for each
+    failed outcome of ``pairs``; removed where there are none."""
     by_name = {p.name: p for p in pairs}
-    _write_failed_rows(out / "failed.csv", [(o.name, by_name[o.name].t1, by_name[o.name].t2, o.reason)
-                                            for o in summary.failed])
-
-
-def _write_failed_rows(path: Path, rows: list) -> None:
-    """``failed.csv`` of (name, t1, t2, reason) ``rows``, removed where there are none."""
+    rows = [*earlier, *((o.name, by_name[o.name].t1, by_name[o.name].t2, o.reason) for o in failed)]
     if not rows:
         with contextlib.suppress(FileNotFoundError):
             path.unlink()
