@@ -280,13 +280,12 @@ class _Progress:
             import shutil
 
             try:  # (stderr's terminal: stdout may be a file)
-                columns = os.get_terminal_size(sys.stderr.fileno()).columns - 1
+                columns = os.get_terminal_size(sys.stderr.fileno()).columns
             except (AttributeError, OSError, ValueError):
-                columns = shutil.get_terminal_size().columns - 1
-            if columns < 1:  # (a terminal that reports no width: `script`, some containers)
-                columns = shutil.get_terminal_size().columns - 1
-            if columns < 1:
-                columns = 79
+                columns = 0
+            # (a terminal that reports no width, as under `script` or in some containers, had cut every
+            # line to "…": shutil's size is $COLUMNS, stdout's terminal's, else 80, never 0)
+            columns = (columns or shutil.get_terminal_size().columns) - 1
             if len(line) > columns:
                 line = line[:max(columns - 1, 0)] + "…"
         sys.stderr.write("\r" + line.ljust(self.width))
