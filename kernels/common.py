@@ -14,12 +14,14 @@ wp.set_module_options({"enable_backward": False})
 UNKNOWNS = (wp.vec4, wp.vec2)
 
 
-def overload_unknowns(kernel, *names: str):
+def overload_unknowns(kernel, *names: str, values: tuple[str, ...] = ()):
     """Declare ``kernel``'s overloads for each type of :data:`UNKNOWNS`: the arrays named
-    (2-D, generic ``dtype``) hold the unknowns. Declaring them at import keeps the module
-    the same whichever is launched first (no recompilation on the other's first launch)."""
+    (2-D, generic ``dtype``) hold the unknowns, and the arguments named in ``values`` are
+    one value per unknown (of the unknowns' vector type). Declaring them at import keeps
+    the module the same whichever is launched first (no recompilation on the other's first
+    launch)."""
     for vec in UNKNOWNS:
-        wp.overload(kernel, {name: wp.array2d(dtype=vec) for name in names})
+        wp.overload(kernel, {**{name: wp.array2d(dtype=vec) for name in names}, **{name: vec for name in values}})
     return kernel
 
 

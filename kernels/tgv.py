@@ -188,7 +188,7 @@ def tgv_preconditioner(
     tensor1: wp.array2d(dtype=wp.vec3),
     tensor2: wp.array2d(dtype=wp.vec3),
     tensor3: wp.array2d(dtype=wp.vec3),
-    alpha0: float,
+    alpha0: Any,
     alpha1: float,
     eps: float,
     step_ratio: float,
@@ -228,9 +228,8 @@ def tgv_preconditioner(
         col += wp.abs(k01) + wp.abs(k11)
         count += 1.0
     tau_x[i, j] = step_ratio * reciprocal(colsum + alpha1 * col, eps)
-    ones = type(colsum)(1.0)
-    tau_w0[i, j] = step_ratio * reciprocal(alpha1 * (wp.abs(g00) + wp.abs(g01)) + alpha0 * count * ones, eps)
-    tau_w1[i, j] = step_ratio * reciprocal(alpha1 * (wp.abs(g01) + wp.abs(g11)) + alpha0 * count * ones, eps)
+    tau_w0[i, j] = step_ratio * reciprocal(alpha1 * (wp.abs(g00) + wp.abs(g01)) + alpha0 * count, eps)
+    tau_w1[i, j] = step_ratio * reciprocal(alpha1 * (wp.abs(g01) + wp.abs(g11)) + alpha0 * count, eps)
     row0_sum = a * wp.abs(g00) + b * wp.abs(g01) + wp.abs(a * g00 + b * g01) + wp.abs(g00) + wp.abs(g01)
     row1_sum = a * wp.abs(g01) + b * wp.abs(g11) + wp.abs(a * g01 + b * g11) + wp.abs(g01) + wp.abs(g11)
     # one step for both components of y(p): its projection onto |y| ≤ 1 is the prox of the
@@ -354,7 +353,7 @@ def gamma_y_floats(g00: Any, g01: Any, g11: Any, y0: Any, y1: Any, at: wp.int64)
 
 @wp.func
 def primal_step_floats(data_grad: Any, y0: Any, y1: Any, z00: Any, z01: Any, z10: Any, z11: Any, g00: Any,
-                       g01: Any, g11: Any, tau_x: Any, tau_w0: Any, tau_w1: Any, alpha0: float, alpha1: float,
+                       g01: Any, g11: Any, tau_x: Any, tau_w0: Any, tau_w1: Any, alpha0: Any, alpha1: float,
                        at: wp.int64, left: wp.int64, above: wp.int64, has_below: bool, has_above: bool, x: Any,
                        w0: Any, w1: Any, x_bar: Any, w0_bar: Any, w1_bar: Any):
     """:data:`tgv_primal_step` on the TGV_FLOATS floats from float ``at`` of every
@@ -383,8 +382,8 @@ def primal_step_floats(data_grad: Any, y0: Any, y1: Any, z00: Any, z01: Any, z10
     w0_old = load_floats(w0.ptr, at)
     w1_old = load_floats(w1.ptr, at)
     x_new = x_old - wp.cw_mul(load_floats(tau_x.ptr, at), load_floats(data_grad.ptr, at) - alpha1 * div_h)
-    w0_new = w0_old + wp.cw_mul(load_floats(tau_w0.ptr, at), alpha1 * h0 + alpha0 * div_z0)
-    w1_new = w1_old + wp.cw_mul(load_floats(tau_w1.ptr, at), alpha1 * h1 + alpha0 * div_z1)
+    w0_new = w0_old + wp.cw_mul(load_floats(tau_w0.ptr, at), alpha1 * h0 + wp.cw_mul(alpha0, div_z0))
+    w1_new = w1_old + wp.cw_mul(load_floats(tau_w1.ptr, at), alpha1 * h1 + wp.cw_mul(alpha0, div_z1))
     store_floats(x.ptr, at, x_new)
     store_floats(w0.ptr, at, w0_new)
     store_floats(w1.ptr, at, w1_new)
@@ -527,7 +526,7 @@ def _tgv_steps(vector: bool):
         tau_x: wp.array2d(dtype=Any),
         tau_w0: wp.array2d(dtype=Any),
         tau_w1: wp.array2d(dtype=Any),
-        alpha0: float,
+        alpha0: Any,
         alpha1: float,
         span: int,
         # outputs
@@ -557,11 +556,17 @@ def _tgv_steps(vector: bool):
         j = j0
         # Γy of the pixel to the left, carried from the last pixel (computed once)
         l0, l1 = gamma_y(g00, g01, g11, y0, y1, i, wp.max(j0 - 1, 0))
+        # α0 of each float of a vector (the unknowns' values repeated; unused without the vector path)
+        alpha0_floats = floats()
+        if wp.static(vector):
+            for p in range(chunk):
+                for q in range(k):
+                    alpha0_floats[int(p) * int(k) + int(q)] = alpha0[q]
         while j < end:
             if wp.static(vector) and j >= 1 and j + chunk <= end and j + chunk <= w - 1:
                 at = (row_at + wp.int64(j)) * wp.int64(k)
-                primal_step_floats(data_grad, y0, y1, z00, z01, z10, z11, g00, g01, g11, tau_x, tau_w0, tau_w1, alpha0,
-                                   alpha1, at, at - wp.int64(k), (above_at + wp.int64(j)) * wp.int64(k), i < h - 1,
+                primal_step_floats(data_grad, y0, y1, z00, z01, z10, z11, g00, g01, g11, tau_x, tau_w0, tau_w1,
+                                   alpha0_floats, alpha1, at, at - wp.int64(k), (above_at + wp.int64(j)) * wp.int64(k), i < h - 1,
                                    i > 0, x, w0, w1, x_bar, w0_bar, w1_bar)
                 j += chunk
                 l0, l1 = gamma_y(g00, g01, g11, y0, y1, i, j - 1)
@@ -591,8 +596,8 @@ def _tgv_steps(vector: bool):
                 w0_old = w0[i, j]
                 w1_old = w1[i, j]
                 x_new = x_old - wp.cw_mul(tau_x[i, j], data_grad[i, j] - alpha1 * div_h)
-                w0_new = w0_old + wp.cw_mul(tau_w0[i, j], alpha1 * h0 + alpha0 * div_z0)
-                w1_new = w1_old + wp.cw_mul(tau_w1[i, j], alpha1 * h1 + alpha0 * div_z1)
+                w0_new = w0_old + wp.cw_mul(tau_w0[i, j], alpha1 * h0 + wp.cw_mul(alpha0, div_z0))
+                w1_new = w1_old + wp.cw_mul(tau_w1[i, j], alpha1 * h1 + wp.cw_mul(alpha0, div_z1))
                 x[i, j] = x_new
                 w0[i, j] = w0_new
                 w1[i, j] = w1_new
@@ -622,10 +627,10 @@ def tgv_kernels(device: str):
 
 # the kernels on the unknowns, for vec4 (δ1, δ2, u, v) and vec2 (u, v; flow only)
 overload_unknowns(joint_diffusion_tensor, "x_hat")
-overload_unknowns(tgv_preconditioner, "data_colsum", "tau_x", "tau_w0", "tau_w1", "sigma_y")
+overload_unknowns(tgv_preconditioner, "data_colsum", "tau_x", "tau_w0", "tau_w1", "sigma_y", values=("alpha0",))
 overload_unknowns(expand_tensor, "g00", "g01", "g11")
 for _dual, _primal in ((tgv_dual_step, tgv_primal_step), (tgv_dual_step_pixel, tgv_primal_step_pixel)):
     overload_unknowns(_dual, "x_bar", "w0_bar", "w1_bar", "g00", "g01", "g11", "sigma_y", "y0", "y1", "z00", "z01",
                       "z10", "z11")
     overload_unknowns(_primal, "data_grad", "y0", "y1", "z00", "z01", "z10", "z11", "g00", "g01", "g11", "tau_x",
-                      "tau_w0", "tau_w1", "x", "w0", "w1", "x_bar", "w0_bar", "w1_bar")
+                      "tau_w0", "tau_w1", "x", "w0", "w1", "x_bar", "w0_bar", "w1_bar", values=("alpha0",))

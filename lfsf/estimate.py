@@ -19,7 +19,7 @@ from lfsf._filters import box_mean
 from lfsf._filters import gaussian_blur as _blur
 from lfsf.gains import GAIN_CHANGE, MIN_VIEW_SIZE, fit_reduced_gains, gain_change, reduction_factor, sampled_views
 from lfsf.io import LightField, _a, _check_pair_brightest, _refuse_non_finite, centre_view, luma, read_lightfield
-from lfsf.params import Params
+from lfsf.params import Params, recorded_as_now
 
 
 @dataclass(eq=False, repr=False)
@@ -132,7 +132,7 @@ class SceneFlow:
                              f"(keys: {', '.join(keys)})")
         try:
             meta = json.loads(str(arrays["params"]))
-            params = Params().replace(**meta["params"])
+            params = Params().replace(**recorded_as_now(meta["params"]))
             radius, device = float(meta["radius_used"]), str(meta["device"])
             timings, exposure = dict(meta.get("timings") or {}), meta.get("exposure")
             exposure = None if exposure is None else (float(exposure[0]), float(exposure[1]))
@@ -1544,11 +1544,11 @@ def estimate_scene_flow(
     Special cases come from the same code: ``estimate_scene_flow(lf, lf)`` is stereo.
     With the ``paper`` preset the flow comes out within 0.01 px of zero and δ2 within
     0.01 of δ1 but near depth edges, where a sample's rows drop out at one time and not
-    the other (scene ``paper`` at 160×120, 9×9 views, thirty-fourth session: flows above
-    0.01 px at 0.03 % of the pixels, largest 0.097 px; |δ2 − δ1| above 0.01 at 0.02 %,
-    largest 0.029). ``fast`` (3 warps of 30 iterations against 5 of 100) stops further
-    from that fixed point: median flow 0.001 px, above 0.01 px at 1.2 % of the pixels,
-    largest 0.22 px; |δ2 − δ1| above 0.01 at 0.15 %, largest 0.14. On real views it stops
+    the other (scene ``paper`` at 160×120, 9×9 views, fiftieth session: flows above
+    0.01 px at 0.016 % of the pixels, largest 0.027 px; |δ2 − δ1| above 0.01 nowhere,
+    largest 0.0026). ``fast`` (3 warps of 30 iterations against 5 of 100) stops further
+    from that fixed point: median flow 0.001 px, above 0.01 px at 2.4 % of the pixels,
+    largest 0.28 px; |δ2 − δ1| above 0.01 at 0.09 %, largest 0.30. On real views it stops
     further still: HCI antinous at 256×256 (``lf.downsample(2)``), 8-px border, ``fast``:
     median flow 0.003 px, above 0.01 px at 18 %, largest 0.51 px; |δ2 − δ1| above 0.01 at
     3.3 %, largest 1.76 (``paper``: 0.0002 px, 0.03 %, 0.25 px; 0.02 %, 0.72). On colour light fields δ1's tensor is the colour one and

@@ -265,7 +265,7 @@ class LevelSolver:
                                      self.q_store],
                             device=self.device, bands=self.bands)
         self._launch(tgv.tgv_preconditioner,
-                     inputs=[self.data_colsum, self.tensor1, self.tensor2, self.tensor3, p.alpha0, p.alpha1, p.eps,
+                     inputs=[self.data_colsum, self.tensor1, self.tensor2, self.tensor3, self.alpha0(), p.alpha1, p.eps,
                              p.step_ratio],
                      outputs=[self.tau_x, self.tau_w0, self.tau_w1, self.sigma_y])
 
@@ -483,9 +483,18 @@ class LevelSolver:
                    outputs=[self.y0, self.y1, self.z00, self.z01, self.z10, self.z11]),
             record(primal_step,
                    inputs=[self.data_grad, self.y0, self.y1, self.z00, self.z01, self.z10, self.z11,
-                           *self.tensor_entries, self.tau_x, self.tau_w0, self.tau_w1, p.alpha0, p.alpha1, self.span],
+                           *self.tensor_entries, self.tau_x, self.tau_w0, self.tau_w1, self.alpha0(), p.alpha1,
+                           self.span],
                    outputs=[self.x, self.w0, self.w1, self.x_bar, self.w0_bar, self.w1_bar]),
         ]
+
+    def alpha0(self):
+        """α0 of each unknown, as the unknowns' vector: ``params.alpha0`` for δ1 and δ2,
+        ``params.alpha0_flow`` for u and v."""
+        p = self.params
+        if self.flow_only:
+            return self.vec(p.alpha0_flow, p.alpha0_flow)
+        return self.vec(p.alpha0, p.alpha0, p.alpha0_flow, p.alpha0_flow)
 
     def median_radius(self) -> int:
         """The median filter's radius on this level (:func:`level_median_radius`)."""
@@ -525,7 +534,7 @@ class LevelSolver:
 
     def energy(self) -> float:
         """Energy of the linearised model at the current (x, w): Σ_s Σ_k w_k|ρ_k| +
-        α1 Σ|Γ(∇x − w)| + α0 Σ|∇w| (NumPy; for tests and diagnostics, not the hot path)."""
+        α1 Σ|Γ(∇x − w)| + α0 Σ|∇w| (α0 of each unknown: :meth:`alpha0`; NumPy; for tests and diagnostics, not the hot path)."""
         p = self.params
         x, w0, w1 = self.state()
         d = x - self.linearisation_point()
@@ -543,8 +552,9 @@ class LevelSolver:
         first = float(np.sum(np.sqrt(t0**2 + t1**2)))
         dx0, dy0 = forward_gradient(w0)
         dx1, dy1 = forward_gradient(w1)
-        second = float(np.sum(np.sqrt(dx0**2 + dy0**2 + dx1**2 + dy1**2)))
-        return data + p.alpha1 * first + p.alpha0 * second
+        alpha0 = np.array([p.alpha0, p.alpha0, p.alpha0_flow, p.alpha0_flow])  # (δ1, δ2, u, v)
+        second = float(np.sum(alpha0 * np.sqrt(dx0**2 + dy0**2 + dx1**2 + dy1**2)))
+        return data + p.alpha1 * first + second
 
 
 #: The TGV duals' buffers: y for ∇x − w (two components), z for ∇w (four).

@@ -506,6 +506,11 @@ def tensor_components(t: np.ndarray) -> np.ndarray:
     return np.stack([t[..., 0, 0], t[..., 0, 1], t[..., 1, 1]], -1)
 
 
+def alpha0_of(alpha0, k: int) -> float:
+    """α0 of unknown k of (δ1, δ2, u, v): one value for all, or one per unknown."""
+    return float(np.broadcast_to(np.asarray(alpha0, np.float64), (4,))[k])
+
+
 def tgv_matrix(tensor: np.ndarray, alpha0: float, alpha1: float) -> np.ndarray:
     """Dense K of the TGV part for one unknown on an (h, w) grid.
 
@@ -545,13 +550,13 @@ def per_unknown(tensor1: np.ndarray, tensor2: np.ndarray, k: int, tensor3: np.nd
 
 def tgv_preconditioner(data_colsum, tensor1, tensor2, alpha0, alpha1, eps, tensor3=None):
     """τ_x, τ_w0, τ_w1, σ_y (each (h, w, 4)) from the exact abs row/column sums of
-    :func:`tgv_matrix` (data column sums added to τ_x; σ_y from the larger of y's two
+    :func:`tgv_matrix` (``alpha0`` one value or one per unknown) (data column sums added to τ_x; σ_y from the larger of y's two
     rows), and σ_z (one per z row, (4, h, w, 4))."""
     h, w = tensor1.shape[:2]
     out = {k: np.zeros((h, w, 4)) for k in ("tau_x", "tau_w0", "tau_w1", "sigma_y")}
     zrows = np.zeros((4, h, w, 4))
     for k in range(4):
-        K = np.abs(tgv_matrix(per_unknown(tensor1, tensor2, k, tensor3), alpha0, alpha1))
+        K = np.abs(tgv_matrix(per_unknown(tensor1, tensor2, k, tensor3), alpha0_of(alpha0, k), alpha1))
         col = K.sum(axis=0).reshape(3, h, w)
         row = K.sum(axis=1).reshape(6, h, w)
         out["tau_x"][..., k] = 1.0 / (data_colsum[..., k] + col[0] + eps)
@@ -576,7 +581,7 @@ def tgv_dual_step(x_bar, w0_bar, w1_bar, tensor1, tensor2, sigma_y, sigma_z, alp
     h, w = x_bar.shape[:2]
     duals = [np.array(a, np.float64) for a in (y0, y1, z00, z01, z10, z11)]
     for k in range(4):
-        K = tgv_matrix(per_unknown(tensor1, tensor2, k, tensor3), alpha0, alpha1)
+        K = tgv_matrix(per_unknown(tensor1, tensor2, k, tensor3), alpha0_of(alpha0, k), alpha1)
         kp = (K @ _pack(x_bar, w0_bar, w1_bar, k)).reshape(6, h, w)
         steps = [sigma_y[..., k]] * 2 + [sigma_z] * 4
         new = [duals[m][..., k] + steps[m] * kp[m] for m in range(6)]
@@ -594,7 +599,7 @@ def tgv_primal_step(data_grad, y0, y1, z00, z01, z10, z11, tensor1, tensor2, tau
     h, w = x.shape[:2]
     outs = [np.array(a, np.float64) for a in (x, w0, w1)]
     for k in range(4):
-        K = tgv_matrix(per_unknown(tensor1, tensor2, k, tensor3), alpha0, alpha1)
+        K = tgv_matrix(per_unknown(tensor1, tensor2, k, tensor3), alpha0_of(alpha0, k), alpha1)
         d = np.concatenate([a[..., k].ravel() for a in (y0, y1, z00, z01, z10, z11)])
         kt = (K.T @ d).reshape(3, h, w)
         kt[0] += data_grad[..., k]
@@ -681,7 +686,7 @@ class LinearisedProblem:
     """E(x, w) = Σ_s Σ_k w_k|ρ_k(x)| + α1 Σ|Γ(∇x − w)| + α0 Σ|∇w| for fixed coefficients
     A (9, S, h, w), weights W (3, S, h, w), linearisation point x̂ (h, w, 4) and tensors
     (Γ00, Γ01, Γ11) (h, w, 3) each: tensor1 for δ1, tensor2 for δ2, tensor3 (default
-    tensor1) for u and v."""
+    tensor1) for u and v; α0 one value or one per unknown."""
 
     def __init__(self, A, W, x_hat, tensor1, tensor2, alpha0, alpha1, tensor3=None):
         self.A, self.W = np.asarray(A, np.float64), np.asarray(W, np.float64)
@@ -690,7 +695,7 @@ class LinearisedProblem:
         t3 = t1 if tensor3 is None else np.asarray(tensor3, np.float64)
         self.tensor1, self.tensor2, self.tensor3 = t1, t2, t3
         self.G = [np.stack([t1[..., m], t2[..., m], t3[..., m], t3[..., m]], -1) for m in range(3)]
-        self.alpha0, self.alpha1 = alpha0, alpha1
+        self.alpha0, self.alpha1 = np.asarray(alpha0, np.float64), alpha1  # (broadcast over the unknowns)
         self.b = self.W * data_residuals(self.A, np.zeros_like(self.x_hat))
 
     def K(self, x, w0, w1):

@@ -180,7 +180,7 @@ def test_captured_loop_runs_its_steps_n_times_in_order(bands, monkeypatch):
         dual = ([b["x_bar"], b["w0_bar"], b["w1_bar"], *b["g"], b["sy"], 0.25, 2.0, 0.5, w],
                 [b["y0"], b["y1"], b["z00"], b["z01"], b["z10"], b["z11"]])
         primal = ([b["grad"], b["y0"], b["y1"], b["z00"], b["z01"], b["z10"], b["z11"], *b["g"],
-                   b["tx"], b["tw0"], b["tw1"], 2.0, 0.5, w],
+                   b["tx"], b["tw0"], b["tw1"], wp.vec4(2.0, 2.0, 1.0, 1.0), 0.5, w],
                   [b["x"], b["w0"], b["w1"], b["x_bar"], b["w0_bar"], b["w1_bar"]])
         dual_step, primal_step = tgv.tgv_kernels("cpu")
         return [(dual_step, *dual), (primal_step, *primal)]

@@ -38,6 +38,11 @@ def unknowns_arr(a, unknowns, device):
     return arr(a, wp.vec4, device) if unknowns == "vec4" else arr(a[..., 2:], wp.vec2, device)
 
 
+def unknowns_value(a, unknowns):
+    """A value per unknown of (δ1, δ2, u, v) as the kernel's unknowns' vector."""
+    return wp.vec4(*map(float, a)) if unknowns == "vec4" else wp.vec2(*map(float, a[2:]))
+
+
 def unknowns_zeros(shape, unknowns, device):
     return wp.zeros(shape, dtype=wp.vec4 if unknowns == "vec4" else wp.vec2, device=device)
 
@@ -1435,23 +1440,24 @@ def test_tgv_preconditioner_is_abs_sums_of_K(device, unknowns, step_ratio):
     from lfsf.kernels import tgv
 
     h, w = 4, 5
-    alpha0, alpha1, eps = 2.0, 0.7, 1e-6
+    alpha0, alpha1, eps = np.array([2.0, 1.5, 0.8, 1.2]), 0.7, 1e-6  # α0 of each unknown
     t1, t2, t3 = _tgv_setting(13, h, w)
     assert np.any(t1[..., 1] < 0) and np.any(t1[..., 1] > 0)
     data_colsum = rng(14).uniform(0.0, 3.0, (h, w, 4)).astype(np.float32)
     outs = [unknowns_zeros((h, w), unknowns, device) for _ in range(4)]
     launch(tgv.tgv_preconditioner, (h, w),
            [unknowns_arr(data_colsum, unknowns, device), arr(t1, wp.vec3, device), arr(t2, wp.vec3, device), arr(t3, wp.vec3, device),
-            alpha0, alpha1, eps, step_ratio], outs, device)
+            unknowns_value(alpha0, unknowns), alpha1, eps, step_ratio], outs, device)
     want, zrows = ref.tgv_preconditioner(data_colsum.astype(np.float64), t1.astype(np.float64),
                                          t2.astype(np.float64), alpha0, alpha1, eps, t3.astype(np.float64))
     for name, got in zip(("tau_x", "tau_w0", "tau_w1", "sigma_y"), outs):
         scale = step_ratio if name.startswith("tau") else 1.0 / step_ratio
         np.testing.assert_allclose(got.numpy(), scale * flow_part(want[name], unknowns), rtol=1e-5, err_msg=name)
     # σ_z = 1/(2α0) (the solver's constant) is 1/row sum of every nonzero z row
-    nonzero = zrows[zrows > 0]
-    close(nonzero, 2.0 * alpha0)
-    assert np.all((zrows == 0) | (np.abs(zrows - 2 * alpha0) < 1e-12))
+    for k in range(4):
+        nonzero = zrows[..., k][zrows[..., k] > 0]
+        close(nonzero, 2.0 * alpha0[k])
+        assert np.all((zrows[..., k] == 0) | (np.abs(zrows[..., k] - 2 * alpha0[k]) < 1e-12))
 
 
 def _tgv_fields(seed, h, w, scale=1.0):
@@ -1513,7 +1519,7 @@ def test_tgv_dual_step_matches_reference(device, h, w, span, unknowns):
 def test_tgv_primal_step_matches_reference(device, h, w, span, unknowns):
     from lfsf.kernels import tgv
 
-    alpha0, alpha1 = 2.0, 0.7
+    alpha0, alpha1 = np.array([2.0, 1.5, 0.8, 1.2]), 0.7  # α0 of each unknown
     t1, t2, t3 = _tgv_setting(18, h, w)
     x, w0, w1, y0, y1, z00, z01, z10, z11 = _tgv_fields(19, h, w, 0.5)
     r = rng(20)
@@ -1525,7 +1531,8 @@ def test_tgv_primal_step_matches_reference(device, h, w, span, unknowns):
            [unknowns_arr(data_grad, unknowns, device)]
            + [unknowns_arr(a, unknowns, device) for a in (y0, y1, z00, z01, z10, z11)]
            + _tensor_entries(t1, t2, t3, unknowns, device)
-           + [unknowns_arr(a, unknowns, device) for a in (tau_x, tau_w0, tau_w1)] + [alpha0, alpha1, span],
+           + [unknowns_arr(a, unknowns, device) for a in (tau_x, tau_w0, tau_w1)]
+           + [unknowns_value(alpha0, unknowns), alpha1, span],
            prim + bars, device)
     want = ref.tgv_primal_step(data_grad, y0, y1, z00, z01, z10, z11, t1, t2, tau_x, tau_w0, tau_w1,
                                alpha0, alpha1, x, w0, w1, t3)
@@ -1555,8 +1562,8 @@ def test_tgv_steps_vector_path_equals_pixel_by_pixel(h, w, span, unknowns):
         for _ in range(3):
             launch(dual, (h, -(-w // span)), [*bars, *g, sy, 0.25, 2.0, 0.5, span], [y0, y1, z00, z01, z10, z11], "cpu")
             launch(primal, (h, -(-w // span)),
-                   [unknowns_arr(data_grad, unknowns, "cpu"), y0, y1, z00, z01, z10, z11, *g, tx, tw0, tw1, 2.0, 0.5,
-                    span], [x, w0, w1, *bars], "cpu")
+                   [unknowns_arr(data_grad, unknowns, "cpu"), y0, y1, z00, z01, z10, z11, *g, tx, tw0, tw1,
+                    unknowns_value([2.0, 1.5, 0.8, 1.2], unknowns), 0.5, span], [x, w0, w1, *bars], "cpu")
         runs.append([a.numpy() for a in (x, w0, w1, y0, y1, z00, z01, z10, z11, *bars)])
     for got, want in zip(*runs):
         np.testing.assert_array_equal(got.view(np.uint32), want.view(np.uint32))
@@ -1602,7 +1609,7 @@ def test_tgv_gradient_and_divergence_are_negative_adjoints(device):
            [arr(zeros, wp.vec4, device), arr(y0, wp.vec4, device), arr(y1, wp.vec4, device),
             arr(z0, wp.vec4, device), arr(z1, wp.vec4, device), arr(zeros, wp.vec4, device),
             arr(zeros, wp.vec4, device), *_tensor_entries(t1, t2, t3, "vec4", device),
-            arr(ones, wp.vec4, device), arr(ones, wp.vec4, device), arr(ones, wp.vec4, device), 1.0, alpha1, span],
+            arr(ones, wp.vec4, device), arr(ones, wp.vec4, device), arr(ones, wp.vec4, device), wp.vec4(1.0), alpha1, span],
            prim + bars, device)
     div_gy = prim[0].numpy().astype(np.float64) - x        # α1 div(Γy)
     w0_change = prim[1].numpy().astype(np.float64)          # α1 (Γy)_0 + div(z00, z01)
@@ -1966,10 +1973,11 @@ def test_view_visibility_margin_scales_with_the_level(device):
 
 
 def _linearised_problem(solver):
+    p = solver.params
     a, weights = solver.data_rows()
     return ref.LinearisedProblem(a, weights,
                                  solver.linearisation_point(), solver.tensor1.numpy(), solver.tensor2.numpy(),
-                                 solver.params.alpha0, solver.params.alpha1, solver.tensor3.numpy())
+                                 np.array([p.alpha0, p.alpha0, p.alpha0_flow, p.alpha0_flow]), p.alpha1, solver.tensor3.numpy())
 
 
 def test_level_solver_energy_decreases(device):
@@ -1997,7 +2005,7 @@ def small_params():
     # α0 fixed (not the default, which tuning moves): NumPy's scalar-step reference
     # needs more iterations the larger α0 is
     return Params.preset("fast").replace(radius=1.0, rof_iterations=10, lambda1=20.0, lambda2=20.0,
-                                         lambda3=20.0, alpha0=2.0)
+                                         lambda3=20.0, alpha0=2.0, alpha0_flow=1.0)
 
 
 @pytest.mark.parametrize("circles,step_ratio", [(2, 1.0), (1, 1.0), (2, 0.25)])  # 1: flow only, on vec2 (u, v)
