@@ -4,6 +4,8 @@ a signal, in one place."""
 import argparse
 import contextlib
 import errno
+import math
+import numbers
 
 
 class DependencyError(ImportError):
@@ -40,6 +42,18 @@ class Terminated(KeyboardInterrupt):
     def __init__(self, signum: int | None = None):
         super().__init__()
         self.signum = signum
+
+
+def whole(value) -> int | None:
+    """``value`` as an int where it is a whole number (an int, NumPy's too, or a float of
+    no fraction: 2.0, as :class:`lfsf.Params` takes them), else None (a bool, 2.5, text)."""
+    if isinstance(value, bool) or type(value).__name__ == "bool_":
+        return None
+    if isinstance(value, numbers.Integral):
+        return int(value)
+    if isinstance(value, numbers.Real) and math.isfinite(value) and float(value).is_integer():
+        return int(value)
+    return None
 
 
 def ending_signals() -> tuple:

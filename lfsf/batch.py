@@ -28,6 +28,7 @@ import contextlib
 import csv
 import glob
 import io as _io
+import numbers
 import os
 import re
 import shutil
@@ -106,8 +107,9 @@ class Summary:
 
 # --- sources ----------------------------------------------------------------------------------
 
-def pairs_from_sources(sources: Sequence[str | os.PathLike], out: str | os.PathLike | None = None) -> list[Pair]:
-    """The pairs named by manifests and frame folders.
+def pairs_from_sources(sources: Sequence[str | os.PathLike] | str | os.PathLike, out: str | os.PathLike | None = None) -> list[Pair]:
+    """The pairs named by manifests and frame folders (``sources``: a list of them, or
+    one).
 
     A manifest is a CSV file with ``t1,t2[,name]`` per line (a header line whose first
     two cells are ``t1,t2`` is optional; blank lines and lines starting with ``#`` are
@@ -127,6 +129,8 @@ def pairs_from_sources(sources: Sequence[str | os.PathLike], out: str | os.PathL
         A malformed manifest, a folder with fewer than two frames, two pairs with one name,
         ``out`` the folder of frames itself.
     """
+    if isinstance(sources, (str, os.PathLike)):  # (one path: a str had been read a character at a time)
+        sources = [sources]
     if not sources:
         raise ValueError("give at least one manifest CSV or folder of frames")
     out = None if out is None else Path(out).absolute()
@@ -234,10 +238,11 @@ def _stem(path: Path) -> str:
 
 # --- one task -------------------------------------------------------------------------------
 
-def is_complete(folder: Path) -> bool:
+def is_complete(folder: str | os.PathLike) -> bool:
     """Whether ``folder`` holds a complete result: every file there and whole
     (:func:`_whole`: a truncated ``flow.flo`` or an emptied picture had counted as
     complete, and a re-run skipped it)."""
+    folder = Path(folder)
     return all((folder / name).is_file() and _whole(folder / name) for name in RESULT_FILES)
 
 
@@ -511,7 +516,11 @@ def have_dask() -> bool:
 
 def check_dask(workers: int, scheduler: str | None) -> None:
     """Raise ValueError, saying how to install it, when the execution asked for needs
-    Dask and Dask is not installed (one worker runs in this process without it)."""
+    Dask and Dask is not installed (one worker runs in this process without it), or when
+    ``workers`` is not a whole number of at least 1."""
+    if isinstance(workers, bool) or not isinstance(workers, numbers.Integral) or workers < 1:
+        # (run_batch's own check: -1 had waited forever on a cluster of no workers, 0 divided by zero)
+        raise ValueError(f"workers must be a whole number of at least 1, got {workers!r}")
     cores = os.cpu_count() or 1
     if not scheduler and workers > cores:
         # each worker runs the estimator on threads of its own: more processes than cores

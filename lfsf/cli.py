@@ -498,6 +498,13 @@ def cmd_batch(args) -> int:
     from lfsf.device import resolve_device
 
     params = _params(args)
+    if args.config:
+        from lfsf.evaluate import recorded_downsample
+
+        k = recorded_downsample(args.config)
+        if k > 1:  # (lfsf run --config R shrinks the views as R's were; batch has no --downsample)
+            warnings.warn(f"{args.config} was estimated on views downsampled by {k} (lfsf run --downsample {k}); "
+                          "lfsf batch takes its settings alone and estimates the views at full size")
     if args.scheduler is not None and args.workers is not None:
         raise ValueError(f"--workers {args.workers} sets the processes of a local cluster; with --scheduler the "
                          "scheduler's own workers run the pairs: give one of the two")

@@ -463,6 +463,9 @@ def _grey_white(white: RawImage) -> np.ndarray:
     symmetric (it moves no peak)."""
     data = white.data
     if data.ndim == 3:
+        if data.shape[2] != 3:  # (matmul's own message had named its core dimensions)
+            raise ValueError(f"{white.source}: expected a white image of shape (H, W) or (H, W, 3), got "
+                             f"{data.shape}")
         return (data @ np.array([0.299, 0.587, 0.114], np.float32)).astype(np.float32)
     if white.bayer:
         k = np.array([0.25, 0.5, 0.25])
@@ -713,6 +716,9 @@ def demosaic(mosaic, bayer: str, *, device: str | None = None) -> np.ndarray:
     -------
     numpy.ndarray, float32, shape (H, W, 3)
     """
+    mosaic = np.asarray(mosaic)
+    if mosaic.ndim != 2 or min(mosaic.shape) < 1:  # (Warp's launch error had named its kernel)
+        raise ValueError(f"demosaic: expected a 2-D mosaic (H, W), got shape {mosaic.shape}")
     wp = _device.warp()
     dev = _device.resolve_device(device)
     planes = _demosaic_planes(wp.array(np.ascontiguousarray(mosaic, np.float32), dtype=float, device=dev),

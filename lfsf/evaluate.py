@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from lfsf._errors import whole
+
 VARIABLES = ("disp1", "disp2", "u", "v")
 BADPIX_THRESHOLD = 0.07
 #: Border left out by default: the HCI benchmark's 15 px for its PFM ground truth, 8 px
@@ -57,9 +59,9 @@ def _bool_mask(mask, name: str) -> np.ndarray:
 
 def check_border(border) -> int:
     """``border`` as an int: a whole number of pixels, 0 or more (ValueError otherwise)."""
-    if isinstance(border, (bool, np.bool_)) or not isinstance(border, (int, np.integer)) or border < 0:
+    if whole(border) is None or border < 0:
         raise ValueError(f"the border must be a whole number of pixels, 0 or more, got {border!r}")
-    return int(border)
+    return whole(border)
 
 
 def inner_pixels(shape, border) -> np.ndarray:
@@ -270,7 +272,7 @@ def downsample_border(border: int, factor: int) -> int:
     return -(-int(border) // int(factor))
 
 
-def occlusion_scores(est, gt, valid=None, border: int = 0) -> dict[str, float]:
+def occlusion_scores(est, gt, valid=None, border: int = 0) -> dict[str, float | int | None]:
     """How an estimate's mask of the points not seen at t2 (``occluded``, bool) meets the
     ground truth's, over the ``valid`` pixels without ``border``: precision (the share of
     the points marked that are occluded), recall (the share of the occluded points
@@ -388,7 +390,8 @@ GT_FILES = ("gt.npz", "gt_disp_lowres.pfm")
 
 def load_ground_truth(path: str | Path) -> tuple[dict[str, np.ndarray], int]:
     """Read ground truth: a ``gt.npz`` of ``lfsf synth`` or an HCI ``gt_disp_lowres.pfm``
-    (disparity at t1 only). Returns the arrays and the default border for that kind."""
+    (disparity at t1 only), or a folder holding one (:data:`GT_FILES`, the first found).
+    Returns the arrays and the default border for that kind."""
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")

@@ -36,6 +36,7 @@ import contextlib
 import itertools
 import lzma
 import math
+import numbers
 import os
 import re
 import struct
@@ -52,6 +53,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 
+from lfsf._errors import whole
 from lfsf._files import is_special_file, output_folder, savez_atomic, write_bytes_atomic
 
 __all__ = [
@@ -230,9 +232,9 @@ class LightField:
             size).
         """
         for name, value in (("top", top), ("left", left), ("height", height), ("width", width)):
-            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+            if whole(value) is None:
                 raise ValueError(f"{self.source}: crop's {name} must be a whole number of pixels, got {value!r}")
-        top, left, height, width = int(top), int(left), int(height), int(width)  # (no int8 wrapping round)
+        top, left, height, width = (whole(v) for v in (top, left, height, width))  # (no int8 wrapping round)
         if height < 1 or width < 1:
             raise ValueError(f"{self.source}: the crop of {width}×{height} px is empty")
         if top < 0 or left < 0 or top + height > self.height or left + width > self.width:
@@ -290,9 +292,9 @@ def _pixel_meta(meta: dict) -> dict:
 
 
 def _check_factor(factor, source: str) -> int:
-    if isinstance(factor, (bool, np.bool_)) or not isinstance(factor, (int, np.integer)) or factor < 1:
+    if whole(factor) is None or factor < 1:
         raise ValueError(f"{source}: the factor must be a whole number, 1 or more, got {factor!r}")
-    return int(factor)
+    return whole(factor)
 
 
 def block_mean(array: np.ndarray, factor: int, axes=(0, 1)) -> np.ndarray:
@@ -305,6 +307,8 @@ def block_mean(array: np.ndarray, factor: int, axes=(0, 1)) -> np.ndarray:
         raise ValueError("block_mean: the axes must be neighbours")
     k = _check_factor(factor, "block_mean")
     h, w = array.shape[a0] // k, array.shape[a1] // k
+    if h < 1 or w < 1:  # (an empty array had come back)
+        raise ValueError(f"block_mean: a factor of {k} leaves nothing of axes of {array.shape[a0]}×{array.shape[a1]}")
     lead = (slice(None),) * a0
     # the k² strided sub-grids summed (float32, a few ulps from float64's mean): one pass
     # each, where a mean over the blocks' axes of a reshaped view ran 10–20× slower
@@ -318,6 +322,9 @@ def block_mean(array: np.ndarray, factor: int, axes=(0, 1)) -> np.ndarray:
 
 def luma(rgb: np.ndarray) -> np.ndarray:
     """The ITU-R BT.601 luma of RGB values (…, 3), float32: :meth:`LightField.grey`."""
+    rgb = np.asarray(rgb)
+    if rgb.ndim < 1 or rgb.shape[-1] != 3:  # (matmul's own message had named its core dimensions)
+        raise ValueError(f"luma: expected RGB values (…, 3), got shape {rgb.shape}")
     return rgb @ np.asarray(BT601_LUMA, dtype=np.float32)
 
 
@@ -343,8 +350,8 @@ _SCALED_APART = 16.0
 def check_pair(lf1: LightField, lf2: LightField) -> None:
     """Check that two light fields (times t1 and t2) can be matched against each other.
 
-    Their view grids and view sizes must agree, both must be grey or both RGB (the
-    estimator matches luma, but takes the t1 centre view's colours for δ1's diffusion
+    Their view grids and view sizes must agree, both must be grey or both RGB (grey
+    stored as RGB, R = G = B throughout, counts as grey; the estimator matches luma, but takes the t1 centre view's colours for δ1's diffusion
     tensor and the depth edges: one grey light field beside an RGB one is most often a
     frame saved the wrong way), and their intensities must be scaled alike.
 
@@ -509,8 +516,10 @@ def read_lightfield(path: str | os.PathLike) -> LightField:
         One of
 
         * a folder in the HCI 4D benchmark layout, ``input_Cam000.png … input_CamNNN.png``
-          in row-major view order; the grid is square, its size inferred from the count;
-          an optional ``parameters.cfg`` is parsed into ``meta["parameters"]``;
+          in row-major view order; the grid is ``parameters.cfg``'s ``num_cams_y`` ×
+          ``num_cams_x`` where it gives them, else square, its size inferred from the
+          count (with a warning for 4–25 views, which a rig of one row could be); an
+          optional ``parameters.cfg`` is parsed into ``meta["parameters"]``;
         * a folder of views ``<name>_RR_CC.png`` (1-based row and column, e.g.
           ``2067_01_01.png``); the grid must be complete;
         * a folder holding neither but a ``views.npz`` (as ``lfsf decode`` writes);
@@ -805,9 +814,16 @@ def _rowcol_grid(folder: Path, matches: list) -> tuple[list[list[Path]], str]:
         missing = (f"{prefix}_{r:0{width_r}d}_{c:0{width_c}d}.png"
                    for r in range(1, rows + 1) for c in range(1, cols + 1)
                    if (r, c) not in by_position)
+        r0 = min(r for r, _ in by_position)
+        c0 = min(c for _, c in by_position)
+        inner = (rows - r0 + 1) * (cols - c0 + 1)
+        # the views present a whole grid that starts past 01 (a subset chosen on purpose)
+        subset = (f"; the views there make a whole {rows - r0 + 1}×{cols - c0 + 1} grid from "
+                  f"{by_position[r0, c0]}: to read it alone, number its views from 01 (or give "
+                  "the views as an array)" if len(by_position) == inner >= 4 and (r0, c0) != (1, 1) else "")
         raise ValueError(f"{folder}: the {rows}×{cols} grid of views is incomplete, "
                          f"{rows * cols - len(by_position)} missing: "
-                         f"{_listed_first(missing, rows * cols - len(by_position))}")
+                         f"{_listed_first(missing, rows * cols - len(by_position))}{subset}")
     files = [[folder / by_position[r, c] for c in range(1, cols + 1)] for r in range(1, rows + 1)]
     return files, prefix
 
@@ -1561,6 +1577,9 @@ def encode_png(image, *, compress_level: int = 6, source: str = "encode_png") ->
         raise ValueError(f"{source}: expected an image of shape (H, W) or (H, W, C) with C in "
                          f"1 … 4, got {image.shape}")
     height, width, channels = image.shape
+    level = compress_level
+    if isinstance(level, bool) or not isinstance(level, numbers.Integral) or not 0 <= level <= 9:
+        raise ValueError(f"{source}: compress_level must be a whole number 0…9, got {compress_level!r}")
     if not (1 <= height < 2 ** 31 and 1 <= width < 2 ** 31):
         raise ValueError(f"{source}: expected a non-empty image, got shape {image.shape}")
     depth = 8 * image.dtype.itemsize
@@ -1570,7 +1589,7 @@ def encode_png(image, *, compress_level: int = 6, source: str = "encode_png") ->
     scanlines[:, 0] = 2                                  # filter type "Up"
     scanlines[0, 1:] = rows[0]                           # the row above the first is zero
     np.subtract(rows[1:], rows[:-1], out=scanlines[1:, 1:])
-    compressed = zlib.compress(scanlines.tobytes(), compress_level)
+    compressed = zlib.compress(scanlines.tobytes(), level)
     ihdr = struct.pack(">IIBBBBB", width, height, depth, _PNG_COLOUR_TYPE[channels], 0, 0, 0)
     step = 1 << 30                                       # chunks hold at most 2³¹ − 1 bytes
     idat = b"".join(_png_chunk(b"IDAT", compressed[i:i + step])

@@ -29,6 +29,7 @@ import imageio.v3 as iio
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
+from lfsf._errors import whole
 from lfsf._files import atomic_path
 
 __all__ = [
@@ -227,9 +228,9 @@ def flow_wheel_legend(size: int = 128) -> np.ndarray:
         image centre to that pixel, with the inscribed disc's radius as ``max_flow`` (so
         the rim is fully saturated and the centre white). Outside the disc: white.
     """
-    if isinstance(size, (bool, np.bool_)) or not isinstance(size, (int, np.integer)):  # (2.7 had become 2)
+    if whole(size) is None:  # (2.7 had become 2)
         raise ValueError(f"expected a whole number of pixels for the size, got {size!r}")
-    size = int(size)
+    size = whole(size)
     if not 1 <= size <= MAX_LEGEND_SIZE:  # (10**5 asked numpy for 75 GiB)
         raise ValueError(f"expected a size in 1…{MAX_LEGEND_SIZE} px, got {size}")
     half = (size - 1) / 2.0

@@ -999,3 +999,41 @@ def test_an_interrupted_run_brings_failed_csv_up_to_date(tmp_path, monkeypatch):
     with open(out / "failed.csv") as f:
         rows = {r["name"]: r["reason"] for r in csv.DictReader(f)}
     assert rows == {"later": "cannot read", "broken": "broken.npz: not a light field"}, rows
+
+
+def test_cli_says_a_config_results_downsampling_is_not_taken(frames, tmp_path, monkeypatch, capsys):
+    """`lfsf run --config R` shrinks the views as R's were (`--downsample` recorded);
+    `lfsf batch` has no --downsample and had taken R's settings at full size without a
+    word (maps 2× the size of R's)."""
+    from lfsf.estimate import SceneFlow
+    from lfsf.params import Params
+
+    monkeypatch.setattr(batch, "have_dask", lambda: False)
+    folder, _ = frames
+    zeros = np.zeros((20, 24), np.float32)
+    params = Params.preset("fast").replace(warps=1, iterations=5, final_iterations=5)
+    SceneFlow(zeros, zeros, zeros, zeros, params=params, radius=2.0, device="cpu").save(
+        tmp_path / "r", inputs={"downsample": 2})
+    manifest = _manifest(tmp_path / "m.csv", [("t1", "t2", "name"), (folder / "f000.npz", folder / "f001.npz", "a")])
+    out = tmp_path / "out"
+    assert main(["batch", str(manifest), "--out", str(out), "--config", str(tmp_path / "r"), "--device", "cpu"]) == 0
+    err = capsys.readouterr().err
+    assert "was estimated on views downsampled by 2 (lfsf run --downsample 2); lfsf batch takes its settings " \
+           "alone and estimates the views at full size" in err
+    assert SceneFlow.load(out / "a" / "sceneflow.npz").disp1.shape == (40, 48)
+
+
+def test_library_calls_refuse_a_bad_worker_count_and_take_one_source_path(frames, tmp_path):
+    """run_batch(workers=-1) had waited forever on a Dask cluster of no workers and
+    workers=0 raised ZeroDivisionError (the command line refuses both); one folder given
+    as a str had been read a character at a time ("e: no such manifest or folder")."""
+    folder, _ = frames
+    pairs = batch.pairs_from_sources(str(folder))
+    assert [p.name for p in pairs] == [p.name for p in batch.pairs_from_sources([folder])] == ["f000", "f001", "f002"]
+    assert batch.pairs_from_sources(folder) == batch.pairs_from_sources([str(folder)])
+    for workers in (-1, 0, 1.5, "2", True):
+        with pytest.raises(ValueError, match=re.escape(f"workers must be a whole number of at least 1, got "
+                                                       f"{workers!r}")):
+            batch.run_batch(pairs, tmp_path / "out", Params.preset("fast"), workers=workers)
+    assert not (tmp_path / "out").exists()
+    assert not batch.is_complete(str(tmp_path))

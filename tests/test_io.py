@@ -857,6 +857,23 @@ def test_rowcol_incomplete_grid_names_missing_views(tmp_path):
         lio.read_lightfield(folder)
 
 
+def test_a_whole_inner_grid_of_rowcol_views_is_told_to_start_at_01(tmp_path):
+    """The inner 7×7 of a 9×9 (views 02…08 linked into a folder) had been refused only as
+    an 8×8 grid missing 15 views, as though the user had lost them."""
+    folder = tmp_path / "inner"
+    folder.mkdir()
+    for r in range(2, 5):
+        for c in range(2, 5):
+            iio.imwrite(folder / f"2067_{r:02d}_{c:02d}.png", np.zeros((2, 2), dtype=np.uint8))
+    with pytest.raises(ValueError, match=re.escape("the 4×4 grid of views is incomplete, 7 missing: ")
+                       + r".*" + re.escape("; the views there make a whole 3×3 grid from 2067_02_02.png: to read it "
+                                           "alone, number its views from 01 (or give the views as an array)")):
+        lio.read_lightfield(folder)
+    (folder / "2067_03_03.png").unlink()  # not a whole grid: no such hint
+    with pytest.raises(ValueError, match=r"8 missing: [^;]*$"):
+        lio.read_lightfield(folder)
+
+
 def test_a_stray_name_with_big_numbers_is_counted_not_listed(tmp_path):
     """A phone photo's name (IMG_20240101_120000.png) reads as view (20240101, 120000),
     a stray input_Cam99999999.png as view 10^8: the missing views are counted and the
@@ -1560,3 +1577,30 @@ def test_views_named_by_row_and_column_another_way_are_told_the_rule(tmp_path, n
     lio.write_png(tmp_path / name, np.zeros((8, 8), np.uint8))
     with pytest.raises(ValueError, match=re.escape(f"; {name} is not named <name>_RR_CC.png: rename the views so")):
         lio.read_lightfield(tmp_path)
+
+
+def test_library_inputs_of_the_wrong_shape_or_range_get_a_value_error_naming_them():
+    """A helper's library testing: these had ended in matmul's core-dimension message,
+    Warp's launch error, zlib.error or an empty array; whole numbers given as floats
+    (2.0) were refused as "not a whole number" by some functions and taken by others
+    (Params, render_scene)."""
+    from lfsf import decode, evaluate, viz
+
+    with pytest.raises(ValueError, match=re.escape("luma: expected RGB values (…, 3), got shape (2, 2, 4)")):
+        lio.luma(np.zeros((2, 2, 4)))
+    with pytest.raises(ValueError, match=re.escape("<white>: expected a white image of shape (H, W) or (H, W, 3), "
+                                                   "got (10, 10, 4)")):
+        decode.calibrate(np.zeros((10, 10, 4)))
+    with pytest.raises(ValueError, match=re.escape("demosaic: expected a 2-D mosaic (H, W), got shape (4, 4, 3)")):
+        decode.demosaic(np.zeros((4, 4, 3)), "RGGB", device="cpu")
+    with pytest.raises(ValueError, match="compress_level must be a whole number 0…9, got 10"):
+        lio.encode_png(np.zeros((2, 2), np.uint8), compress_level=10)
+    with pytest.raises(ValueError, match=re.escape("block_mean: a factor of 5 leaves nothing of axes of 4×4")):
+        lio.block_mean(np.zeros((4, 4)), 5)
+    lf = lio.LightField(np.arange(3 * 3 * 8 * 8, dtype=np.float32).reshape(3, 3, 8, 8))
+    assert np.array_equal(lf.crop(1.0, 2, 3, 4.0).views, lf.crop(1, 2, 3, 4).views)
+    assert np.array_equal(lf.downsample(2.0).views, lf.downsample(2).views)
+    assert evaluate.check_border(3.0) == 3 and viz.flow_wheel_legend(4.0).shape == (4, 4, 3)
+    for bad in (2.5, True, "2", float("nan")):
+        with pytest.raises(ValueError, match="whole number"):
+            lf.downsample(bad)
