@@ -356,7 +356,7 @@ def cmd_run(args) -> int:
         full = f"{lf1.width}×{lf1.height}"
         lf1, lf2 = (lf1.downsample(args.downsample),) * 2 if lf2 is lf1 else (lf1.downsample(args.downsample),
                                                                                lf2.downsample(args.downsample))
-        _log(args, f"views downsampled {full} → {lf1.width}×{lf1.height} (means of {args.downsample}×"
+        _log(args, f"lfsf run: views downsampled {full} → {lf1.width}×{lf1.height} (means of {args.downsample}×"
                    f"{args.downsample} px): δ and the flow are in the smaller views' pixels"
                    + (", the ground truth shrunk alike" if gt is not None else ""))
     progress = _Progress(args)

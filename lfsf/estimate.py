@@ -10,7 +10,7 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Union
+from typing import Callable, NamedTuple, Union
 
 import numpy as np
 
@@ -40,8 +40,9 @@ class SceneFlow:
         Seconds per stage.
     exposure : (g, b) or None
         Where t2's views were matched to t1's exposure (``Params.match_exposure``): they
-        were replaced by g·L2 + b (intensities after any stretch to [0, 1]); None where
-        they were used as given.
+        were replaced by g·L2 + b (intensities after any stretch to [0, 1]), or by a tone
+        curve whose best line this is (the progress says which); None where they were
+        used as given.
     occluded : bool (H, W) or None
         The points of the t1 centre view that the estimate does not see in the centre view
         at t2: hidden there by a nearer point, or carried out of the image by their flow
@@ -475,6 +476,23 @@ MAX_INTENSITY_RANGE = 2.0
 #: fitted map I ↦ g·I + b moves the t2 centre view's 5th or 95th percentile intensity by
 #: more than this fraction of the two centre views' joint range (:func:`_exposure_change`).
 EXPOSURE_CHANGE = 0.004
+#: Where the fitted line I ↦ g·I + b leaves, in some band of t2's intensities, a median
+#: residual of more than this fraction of the range, t2 is matched by a tone curve
+#: through EXPOSURE_CURVE_BINS knots instead (:func:`_exposure_change`): a camera's
+#: gamma or auto-exposure curve is no line. The largest such residual: on 9 pairs of
+#: affine changes (none, ×1.1, ×0.6, ×1.2, ×0.8; noise σ 0.01–0.02; Lytro and synthetic
+#: views) at most 0.0005; t2 = t2^0.8 0.022 (Lytro) and 0.010 (`paper`), t2^1.25 0.006.
+#: On the helper's Lytro pair shifted by (3, 2) with t2^0.8, `fast`: EPE 0.958 with the
+#: line, 0.417 with 8 knots, 0.100 with 16 (pixels 1 px off 9.0 → 0.4 %).
+EXPOSURE_CURVE_MIN = 0.003
+EXPOSURE_CURVE_BINS = 16
+#: … and only where the bands' departures bow, a·(t² − t) + c over the knots' places t in
+#: [0, 1], by more than this fraction of the range at the middle (|a|/4): on 80 pairs of
+#: one exposure given ×1.2 (random-0…23 and the built-in four at 160×120 and 320×240, two
+#: helpers' 24 scenes) 8 had a band stray beyond EXPOSURE_CURVE_MIN, bowing by at most
+#: 0.0051 (one), 0.0022 the rest; gamma curves bowed 0.0037 (random-5, t2^1.2) to
+#: 0.0149 (the helper's Lytro pair, t2^0.8).
+EXPOSURE_CURVE_BOW = 0.003
 #: The exposure pilot's warps (:func:`_exposure_change`; its other settings are the `flow`
 #: preset's): 3, as it was measured with, whatever that preset's own.
 EXPOSURE_WARPS = 3
@@ -1672,7 +1690,7 @@ def estimate_scene_flow(
             return ((grey - np.float32(offset)) / np.float32(1.0 / stretch)).astype(np.float32)
         return (grey - np.float32(offset)) * np.float32(stretch)
 
-    exposure = None
+    exposure = matched = None
     large = max(height, width) >= EXPOSURE_MIN_SIZE
     brighter = 0.0  # (small or short views: how far t2's mean brightness lies from t1's, as a share)
     if params.match_exposure and not (large and min(height, width) >= EXPOSURE_MIN_SHORT):
@@ -1684,11 +1702,23 @@ def estimate_scene_flow(
         grey_centres = [stretched(luma(centre_view(lf.views)) if lf.is_colour else centre_view(lf.views))
                         for lf in (lf1, lf2)]
         if not np.array_equal(*grey_centres):
-            gain, shift, change = _exposure_change(*grey_centres, dev, note=note)
+            fitted = _exposure_change(*grey_centres, dev, note=note)
+            gain, shift, change = fitted.gain, fitted.shift, fitted.change
             if change > (EXPOSURE_CHANGE if large else SMALL_VIEWS_CHANGE):
                 exposure = (gain, shift)
-                note(f"exposure: t2 matched to t1 by I ↦ {gain:.4f}·I {shift:+.4f} (it moved the intensities "
-                     f"by up to {100 * change:.1f} % of their range)")
+                matched = fitted if params.tone_curve else fitted._replace(curve=None)
+                line = f"I ↦ {gain:.4f}·I {shift:+.4f}"
+                if matched.curve is not None:
+                    how = (f"a tone curve of {len(fitted.curve[0])} knots (it moved the intensities by up to "
+                           f"{100 * change:.1f} % of their range; the line {line} left some "
+                           f"{100 * fitted.departure:.1f} % off)")
+                else:
+                    how = f"{line} (it moved the intensities by up to {100 * change:.1f} % of their range)"
+                    if fitted.curve is not None:
+                        how += (f"; the line leaves some intensities {100 * fitted.departure:.1f} % of the range "
+                                "off in a bow, as a tone curve would (another gamma, an auto-tone camera): "
+                                "tone_curve = true matches it by a curve")
+                note(f"exposure: t2 matched to t1 by {how}")
             elif not large:
                 note(f"exposure: not matched, though t2's mean brightness differs from t1's by {100 * brighter:+.1f} "
                      f"%: on views of {width}×{height} the fit found a change of {100 * change:.1f} % of the range, "
@@ -1742,8 +1772,7 @@ def estimate_scene_flow(
             flat = lf.views.reshape(rows * cols, height, width, *lf.views.shape[4:])[read]
             grey = stretched(luma(flat) if lf.is_colour else flat)
             if t == 1 and exposure is not None:
-                grey = grey * np.float32(exposure[0])
-                grey += np.float32(exposure[1])
+                grey = matched.apply(grey)
             if len(read) == rows * cols:
                 views = wp.array(np.ascontiguousarray(grey, dtype=np.float32), dtype=float, device=dev)
             else:
@@ -2099,10 +2128,70 @@ def _weighted_median(values: np.ndarray, weight: np.ndarray) -> float:
     return float(values[order][np.searchsorted(cum, 0.5 * cum[-1])])
 
 
-def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str,
-                     note=None) -> tuple[float, float, float]:
-    """(g, b, change): a global change of exposure from t1 to t2, I1(p) ≈ g·I2(p + u) + b
-    (``Params.match_exposure``), from the grey centre views.
+class Exposure(NamedTuple):
+    """A change of exposure from t1 to t2 (:func:`_exposure_change`): the line I1 ≈ g·I2 + b,
+    how far it moves t2's intensities (a fraction of the range), and, where the line
+    leaves a band of intensities off by more than EXPOSURE_CURVE_MIN, a tone curve
+    (knots x, y: t2's intensities and the t1 ones they match, increasing) that replaces
+    it; None otherwise, and the largest band's median residual off the line (a fraction of
+    the range) that called for it."""
+    gain: float
+    shift: float
+    change: float
+    curve: tuple[np.ndarray, np.ndarray] | None = None
+    departure: float = 0.0
+
+    def apply(self, values: np.ndarray) -> np.ndarray:
+        """t2's intensities mapped onto t1's: by the curve (its ends continued with the
+        line's slope), else by the line."""
+        if self.curve is None:
+            out = values * np.float32(self.gain)
+            out += np.float32(self.shift)
+            return out
+        x, y = self.curve
+        out = np.interp(values, x, y).astype(np.float32)
+        low, high = values < x[0], values > x[-1]
+        out[low] = y[0] + self.gain * (values[low] - x[0])
+        out[high] = y[-1] + self.gain * (values[high] - x[-1])
+        return out
+
+
+def _tone_curve(x: np.ndarray, y: np.ndarray, weight: np.ndarray, gain: float, shift: float,
+                span: float) -> tuple[tuple[np.ndarray, np.ndarray] | None, float]:
+    """Knots of a tone curve y ≈ f(x) (:class:`Exposure`) where the line g·x + b leaves, in
+    one of EXPOSURE_CURVE_BINS bands of x of equal counts, a weighted median residual
+    above EXPOSURE_CURVE_MIN of ``span``; None where the line fits every band. Each knot
+    is a band's weighted medians of x and of the residual (on the line), made
+    non-decreasing. Returns (the knots or None, the largest band's residual / ``span``)."""
+    edges = np.quantile(x, np.linspace(0.0, 1.0, EXPOSURE_CURVE_BINS + 1))
+    residual = y - (gain * x + shift)
+    knots_x, off = [], []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        band = (x >= lo) & (x <= hi)
+        if band.sum() < 16:
+            continue
+        knots_x.append(_weighted_median(x[band], weight[band]))
+        off.append(_weighted_median(residual[band], weight[band]))
+    departure = max((abs(v) for v in off), default=0.0) / span
+    if len(off) < 3 or departure <= EXPOSURE_CURVE_MIN:
+        return None, departure
+    kx = np.asarray(knots_x, np.float64)
+    # the bands' departures as a bow a·(t² − t) + c over t = the knots' places in [0, 1]: a
+    # tone curve bends the whole range, a pilot's flow gone wrong in one band of
+    # intensities (an object's) makes one band stray
+    t = (kx - kx[0]) / max(float(kx[-1] - kx[0]), 1e-12)
+    bow = abs(float(np.linalg.lstsq(np.c_[t * t - t, np.ones_like(t)], np.asarray(off), rcond=None)[0][0])) / 4.0
+    if bow <= EXPOSURE_CURVE_BOW * span:
+        return None, departure
+    ky = np.maximum.accumulate(gain * kx + shift + np.asarray(off))
+    keep = np.concatenate([[True], np.diff(kx) > 0])  # (np.interp wants x increasing)
+    return (kx[keep], ky[keep]), departure
+
+
+def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str, note=None) -> Exposure:
+    """(g, b, change, curve): a global change of exposure from t1 to t2, I1(p) ≈ g·I2(p + u) + b
+    or a tone curve f(I2(p + u)) (:class:`Exposure`; ``Params.match_exposure``), from the
+    grey centre views.
 
     A flow-only pilot (the ``flow`` preset with θ = EXPOSURE_THETA) on the views
     box-averaged by the largest whole factor that leaves at least EXPOSURE_SIZE px along
@@ -2121,21 +2210,25 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str,
     range at either time (clipped) take no part. ``change`` is the largest of
     |g·x + b − x| over the 5th and 95th percentiles x of I2, as a fraction of the two
     views' joint range (from the 0.1th to the 99.9th percentile); (1, 0, 0) when there is
-    too little to fit. ``note`` (a callable taking a line) hears why a fit that found a
-    gain was refused."""
+    too little to fit. Only where that exceeds EXPOSURE_CHANGE is a tone curve looked for
+    (:func:`_tone_curve`, over the same pixels and weights): on pairs of one exposure the
+    bands' medians stray by up to 2 % of the range (a looming object's blur, a pilot's
+    flow off in one band of intensities; 9 of 80 pairs above EXPOSURE_CURVE_MIN), where
+    no change is matched at all. ``note`` (a callable taking a line) hears why a fit
+    that found a gain was refused."""
     lo = min(float(centre1.min()), float(centre2.min()))
     hi = max(float(centre1.max()), float(centre2.max()))
     # the range that `change` is a fraction of: robust to a few hot or dead pixels
     ends1, ends2 = np.percentile(centre1, [0.1, 99.9]), np.percentile(centre2, [0.1, 99.9])  # (a sort each)
     span = float(max(ends1[1], ends2[1]) - min(ends1[0], ends2[0]))
     if not np.isfinite(span) or span <= 0.0 or not hi > lo:
-        return 1.0, 0.0, 0.0
+        return Exposure(1.0, 0.0, 0.0)
     # (down: the pilot never below 160 px along the longer side, nor below 48 along the shorter)
     factor = max(1, min(max(centre1.shape[:2]) // EXPOSURE_SIZE, min(centre1.shape[:2]) // EXPOSURE_MIN_SHORT))
     a, b = _box_down(centre1, factor), _box_down(centre2, factor)
     h, w = a.shape
     if min(h, w) < 8:
-        return 1.0, 0.0, 0.0
+        return Exposure(1.0, 0.0, 0.0)
     # (3 warps, as the pilot was measured with: the `flow` preset's own went to 5 in the
     # forty-fourth session, which took the pilot from 0.33 to 0.39 s at 640×480 for the
     # same fit to 3e-4)
@@ -2168,7 +2261,7 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str,
     warped = _bilinear(b, x_at, y_at)
     keep &= (clipped[0] < 0.01) & (_bilinear(clipped[1], x_at, y_at) < 0.01)
     if keep.sum() < 64:
-        return 1.0, 0.0, 0.0
+        return Exposure(1.0, 0.0, 0.0)
     gy, gx = np.gradient(a)
     grad = np.hypot(gx, gy)
     # the scale: the 75th percentile of |∇I1| over the pixels fitted, so that where most of
@@ -2181,22 +2274,24 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str,
     # noise of σ = 0.01 it read up to 0.58 % changes on brightness-constant scenes; 0.19 %)
     fits = [_l1_line(x, y, weight, span), _l1_line(y, x, weight, span)]
     if any(fit is None or not fit[0] > 0.0 for fit in fits):
-        return 1.0, 0.0, 0.0
+        return Exposure(1.0, 0.0, 0.0)
     gain = math.sqrt(fits[0][0] / fits[1][0])
     if fits[0][0] * fits[1][0] < EXPOSURE_AGREEMENT:
         if note is not None:
             note(f"exposure: not matched, the fit's two slopes disagree (gain {gain:.3f}, agreement "
                  f"{fits[0][0] * fits[1][0]:.3f} < {EXPOSURE_AGREEMENT})")
-        return 1.0, 0.0, 0.0
+        return Exposure(1.0, 0.0, 0.0)
     if not 1.0 / EXPOSURE_MAX_GAIN <= gain <= EXPOSURE_MAX_GAIN:
         if note is not None:
             note(f"exposure: not matched, the gain fitted ({gain:.3f}) is beyond the "
                  f"{EXPOSURE_MAX_GAIN:g}× (either way) that is undone")
-        return 1.0, 0.0, 0.0
+        return Exposure(1.0, 0.0, 0.0)
     shift = _weighted_median(y - gain * x, weight)
     ends = np.percentile(centre2, [5.0, 95.0])
     change = max(abs(gain * float(q) + shift - float(q)) for q in ends) / span
-    return float(gain), float(shift), float(change)
+    if change <= EXPOSURE_CHANGE:  # (no change of exposure to undo: no curve either)
+        return Exposure(float(gain), float(shift), float(change))
+    return Exposure(float(gain), float(shift), float(change), *_tone_curve(x, y, weight, gain, shift, span))
 
 
 #: The largest magnitude a starting disparity or flow may have (px): far beyond any image,

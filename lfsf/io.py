@@ -398,19 +398,22 @@ def _check_pair_brightest(lf1: LightField, lf2: LightField, highs) -> None:
 
     for lf in (lf1, lf2):  # (each on its own first: else t2 is blamed for t1's axes)
         _check_axes(lf)
+    # (one source for both, a light field and its crop: "x.npz: expected … of x.npz" had named one file twice)
+    name1, name2 = ((lf1.source, lf2.source) if lf1.source != lf2.source
+                    else (f"{lf1.source} (t1)", f"{lf2.source} (t2)"))
     if lf1.grid != lf2.grid or lf1.views.shape[2:4] != lf2.views.shape[2:4]:
-        raise ValueError(f"{lf2.source}: expected the grid and view size of {lf1.source} "
+        raise ValueError(f"{name2}: expected the grid and view size of {name1} "
                          f"({describe(lf1)}), got {describe(lf2)}")
     if lf1.is_colour != lf2.is_colour and not _grey_in_rgb(lf1 if lf1.is_colour else lf2):
         kinds = ["RGB" if lf.is_colour else "grey" for lf in (lf1, lf2)]
-        raise ValueError(f"{lf2.source}: {kinds[1]} views, but those of {lf1.source} are {kinds[0]}: give both "
+        raise ValueError(f"{name2}: {kinds[1]} views, but those of {name1} are {kinds[0]}: give both "
                          "light fields in colour, or both grey (in Python LightField.grey() makes the luma of an "
                          "RGB one; lfsf decode --bayer none decodes a raw image grey)")
     if highs is None:
         highs = [float(np.max(lf.views)) for lf in (lf1, lf2)]
     if min(highs) > 0.0 and max(highs) > _SCALED_APART * min(highs):   # (all black: no scale to compare)
-        raise ValueError(f"{lf2.source}: its brightest value is {highs[1]:g} against {highs[0]:g} in "
-                         f"{lf1.source}: the two light fields look scaled differently (float views "
+        raise ValueError(f"{name2}: its brightest value is {highs[1]:g} against {highs[0]:g} in "
+                         f"{name1}: the two light fields look scaled differently (float views "
                          "belong in [0, 1]; integer ones are scaled by their type's maximum, so give "
                          "both the same type), or lie more than four stops apart in exposure")
 

@@ -857,6 +857,15 @@ def test_rowcol_incomplete_grid_names_missing_views(tmp_path):
         lio.read_lightfield(folder)
 
 
+def test_a_pair_of_one_source_is_told_apart_as_t1_and_t2():
+    """A light field and its crop keep one source: the message had named it twice."""
+    lf = lio.LightField(np.zeros((3, 3, 20, 24), np.float32), source="syn/lf1.npz")
+    with pytest.raises(ValueError, match=re.escape("syn/lf1.npz (t2): expected the grid and view size of "
+                                                   "syn/lf1.npz (t1) (a 3×3 grid of 24×20 views), got a 3×3 "
+                                                   "grid of 12×10 views")):
+        lio.check_pair(lf, lf.crop(0, 0, 10, 12))
+
+
 def test_a_whole_inner_grid_of_rowcol_views_is_told_to_start_at_01(tmp_path):
     """The inner 7×7 of a 9×9 (views 02…08 linked into a folder) had been refused only as
     an 8×8 grid missing 15 views, as though the user had lost them."""
