@@ -200,7 +200,8 @@ def tgv_preconditioner(
 ):
     """Diagonal preconditioners of Pock & Chambolle (2011), α = 1: τ = 1/Σ_row|K| per
     primal column (data part given), σ = 1/Σ_col|K| per TGV dual row: σ_y from the larger
-    sum of the two rows of y(p), one step for both (σ_z = 1/(2α0) is a constant), so that
+    sum of the two rows of y(p), one step for both (σ_z = 1/(2α0) of each unknown, which the
+    dual step takes as σ_z·α0 = 1/(2c), one constant for all ``alpha0``), so that
     each projection onto a ball is the proximal step in the preconditioned metric; then τ·c
     and σ/c for the step ratio c (:class:`lfsf.Params` ``step_ratio``). Launch over
     (rows, columns)."""

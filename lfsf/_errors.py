@@ -47,7 +47,7 @@ class Terminated(KeyboardInterrupt):
 def whole(value) -> int | None:
     """``value`` as an int where it is a whole number (an int, NumPy's too, or a float of
     no fraction: 2.0, as :class:`lfsf.Params` takes them), else None (a bool, 2.5, text)."""
-    if isinstance(value, bool) or type(value).__name__ == "bool_":
+    if isinstance(value, bool):  # (an int to Python; NumPy's bool is no number at all)
         return None
     if isinstance(value, numbers.Integral):
         return int(value)

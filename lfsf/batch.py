@@ -28,7 +28,6 @@ import contextlib
 import csv
 import glob
 import io as _io
-import numbers
 import os
 import re
 import shutil
@@ -43,7 +42,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from lfsf._errors import BAD_INPUT_ERRORS
+from lfsf._errors import BAD_INPUT_ERRORS, whole
 from lfsf._files import SET_PREFIX, dead_set, write_bytes_atomic
 
 #: The files of a complete result (those :meth:`lfsf.estimate.SceneFlow.save` writes
@@ -518,7 +517,7 @@ def check_dask(workers: int, scheduler: str | None) -> None:
     """Raise ValueError, saying how to install it, when the execution asked for needs
     Dask and Dask is not installed (one worker runs in this process without it), or when
     ``workers`` is not a whole number of at least 1."""
-    if isinstance(workers, bool) or not isinstance(workers, numbers.Integral) or workers < 1:
+    if whole(workers) is None or workers < 1:
         # (run_batch's own check: -1 had waited forever on a cluster of no workers, 0 divided by zero)
         raise ValueError(f"workers must be a whole number of at least 1, got {workers!r}")
     cores = os.cpu_count() or 1
@@ -584,6 +583,7 @@ def run_batch(
     check_outputs(pairs, out)
     check_warm_start(pairs, warm_start)
     check_dask(workers, scheduler)
+    workers = whole(workers)  # (2.0 as 2)
     summaries: list[Summary] = []
 
     def finish(outcomes) -> None:

@@ -19,7 +19,7 @@ from lfsf._filters import box_mean
 from lfsf._filters import gaussian_blur as _blur
 from lfsf.gains import GAIN_CHANGE, MIN_VIEW_SIZE, fit_reduced_gains, gain_change, reduction_factor, sampled_views
 from lfsf.io import LightField, _a, _check_pair_brightest, _refuse_non_finite, centre_view, luma, read_lightfield
-from lfsf.params import Params, recorded_as_now
+from lfsf.params import Params
 
 
 @dataclass(eq=False, repr=False)
@@ -133,7 +133,7 @@ class SceneFlow:
                              f"(keys: {', '.join(keys)})")
         try:
             meta = json.loads(str(arrays["params"]))
-            params = Params().replace(**recorded_as_now(meta["params"]))
+            params = Params().replace(**meta["params"])
             radius, device = float(meta["radius_used"]), str(meta["device"])
             timings, exposure = dict(meta.get("timings") or {}), meta.get("exposure")
             exposure = None if exposure is None else (float(exposure[0]), float(exposure[1]))
@@ -1536,7 +1536,8 @@ def estimate_scene_flow(
         given as floats; float views far outside [0, 1] are warned about); the others
         are used as they are. Where t2 was captured at
         another exposure, its views are first matched to t1's by a gain and an offset
-        (``Params.match_exposure``; the progress names them).
+        (``Params.match_exposure``; the progress names them), or by a tone curve
+        (``Params.tone_curve``, off; the progress tells where the line leaves a bow).
     params : Params or str, optional
         Settings, or a preset's name (``"fast"``: ``Params.preset("fast")``; default
         ``"paper"``).
@@ -2189,7 +2190,7 @@ def _tone_curve(x: np.ndarray, y: np.ndarray, weight: np.ndarray, gain: float, s
 
 
 def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str, note=None) -> Exposure:
-    """(g, b, change, curve): a global change of exposure from t1 to t2, I1(p) ≈ g·I2(p + u) + b
+    """(g, b, change, curve, departure): a global change of exposure from t1 to t2, I1(p) ≈ g·I2(p + u) + b
     or a tone curve f(I2(p + u)) (:class:`Exposure`; ``Params.match_exposure``), from the
     grey centre views.
 

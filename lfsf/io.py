@@ -36,7 +36,6 @@ import contextlib
 import itertools
 import lzma
 import math
-import numbers
 import os
 import re
 import struct
@@ -1580,9 +1579,9 @@ def encode_png(image, *, compress_level: int = 6, source: str = "encode_png") ->
         raise ValueError(f"{source}: expected an image of shape (H, W) or (H, W, C) with C in "
                          f"1 … 4, got {image.shape}")
     height, width, channels = image.shape
-    level = compress_level
-    if isinstance(level, bool) or not isinstance(level, numbers.Integral) or not 0 <= level <= 9:
-        raise ValueError(f"{source}: compress_level must be a whole number 0…9, got {compress_level!r}")
+    level = whole(compress_level)
+    if level is None or not -1 <= level <= 9:  # (−1: zlib's default, 6)
+        raise ValueError(f"{source}: compress_level must be a whole number −1…9, got {compress_level!r}")
     if not (1 <= height < 2 ** 31 and 1 <= width < 2 ** 31):
         raise ValueError(f"{source}: expected a non-empty image, got shape {image.shape}")
     depth = 8 * image.dtype.itemsize

@@ -164,7 +164,8 @@ class Params:
             0.0018 / 0.038 / 0.066 (α0 = 4: 0.0017 / 0.034 / 0.065, HCI 3.9, but
             `large_motion` δ2 0.431 at 160×120 against its bar of 0.419; α0 = 6: 0.388).
             ``alpha0`` holds for δ1 and δ2.
-        alpha0_flow : α0 of the flow (u, v) (an addition; the paper has one α0). An
+        alpha0_flow : α0 of the flow (u, v) (an addition; the paper has one α0); None
+            (the default): ``alpha0``'s (:attr:`flow_alpha0`). An
             affine motion (a rotation, a zoom) is a constant ∇w on the object, whose edge
             costs α0·|∇w|·its outline: α0 = 6 made the flow of an object of radius below
             ~2α0/α1 = 24 px piecewise constant (a disc turning 10°: EPE 0.196;
@@ -172,7 +173,8 @@ class Params:
             disparities through the joint rows: over 21 scenes (the built-in four,
             random-0…3, two other renderers' 13, 160×120) δ1 / δ2 / EPE 1.10 / 1.20 /
             0.86× at 3, 1.09 / 1.11 / 0.69× at 1.5 (geometric means; single ratios
-            0.02…5×): the default stays α0's 6. Try 1.5–3 for turning or zooming objects.
+            0.02…5×): by default the flow keeps α0. Try 1.5–3 for turning or zooming
+            objects.
         gamma, beta : γ, β of Γ = exp(−γ|∇I|^β) n nᵀ + n⊥ n⊥ᵀ (∇I by forward differences,
             as ∇ of the unknowns).
         flow_edge_weight : the flow's tensor Γ_uv is that of the two-channel guide (I1,
@@ -325,7 +327,7 @@ class Params:
     view_gain_sigma: float = 24.0
     alpha0: float = 6.0
     alpha1: float = 0.5
-    alpha0_flow: float = 6.0
+    alpha0_flow: float | None = None
     gamma: float = 10.0
     beta: float = 0.7
     flow_edge_weight: float = 0.5
@@ -376,6 +378,11 @@ class Params:
             raise ValueError(f"unknown preset {name!r}{f' (did you mean {guess[0]!r}?)' if guess else ''}: the "
                              f"presets are {', '.join(PRESETS)}")
         return cls(**PRESETS[name])
+
+    @property
+    def flow_alpha0(self) -> float:
+        """α0 of the flow (u, v): ``alpha0_flow``, or ``alpha0`` where that is None."""
+        return self.alpha0 if self.alpha0_flow is None else self.alpha0_flow
 
     @property
     def flow_only(self) -> bool:
@@ -481,7 +488,7 @@ class Params:
             raise ValueError(f"{path}: a result's recorded settings are complete; --preset {preset} beside them "
                              "would be ignored: leave it out")
         try:
-            return cls(**recorded_as_now(settings))
+            return cls(**settings)
         except (ValueError, TypeError) as exc:  # (a result of another version's settings)
             raise ValueError(f"{path}: its recorded settings are not this version's: {exc}") from None
 
@@ -499,7 +506,7 @@ class Params:
         # λ = 1e39, α = 1e308 or step_ratio = 1e-308 made every map NaN without an error
         # the real settings that 0 does not suit either (refused below): their message
         # offers no 0
-        positive = ("alpha0", "alpha1", "alpha0_flow", "rof_weight", "eps", "step_ratio", "pyramid_scale", "disparity_range",
+        positive = ("alpha0", "alpha1", "rof_weight", "eps", "step_ratio", "pyramid_scale", "disparity_range",
                     "flow_range")
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
@@ -524,11 +531,14 @@ class Params:
         need(MIN_RADIUS <= self.radius <= MAX_REAL or self.circles == 1,
              f"radius R must be {MIN_RADIUS}…{MAX_REAL:g} view steps (nearer the centre the side samples see "
              f"too little parallax; a grid of views that allows less than R asked uses less), got {self.radius:g}")
-        for name in ("lambda1", "lambda2", "lambda3", "lambda3_side", "alpha0", "alpha1", "alpha0_flow", "gamma", "beta",
+        for name in ("lambda1", "lambda2", "lambda3", "lambda3_side", "alpha0", "alpha1", "gamma", "beta",
                      "rof_weight", "eps"):
             value = getattr(self, name)
             need(value >= 0, f"{name} must be a finite number {'> 0' if name in positive else '≥ 0'}, got {value}")
-        need(self.alpha0 > 0 and self.alpha1 > 0 and self.alpha0_flow > 0, "alpha0, alpha1 and alpha0_flow must be positive")
+        need(self.alpha0 > 0 and self.alpha1 > 0, "alpha0 and alpha1 must be positive")
+        need(self.alpha0_flow is None or MIN_REAL <= self.alpha0_flow <= MAX_REAL,
+             f"alpha0_flow must be positive and of magnitude {MIN_REAL:g}…{MAX_REAL:g} (or None: alpha0's), "
+             f"got {self.alpha0_flow}")
         need(self.rof_weight > 0, f"rof_weight (μ) must be positive, got {self.rof_weight}")
         need(self.eps > 0, f"eps (ε) must be positive (the preconditioners divide by it), got {self.eps}")
         need(self.step_ratio > 0, f"step_ratio must be positive, got {self.step_ratio}")
@@ -623,12 +633,14 @@ class Params:
         rows, cols = grid
         turned = rows > cols and any(n % 4 for n in self.samples[1:])
         start = math.pi / 2 if turned else 0.0
+        inner = 0.0  # (the last circle's radius, as placed)
         for i in range(1, self.circles):
             n = self.samples[i]
             r = radius * i / (self.circles - 1)
             angles = [start + 2.0 * math.pi * j / n for j in range(n)]
             if half is not None and self.whole_circles and i < self.circles - 1:
-                r = _on_whole_views(r, radius, angles, half)
+                r = _on_whole_views(r, (inner, radius * (i + 1) / (self.circles - 1)), angles, half)
+            inner = r
             yield r, angles
 
     def as_dict(self) -> dict:
@@ -645,30 +657,24 @@ class Params:
         return f"Params({changed})"
 
 
-def _on_whole_views(r: float, radius: float, angles, half: tuple[float, float]) -> float:
+def _on_whole_views(r: float, between: tuple[float, float], angles, half: tuple[float, float]) -> float:
     """An inner circle's radius r_i = R·i/(M − 1) moved to the nearest whole view step
-    (halves up), where that is at least 1, below R and keeps every sample within the
-    grid (``half``: its half extents along x and y); else r_i. Between two views a
+    (halves up), where that is at least 1, lies strictly ``between`` the circle inside
+    (as placed) and the next one's r_(i+1) (two circles on one radius would sample the
+    same views twice), and keeps every sample within the grid (``half``: its half extents
+    along x and y); else r_i. Between two views a
     sample is their blend, two copies of the scene δ pixels apart: at R = 3 (a 7×7 grid,
     or ``radius = 3``) the paper's r_1 = 1.5 biased the background of HCI antinous
     (|δ| ≈ 3) by +0.06, BadPix(0.07) 27.6 % against 7.8 % at R = 4 (r_1 = 2); at
     r_1 = 2 it is 13.2 % (r_1 = 1: 13.0 %), MSE×100 1.99 → 1.72 (``Params.whole_circles``)."""
     whole = math.floor(r + 0.5)
-    if not 1 <= whole < radius:
+    if not (whole >= 1 and between[0] < whole < between[1]):
         return r
     for s in angles:
         for extent, component in zip(half, (math.cos(s), math.sin(s))):
             if abs(whole * component) > extent + 1e-6:
                 return r
     return float(whole)
-
-
-def recorded_as_now(settings: dict) -> dict:
-    """Settings a result recorded (``sceneflow.npz``), as this version names them: a result
-    from before ``alpha0_flow`` had one α0 for all four unknowns."""
-    if isinstance(settings, dict) and "alpha0" in settings and "alpha0_flow" not in settings:
-        return {**settings, "alpha0_flow": settings["alpha0"]}
-    return settings
 
 
 def _nearest_names(name: str, names) -> list[str]:
@@ -750,7 +756,8 @@ def _counts(name: str, value) -> tuple[int, ...]:
 
 
 #: the check of each field's annotated type (``from __future__ import annotations``: names)
-_TYPE_CHECKS = {"int": _whole, "float": _real, "bool": _flag, "tuple[int, ...]": _counts}
+_TYPE_CHECKS = {"int": _whole, "float": _real, "bool": _flag, "tuple[int, ...]": _counts,
+                "float | None": lambda name, value: None if value is None else _real(name, value)}
 
 
 PRESETS: dict[str, dict] = {

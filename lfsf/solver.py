@@ -490,11 +490,11 @@ class LevelSolver:
 
     def alpha0(self):
         """α0 of each unknown, as the unknowns' vector: ``params.alpha0`` for δ1 and δ2,
-        ``params.alpha0_flow`` for u and v."""
+        ``params.flow_alpha0`` for u and v."""
         p = self.params
         if self.flow_only:
-            return self.vec(p.alpha0_flow, p.alpha0_flow)
-        return self.vec(p.alpha0, p.alpha0, p.alpha0_flow, p.alpha0_flow)
+            return self.vec(p.flow_alpha0, p.flow_alpha0)
+        return self.vec(p.alpha0, p.alpha0, p.flow_alpha0, p.flow_alpha0)
 
     def median_radius(self) -> int:
         """The median filter's radius on this level (:func:`level_median_radius`)."""
@@ -552,7 +552,7 @@ class LevelSolver:
         first = float(np.sum(np.sqrt(t0**2 + t1**2)))
         dx0, dy0 = forward_gradient(w0)
         dx1, dy1 = forward_gradient(w1)
-        alpha0 = np.array([p.alpha0, p.alpha0, p.alpha0_flow, p.alpha0_flow])  # (δ1, δ2, u, v)
+        alpha0 = np.array([p.alpha0, p.alpha0, p.flow_alpha0, p.flow_alpha0])  # (δ1, δ2, u, v)
         second = float(np.sum(alpha0 * np.sqrt(dx0**2 + dy0**2 + dx1**2 + dy1**2)))
         return data + p.alpha1 * first + second
 

@@ -1121,6 +1121,28 @@ def test_a_tone_curve_between_t1_and_t2_is_matched_by_a_curve_not_a_line():
     assert affine.curve is None and affine.departure < estimate.EXPOSURE_CURVE_MIN
 
 
+def test_one_band_of_intensities_off_the_line_makes_no_tone_curve():
+    """A pilot's flow wrong on one object makes one band of intensities stray from the
+    line (a helper's scene: a curve through it cost δ2 7×): beyond EXPOSURE_CURVE_MIN but
+    no bow, no curve; the same departure spread as a bow across the range is one."""
+    from lfsf import estimate
+
+    rng = np.random.default_rng(3)
+    x = rng.uniform(0.1, 0.9, 20000)
+    weight = np.ones_like(x)
+    gain, shift, span = 0.9, 0.02, 0.8
+    y = gain * x + shift
+    one_band = np.where((x > 0.5) & (x < 0.55), y + 0.01, y)          # 1.25 % of the span, one band
+    curve, departure = estimate._tone_curve(x, one_band, weight, gain, shift, span)
+    assert curve is None and departure > estimate.EXPOSURE_CURVE_MIN
+    t = (x - 0.1) / 0.8
+    bowed = y - 0.04 * (t * t - t)                                      # 1 % of the range at the middle
+    curve, departure = estimate._tone_curve(x, bowed, weight, gain, shift, span)
+    assert curve is not None and departure > estimate.EXPOSURE_CURVE_MIN
+    kx, ky = curve
+    np.testing.assert_allclose(ky, gain * kx + shift - 0.04 * (((kx - 0.1) / 0.8) ** 2 - (kx - 0.1) / 0.8), atol=2e-3)
+
+
 def test_a_tone_curve_is_told_and_with_tone_curve_matched_by_it(tmp_path):
     """With the line the progress says the intensities bow off it and names tone_curve;
     with tone_curve = true the views are matched by the curve, and of the error that t2's

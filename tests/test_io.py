@@ -1602,7 +1602,7 @@ def test_library_inputs_of_the_wrong_shape_or_range_get_a_value_error_naming_the
         decode.calibrate(np.zeros((10, 10, 4)))
     with pytest.raises(ValueError, match=re.escape("demosaic: expected a 2-D mosaic (H, W), got shape (4, 4, 3)")):
         decode.demosaic(np.zeros((4, 4, 3)), "RGGB", device="cpu")
-    with pytest.raises(ValueError, match="compress_level must be a whole number 0…9, got 10"):
+    with pytest.raises(ValueError, match="compress_level must be a whole number −1…9, got 10"):
         lio.encode_png(np.zeros((2, 2), np.uint8), compress_level=10)
     with pytest.raises(ValueError, match=re.escape("block_mean: a factor of 5 leaves nothing of axes of 4×4")):
         lio.block_mean(np.zeros((4, 4)), 5)

@@ -1977,7 +1977,7 @@ def _linearised_problem(solver):
     a, weights = solver.data_rows()
     return ref.LinearisedProblem(a, weights,
                                  solver.linearisation_point(), solver.tensor1.numpy(), solver.tensor2.numpy(),
-                                 np.array([p.alpha0, p.alpha0, p.alpha0_flow, p.alpha0_flow]), p.alpha1, solver.tensor3.numpy())
+                                 np.array([p.alpha0, p.alpha0, p.flow_alpha0, p.flow_alpha0]), p.alpha1, solver.tensor3.numpy())
 
 
 def test_level_solver_energy_decreases(device):

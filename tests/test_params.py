@@ -13,6 +13,7 @@ from lfsf.params import PRESETS
 INT_FIELDS = [f.name for f in dataclasses.fields(Params) if f.type == "int"]
 FLOAT_FIELDS = [f.name for f in dataclasses.fields(Params) if f.type == "float"]
 BOOL_FIELDS = [f.name for f in dataclasses.fields(Params) if f.type == "bool"]
+OPTIONAL_FLOAT_FIELDS = [f.name for f in dataclasses.fields(Params) if f.type == "float | None"]
 
 
 def named(name):
@@ -27,11 +28,15 @@ def assert_types(params):
         assert type(getattr(params, name)) is float, name
     for name in BOOL_FIELDS:
         assert type(getattr(params, name)) is bool, name
+    for name in OPTIONAL_FLOAT_FIELDS:
+        assert getattr(params, name) is None or type(getattr(params, name)) is float, name
     assert type(params.samples) is tuple and all(type(n) is int for n in params.samples)
 
 
 def test_the_field_lists_cover_every_setting():
-    assert len(INT_FIELDS) + len(FLOAT_FIELDS) + len(BOOL_FIELDS) + 1 == len(dataclasses.fields(Params))
+    assert (len(INT_FIELDS) + len(FLOAT_FIELDS) + len(BOOL_FIELDS) + len(OPTIONAL_FLOAT_FIELDS) + 1
+            == len(dataclasses.fields(Params)))
+    assert OPTIONAL_FLOAT_FIELDS == ["alpha0_flow"]
     assert {"warps", "iterations", "circles", "median_radius", "search_radius"} <= set(INT_FIELDS)
     assert {"visibility", "flow_search", "disparity_search", "warp_tensor2"} <= set(BOOL_FIELDS)
 
@@ -219,14 +224,19 @@ def test_a_results_recorded_settings_serve_as_the_config(tmp_path):
         Params.from_toml(tmp_path / "other.npz")
 
 
-def test_a_result_from_before_alpha0_flow_keeps_one_alpha0_for_all_unknowns(tmp_path):
-    """A sceneflow.npz written before ``alpha0_flow`` existed was estimated with α0 on the
-    flow too: its settings read back (as --config and by SceneFlow.load) with
-    alpha0_flow = alpha0, not this version's default."""
+def test_alpha0_flow_follows_alpha0_unless_given_and_old_results_keep_one_alpha0(tmp_path):
+    """``alpha0_flow`` None (the default) is α0: a TOML file or a call setting alpha0
+    alone sets the flow's too, as before the setting existed; and a sceneflow.npz written
+    before it (no alpha0_flow recorded), estimated with α0 on the flow, reads back (as
+    --config and by SceneFlow.load) so."""
     import json
 
     from lfsf.estimate import SceneFlow
 
+    assert Params().replace(alpha0=3.0).flow_alpha0 == 3.0
+    assert Params().replace(alpha0=3.0, alpha0_flow=1.5).flow_alpha0 == 1.5
+    with pytest.raises(ValueError, match="alpha0_flow must be positive"):
+        Params(alpha0_flow=0.0)
     params = Params.preset("fast").replace(alpha0=4.5, alpha0_flow=1.0)
     zeros = np.zeros((8, 8), np.float32)
     SceneFlow(zeros, zeros, zeros, zeros, params=params, radius=2.0, device="cpu").save(tmp_path / "r")
@@ -237,8 +247,8 @@ def test_a_result_from_before_alpha0_flow_keeps_one_alpha0_for_all_unknowns(tmp_
     del meta["params"]["alpha0_flow"]
     arrays["params"] = np.array(json.dumps(meta))
     np.savez(file, **arrays)
-    assert Params.from_toml(tmp_path / "r") == params.replace(alpha0_flow=4.5)
-    assert SceneFlow.load(file).params == params.replace(alpha0_flow=4.5)
+    assert Params.from_toml(tmp_path / "r") == params.replace(alpha0_flow=None)
+    assert SceneFlow.load(file).params.flow_alpha0 == 4.5
 
 
 def test_a_folder_given_as_the_config_is_a_value_error(tmp_path):
@@ -317,6 +327,8 @@ def test_repr_names_only_the_settings_that_differ_and_makes_them_again():
     (1.5, 3, (1, 8, 8), [1.0]),            # 0.75 → 1
     (1.0, 3, (1, 8, 8), [0.5]),            # 1 would not be below R: kept
     (0.8, 3, (1, 8, 8), [0.4]),            # 0 would be the centre: kept
+    (2.0, 5, (1, 8, 8, 8, 8), [0.5, 1.0, 1.5]),  # 0.5 → 1 and 1.5 → 2 would meet the next circle: kept
+    (5.0, 5, (1, 8, 8, 8, 8), [1.0, 3.0, 4.0]),  # 1.25, 2.5, 3.75 → 1, 3, 4
 ])
 def test_whole_circles_put_the_inner_circles_on_whole_view_steps(radius, circles, samples, inner):
     """A sample between two views blends them (two copies of the scene δ px apart): at
