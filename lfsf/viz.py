@@ -767,9 +767,11 @@ def ground_truth_maps(gt, shape: tuple[int, int]) -> tuple[dict[str, np.ndarray]
     if not isinstance(gt, Mapping):
         raise ValueError(f"expected gt as a mapping of maps (disp1, disp2, u, v, valid), got {type(gt).__name__} "
                          "(lfsf.evaluate.load_ground_truth returns the maps and a border: (gt, border))")
-    if not any(k in gt for k in ("disp1", "disp2", "u", "v")) or ("u" in gt) != ("v" in gt):
-        missing = [k for k in ("disp1", "disp2", "u", "v") if k not in gt]
-        raise ValueError(f"expected gt with keys disp1, disp2 and/or u with v; missing {missing}")
+    if ("u" in gt) != ("v" in gt):  # (the one that lacks its pair, not every key absent)
+        raise ValueError(f"expected gt's flow as u with v; it has {'u' if 'u' in gt else 'v'} without "
+                         f"{'v' if 'u' in gt else 'u'}")
+    if not any(k in gt for k in ("disp1", "disp2", "u", "v")):
+        raise ValueError(f"expected gt with keys disp1, disp2 and/or u with v; it has {sorted(map(str, gt))}")
     truth = {k: _check_map_shape(f"gt[{k!r}]", gt[k], shape) for k in ("disp1", "disp2", "u", "v") if k in gt}
     if gt.get("valid") is not None:
         mask = np.asarray(gt["valid"])

@@ -308,7 +308,7 @@ def test_overview_rejects_mismatched_shapes():
                                                    f"views they were estimated on), got (5, 5)")):
         viz.overview_figure(np.zeros((5, 5)), c2, est["disp1"], est["disp2"], est["u"], est["v"])
     for partial in ({"u": gt["u"]}, {"valid": np.ones(c1.shape[:2], bool)}):  # half a flow; no map at all
-        with pytest.raises(ValueError, match="missing"):
+        with pytest.raises(ValueError, match="u without v|it has \\['valid'\\]"):
             viz.overview_figure(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], gt=partial)
 
 
@@ -570,3 +570,14 @@ def test_flow_scale_is_the_full_colour_magnitude_flow_to_color_takes():
     assert scale == pytest.approx(float(np.hypot(u[ok].astype(np.float64), v[ok].astype(np.float64)).max()))
     assert np.array_equal(viz.flow_to_color(u, v), viz.flow_to_color(u, v, scale))
     assert viz.flow_scale(np.zeros((2, 2)), np.zeros((2, 2))) == 0.0
+
+
+def test_overview_names_the_flow_component_its_ground_truth_lacks():
+    """gt = {"u": …} had been refused as "missing ['disp1', 'disp2', 'v']", though only v
+    was wanted (δ1 and δ2 may be absent)."""
+    z = np.zeros((12, 16), np.float32)
+    with pytest.raises(ValueError, match=r"^expected gt's flow as u with v; it has u without v$"):
+        viz.overview_figure(z, z, z, z, z, z, gt={"u": z})
+    with pytest.raises(ValueError, match=r"^expected gt with keys disp1, disp2 and/or u with v; it has \['valid'\]$"):
+        viz.overview_figure(z, z, z, z, z, z, gt={"valid": z > 0})
+    assert viz.overview_figure(z, z, z, z, z, z, gt={"u": z, "v": z}).ndim == 3
