@@ -997,8 +997,9 @@ def decode(raw, white, *, views: int | None = None, bayer: str | None = None, fl
     if raw.data.shape[:2] != white.data.shape[:2]:
         rh, rw = raw.data.shape[:2]
         wh, ww = white.data.shape[:2]
-        raise ValueError(f"{raw.source}: the raw image is {rw}×{rh} pixels but the white image "
-                         f"{white.source} is {ww}×{wh}; they must come from the same camera")
+        named = "" if white.source == "white" else f" {white.source}"  # (an array's: "the white image white")
+        raise ValueError(f"{raw.source}: the raw image is {rw}×{rh} pixels but the white image{named} is "
+                         f"{ww}×{wh}; they must come from the same camera")
     if (raw.data.ndim == 3) != (white.data.ndim == 3):
         raise ValueError(f"{raw.source}: one of raw and white ({white.source}) is RGB and the other a "
                          f"single plane; give both as mosaics or both as RGB")

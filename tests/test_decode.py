@@ -755,3 +755,12 @@ def test_images_outside_the_unit_range_are_refused():
 
 def test_the_default_view_count_takes_a_pitch_fitted_a_hair_under_a_whole_number():
     assert [D._default_views(p) for p in (2.9994, 3.0, 4.98, 4.995, 9.6, 14.29, 2.5)] == [3, 3, 3, 5, 9, 13, 1]
+
+
+def test_a_raw_and_white_of_different_sizes_are_told_apart():
+    """Arrays' roles are their names: "the white image white is 420×320" named it twice."""
+    lattice = Lattice.regular("hex", 9.6, 0.0, (5.0, 5.0))
+    raw, white = synthetic_lenslet(np.full((9, 9, 16, 16), 0.5, np.float32), lattice, (200, 180), views=9)
+    with pytest.raises(ValueError, match=r"^raw: the raw image is 200×178 pixels but the white image is 200×180; "
+                                         r"they must come from the same camera$"):
+        decode(raw[:-2], white, views=9, device="cpu")
