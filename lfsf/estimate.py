@@ -477,9 +477,10 @@ MAX_INTENSITY_RANGE = 2.0
 #: more than this fraction of the two centre views' joint range (:func:`_exposure_change`).
 EXPOSURE_CHANGE = 0.004
 #: Where the fitted line I ↦ g·I + b leaves, in some band of t2's intensities, a median
-#: residual of more than this fraction of the range, t2 is matched by a tone curve
-#: through EXPOSURE_CURVE_BINS knots instead (:func:`_exposure_change`): a camera's
-#: gamma or auto-exposure curve is no line. The largest such residual: on 9 pairs of
+#: residual of more than this fraction of the range (and the bands bow, below), a tone
+#: curve through EXPOSURE_CURVE_BINS knots is found (:func:`_exposure_change`), which
+#: ``Params.tone_curve`` matches t2 by in place of the line, and the progress tells of
+#: otherwise: a camera's gamma or auto-exposure curve is no line. The largest such residual: on 9 pairs of
 #: affine changes (none, ×1.1, ×0.6, ×1.2, ×0.8; noise σ 0.01–0.02; Lytro and synthetic
 #: views) at most 0.0005; t2 = t2^0.8 0.022 (Lytro) and 0.010 (`paper`), t2^1.25 0.006.
 #: On the helper's Lytro pair shifted by (3, 2) with t2^0.8, `fast`: EPE 0.958 with the
@@ -2132,10 +2133,10 @@ def _weighted_median(values: np.ndarray, weight: np.ndarray) -> float:
 class Exposure(NamedTuple):
     """A change of exposure from t1 to t2 (:func:`_exposure_change`): the line I1 ≈ g·I2 + b,
     how far it moves t2's intensities (a fraction of the range), and, where the line
-    leaves a band of intensities off by more than EXPOSURE_CURVE_MIN, a tone curve
-    (knots x, y: t2's intensities and the t1 ones they match, increasing) that replaces
-    it; None otherwise, and the largest band's median residual off the line (a fraction of
-    the range) that called for it."""
+    leaves bands of intensities bowed off it (:func:`_tone_curve`), a tone curve (knots
+    x, y: t2's intensities and the t1 ones they match, increasing) that can replace it;
+    None otherwise; and the largest band's median residual off the line (a fraction of
+    the range)."""
     gain: float
     shift: float
     change: float
@@ -2161,9 +2162,10 @@ def _tone_curve(x: np.ndarray, y: np.ndarray, weight: np.ndarray, gain: float, s
                 span: float) -> tuple[tuple[np.ndarray, np.ndarray] | None, float]:
     """Knots of a tone curve y ≈ f(x) (:class:`Exposure`) where the line g·x + b leaves, in
     one of EXPOSURE_CURVE_BINS bands of x of equal counts, a weighted median residual
-    above EXPOSURE_CURVE_MIN of ``span``; None where the line fits every band. Each knot
-    is a band's weighted medians of x and of the residual (on the line), made
-    non-decreasing. Returns (the knots or None, the largest band's residual / ``span``)."""
+    above EXPOSURE_CURVE_MIN of ``span`` and the bands' residuals bow across the range by
+    more than EXPOSURE_CURVE_BOW; None where the line fits every band, or one band
+    strays alone. Each knot is a band's weighted medians of x and of the residual (on
+    the line), made non-decreasing. Returns (the knots or None, the largest band's residual / ``span``)."""
     edges = np.quantile(x, np.linspace(0.0, 1.0, EXPOSURE_CURVE_BINS + 1))
     residual = y - (gain * x + shift)
     knots_x, off = [], []
