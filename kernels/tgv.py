@@ -567,8 +567,9 @@ def _tgv_steps(vector: bool):
             if wp.static(vector) and j >= 1 and j + chunk <= end and j + chunk <= w - 1:
                 at = (row_at + wp.int64(j)) * wp.int64(k)
                 primal_step_floats(data_grad, y0, y1, z00, z01, z10, z11, g00, g01, g11, tau_x, tau_w0, tau_w1,
-                                   alpha0_floats, alpha1, at, at - wp.int64(k), (above_at + wp.int64(j)) * wp.int64(k), i < h - 1,
-                                   i > 0, x, w0, w1, x_bar, w0_bar, w1_bar)
+                                   alpha0_floats, alpha1, at, at - wp.int64(k),
+                                   (above_at + wp.int64(j)) * wp.int64(k), i < h - 1, i > 0, x, w0, w1, x_bar, w0_bar,
+                                   w1_bar)
                 j += chunk
                 l0, l1 = gamma_y(g00, g01, g11, y0, y1, i, j - 1)
             else:

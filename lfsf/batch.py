@@ -106,7 +106,8 @@ class Summary:
 
 # --- sources ----------------------------------------------------------------------------------
 
-def pairs_from_sources(sources: Sequence[str | os.PathLike] | str | os.PathLike, out: str | os.PathLike | None = None) -> list[Pair]:
+def pairs_from_sources(sources: Sequence[str | os.PathLike] | str | os.PathLike,
+                       out: str | os.PathLike | None = None) -> list[Pair]:
     """The pairs named by manifests and frame folders (``sources``: a list of them, or
     one).
 

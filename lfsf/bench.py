@@ -346,7 +346,8 @@ def kernel_cases(size, dev: str, inputs: str = "scene") -> list[tuple[str, Calla
         # bars (24)
         ("tgv_primal_step", launch(tgv.tgv_kernels(dev)[1],
                                    [data_grad, y0, y1, z00, z01, z10, z11, *gammas, tau[0], tau[1], tau[2],
-                                    data_grad.dtype(2.0), 0.5, span], [x, w0, w1, x_bar, w0_bar, w1_bar], dim=(h, per_row)),
+                                    data_grad.dtype(2.0), 0.5, span], [x, w0, w1, x_bar, w0_bar, w1_bar],
+                                   dim=(h, per_row)),
          f * h * w * (4 + 24 + 9 + 12 + 12 + 24)),
     ]
     return cases

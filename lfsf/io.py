@@ -350,9 +350,10 @@ def check_pair(lf1: LightField, lf2: LightField) -> None:
     """Check that two light fields (times t1 and t2) can be matched against each other.
 
     Their view grids and view sizes must agree, both must be grey or both RGB (grey
-    stored as RGB, R = G = B throughout, counts as grey; the estimator matches luma, but takes the t1 centre view's colours for δ1's diffusion
-    tensor and the depth edges: one grey light field beside an RGB one is most often a
-    frame saved the wrong way), and their intensities must be scaled alike.
+    stored as RGB, R = G = B throughout, counts as grey; the estimator matches luma, but
+    takes the t1 centre view's colours for δ1's diffusion tensor and the depth edges: one
+    grey light field beside an RGB one is most often a frame saved the wrong way), and
+    their intensities must be scaled alike.
 
     Raises
     ------

@@ -534,7 +534,8 @@ class LevelSolver:
 
     def energy(self) -> float:
         """Energy of the linearised model at the current (x, w): Σ_s Σ_k w_k|ρ_k| +
-        α1 Σ|Γ(∇x − w)| + α0 Σ|∇w| (α0 of each unknown: :meth:`alpha0`; NumPy; for tests and diagnostics, not the hot path)."""
+        α1 Σ|Γ(∇x − w)| + α0 Σ|∇w| (α0 of each unknown: :meth:`alpha0`; NumPy; for tests
+        and diagnostics, not the hot path)."""
         p = self.params
         x, w0, w1 = self.state()
         d = x - self.linearisation_point()

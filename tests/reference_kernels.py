@@ -550,8 +550,8 @@ def per_unknown(tensor1: np.ndarray, tensor2: np.ndarray, k: int, tensor3: np.nd
 
 def tgv_preconditioner(data_colsum, tensor1, tensor2, alpha0, alpha1, eps, tensor3=None):
     """τ_x, τ_w0, τ_w1, σ_y (each (h, w, 4)) from the exact abs row/column sums of
-    :func:`tgv_matrix` (``alpha0`` one value or one per unknown) (data column sums added to τ_x; σ_y from the larger of y's two
-    rows), and σ_z (one per z row, (4, h, w, 4))."""
+    :func:`tgv_matrix` (``alpha0`` one value or one per unknown; data column sums added to
+    τ_x; σ_y from the larger of y's two rows), and σ_z (one per z row, (4, h, w, 4))."""
     h, w = tensor1.shape[:2]
     out = {k: np.zeros((h, w, 4)) for k in ("tau_x", "tau_w0", "tau_w1", "sigma_y")}
     zrows = np.zeros((4, h, w, 4))

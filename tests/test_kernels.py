@@ -1609,7 +1609,8 @@ def test_tgv_gradient_and_divergence_are_negative_adjoints(device):
            [arr(zeros, wp.vec4, device), arr(y0, wp.vec4, device), arr(y1, wp.vec4, device),
             arr(z0, wp.vec4, device), arr(z1, wp.vec4, device), arr(zeros, wp.vec4, device),
             arr(zeros, wp.vec4, device), *_tensor_entries(t1, t2, t3, "vec4", device),
-            arr(ones, wp.vec4, device), arr(ones, wp.vec4, device), arr(ones, wp.vec4, device), wp.vec4(1.0), alpha1, span],
+            arr(ones, wp.vec4, device), arr(ones, wp.vec4, device), arr(ones, wp.vec4, device), wp.vec4(1.0), alpha1,
+            span],
            prim + bars, device)
     div_gy = prim[0].numpy().astype(np.float64) - x        # α1 div(Γy)
     w0_change = prim[1].numpy().astype(np.float64)          # α1 (Γy)_0 + div(z00, z01)
@@ -1977,7 +1978,8 @@ def _linearised_problem(solver):
     a, weights = solver.data_rows()
     return ref.LinearisedProblem(a, weights,
                                  solver.linearisation_point(), solver.tensor1.numpy(), solver.tensor2.numpy(),
-                                 np.array([p.alpha0, p.alpha0, p.flow_alpha0, p.flow_alpha0]), p.alpha1, solver.tensor3.numpy())
+                                 np.array([p.alpha0, p.alpha0, p.flow_alpha0, p.flow_alpha0]), p.alpha1,
+                                 solver.tensor3.numpy())
 
 
 def test_level_solver_energy_decreases(device):
