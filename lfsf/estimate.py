@@ -1692,7 +1692,7 @@ def estimate_scene_flow(
             return ((grey - np.float32(offset)) / np.float32(1.0 / stretch)).astype(np.float32)
         return (grey - np.float32(offset)) * np.float32(stretch)
 
-    exposure = matched = None
+    exposure_fit = None  # (the change of exposure t2 is matched by, where one is)
     large = max(height, width) >= EXPOSURE_MIN_SIZE
     brighter = 0.0  # (small or short views: how far t2's mean brightness lies from t1's, as a share)
     if params.match_exposure and not (large and min(height, width) >= EXPOSURE_MIN_SHORT):
@@ -1707,10 +1707,9 @@ def estimate_scene_flow(
             fitted = _exposure_change(*grey_centres, dev, note=note)
             gain, shift, change = fitted.gain, fitted.shift, fitted.change
             if change > (EXPOSURE_CHANGE if large else SMALL_VIEWS_CHANGE):
-                exposure = (gain, shift)
-                matched = fitted if params.tone_curve else fitted._replace(curve=None)
+                exposure_fit = fitted if params.tone_curve else fitted._replace(curve=None)
                 line = f"I ↦ {gain:.4f}·I {shift:+.4f}"
-                if matched.curve is not None:
+                if exposure_fit.curve is not None:
                     how = (f"a tone curve of {len(fitted.curve[0])} knots (it moved the intensities by up to "
                            f"{100 * change:.1f} % of their range; the line {line} left some "
                            f"{100 * fitted.departure:.1f} % off)")
@@ -1773,8 +1772,8 @@ def estimate_scene_flow(
             read = touched_views(phis, rows, cols)
             flat = lf.views.reshape(rows * cols, height, width, *lf.views.shape[4:])[read]
             grey = stretched(luma(flat) if lf.is_colour else flat)
-            if t == 1 and exposure is not None:
-                grey = matched.apply(grey)
+            if t == 1 and exposure_fit is not None:
+                grey = exposure_fit.apply(grey)
             if len(read) == rows * cols:
                 views = wp.array(np.ascontiguousarray(grey, dtype=np.float32), dtype=float, device=dev)
             else:
@@ -1989,7 +1988,8 @@ def estimate_scene_flow(
     lap("occlusion")
     return SceneFlow(
         disp1=x[..., 0].copy(), disp2=x[..., 1].copy(), u=x[..., 2].copy(), v=x[..., 3].copy(),
-        params=requested, radius=float(radius), device=dev, timings=timings, exposure=exposure,
+        params=requested, radius=float(radius), device=dev, timings=timings,
+        exposure=None if exposure_fit is None else (exposure_fit.gain, exposure_fit.shift),
         occluded=occluded,
     )
 

@@ -53,7 +53,7 @@ import imageio.v3 as iio
 import numpy as np
 
 from lfsf._errors import whole
-from lfsf._files import is_special_file, output_folder, savez_atomic, write_bytes_atomic
+from lfsf._files import interrupts_held, is_special_file, output_folder, savez_atomic, write_bytes_atomic
 
 __all__ = [
     "BT601_LUMA",
@@ -931,20 +931,6 @@ def _view_names(layout: str, rows: int, cols: int) -> list[str]:
             for r in range(1, rows + 1) for c in range(1, cols + 1)]
 
 
-def _shut_down(pool) -> None:
-    """``pool.shutdown(wait=True)``, waited out through Ctrl-C; the last interrupt is
-    raised afterwards."""
-    interrupt = None
-    while True:
-        try:
-            pool.shutdown(wait=True)
-            break
-        except KeyboardInterrupt as exc:
-            interrupt = exc
-    if interrupt is not None:
-        raise interrupt
-
-
 def write_lightfield(lf_or_views, path: str | os.PathLike, *, bit_depth: int = 16,
                      layout: str = "hci") -> Path:
     """Write a light field to a ``.npz`` or to a folder of PNG views.
@@ -1026,7 +1012,8 @@ def write_lightfield(lf_or_views, path: str | os.PathLike, *, bit_depth: int = 1
         # writes on into a folder that the caller removes (lfsf decode's temporary one)
         for future in futures:
             future.cancel()
-        _shut_down(pool)
+        with interrupts_held():
+            pool.shutdown(wait=True)
     if layout == "hci" and not os.path.lexists(path / "parameters.cfg"):
         # (the grid, which the views' count alone leaves open: 9 views may be a rig of one row)
         write_bytes_atomic(path / "parameters.cfg",

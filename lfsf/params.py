@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from lfsf._errors import whole
+
 
 @dataclass(frozen=True)
 class Params:
@@ -714,14 +716,12 @@ def _bad(name: str, expected: str, value) -> ValueError:
 
 
 def _whole(name: str, value) -> int:
-    """An int setting: an int, or a float with no fraction (TOML's ``3.0``)."""
-    if isinstance(value, numbers.Real) and not isinstance(value, bool):
-        if isinstance(value, numbers.Integral):
-            return int(value)
-        number = float(value)
-        if number.is_integer():
-            return int(number)
-    raise _bad(name, "a whole number", value)
+    """An int setting: an int, or a float with no fraction (TOML's ``3.0``;
+    :func:`lfsf._errors.whole`)."""
+    number = whole(value)
+    if number is None:
+        raise _bad(name, "a whole number", value)
+    return number
 
 
 def _real(name: str, value) -> float:
