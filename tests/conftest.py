@@ -3,12 +3,15 @@
 from pathlib import Path
 
 import math
+import os
 
 import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT.parent / "shared" / "data"
+#: The real data sets: the workspace's ../shared/data, or the folder $LFSF_TEST_DATA names
+#: (a clone elsewhere, say).
+DATA = Path(os.environ.get("LFSF_TEST_DATA") or ROOT.parent / "shared" / "data")
 
 
 def _devices():
@@ -30,10 +33,10 @@ def device(request):
 
 
 def data_path(*parts) -> Path:
-    """A path under ../shared/data; skips the test when it is absent."""
+    """A path under the real data's folder (:data:`DATA`); skips the test when it is absent."""
     path = DATA.joinpath(*parts)
     if not path.exists():
-        pytest.skip(f"{path} not present")
+        pytest.skip(f"{path} not present (set LFSF_TEST_DATA to the folder of the real data sets)")
     return path
 
 

@@ -69,6 +69,82 @@ def test_known_shift_is_recovered():
     assert np.median(np.abs(interior(sf.v) + 0.8)) < 0.05
 
 
+def _record_calls(monkeypatch, owner, name, record):
+    """Wrap ``owner.name`` so that each call first hands its arguments to ``record``."""
+    original = getattr(owner, name)
+
+    def wrapper(*args, **kwargs):
+        record(*args, **kwargs)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(owner, name, wrapper)
+
+
+def test_each_level_starts_from_the_coarser_one_in_its_own_pixels(monkeypatch):
+    """δ1 and δ2 are in the level's pixels per view step, u in its columns and v in its
+    rows: going up a level multiplies each by that level's size ratio. With the searches
+    off, the pyramid alone carries a plane's shifts: every level but the coarsest starts
+    (LevelSolver.set_state) within 15 % of the truth in its own pixels (leaving a δ
+    unscaled starts it at half, which the finest level's warps largely hide)."""
+    from lfsf import solver as solver_module
+
+    h, w = 72, 96
+    truth = (1.5, 1.2, 4.0, -3.0)
+    lf1, lf2 = shift_lightfields(h=h, w=w, grid=5, disp1=truth[0], disp2=truth[1], flow=truth[2:])
+    starts = []
+
+    def record(self, x, *args, **kwargs):
+        starts.append(np.asarray(x.numpy() if hasattr(x, "numpy") else x, np.float64).reshape(*self.shape, 4))
+
+    _record_calls(monkeypatch, solver_module.LevelSolver, "set_state", record)
+    params = Params.preset("fast").replace(disparity_search=False, flow_search=False)
+    estimate_scene_flow(lf1, lf2, params, device="cpu")
+    assert len(starts) >= 3, len(starts)
+    for x in starts[1:]:
+        lh, lw = x.shape[:2]
+        scales = (lw / w, lw / w, lw / w, lh / h)
+        inner = x[lh // 6: -(lh // 6), lw // 6: -(lw // 6)]
+        for c in range(4):
+            want = truth[c] * scales[c]
+            assert abs(np.median(inner[..., c]) - want) < 0.15 * abs(want), (lw, c, np.median(inner[..., c]), want)
+
+
+def test_the_searches_hand_their_finds_over_in_the_levels_pixels(monkeypatch):
+    """The flow search runs on one level and the disparity search on each; what they
+    found is fused into levels of other sizes. The candidates reach the fusion in the
+    fused level's pixels: a plane's flow (6, −4.5) px and δ1, δ2 = 1.5, 1.2 px per view
+    step at full size, times the level's size ratio, on the pixels where a candidate
+    was found, within 10 %."""
+    from lfsf import estimate as estimate_module
+
+    h, w = 72, 96
+    truth = (1.5, 1.2, 6.0, -4.5)
+    lf1, lf2 = shift_lightfields(h=h, w=w, grid=5, disp1=truth[0], disp2=truth[1], flow=truth[2:])
+    found = []
+
+    def inner_median(a, lh, lw):
+        a = np.asarray(a.numpy(), np.float64)[lh // 6: -(lh // 6), lw // 6: -(lw // 6)]
+        return float(np.median(a[np.isfinite(a)]))
+
+    def flow(x, centre1, centre2, found_u, found_v, *args, **kwargs):
+        lh, lw = x.shape
+        found.append(("u", lw, inner_median(found_u, lh, lw), truth[2] * lw / w))
+        found.append(("v", lw, inner_median(found_v, lh, lw), truth[3] * lh / h))
+
+    def disparities(x, s1, s2, phis, found1, found2, *args, **kwargs):
+        lh, lw = x.shape
+        found.append(("disp1", lw, inner_median(found1, lh, lw), truth[0] * lw / w))
+        found.append(("disp2", lw, inner_median(found2, lh, lw), truth[1] * lw / w))
+
+    _record_calls(monkeypatch, estimate_module, "_fuse_flow", flow)
+    _record_calls(monkeypatch, estimate_module, "_fuse_disparities", disparities)
+    estimate_scene_flow(lf1, lf2, Params.preset("fast"), device="cpu")
+    assert {name for name, *_ in found} == {"u", "v", "disp1", "disp2"}, found
+    assert len({lw for _, lw, *_ in found}) >= 2, found  # fused on levels of at least two sizes
+    for name, lw, got, want in found:
+        assert abs(got - want) < 0.1 * abs(want), (name, lw, got, want)
+
+
 @pytest.mark.parametrize("disp1, disp2, flow", [(3.8, 3.5, (18.0, -12.0)), (-3.8, -3.6, (-19.0, 8.0)),
                                                 (3.9, -3.9, (0.0, 19.5))])
 def test_the_issue_ranges_are_reached(disp1, disp2, flow):

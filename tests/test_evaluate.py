@@ -95,6 +95,16 @@ def test_an_estimates_occlusion_mask_is_scored_against_the_ground_truths():
         E.occlusion_scores(est_occ.astype(float) * 0.5, gt_occ)
 
 
+def test_a_downsampled_border_leaves_out_at_least_as_much_of_the_scene():
+    """K times smaller views keep ⌈border / K⌉ px of border: the HCI benchmark's 15 px are
+    8 at half size (7 would score a ring of pixels the full-size border leaves out)."""
+    assert E.downsample_border(15, 2) == 8
+    assert E.downsample_border(8, 3) == 3
+    assert E.downsample_border(8, 2) == 4
+    assert E.downsample_border(0, 4) == 0
+    assert E.downsample_border(15, 1) == 15
+
+
 def test_points_hidden_at_t2_are_also_left_out_in_the_noc_rows():
     """With an ``occluded`` mask, δ2 and the flow are scored twice: over every valid pixel
     and over those seen at t2 as well; δ1 and ground truth without the mask only once."""

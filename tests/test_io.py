@@ -24,7 +24,6 @@ import pytest
 
 from lfsf import io as lio
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 LUMA = np.array([0.299, 0.587, 0.114])
 
 
@@ -1142,10 +1141,9 @@ def test_write_lightfield_refuses_to_mix_with_other_views(tmp_path):
 
 
 def _data(name: str) -> Path:
-    folder = DATA / name
-    if not folder.is_dir():
-        pytest.skip(f"{folder} not present")
-    return folder
+    from conftest import data_path
+
+    return data_path(name)
 
 
 @pytest.fixture(scope="module")

@@ -1973,6 +1973,28 @@ def test_view_visibility_margin_scales_with_the_level(device):
     assert kept["half"] < kept["full"]
 
 
+def test_flow_median_tolerance_scales_with_the_level(device):
+    """``median_tolerance`` is in px per view step at full resolution: the per-warp median
+    of the flow takes a window's pixel only where its δ1 is within the tolerance scaled to
+    the level. A spike of u at δ1 = 0.4 among pixels at δ1 = 0 shares its surface with them
+    on the full-resolution level (τ = 0.5) and is filtered away, but stands alone on a
+    level of half the width (τ = 0.25) and is kept."""
+    from lfsf.params import Params
+
+    params = Params.preset("fast").replace(radius=2.0, rof_iterations=20, median_radius=1, median_tolerance=0.5)
+    x = np.zeros((30, 40, 4), np.float32)
+    x[15, 20, 0] = 0.4
+    x[15, 20, 2] = 1.0
+    kept = {}
+    for name, scale in (("full", 1.0), ("half", 0.5)):
+        solver = _level_solver((40, 30), 5, params, device, level_scale=scale)
+        assert solver.median_radius() == 1
+        solver.set_state(x)
+        solver.median()
+        kept[name] = float(solver.unknowns()[15, 20, 2])
+    assert kept == {"full": 0.0, "half": 1.0}, kept
+
+
 def _linearised_problem(solver):
     p = solver.params
     a, weights = solver.data_rows()

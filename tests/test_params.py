@@ -290,6 +290,27 @@ def test_sample_offsets_take_a_square_grid_as_one_number():
         np.testing.assert_array_equal(a, b)
 
 
+def test_the_presets_hold_the_settings_the_readme_and_the_issue_name():
+    """The presets are documented settings (README's presets paragraph; issue 3: the
+    paper's synthetic M = 3, N = (1, 8, 8), R = 4, and its Lytro M = 2, N = (1, 16)), not
+    tuning knobs the accuracy tests would notice: `fast`'s warps 3 → 2 costs the slanted
+    scene's flow 1.6× at 96×72, inside the loose end-to-end guards."""
+    paper = Params.preset("paper")
+    assert (paper.circles, paper.samples, paper.radius) == (3, (1, 8, 8), 4.0)
+    assert len(paper.sample_offsets((9, 9))[0]) == 17
+    fast = Params.preset("fast")
+    assert len(fast.sample_offsets((9, 9))[0]) == 9  # "9 views"
+    assert (fast.warps, fast.iterations, fast.final_iterations, fast.view_gain_sigma) == (3, 30, 0, 0.0)
+    lytro = Params.preset("lytro")
+    assert (lytro.circles, lytro.samples) == (2, (1, 16))
+    flow = Params.preset("flow")
+    assert (flow.circles, flow.samples, flow.warps, flow.iterations, flow.step_ratio) == (1, (1,), 5, 20, 0.25)
+    # a preset differs from the defaults only in what it names
+    for name, settings in PRESETS.items():
+        differing = {f for f in Params.__dataclass_fields__ if getattr(Params.preset(name), f) != getattr(Params(), f)}
+        assert differing <= set(settings), (name, differing - set(settings))
+
+
 def test_the_least_radius_is_accepted_and_flow_only_needs_none():
     from lfsf.params import MIN_RADIUS
 
