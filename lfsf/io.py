@@ -1464,8 +1464,9 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     # time, as the logger is shared by the threads that read a folder's views)
     kept = _log_lines("tifffile", told) if path.suffix.lower() in (".tif", ".tiff") else contextlib.nullcontext()
     try:
-        with kept:
-            image = np.asarray(iio.imread(path))
+        # (from a file this function closes: imageio leaves its own open when no plugin reads it)
+        with kept, open(path, "rb") as f:
+            image = np.asarray(iio.imread(f, extension=path.suffix or None))
     except Exception as err:        # imageio/Pillow raise many kinds for a corrupt file
         first_line = (str(err).strip().splitlines() or [""])[0]
         if first_line.startswith("Could not find a backend"):
