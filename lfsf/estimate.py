@@ -17,7 +17,8 @@ import numpy as np
 from lfsf import device as _device
 from lfsf._filters import box_mean
 from lfsf._filters import gaussian_blur as _blur
-from lfsf.gains import GAIN_CHANGE, MIN_VIEW_SIZE, fit_reduced_gains, gain_change, reduction_factor, sampled_views
+from lfsf.gains import (GAIN_CHANGE, MAX_GAIN, MIN_VIEW_SIZE, fit_reduced_gains, gain_change, reduction_factor,
+                        sampled_views)
 from lfsf.io import LightField, _a, _check_pair_brightest, _refuse_non_finite, centre_view, luma, read_lightfield
 from lfsf.params import Params
 
@@ -670,6 +671,18 @@ def _as_lightfield(lf, name: str) -> LightField:
 #: 0.0058 / 0.0036 / 0.0045 / 0.0062 (22.1 %) (forty-fifth session). Real decoders'
 #: users keep to a like share: EPINET's Lytro views are the central 9 of 15.
 RIM_FRACTION = 2.0 / 3.0
+#: A view is dark where its mean brightness (above the pair's least value) is below this
+#: fraction of the centre view's, at either time: a blocked or dead camera, the black
+#: corners or rims another decoder leaves, a view of garbage. The samples keep off dark
+#: views: R is lowered to the largest radius (in quarter view steps, not below 1) whose
+#: samples read none of them (:func:`_dark_views`, :func:`_radius_off_dark_views`). A
+#: helper's 9×9 scenes with the 32 views outside the grid's inscribed circle black
+#: (fifty-first session): δ1 MSE 6× worse with `paper` (R = 4 reads views 3 steps off
+#: along both axes) and 65× with `lytro`; dimmed to 0.3× with noise 153× with `lytro`;
+#: at R = 3 as clean. Views darkened by vignetting are not dark: 0.77 of the centre's at
+#: k = 0.3 and 0.67 at 0.45 (`synth.add_vignetting`, the view gains match them), HCI
+#: antinous 0.99, the Lytro scene 0.97.
+DARK_VIEW_FRACTION = 0.5
 
 
 def _rim_radius(lf: LightField) -> float | None:
@@ -682,6 +695,38 @@ def _rim_radius(lf: LightField) -> float | None:
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
         return None
     return round(RIM_FRACTION * int(n) / 2.0, 6)
+
+
+def _dark_views(lf1: LightField, lf2: LightField, least: float) -> np.ndarray | None:
+    """(rows, cols) bools: the views darker than :data:`DARK_VIEW_FRACTION` of the centre
+    view at either time, their means taken above ``least`` (the pair's least value); None
+    where a centre view holds nothing above it."""
+    dark = None
+    for lf in (lf1, lf2):
+        means = lf.views.mean(axis=(2, 3), dtype=np.float64)
+        if lf.is_colour:
+            means = luma(means)
+        means = np.asarray(means, np.float64) - least
+        centre = float(means[lf.grid[0] // 2, lf.grid[1] // 2])
+        if not centre > 0:
+            return None
+        this = means < DARK_VIEW_FRACTION * centre
+        dark = this if dark is None else dark | this
+    return dark
+
+
+def _radius_off_dark_views(params: Params, grid: tuple[int, int], dark: np.ndarray, radius: float) -> float | None:
+    """The largest sampling radius, ``radius`` less a whole number of quarter view steps
+    and at least 1, whose samples (:func:`lfsf.gains.sampled_views`) read no ``dark`` view;
+    None where there is none."""
+    rows, cols = grid
+    flat = dark.reshape(-1)
+    for k in range(int(math.floor(4 * (radius - 1.0) + 1e-9)) + 1):
+        r = radius - 0.25 * k
+        phis, _ = params.replace(radius=r).sample_offsets(grid)
+        if not flat[sampled_views(phis, rows, cols)].any():
+            return r
+    return None
 
 
 #: Float views beyond these bounds are taken for values on another scale (8- or 16-bit
@@ -1570,8 +1615,8 @@ def estimate_scene_flow(
     from that fixed point: median flow 0.001 px, above 0.01 px at 2.4 % of the pixels,
     largest 0.28 px; |δ2 − δ1| above 0.01 at 0.09 %, largest 0.30. On real views it stops
     further still: HCI antinous at 256×256 (``lf.downsample(2)``), 8-px border, ``fast``:
-    median flow 0.003 px, above 0.01 px at 18 %, largest 0.51 px; |δ2 − δ1| above 0.01 at
-    3.3 %, largest 1.76 (``paper``: 0.0002 px, 0.03 %, 0.25 px; 0.02 %, 0.72). On colour light fields δ1's tensor is the colour one and
+    median flow 0.0025 px, above 0.01 px at 14 %, largest 0.53 px; |δ2 − δ1| above 0.01 at
+    2.5 %, largest 1.38 (``paper``: 0.0002 px, 0.03 %, 0.25 px; 0.02 %, 0.72). On colour light fields δ1's tensor is the colour one and
     δ2's the luma's, which adds a little (`random-5` in colour at 96×72, `fast`: largest
     flow 0.15 px against 0.09 with ``colour_tensor`` off). ``circles=1`` is optical flow
     of the centre views alone,
@@ -1655,6 +1700,20 @@ def estimate_scene_flow(
                          f"views beside it; on a one-{axis} rig, sample along it with circles = 2 and samples = "
                          "[1, 2] (the views R steps either side of the centre; lfsf run --config FILE.toml "
                          f"sets them), or {flow}")
+    dark = _dark_views(lf1, lf2, min(lo for lo, _ in ranges)) if params.circles > 1 else None
+    if dark is not None and dark[np.unravel_index(sampled_views(phis, rows, cols), dark.shape)].any():
+        listed = [f"({a}, {b})" for a, b in zip(*np.nonzero(dark))]
+        what = (f"{int(dark.sum())} of the {rows}×{cols} views are dark (mean brightness under "
+                f"{DARK_VIEW_FRACTION:g} of the centre view's, at t1 or t2; views (row, column) from 0, as "
+                f"LightField.view takes them: {', '.join(listed[:8])}{', …' if len(listed) > 8 else ''}")
+        off = _radius_off_dark_views(params, (rows, cols), dark, radius)
+        if off is not None:
+            phis, radius = params.replace(radius=off).sample_offsets((rows, cols))
+            note(f"sampling radius R = {radius:g} {_view_steps(radius)}, not {params.radius:g}: {what}), and the "
+                 "samples keep off them (DARK_VIEW_FRACTION)")
+        else:
+            note(f"{what}), and samples at any R ≥ 1 read some: the disparities may suffer (a view of nothing "
+                 "matches nothing)")
     cut = grid_radius < params.radius and (rim is None or grid_radius <= rim)  # (R set by the grid)
     if params.circles > 1 and (cut or radius < 1.0):
         note(f"sampling radius R = {radius:g} {_view_steps(radius)}"
@@ -1753,9 +1812,13 @@ def estimate_scene_flow(
                 if change > GAIN_CHANGE:
                     gains = (wp.array(fitted.astype(np.float32), dtype=float, device=dev),
                              wp.array(np.asarray(used, np.int32), dtype=wp.int32, device=dev), factor)
+                    low, high = float(fitted[used].min()), float(fitted[used].max())
+                    clipped = high >= np.float32(MAX_GAIN) or low <= np.float32(1.0 / MAX_GAIN)
                     note(f"view gains: each view sampled matched to the centre view's brightness (gains "
-                         f"{float(fitted[used].min()):.3f}–{float(fitted[used].max()):.3f}, 95th percentile of "
-                         f"the change {100 * change:.1f} %)")
+                         f"{low:.3f}–{high:.3f}, 95th percentile of the change {100 * change:.1f} %)"
+                         + (f"; some reach their bound, ×{MAX_GAIN:g} or ×{1 / MAX_GAIN:g} (lfsf.gains.MAX_GAIN): "
+                            "parts of those views differ from the centre by more than the gains match (strong "
+                            "vignetting, a dark rim?)" if clipped else ""))
         del small
         lap("view gains")
     # the samples of both times in one stack, t1's first (as the texture split takes them)

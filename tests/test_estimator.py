@@ -97,7 +97,8 @@ def test_each_level_starts_from_the_coarser_one_in_its_own_pixels(monkeypatch):
         starts.append(np.asarray(x.numpy() if hasattr(x, "numpy") else x, np.float64).reshape(*self.shape, 4))
 
     _record_calls(monkeypatch, solver_module.LevelSolver, "set_state", record)
-    params = Params.preset("fast").replace(disparity_search=False, flow_search=False)
+    # (no view gains: their pilot, an estimate of its own, would start levels too)
+    params = Params.preset("fast").replace(disparity_search=False, flow_search=False, view_gain_sigma=0.0)
     estimate_scene_flow(lf1, lf2, params, device="cpu")
     assert len(starts) >= 3, len(starts)
     for x in starts[1:]:
@@ -138,7 +139,8 @@ def test_the_searches_hand_their_finds_over_in_the_levels_pixels(monkeypatch):
 
     _record_calls(monkeypatch, estimate_module, "_fuse_flow", flow)
     _record_calls(monkeypatch, estimate_module, "_fuse_disparities", disparities)
-    estimate_scene_flow(lf1, lf2, Params.preset("fast"), device="cpu")
+    # (no view gains: their pilot, an estimate of its own, would search too)
+    estimate_scene_flow(lf1, lf2, Params.preset("fast").replace(view_gain_sigma=0.0), device="cpu")
     assert {name for name, *_ in found} == {"u", "v", "disp1", "disp2"}, found
     assert len({lw for _, lw, *_ in found}) >= 2, found  # fused on levels of at least two sizes
     for name, lw, got, want in found:
@@ -157,6 +159,55 @@ def test_the_issue_ranges_are_reached(disp1, disp2, flow):
     assert np.median(np.abs(interior(sf.disp2, 12) - disp2)) < 0.03
     assert np.median(np.abs(interior(sf.u, 12) - flow[0])) < 0.1
     assert np.median(np.abs(interior(sf.v, 12) - flow[1])) < 0.1
+
+
+def _outer_views_dimmed(lf, factor):
+    """``lf`` with the views outside the 9×9 grid's inscribed circle (ξ² + η² > 16) times
+    ``factor``: the dark rim another decoder leaves."""
+    views = lf.views.copy()
+    a, b = np.mgrid[:9, :9] - 4
+    views[a ** 2 + b ** 2 > 16] *= factor
+    return lfsf.LightField(views, source=lf.source)
+
+
+def test_the_samples_keep_off_dark_views(monkeypatch):
+    """Views far darker than the centre (black, or 0.3× bright) inside the sampling radius
+    make the samples match nothing there: R is lowered until no sample reads one, with a
+    note naming the setting; the disparities come out about as from the whole light field
+    (at R = 4 they are 44× worse here). Vignetting (0.67 of the
+    centre's brightness at k = 0.45) is no darkness: R stays."""
+    from lfsf import estimate as estimate_module
+    from lfsf import evaluate, synth
+    from lfsf.estimate import _radius_off_dark_views
+
+    params = Params.preset("fast")
+    dark = np.zeros((9, 9), bool)
+    assert _radius_off_dark_views(params, (9, 9), dark, 4.0) == 4.0
+    a, b = np.mgrid[:9, :9] - 4
+    assert _radius_off_dark_views(params, (9, 9), a ** 2 + b ** 2 > 16, 4.0) == 2.75
+    assert _radius_off_dark_views(params, (9, 9), ~dark, 4.0) is None  # (the centre's too: no R keeps off)
+
+    lf1, lf2, gt = synth.render_scene("random-2", size=(96, 72), grid=9)
+    clean = estimate_scene_flow(lf1, lf2, params, device="cpu")
+    scores = {}
+    for factor in (0.0, 0.3):
+        notes = []
+        x, y = _outer_views_dimmed(lf1, factor), _outer_views_dimmed(lf2, factor)
+        sf = estimate_scene_flow(x, y, params, device="cpu", progress=lambda m: notes.append(str(m)))
+        assert sf.radius == 2.75, factor
+        assert any("32 of the 9×9 views are dark" in n and "DARK_VIEW_FRACTION" in n for n in notes), notes
+        scores[factor] = evaluate.evaluate(sf.as_dict(), gt, border=8)["disp1"]["mse"]
+        stuck = estimate_scene_flow(x, y, params.replace(radius=2.75), device="cpu")
+        np.testing.assert_array_equal(sf.disp1, stuck.disp1)  # the same as asking for that radius
+    best = evaluate.evaluate(clean.as_dict(), gt, border=8)["disp1"]["mse"]
+    assert max(scores.values()) < 4.0 * best, (scores, best)  # (1.5× here; single runs at 96×72 spread ~2×)
+    monkeypatch.setattr(estimate_module, "DARK_VIEW_FRACTION", 0.0)  # (no view is dark: R = 4 reads them)
+    at_four = estimate_scene_flow(_outer_views_dimmed(lf1, 0.0), _outer_views_dimmed(lf2, 0.0), params, device="cpu")
+    assert at_four.radius == 4.0
+    assert evaluate.evaluate(at_four.as_dict(), gt, border=8)["disp1"]["mse"] > 10.0 * best  # (44× here)
+    vignetted = estimate_scene_flow(synth.add_vignetting(lf1, 0.45), synth.add_vignetting(lf2, 0.45), params,
+                                    device="cpu")
+    assert vignetted.radius == 4.0
 
 
 def test_identical_light_fields_give_zero_flow_and_equal_disparities():
@@ -523,7 +574,8 @@ def test_the_flow_median_runs_once_more_after_the_final_fill(monkeypatch):
                                                                       fill(self, *a))[1])
     monkeypatch.setattr(LevelSolver, "median", lambda self: (calls.append(("median", self.shape)), median(self))[1])
     lf1, lf2, _ = synth.render_scene("paper", size=(64, 48))
-    params = Params.preset("fast").replace(match_exposure=False)  # its pilot is an estimate of its own
+    # (the exposure's and the view gains' pilots are estimates of their own)
+    params = Params.preset("fast").replace(match_exposure=False, view_gain_sigma=0.0)
     estimate_scene_flow(lf1, lf2, params, device="cpu")
     finest = (48, 64)
     assert calls[-2:] == [("fill", finest), ("median", finest)], calls[-3:]

@@ -300,7 +300,7 @@ def test_the_presets_hold_the_settings_the_readme_and_the_issue_name():
     assert len(paper.sample_offsets((9, 9))[0]) == 17
     fast = Params.preset("fast")
     assert len(fast.sample_offsets((9, 9))[0]) == 9  # "9 views"
-    assert (fast.warps, fast.iterations, fast.final_iterations, fast.view_gain_sigma) == (3, 30, 0, 0.0)
+    assert (fast.warps, fast.iterations, fast.final_iterations, fast.view_gain_sigma) == (3, 30, 0, 24.0)
     lytro = Params.preset("lytro")
     assert (lytro.circles, lytro.samples) == (2, (1, 16))
     flow = Params.preset("flow")
