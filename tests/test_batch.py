@@ -131,7 +131,8 @@ def test_frames_numbered_without_padding_pair_in_the_order_of_their_numbers(tmp_
     pairs = batch.pairs_from_sources([tmp_path])
     assert [(p.t1.name, p.t2.name) for p in pairs] == [("f1.npz", "f2.npz"), ("f2.npz", "f9"), ("f9", "f10.npz")]
     # not a counter: fractions and hexadecimal counters keep the order of their names
-    for names in (["t0.5.npz", "t0.25.npz", "t0.75.npz", "t1.0.npz"], ["cap_09", "cap_0a", "cap_0b", "cap_10"]):
+    for names in (["t0.5.npz", "t0.25.npz", "t0.75.npz", "t1.0.npz"], ["t0.5.npz", "t0.25.npz", "t0.75.npz"],
+                  ["cap_09", "cap_0a", "cap_0b", "cap_10"]):
         assert [p.name for p in batch.frame_order(Path(n) for n in names)] == sorted(names)
 
 

@@ -83,6 +83,19 @@ def test_bench_kernels_rows(inputs):
         assert r["gbytes_per_s"] > 0 and r["memcpy_gbytes_per_s"] > 0
         assert r["seconds_min"] <= r["seconds_median"] <= r["seconds_max"]
         assert r["fraction_of_memcpy"] == pytest.approx(r["gbytes_per_s"] / r["memcpy_gbytes_per_s"], rel=0.01, abs=1e-3)
+        # GB/s are the bytes over the median time (the key says so), not over the best
+        assert r["gbytes_per_s"] == pytest.approx(r["bytes"] / r["seconds_median"] / 1e9, rel=0.01)
+
+
+def test_the_copy_reference_moves_the_kernels_bytes(monkeypatch):
+    """A kernel's bytes are what it reads and writes; the copy it is compared with reads
+    and writes as many, i.e. copies half of them (a copy of all would read and write
+    twice the kernel's bytes and halve the copy's GB/s)."""
+    asked = []
+    copies = bench._copies
+    monkeypatch.setattr(bench, "_copies", lambda nbytes, *a, **k: (asked.append(nbytes), copies(nbytes, *a, **k))[1])
+    rows = bench.bench_kernels((24, 16), "cpu", repeats=2, inputs="random")
+    assert asked == [r["bytes"] // 2 for r in rows]
 
 
 def test_bench_kernels_batches_short_launches(monkeypatch):

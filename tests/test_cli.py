@@ -52,6 +52,22 @@ def test_demo_in_colour_estimates_rgb_views_and_writes_the_overview(tmp_path):
     assert (tmp_path / "d" / "overview.png").stat().st_size > 1000
 
 
+def test_demo_quiet_prints_the_error_table_alone_and_takes_the_device_asked(tmp_path):
+    """``lfsf demo --quiet``: stdout holds the error table and its notes, nothing of the
+    progress (the scene, the times, the files written); ``--device`` is the one used: a
+    device the machine lacks is a clear error, status 2."""
+    status, out, err = lfsf("demo", "--quiet", "--size", 48, 36, "--grid", 3, "--preset", "fast",
+                            "--out", tmp_path / "q")
+    assert status == 0, err
+    lines = out.strip().splitlines()
+    assert lines[0].split()[0] == "variable" and lines[1].split()[0] == "disp1", out
+    assert not any(word in out for word in ("rendered", "estimated in", "wrote")), out
+    assert (tmp_path / "q" / "overview.png").exists()
+    status, out, err = lfsf("demo", "--device", "cuda:9", "--size", 48, 36, "--grid", 3, "--preset", "fast",
+                            "--out", tmp_path / "d")
+    assert_clean_error(status, err, "cuda:9")
+
+
 def test_synth_renders_a_random_scene_and_names_bad_ones(tmp_path):
     status, _, err = lfsf("synth", "random-5", "--out", tmp_path / "r", "--size", 40, 30, "--grid", 3)
     assert status == 0, err
