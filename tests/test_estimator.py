@@ -561,6 +561,32 @@ def test_joint_flow_beats_flow_only():
     assert epe["joint"] < 0.75 * epe["flow only"], epe
 
 
+def test_the_late_search_takes_a_depth_only_near_a_surface_of_its_own_unknown(monkeypatch):
+    """The late search's fusion (``nearby``): a searched δ1 is offered where some pixel
+    nearby holds a δ1 within LATE_SEARCH_DEPTH of it, a searched δ2 where some pixel holds
+    a δ2 so near, each judged by its own unknown. With δ1 = 0 and δ2 = 1 everywhere (a
+    surface coming nearer), candidates of 1.1 are offered to δ2 and not to δ1, and
+    candidates of 0.1 to δ1 and not to δ2 (a mask of 1 keeps the current value)."""
+    from lfsf import device
+    from lfsf import estimate as estimate_module
+
+    wp = device.warp()
+    h, w = 12, 14
+    state = np.zeros((h, w, 4), np.float32)
+    state[..., 1] = 1.0
+    masks = {}
+
+    def record(x, component, samples, phis, candidate, params, dev, hidden=None, *args, **kwargs):
+        masks[component] = hidden.numpy().copy()
+
+    monkeypatch.setattr(estimate_module, "_take_better_disparity", record)
+    for value, offered in ((1.1, 1), (0.1, 0)):
+        x = wp.array(state, dtype=wp.vec4, device="cpu")
+        found = wp.array(np.full((h, w), value, np.float32), dtype=float, device="cpu")
+        estimate_module._fuse_disparities(x, None, None, None, found, found, Params(), "cpu", nearby=True)
+        assert np.all(masks[offered] == 0.0) and np.all(masks[1 - offered] == 1.0), (value, masks)
+
+
 def test_the_flow_median_runs_once_more_after_the_final_fill(monkeypatch):
     """The final fill sets the hidden points' flow after the last warp's median; the
     flow's median then runs once more, on the finest level, after the fill (paired EPE
@@ -1219,6 +1245,14 @@ def test_the_exposure_fit_recovers_a_known_gain_and_offset():
     g, b, change, *_ = estimate._exposure_change(c1, (0.8 * c2 + 0.05).astype(np.float32), "cpu")
     assert np.abs(g * (0.8 * x + 0.05) + b - x).max() < 0.005, (g, b)
     assert change > estimate.EXPOSURE_CHANGE
+    # the change: how far the line moves t2's own intensities (its 5th and 95th
+    # percentiles), as a share of the two views' range
+    darker = (0.5 * c2).astype(np.float32)
+    g, b, change, *_ = estimate._exposure_change(c1, darker, "cpu")
+    span = max(np.percentile(c1, 99.9), np.percentile(darker, 99.9)) - min(np.percentile(c1, 0.1),
+                                                                           np.percentile(darker, 0.1))
+    moved = max(abs(g * q + b - q) for q in np.percentile(darker, [5.0, 95.0]))
+    assert change == pytest.approx(moved / span, rel=1e-4), (change, moved / span)
     g, b, change, *_ = estimate._exposure_change((0.8 * c1 + 0.05).astype(np.float32), c2, "cpu")
     assert np.abs(g * x + b - (0.8 * x + 0.05)).max() < 0.8 * 0.005, (g, b)
     assert change > estimate.EXPOSURE_CHANGE
@@ -1324,6 +1358,12 @@ def test_a_zoom_is_not_read_as_a_change_of_exposure():
     assert estimate._flow_scale(np.full((9, 9), 2.0), np.full((9, 9), -1.0), np.ones((9, 9), bool)) == 1.0
     zoom = 0.05 * (np.mgrid[0:9, 0:9][::-1] - 4.0)
     assert estimate._flow_scale(zoom[0], zoom[1], np.ones((9, 9), bool)) == pytest.approx(1.05)
+    # a turn keeps the scene's size: u = (R − 1)·p, det(1 + ∇u) = det R = 1
+    angle = np.radians(20.0)
+    y, x = np.mgrid[0:9, 0:9] - 4.0
+    turn_u = (np.cos(angle) - 1) * x - np.sin(angle) * y
+    turn_v = np.sin(angle) * x + (np.cos(angle) - 1) * y
+    assert estimate._flow_scale(turn_u, turn_v, np.ones((9, 9), bool)) == 1.0
 
 
 def test_the_exposure_fit_on_a_pan_of_the_whole_scene():

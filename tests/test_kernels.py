@@ -1973,6 +1973,37 @@ def test_view_visibility_margin_scales_with_the_level(device):
     assert kept["half"] < kept["full"]
 
 
+def test_remove_speckles_keeps_a_pixel_with_exactly_the_support_asked(device):
+    """A pixel keeps its depth when ``support`` pixels of its window (itself counted)
+    share it, and only with fewer: a line of three pixels at δ1 = 5 among zeros, radius
+    1, support 3, keeps its middle pixel (3 near) and loses its ends (2 near)."""
+    from lfsf.kernels import median
+
+    x = np.zeros((7, 9, 4), np.float32)
+    x[3, 3:6, 0] = 5.0
+    out = arr(np.zeros((7, 9, 4)), wp_vec4(), device)
+    launch(median.remove_speckles, (7, 9), [arr(x, wp_vec4(), device), 1, 0.3, 3], [out], device)
+    got = out.numpy()
+    np.testing.assert_array_equal(got, ref.remove_speckles(x, 1, 0.3, 3))
+    assert got[3, 4, 0] == 5.0 and got[3, 3, 0] == 0.0 and got[3, 5, 0] == 0.0
+
+
+def test_contrast_is_normalised_by_the_t1_centre_view():
+    """The texture stack is scaled by one factor, so that its first image (the t1 centre
+    view) has the mean absolute gradient ``contrast``, whatever the others have."""
+    from lfsf import device
+    from lfsf.estimate import _mean_gradient, _normalise_contrast
+    from lfsf.params import Params
+
+    wp = device.warp()
+    r = rng(7)
+    images = np.stack([0.1 * r.standard_normal((20, 24)), 0.7 * r.standard_normal((20, 24))]).astype(np.float32)
+    stack = wp.array(images.copy(), dtype=float, device="cpu")
+    out = _normalise_contrast(stack, Params(contrast=0.02), "cpu").numpy()
+    assert _mean_gradient(out[0]) == pytest.approx(0.02, rel=1e-5)
+    np.testing.assert_allclose(out / images, out[0, 0, 0] / images[0, 0, 0], rtol=1e-5)  # one factor for all
+
+
 def test_flow_median_tolerance_scales_with_the_level(device):
     """``median_tolerance`` is in px per view step at full resolution: the per-warp median
     of the flow takes a window's pixel only where its δ1 is within the tolerance scaled to
