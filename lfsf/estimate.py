@@ -699,14 +699,14 @@ def _rim_radius(lf: LightField) -> float | None:
 
 def _dark_views(lf1: LightField, lf2: LightField, least: float) -> np.ndarray | None:
     """(rows, cols) bools: the views darker than :data:`DARK_VIEW_FRACTION` of the centre
-    view at either time, their means taken above ``least`` (the pair's least value); None
-    where a centre view holds nothing above it."""
+    view at either time, their means (over every 4th pixel of every 4th row, and the
+    colours) taken above ``least`` (the pair's least value); None where a centre view
+    holds nothing above it. (Every pixel of 81 RGB views of 640×480 took 1.2 s, these
+    0.01 s.)"""
     dark = None
     for lf in (lf1, lf2):
-        means = lf.views.mean(axis=(2, 3), dtype=np.float64)
-        if lf.is_colour:
-            means = luma(means)
-        means = np.asarray(means, np.float64) - least
+        some = lf.views[:, :, ::4, ::4]
+        means = some.mean(axis=tuple(range(2, some.ndim)), dtype=np.float64) - least
         centre = float(means[lf.grid[0] // 2, lf.grid[1] // 2])
         if not centre > 0:
             return None
@@ -1616,10 +1616,10 @@ def estimate_scene_flow(
     largest 0.28 px; |δ2 − δ1| above 0.01 at 0.09 %, largest 0.30. On real views it stops
     further still: HCI antinous at 256×256 (``lf.downsample(2)``), 8-px border, ``fast``:
     median flow 0.0025 px, above 0.01 px at 14 %, largest 0.53 px; |δ2 − δ1| above 0.01 at
-    2.5 %, largest 1.38 (``paper``: 0.0002 px, 0.03 %, 0.25 px; 0.02 %, 0.72). On colour light fields δ1's tensor is the colour one and
-    δ2's the luma's, which adds a little (`random-5` in colour at 96×72, `fast`: largest
-    flow 0.15 px against 0.09 with ``colour_tensor`` off). ``circles=1`` is optical flow
-    of the centre views alone,
+    2.5 %, largest 1.38 (``paper``: 0.0002 px, 0.03 %, 0.25 px; 0.02 %, 0.72). On colour
+    light fields δ1's tensor is the colour one and δ2's the luma's, which adds a little
+    (`random-5` in colour at 96×72, `fast`: largest flow 0.17 px against 0.11 with
+    ``colour_tensor`` off; fifty-first session). ``circles=1`` is optical flow of the centre views alone,
     ``circles=2, samples=(1, 1)`` is two-view stereo plus flow.
 
     References
@@ -1701,6 +1701,7 @@ def estimate_scene_flow(
                          "[1, 2] (the views R steps either side of the centre; lfsf run --config FILE.toml "
                          f"sets them), or {flow}")
     dark = _dark_views(lf1, lf2, min(lo for lo, _ in ranges)) if params.circles > 1 else None
+    darkened = False  # (R lowered to keep off dark views: the grid's note below is not of this R)
     if dark is not None and dark[np.unravel_index(sampled_views(phis, rows, cols), dark.shape)].any():
         listed = [f"({a}, {b})" for a, b in zip(*np.nonzero(dark))]
         what = (f"{int(dark.sum())} of the {rows}×{cols} views are dark (mean brightness under "
@@ -1708,13 +1709,15 @@ def estimate_scene_flow(
                 f"LightField.view takes them: {', '.join(listed[:8])}{', …' if len(listed) > 8 else ''}")
         off = _radius_off_dark_views(params, (rows, cols), dark, radius)
         if off is not None:
+            asked = radius
             phis, radius = params.replace(radius=off).sample_offsets((rows, cols))
-            note(f"sampling radius R = {radius:g} {_view_steps(radius)}, not {params.radius:g}: {what}), and the "
+            darkened = True
+            note(f"sampling radius R = {radius:g} {_view_steps(radius)}, not {asked:g}: {what}), and the "
                  "samples keep off them (DARK_VIEW_FRACTION)")
         else:
-            note(f"{what}), and samples at any R ≥ 1 read some: the disparities may suffer (a view of nothing "
-                 "matches nothing)")
-    cut = grid_radius < params.radius and (rim is None or grid_radius <= rim)  # (R set by the grid)
+            note(f"{what}), and the samples read some at every radius from R = {radius:g} down to 1: the "
+                 "disparities may suffer (a view of nothing matches nothing)")
+    cut = grid_radius < params.radius and (rim is None or grid_radius <= rim) and not darkened  # (R set by the grid)
     if params.circles > 1 and (cut or radius < 1.0):
         note(f"sampling radius R = {radius:g} {_view_steps(radius)}"
              + (f", not {params.radius:g} (all the {rows}×{cols} grid allows for these samples)" if cut else "")

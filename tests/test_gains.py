@@ -139,7 +139,8 @@ def test_box_blur_is_a_gaussian_of_that_sigma_and_upsampling_keeps_ramps():
 
 def test_the_estimator_matches_the_views_brightness_by_default():
     """`paper`, `lytro` and `fast` fit the gain fields (Params.view_gain_sigma 24 px;
-    `flow`, of the centre views alone, has none to fit): on a vignetted scene the progress names them, their time is a stage,
+    `flow`, of the centre views alone, has none to fit): on a vignetted scene the
+    progress names them, their time is a stage,
     and δ1 comes out closer to the truth than without them, δ2 and the flow no worse;
     on the clean scene they change the views too little to be used. (`weak_texture`,
     where the vignetting costs most: δ1 MSE 0.054 without the gains, 0.024 with them,
