@@ -198,6 +198,26 @@ def test_lattice_conventions():
     close(D.view_offsets(rect, 5, flip=True), -off)
 
 
+@pytest.mark.parametrize("kind, rotation", [("hex", 0.0), ("rect", 0.01), ("hex", -0.004)])
+def test_the_output_grid_is_the_largest_a_pitch_inside_the_whole_micro_images(kind, rotation):
+    """The decoded views' grid (lattice-plane points u0 … u0 + width − 1, v0 … v0 + height
+    − 1) keeps every point at least one pitch inside the region whose micro-images lie
+    wholly on the sensor, and is the largest such grid: one more column or row on any
+    side would leave it (flooring u0 gave a row and a column nearer the border)."""
+    shape = (230, 310)
+    lattice = Lattice.regular(kind, 9.6, rotation, (6.0, 7.0))
+    u0, v0, width, height, *_ = D._output_grid(lattice, shape)
+    h, w = shape
+    m = lattice.pitch / 2.0 + 1.0
+    u, v = lattice.to_plane(np.array([m, w - 1 - m, m, w - 1 - m]), np.array([m, m, h - 1 - m, h - 1 - m]))
+    u_lo, u_hi, v_lo, v_hi = max(u[0], u[2]), min(u[1], u[3]), max(v[0], v[1]), min(v[2], v[3])
+    assert u0 == int(u0) and v0 == int(v0) and width > 10 and height > 10
+    assert u_lo + 1.0 <= u0 and u0 + width - 1 <= u_hi - 1.0
+    assert v_lo + 1.0 <= v0 and v0 + height - 1 <= v_hi - 1.0
+    assert u0 - 1 < u_lo + 1.0 and u0 + width > u_hi - 1.0
+    assert v0 - 1 < v_lo + 1.0 and v0 + height > v_hi - 1.0
+
+
 @pytest.mark.parametrize("flip", [False, True])
 def test_view_axes_are_the_sensor_axes(flip):
     """Decoded view (a, b) holds the light field at (ξ, η) = (b − c, a − c): a pixel right
