@@ -671,18 +671,16 @@ def _as_lightfield(lf, name: str) -> LightField:
 #: 0.0058 / 0.0036 / 0.0045 / 0.0062 (22.1 %) (forty-fifth session). Real decoders'
 #: users keep to a like share: EPINET's Lytro views are the central 9 of 15.
 RIM_FRACTION = 2.0 / 3.0
-#: A view is dark where its mean brightness (above the pair's least value) is below this
-#: fraction of the centre view's, at either time: a blocked or dead camera, the black
-#: corners or rims another decoder leaves, a view of garbage. The samples keep off dark
-#: views: R is lowered to the largest radius (in quarter view steps, not below 1) whose
-#: samples read none of them (:func:`_dark_views`, :func:`_radius_off_dark_views`). A
-#: helper's 9×9 scenes with the 32 views outside the grid's inscribed circle black
-#: (fifty-first session): δ1 MSE 6× worse with `paper` (R = 4 reads views 3 steps off
-#: along both axes) and 65× with `lytro`; dimmed to 0.3× with noise 153× with `lytro`;
-#: at R = 3 as clean. Views darkened by vignetting are not dark: 0.77 of the centre's at
-#: k = 0.3 and 0.67 at 0.45 (`synth.add_vignetting`, the view gains match them), HCI
-#: antinous 0.99, the Lytro scene 0.97.
-DARK_VIEW_FRACTION = 0.5
+#: Dark views (``Params.dark_view_fraction``): a helper's 9×9 scenes with the 32 views
+#: outside the grid's inscribed circle black (fifty-first session) had δ1 MSE 6× worse
+#: with `paper` (R = 4 reads views 3 steps off along both axes) and 65× with `lytro`;
+#: dimmed to 0.3× with noise, 153× with `lytro`; at R = 2.75 as clean (R = 3 still
+#: reads the four views at (±3, ±3) a little). Views darkened by vignetting are not
+#: dark: 0.77 of the centre's at k = 0.3 and 0.67 at 0.45 (`synth.add_vignetting`, the
+#: view gains match them), HCI antinous 0.99, the Lytro scene 0.97. The black level is
+#: 0, or the pair's 0.1th percentile where that is below (views in [−1, 1], say): one
+#: stray pixel does not move it.
+DARK_LOW_PERCENTILE = 0.1
 
 
 def _rim_radius(lf: LightField) -> float | None:
@@ -697,20 +695,34 @@ def _rim_radius(lf: LightField) -> float | None:
     return round(RIM_FRACTION * int(n) / 2.0, 6)
 
 
-def _dark_views(lf1: LightField, lf2: LightField, least: float) -> np.ndarray | None:
-    """(rows, cols) bools: the views darker than :data:`DARK_VIEW_FRACTION` of the centre
-    view at either time, their means (over every 4th pixel of every 4th row, and the
-    colours) taken above ``least`` (the pair's least value); None where a centre view
-    holds nothing above it. (Every pixel of 81 RGB views of 640×480 took 1.2 s, these
-    0.01 s.)"""
+def _view_means(lf: LightField) -> np.ndarray:
+    """(rows, cols): each view's mean over its pixels and colours (float64). (As a flat
+    row per view: the mean over the axes of 81 RGB views of 640×480 took 1.2 s, this
+    0.1 s.)"""
+    views = lf.views
+    rows, cols = views.shape[:2]
+    if views.flags.c_contiguous:
+        return views.reshape(rows, cols, -1).mean(axis=-1, dtype=np.float64)
+    return views.mean(axis=tuple(range(2, views.ndim)), dtype=np.float64)
+
+
+def _dark_views(lf1: LightField, lf2: LightField, fraction: float, least: float = 0.0) -> np.ndarray | None:
+    """(rows, cols) bools: the views whose mean brightness is below ``fraction``
+    (``Params.dark_view_fraction``) of the median of the views' means, at t1 or t2, their
+    means taken above the black level (:data:`DARK_LOW_PERCENTILE`; ``least``: the pair's
+    least value, where known); None where that median is not above it."""
+    if least < 0.0:
+        some = np.concatenate([lf.views[:, :, ::4, ::4].ravel() for lf in (lf1, lf2)])
+        least = min(0.0, float(np.percentile(some, DARK_LOW_PERCENTILE)))
+    else:
+        least = 0.0
     dark = None
     for lf in (lf1, lf2):
-        some = lf.views[:, :, ::4, ::4]
-        means = some.mean(axis=tuple(range(2, some.ndim)), dtype=np.float64) - least
-        centre = float(means[lf.grid[0] // 2, lf.grid[1] // 2])
-        if not centre > 0:
+        means = _view_means(lf) - least
+        reference = float(np.median(means))
+        if not reference > 0:
             return None
-        this = means < DARK_VIEW_FRACTION * centre
+        this = means < fraction * reference
         dark = this if dark is None else dark | this
     return dark
 
@@ -1700,23 +1712,32 @@ def estimate_scene_flow(
                          f"views beside it; on a one-{axis} rig, sample along it with circles = 2 and samples = "
                          "[1, 2] (the views R steps either side of the centre; lfsf run --config FILE.toml "
                          f"sets them), or {flow}")
-    dark = _dark_views(lf1, lf2, min(lo for lo, _ in ranges)) if params.circles > 1 else None
+    dark = (_dark_views(lf1, lf2, params.dark_view_fraction, min(lo for lo, _ in ranges))
+            if params.circles > 1 and params.dark_view_fraction > 0 else None)
     darkened = False  # (R lowered to keep off dark views: the grid's note below is not of this R)
-    if dark is not None and dark[np.unravel_index(sampled_views(phis, rows, cols), dark.shape)].any():
+    if dark is not None and dark.flat[sampled_views(phis, rows, cols)].any():
         listed = [f"({a}, {b})" for a, b in zip(*np.nonzero(dark))]
-        what = (f"{int(dark.sum())} of the {rows}×{cols} views are dark (mean brightness under "
-                f"{DARK_VIEW_FRACTION:g} of the centre view's, at t1 or t2; views (row, column) from 0, as "
-                f"LightField.view takes them: {', '.join(listed[:8])}{', …' if len(listed) > 8 else ''}")
-        off = _radius_off_dark_views(params, (rows, cols), dark, radius)
+        count = int(dark.sum())
+        what = (f"{count} of the {rows}×{cols} views {'is' if count == 1 else 'are'} dark (mean brightness under "
+                f"{params.dark_view_fraction:g} of the views' median, at t1 or t2; views (row, column) from 0, as "
+                f"LightField.view takes them: {', '.join(listed[:8])}{', …' if count > 8 else ''})")
+        off = None
+        if dark.flat[sampled_views(np.zeros((1, 2), np.float32), rows, cols)].any():
+            note(f"{what}, among them the centre view{'s' if rows % 2 == 0 or cols % 2 == 0 else ''}, which every "
+                 "sample is compared with: the estimate will be poor (a view of nothing matches nothing)")
+        else:
+            off = _radius_off_dark_views(params, (rows, cols), dark, radius)
+            if off is None:
+                note(f"{what}, and the samples read some at "
+                     + (f"R = {radius:g}" if radius <= 1.0 else f"every radius from R = {radius:g} down to 1")
+                     + ": the disparities may suffer (a view of nothing matches nothing; dark_view_fraction)")
         if off is not None:
             asked = radius
             phis, radius = params.replace(radius=off).sample_offsets((rows, cols))
             darkened = True
-            note(f"sampling radius R = {radius:g} {_view_steps(radius)}, not {asked:g}: {what}), and the "
-                 "samples keep off them (DARK_VIEW_FRACTION)")
-        else:
-            note(f"{what}), and the samples read some at every radius from R = {radius:g} down to 1: the "
-                 "disparities may suffer (a view of nothing matches nothing)")
+            note(f"sampling radius R = {radius:g} {_view_steps(radius)}, not {params.radius:g}"
+                 + (f" (nor {asked:g}, all the grid or the micro-images' rims allow)" if asked < params.radius else "")
+                 + f": {what}, and the samples keep off them (dark_view_fraction = 0 reads them all the same)")
     cut = grid_radius < params.radius and (rim is None or grid_radius <= rim) and not darkened  # (R set by the grid)
     if params.circles > 1 and (cut or radius < 1.0):
         note(f"sampling radius R = {radius:g} {_view_steps(radius)}"

@@ -170,13 +170,13 @@ def _outer_views_dimmed(lf, factor):
     return lfsf.LightField(views, source=lf.source)
 
 
-def test_the_samples_keep_off_dark_views(monkeypatch):
-    """Views far darker than the centre (black, or 0.3× bright) inside the sampling radius
+def test_the_samples_keep_off_dark_views():
+    """Views far darker than the others (black, or 0.3× bright) inside the sampling radius
     make the samples match nothing there: R is lowered until no sample reads one, with a
     note naming the setting; the disparities come out about as from the whole light field
-    (at R = 4 they are 44× worse here). Vignetting (0.67 of the
-    centre's brightness at k = 0.45) is no darkness: R stays."""
-    from lfsf import estimate as estimate_module
+    (at R = 4, with ``dark_view_fraction = 0``, they are 44× worse here). Dark views at
+    one time alone count too. Vignetting (0.67 of the centre's brightness at k = 0.45)
+    is no darkness: R stays."""
     from lfsf import evaluate, synth
     from lfsf.estimate import _radius_off_dark_views
 
@@ -195,19 +195,63 @@ def test_the_samples_keep_off_dark_views(monkeypatch):
         x, y = _outer_views_dimmed(lf1, factor), _outer_views_dimmed(lf2, factor)
         sf = estimate_scene_flow(x, y, params, device="cpu", progress=lambda m: notes.append(str(m)))
         assert sf.radius == 2.75, factor
-        assert any("32 of the 9×9 views are dark" in n and "DARK_VIEW_FRACTION" in n for n in notes), notes
+        assert any(n.startswith("sampling radius R = 2.75 view steps, not 4: 32 of the 9×9 views are dark")
+                   and "dark_view_fraction" in n for n in notes), notes
         scores[factor] = evaluate.evaluate(sf.as_dict(), gt, border=8)["disp1"]["mse"]
         stuck = estimate_scene_flow(x, y, params.replace(radius=2.75), device="cpu")
         np.testing.assert_array_equal(sf.disp1, stuck.disp1)  # the same as asking for that radius
     best = evaluate.evaluate(clean.as_dict(), gt, border=8)["disp1"]["mse"]
     assert max(scores.values()) < 4.0 * best, (scores, best)  # (1.5× here; single runs at 96×72 spread ~2×)
-    monkeypatch.setattr(estimate_module, "DARK_VIEW_FRACTION", 0.0)  # (no view is dark: R = 4 reads them)
-    at_four = estimate_scene_flow(_outer_views_dimmed(lf1, 0.0), _outer_views_dimmed(lf2, 0.0), params, device="cpu")
+    at_four = estimate_scene_flow(_outer_views_dimmed(lf1, 0.0), _outer_views_dimmed(lf2, 0.0),
+                                  params.replace(dark_view_fraction=0.0), device="cpu")  # (the rule off)
     assert at_four.radius == 4.0
     assert evaluate.evaluate(at_four.as_dict(), gt, border=8)["disp1"]["mse"] > 10.0 * best  # (44× here)
     vignetted = estimate_scene_flow(synth.add_vignetting(lf1, 0.45), synth.add_vignetting(lf2, 0.45), params,
                                     device="cpu")
     assert vignetted.radius == 4.0
+    t2_alone = estimate_scene_flow(lf1, _outer_views_dimmed(lf2, 0.0), params, device="cpu")
+    assert t2_alone.radius == 2.75
+
+
+def test_views_of_a_regular_pattern_are_not_dark():
+    """A view's brightness is the mean over all its pixels: a dot grid (period 8 px, 2×2
+    dots, 1 px per view step), which views sampled at every 4th pixel and row read as
+    black or white by turns (56 of 81 had been called dark), has no dark view."""
+    from lfsf.estimate import _dark_views
+
+    views = np.zeros((9, 9, 48, 64), np.float32)
+    for a in range(9):
+        for b in range(9):
+            y, x = np.mgrid[0:48, 0:64]
+            views[a, b] = ((((y + (a - 4)) % 8) < 2) & (((x + (b - 4)) % 8) < 2)).astype(np.float32)
+    lf = lfsf.LightField(views)
+    assert not _dark_views(lf, lf, 0.5).any()
+
+
+def test_a_dark_centre_view_is_told():
+    """No radius keeps the samples off a dark centre view (every sample is compared with
+    it): the progress says so and R stays; on an even grid, where the centre is the mean
+    of the middle four views, a dark one of those four is told alike. One stray pixel
+    (below 0, within what lfsf takes as [0, 1]) moves no view's darkness."""
+    from lfsf import synth
+
+    params = Params.preset("fast")
+    for grid, (a, b) in ((9, (4, 4)), (8, (4, 4)), (8, (3, 4))):
+        lf1, lf2, _ = synth.render_scene("random-2", size=(64, 48), grid=grid)
+        views = lf1.views.copy()
+        views[a, b] = 0.0
+        notes = []
+        sf = estimate_scene_flow(lfsf.LightField(views), lf2, params, device="cpu", progress=notes.append)
+        told = [str(n) for n in notes if " views is dark" in str(n) or " views are dark" in str(n)]
+        assert len(told) == 1 and told[0].startswith(f"1 of the {grid}×{grid} views is dark"), told
+        assert f"({a}, {b})" in told[0] and "among them the centre view" in told[0], told
+        assert sf.radius == params.grid_radius((grid, grid))
+    lf1, lf2, _ = synth.render_scene("random-2", size=(64, 48), grid=9)
+    dimmed = _outer_views_dimmed(lf1, 0.3)
+    views = dimmed.views.copy()
+    views[4, 4, 10, 10] = -0.45
+    for lf in (dimmed, lfsf.LightField(views)):
+        assert estimate_scene_flow(lf, lf2, params, device="cpu").radius == 2.75
 
 
 def test_identical_light_fields_give_zero_flow_and_equal_disparities():
