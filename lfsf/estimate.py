@@ -1735,8 +1735,10 @@ def estimate_scene_flow(
             asked = radius
             phis, radius = params.replace(radius=off).sample_offsets((rows, cols))
             darkened = True
+            limit = ("the micro-images' rims allow" if rim is not None and rim <= grid_radius
+                     else f"the {rows}×{cols} grid allows")
             note(f"sampling radius R = {radius:g} {_view_steps(radius)}, not {params.radius:g}"
-                 + (f" (nor {asked:g}, all the grid or the micro-images' rims allow)" if asked < params.radius else "")
+                 + (f" (nor {asked:g}, all {limit})" if asked < params.radius else "")
                  + f": {what}, and the samples keep off them (dark_view_fraction = 0 reads them all the same)")
     cut = grid_radius < params.radius and (rim is None or grid_radius <= rim) and not darkened  # (R set by the grid)
     if params.circles > 1 and (cut or radius < 1.0):
