@@ -479,10 +479,10 @@ MAX_INTENSITY_RANGE = 2.0
 EXPOSURE_CHANGE = 0.004
 #: Where the fitted line I ↦ g·I + b leaves, in some band of t2's intensities, a median
 #: residual of more than this fraction of the range (and the bands bow, below), a tone
-#: curve through EXPOSURE_CURVE_BINS knots is found (:func:`_exposure_change`), which
-#: ``Params.tone_curve`` matches t2 by in place of the line, and the progress tells of
-#: otherwise: a camera's gamma or auto-exposure curve is no line. The largest such residual: on 9 pairs of
-#: affine changes (none, ×1.1, ×0.6, ×1.2, ×0.8; noise σ 0.01–0.02; Lytro and synthetic
+#: curve through EXPOSURE_CURVE_BINS knots is found (:func:`_exposure_change`): a camera's
+#: gamma or auto-exposure curve is no line. With ``Params.tone_curve`` t2 is matched by
+#: that curve in place of the line; without it the progress tells of the bow. The
+#: largest such residual: on 9 pairs of affine changes (none, ×1.1, ×0.6, ×1.2, ×0.8; noise σ 0.01–0.02; Lytro and synthetic
 #: views) at most 0.0005; t2 = t2^0.8 0.022 (Lytro) and 0.010 (`paper`), t2^1.25 0.006.
 #: On the helper's Lytro pair shifted by (3, 2) with t2^0.8, `fast`: EPE 0.958 with the
 #: line, 0.417 with 8 knots, 0.100 with 16 (pixels 1 px off 9.0 → 0.4 %).
@@ -1631,8 +1631,8 @@ def estimate_scene_flow(
     2.5 %, largest 1.38 (``paper``: 0.0002 px, 0.03 %, 0.25 px; 0.02 %, 0.72). On colour
     light fields δ1's tensor is the colour one and δ2's the luma's, which adds a little
     (`random-5` in colour at 96×72, `fast`: largest flow 0.17 px against 0.11 with
-    ``colour_tensor`` off; fifty-first session). ``circles=1`` is optical flow of the centre views alone,
-    ``circles=2, samples=(1, 1)`` is two-view stereo plus flow.
+    ``colour_tensor`` off; fifty-first session). ``circles=1`` is optical flow of the
+    centre views alone, ``circles=2, samples=(1, 1)`` is two-view stereo plus flow.
 
     References
     ----------
@@ -2254,7 +2254,8 @@ def _tone_curve(x: np.ndarray, y: np.ndarray, weight: np.ndarray, gain: float, s
     above EXPOSURE_CURVE_MIN of ``span`` and the bands' residuals bow across the range by
     more than EXPOSURE_CURVE_BOW; None where the line fits every band, or one band
     strays alone. Each knot is a band's weighted medians of x and of the residual (on
-    the line), made non-decreasing. Returns (the knots or None, the largest band's residual / ``span``)."""
+    the line), made non-decreasing. Returns (the knots or None, the largest band's
+    residual / ``span``)."""
     edges = np.quantile(x, np.linspace(0.0, 1.0, EXPOSURE_CURVE_BINS + 1))
     residual = y - (gain * x + shift)
     knots_x, off = [], []
@@ -2281,9 +2282,9 @@ def _tone_curve(x: np.ndarray, y: np.ndarray, weight: np.ndarray, gain: float, s
 
 
 def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str, note=None) -> Exposure:
-    """(g, b, change, curve, departure): a global change of exposure from t1 to t2, I1(p) ≈ g·I2(p + u) + b
-    or a tone curve f(I2(p + u)) (:class:`Exposure`; ``Params.match_exposure``), from the
-    grey centre views.
+    """(g, b, change, curve, departure): a global change of exposure from t1 to t2,
+    I1(p) ≈ g·I2(p + u) + b or a tone curve f(I2(p + u)) (:class:`Exposure`;
+    ``Params.match_exposure``), from the grey centre views.
 
     A flow-only pilot (the ``flow`` preset with θ = EXPOSURE_THETA) on the views
     box-averaged by the largest whole factor that leaves at least EXPOSURE_SIZE px along

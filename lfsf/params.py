@@ -177,8 +177,8 @@ class Params:
             `large_motion` δ2 0.431 at 160×120 against its bar of 0.419; α0 = 6: 0.388).
             ``alpha0`` holds for δ1 and δ2.
         alpha0_flow : α0 of the flow (u, v) (an addition; the paper has one α0); None
-            (the default): ``alpha0``'s (:attr:`flow_alpha0`). An
-            affine motion (a rotation, a zoom) is a constant ∇w on the object, whose edge
+            (the default): ``alpha0``'s (:attr:`flow_alpha0`). An affine motion (a
+            rotation, a zoom) is a constant ∇w on the object, whose edge
             costs α0·|∇w|·its outline: α0 = 6 made the flow of an object of radius below
             ~2α0/α1 = 24 px piecewise constant (a disc turning 10°: EPE 0.196;
             α0_flow = 3 / 2 / 1.5: 0.085 / 0.069 / 0.065). Lower values cost the
@@ -677,11 +677,11 @@ def _on_whole_views(r: float, between: tuple[float, float], angles, half: tuple[
     (halves up), where that is at least 1, lies strictly ``between`` the circle inside
     (as placed) and the next one's r_(i+1) (two circles on one radius would sample the
     same views twice), and keeps every sample within the grid (``half``: its half extents
-    along x and y); else r_i. Between two views a
-    sample is their blend, two copies of the scene δ pixels apart: at R = 3 (a 7×7 grid,
-    or ``radius = 3``) the paper's r_1 = 1.5 biased the background of HCI antinous
-    (|δ| ≈ 3) by +0.06, BadPix(0.07) 27.6 % against 7.8 % at R = 4 (r_1 = 2); at
-    r_1 = 2 it is 13.2 % (r_1 = 1: 13.0 %), MSE×100 1.99 → 1.72 (``Params.whole_circles``)."""
+    along x and y); else r_i. Between two views a sample is their blend, two copies of
+    the scene δ pixels apart: at R = 3 (a 7×7 grid, or ``radius = 3``) the paper's
+    r_1 = 1.5 biased the background of HCI antinous (|δ| ≈ 3) by +0.06, BadPix(0.07)
+    27.6 % against 7.8 % at R = 4 (r_1 = 2); at r_1 = 2 it is 13.2 % (r_1 = 1: 13.0 %),
+    MSE×100 1.99 → 1.72 (``Params.whole_circles``)."""
     whole = math.floor(r + 0.5)
     if not (whole >= 1 and between[0] < whole < between[1]):
         return r
