@@ -3,6 +3,7 @@ coarse-to-fine warping around :class:`lfsf.solver.LevelSolver` (MODEL.md §2–�
 
 from __future__ import annotations
 
+import contextvars
 import functools
 import math
 import os
@@ -748,6 +749,10 @@ UNIT_RANGE_SLACK = (-0.5, 1.5)
 UNIT_RANGE_WARNING = r".*, where lfsf expects \[0, 1\]"
 
 
+#: Set while :func:`pilot_estimate` runs (per thread and task): its views need no layout check.
+_IN_PILOT: contextvars.ContextVar[bool] = contextvars.ContextVar("lfsf_in_pilot", default=False)
+
+
 def pilot_estimate(lf1, lf2, params: Params, device: str) -> "SceneFlow":
     """:func:`estimate_scene_flow` on views the estimator made itself (the exposure
     pilot's, the view gains' pilot's), without its warning of views outside [0, 1]: the
@@ -758,7 +763,11 @@ def pilot_estimate(lf1, lf2, params: Params, device: str) -> "SceneFlow":
 
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=UNIT_RANGE_WARNING)
-        return estimate_scene_flow(lf1, lf2, params, device=device)
+        token = _IN_PILOT.set(True)  # (nor the layout's check: t1's views, or these, were checked once)
+        try:
+            return estimate_scene_flow(lf1, lf2, params, device=device)
+        finally:
+            _IN_PILOT.reset(token)
 
 
 def _warn_out_of_unit_range(source: str, lo: float, hi: float, stretched: bool) -> None:
@@ -1681,6 +1690,16 @@ def estimate_scene_flow(
             what = f"every value of every view is {lo:g}" if lo == hi else "every view is of one value"
             raise ValueError(f"{lf.source}: {what}: a blank light field (a black frame, a lens cap, a raw image of "
                              "nothing, a flat field), with nothing to match")
+    if params.circles > 1 and not _IN_PILOT.get():
+        # a transposed array or a grid numbered the other way reads without error and gives
+        # disparities of no meaning: said (t1's; t2 comes from the same source as a rule)
+        from lfsf.orientation import layout_warning
+
+        told = layout_warning(lf1.views, lf1.source, params.disparity_range)
+        if told:
+            import warnings
+
+            warnings.warn(told, stacklevel=2)
     dev = _device.resolve_device(device)
     rows, cols = lf1.grid
     height, width = lf1.height, lf1.width

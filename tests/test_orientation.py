@@ -1,0 +1,96 @@
+"""The check of a light field's layout (lfsf.orientation): a grid or image pair of axes
+swapped, or one axis of the grid reversed, is told; the views as lfsf reads them, and
+scenes without parallax, are not."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+import lfsf
+from lfsf.orientation import ORIENTATION_RATIO, layout_costs, layout_warning
+from lfsf.synth import add_noise, render_scene
+
+from conftest import data_path
+
+LAYOUTS = {
+    "as read": lambda v: v,
+    "columns reversed": lambda v: v[:, ::-1],
+    "rows reversed": lambda v: v[::-1],
+    "grid transposed": lambda v: v.transpose(1, 0, 2, 3),
+    "images transposed": lambda v: v.transpose(0, 1, 3, 2),
+    "grid transposed, columns reversed": lambda v: v.transpose(1, 0, 2, 3)[:, ::-1],
+    "both axes reversed": lambda v: v[::-1, ::-1],  # (δ negated: not told apart)
+}
+#: What the check should say of each: the name of the layout it finds, or None.
+TOLD = {"as read": None, "columns reversed": "one of the grid's axes reversed",
+        "rows reversed": "one of the grid's axes reversed", "grid transposed": "two axes swapped:",
+        "images transposed": "two axes swapped:", "grid transposed, columns reversed": "two axes swapped and one reversed",
+        "both axes reversed": None}
+
+
+@pytest.fixture(scope="module")
+def scenes():
+    return {name: render_scene(name, size=(96, 72))[0].views for name in ("paper", "random-3")}
+
+
+@pytest.mark.parametrize("layout", list(LAYOUTS))
+@pytest.mark.parametrize("scene", ["paper", "random-3"])
+def test_each_layout_is_told(scenes, scene, layout):
+    views = np.ascontiguousarray(LAYOUTS[layout](scenes[scene]))
+    said = layout_warning(views, "lf1.npz")
+    if TOLD[layout] is None:
+        assert said is None
+    else:
+        assert said is not None and said.startswith(f"lf1.npz: the views look laid out with {TOLD[layout]}")
+        costs = layout_costs(views)
+        # the layout named matches far better than the views as read (and as well as the rendering did)
+        assert min(v for k, v in costs.items() if k not in ("as read", "no parallax")) < 0.5 * costs["as read"]
+
+
+def test_noise_and_colour():
+    """With sensor noise (σ = 0.02) and in colour: the layout as read, and a reversed
+    axis told."""
+    lf = add_noise(render_scene("random-3", size=(96, 72))[0], 0.02, 5)
+    views = lf.views
+    assert layout_warning(views, "x") is None
+    assert "reversed" in layout_warning(np.ascontiguousarray(views[:, ::-1]), "x")
+    colour = np.repeat(views[..., None], 3, axis=-1) * np.array([0.9, 1.0, 1.1], np.float32)
+    assert layout_warning(colour, "x") is None
+    assert "two axes swapped:" in layout_warning(np.ascontiguousarray(colour.transpose(1, 0, 2, 3, 4)), "x")
+
+
+def test_nothing_to_tell():
+    """No parallax (every view the same image), a single row of views, views too small:
+    nothing said, whatever the layout."""
+    views = render_scene("random-3", size=(96, 72))[0].views
+    flat = np.broadcast_to(views[4, 4], views.shape)
+    assert layout_warning(np.ascontiguousarray(flat.transpose(0, 1, 3, 2)), "x") is None
+    assert layout_costs(views[4:5]) is None and layout_costs(views[:, 3:5]) is None
+    assert layout_costs(views[:, :, :12, :12]) is None
+
+
+@pytest.mark.parametrize("scene", ["hci-antinous", "lytro-illum-2067"])
+def test_real_data(scene):
+    """The real light fields as read are not told; with their columns reversed, they are."""
+    views = lfsf.read_lightfield(data_path(scene)).grey().views
+    assert layout_warning(views, scene) is None
+    costs = layout_costs(np.ascontiguousarray(views[:, ::-1]))
+    assert costs["reversed"] < ORIENTATION_RATIO * costs["as read"]
+
+
+def test_estimate_warns_once(scenes):
+    """estimate_scene_flow warns once, naming the light field, and its pilots (exposure,
+    view gains) do not warn again; flow only (one circle) is not checked."""
+    views = np.ascontiguousarray(scenes["random-3"].transpose(1, 0, 2, 3))
+    dimmer = (views * np.float32(0.8)).astype(np.float32)  # (the exposure's pilot runs too)
+    params = lfsf.Params.preset("fast").replace(warps=1, iterations=5, final_iterations=5)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        lfsf.estimate_scene_flow(lfsf.LightField(views, source="t1.npz"), dimmer, params)
+    said = [str(w.message) for w in caught if "laid out" in str(w.message)]
+    assert len(said) == 1 and said[0].startswith("t1.npz: the views look laid out with two axes swapped")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        lfsf.estimate_scene_flow(views, views, "flow")
+    assert not [w for w in caught if "laid out" in str(w.message)]
