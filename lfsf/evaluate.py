@@ -116,8 +116,11 @@ def _check_pair(name, est, ref):
                         f"[{y}:-{y}, {x}:-{x}] to compare them")
             k = ref.shape[0] // max(est.shape[0], 1)
             if k >= 2 and ref.shape[0] // k == est.shape[0] and ref.shape[1] // k == est.shape[1]:
-                hint = (f", {k} times smaller (views shrunk by lfsf run --downsample {k}?): shrink the truth alike, "
-                        f"evaluate.downsample_truth(gt, {k})")
+                # (the truth the larger: of views shrunk by --downsample, or finer than the views,
+                # as HCI's gt_disp_highres.pfm, 4× its views; "8 times smaller" had read as the truth's)
+                hint = (f", {k} times the estimate's size: views shrunk by lfsf run --downsample {k} (shrink the "
+                        f"truth alike, evaluate.downsample_truth(gt, {k})), or a truth finer than the views (HCI's "
+                        "gt_disp_highres.pfm is 4 times their size: score against gt_disp_lowres.pfm)")
             raise ValueError(f"{name}: the estimate is {est.shape[1]}×{est.shape[0]} but the "
                              f"ground truth is {ref.shape[1]}×{ref.shape[0]}{hint}")
     else:
@@ -402,6 +405,13 @@ def load_ground_truth(path: str | Path) -> tuple[dict[str, np.ndarray], int]:
         raise ValueError(f"{path}: no gt.npz or gt_disp_lowres.pfm in this folder")
     suffix = path.suffix.lower()
     if suffix == ".pfm":
+        name = path.name.lower()
+        if "depth" in name and "disp" not in name:
+            # (HCI ships gt_depth_lowres.pfm beside gt_disp_lowres.pfm: depths scored as disparities
+            # had given an MSE of 3.7 without a word)
+            raise ValueError(f"{path}: a depth map by its name (as HCI's gt_depth_lowres.pfm), where lfsf scores "
+                             "disparities in px per view step: give the disparity map beside it "
+                             "(gt_disp_lowres.pfm), or rename the file if it holds disparities")
         return {"disp1": _read_disparity_pfm(path)}, HCI_BORDER
     if suffix == ".npz":
         return _load_npz(path, VARIABLES + ("valid", "occluded")), SYNTH_BORDER

@@ -103,6 +103,18 @@ _LAYOUTS_LOOKED_FOR = (
 _MAX_NAMES_LISTED = 8
 # Single images that are no raw lenslet image either (lossy, or 8-bit only): said so.
 _NOT_RAW_SUFFIXES = {".jpg", ".jpeg", ".bmp"}
+#: What to do with the light-field files of other tools that lfsf does not read, by suffix
+#: (the README's "Other layouts" gives the recipes whole).
+_OTHER_FORMATS = {
+    ".npy": "a .npy array: lfsf reads an .npz with key 'views'; np.savez('lf.npz', views=np.load(PATH)) with "
+            "the array ordered [a, b, y, x] or [a, b, y, x, 3] (view row, view column, image row, image column)",
+    ".h5": "an HDF5 file: read its light-field array with h5py and save it as an .npz with key 'views', "
+           "ordered [a, b, y, x] or [a, b, y, x, 3] (view row, view column, image row, image column)",
+    ".mat": "a MATLAB file (LFToolbox's *__Decoded.mat holds LF as [j, i, l, k, c], which is lfsf's [a, b, y, x, c] "
+            "with a weight channel last; a v7.3 file is HDF5, which h5py reads in the reverse order): save "
+            "LF[..., :3] as an .npz with key 'views'",
+}
+_OTHER_FORMATS[".hdf5"] = _OTHER_FORMATS[".h5"]
 
 
 # --------------------------------------------------------------------------------------
@@ -559,6 +571,12 @@ def read_lightfield(path: str | os.PathLike) -> LightField:
     if suffix == ".npz":
         return _read_npz(path)
     if suffix in _IMAGE_SUFFIXES:
+        if path.name.lower().endswith(".eslf.png"):
+            raise ValueError(f"{path}: an ESLF image (decoded views tiled one block of N×N pixels a micro-lens, as "
+                             "the Stanford and EPFL Lytro archives give them), not a raw lenslet image: split it "
+                             f"with np.savez('lf.npz', views=lfsf.io.lenslet_to_views(lfsf.io.read_image('{path}'), "
+                             "(N, N))), N = 14 for the Lytro Illum's, and keep the inner views, whose brightness "
+                             "is even (e.g. views[3:-3, 3:-3]; README: Other layouts)")
         if _HCI_NAME.fullmatch(path.name) or _ROWCOL_NAME.fullmatch(path.name):
             raise ValueError(f"{path}: one view of a light field; give the folder of all its views, "
                              f"{path.parent}")
@@ -569,8 +587,10 @@ def read_lightfield(path: str | os.PathLike) -> LightField:
         raise ValueError(f"{path}: a single image is a raw lenslet image, which must be "
                          f"decoded first: run `lfsf decode {path} --white WHITE --out DIR` "
                          f"and read DIR (one view of a light field? give the folder of all its views)")
+    other = _OTHER_FORMATS.get(suffix)
     raise ValueError(f"{path}: unknown light-field format {suffix!r}; expected a folder of "
-                     f"views ({_LAYOUTS_LOOKED_FOR}) or a .npz with key 'views'")
+                     f"views ({_LAYOUTS_LOOKED_FOR}) or a .npz with key 'views'"
+                     + (f"; this is {other.replace('PATH', repr(str(path)))} (README: Other layouts)" if other else ""))
 
 
 def _read_npz(path: Path) -> LightField:
@@ -657,7 +677,9 @@ def _check_npz_member_size(path: Path, archive: zipfile.ZipFile, key: str) -> No
 
 
 def _read_folder(folder: Path) -> LightField:
-    names = sorted(p.name for p in folder.iterdir() if p.is_file())
+    # (hidden files skipped: macOS's AppleDouble ._view_01_01.png beside each view had read
+    # as a second light field's prefix)
+    names = sorted(p.name for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
     hci = [(m, name) for name in names if (m := _HCI_NAME.fullmatch(name))]
     rowcol = [(m, name) for name in names if (m := _ROWCOL_NAME.fullmatch(name))]
     if hci and rowcol:
@@ -765,14 +787,19 @@ def _hci_grid(folder: Path, matches: list, cameras: tuple[int, int] | None = Non
         # counted, and only the first few named: a stray input_Cam99999999.png must not
         # make a list of 10^8 names
         missing = (f"input_Cam{i:03d}.png" for i in range(count) if i not in by_index)
+        # (views numbered from 1, input_Cam001 … input_Cam081: only the first is missing)
+        from_one = ("; the views seem numbered from 1: the HCI layout numbers them from 0 (input_Cam000.png is "
+                    "the top left view), rename them so" if 0 not in by_index and len(by_index) == count - 1 else "")
         raise ValueError(f"{folder}: the HCI views input_Cam000 … input_Cam{count - 1:03d} "
                          f"are incomplete, {count - len(by_index)} missing: "
-                         f"{_listed_first(missing, count - len(by_index))}")
+                         f"{_listed_first(missing, count - len(by_index))}{from_one}")
     if cameras is not None:
         rows, cols = cameras
         if rows * cols != count:
             raise ValueError(f"{folder}: parameters.cfg gives a grid of {rows}×{cols} views (num_cams_y × "
-                             f"num_cams_x), but there are {count} (input_Cam000 … input_Cam{count - 1:03d})")
+                             f"num_cams_x), but there are {count} (input_Cam000 … input_Cam{count - 1:03d}): "
+                             "correct num_cams_x and num_cams_y in its [extrinsics] (a subset of the views "
+                             "kept?), or remove the file, and a square grid is read")
         return [[folder / by_index[r * cols + c] for c in range(cols)] for r in range(rows)]
     side = math.isqrt(count)
     if side * side != count:
@@ -803,7 +830,8 @@ def _rowcol_grid(folder: Path, matches: list) -> tuple[list[list[Path]], str]:
         position = int(m.group(2)), int(m.group(3))
         if min(position) < 1:
             raise ValueError(f"{folder / name}: expected 1-based view row and column "
-                             f"(<name>_RR_CC.png), got {position}")
+                             f"(<name>_RR_CC.png), got {position}: numbered from 0? rename the views from "
+                             f"{prefix}_01_01.png (or give them as an .npz)")
         if position in by_position:
             raise ValueError(f"{folder}: two files for view (row, col) = {position}: "
                              f"{by_position[position]} and {name}")
@@ -889,7 +917,8 @@ def _read_view_grid(files: list[list[Path]]) -> np.ndarray:
     def load(k: int) -> None:
         image = _read_view(flat[k])
         if image.shape != first.shape:
-            raise ValueError(f"{flat[k]}: expected the size of {flat[0].name} "
+            what = "the size" if image.shape[:2] != first.shape[:2] else "the colour"  # (96×72 RGB, got 96×72 grey)
+            raise ValueError(f"{flat[k]}: expected {what} of {flat[0].name} "
                              f"({_describe_image(first.shape)}), got {_describe_image(image.shape)}")
         views[k // cols, k % cols] = image
 
@@ -915,7 +944,7 @@ def _refuse_mixed_views(folder: Path, names: list[str]) -> None:
     # read the wrong light field
     ours = set(names)
     stale = sorted(p.name for p in folder.iterdir()
-                   if (_HCI_NAME.fullmatch(p.name) or _ROWCOL_NAME.fullmatch(p.name)) and p.name not in ours)
+                   if not p.name.startswith(".") and (_HCI_NAME.fullmatch(p.name) or _ROWCOL_NAME.fullmatch(p.name)) and p.name not in ours)
     if stale:
         raise ValueError(f"{folder}: already holds views that these would mix with "
                          f"({_listed(stale)}); write to an empty folder")

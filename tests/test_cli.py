@@ -436,8 +436,8 @@ def test_run_downsamples_the_views_and_the_ground_truth_alike(tmp_path, capsys):
     assert main(["run", str(s / "lf1.npz"), str(s / "lf2.npz"), "--out", str(tmp_path / "r3"), "--config",
                  str(tmp_path / "r"), "--quiet"]) == 0
     np.testing.assert_array_equal(SceneFlow.load(tmp_path / "r3").u, saved.u)
-    with pytest.raises(ValueError, match=r"the estimate is 32×24 but the ground truth is 64×48, 2 times smaller "
-                                         r"\(views shrunk by lfsf run --downsample 2\?\)"):
+    with pytest.raises(ValueError, match=r"the estimate is 32×24 but the ground truth is 64×48, 2 times the "
+                                         r"estimate's size: views shrunk by lfsf run --downsample 2 \(shrink"):
         evaluate(saved, truth)
     io.write_pfm(tmp_path / "d1.pfm", truth["disp1"])  # (δ1 alone, as an HCI truth: nothing a flow run scores)
     status, _, err = lfsf("run", s / "lf1.npz", s / "lf2.npz", "--out", tmp_path / "r4", "--preset", "flow",

@@ -347,3 +347,18 @@ def test_masked_arrays_keep_their_masks():
     occluded = np.ma.masked_array(np.zeros((12, 12), bool), mask=hole)
     noc = E.evaluate({"disp2": est_holes}, {"disp2": gt, "occluded": occluded}, border=0)["disp2_noc"]
     assert noc["pixels"] == 144 - hole.sum() and noc["mse"] == pytest.approx(0.01)
+
+
+def test_a_depth_map_is_not_scored_as_disparity(tmp_path):
+    """HCI ships gt_depth_lowres.pfm beside gt_disp_lowres.pfm: a depth map, by its name,
+    is refused rather than scored as disparities; a disparity map of any name is read."""
+    from lfsf import io as lio
+
+    depth = np.full((20, 20), 1.5, np.float32)
+    lio.write_pfm(tmp_path / "gt_depth_lowres.pfm", depth)
+    with pytest.raises(ValueError, match=r"gt_depth_lowres.pfm: a depth map by its name .*\(gt_disp_lowres.pfm\)"):
+        E.load_ground_truth(tmp_path / "gt_depth_lowres.pfm")
+    for name in ("gt_disp_lowres.pfm", "depth_as_disparity.pfm", "mine.pfm"):
+        lio.write_pfm(tmp_path / name, depth)
+        truth, border = E.load_ground_truth(tmp_path / name)
+        np.testing.assert_array_equal(truth["disp1"], depth)

@@ -967,6 +967,64 @@ def test_rowcol_indices_are_one_based(tmp_path):
         lio.read_lightfield(folder)
 
 
+def test_other_tools_layouts_are_read_or_told(tmp_path):
+    """Layouts of other tools and file systems (a helper's survey of public datasets):
+    hidden files (macOS's ._view_01_01.png) are skipped in both layouts; views numbered
+    from 0 (row-column) or from 1 (HCI), a parameters.cfg of another grid, a grey view
+    among colour ones, an ESLF image and .npy / .h5 / .mat files are each told what to do."""
+    views = np.random.default_rng(3).integers(0, 255, (3, 3, 6, 8), dtype=np.uint8)
+    rc = tmp_path / "rc"
+    lio.write_lightfield(views, rc, bit_depth=8, layout="rowcol")
+    for name in sorted(p.name for p in rc.iterdir()):
+        (rc / f"._{name}").write_bytes(b"\x00\x05\x16\x07 AppleDouble")
+    (rc / ".view_02_02.png").write_bytes(b"")
+    read = lio.read_lightfield(rc)
+    np.testing.assert_array_equal(read.views, views / np.float32(255))
+    hci = tmp_path / "hci"
+    lio.write_lightfield(views, hci, bit_depth=8)
+    (hci / "._input_Cam000.png").write_bytes(b"\x00")
+    assert lio.read_lightfield(hci).grid == (3, 3)
+
+    zero = tmp_path / "zero"
+    zero.mkdir()
+    for r in range(2):
+        for c in range(2):
+            iio.imwrite(zero / f"view_{r:02d}_{c:02d}.png", views[r, c])
+    with pytest.raises(ValueError, match=r"got \(0, 0\): numbered from 0\? rename the views from view_01_01.png"):
+        lio.read_lightfield(zero)
+    one = tmp_path / "one"
+    one.mkdir()
+    for k in range(9):
+        iio.imwrite(one / f"input_Cam{k + 1:03d}.png", views[k // 3, k % 3])
+    with pytest.raises(ValueError, match=r"1 missing: input_Cam000.png; the views seem numbered from 1"):
+        lio.read_lightfield(one)
+    (hci / "parameters.cfg").write_text((hci / "parameters.cfg").read_text().replace("num_cams_x = 3",
+                                                                                    "num_cams_x = 9"))
+    with pytest.raises(ValueError, match=r"correct num_cams_x and num_cams_y in its \[extrinsics\]"):
+        lio.read_lightfield(hci)
+    mixed = tmp_path / "mixed"
+    colour = np.repeat(views[..., None], 3, axis=-1)
+    lio.write_lightfield(colour, mixed, bit_depth=8)
+    iio.imwrite(mixed / "input_Cam004.png", views[1, 1])
+    with pytest.raises(ValueError, match=r"input_Cam004.png: expected the colour of input_Cam000.png \(8×6 RGB\), "
+                                         r"got 8×6 grey"):
+        lio.read_lightfield(mixed)
+
+    eslf = tmp_path / "IMG_0001.eslf.png"
+    iio.imwrite(eslf, lio.views_to_lenslet(views))
+    with pytest.raises(ValueError, match=r"an ESLF image .*lfsf.io.lenslet_to_views\(lfsf.io.read_image"):
+        lio.read_lightfield(eslf)
+    # (the recipe it gives reads the views back, as stored: integers, which an .npz scales by their type)
+    np.savez(tmp_path / "lf.npz", views=lio.lenslet_to_views(lio.read_image(eslf), (3, 3)))
+    np.testing.assert_array_equal(lio.read_lightfield(tmp_path / "lf.npz").views, views / np.float32(255))
+    for name, said in (("lf.npy", r"a .npy array: .*np.savez\('lf.npz', views=np.load\('.*lf.npy'\)\)"),
+                       ("lf.h5", "an HDF5 file: read its light-field array with h5py"),
+                       ("IMG__Decoded.mat", r"a MATLAB file \(LFToolbox's \*__Decoded.mat holds LF as \[j, i, l, k, c\]")):
+        (tmp_path / name).write_bytes(b"\x93NUMPY" if name.endswith(".npy") else b"\x89HDF")
+        with pytest.raises(ValueError, match=f"unknown light-field format .*; this is {said}"):
+            lio.read_lightfield(tmp_path / name)
+
+
 def test_folder_without_views_says_what_was_looked_for(tmp_path):
     (tmp_path / "empty").mkdir()
     (tmp_path / "empty" / "readme.txt").write_text("hello")
