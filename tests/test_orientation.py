@@ -48,10 +48,12 @@ def test_each_layout_is_told(scenes, scene, layout):
         assert min(v for k, v in costs.items() if k not in ("as read", "no parallax")) < 0.5 * costs["as read"]
 
 
-def test_noise_and_colour():
-    """With sensor noise (σ = 0.02) and in colour: the layout as read, and a reversed
-    axis told."""
-    lf = add_noise(render_scene("random-3", size=(96, 72))[0], 0.02, 5)
+@pytest.mark.parametrize("scene", ["random-3", "weak_texture"])
+def test_noise_and_colour(scene):
+    """With sensor noise (σ = 0.02, on the weakest texture too, where the costs of every
+    layout lie within 20 % of each other) and in colour: the layout as read is not told,
+    a reversed axis is."""
+    lf = add_noise(render_scene(scene, size=(96, 72))[0], 0.02, 5)
     views = lf.views
     assert layout_warning(views, "x") is None
     assert "reversed" in layout_warning(np.ascontiguousarray(views[:, ::-1]), "x")
@@ -75,8 +77,10 @@ def test_real_data(scene):
     """The real light fields as read are not told; with their columns reversed, they are."""
     views = lfsf.read_lightfield(data_path(scene)).grey().views
     assert layout_warning(views, scene) is None
-    costs = layout_costs(np.ascontiguousarray(views[:, ::-1]))
-    assert costs["reversed"] < ORIENTATION_RATIO * costs["as read"]
+    assert "one of the grid's axes reversed" in layout_warning(np.ascontiguousarray(views[:, ::-1]), scene)
+    costs = layout_costs(np.ascontiguousarray(views.transpose(1, 0, 2, 3)))
+    flat = costs["no parallax"]
+    assert flat - costs["as read"] < ORIENTATION_RATIO * (flat - costs["swapped"])
 
 
 def test_estimate_warns_once(scenes):
