@@ -666,6 +666,66 @@ def test_kitti_flow_refuses_unrepresentable_flow(tmp_path):
     assert not (tmp_path / "x.png").exists()
 
 
+def test_kitti_ranges_at_their_ends(tmp_path):
+    """The formats' last values round-trip and the next ones are refused: u = 512 px would
+    be 65536, which a 16-bit PNG stores as 0, read back as −512 (a mutation survived)."""
+    top = 511.984375  # (65535 − 2¹⁵) / 64
+    flow = np.zeros((1, 2, 2))
+    flow[0, 0] = (top, -512.0)
+    lio.write_kitti_flow(tmp_path / "f.png", flow)
+    back, _ = lio.read_kitti_flow(tmp_path / "f.png")
+    np.testing.assert_array_equal(back, flow.astype(np.float32))
+    flow[0, 0, 0] = 512.0
+    with pytest.raises(ValueError, match=r"KITTI range \[-512, 511.98\] px, got -512 … 512"):
+        lio.write_kitti_flow(tmp_path / "g.png", flow)
+    lio.write_kitti_disparity(tmp_path / "d.png", np.array([[65535 / 256]]))
+    assert lio.read_kitti_disparity(tmp_path / "d.png")[0][0, 0] == np.float32(65535 / 256)
+    with pytest.raises(ValueError, match=r"KITTI range \[0, 255.996\]"):
+        lio.write_kitti_disparity(tmp_path / "e.png", np.array([[256.0]]))
+    assert not (tmp_path / "g.png").exists() and not (tmp_path / "e.png").exists()
+
+
+def test_pfm_with_bytes_after_its_data(tmp_path):
+    """Bytes after the data (a newline, junk) are ignored: the data start right after the
+    header's whitespace byte, not at the file's last 4·count bytes."""
+    a = np.arange(6, dtype=np.float32).reshape(2, 3) + 0.5
+    for extra in (b"\n", b"junk at the end\n"):
+        lio.write_pfm(tmp_path / "a.pfm", a)
+        with open(tmp_path / "a.pfm", "ab") as f:
+            f.write(extra)
+        np.testing.assert_array_equal(lio.read_pfm(tmp_path / "a.pfm"), a)
+
+
+def test_written_files_have_the_mode_open_gives(tmp_path):
+    """Results are as readable as files open() makes (0o666 less the umask), not
+    mkstemp's private 0o600 (colleagues, a web server)."""
+    import os
+    import stat
+
+    old = os.umask(0o022)
+    try:
+        lio.write_pfm(tmp_path / "d.pfm", np.zeros((2, 2)))
+        lio.write_flo(tmp_path / "f.flo", np.zeros((2, 2, 2)))
+        lio.write_png(tmp_path / "p.png", np.zeros((2, 2), np.uint8))
+        with open(tmp_path / "plain", "w"):
+            pass
+    finally:
+        os.umask(old)
+    for name in ("d.pfm", "f.flo", "p.png", "plain"):
+        assert stat.S_IMODE(os.stat(tmp_path / name).st_mode) == 0o644, name
+
+
+def test_an_output_file_that_is_a_folder_is_refused_before_any_work(tmp_path):
+    from lfsf._files import output_file
+
+    with pytest.raises(ValueError, match="is a folder, not a file to write"):
+        output_file(tmp_path)
+    (tmp_path / "a_file").write_text("")
+    with pytest.raises(ValueError, match=r"report.json cannot be written there"):
+        output_file(tmp_path / "a_file" / "report.json")
+    assert output_file(tmp_path / "report.json") == tmp_path / "report.json"
+
+
 def test_kitti_disparity(tmp_path):
     raw = np.array([[896, 0], [1, 65535]], dtype=np.uint16)
     lio.write_png(tmp_path / "hand.png", raw)

@@ -79,6 +79,8 @@ BAD = [
     ("view_gain_sigma", -1.0), ("view_gain_sigma", 1000.0), ("view_gain_sigma", math.inf), ("view_gain_sigma", True),
     # side samples with no parallax to speak of (R = 1e-9 gave δ = 0 without a word)
     ("radius", 1e-9), ("radius", 0.4),
+    # an open bound: at 1 every side would be "much worse" than itself
+    ("occlusion_ratio", 1.0), ("occlusion_ratio", -0.1),
 ]
 
 
@@ -366,3 +368,16 @@ def test_whole_circles_put_the_inner_circles_on_whole_view_steps(radius, circles
     for n, r in zip(samples[1:], [*inner, radius]):
         np.testing.assert_allclose(norms[start:start + n], r, rtol=1e-6)
         start += n
+
+
+@pytest.mark.parametrize("grid, radius", [((1, 9), 4.0), ((9, 1), 4.0), ((2, 9), 4.0), ((3, 7), 3.0), ((7, 3), 3.0)])
+def test_samples_along_the_long_axis_of_a_rig(grid, radius):
+    """circles = 2, samples = [1, 2]: the two samples lie along the grid's longer axis
+    (across a 1×9 rig's columns, down a 9×1 rig's rows), R as far as that axis allows
+    (the grid's half extents taken per axis: swapped, a 1×9 rig had R = 0)."""
+    phis, r = Params(circles=2, samples=(1, 2)).sample_offsets(grid)
+    assert r == radius
+    rows, cols = grid
+    along = 0 if cols >= rows else 1  # (φ = (ξ along the columns, η along the rows))
+    np.testing.assert_allclose(np.abs(phis[1:, along]), radius, atol=1e-6)
+    np.testing.assert_allclose(phis[1:, 1 - along], 0.0, atol=1e-6)

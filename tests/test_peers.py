@@ -70,13 +70,18 @@ def test_plenpy_nan_guard(peers):
     views = peers.constant_disparity_views(0.5, grid=9, size=(48, 48))
     # same result as the literal one-call version on ordinary input
     assert np.array_equal(peers.plenpy_disparity(views), peers.plenpy_disparity(views, nan_guard=False))
-    # an exactly flat (black) patch: 0/0 in plenpy's structure tensor
-    views[:, :, 16:32, 16:32] = 0.0
+    # an exactly flat (black) patch: 0/0 in plenpy's structure tensor. Large enough that some
+    # pixels have no finite estimate on any EPI (a 16-px patch had none such: the guard's
+    # fill went untested, a mutation helper found)
+    views = peers.constant_disparity_views(0.5, grid=9, size=(64, 48))
+    views[:, :, 8:40, 8:56] = 0.0
     raw = peers.plenpy_disparity(views, nan_guard=False)
     guarded = peers.plenpy_disparity(views)
+    assert not np.isfinite(raw).all()  # (the fusion spreads plenpy's NaNs over the whole map)
     assert np.isfinite(guarded).all()
     finite = np.isfinite(raw)
     assert np.array_equal(raw[finite], guarded[finite])
+    assert abs(float(np.median(guarded[42:, 8:56])) - 0.5) < 0.1  # (the textured rows keep their δ)
 
 
 def test_disparity_at_t1_pixels_samples_at_p_plus_u(peers):

@@ -336,6 +336,28 @@ def test_even_grid_is_centred_between_views():
     lf, _, gt = synth.render_scene("paper", size=(40, 30), grid=(2, 4), supersample=1)
     assert lf.views.shape == (2, 4, 30, 40)
     assert lf.grid == (2, 4)
+    # its views at half steps from the centre: the middle rows of a 4×4 grid's
+    square = synth.render_scene("paper", size=(40, 30), grid=(4, 4), supersample=1)[0]
+    np.testing.assert_array_equal(lf.views, square.views[1:3])
+
+
+@pytest.mark.parametrize("grid", [(3, 5), (1, 5), (5, 3)])
+def test_the_middle_view_of_any_odd_grid_is_the_centre_view(grid):
+    """Each axis centred on its own: the middle view of a 3×5, 1×5 or 5×3 grid is the view
+    a 1×1 grid renders (the rows' and columns' centres swapped, a 3×5 grid's middle view
+    differed by 0.61, its views no longer matching the ground truth beside them)."""
+    one = synth.render_scene("paper", size=(32, 24), grid=(1, 1), supersample=1)[0]
+    lf = synth.render_scene("paper", size=(32, 24), grid=grid, supersample=1)[0]
+    np.testing.assert_array_equal(lf.view(grid[0] // 2, grid[1] // 2), one.view(0, 0))
+
+
+def test_added_noise_stays_within_the_unit_range():
+    from lfsf.io import LightField
+
+    for level in (0.02, 0.98):
+        noisy = synth.add_noise(LightField(np.full((3, 3, 8, 8), level, np.float32)), 0.1, 1).views
+        assert noisy.min() >= 0.0 and noisy.max() <= 1.0
+        assert (noisy == (0.0 if level < 0.5 else 1.0)).any()  # (clipped, not just small)
 
 
 @pytest.mark.parametrize("frames", [2, 4])

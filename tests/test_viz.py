@@ -168,6 +168,21 @@ def test_error_colormap_white_at_zero_darker_with_error_nan_invalid():
         viz.error_to_color(err, -1.0)
 
 
+def test_error_scale_is_the_99th_percentile_and_the_table_rounds_to_nearest():
+    """The default error scale is the 99th percentile, as documented (an error of 0.97 of
+    a 0…1 ramp is not yet the darkest colour; with a 95th percentile it was), and a value
+    is drawn with the nearest entry of the colour table (not the one below)."""
+    err = np.linspace(0.0, 1.0, 10001)[None]
+    assert viz._error_scale(err) == pytest.approx(0.99)
+    rgb = viz.error_to_color(err)
+    np.testing.assert_array_equal(rgb[0, 9700], viz.error_to_color(np.array([[0.97]]), 0.99)[0, 0])
+    assert tuple(rgb[0, 9700]) != tuple(rgb[0, -1])
+    table = viz._DISPARITY_LUT
+    step = 1.0 / (len(table) - 1)
+    near = viz.disparity_to_color(np.array([[1.0 - 0.4 * step, 0.4 * step, 0.6 * step]]), vmin=0.0, vmax=1.0)
+    np.testing.assert_array_equal(near[0], [table[-1], table[0], table[1]])
+
+
 # --------------------------------------------------------------------------- overview
 
 
