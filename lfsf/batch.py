@@ -77,7 +77,8 @@ class Outcome:
     reason: str = ""
     warm: bool = False
     #: The estimator's notes on the pair (:class:`lfsf.estimate.Note`: an exposure matched
-    #: or refused, the views' gains matched, …), to be reported with it.
+    #: or refused, the views' gains matched, …) and its warnings ("warning: …": views laid
+    #: out otherwise, t2 not matching t1, …), to be reported with it.
     notes: tuple[str, ...] = ()
 
 
@@ -427,8 +428,12 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
             init = _previous_estimate(out / pair.previous, lf1.centre.shape[:2])
             init = None if init is None else predict_next(init)
         notes = []
-        sf = estimate_scene_flow(lf1, lf2, params, device=_worker_device(device), init=init,
-                                 progress=lambda line: notes.append(str(line)) if isinstance(line, Note) else None)
+        with warnings.catch_warnings(record=True) as caught:  # (a worker's stderr is no one's)
+            warnings.simplefilter("always", UserWarning)
+            sf = estimate_scene_flow(lf1, lf2, params, device=_worker_device(device), init=init,
+                                     progress=lambda line: notes.append(str(line)) if isinstance(line, Note) else None)
+        # the estimator's warnings (views laid out otherwise, t2 of another scene, …) with its notes
+        notes += [f"warning: {w.message}" for w in caught if issubclass(w.category, UserWarning)]
         sf.save(tmp, lf1.centre, lf2.centre, inputs=inputs)   # (with overview.png, as lfsf run)
         if final.exists():  # an earlier result, complete or not, or one left by hand
             _refuse_foreign(final)  # (what was put there while the pair ran)

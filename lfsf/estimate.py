@@ -2094,6 +2094,17 @@ def estimate_scene_flow(
 
     occluded = None if solver.flow_only else solver.occluded_at(x)
     lap("occlusion")
+    if not _IN_PILOT.get() and lf1.views is not lf2.views:
+        # two unrelated scenes (a batch's files in the wrong order) give maps of no meaning
+        # without a word: said (the centre views as matched, stretched and exposure-fitted)
+        from lfsf.pairing import mismatch_warning
+
+        told = mismatch_warning(centres[0].numpy(), centres[1].numpy(), x[..., 2], x[..., 3],
+                                (lf1.source, lf2.source), params.flow_range)
+        if told:
+            import warnings
+
+            warnings.warn(told, stacklevel=2)
     return SceneFlow(
         disp1=x[..., 0].copy(), disp2=x[..., 1].copy(), u=x[..., 2].copy(), v=x[..., 3].copy(),
         params=requested, radius=float(radius), device=dev, timings=timings,

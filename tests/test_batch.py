@@ -916,6 +916,20 @@ def test_a_pairs_notes_are_reported_with_it(tmp_path, monkeypatch):
         assert lines[1:] == ([] if quiet else [f"lfsf batch: pair dark: {note}" for note in outcome.notes]), lines
 
 
+def test_a_pair_of_unrelated_scenes_is_reported_with_its_warning(tmp_path, monkeypatch):
+    """Files that sort into a pair of two scenes (a folder of HCI scenes, say) gave maps
+    of no meaning with nothing said; the estimator's warning comes back as a note."""
+    monkeypatch.setattr(batch, "have_dask", lambda: False)
+    write_lightfield(synth.render_scene("random-3", size=(96, 72), device="cpu")[0], tmp_path / "a.npz")
+    write_lightfield(synth.render_scene("paper", size=(96, 72), device="cpu")[1], tmp_path / "b.npz")
+    manifest = _manifest(tmp_path / "m.csv", [(tmp_path / "a.npz", tmp_path / "b.npz", "two")])
+    summary = batch.run_batch(batch.pairs_from_sources([manifest]), tmp_path / "out", PARAMS, device="cpu")
+    (outcome,) = summary.outcomes
+    said = [note for note in outcome.notes if note.startswith("warning: ")]
+    assert outcome.status == "done" and len(said) == 1, outcome.notes
+    assert re.match(r"warning: .*b.npz does not match .*a.npz after the estimated flow", said[0]), said
+
+
 def test_a_light_field_given_as_a_folder_of_frames_is_named_as_one(frames, tmp_path):
     """"found 0" had not said that the folder is itself one light field."""
     from lfsf.io import read_lightfield
