@@ -77,9 +77,11 @@ class Outcome:
     reason: str = ""
     warm: bool = False
     #: The estimator's notes on the pair (:class:`lfsf.estimate.Note`: an exposure matched
-    #: or refused, the views' gains matched, …) and its warnings ("warning: …": views laid
-    #: out otherwise, t2 not matching t1, …), to be reported with it.
+    #: or refused, the views' gains matched, …), to be reported with it.
     notes: tuple[str, ...] = ()
+    #: Its warnings (:class:`lfsf.estimate.Warned`: views laid out otherwise, float views
+    #: far outside [0, 1]), reported even with ``quiet``.
+    warned: tuple[str, ...] = ()
 
 
 @dataclass
@@ -400,7 +402,7 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
     is spent only on a worker that died. ``_after`` is not used (a dependency a caller may
     give Dask; lfsf submits a warm-started pair only once the one before it has ended).
     """
-    from lfsf.estimate import Note, estimate_scene_flow, predict_next
+    from lfsf.estimate import WARNINGS_TO_PROGRESS, Note, Warned, estimate_scene_flow, predict_next
     from lfsf.io import check_pair, read_lightfield
 
     out = Path(out)
@@ -427,20 +429,28 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
         if warm_start and pair.previous is not None:
             init = _previous_estimate(out / pair.previous, lf1.centre.shape[:2])
             init = None if init is None else predict_next(init)
-        notes = []
-        with warnings.catch_warnings(record=True) as caught:  # (a worker's stderr is no one's)
-            warnings.simplefilter("always", UserWarning)
-            sf = estimate_scene_flow(lf1, lf2, params, device=_worker_device(device), init=init,
-                                     progress=lambda line: notes.append(str(line)) if isinstance(line, Note) else None)
-        # the estimator's warnings (views laid out otherwise, t2 of another scene, …) with its notes
-        notes += [f"warning: {w.message}" for w in caught if issubclass(w.category, UserWarning)]
+        notes, warned = [], []
+
+        def progress(line: str) -> None:
+            if isinstance(line, Warned):
+                warned.append(str(line))
+            elif isinstance(line, Note):
+                notes.append(str(line))
+
+        # the estimator's warnings come to progress, this thread's alone (a worker runs pairs
+        # on threads, which share the warnings module's filters; and its stderr is no one's)
+        token = WARNINGS_TO_PROGRESS.set(True)
+        try:
+            sf = estimate_scene_flow(lf1, lf2, params, device=_worker_device(device), init=init, progress=progress)
+        finally:
+            WARNINGS_TO_PROGRESS.reset(token)
         sf.save(tmp, lf1.centre, lf2.centre, inputs=inputs)   # (with overview.png, as lfsf run)
         if final.exists():  # an earlier result, complete or not, or one left by hand
             _refuse_foreign(final)  # (what was put there while the pair ran)
             shutil.rmtree(final)
         os.replace(tmp, final)
         return Outcome(pair.name, "done", time.perf_counter() - t0, replaced, warm=init is not None,
-                       notes=tuple(notes))
+                       notes=tuple(notes), warned=tuple(warned))
     except Exception as exc:  # noqa: BLE001 - every failure of a pair is reported, the batch goes on
         reason = _reason(exc)
         return Outcome(pair.name, "failed", time.perf_counter() - t0, reason)
@@ -806,8 +816,9 @@ def _write_failed_rows(path: Path, pairs: Sequence[Pair], failed: list, earlier=
 
 class ProgressBar:
     """One bar over the pairs with the time left, on a terminal; one line per pair in a
-    log; nothing with ``quiet``. Failures are always reported, with their reason; the
-    estimator's notes on a pair (an exposure matched or refused, …) but with ``quiet``."""
+    log; nothing with ``quiet``. Failures are always reported, with their reason, and the
+    estimator's warnings on a pair; its notes (an exposure matched or refused, …) but with
+    ``quiet``."""
 
     def __init__(self, total: int, quiet: bool = False, stream=None, width: int = 30):
         self.stream = stream or sys.stderr
@@ -835,6 +846,8 @@ class ProgressBar:
                 if note not in self.noted:
                     self.noted.add(note)
                     self._line(f"pair {outcome.name}: {note}")
+        for said in outcome.warned:  # (with --quiet too, as lfsf run's warnings)
+            self._line(f"pair {outcome.name}: warning: {said}")
         if self.live:
             filled = int(round(self.width * finished / total))
             bar = "#" * filled + "." * (self.width - filled)

@@ -268,6 +268,34 @@ def _colour_range(*maps) -> tuple[float, float]:
 ProgressFn = Callable[[str], None]
 
 
+class Warned(str):
+    """A warning of the estimator about its input (float views far outside [0, 1], views
+    laid out otherwise), given to the progress callable instead of
+    :mod:`warnings` while :data:`WARNINGS_TO_PROGRESS` is set: ``lfsf batch`` reports it
+    with the pair (its workers' threads share the warnings module's state, and no one
+    reads their stderr)."""
+
+    __slots__ = ()
+
+
+#: Set (per thread and task, a :class:`contextvars.ContextVar`) to have the estimator's
+#: warnings given to its progress callable as :class:`Warned` lines, not raised through
+#: :mod:`warnings`.
+WARNINGS_TO_PROGRESS: contextvars.ContextVar[bool] = contextvars.ContextVar("lfsf_warnings_to_progress",
+                                                                            default=False)
+
+
+def _warn(message: str, say, stacklevel: int) -> None:
+    """``message`` as a :class:`Warned` line to ``say`` (:data:`WARNINGS_TO_PROGRESS`), or
+    as a UserWarning at ``stacklevel`` counted from the caller of this function."""
+    if WARNINGS_TO_PROGRESS.get():
+        say(Warned(message))
+    else:
+        import warnings
+
+        warnings.warn(message, stacklevel=stacklevel + 1)
+
+
 class Note(str):
     """A line of the progress that reports a decision about the input rather than how far
     the run has come: t2 matched to another exposure, or such a match refused; the views'
@@ -745,48 +773,41 @@ def _radius_off_dark_views(params: Params, grid: tuple[int, int], dark: np.ndarr
 #: Float views beyond these bounds are taken for values on another scale (8- or 16-bit
 #: numbers stored as floats), not for [0, 1] views with noise or an overshoot.
 UNIT_RANGE_SLACK = (-0.5, 1.5)
-#: What the warning of float views outside [0, 1] says (:func:`_warn_out_of_unit_range`).
-UNIT_RANGE_WARNING = r".*, where lfsf expects \[0, 1\]"
 
 
-#: Set while :func:`pilot_estimate` runs (per thread and task): its views need no layout check.
+#: Set while :func:`pilot_estimate` runs (per thread and task): its views need no checks.
 _IN_PILOT: contextvars.ContextVar[bool] = contextvars.ContextVar("lfsf_in_pilot", default=False)
 
 
 def pilot_estimate(lf1, lf2, params: Params, device: str) -> "SceneFlow":
     """:func:`estimate_scene_flow` on views the estimator made itself (the exposure
-    pilot's, the view gains' pilot's), without its warning of views outside [0, 1]: the
-    user's views were warned about once already, and these, scaled by the pilot, are
-    none of theirs (a second pair of warnings named 'light field 1' and a range the user
-    never gave)."""
-    import warnings
-
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message=UNIT_RANGE_WARNING)
-        token = _IN_PILOT.set(True)  # (nor the layout's check: t1's views, or these, were checked once)
-        try:
-            return estimate_scene_flow(lf1, lf2, params, device=device)
-        finally:
-            _IN_PILOT.reset(token)
+    pilot's, the view gains' pilot's), without its warnings about the input (views outside
+    [0, 1], the layout, the pair's match): the user's views were warned about once
+    already, and these, scaled by the pilot, are none of theirs (a second pair of warnings
+    named 'light field 1' and a range the user never gave). :data:`_IN_PILOT` says so,
+    per thread: a filter of the warnings module would be every thread's."""
+    token = _IN_PILOT.set(True)
+    try:
+        return estimate_scene_flow(lf1, lf2, params, device=device)
+    finally:
+        _IN_PILOT.reset(token)
 
 
-def _warn_out_of_unit_range(source: str, lo: float, hi: float, stretched: bool) -> None:
+def _warn_out_of_unit_range(source: str, lo: float, hi: float, stretched: bool, say) -> None:
     """Warn (at the caller of :func:`estimate_scene_flow`) where a light field's views lie
     far outside [0, 1], where lfsf expects them: what is done with them, stretched to
     [0, 1] by the pair's range (:func:`_intensity_stretch`) or used as they are, is not
     the same as the views divided by their scale (a dark capture's 0…120 of 255 comes out
     as 0…1, not 0…0.47; Γ and the ROF weight μ read intensities in [0, 1]). Integer
     views are scaled by their type's maximum and never reach here."""
-    if UNIT_RANGE_SLACK[0] <= lo and hi <= UNIT_RANGE_SLACK[1]:
+    if (UNIT_RANGE_SLACK[0] <= lo and hi <= UNIT_RANGE_SLACK[1]) or _IN_PILOT.get():
         return
-    import warnings
-
     done = ("stretched to [0, 1] by the two light fields' joint range" if stretched
             else "used as they are")
     hint = (" (divide by 255, or 65535, if they are 8-bit or 16-bit values, or give them as integers, "
             "which are scaled by their type's maximum)" if hi > UNIT_RANGE_SLACK[1] else "")
-    warnings.warn(f"{source}: float views range {lo:.4g}…{hi:.4g}, where lfsf expects [0, 1]; {done}{hint}",
-                  stacklevel=3)
+    _warn(f"{source}: float views range {lo:.4g}…{hi:.4g}, where lfsf expects [0, 1]; {done}{hint}", say,
+          stacklevel=3)
 
 
 def data_weights(params: Params, n_samples: int) -> np.ndarray:
@@ -1625,6 +1646,15 @@ def estimate_scene_flow(
     SceneFlow
         δ1, δ2, u, v of the centre view at t1 (``help(lfsf)``, MODEL.md §1).
 
+    Warns
+    -----
+    UserWarning
+        Where a light field's float views lie far outside [0, 1] (what is done with them),
+        and where t1's or t2's views look laid out otherwise than ``views[a, b, y, x]``:
+        two axes swapped, or one of the grid's reversed (:mod:`lfsf.orientation`). With
+        :data:`WARNINGS_TO_PROGRESS` set they go to ``progress`` as :class:`Warned` lines
+        instead (``lfsf batch``).
+
     Notes
     -----
     Special cases come from the same code: ``estimate_scene_flow(lf, lf)`` is stereo.
@@ -1690,16 +1720,6 @@ def estimate_scene_flow(
             what = f"every value of every view is {lo:g}" if lo == hi else "every view is of one value"
             raise ValueError(f"{lf.source}: {what}: a blank light field (a black frame, a lens cap, a raw image of "
                              "nothing, a flat field), with nothing to match")
-    if params.circles > 1 and not _IN_PILOT.get():
-        # a transposed array or a grid numbered the other way reads without error and gives
-        # disparities of no meaning: said (t1's; t2 comes from the same source as a rule)
-        from lfsf.orientation import layout_warning
-
-        told = layout_warning(lf1.views, lf1.source, params.disparity_range)
-        if told:
-            import warnings
-
-            warnings.warn(told, stacklevel=2)
     dev = _device.resolve_device(device)
     rows, cols = lf1.grid
     height, width = lf1.height, lf1.width
@@ -1765,6 +1785,16 @@ def estimate_scene_flow(
              + (f", not {params.radius:g} (all the {rows}×{cols} grid allows for these samples)" if cut else "")
              + (": the side samples see little parallax, and δ is less certain than with R ≥ 1"
                 if radius < 1.0 else ""))
+    if params.circles > 1 and not _IN_PILOT.get():
+        # a transposed array or a grid numbered the other way reads without error and gives
+        # disparities of no meaning: said, of each light field
+        from lfsf.orientation import layout_warning
+
+        for lf in (lf1,) if lf2.views is lf1.views else (lf1, lf2):
+            told = layout_warning(lf.views, lf.source, params.disparity_range)
+            if told:
+                _warn(told, say, stacklevel=2)
+    lap("checks")  # (with the input's checks above)
     # every kernel module compiled (or read from Warp's cache) now, several at once, rather
     # than one at a time at each module's first launch
     compiled = load_kernels(dev)
@@ -1787,7 +1817,7 @@ def estimate_scene_flow(
     # sub-aperture images at the sample offsets, both times: (S, H, W) each
     offset, stretch = _intensity_stretch(lf1, lf2, ranges)
     for lf, (lo, hi) in zip((lf1, lf2), ranges):
-        _warn_out_of_unit_range(lf.source, lo, hi, stretch != 1.0)
+        _warn_out_of_unit_range(lf.source, lo, hi, stretch != 1.0, say)
 
     def stretched(grey: np.ndarray) -> np.ndarray:
         if stretch == 1.0:
@@ -2094,17 +2124,6 @@ def estimate_scene_flow(
 
     occluded = None if solver.flow_only else solver.occluded_at(x)
     lap("occlusion")
-    if not _IN_PILOT.get() and lf1.views is not lf2.views:
-        # two unrelated scenes (a batch's files in the wrong order) give maps of no meaning
-        # without a word: said (the centre views as matched, stretched and exposure-fitted)
-        from lfsf.pairing import mismatch_warning
-
-        told = mismatch_warning(centres[0].numpy(), centres[1].numpy(), x[..., 2], x[..., 3],
-                                (lf1.source, lf2.source), params.flow_range)
-        if told:
-            import warnings
-
-            warnings.warn(told, stacklevel=2)
     return SceneFlow(
         disp1=x[..., 0].copy(), disp2=x[..., 1].copy(), u=x[..., 2].copy(), v=x[..., 3].copy(),
         params=requested, radius=float(radius), device=dev, timings=timings,

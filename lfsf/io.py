@@ -574,9 +574,10 @@ def read_lightfield(path: str | os.PathLike) -> LightField:
         if path.name.lower().endswith(".eslf.png"):
             raise ValueError(f"{path}: an ESLF image (decoded views tiled one block of N×N pixels a micro-lens, as "
                              "the Stanford and EPFL Lytro archives give them), not a raw lenslet image: split it "
-                             f"with np.savez('lf.npz', views=lfsf.io.lenslet_to_views(lfsf.io.read_image('{path}'), "
-                             "(N, N))), N = 14 for the Lytro Illum's, and keep the inner views, whose brightness "
-                             "is even (e.g. views[3:-3, 3:-3]; README: Other layouts)")
+                             f"with views = lfsf.io.lenslet_to_views(lfsf.io.read_image('{path}'), (N, N)), N = 14 for "
+                             "the Lytro Illum's (an alpha channel dropped first, image[..., :3], and an image whose "
+                             "size is no multiple of N cropped to one), keep the inner views, whose brightness is "
+                             "even, and save them: np.savez('lf.npz', views=views[3:-3, 3:-3]) (README: Other layouts)")
         if _HCI_NAME.fullmatch(path.name) or _ROWCOL_NAME.fullmatch(path.name):
             raise ValueError(f"{path}: one view of a light field; give the folder of all its views, "
                              f"{path.parent}")

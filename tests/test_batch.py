@@ -5,11 +5,13 @@ synthetic pairs."""
 from __future__ import annotations
 
 import csv
+import io
 import os
 import re
 import signal
 import threading
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -916,18 +918,58 @@ def test_a_pairs_notes_are_reported_with_it(tmp_path, monkeypatch):
         assert lines[1:] == ([] if quiet else [f"lfsf batch: pair dark: {note}" for note in outcome.notes]), lines
 
 
-def test_a_pair_of_unrelated_scenes_is_reported_with_its_warning(tmp_path, monkeypatch):
-    """Files that sort into a pair of two scenes (a folder of HCI scenes, say) gave maps
-    of no meaning with nothing said; the estimator's warning comes back as a note."""
+def test_a_pairs_warnings_are_reported_with_it_even_when_quiet(tmp_path, monkeypatch):
+    """The estimator's warnings on a pair (here: t2's grid transposed) come back in its
+    Outcome, not through the warnings module (whose filters a worker's threads share, and
+    whose lines went to a worker's stderr), and are printed with --quiet too."""
     monkeypatch.setattr(batch, "have_dask", lambda: False)
-    write_lightfield(synth.render_scene("random-3", size=(96, 72), device="cpu")[0], tmp_path / "a.npz")
-    write_lightfield(synth.render_scene("paper", size=(96, 72), device="cpu")[1], tmp_path / "b.npz")
+    one, two, _ = synth.render_scene("random-3", size=(96, 72), device="cpu")
+    write_lightfield(one, tmp_path / "a.npz")
+    write_lightfield(np.ascontiguousarray(two.views.transpose(1, 0, 2, 3)), tmp_path / "b.npz")
     manifest = _manifest(tmp_path / "m.csv", [(tmp_path / "a.npz", tmp_path / "b.npz", "two")])
-    summary = batch.run_batch(batch.pairs_from_sources([manifest]), tmp_path / "out", PARAMS, device="cpu")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # (to the outcome, not through the warnings module)
+        summary = batch.run_batch(batch.pairs_from_sources([manifest]), tmp_path / "out", PARAMS, device="cpu")
     (outcome,) = summary.outcomes
-    said = [note for note in outcome.notes if note.startswith("warning: ")]
-    assert outcome.status == "done" and len(said) == 1, outcome.notes
-    assert re.match(r"warning: .*b.npz does not match .*a.npz after the estimated flow", said[0]), said
+    assert outcome.status == "done" and len(outcome.warned) == 1, outcome
+    assert re.match(r".*b.npz: the views look laid out with two axes swapped", outcome.warned[0]), outcome.warned
+    assert not [note for note in outcome.notes if "laid out" in note]
+    for quiet in (False, True):  # (said with --quiet too, as lfsf run says its warnings)
+        stream = io.StringIO()
+        batch.ProgressBar(1, quiet=quiet, stream=stream)(outcome, 1, 1)
+        assert f"lfsf batch: pair two: warning: {outcome.warned[0]}" in stream.getvalue().splitlines()
+
+
+def test_warnings_to_progress_are_each_threads_own():
+    """Two estimates of a transposed light field on two threads at once, one asking for
+    its warnings on its progress: that thread's progress gets its own warning only, and
+    the other raises its own through the warnings module."""
+    from lfsf.estimate import WARNINGS_TO_PROGRESS, Warned, estimate_scene_flow
+
+    one = synth.render_scene("random-3", size=(96, 72), device="cpu")[0]
+    turned = np.ascontiguousarray(one.views.transpose(1, 0, 2, 3))
+    got = {"plain": [], "turned": []}
+    barrier = threading.Barrier(2)
+
+    def run(name, views, to_progress):
+        token = WARNINGS_TO_PROGRESS.set(to_progress)
+        try:
+            barrier.wait()
+            estimate_scene_flow(views, views, PARAMS,
+                                progress=lambda line: got[name].append(line) if isinstance(line, Warned) else None)
+        finally:
+            WARNINGS_TO_PROGRESS.reset(token)
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        threads = [threading.Thread(target=run, args=("plain", turned, False)),
+                   threading.Thread(target=run, args=("turned", turned, True))]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+    assert got["plain"] == [] and len(got["turned"]) == 1 and "two axes swapped" in got["turned"][0]
+    assert len([w for w in caught if "laid out" in str(w.message)]) == 1  # (the plain thread's own)
 
 
 def test_a_light_field_given_as_a_folder_of_frames_is_named_as_one(frames, tmp_path):

@@ -1044,6 +1044,8 @@ def test_other_tools_layouts_are_read_or_told(tmp_path):
     lio.write_lightfield(views, hci, bit_depth=8)
     (hci / "._input_Cam000.png").write_bytes(b"\x00")
     assert lio.read_lightfield(hci).grid == (3, 3)
+    lio.write_lightfield(views, hci, bit_depth=8)  # (hidden files are no views that these would mix with)
+    lio.write_lightfield(views, rc, bit_depth=8, layout="rowcol")
 
     zero = tmp_path / "zero"
     zero.mkdir()
