@@ -782,7 +782,7 @@ _IN_PILOT: contextvars.ContextVar[bool] = contextvars.ContextVar("lfsf_in_pilot"
 def pilot_estimate(lf1, lf2, params: Params, device: str) -> "SceneFlow":
     """:func:`estimate_scene_flow` on views the estimator made itself (the exposure
     pilot's, the view gains' pilot's), without its warnings about the input (views outside
-    [0, 1], the layout, the pair's match): the user's views were warned about once
+    [0, 1], their layout): the user's views were warned about once
     already, and these, scaled by the pilot, are none of theirs (a second pair of warnings
     named 'light field 1' and a range the user never gave). :data:`_IN_PILOT` says so,
     per thread: a filter of the warnings module would be every thread's."""

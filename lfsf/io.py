@@ -945,7 +945,8 @@ def _refuse_mixed_views(folder: Path, names: list[str]) -> None:
     # read the wrong light field
     ours = set(names)
     stale = sorted(p.name for p in folder.iterdir()
-                   if not p.name.startswith(".") and (_HCI_NAME.fullmatch(p.name) or _ROWCOL_NAME.fullmatch(p.name)) and p.name not in ours)
+                   if not p.name.startswith(".")  # (hidden files, as the reader skips them)
+                   and (_HCI_NAME.fullmatch(p.name) or _ROWCOL_NAME.fullmatch(p.name)) and p.name not in ours)
     if stale:
         raise ValueError(f"{folder}: already holds views that these would mix with "
                          f"({_listed(stale)}); write to an empty folder")

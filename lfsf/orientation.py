@@ -99,9 +99,9 @@ def layout_costs(views: np.ndarray, max_disparity: float = 4.0) -> dict[str, flo
     """Mean matching cost of each layout (module docstring) over the centre view's more
     textured half: ``"as read"``, ``"reversed"``, ``"swapped"``, ``"swapped and
     reversed"``, and ``"no parallax"`` (δ = 0 as read). ``views``: [a, b, y, x] (grey) or
-    [a, b, y, x, 3] (colour, matched as luma);
-    ``max_disparity``: the largest |δ| in pixels per view step. None where the grid has
-    no views on both sides of the centre along both axes, or the views are too small."""
+    [a, b, y, x, 3] (colour, matched as luma); ``max_disparity``: the largest |δ| in pixels
+    per view step. None where the grid has no views on both sides of the centre along both
+    axes, or the views are too small."""
     rows, cols = views.shape[:2]
     ca, cb = rows // 2, cols // 2
     k = min(ca, rows - 1 - ca, cb, cols - 1 - cb, 2)  # (view steps from the centre)
@@ -147,8 +147,9 @@ def layout_costs(views: np.ndarray, max_disparity: float = 4.0) -> dict[str, flo
 
 def layout_warning(views: np.ndarray, source: str, max_disparity: float = 4.0) -> str | None:
     """A sentence for the user where another layout than the one read matches ``views``
-    (as :func:`layout_costs` takes them) clearly better (:data:`ORIENTATION_RATIO`, :data:`PARALLAX_GAIN`,
-    :data:`CLEAR_RATIO`), else None (the layout as read, or no way to tell)."""
+    (as :func:`layout_costs` takes them) clearly better (:data:`ORIENTATION_RATIO`,
+    :data:`PARALLAX_GAIN`, :data:`CLEAR_RATIO`), else None (the layout as read, or no way
+    to tell)."""
     costs = layout_costs(views, max_disparity)
     if costs is None:
         return None
@@ -160,5 +161,5 @@ def layout_warning(views: np.ndarray, source: str, max_disparity: float = 4.0) -
         return None
     return (f"{source}: the views look laid out with {_LAYOUTS[other]}; as they are, the disparities will be "
             "wrong (unless the views' spacing differs between rows and columns, which lfsf's one δ a point does "
-            f"not model either; mean matching cost {best:.3f} in that layout, {costs['as read']:.3f} as read, {flat:.3f} with "
-            "no parallax; lfsf.orientation)")
+            f"not model either; mean matching cost {best:.3f} in that layout, {costs['as read']:.3f} as read, "
+            f"{flat:.3f} with no parallax; lfsf.orientation)")
