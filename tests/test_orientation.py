@@ -44,7 +44,7 @@ def test_each_layout_is_told(scenes, scene, layout):
     else:
         assert said is not None and said.startswith(f"lf1.npz: the views look laid out with {TOLD[layout]}")
         costs = layout_costs(views)
-        # the layout named matches far better than the views as read (and as well as the rendering did)
+        # the layout named matches far better than the views as read
         assert min(v for k, v in costs.items() if k not in ("as read", "no parallax")) < 0.5 * costs["as read"]
 
 
