@@ -105,11 +105,12 @@ _MAX_NAMES_LISTED = 8
 _NOT_RAW_SUFFIXES = {".jpg", ".jpeg", ".bmp"}
 #: What to do with the light-field files of other tools that lfsf does not read, by suffix
 #: (the README's "Other layouts" gives the recipes whole).
+_VIEWS_ORDER = "ordered [a, b, y, x] or [a, b, y, x, 3] (view row, view column, image row, image column)"
 _OTHER_FORMATS = {
-    ".npy": "a .npy array: lfsf reads an .npz with key 'views'; np.savez('lf.npz', views=np.load(PATH)) with "
-            "the array ordered [a, b, y, x] or [a, b, y, x, 3] (view row, view column, image row, image column)",
-    ".h5": "an HDF5 file: read its light-field array with h5py and save it as an .npz with key 'views', "
-           "ordered [a, b, y, x] or [a, b, y, x, 3] (view row, view column, image row, image column)",
+    ".npy": f"a .npy array: lfsf reads an .npz with key 'views'; np.savez('lf.npz', views=np.load(PATH)) with "
+            f"the array {_VIEWS_ORDER}",
+    ".h5": f"an HDF5 file: read its light-field array with h5py and save it as an .npz with key 'views', "
+           f"{_VIEWS_ORDER}",
     ".mat": "a MATLAB file (LFToolbox's *__Decoded.mat holds LF as [j, i, l, k, c], which is lfsf's [a, b, y, x, c] "
             "with a weight channel last; a v7.3 file is HDF5, which h5py reads in the reverse order): save "
             "LF[..., :3] as an .npz with key 'views'",
