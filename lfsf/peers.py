@@ -46,9 +46,31 @@ def timed(fn, *args, **kwargs):
     return out, time.perf_counter() - t0
 
 
+def _unit_float32(values, name: str, what: str) -> np.ndarray:
+    """``values`` as float32 in [0, 1] as :class:`lfsf.LightField` takes them: integers
+    scaled by their type's maximum (uint8 ÷ 255, uint16 ÷ 65535; wider ones refused),
+    floats as they are. ValueError where floats lie far outside [0, 1]: OpenCV's input is
+    quantised from [0, 1] to 8 bits, so 0…255 would be clipped to an image of 255s."""
+    from lfsf.estimate import UNIT_RANGE_SLACK
+    from lfsf.io import _to_unit_float32, refuse_wide_integers
+
+    a = np.asarray(values)
+    if a.dtype.kind not in "biuf":
+        raise ValueError(f"{name}: expected real-valued pixels, got dtype {a.dtype}")
+    refuse_wide_integers(a, name, what)
+    a = _to_unit_float32(a)
+    if a.size and a.dtype.kind == "f":
+        lo, hi = float(np.nanmin(a)), float(np.nanmax(a))
+        if lo < UNIT_RANGE_SLACK[0] or hi > UNIT_RANGE_SLACK[1]:
+            raise ValueError(f"{name}: values {lo:.4g}…{hi:.4g}, where the peers take [0, 1]: divide 8-bit "
+                             "values by 255 (or give them as uint8), 16-bit ones by 65535")
+    return a
+
+
 def _grey_image(img, name: str) -> np.ndarray:
-    """H×W float32 grey image; an H×W×3 colour image is turned into BT.601 luma."""
-    a = np.asarray(img, dtype=np.float32)
+    """H×W float32 grey image in [0, 1] (:func:`_unit_float32`); an H×W×3 colour image is
+    turned into BT.601 luma."""
+    a = _unit_float32(img, name, "pixels")
     if a.ndim == 3 and a.shape[2] == 3:
         a = a @ _LUMA
     if a.ndim != 2:
@@ -57,8 +79,9 @@ def _grey_image(img, name: str) -> np.ndarray:
 
 
 def _grey_views(views) -> np.ndarray:
-    """[a, b, y, x] float32 grey views; [a, b, y, x, 3] colour views become BT.601 luma."""
-    v = np.asarray(getattr(views, "views", views), dtype=np.float32)
+    """[a, b, y, x] float32 grey views in [0, 1] (:func:`_unit_float32`); [a, b, y, x, 3]
+    colour views become BT.601 luma."""
+    v = _unit_float32(getattr(views, "views", views), "views", "views")
     if v.ndim == 5 and v.shape[4] == 3:
         v = v @ _LUMA
     if v.ndim == 5 and v.shape[4] == 1:
@@ -115,9 +138,10 @@ def opencv_tvl1(c1, c2) -> tuple[np.ndarray, np.ndarray]:
     """Optical flow by OpenCV's Dual TV-L1 (Zach, Pock & Bischof 2007; Wedel et al. 2009),
     ``cv2.optflow.DualTVL1OpticalFlow_create()`` with its defaults.
 
-    Input: two H×W grey images in [0, 1] (H×W×3 colour is turned into BT.601 luma). They
-    are quantised to 8 bits, ``(img*255).round().astype(np.uint8)`` (clipped to [0, 1]
-    first), as the comparison prescribes.
+    Input: two H×W grey images in [0, 1], or uint8 or uint16 (scaled by their type's
+    maximum); H×W×3 colour is turned into BT.601 luma. They are quantised to 8 bits,
+    ``(img*255).round().astype(np.uint8)`` (clipped to [0, 1] first), as the comparison
+    prescribes. Floats far outside [0, 1] are refused (0…255 would be clipped to 255s).
 
     Output: ``(u, v)``, float32 H×W, in lfsf's convention ``c1(p) ≈ c2(p + (u, v))``.
     OpenCV returns an H×W×2 array ``flow[..., 0] = u`` (x), ``flow[..., 1] = v`` (y) that
@@ -142,8 +166,8 @@ def skimage_tvl1(c1, c2) -> tuple[np.ndarray, np.ndarray]:
     """Optical flow by scikit-image's TV-L1,
     ``skimage.registration.optical_flow_tvl1(c1, c2)`` with its defaults.
 
-    Input: two H×W grey float images in [0, 1] (H×W×3 colour is turned into BT.601 luma),
-    passed as float32 without quantisation.
+    Input: two H×W grey float images in [0, 1], or uint8 or uint16 (scaled by their type's
+    maximum); H×W×3 colour is turned into BT.601 luma. Passed as float32 without quantisation.
 
     Output: ``(u, v)``, float32 H×W, in lfsf's convention ``c1(p) ≈ c2(p + (u, v))``.
     scikit-image returns a (2, H, W) array ordered **(row, col) = (v, u)**; its sign is
@@ -199,8 +223,8 @@ def plenpy_disparity(views, *, nan_guard: bool = True) -> np.ndarray:
     ``plenpy.lightfields.LightField(views[..., None]).get_disparity(
     method="structure_tensor", fusion_method="tv_l1")``, defaults otherwise.
 
-    Input: ``views[a, b, y, x]`` grey float in [0, 1] (a = view row, b = view column, as
-    ``help(lfsf)``, MODEL.md §1), or colour ``[a, b, y, x, 3]`` (turned into BT.601 luma first), or an
+    Input: ``views[a, b, y, x]`` grey float in [0, 1] (or uint8 / uint16) on a grid of at
+    least 3×3 (a = view row, b = view column, as ``help(lfsf)``, MODEL.md §1), or colour ``[a, b, y, x, 3]`` (turned into BT.601 luma first), or an
     ``lfsf.io.LightField``. plenpy's axes ``(u, v, s, t, ch)`` are then exactly ours
     ``(a, b, y, x, 1)``: its horizontal EPIs are ``L[u_c, :, s, :]`` (view column × x),
     its vertical ones ``L[:, v_c, :, t]`` (view row × y). Check: a plane with δ = 1 gives
@@ -251,6 +275,10 @@ def plenpy_disparity(views, *, nan_guard: bool = True) -> np.ndarray:
     """
     LightField = import_plenpy_lightfield()
     v = _grey_views(views)
+    if min(v.shape[:2]) < 3:
+        # (one row of views gives its vertical EPIs a single line: a map of noise, no error)
+        raise ValueError(f"plenpy's EPIs need at least 3 views along each axis of the grid, got "
+                         f"{v.shape[0]}×{v.shape[1]}")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         warnings.simplefilter("ignore", RuntimeWarning)  # 0/0 in its structure tensor

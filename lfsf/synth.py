@@ -417,11 +417,12 @@ def _as_rgb(image, name: str) -> np.ndarray:
     """An image as float32 (h, w, 3) in [0, 1]: integers scaled by their type's maximum,
     booleans as 0 and 1, grey repeated, alpha dropped. ValueError names ``name`` and the
     problem."""
-    from lfsf.io import _to_unit_float32
+    from lfsf.io import _to_unit_float32, refuse_wide_integers
 
     a = np.asarray(image)
     if a.dtype.kind not in "biuf":
         raise ValueError(f"{name}: not an image of numbers ({a.dtype})")
+    refuse_wide_integers(a, name, "pixels")
     a = _to_unit_float32(a)
     if a.ndim == 3 and a.shape[2] in (1, 2):  # grey, grey + alpha
         a = a[..., 0]

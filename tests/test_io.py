@@ -286,10 +286,29 @@ def test_check_pair_refuses_light_fields_scaled_differently():
     lio.check_pair(counts, lio.LightField(unit * 200, source="t1"))        # both in counts: stretched alike
     lio.check_pair(lio.LightField(unit, source="t1"), lio.LightField(unit / 10, source="t2"))  # dark, in [0, 1]
     lio.check_pair(lio.LightField(unit * 1.9, source="t1"), lio.LightField(unit * 0.2, source="t2"))
-    # uint8 counts against the same counts as int64 (np.array of Python ints): 1 against ~1e-17
+    # uint8 counts against the same counts as int16: 1 against 0.0078
     eight = (unit * 255).astype(np.uint8)
-    with pytest.raises(ValueError, match=r"^t2: its brightest value is 2\.7\d*e-17 against 0\.99\d* in t1"):
-        lio.check_pair(lio.LightField(eight, source="t1"), lio.LightField(eight.astype(np.int64), source="t2"))
+    with pytest.raises(ValueError, match=r"^t2: its brightest value is 0\.0077\d* against 0\.99\d* in t1"):
+        lio.check_pair(lio.LightField(eight, source="t1"), lio.LightField(eight.astype(np.int16), source="t2"))
+
+
+@pytest.mark.parametrize("dtype, values, fix", [
+    (np.int64, (0, 255), r"give them as np\.uint8 \(views\.astype\(np\.uint8\)\) if they are 8-bit values"),
+    (np.int32, (0, 4095), r"give them as np\.uint16 \(views\.astype\(np\.uint16\)\) if they are 16-bit values"),
+    (np.uint32, (0, 70000), r"give them as floats in \[0, 1\] \(divided by their full scale\)$"),
+    (np.int64, (-1, 200), r"give them as floats in \[0, 1\]")])
+def test_integers_wider_than_16_bits_are_refused(dtype, values, fix):
+    """``np.array`` of Python ints is int64, which scaled by its type's maximum would be
+    views of nothing (0…255 → 0…2.8e-17): refused, with what to give instead."""
+    views = np.zeros((3, 3, 4, 5), dtype)
+    views[0, 0, 0, :2] = values
+    top = np.iinfo(dtype).max
+    with pytest.raises(ValueError, match=rf"^views\.npz: integer views of dtype {np.dtype(dtype).name} \(values "
+                                         rf"{values[0]}…{values[1]}\); lfsf scales integers by their type's maximum "
+                                         rf"\({top}\).*: {fix}"):
+        lio.LightField(views, source="views.npz")
+    lio.LightField(views.astype(np.uint16) if values[0] >= 0 and values[1] <= 65535 else views.astype(np.float32)
+                   / values[1], source="views.npz")
 
 
 # --------------------------------------------------------------------------------------

@@ -40,6 +40,35 @@ def test_skimage_tvl1_recovers_a_shift_in_our_convention(peers, shift):
     assert abs(float(np.mean(v[INNER])) - shift[1]) < 0.12
 
 
+@pytest.mark.parametrize("name, module", [("opencv_tvl1", "cv2"), ("skimage_tvl1", "skimage")])
+def test_flow_peers_take_8_bit_images_and_refuse_counts_as_floats(peers, name, module):
+    """uint8 images are scaled as lfsf scales them (OpenCV had clipped 0…255 to an image
+    of 255s and returned zero flow); floats far outside [0, 1] are refused."""
+    pytest.importorskip(module)
+    flow = getattr(peers, name)
+    c1, c2 = peers.shifted_pair(1.3, -0.7, size=(64, 48))
+    q1, q2 = ((c * 255).round().astype(np.uint8) for c in (c1, c2))
+    u, v = flow(q1, q2)
+    assert abs(float(np.mean(u[INNER])) - 1.3) < 0.12 and abs(float(np.mean(v[INNER])) + 0.7) < 0.12
+    expected = flow(q1 / np.float32(255), q2 / np.float32(255))
+    assert np.allclose(u, expected[0], atol=1e-4) and np.allclose(v, expected[1], atol=1e-4)
+    with pytest.raises(ValueError, match=r"^c1: values 4\.\d+…247\.\d, where the peers take \[0, 1\]: divide"):
+        flow(c1 * 255, c2 * 255)
+    with pytest.raises(ValueError, match=r"^c2: integer pixels of dtype int64"):
+        flow(q1, q2.astype(np.int64))
+
+
+def test_plenpy_refuses_a_grid_of_one_row(peers):
+    """One row of views leaves plenpy's vertical EPIs a single line: a map of noise
+    (MSE 0.99 against 0.58 on the 9×9 grid), without an error of its own."""
+    pytest.importorskip("plenpy")
+    views = peers.constant_disparity_views(1.0, 9, size=(64, 48))
+    with pytest.raises(ValueError, match=r"at least 3 views along each axis of the grid, got 1×9"):
+        peers.plenpy_disparity(views[4:5])
+    eight = peers.plenpy_disparity((views * 255).round().astype(np.uint8))
+    assert abs(float(np.median(eight[INNER])) - float(np.median(peers.plenpy_disparity(views)[INNER]))) < 0.01
+
+
 def test_shifted_pair_is_flow_in_our_convention(peers):
     # c2(p + u) == c1(p): sampling c2 at p + u gives back c1 (away from the border)
     c1, c2 = peers.shifted_pair(2.0, -1.0, size=(64, 48))
