@@ -33,6 +33,7 @@ __version__ = "0.1.0"
 
 # public name -> module that defines it (loaded on first use, PEP 562)
 _LAZY = {
+    "LfsfWarning": "lfsf._errors",
     "LightField": "lfsf.io",
     "read_lightfield": "lfsf.io",
     "write_lightfield": "lfsf.io",

@@ -8,6 +8,17 @@ import math
 import numbers
 
 
+class LfsfWarning(UserWarning):
+    """The category of every warning lfsf gives (``lfsf.LfsfWarning``): about its input
+    (float views far outside [0, 1], views laid out otherwise, an HCI folder without its
+    grid, a lenslet image without its metadata or with a clipped white image, results
+    estimated on downsampled views) and about rendered ground truth beyond the
+    estimator's ranges. ``warnings.filterwarnings("ignore", category=lfsf.LfsfWarning)``
+    silences them, ``"error"`` makes them exceptions; the ``module`` of a filter cannot
+    tell them apart, as they are raised at the caller's line. A UserWarning, so that a
+    filter of those catches them too."""
+
+
 class DependencyError(ImportError):
     """A package that lfsf needs is too old (Warp, :func:`lfsf.device.require_warp`): the
     message names the package, the version found and the ``pip install`` that mends it."""

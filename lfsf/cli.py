@@ -17,7 +17,8 @@ import time
 import warnings
 from pathlib import Path
 
-from lfsf._errors import EXIT_BAD_INPUT, EXIT_HUNG_UP, EXIT_INTERRUPTED, EXIT_TERMINATED, ArgumentParser, run_script
+from lfsf._errors import (EXIT_BAD_INPUT, EXIT_HUNG_UP, EXIT_INTERRUPTED, EXIT_TERMINATED, ArgumentParser, LfsfWarning,
+                          run_script)
 from lfsf._files import output_file, output_folder, refuse_replacing_inputs
 
 
@@ -504,7 +505,7 @@ def cmd_batch(args) -> int:
         k = recorded_downsample(args.config)
         if k > 1:  # (lfsf run --config R shrinks the views as R's were; batch has no --downsample)
             warnings.warn(f"{args.config} was estimated on views downsampled by {k} (lfsf run --downsample {k}); "
-                          "lfsf batch takes its settings alone and estimates the views at full size")
+                          "lfsf batch takes its settings alone and estimates the views at full size", LfsfWarning)
     if args.scheduler is not None and args.workers is not None:
         raise ValueError(f"--workers {args.workers} sets the processes of a local cluster; with --scheduler the "
                          "scheduler's own workers run the pairs: give one of the two")

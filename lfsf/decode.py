@@ -54,6 +54,7 @@ from pathlib import Path
 import numpy as np
 
 from lfsf import device as _device
+from lfsf._errors import LfsfWarning
 from lfsf._filters import box_mean as _box_blur
 
 __all__ = [
@@ -318,7 +319,7 @@ def _read_lytro(path: Path, fmt: str, full_scale: float, default_bayer: str | No
                                                  for ext in (".txt", ".TXT", ".json", ".JSON")):
         # (imageio's plugin logs its own line for this, twice and unprefixed: silenced below)
         warnings.warn(f"{path}: no metadata file beside it ({path.stem}.txt or .json): black level 0, white "
-                      f"level full scale, Bayer pattern {default_bayer} (the camera's usual)", stacklevel=3)
+                      f"level full scale, Bayer pattern {default_bayer} (the camera's usual)", LfsfWarning, stacklevel=3)
     logger = logging.getLogger("imageio")
     level = logger.level
     logger.setLevel(logging.ERROR)
@@ -907,7 +908,7 @@ def _check_white_fits(raw: "RawImage", white: "RawImage", lattice: Lattice, samp
         warnings.warn(f"{raw.source}: the white image {white.source} fits part of the sensor only (the raw's "
                       f"darkening at the micro-images' rims is {100 * float(np.min(ratio)):.0f} % of the white's in "
                       "one ninth of it): a white of a slightly different zoom or focus? The views will be poor "
-                      "there", stacklevel=3)
+                      "there", LfsfWarning, stacklevel=3)
 
 
 #: The largest rotation of the lens lattice from the sensor's rows that decode takes
@@ -933,12 +934,12 @@ def _note_white_levels(white: "RawImage", high: float) -> None:
         warnings.warn(f"{white.source}: its brightest values are {high:.4f} of the file's full scale (data of "
                       f"{-round(math.log2(high))} bits fewer than the file holds, such as 10-bit values in a 16-bit "
                       "file?): the views are as dark; scale the raw and the white image to full scale first for "
-                      "views that look right (the estimate does not mind)", stacklevel=3)
+                      "views that look right (the estimate does not mind)", LfsfWarning, stacklevel=3)
     clipped = float(np.mean(np.asarray(white.data)[::3, ::3] >= SATURATED))
     if clipped > WHITE_CLIPPED:
         warnings.warn(f"{white.source}: {100 * clipped:.0f} % of the white image is at full scale (clipped): the "
                       "micro-images' shapes are lost there, and the views will be poor; take the white image at a "
-                      "lower exposure", stacklevel=3)
+                      "lower exposure", LfsfWarning, stacklevel=3)
 
 
 def decode(raw, white, *, views: int | None = None, bayer: str | None = None, flip: bool = False,

@@ -16,6 +16,7 @@ from typing import Callable, NamedTuple, Union
 import numpy as np
 
 from lfsf import device as _device
+from lfsf._errors import LfsfWarning
 from lfsf._filters import box_mean
 from lfsf._filters import gaussian_blur as _blur
 from lfsf.gains import (GAIN_CHANGE, MAX_GAIN, MIN_VIEW_SIZE, fit_reduced_gains, gain_change, reduction_factor,
@@ -287,13 +288,14 @@ WARNINGS_TO_PROGRESS: contextvars.ContextVar[bool] = contextvars.ContextVar("lfs
 
 def _warn(message: str, say, stacklevel: int) -> None:
     """``message`` as a :class:`Warned` line to ``say`` (:data:`WARNINGS_TO_PROGRESS`), or
-    as a UserWarning at ``stacklevel`` counted from the caller of this function."""
+    as an :class:`lfsf.LfsfWarning` at ``stacklevel`` counted from the caller of this
+    function."""
     if WARNINGS_TO_PROGRESS.get():
         say(Warned(message))
     else:
         import warnings
 
-        warnings.warn(message, stacklevel=stacklevel + 1)
+        warnings.warn(message, LfsfWarning, stacklevel=stacklevel + 1)
 
 
 class Note(str):
@@ -1648,12 +1650,12 @@ def estimate_scene_flow(
 
     Warns
     -----
-    UserWarning
-        Where a light field's float views lie far outside [0, 1] (what is done with them),
-        and where t1's or t2's views look laid out otherwise than ``views[a, b, y, x]``:
-        two axes swapped, or one of the grid's reversed (:mod:`lfsf.orientation`). With
-        :data:`WARNINGS_TO_PROGRESS` set they go to ``progress`` as :class:`Warned` lines
-        instead (``lfsf batch``).
+    LfsfWarning
+        (``lfsf.LfsfWarning``, a UserWarning) Where a light field's float views lie far
+        outside [0, 1] (what is done with them), and where t1's or t2's views look laid out
+        otherwise than ``views[a, b, y, x]``: two axes swapped, or one of the grid's
+        reversed (:mod:`lfsf.orientation`). With :data:`WARNINGS_TO_PROGRESS` set they go
+        to ``progress`` as :class:`Warned` lines instead (``lfsf batch``).
 
     Notes
     -----

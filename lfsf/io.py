@@ -52,7 +52,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 
-from lfsf._errors import whole
+from lfsf._errors import LfsfWarning, whole
 from lfsf._files import interrupts_held, is_special_file, output_folder, savez_atomic, write_bytes_atomic
 
 __all__ = [
@@ -836,7 +836,7 @@ def _hci_grid(folder: Path, matches: list, cameras: tuple[int, int] | None = Non
     if 4 <= count <= SQUARE_NOTE_VIEWS and not (folder / "decode.json").is_file():  # (one view is no rig)
         warnings.warn(f"{folder}: {count} HCI views with no grid given (parameters.cfg's num_cams_x and "
                       f"num_cams_y) are read as {_a(side)} {side}×{side} grid; a rig of one row or column of {count} "
-                      f"cameras needs them", stacklevel=4)
+                      f"cameras needs them", LfsfWarning, stacklevel=4)
     return [[folder / by_index[r * side + c] for c in range(side)] for r in range(side)]
 
 
@@ -899,7 +899,7 @@ def _read_hci_parameters(path: Path) -> dict:
     except configparser.Error as err:
         # (configparser's first line says what; the others repeat the file, the line and its text)
         why = str(err).splitlines()[0].rstrip(".") if str(err).strip() else type(err).__name__
-        warnings.warn(f"{path}: ignored, not an INI file ({why})", stacklevel=3)
+        warnings.warn(f"{path}: ignored, not an INI file ({why})", LfsfWarning, stacklevel=3)
         return {}
     return {section: {key: _parse_cfg_value(value) for key, value in parser[section].items()}
             for section in parser.sections()}

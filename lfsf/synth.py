@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from lfsf import device as _device
+from lfsf._errors import LfsfWarning
 
 #: Depth (world units) seen with zero disparity, and f·B (px · world units): a point at
 #: depth Z has disparity δ = f·B/Z − f·B/Z0, so Z = 4 gives +2 and Z = 12 gives −2.
@@ -884,7 +885,7 @@ def _warn_beyond_ranges(gts: list, out) -> None:
             warnings.warn(f"{out}: from pair f{k:03d} on, the ground truth reaches |δ| = {disparity:.1f} px per view "
                           f"step and flows of {flow:.1f} px, beyond the estimator's defaults (disparity_range "
                           f"{defaults.disparity_range:g}, flow_range {defaults.flow_range:g}); fewer --frames keep "
-                          "within them", stacklevel=3)
+                          "within them", LfsfWarning, stacklevel=3)
             return
 
 

@@ -17,6 +17,7 @@ import pytest
 
 import lfsf
 from lfsf import cli
+from lfsf._errors import LfsfWarning
 from lfsf import decode as D
 from lfsf.decode import Lattice, calibrate, decode, synthetic_lenslet
 from lfsf.device import warp
@@ -336,7 +337,7 @@ def test_a_white_image_of_few_bits_or_clipped_is_warned_of(change, said):
     white into poor views, without a word (a helper)."""
     raw, white = synthetic_lenslet(_texture_field(1), CASES["hex"], (400, 320), views=9, white_noise=0.002)
     white = change(white)
-    with pytest.warns(UserWarning, match=re.escape(said)):
+    with pytest.warns(LfsfWarning, match=re.escape(said)):
         decode(D.RawImage(raw * float(np.max(white)), None, "raw"), D.RawImage(white, None, "white"), views=7,
                device="cpu")
 
@@ -599,7 +600,7 @@ def test_lytro_metadata_gives_pattern_and_levels(tmp_path):
     # without it: one warning of ours naming the file and what is assumed; imageio's own
     # log line ("No metadata file found …", twice, unprefixed, even with --quiet) silenced
     (tmp_path / "white.txt").unlink()
-    with pytest.warns(UserWarning, match=r"white.raw: no metadata file beside it \(white.txt or .json\): black "
+    with pytest.warns(LfsfWarning, match=r"white.raw: no metadata file beside it \(white.txt or .json\): black "
                                          r"level 0, white level full scale, Bayer pattern BGGR") as caught:
         with capture_logs("imageio") as logged:
             image = D.read_raw(path)

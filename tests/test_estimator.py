@@ -1165,6 +1165,7 @@ def test_float_views_far_outside_the_unit_range_are_warned_about(tmp_path):
         source = str(tmp_path / "bytes.npz") if name == "file" else "light field 1"
         message = str(caught[0].message)
         assert len(caught) == 2 and message.startswith(f"{source}: float views range "), (name, message)
+        assert caught[0].category is lfsf.LfsfWarning, caught[0].category   # (filterable as lfsf's)
         assert said in message and caught[0].filename == __file__, (name, message, caught[0].filename)
     assert all("where lfsf expects" not in str(w.message) for w in _warnings_of(lfsf.read_lightfield,
                                                                                 tmp_path / "bytes.npz"))

@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 
 from lfsf import io as lio
+from lfsf._errors import LfsfWarning
 
 LUMA = np.array([0.299, 0.587, 0.114])
 
@@ -858,7 +859,7 @@ def test_hci_folder_takes_its_grid_from_parameters_cfg(tmp_path):
 def test_read_hci_folder_with_bad_parameters_warns(tmp_path):
     _hci_folder(tmp_path / "hci", 2)
     (tmp_path / "hci" / "parameters.cfg").write_text("no section header here\n")
-    with pytest.warns(UserWarning, match="parameters.cfg"):
+    with pytest.warns(LfsfWarning, match="parameters.cfg"):
         lf = lio.read_lightfield(tmp_path / "hci")
     assert lf.grid == (2, 2) and lf.meta["parameters"] == {}
 
@@ -1628,7 +1629,7 @@ def test_a_small_hci_folder_without_its_grid_is_read_square_with_a_warning(tmp_p
         warnings.simplefilter("error")
         assert lio.read_lightfield(tmp_path / "own").grid == (3, 3)
     (tmp_path / "own" / "parameters.cfg").unlink()
-    with pytest.warns(UserWarning, match=r"9 HCI views with no grid given .* read as a 3×3 grid; a rig of one row"):
+    with pytest.warns(LfsfWarning, match=r"9 HCI views with no grid given .* read as a 3×3 grid; a rig of one row"):
         assert lio.read_lightfield(tmp_path / "own").grid == (3, 3)
     # a 1×9 rig with its grid given reads as one
     (tmp_path / "own" / "parameters.cfg").write_text("[extrinsics]\nnum_cams_x = 9\nnum_cams_y = 1\n")

@@ -126,6 +126,7 @@ def test_estimate_warns_of_each_light_field_once(scenes):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             lfsf.estimate_scene_flow(lf1, lf2, preset)
+        assert all(w.category is lfsf.LfsfWarning for w in caught if "laid out" in str(w.message))
         return [str(w.message) for w in caught if "laid out" in str(w.message)]
 
     told = said(lfsf.LightField(views, source="t1.npz"), dimmer)

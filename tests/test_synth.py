@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from lfsf import synth
+from lfsf._errors import LfsfWarning
 
 import reference_render as ref
 
@@ -471,7 +472,7 @@ def test_a_sequence_beyond_the_estimators_ranges_is_warned_of(tmp_path):
     had been garbage without a word (a helper). Four frames keep within them."""
     import warnings
 
-    with pytest.warns(UserWarning, match=r"from pair f00\d on, the ground truth reaches \|δ\| = .* beyond the "
+    with pytest.warns(LfsfWarning, match=r"from pair f00\d on, the ground truth reaches \|δ\| = .* beyond the "
                                          r"estimator's defaults \(disparity_range 4, flow_range 24\)"):
         synth.write_sequence("paper", tmp_path / "long", 10, size=(32, 24), grid=3, supersample=1, device="cpu")
     with warnings.catch_warnings():
