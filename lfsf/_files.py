@@ -139,8 +139,10 @@ def output_file(path: str | os.PathLike) -> Path:
         raise ValueError(f"{path}: is a folder, not a file to write")
     try:
         output_folder(path.parent, create=False)
-    except ValueError as exc:  # (its folder's message, which names the folder, and the file's name)
-        raise ValueError(f"{exc}; {path.name} cannot be written there") from None
+    except ValueError as exc:  # (the file named, and why its folder cannot hold it)
+        said = str(exc)
+        prefix = f"{path.parent}: cannot write results there: "
+        raise ValueError(f"{path}: cannot be written: {said.removeprefix(prefix)}") from None
     return path
 
 

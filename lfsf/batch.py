@@ -51,6 +51,10 @@ from lfsf._files import SET_PREFIX, dead_set, write_bytes_atomic
 RESULT_FILES = ("disp1.pfm", "disp2.pfm", "flow.flo", "sceneflow.npz", "disp1.png", "disp2.png", "flow.png")
 #: Light-field files a frame folder may hold (besides sub-folders of views).
 FRAME_SUFFIXES = (".npz",)
+#: Names in a folder of frames that are no frames: the ground truth that ``lfsf synth``
+#: writes beside its light fields (``gt.npz`` beside ``lf1.npz`` and ``lf2.npz``; ``gt/``
+#: beside ``frames/`` with ``--frames``).
+GROUND_TRUTH_NAMES = ("gt", "gt.npz")
 INSTALL_HINT = "pip install 'dask[distributed]' (or pip install -e '.[batch]' in the lfsf checkout)"
 
 
@@ -118,8 +122,9 @@ def pairs_from_sources(sources: Sequence[str | os.PathLike] | str | os.PathLike,
     two cells are ``t1,t2`` is optional; blank lines and lines starting with ``#`` are
     left out; relative paths are relative to the manifest's folder; the name defaults to
     t1's stem). A folder holds one light field per frame (a sub-folder of views or a
-    ``.npz``), sorted by name; consecutive frames make the pairs, named after their first
-    frame, each the successor of the one before. Paths come back absolute: on a cluster,
+    ``.npz``; not ``gt.npz`` or ``gt/``, :data:`GROUND_TRUTH_NAMES`), sorted by name;
+    consecutive frames make the pairs, named after their first frame, each the successor
+    of the one before. Paths come back absolute: on a cluster,
     every worker must see them under the same names (a shared file system). ``out``, the
     batch's output folder, is no frame: where it lies inside a folder of frames it is
     left out of that folder's frames (a re-run would take the results for a frame).
@@ -218,7 +223,7 @@ def frame_order(paths) -> list[Path]:
 def _folder_pairs(folder: Path, out: Path | None = None) -> list[Pair]:
     frames = frame_order(p for p in folder.iterdir()
                          if not p.name.startswith(".") and (p.is_dir() or p.suffix.lower() in FRAME_SUFFIXES)
-                         and not (out is not None and _within(out, p)))
+                         and p.name.lower() not in GROUND_TRUTH_NAMES and not (out is not None and _within(out, p)))
     if len(frames) < 2:
         from lfsf.io import read_lightfield
 
@@ -226,6 +231,8 @@ def _folder_pairs(folder: Path, out: Path | None = None) -> list[Pair]:
         with contextlib.suppress(Exception):  # (a folder of views is one light field, not frames)
             lf = read_lightfield(folder)
             alone = f"; it is itself one light field ({lf.grid[0]}×{lf.grid[1]} views), not a folder of frames"
+        if frames == [folder / "frames"] and (folder / "gt").is_dir():
+            alone = f"; lfsf synth --frames wrote its frames into {folder / 'frames'}: give that folder"
         raise ValueError(f"{folder}: a folder of frames needs at least two light fields (sub-folders of views "
                          f"or .npz files), found {len(frames)}{alone}")
     pairs, previous = [], None

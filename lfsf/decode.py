@@ -319,7 +319,8 @@ def _read_lytro(path: Path, fmt: str, full_scale: float, default_bayer: str | No
                                                  for ext in (".txt", ".TXT", ".json", ".JSON")):
         # (imageio's plugin logs its own line for this, twice and unprefixed: silenced below)
         warnings.warn(f"{path}: no metadata file beside it ({path.stem}.txt or .json): black level 0, white "
-                      f"level full scale, Bayer pattern {default_bayer} (the camera's usual)", LfsfWarning, stacklevel=3)
+                      f"level full scale, Bayer pattern {default_bayer} (the camera's usual)", LfsfWarning,
+                      stacklevel=3)
     logger = logging.getLogger("imageio")
     level = logger.level
     logger.setLevel(logging.ERROR)

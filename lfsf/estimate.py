@@ -1641,7 +1641,13 @@ def estimate_scene_flow(
         A starting estimate (``disp1``, ``disp2``, ``u``, ``v``, (H, W) maps of the t1
         centre view), e.g. :func:`predict_next` of the previous pair of a sequence. The
         coarsest level run (all levels, or the finest ``params.warm_levels``) starts from
-        it instead of from zero; the searches still fuse in where they match better.
+        it instead of from zero; the searches still fuse in where they match better. With
+        all levels (``warm_levels = 0``, the default) the coarse levels rework most of
+        it: the exact ground truth as ``init`` moved the errors of δ1, δ2 and the flow
+        by −46 % to +71 % against no ``init`` (`paper`, `random-2`, `large_motion`,
+        160×120, `fast`), while with ``warm_levels = 1`` δ2's MSE fell 2× and 8× on
+        `paper` and `large_motion` (+5 % on `random-2`) and the flow's EPE by up to 2.7×.
+        Set ``warm_levels`` where ``init`` is close (README, Warm starts).
 
     Returns
     -------
@@ -1742,8 +1748,8 @@ def estimate_scene_flow(
              f"lenslet image, {lf1.meta['lens_views']} across a lens, and those further out lie near the "
              "micro-images' rims, where the neighbouring lenses mix in (RIM_FRACTION)")
     if params.circles > 1 and radius <= 0:
-        flow = ("the flow of the centre views alone: the flow preset (--preset flow; circles = 1, "
-                "samples = [1])")
+        flow = ("the flow of the centre views alone: the flow preset (Params.preset('flow'), --preset flow; "
+                "circles = 1, samples = [1])")
         if rows == cols == 1:
             raise ValueError(f"{lf1.source}: a single view leaves no room for the sampling circles (M = "
                              f"{params.circles}): the disparities need two views or more; {flow}")
@@ -1751,8 +1757,8 @@ def estimate_scene_flow(
         raise ValueError(f"{lf1.source}: {_a(rows)} {rows}×{cols} grid of views leaves no room for the sampling circles "
                          f"(M = {params.circles}, N = {list(params.samples)}): samples off the grid's {axis} need "
                          f"views beside it; on a one-{axis} rig, sample along it with circles = 2 and samples = "
-                         "[1, 2] (the views R steps either side of the centre; lfsf run --config FILE.toml "
-                         f"sets them), or {flow}")
+                         "[1, 2] (the views R steps either side of the centre; params.replace(circles=2, "
+                         f"samples=(1, 2)) in Python, a --config FILE.toml for lfsf run), or {flow}")
     dark = (_dark_views(lf1, lf2, params.dark_view_fraction, min(lo for lo, _ in ranges))
             if params.circles > 1 and params.dark_view_fraction > 0 else None)
     darkened = False  # (R lowered to keep off dark views: the grid's note below is not of this R)
@@ -1854,7 +1860,7 @@ def estimate_scene_flow(
                     if fitted.curve is not None:
                         how += (f"; the line leaves some intensities {100 * fitted.departure:.1f} % of the range "
                                 "off in a bow, as a tone curve would (another gamma, an auto-tone camera): "
-                                "tone_curve = true matches it by a curve")
+                                "tone_curve = true (params.replace(tone_curve=True)) matches it by a curve")
                 note(f"exposure: t2 matched to t1 by {how}")
             elif not large:
                 note(f"exposure: not matched, though t2's mean brightness differs from t1's by {100 * brighter:+.1f} "

@@ -52,8 +52,10 @@ def _bool_mask(mask, name: str) -> np.ndarray:
         mask = np.ma.filled(mask, mask.dtype.type(name == "occluded"))
     mask = np.asarray(mask)
     if mask.dtype != bool and not (mask.dtype.kind in "iu" and np.isin(mask, (0, 1)).all()):
-        raise ValueError(f"the {name} mask must be bool (or 0 and 1), got dtype {mask.dtype}"
-                         + (" with values other than 0 and 1" if mask.dtype.kind in "iu" else ""))
+        raise ValueError(f"the {name} mask must be bool or integers 0 and 1, got dtype {mask.dtype}"
+                         + (" with values other than 0 and 1" if mask.dtype.kind in "iu" else
+                            f" (of 0.0 and 1.0 only: {name}.astype(bool))"
+                            if mask.dtype.kind == "f" and np.isin(mask, (0, 1)).all() else ""))
     return mask
 
 
@@ -184,7 +186,8 @@ def evaluate(estimate, gt: dict, border: int = SYNTH_BORDER) -> dict[str, dict[s
     points seen at t2 as well; with one in the estimate too (bool; a SceneFlow's
     ``occluded``), the row ``occluded`` scores it against the truth's
     (:func:`occlusion_scores`: precision, recall, f1, pixels, marked_px, occluded_px,
-    and no MSE).
+    and no MSE). A non-finite value in the estimate is an infinite error (``mse`` inf,
+    the pixel bad); ``lfsf eval --json`` writes such values as null.
 
     Raises ``ValueError`` for maps of different sizes, a negative ``border``, or when the
     border, the ``valid`` mask and non-finite ground truth leave no pixel to evaluate.
@@ -318,7 +321,7 @@ def load_estimate(path: str | Path) -> dict[str, np.ndarray]:
             flow = io.read_flo(path / "flow.flo")
             out["u"], out["v"] = flow[..., 0], flow[..., 1]
         if not out:
-            raise ValueError(f"{path}: no sceneflow.npz, disp1.pfm, disp2.pfm or flow.flo in this folder")
+            raise FileNotFoundError(f"{path}: no sceneflow.npz, disp1.pfm, disp2.pfm or flow.flo in this folder")
         return out
     suffix = path.suffix.lower()
     if suffix == ".npz":
@@ -402,7 +405,7 @@ def load_ground_truth(path: str | Path) -> tuple[dict[str, np.ndarray], int]:
         for name in GT_FILES:
             if (path / name).exists():
                 return load_ground_truth(path / name)
-        raise ValueError(f"{path}: no gt.npz or gt_disp_lowres.pfm in this folder")
+        raise FileNotFoundError(f"{path}: no gt.npz or gt_disp_lowres.pfm in this folder")
     suffix = path.suffix.lower()
     if suffix == ".pfm":
         name = path.name.lower()

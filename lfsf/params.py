@@ -409,11 +409,11 @@ class Params:
         unknown = sorted(set(changes) - set(names))
         if unknown:
             guesses = {k: _nearest_names(k, names) for k in unknown}
-            meant = [f"{' or '.join(guess)} for {k}" for k, guess in guesses.items() if guess]
+            meant = [f"{k}: did you mean {' or '.join(guess)}?" for k, guess in guesses.items() if guess]
             # (the 50-odd names only where some name has no near one: a line of 900 characters)
             known = "" if all(guesses.values()) else f"; known: {', '.join(names)}"
             raise ValueError(f"unknown parameter(s) {', '.join(unknown)}"
-                             + (f" (did you mean {'; '.join(meant)}?)" if meant else "") + known)
+                             + (f" ({'; '.join(meant)})" if meant else "") + known)
         return dataclasses.replace(self, **changes)
 
     @classmethod
@@ -665,8 +665,8 @@ class Params:
 
     def __repr__(self) -> str:
         """The settings that differ from the defaults (the `paper` preset), as a call
-        that makes the same Params: ``Params()`` for `paper`; all 51 of them made a repr
-        of 900 characters."""
+        that makes the same Params: ``Params()`` for `paper`; all of them (55) made a repr
+        of about 1000 characters."""
         changed = ", ".join(f"{f.name}={getattr(self, f.name)!r}" for f in dataclasses.fields(self)
                             if getattr(self, f.name) != f.default)
         return f"Params({changed})"

@@ -361,15 +361,26 @@ def _error_scale(*errors: np.ndarray) -> float:
 
 
 def _to_uint8_image(img) -> np.ndarray:
+    """uint8 as it is, uint16 scaled to 8 bits, floats in [0, 1] (slightly beyond: clipped;
+    NaN: 0) scaled; floats far outside [0, 1] (0…255 given as floats, which had come out
+    an image of 255s) and other types refused."""
+    from lfsf.estimate import UNIT_RANGE_SLACK
+
     img = np.asarray(img)
     if not (img.ndim == 2 or (img.ndim == 3 and img.shape[2] == 3)):
         raise ValueError(f"expected an image of shape (H, W) or (H, W, 3), got {img.shape}")
     if img.dtype == np.uint8:
         return img
+    if img.dtype == np.uint16:
+        return ((img.astype(np.uint32) * 255 + 32767) // 65535).astype(np.uint8)
     if np.issubdtype(img.dtype, np.floating):
+        finite = img[np.isfinite(img)]
+        if finite.size and (finite.min() < UNIT_RANGE_SLACK[0] or finite.max() > UNIT_RANGE_SLACK[1]):
+            raise ValueError(f"expected a float image in [0, 1], got values {float(finite.min()):.4g}…"
+                             f"{float(finite.max()):.4g}: divide 8-bit values by 255 (or give them as uint8)")
         scaled = np.round(np.clip(np.nan_to_num(img, nan=0.0), 0.0, 1.0) * 255.0)
         return scaled.astype(np.uint8)
-    raise ValueError(f"expected a uint8 image or a float image in [0, 1], got dtype {img.dtype}")
+    raise ValueError(f"expected a uint8 or uint16 image or a float image in [0, 1], got dtype {img.dtype}")
 
 
 def save_png(path: str | os.PathLike, img, text: Mapping[str, str] | None = None) -> None:
@@ -380,7 +391,8 @@ def save_png(path: str | os.PathLike, img, text: Mapping[str, str] | None = None
     path : str or path-like
         Target file; missing parent folders are created.
     img : array_like, shape (H, W) or (H, W, 3)
-        ``uint8``, or float in [0, 1] (clipped; NaN written as 0).
+        ``uint8``, ``uint16`` (written as 8 bits), or float in [0, 1] (clipped; NaN written
+        as 0; values far outside [0, 1] are refused).
     text : mapping of str to str, optional
         Text chunks to store in the file (``{"Comment": …}``: what the colours mean,
         which image viewers and ``PIL.Image.open(path).text`` show).

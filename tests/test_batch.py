@@ -982,6 +982,28 @@ def test_a_light_field_given_as_a_folder_of_frames_is_named_as_one(frames, tmp_p
         batch.pairs_from_sources([tmp_path / "views"])
 
 
+def test_lfsf_synths_ground_truth_is_no_frame(frames, tmp_path):
+    """A folder as `lfsf synth` writes it (lf1.npz, lf2.npz, gt.npz) is one pair, lf1 → lf2
+    (gt.npz had been read as a frame: a failed pair gt → lf1); the top folder of
+    `lfsf synth --frames` (frames/, gt/) names the folder that holds its frames."""
+    import shutil
+
+    folder, _ = frames
+    pair = tmp_path / "pair"
+    pair.mkdir()
+    for name, frame in (("lf1", "f000"), ("lf2", "f001"), ("gt", "f002")):
+        shutil.copy(folder / f"{frame}.npz", pair / f"{name}.npz")
+    assert [(p.name, p.t1.name, p.t2.name) for p in batch.pairs_from_sources([pair])] == [("lf1", "lf1.npz",
+                                                                                          "lf2.npz")]
+    sequence = tmp_path / "sequence"
+    shutil.copytree(folder, sequence / "frames")
+    (sequence / "gt").mkdir()
+    with pytest.raises(ValueError, match=rf"found 1; lfsf synth --frames wrote its frames into "
+                                         rf"{re.escape(str(sequence / 'frames'))}: give that folder"):
+        batch.pairs_from_sources([sequence])
+    assert len(batch.pairs_from_sources([sequence / "frames"])) == 3
+
+
 def test_a_current_folder_gone_is_refused_before_the_local_cluster_starts(monkeypatch):
     """The local Dask cluster's processes start in the current folder: where it has been
     removed, they failed with 186 lines of tracebacks; now one line before any work."""

@@ -195,12 +195,12 @@ def test_settings_both_in_a_params_table_and_at_the_top_level_are_an_error(tmp_p
     with pytest.raises(ValueError, match=re.escape(f"{path}: unknown table [param]; the settings go in [params]")):
         Params.from_toml(path)
     path.write_text('lamda3 = 2\nwarp = 3\nzzz = 1\n')
-    with pytest.raises(ValueError, match=re.escape(f"{path}: unknown parameter(s) lamda3, warp, zzz (did you mean "
-                                                   "lambda3 for lamda3; warps for warp?); known: circles")):
+    with pytest.raises(ValueError, match=re.escape(f"{path}: unknown parameter(s) lamda3, warp, zzz (lamda3: did you "
+                                                   "mean lambda3?; warp: did you mean warps?); known: circles")):
         Params.from_toml(path)
     path.write_text('lambda = 2\n')  # (every unknown name has a near one: the 50-odd names are left out)
-    with pytest.raises(ValueError, match=re.escape(f"{path}: unknown parameter(s) lambda (did you mean lambda1 or "
-                                                   "lambda2 or lambda3 for lambda?)") + "$"):
+    with pytest.raises(ValueError, match=re.escape(f"{path}: unknown parameter(s) lambda (lambda: did you mean "
+                                                   "lambda1 or lambda2 or lambda3?)") + "$"):
         Params.from_toml(path)
     path.write_text('preset = "fats"\n')
     for given in (None, "fast", "paper"):

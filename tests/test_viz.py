@@ -350,9 +350,14 @@ def test_an_overview_against_part_of_a_ground_truth():
 
 
 def test_save_png_converts_float_and_grey(tmp_path):
-    grey = np.array([[0.0, 0.5], [1.0, 2.0]])
+    grey = np.array([[0.0, 0.5], [1.0, 1.2]])
     viz.save_png(tmp_path / "g.png", grey)
     np.testing.assert_array_equal(iio.imread(tmp_path / "g.png"), [[0, 128], [255, 255]])
+    # 16 bits written as 8; 0…255 as floats refused (it had come out an image of 255s)
+    viz.save_png(tmp_path / "w.png", np.array([[0, 257], [32896, 65535]], np.uint16))
+    np.testing.assert_array_equal(iio.imread(tmp_path / "w.png"), [[0, 1], [128, 255]])
+    with pytest.raises(ValueError, match=r"got values 0…200: divide 8-bit values by 255"):
+        viz.save_png(tmp_path / "bad.png", np.array([[0.0, 100.0], [np.nan, 200.0]]))
     rgb = np.zeros((3, 4, 3), dtype=np.uint8)
     rgb[..., 1] = 200
     viz.save_png(tmp_path / "c.png", rgb)
@@ -361,7 +366,7 @@ def test_save_png_converts_float_and_grey(tmp_path):
         viz.save_png(tmp_path / "bad.png", np.zeros((2, 2, 2), dtype=np.uint8))
     with pytest.raises(ValueError, match="dtype"):
         viz.save_png(tmp_path / "bad.png", np.zeros((2, 2), dtype=np.int32))
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.png", "g.png"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.png", "g.png", "w.png"]
 
 
 def test_failing_write_leaves_no_partial_file(tmp_path, monkeypatch):
