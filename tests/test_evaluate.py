@@ -2,6 +2,7 @@
 
 import io
 import math
+import re
 import struct
 import zipfile
 
@@ -226,6 +227,16 @@ def test_a_results_disp2_pfm_is_scored_as_disp2(tmp_path):
         E.evaluate({"disp1": d1}, {"disp1": d1[::2, ::2]})
     with pytest.raises(ValueError, match=r"a result's disp2.pfm is δ2 and a PFM ground truth δ1"):
         E.evaluate(E.load_estimate(tmp_path / "disp2.pfm"), {"disp1": d1})
+
+
+def test_a_folder_without_results_or_truth_is_a_file_not_found(tmp_path):
+    """As a missing path is, and as SceneFlow.load's (it had been a ValueError)."""
+    for load, needle in ((E.load_estimate, "no sceneflow.npz, disp1.pfm, disp2.pfm or flow.flo in this folder"),
+                         (E.load_ground_truth, "no gt.npz or gt_disp_lowres.pfm in this folder")):
+        with pytest.raises(FileNotFoundError, match=rf"^{re.escape(str(tmp_path))}: {needle}$"):
+            load(tmp_path)
+        with pytest.raises(FileNotFoundError, match="no such file"):
+            load(tmp_path / "gone")
 
 
 def test_colour_pfm_is_not_a_disparity_map(tmp_path):
