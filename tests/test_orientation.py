@@ -136,3 +136,60 @@ def test_estimate_warns_of_each_light_field_once(scenes):
     one = lfsf.LightField(views, source="lf.npz")
     assert len(said(one, one)) == 1
     assert said(views, views, "flow") == []
+
+
+@pytest.mark.parametrize("as_read, other, told", [
+    (0.60, 0.50, True),     # the layout as read gains 0.40, the other 0.50: ratio 0.80 < 0.85
+    (0.55, 0.50, False),    # ratio 0.90: within ORIENTATION_RATIO
+    (0.98, 0.96, False),    # the other gains 0.04 of no parallax's 1.0, ratio 0.5: under PARALLAX_GAIN,
+                            # and not under CLEAR_RATIO either
+    (0.99, 0.97, False),    # gains 0.01 and 0.03: ratio 0.33, just over CLEAR_RATIO
+    (0.995, 0.97, True),    # ratio 0.17 on a gain of 0.03 (> SMALL_PARALLAX_GAIN): told
+    (1.0, 0.992, False),    # a gain of 0.008 is no parallax, whatever the ratio
+])
+def test_the_rule_on_the_gains(monkeypatch, as_read, other, told):
+    """The bounds of lfsf.orientation's rule, each on either side, with the costs given
+    (no parallax 1.0): a gain over no parallax of PARALLAX_GAIN with the layout as read
+    under ORIENTATION_RATIO of it, or of SMALL_PARALLAX_GAIN under CLEAR_RATIO."""
+    from lfsf import orientation
+
+    costs = {"as read": as_read, "reversed": 1.0, "swapped": other, "swapped and reversed": 1.0,
+             "no parallax": 1.0}
+    monkeypatch.setattr(orientation, "layout_costs", lambda views, max_disparity=4.0: costs)
+    said = orientation.layout_warning(np.zeros((3, 3, 4, 4), np.float32), "x")
+    assert (said is not None) == told, said
+    if told:
+        assert said.startswith("x: the views look laid out with two axes swapped:")
+        assert f"mean matching cost {other:.3f} in that layout, {as_read:.3f} as read, 1.000 with no parallax" in said
+
+
+def _no_parallax_reference(views: np.ndarray) -> float:
+    """layout_costs' "no parallax" by another route: the four views two steps from the
+    centre, each reduced by block means to about 160 px along the longer side, their
+    absolute differences from the centre view in 5×5 means, in units of the centre's
+    1st–99th percentile range, averaged over the more textured half of the pixels at
+    least reach + 3 px inside (reach = 4 · 2 / factor + 1)."""
+    from lfsf._filters import box_mean
+    from lfsf.io import block_mean
+
+    factor = max(1, round(max(views.shape[2:]) / 160))
+    c = views.shape[0] // 2
+    reduce = lambda a, b: block_mean(views[a, b].astype(np.float64), factor)  # noqa: E731
+    centre = reduce(c, c)
+    lo, hi = np.percentile(centre, [1, 99])
+    diff = sum(np.abs(reduce(a, b) - centre) for a, b in ((c, c + 2), (c, c - 2), (c + 2, c), (c - 2, c)))
+    cost = box_mean(diff / (hi - lo), 5)
+    margin = int(4.0 * 2 / factor + 1.0) + 3
+    gy, gx = np.gradient(centre)
+    strength = np.hypot(gx, gy)[margin:-margin, margin:-margin]
+    inner = cost[margin:-margin, margin:-margin]
+    return float(np.mean(inner[strength >= np.median(strength)]))
+
+
+@pytest.mark.parametrize("size", [(96, 72), (480, 200)])
+def test_the_costs_are_those_of_the_textured_half_of_reduced_views(size):
+    """The cost with no parallax against a reference: over the centre view's more
+    textured half (all of it had weighed flat areas in, the warning's figures 20 % lower),
+    on views reduced along their longer side (480×200: by 3, not by the shorter side's 1)."""
+    views = render_scene("random-3", size=size, grid=5)[0].views
+    assert layout_costs(views)["no parallax"] == pytest.approx(_no_parallax_reference(views), rel=1e-6)
