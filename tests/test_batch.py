@@ -80,6 +80,39 @@ def test_predict_next_carries_the_exact_motion_to_the_next_pair(scene):
         assert err < 0.1 and err < 0.6 * stay, (key, err, stay)
 
 
+def test_predict_next_keeps_each_points_change_of_disparity():
+    """A point whose disparity grew by 0.1 over pair k starts pair k + 1 at δ1 = its δ2
+    and δ2 = δ2 + 0.1 (constant motion in depth), where it lands (here: in place)."""
+    from lfsf.estimate import predict_next
+
+    d1 = np.linspace(-1, 1, 42, dtype=np.float32).reshape(6, 7)
+    zero = np.zeros((6, 7), np.float32)
+    predicted = predict_next({"disp1": d1, "disp2": d1 + 0.1, "u": zero, "v": zero})
+    np.testing.assert_allclose(predicted["disp1"], d1 + 0.1, atol=1e-6)
+    np.testing.assert_allclose(predicted["disp2"], d1 + 0.2, atol=1e-6)
+
+
+def test_a_starting_estimate_is_scaled_to_the_level_it_starts_on(monkeypatch):
+    """``init`` starts the coarsest level run: δ1, δ2 and u scaled by that level's width
+    over the views', v by its height over theirs (90×68 views: 22/90 against 17/68); with
+    ``warm_levels`` only the finest levels run, and the maps come back at full size."""
+    from lfsf import estimate
+
+    lf1, lf2, gt = synth.render_scene("slanted", size=(90, 68), grid=3, device="cpu")
+    init = {k: gt[k] for k in ("disp1", "disp2", "u", "v")}
+    original, calls = estimate._resize_map, []
+    monkeypatch.setattr(estimate, "_resize_map", lambda image, size, scale, device: (
+        calls.append((size, scale)) or original(image, size, scale, device)))
+    sizes = estimate.pyramid_sizes(68, 90, PARAMS)
+    assert len(sizes) == 3 and sizes[-1][1] / 90 != sizes[-1][0] / 68
+    for warm, level in ((0, -1), (1, 0), (2, 1)):
+        calls.clear()
+        h, w = sizes[level]
+        sf = estimate.estimate_scene_flow(lf1, lf2, PARAMS.replace(warm_levels=warm), device="cpu", init=init)
+        assert calls == [((h, w), w / 90)] * 3 + [((h, w), h / 68)], (warm, calls)
+        assert sf.disp1.shape == sf.u.shape == (68, 90)
+
+
 def test_bad_starting_estimate_is_a_clear_error():
     from lfsf.estimate import estimate_scene_flow
 

@@ -136,6 +136,9 @@ def test_estimate_warns_of_each_light_field_once(scenes):
     one = lfsf.LightField(views, source="lf.npz")
     assert len(said(one, one)) == 1
     assert said(views, views, "flow") == []
+    # the sweep covers the estimate's disparity_range (its figures are the check's at 12)
+    wide = params.replace(disparity_range=12.0)
+    assert said(one, one, wide) == [layout_warning(views, "lf.npz", 12.0)] != [layout_warning(views, "lf.npz")]
 
 
 @pytest.mark.parametrize("as_read, other, told", [
