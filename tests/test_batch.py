@@ -716,6 +716,12 @@ def test_progress_bar_on_a_terminal_and_in_a_log():
     assert log[1] == "lfsf batch: [2/3] pair b failed: b.npz: not a light field"
     assert log[2].startswith("lfsf batch: [3/3] c: skipped")
     assert streams["quiet"].getvalue() == "lfsf batch: pair b failed: b.npz: not a light field\n"
+    # the time left: the pairs not yet finished at the pace so far (1 of 4 in 60 s: 3 min)
+    log = io.StringIO()
+    bar = batch.ProgressBar(4, stream=log)
+    bar.t0 -= 60.0
+    bar(outcomes[0], 1, 4)
+    assert log.getvalue().endswith("; about 3 min 00 s left\n"), log.getvalue()
 
 
 # --- what a batch must never overwrite ---------------------------------------------------------

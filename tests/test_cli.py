@@ -159,6 +159,26 @@ def test_eval_of_ground_truth_against_itself_is_zero(tmp_path):
     assert report["errors"]["disp2_noc"]["pixels"] == seen and "flow noc" in out
 
 
+def test_eval_with_no_border(tmp_path, capsys):
+    """--border 0 scores every pixel (it had read as no border given: the default 8)."""
+    assert main(["synth", "paper", "--out", str(tmp_path), "--size", "48", "36", "--grid", "1", "--quiet"]) == 0
+    with np.load(tmp_path / "gt.npz") as gt:
+        maps = {k: gt[k] for k in ("disp1", "disp2", "u", "v")}
+        valid = int(gt["valid"].sum())
+    maps["disp1"] = maps["disp1"].copy()
+    maps["disp1"][:4] += 1.0    # (wrong in the top 4 rows only: inside the default border)
+    np.savez(tmp_path / "est.npz", **maps)
+    for border, pixels in ((0, valid), (None, None)):
+        extra = [] if border is None else ["--border", str(border)]
+        assert main(["eval", str(tmp_path / "est.npz"), str(tmp_path / "gt.npz"), "--json",
+                     str(tmp_path / "e.json"), *extra]) == 0
+        report = json.loads((tmp_path / "e.json").read_text())
+        out = capsys.readouterr().out
+        assert f"(border {8 if border is None else 0} px" in out, out
+        assert (report["errors"]["disp1"]["mse"] > 0) == (border == 0)
+        assert pixels is None or report["errors"]["disp1"]["pixels"] == pixels
+
+
 def test_eval_of_a_partial_result_says_what_it_left_out(tmp_path, capsys):
     """A folder with disp1.pfm alone (the others lost) is scored, and the report says
     that δ2 and the flow were not, where the ground truth has them."""
