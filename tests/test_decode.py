@@ -320,6 +320,23 @@ def test_a_white_image_of_another_camera_setting_is_refused_or_warned_of(white_o
     assert all("fits part of the sensor only" in m for m in messages)
 
 
+def test_a_black_part_of_the_scene_is_no_white_of_another_setting():
+    """A raw black in one ninth of the sensor (a dark object: noise, no light, so no rims
+    darker than the rest) with its own white: the test of fit leaves out the parts of the
+    raw without light, and says nothing (a ratio of −42 % there had read as a white of
+    another zoom)."""
+    import warnings
+
+    raw, white = synthetic_lenslet(_texture_field(1), CASES["hex"], (520, 400), views=9, vignetting=0.5, noise=0.003,
+                                   white_noise=0.002)
+    h, w = raw.shape[:2]
+    raw = raw.copy()
+    raw[:h // 3, :w // 3] = np.abs(np.random.default_rng(0).normal(0.004, 0.003, raw[:h // 3, :w // 3].shape))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        D._check_white_fits(D.RawImage(raw, None, "raw.png"), D.RawImage(white, None, "white.png"), calibrate(white))
+
+
 def test_a_lattice_turned_far_from_the_sensors_rows_is_refused():
     """A hexagonal lattice with its rows down the sensor (found turned by 30°) gave views of
     12×4 px with status 0 (a helper)."""
