@@ -466,7 +466,7 @@ def test_surface_block_cost_matches_reference(device):
     c2 = r.random((h, w)).astype(np.float32)
     x = r.uniform(-2.5, 2.5, (h, w, 4)).astype(np.float32)
     x[..., 0] = np.where(np.arange(w) < 5, 1.0, -1.0)[None, :] + r.uniform(-0.2, 0.2, (h, w))
-    for radius, tolerance in ((0, 0.5), (1, 0.5), (2, 0.3), (1, 10.0)):
+    for radius, tolerance in ((0, 0.5), (1, 0.5), (2, 0.3), (1, 10.0), (1, 0.0)):  # (0: the pixel itself, still)
         close(run(c1, c2, x, radius, tolerance), ref.surface_block_cost(c1, c2, x, radius, tolerance), atol=2e-6)
     # the right surface's pixels (δ1 ≈ −1) change nothing of the left one's costs
     x2 = x.copy()
@@ -867,6 +867,21 @@ def test_take_other_surface_matches_numpy(device):
         taken.append(np.any(out != before, axis=-1))
     assert 0 < taken[0].sum() < h * w and taken[1].any()
     np.testing.assert_array_equal(out[hidden > 0.5], x[hidden > 0.5])
+    # a third candidate that passes every test but the best so far (1 % above it): the
+    # state taken stays where one was, the candidate is taken where none was
+    cand = (x + 5.0).astype(np.float32)    # (δ1 and the flow apart from x's)
+    t1_new = np.where(np.isfinite(best), best * np.float32(1.01), t1_cur * np.float32(0.5)).astype(np.float32)
+    flow_new = (flow_cur * np.float32(0.1)).astype(np.float32)
+    launch(fusion.take_other_surface, (h, w),
+           [arr(x, wp.vec4, device), arr(cand, wp.vec4, device), arr(flow_new, float, device),
+            arr(flow_cur, float, device), arr(t1_new, float, device), arr(t1_cur, float, device),
+            arr(hidden, float, device), floor, margin, depth_gap, flow_gap], [best_d, out_d], device)
+    kept = np.isfinite(best) & (t1_new < np.float32(margin) * t1_cur)
+    assert kept.sum() >= 5
+    np.testing.assert_array_equal(out_d.numpy()[kept], out[kept])
+    best, out = ref.take_other_surface(x, cand, flow_new, flow_cur, t1_new, t1_cur, hidden, floor, margin,
+                                       depth_gap, flow_gap, best, out)
+    np.testing.assert_array_equal(out_d.numpy(), out)
 
 
 def test_depth_nearby_matches_numpy(device):
