@@ -605,6 +605,22 @@ def test_joint_flow_beats_flow_only():
     assert epe["joint"] < 0.75 * epe["flow only"], epe
 
 
+def test_no_late_search_with_a_single_warp():
+    """The late search fuses before the finest level's last warp, on what the warps before
+    it made: with one warp there is none before it, and the run is that without the late
+    search, to the last bit (it had run before the only warp, on the coarser level's
+    maps)."""
+    from lfsf import synth
+
+    lf1, lf2, _ = synth.render_scene("paper", size=(96, 72), grid=3, device="cpu")
+    one = Params.preset("fast").replace(warps=1)
+    assert one.late_search and one.disparity_search
+    with_late = estimate_scene_flow(lf1, lf2, one, device="cpu")
+    without = estimate_scene_flow(lf1, lf2, one.replace(late_search=False), device="cpu")
+    for name in ("disp1", "disp2", "u", "v"):
+        np.testing.assert_array_equal(getattr(with_late, name), getattr(without, name), err_msg=name)
+
+
 def test_the_late_search_takes_a_depth_only_near_a_surface_of_its_own_unknown(monkeypatch):
     """The late search's fusion (``nearby``): a searched δ1 is offered where some pixel
     nearby holds a δ1 within LATE_SEARCH_DEPTH of it, a searched δ2 where some pixel holds
@@ -1570,6 +1586,20 @@ def test_the_exposure_pilot_keeps_enough_rows_and_short_views_skip_it():
     lf1, lf2, _ = synth.render_scene("large_motion", size=(200, 60), grid=1, device="cpu")
     darker = lfsf.LightField((lf2.views * 0.9).astype(np.float32))
     assert estimate_scene_flow(lf1, darker, Params.preset("flow"), device="cpu").exposure is not None
+
+
+def test_a_small_change_of_exposure_is_matched_on_views_large_enough():
+    """t2 at 1.02 of t1's exposure on views of 160×120 (at least EXPOSURE_MIN_SIZE along
+    the longer side): a change over EXPOSURE_CHANGE, matched (the small views' bound,
+    SMALL_VIEWS_CHANGE = 3 %, had left it: flow EPE 0.12 → 0.28 on `random-1`)."""
+    from lfsf import estimate, synth
+
+    lf1, lf2, _ = synth.render_scene("random-1", size=(160, 120), grid=1, device="cpu")
+    brighter = lfsf.LightField((lf2.views * 1.02).astype(np.float32))
+    change = estimate._exposure_change(lf1.centre, brighter.centre, "cpu")[2]
+    assert estimate.EXPOSURE_CHANGE < change < estimate.SMALL_VIEWS_CHANGE, change
+    sf = estimate_scene_flow(lf1, brighter, Params.preset("flow"), device="cpu")
+    assert sf.exposure is not None and abs(sf.exposure[0] - 1 / 1.02) < 0.01, sf.exposure
 
 
 def test_views_too_small_for_a_gain_fit_are_left_as_they_are():
