@@ -2,6 +2,7 @@
 
 import math
 import re
+import sys
 
 import numpy as np
 import pytest
@@ -603,6 +604,48 @@ def test_joint_flow_beats_flow_only():
         sf = estimate_scene_flow(lf1, lf2, Params.preset("fast").replace(**kw), device="cpu")
         epe[name] = evaluate.evaluate(sf.as_dict(), gt, border=8)["flow"]["epe"]
     assert epe["joint"] < 0.75 * epe["flow only"], epe
+
+
+def test_each_axis_keeps_its_own_scale_between_levels(monkeypatch):
+    """On views whose levels do not halve alike along x and y (91×69), the flow found by
+    the search is scaled to each level by that axis's factor (u by the widths', v by the
+    heights'), and the unknowns handed to the next finer level by the factors from level
+    to level: u by x's, v by y's, δ1 and δ2 (one per point, along both axes) by their
+    mean. The same factor for both had gone unnoticed on the 4:3 sizes of the other tests."""
+    from lfsf import device as lfsf_device
+    from lfsf import estimate, synth
+    from lfsf.kernels import pyramid
+
+    resized, fused, handed = {}, [], []
+    resize, fuse, launch = estimate._resize_plane, estimate._fuse_flow, lfsf_device.launch_rows
+
+    def resize_spy(image, size, scale, device):
+        out = resize(image, size, scale, device)
+        resized[id(out)] = (tuple(image.shape), tuple(size), scale)
+        return out
+
+    def fuse_spy(x, centre1, centre2, found_u, found_v, *args, **kwargs):
+        fused.append((resized[id(found_u)], resized[id(found_v)]))
+        return fuse(x, centre1, centre2, found_u, found_v, *args, **kwargs)
+
+    def launch_spy(kernel, dim, inputs, *args, **kwargs):
+        if kernel is pyramid.upsample_unknowns and sys._getframe(1).f_code.co_filename == estimate.__file__:
+            handed.append((tuple(inputs[0].shape), tuple(dim), tuple(float(f) for f in inputs[1])))
+        return launch(kernel, dim, inputs, *args, **kwargs)
+
+    monkeypatch.setattr(estimate, "_resize_plane", resize_spy)
+    monkeypatch.setattr(estimate, "_fuse_flow", fuse_spy)
+    monkeypatch.setattr(lfsf_device, "launch_rows", launch_spy)
+    lf1, lf2, _ = synth.render_scene("large_motion", size=(91, 69), grid=3, device="cpu")
+    estimate_scene_flow(lf1, lf2, Params.preset("fast"), device="cpu")
+    assert fused and handed
+    for (shape_u, size_u, scale_u), (shape_v, size_v, scale_v) in fused:
+        assert scale_u == size_u[1] / shape_u[1] and scale_v == size_v[0] / shape_v[0]
+    assert any(size_u[1] / shape_u[1] != size_u[0] / shape_u[0] for (shape_u, size_u, _), _v in fused)
+    for (h, w), (fh, fw), factors in handed:
+        sx, sy = fw / w, fh / h
+        assert factors == pytest.approx((0.5 * (sx + sy), 0.5 * (sx + sy), sx, sy), rel=1e-6)
+    assert any(fw / w != fh / h for (h, w), (fh, fw), _f in handed)
 
 
 def test_no_late_search_with_a_single_warp():
