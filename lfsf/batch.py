@@ -223,7 +223,8 @@ def frame_order(paths) -> list[Path]:
 def _folder_pairs(folder: Path, out: Path | None = None) -> list[Pair]:
     frames = frame_order(p for p in folder.iterdir()
                          if not p.name.startswith(".") and (p.is_dir() or p.suffix.lower() in FRAME_SUFFIXES)
-                         and p.name.lower() not in GROUND_TRUTH_NAMES and not (out is not None and _within(out, p)))
+                         and p.name.lower() not in GROUND_TRUTH_NAMES
+                         and not (out is not None and _within(out, p)))
     if len(frames) < 2:
         from lfsf.io import read_lightfield
 

@@ -134,7 +134,8 @@ class LightField:
         the view row (η = a − a_c), ``b`` the view column (ξ = b − b_c), ``help(lfsf)``, MODEL.md §1.
         Stored as C-contiguous float32 with values meant to lie in [0, 1]: float input is
         converted (not copied when already float32 and C-contiguous), integer input is
-        scaled by its dtype's maximum, a trailing channel axis of size 1 is dropped.
+        scaled by its dtype's maximum (uint8, uint16; integers of more than 16 bits are
+        refused), a trailing channel axis of size 1 is dropped.
     source : str
         Where the views came from (a path); starts every error message.
     meta : dict
@@ -150,7 +151,8 @@ class LightField:
     ------
     ValueError
         If the array is not 4-D or 5-D, has a channel count other than 1 or 3 (RGBA must
-        have its alpha dropped first), is empty, is not real-valued, or holds NaN or
+        have its alpha dropped first), is empty, is not real-valued, is of integers wider
+        than 16 bits (int64 from ``np.array`` of Python ints: say which), or holds NaN or
         infinite values (the message says how many pixels and the first view hit).
     """
 
@@ -462,7 +464,7 @@ def refuse_wide_integers(array: np.ndarray, source: str, what: str = "views") ->
         lo, hi = (int(array.min()), int(array.max())) if array.size else (0, 0)
         top = np.iinfo(array.dtype).max
         fits = ("uint8" if hi <= 255 else "uint16" if hi <= 65535 else None) if lo >= 0 else None
-        fix = (f"give them as np.{fits} (views.astype(np.{fits})) if they are {fits[4:]}-bit values, or as "
+        fix = (f"give them as np.{fits} (.astype(np.{fits})) if they are {fits[4:]}-bit values, or as "
                "floats in [0, 1]" if fits else "give them as floats in [0, 1] (divided by their full scale)")
         raise ValueError(f"{source}: integer {what} of dtype {array.dtype} (values {lo}…{hi}); lfsf scales "
                          f"integers by their type's maximum ({top}), which would put these at "

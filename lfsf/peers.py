@@ -224,8 +224,9 @@ def plenpy_disparity(views, *, nan_guard: bool = True) -> np.ndarray:
     method="structure_tensor", fusion_method="tv_l1")``, defaults otherwise.
 
     Input: ``views[a, b, y, x]`` grey float in [0, 1] (or uint8 / uint16) on a grid of at
-    least 3×3 (a = view row, b = view column, as ``help(lfsf)``, MODEL.md §1), or colour ``[a, b, y, x, 3]`` (turned into BT.601 luma first), or an
-    ``lfsf.io.LightField``. plenpy's axes ``(u, v, s, t, ch)`` are then exactly ours
+    least 3×3 (a = view row, b = view column, as ``help(lfsf)``, MODEL.md §1), or colour
+    ``[a, b, y, x, 3]`` (turned into BT.601 luma first), or an ``lfsf.io.LightField``.
+    plenpy's axes ``(u, v, s, t, ch)`` are then exactly ours
     ``(a, b, y, x, 1)``: its horizontal EPIs are ``L[u_c, :, s, :]`` (view column × x),
     its vertical ones ``L[:, v_c, :, t]`` (view row × y). Check: a plane with δ = 1 gives
     0.94 in this layout and −0.18 with only the image axes swapped.

@@ -294,8 +294,8 @@ def test_check_pair_refuses_light_fields_scaled_differently():
 
 
 @pytest.mark.parametrize("dtype, values, fix", [
-    (np.int64, (0, 255), r"give them as np\.uint8 \(views\.astype\(np\.uint8\)\) if they are 8-bit values"),
-    (np.int32, (0, 4095), r"give them as np\.uint16 \(views\.astype\(np\.uint16\)\) if they are 16-bit values"),
+    (np.int64, (0, 255), r"give them as np\.uint8 \(\.astype\(np\.uint8\)\) if they are 8-bit values"),
+    (np.int32, (0, 4095), r"give them as np\.uint16 \(\.astype\(np\.uint16\)\) if they are 16-bit values"),
     (np.uint32, (0, 70000), r"give them as floats in \[0, 1\] \(divided by their full scale\)$"),
     (np.int64, (-1, 200), r"give them as floats in \[0, 1\]")])
 def test_integers_wider_than_16_bits_are_refused(dtype, values, fix):
