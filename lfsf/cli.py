@@ -381,7 +381,9 @@ def cmd_run(args) -> int:
             errors = evaluate(sf, gt, border=border)
         except ValueError as exc:
             raise ValueError(f"{args.out} against {args.gt}: {exc}") from None
-        print(f"{args.out} against {args.gt} (border {border} px)")
+        print(f"{args.out} against {args.gt} (border {border} px"
+              + (f"; estimated on views shrunk {args.downsample} times, the ground truth shrunk alike)"
+                 if args.downsample > 1 else ")"))
         print(format_table(errors), flush=True)
         if params.flow_only and any(k in gt for k in ("disp1", "disp2")):
             print(_not_estimated_line(args.out, [k for k in ("disp1", "disp2") if k in gt]), flush=True)
