@@ -453,22 +453,31 @@ def _grey_in_rgb(lf: LightField) -> bool:
     return bool(np.array_equal(v[..., 0], v[..., 1]) and np.array_equal(v[..., 1], v[..., 2]))
 
 
-def refuse_wide_integers(array: np.ndarray, source: str, what: str = "views") -> None:
+def refuse_wide_integers(array: np.ndarray, source: str, what: str = "views", fix: str | None = None) -> None:
     """Raise a ValueError for an integer array of more than 16 bits a value (int32,
     int64, uint32, uint64), which lfsf would scale by its type's maximum like any
     integer image: ``np.array`` of Python ints or ``.astype(int)`` gives int64, and its
-    0…255 would become 0…2.8e-17, views of nothing. Files declare their own bit depth
-    and are scaled by it; an array given as such says nothing of its scale. ``what`` names
-    the values in the message."""
-    if array.dtype.kind in "iu" and array.dtype.itemsize > 2:
-        lo, hi = (int(array.min()), int(array.max())) if array.size else (0, 0)
-        top = np.iinfo(array.dtype).max
+    0…255 would become 0…2.8e-17, views of nothing. Light-field files are read as 8 or
+    16 bits and scaled by that; an array of wider integers says nothing of its scale.
+    ``what`` names the values in the message; ``fix`` replaces its advice (what to do
+    with a file rather than an array)."""
+    if array.dtype.kind not in "iu" or array.dtype.itemsize <= 2:
+        return
+    lo, hi = (int(array.min()), int(array.max())) if array.size else (0, 0)
+    top = np.iinfo(array.dtype).max
+    if fix is None:
         fits = ("uint8" if hi <= 255 else "uint16" if hi <= 65535 else None) if lo >= 0 else None
-        fix = (f"give them as np.{fits} (.astype(np.{fits})) if they are {fits[4:]}-bit values, or as "
-               "floats in [0, 1]" if fits else "give them as floats in [0, 1] (divided by their full scale)")
-        raise ValueError(f"{source}: integer {what} of dtype {array.dtype} (values {lo}…{hi}); lfsf scales "
-                         f"integers by their type's maximum ({top}), which would put these at "
-                         f"{max(hi, 0) / top:.2g} at most: {fix}")
+        if fits and hi <= 1:
+            fix = "give them as bool, or as floats in [0, 1] (.astype(np.float32))"
+        elif fits:
+            fix = (f"give them as np.{fits} (.astype(np.{fits})) if they are {fits[4:]}-bit values, or as floats "
+                   "in [0, 1]")
+        else:
+            fix = "give them as floats in [0, 1] (divided by their full scale)"
+    tiny = max(hi, 0) / top
+    raise ValueError(f"{source}: integer {what} of dtype {array.dtype} (values {lo}…{hi}); lfsf scales integers "
+                     f"by their type's maximum and takes those of 8 and 16 bits"
+                     + (f" (these would be {tiny:.2g} at most)" if tiny < 1e-3 else "") + f": {fix}")
 
 
 def _to_unit_float32(array: np.ndarray) -> np.ndarray:

@@ -49,8 +49,11 @@ def timed(fn, *args, **kwargs):
 def _unit_float32(values, name: str, what: str) -> np.ndarray:
     """``values`` as float32 in [0, 1] as :class:`lfsf.LightField` takes them: integers
     scaled by their type's maximum (uint8 ÷ 255, uint16 ÷ 65535; wider ones refused),
-    floats as they are. ValueError where floats lie far outside [0, 1]: OpenCV's input is
-    quantised from [0, 1] to 8 bits, so 0…255 would be clipped to an image of 255s."""
+    floats as they are. ValueError where floats lie far outside [0, 1], for every peer:
+    OpenCV's input is quantised from [0, 1] to 8 bits, so 0…255 had been clipped to an
+    image of 255s (zero flow); scikit-image's TV-L1 weighs its data term by the
+    intensities' scale (0…255: (1.33, −0.64) for a shift of (1.3, −0.7)); plenpy's
+    structure tensor alone does not mind the scale."""
     from lfsf.estimate import UNIT_RANGE_SLACK
     from lfsf.io import _to_unit_float32, refuse_wide_integers
 
@@ -59,8 +62,9 @@ def _unit_float32(values, name: str, what: str) -> np.ndarray:
         raise ValueError(f"{name}: expected real-valued pixels, got dtype {a.dtype}")
     refuse_wide_integers(a, name, what)
     a = _to_unit_float32(a)
-    if a.size and a.dtype.kind == "f":
-        lo, hi = float(np.nanmin(a)), float(np.nanmax(a))
+    finite = a[np.isfinite(a)] if a.dtype.kind == "f" else a[:0]
+    if finite.size:
+        lo, hi = float(finite.min()), float(finite.max())
         if lo < UNIT_RANGE_SLACK[0] or hi > UNIT_RANGE_SLACK[1]:
             raise ValueError(f"{name}: values {lo:.4g}…{hi:.4g}, where the peers take [0, 1]: divide 8-bit "
                              "values by 255 (or give them as uint8), 16-bit ones by 65535")
@@ -167,7 +171,8 @@ def skimage_tvl1(c1, c2) -> tuple[np.ndarray, np.ndarray]:
     ``skimage.registration.optical_flow_tvl1(c1, c2)`` with its defaults.
 
     Input: two H×W grey float images in [0, 1], or uint8 or uint16 (scaled by their type's
-    maximum); H×W×3 colour is turned into BT.601 luma. Passed as float32 without quantisation.
+    maximum); H×W×3 colour is turned into BT.601 luma. Passed as float32 without
+    quantisation. Floats far outside [0, 1] are refused (:func:`_unit_float32`).
 
     Output: ``(u, v)``, float32 H×W, in lfsf's convention ``c1(p) ≈ c2(p + (u, v))``.
     scikit-image returns a (2, H, W) array ordered **(row, col) = (v, u)**; its sign is
@@ -201,7 +206,10 @@ def import_plenpy_lightfield():
     import silences those DeprecationWarnings, and if ``scipy.ndimage.filters`` is ever
     gone it aliases it to ``scipy.ndimage`` (the only names plenpy takes from it,
     ``gaussian_filter`` and ``convolve``, live there). plenpy also logs every step at
-    INFO on the root logger's handler; its logger is set to WARNING here.
+    INFO on the root logger's handler; its logger is set to WARNING here. And its import
+    reorders imageio's plugins for every caller (``imageio.formats.sort('PNG-FI')``,
+    ``('-FI', '-PIL')``): lfsf's own reading of views after it had failed on grey views
+    with alpha (KeyError) and named TIFF errors otherwise. The order is put back.
     """
     try:
         import scipy.ndimage.filters  # noqa: F401
@@ -209,12 +217,23 @@ def import_plenpy_lightfield():
         import scipy.ndimage
 
         sys.modules["scipy.ndimage.filters"] = scipy.ndimage
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        import plenpy.logg  # sets the "plenpy" logger to INFO; quieten it before the rest
+    from imageio.config import known_extensions, known_plugins
 
-        logging.getLogger("plenpy").setLevel(logging.WARNING)
-        from plenpy.lightfields import LightField
+    plugins = dict(known_plugins)  # (in their order)
+    priorities = [(extension, list(extension.priority)) for listed in known_extensions.values()
+                  for extension in listed]
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            import plenpy.logg  # sets the "plenpy" logger to INFO; quieten it before the rest
+
+            logging.getLogger("plenpy").setLevel(logging.WARNING)
+            from plenpy.lightfields import LightField
+    finally:
+        known_plugins.clear()
+        known_plugins.update(plugins)
+        for extension, priority in priorities:
+            extension.priority[:] = priority
     return LightField
 
 
@@ -223,7 +242,8 @@ def plenpy_disparity(views, *, nan_guard: bool = True) -> np.ndarray:
     ``plenpy.lightfields.LightField(views[..., None]).get_disparity(
     method="structure_tensor", fusion_method="tv_l1")``, defaults otherwise.
 
-    Input: ``views[a, b, y, x]`` grey float in [0, 1] (or uint8 / uint16) on a grid of at
+    Input: ``views[a, b, y, x]`` grey float in [0, 1] (or uint8 / uint16; floats far
+    outside [0, 1] are refused, as by the other wrappers) on a grid of at
     least 3×3 (a = view row, b = view column, as ``help(lfsf)``, MODEL.md §1), or colour
     ``[a, b, y, x, 3]`` (turned into BT.601 luma first), or an ``lfsf.io.LightField``.
     plenpy's axes ``(u, v, s, t, ch)`` are then exactly ours

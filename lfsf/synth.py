@@ -423,7 +423,8 @@ def _as_rgb(image, name: str) -> np.ndarray:
     a = np.asarray(image)
     if a.dtype.kind not in "biuf":
         raise ValueError(f"{name}: not an image of numbers ({a.dtype})")
-    refuse_wide_integers(a, name, "pixels")
+    refuse_wide_integers(a, name, "pixels", fix="give an image of 8 or 16 bits (uint8 or uint16; a file saved so) "
+                         "or of floats in [0, 1]")
     a = _to_unit_float32(a)
     if a.ndim == 3 and a.shape[2] in (1, 2):  # grey, grey + alpha
         a = a[..., 0]

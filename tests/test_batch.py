@@ -692,7 +692,7 @@ def test_cli_on_a_running_scheduler(frames, tmp_path, capsys):
     assert all(batch.is_complete(out / f"f00{k}") for k in range(3))
 
 
-def test_progress_bar_on_a_terminal_and_in_a_log():
+def test_progress_bar_on_a_terminal_and_in_a_log(monkeypatch):
     """A terminal gets one bar redrawn in place with the time left; a log one line per
     pair; failures always come with their reason; quiet silences all but failures."""
     import io
@@ -716,10 +716,13 @@ def test_progress_bar_on_a_terminal_and_in_a_log():
     assert log[1] == "lfsf batch: [2/3] pair b failed: b.npz: not a light field"
     assert log[2].startswith("lfsf batch: [3/3] c: skipped")
     assert streams["quiet"].getvalue() == "lfsf batch: pair b failed: b.npz: not a light field\n"
-    # the time left: the pairs not yet finished at the pace so far (1 of 4 in 60 s: 3 min)
+    # the time left: the pairs not yet finished at the pace so far (1 of 4 in 60 s: 3 min),
+    # on a clock of the test's own (a slow moment of the machine would add a second)
+    now = [1000.0]
+    monkeypatch.setattr(batch.time, "perf_counter", lambda: now[0])
     log = io.StringIO()
     bar = batch.ProgressBar(4, stream=log)
-    bar.t0 -= 60.0
+    now[0] += 60.0
     bar(outcomes[0], 1, 4)
     assert log.getvalue().endswith("; about 3 min 00 s left\n"), log.getvalue()
 

@@ -294,22 +294,26 @@ def test_check_pair_refuses_light_fields_scaled_differently():
 
 
 @pytest.mark.parametrize("dtype, values, fix", [
-    (np.int64, (0, 255), r"give them as np\.uint8 \(\.astype\(np\.uint8\)\) if they are 8-bit values"),
-    (np.int32, (0, 4095), r"give them as np\.uint16 \(\.astype\(np\.uint16\)\) if they are 16-bit values"),
-    (np.uint32, (0, 70000), r"give them as floats in \[0, 1\] \(divided by their full scale\)$"),
-    (np.int64, (-1, 200), r"give them as floats in \[0, 1\]")])
+    (np.int64, (0, 255), r" \(these would be 2\.8e-17 at most\): give them as np\.uint8 \(\.astype\(np\.uint8\)\) if "
+                         r"they are 8-bit values"),
+    (np.int32, (0, 4095), r" \(these would be 1\.9e-06 at most\): give them as np\.uint16 "
+                          r"\(\.astype\(np\.uint16\)\) if they are 16-bit values"),
+    (np.uint32, (0, 70000), r" \(these would be 1\.6e-05 at most\): give them as floats in \[0, 1\] \(divided by their "
+                            r"full scale\)$"),
+    (np.int64, (-1, 200), r" \(these would be .*\): give them as floats in \[0, 1\]"),
+    (np.int64, (0, 1), r" \(these would be .*\): give them as bool, or as floats in \[0, 1\]"),  # (not 1/255)
+    (np.uint64, (0, 2 ** 64 - 1), r": give them as floats in \[0, 1\] \(divided by their full scale\)$")])
 def test_integers_wider_than_16_bits_are_refused(dtype, values, fix):
     """``np.array`` of Python ints is int64, which scaled by its type's maximum would be
     views of nothing (0…255 → 0…2.8e-17): refused, with what to give instead."""
     views = np.zeros((3, 3, 4, 5), dtype)
     views[0, 0, 0, :2] = values
-    top = np.iinfo(dtype).max
     with pytest.raises(ValueError, match=rf"^views\.npz: integer views of dtype {np.dtype(dtype).name} \(values "
                                          rf"{values[0]}…{values[1]}\); lfsf scales integers by their type's maximum "
-                                         rf"\({top}\).*: {fix}"):
+                                         rf"and takes those of 8 and 16 bits{fix}"):
         lio.LightField(views, source="views.npz")
     lio.LightField(views.astype(np.uint16) if values[0] >= 0 and values[1] <= 65535 else views.astype(np.float32)
-                   / values[1], source="views.npz")
+                   / np.float32(values[1]), source="views.npz")
 
 
 # --------------------------------------------------------------------------------------

@@ -69,6 +69,26 @@ def test_plenpy_refuses_a_grid_of_one_row(peers):
     assert abs(float(np.median(eight[INNER])) - float(np.median(peers.plenpy_disparity(views)[INNER]))) < 0.01
 
 
+def test_importing_plenpy_leaves_imageios_plugin_order_alone():
+    """plenpy's import reorders imageio's plugins for the whole process; after it, lfsf
+    read grey views with alpha as a KeyError. In a fresh interpreter (the import happens
+    once), the order after the import is the order before it."""
+    import subprocess
+    import sys
+
+    pytest.importorskip("plenpy")
+    code = ("import imageio.config as c\n"
+            "order = lambda: (list(c.known_plugins),\n"
+            "                 [list(e.priority) for l in c.known_extensions.values() for e in l])\n"
+            "before = order()\n"
+            "from lfsf.peers import import_plenpy_lightfield\n"
+            "import_plenpy_lightfield()\n"
+            "import plenpy\n"
+            "assert order() == before\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+
+
 def test_shifted_pair_is_flow_in_our_convention(peers):
     # c2(p + u) == c1(p): sampling c2 at p + u gives back c1 (away from the border)
     c1, c2 = peers.shifted_pair(2.0, -1.0, size=(64, 48))
