@@ -777,6 +777,17 @@ def _radius_off_dark_views(params: Params, grid: tuple[int, int], dark: np.ndarr
 UNIT_RANGE_SLACK = (-0.5, 1.5)
 
 
+def far_outside_unit(values: np.ndarray) -> tuple[float, float] | None:
+    """The range (lo, hi) of float ``values``' finite values where it reaches beyond
+    :data:`UNIT_RANGE_SLACK` (0…255 given as floats); None where it does not, or where no
+    value is finite. What the peers' wrappers and ``viz.save_png`` refuse."""
+    finite = values[np.isfinite(values)]
+    if not finite.size:
+        return None
+    lo, hi = float(finite.min()), float(finite.max())
+    return (lo, hi) if lo < UNIT_RANGE_SLACK[0] or hi > UNIT_RANGE_SLACK[1] else None
+
+
 #: Set while :func:`pilot_estimate` runs (per thread and task): its views need no checks.
 _IN_PILOT: contextvars.ContextVar[bool] = contextvars.ContextVar("lfsf_in_pilot", default=False)
 

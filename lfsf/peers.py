@@ -54,20 +54,18 @@ def _unit_float32(values, name: str, what: str) -> np.ndarray:
     image of 255s (zero flow); scikit-image's TV-L1 weighs its data term by the
     intensities' scale (0…255: (1.33, −0.64) for a shift of (1.3, −0.7)); plenpy's
     structure tensor alone does not mind the scale."""
-    from lfsf.estimate import UNIT_RANGE_SLACK
+    from lfsf.estimate import far_outside_unit
     from lfsf.io import _to_unit_float32, refuse_wide_integers
 
     a = np.asarray(values)
     if a.dtype.kind not in "biuf":
         raise ValueError(f"{name}: expected real-valued pixels, got dtype {a.dtype}")
     refuse_wide_integers(a, name, what)
-    a = _to_unit_float32(a)
-    finite = a[np.isfinite(a)] if a.dtype.kind == "f" else a[:0]
-    if finite.size:
-        lo, hi = float(finite.min()), float(finite.max())
-        if lo < UNIT_RANGE_SLACK[0] or hi > UNIT_RANGE_SLACK[1]:
-            raise ValueError(f"{name}: values {lo:.4g}…{hi:.4g}, where the peers take [0, 1]: divide 8-bit "
-                             "values by 255 (or give them as uint8), 16-bit ones by 65535")
+    a = _to_unit_float32(a)  # (float32, integers and bools too)
+    far = far_outside_unit(a)
+    if far:
+        raise ValueError(f"{name}: values {far[0]:.4g}…{far[1]:.4g}, where the peers take [0, 1]: divide 8-bit "
+                         "values by 255 (or give them as uint8), 16-bit ones by 65535")
     return a
 
 

@@ -364,7 +364,7 @@ def _to_uint8_image(img) -> np.ndarray:
     """uint8 as it is, uint16 scaled to 8 bits, floats in [0, 1] (slightly beyond: clipped;
     NaN: 0) scaled; floats far outside [0, 1] (0…255 given as floats, which had come out
     an image of 255s) and other types refused."""
-    from lfsf.estimate import UNIT_RANGE_SLACK
+    from lfsf.estimate import far_outside_unit
 
     img = np.asarray(img)
     if not (img.ndim == 2 or (img.ndim == 3 and img.shape[2] == 3)):
@@ -374,10 +374,10 @@ def _to_uint8_image(img) -> np.ndarray:
     if img.dtype == np.uint16:
         return ((img.astype(np.uint32) * 255 + 32767) // 65535).astype(np.uint8)
     if np.issubdtype(img.dtype, np.floating):
-        finite = img[np.isfinite(img)]
-        if finite.size and (finite.min() < UNIT_RANGE_SLACK[0] or finite.max() > UNIT_RANGE_SLACK[1]):
-            raise ValueError(f"expected a float image in [0, 1], got values {float(finite.min()):.4g}…"
-                             f"{float(finite.max()):.4g}: divide 8-bit values by 255 (or give them as uint8)")
+        far = far_outside_unit(img)
+        if far:
+            raise ValueError(f"expected a float image in [0, 1], got values {far[0]:.4g}…{far[1]:.4g}: divide 8-bit "
+                             "values by 255 (or give them as uint8)")
         scaled = np.round(np.clip(np.nan_to_num(img, nan=0.0), 0.0, 1.0) * 255.0)
         return scaled.astype(np.uint8)
     raise ValueError(f"expected a uint8 or uint16 image or a float image in [0, 1], got dtype {img.dtype}")
