@@ -596,11 +596,12 @@ def test_the_cuda_paths_give_the_cpus_estimate(monkeypatch):
     """Where the code branches on the device (:func:`lfsf.device.is_cpu`), CUDA takes
     other kernels and launches than the CPU: a thread per pixel for the sampling, the
     searches, ROF and the TGV steps instead of a thread per row, the data term stored in
-    groups of 32 pixels, whole iterations captured as graphs. Those kernels run on the
-    CPU too, so with every branch told it is on CUDA the estimate must come out the same
-    bit for bit: a check of the CUDA paths' logic that needs no GPU (CI has none; none
-    has been lent since the thirtieth session). Measured: equal on the four maps, in
-    2.4× the time."""
+    groups of 32 pixels and computed a pixel per thread, the views copied one by one.
+    Those kernels run on the CPU too, so with every such branch told it is on CUDA the
+    estimate must come out the same bit for bit: a check of the CUDA paths' logic that
+    needs no GPU (CI has none; none has been lent since the thirtieth session). What
+    stays the CPU's: the launches in row bands (Warp's own device says CPU), and so no
+    graph capture. Measured: equal on the four maps, in 2.4× the time."""
     import sys as _sys
 
     from lfsf import device as lfsf_device
