@@ -335,3 +335,103 @@ def test_compare_peers_images_put_photographs_on_every_scene(tmp_path, capsys, m
     empty.mkdir()
     assert script.main(["--images", str(empty), "--methods", "peers"]) == 2
     assert "no images" in capsys.readouterr().err
+
+
+def test_compare_peers_bars_and_targets_follow_the_issues_rules():
+    """``bars_and_targets`` on rows made up to sit on either side of each rule: the flow
+    bar is ½ of the *better* of OpenCV and skimage, δ1's and δ2's ½ of plenpy's own δ1
+    and δ2; the joint run must be at most its special cases on their own variables
+    (stereo only on δ1, flow only on the flow, two-view on δ1 and δ2), and the peers'
+    bars apply to the joint run alone. A run without a bar is "no bar", a failed run
+    "error", and real-data rows make no synthetic target."""
+    script = _compare_peers_script()
+
+    def row(scene, method, disp1=None, disp2=None, flow=None, section="synthetic", error=None):
+        return script._row(section, scene, method, error=error, disp1=disp1 and {"mse": disp1},
+                           disp2=disp2 and {"mse": disp2}, flow=flow and {"epe": flow})
+
+    rows = [row("a", "opencv-tvl1", flow=0.30), row("a", "skimage-tvl1", flow=0.20),
+            row("a", "plenpy", disp1=0.010, disp2=0.030),
+            row("a", "lfsf", disp1=0.007, disp2=0.010, flow=0.12),
+            row("a", "lfsf-stereo", disp1=0.006), row("a", "lfsf-flow", flow=0.20),
+            row("a", "lfsf-two-view", disp1=0.5, disp2=0.005, flow=0.9),
+            row("b", "lfsf", disp1=0.001, flow=0.01), row("c", "lfsf", error="RuntimeError: no"),
+            row("hci", "lfsf", disp1=0.02, section="real")]
+    bars, targets = script.bars_and_targets(rows)
+    bar = {(b["scene"], b["metric"]): b["bar"] for b in bars}
+    assert bar[("a", "flow_epe")] == pytest.approx(0.10)  # ½ · min(0.30, 0.20)
+    assert bar[("a", "disp1_mse")] == pytest.approx(0.005) and bar[("a", "disp2_mse")] == pytest.approx(0.015)
+    status = {(t["scene"], t["method"], t["metric"]): t["status"] for t in targets}
+    assert status == {
+        ("a", "lfsf vs lfsf-stereo", "disp1_mse"): "FAIL",  # 0.007 > 0.006
+        ("a", "lfsf vs lfsf-flow", "flow_epe"): "pass",  # 0.12 ≤ 0.20
+        ("a", "lfsf vs lfsf-two-view", "disp1_mse"): "pass",
+        ("a", "lfsf vs lfsf-two-view", "disp2_mse"): "FAIL",  # 0.010 > 0.005
+        ("a", "lfsf", "flow_epe"): "FAIL",  # 0.12 > 0.10 (it would pass OpenCV's half alone)
+        ("a", "lfsf", "disp1_mse"): "FAIL",  # 0.007 > 0.005 (it would pass plenpy's whole)
+        ("a", "lfsf", "disp2_mse"): "pass",  # 0.010 ≤ 0.015 (not δ1's bar, 0.005)
+        ("b", "lfsf", "disp1_mse"): "no bar", ("b", "lfsf", "flow_epe"): "no bar",
+        ("c", "lfsf", "all"): "error"}, status
+
+
+def test_compare_peers_check_passes_only_when_every_target_does(monkeypatch, capsys):
+    """``--check`` exits 0 when every target passes, 1 when one fails or has no bar (lfsf
+    alone, without the peers), 1 when no target was checked at all."""
+    script = _compare_peers_script()
+    made = {}
+
+    def fake_scene(name, args, use_peers, lfsf_runs, warm):
+        return [script._row("synthetic", name, method, **fields) for method, fields in made[name]]
+
+    monkeypatch.setattr(script, "run_scene", fake_scene)
+    monkeypatch.setattr(script, "lfsf_available", lambda: (True, ""))
+    monkeypatch.setattr(script.peers, "_opencv_dual_tvl1", lambda: None)
+    monkeypatch.setattr(script.peers, "import_plenpy_lightfield", lambda: None)
+    peers_rows = [("opencv-tvl1", {"flow": {"epe": 0.3}}), ("skimage-tvl1", {"flow": {"epe": 0.2}}),
+                  ("plenpy", {"disp1": {"mse": 0.01}, "disp2": {"mse": 0.03}})]
+    joint = ("lfsf", {"disp1": {"mse": 0.001}, "disp2": {"mse": 0.002}, "flow": {"epe": 0.05}})
+    argv = ["--scenes", "paper", "--size", "48", "32", "--grid", "3", "--check"]
+    made["paper"] = peers_rows + [joint]
+    assert script.main(argv) == 0
+    made["paper"] = peers_rows + [("lfsf", {**joint[1], "flow": {"epe": 0.15}})]
+    assert script.main(argv) == 1
+    assert "1 of 3 targets not met" in capsys.readouterr().err
+    made["paper"] = [joint]  # lfsf alone: its targets have no bar
+    assert script.main(argv + ["--methods", "lfsf"]) == 1
+    made["paper"] = peers_rows
+    assert script.main(argv) == 1
+    assert "no lfsf target was checked" in capsys.readouterr().err
+
+
+def test_compare_peers_scores_over_the_border_and_samples_plenpys_t2_map_at_the_true_flow(monkeypatch):
+    """``run_scene`` scores every method without the 8-px border (a method wrong only
+    there scores 0), and plenpy's δ2 is its t2 map sampled at p + u with the ground
+    truth's (u, v), in that order."""
+    script = _compare_peers_script()
+    args = script.build_parser().parse_args(["--size", "48", "40", "--grid", "3"])
+    from lfsf import synth
+
+    _lf1, _lf2, gt = synth.render_scene("paper", size=(48, 40), grid=3)
+    sampled = []
+
+    def at_t1(d2map, u, v):
+        sampled.append((u.copy(), v.copy()))
+        return np.zeros_like(d2map)
+
+    monkeypatch.setattr(script.peers, "opencv_tvl1", lambda c1, c2: (np.zeros_like(c1), np.zeros_like(c1)))
+    monkeypatch.setattr(script.peers, "skimage_tvl1", lambda c1, c2: (np.zeros_like(c1), np.zeros_like(c1)))
+    monkeypatch.setattr(script.peers, "plenpy_disparity", lambda views: np.zeros(views.shape[2:4], np.float32))
+    monkeypatch.setattr(script.peers, "disparity_at_t1_pixels", at_t1)
+
+    def wrong_in_the_border(lf1, lf2, device):
+        out = {k: gt[k].astype(np.float32).copy() for k in ("disp1", "disp2", "u", "v")}
+        for a in out.values():
+            a[:8] += 5.0
+            a[:, -8:] -= 5.0
+        return out
+
+    rows = script.run_scene("paper", args, True, {"lfsf": wrong_in_the_border}, {"lfsf"})
+    lfsf_row = next(r for r in rows if r["method"] == "lfsf")
+    assert lfsf_row["disp1_mse"] == 0.0 and lfsf_row["disp2_mse"] == 0.0 and lfsf_row["flow_epe"] == 0.0
+    np.testing.assert_array_equal(sampled[0][0], gt["u"])
+    np.testing.assert_array_equal(sampled[0][1], gt["v"])
