@@ -472,3 +472,33 @@ def test_the_fit_on_the_device_matches_its_numpy_reference(device, grid):
     assert np.abs(want - 1).max() > 0.05  # (the fields are not trivially 1)
     others = [k for k in range(grid[0] * grid[1]) if k not in used]
     assert np.all(got.reshape(-1, 48, 64)[others] == 1.0)
+
+
+def test_the_host_filters_against_their_definitions():
+    """``lfsf._filters``: the Gaussian blur is Σ_k g(k) I(p + k) over |k| ≤ ⌈3σ⌉ per
+    axis, g normalised, the image mirrored with its edge pixel repeated (… 1 0 | 0 1 …);
+    the box mean is the mean over a (2⌊width/2⌋ + 1)² box, the image's edge pixels
+    repeated beyond it. Both written out pixel by pixel on a random image."""
+    from lfsf._filters import box_mean
+
+    rng = np.random.default_rng(3)
+    image = rng.random((9, 11))
+    h, w = image.shape
+
+    def mirrored(i, n):
+        return -i - 1 if i < 0 else (2 * n - 1 - i if i >= n else i)
+
+    sigma = 1.3
+    r = 4  # ⌈3σ⌉
+    g = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
+    g /= g.sum()
+    rows = np.array([[sum(g[k + r] * image[mirrored(i + k, h), j] for k in range(-r, r + 1)) for j in range(w)]
+                     for i in range(h)])
+    want = np.array([[sum(g[k + r] * rows[i, mirrored(j + k, w)] for k in range(-r, r + 1)) for j in range(w)]
+                     for i in range(h)])
+    np.testing.assert_allclose(gaussian_blur(image, sigma), want, rtol=0, atol=1e-12)
+    for width in (5, 4):  # both a 5×5 box
+        want = np.array([[np.mean([image[min(max(i + a, 0), h - 1), min(max(j + b, 0), w - 1)]
+                                   for a in range(-2, 3) for b in range(-2, 3)]) for j in range(w)]
+                         for i in range(h)])
+        np.testing.assert_allclose(box_mean(image, width), want, rtol=0, atol=1e-6)
