@@ -2526,7 +2526,6 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str, note
                     pilot=pilot_flow)
 
 
-
 def _local_light(centre1: np.ndarray, centre2: np.ndarray, pilot) -> tuple[np.ndarray, int, float, float] | None:
     """A change of brightness over part of the view between t1 and t2 (a glare, a shadow
     that comes or goes): a smooth field F in t2's coordinates with I1(p) ≈ I2(p + u) +
@@ -2545,8 +2544,8 @@ def _local_light(centre1: np.ndarray, centre2: np.ndarray, pilot) -> tuple[np.nd
     moving object leaves a residual of the texture's size and either sign, no smooth
     field. None too where what the field explains lies in thin bands only
     (:data:`LOCAL_LIGHT_CORE`: an outline's, where a surface came to cover another) or
-    where the pilot's flow does not hold (:data:`LOCAL_LIGHT_MATCH`). Returns (F, factor, the share of the view it explains, its largest value as a
-    fraction of the range)."""
+    where the pilot's flow does not hold (:data:`LOCAL_LIGHT_MATCH`). Returns (F, factor,
+    the share of the view it explains, its largest value as a fraction of the range)."""
     u, v, factor = pilot
     ends1, ends2 = np.percentile(centre1, [0.1, 99.9]), np.percentile(centre2, [0.1, 99.9])
     span = float(max(ends1[1], ends2[1]) - min(ends1[0], ends2[0]))

@@ -136,8 +136,10 @@ class Params:
             on t2 alone took `paper`'s flow EPE 0.067 → 0.094 and 0.95 to 0.34 (160×120).
             A change over part of the view (a glare or a shadow that comes or goes) is
             matched too, by a smooth field added to t2 after the line, where such a field
-            explains more than LOCAL_LIGHT_AREA (3 %) of the view and the pilot's flow
-            holds (:func:`lfsf.estimate._local_light`): a glare of 0.2 at t2 had taken
+            explains more than LOCAL_LIGHT_AREA (3 %) of the view, not in thin bands
+            only, and the pilot's flow holds (:func:`lfsf.estimate._local_light`; views
+            under 120 px along the longer side only where the pilot runs for them, above):
+            a glare of 0.2 at t2 had taken
             `paper`'s flow EPE 0.059 → 0.218; matched, 0.083.
         tone_curve : match t2 by a tone curve rather than the line where the line leaves
             the intensities bowed (an addition): 16 bands of equal counts, their median
