@@ -1437,7 +1437,8 @@ def test_the_local_field_is_the_glare_and_nothing_on_pairs_of_one_lighting(scene
     scenes at 160×120 it explained at most 1.2 % of the view, `random-14`, whose pilot
     fails on an object, against the gate's 3 %); with a glare of 0.2 at t2 the field at
     the glare's peak is minus the glare, less what the smoothing takes off the peak
-    (σ 12.8 px against 4: ×0.91), and it explains 9–15 % of the view."""
+    (σ 12.8 px against 4: ×0.91) and what the pilot's flow errors take (`random-14`:
+    ×0.75), and it explains 9–10 % of the view."""
     from lfsf import estimate, synth
 
     lf1, lf2, _gt = synth.render_scene(scene, size=(160, 120), grid=9)
@@ -1454,7 +1455,7 @@ def test_the_local_field_is_the_glare_and_nothing_on_pairs_of_one_lighting(scene
         field, factor, share, largest = light
         assert factor == 1 and field.shape == c1.shape and 0.05 < share < 0.25, share
         peak = field[round(0.4 * 120), round(0.45 * 160)]
-        assert -0.2 < peak < -0.7 * 0.2, peak
+        assert -0.2 < peak < -0.6 * 0.2, peak  # (measured −0.170, −0.178, −0.151)
 
 
 def test_the_exposure_applied_is_saved_with_the_results(tmp_path):
