@@ -604,7 +604,7 @@ EXPOSURE_SCALE_TOLERANCE = 0.02
 #: the pilot's flow fails on an object: there the residual is no smooth field, and
 #: applying it cost the flow 1.2×); a broad glare of 0.1 at t2 read 4.6–14 %, of 0.2 and
 #: 0.5 9–17 % (built-in scenes at 160×120, a Gaussian glare of σ = 0.08 of the width; the
-#: flow's EPE 0.22 → 0.08 on `paper`, 0.52 → 0.17 on `weak_texture` at 0.2).
+#: flow's EPE 0.21 → 0.08 on `paper`, 0.56 → 0.17 on `weak_texture` at 0.2).
 LOCAL_LIGHT_SIGMA = 4.0
 LOCAL_LIGHT_LEVEL = 0.04
 LOCAL_LIGHT_AREA = 0.03
