@@ -137,10 +137,10 @@ class Params:
             A change over part of the view (a glare or a shadow that comes or goes) is
             matched too, by a smooth field added to t2 after the line, where such a field
             explains more than LOCAL_LIGHT_AREA (3 %) of the view, not in thin bands
-            only, and the pilot's flow holds (:func:`lfsf.estimate._local_light`; views
-            under 120 px along the longer side only where the pilot runs for them, above):
+            only, and the pilot's flow holds (:func:`lfsf.estimate._local_light`; not on
+            views under 120 px along the longer side):
             a glare of 0.2 at t2 had taken
-            `paper`'s flow EPE 0.059 → 0.213; matched, 0.083.
+            `paper`'s flow EPE 0.059 → 0.218; matched, 0.083.
         tone_curve : match t2 by a tone curve rather than the line where the line leaves
             the intensities bowed (an addition): 16 bands of equal counts, their median
             residuals off the line by more than EXPOSURE_CURVE_MIN (0.3 % of the range)
