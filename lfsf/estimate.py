@@ -2420,6 +2420,37 @@ def _tone_curve(x: np.ndarray, y: np.ndarray, weight: np.ndarray, gain: float, s
     return (kx[keep], ky[keep]), departure
 
 
+def _joint_span(centre1: np.ndarray, centre2: np.ndarray) -> float:
+    """The two views' joint range, from the 0.1th to the 99.9th percentile (robust to a few
+    hot or dead pixels): what the exposure fit's and the local field's levels are
+    fractions of."""
+    ends1, ends2 = np.percentile(centre1, [0.1, 99.9]), np.percentile(centre2, [0.1, 99.9])  # (a sort each)
+    return float(max(ends1[1], ends2[1]) - min(ends1[0], ends2[0]))
+
+
+def _pilot_matches(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(x, y, keep): where the exposure pilot's flow (u, v) takes each pixel, and the
+    pixels kept: those 2 px or more inside the border whose match lies in the image."""
+    h, w = u.shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    x_at, y_at = xx + u, yy + v
+    keep = (x_at >= 0) & (x_at <= w - 1) & (y_at >= 0) & (y_at <= h - 1)
+    keep[:2] = keep[-2:] = False
+    keep[:, :2] = keep[:, -2:] = False
+    return x_at, y_at, keep
+
+
+def _flat_weights(image: np.ndarray, keep: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
+    """(|∇I|, 1 / (1 + (|∇I| / s)²)) of ``image``, s the 75th percentile of |∇I| over the
+    ``keep`` pixels (at least 0.1 % of ``span``): flat pixels weigh most, where a flow
+    error changes the compared value least; where most of the image is flat (a sky, a
+    wall) its textured part still counts."""
+    gy, gx = np.gradient(image)
+    grad = np.hypot(gx, gy)
+    scale = max(float(np.percentile(grad[keep], 75.0)), 1e-3 * span)  # (an exactly flat image has 0)
+    return grad, 1.0 / (1.0 + (grad / scale) ** 2)
+
+
 def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str, note=None) -> Exposure:
     """(g, b, change, curve, departure): a global change of exposure from t1 to t2,
     I1(p) ≈ g·I2(p + u) + b or a tone curve f(I2(p + u)) (:class:`Exposure`;
@@ -2450,9 +2481,7 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str, note
     that found a gain was refused."""
     lo = min(float(centre1.min()), float(centre2.min()))
     hi = max(float(centre1.max()), float(centre2.max()))
-    # the range that `change` is a fraction of: robust to a few hot or dead pixels
-    ends1, ends2 = np.percentile(centre1, [0.1, 99.9]), np.percentile(centre2, [0.1, 99.9])  # (a sort each)
-    span = float(max(ends1[1], ends2[1]) - min(ends1[0], ends2[0]))
+    span = _joint_span(centre1, centre2)  # (what `change` is a fraction of)
     if not np.isfinite(span) or span <= 0.0 or not hi > lo:
         return Exposure(1.0, 0.0, 0.0)
     # (down: the pilot never below 160 px along the longer side, nor below 48 along the shorter)
@@ -2477,11 +2506,7 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str, note
     pilot_flow = (flow.u, flow.v, factor)  # (for the local field, _local_light)
     # clipped pixels (within 2 % of the ends of the values), and those the blur mixes them into
     edge = 0.02 * (hi - lo)
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-    x_at, y_at = xx + flow.u, yy + flow.v
-    keep = (x_at >= 0) & (x_at <= w - 1) & (y_at >= 0) & (y_at <= h - 1)
-    keep[:2] = keep[-2:] = False
-    keep[:, :2] = keep[:, -2:] = False
+    x_at, y_at, keep = _pilot_matches(flow.u, flow.v)
     # t2 blurred by as much more as the scene grew from t1 to t2 (its scale: the median of
     # √|det(1 + ∇u)|), so that both blurs take in the same patch of the scene: alike, a
     # surface that came nearer kept more contrast at t2 than at t1, which read as a gain
@@ -2495,12 +2520,7 @@ def _exposure_change(centre1: np.ndarray, centre2: np.ndarray, device: str, note
     keep &= (clipped[0] < 0.01) & (_bilinear(clipped[1], x_at, y_at) < 0.01)
     if keep.sum() < 64:
         return Exposure(1.0, 0.0, 0.0)
-    gy, gx = np.gradient(a)
-    grad = np.hypot(gx, gy)
-    # the scale: the 75th percentile of |∇I1| over the pixels fitted, so that where most of
-    # the image is flat (a sky, a wall) its textured part still counts
-    scale = max(float(np.percentile(grad[keep], 75.0)), 1e-3 * span)  # (an exactly flat image has 0)
-    weight = (1.0 / (1.0 + (grad / scale) ** 2))[keep]
+    weight = _flat_weights(a, keep, span)[1][keep]
     x, y = warped[keep], a[keep]
     # both ways, y on x and x on y, and g their geometric mean: noise, and the pilot's
     # errors, in the values regressed on bias a one-way fit's slope towards 0 (with sensor
@@ -2549,24 +2569,17 @@ def _local_light(centre1: np.ndarray, centre2: np.ndarray, pilot) -> tuple[np.nd
     where the pilot's flow does not hold (:data:`LOCAL_LIGHT_MATCH`). Returns (F, factor,
     the share of the view it explains, its largest value as a fraction of the range)."""
     u, v, factor = pilot
-    ends1, ends2 = np.percentile(centre1, [0.1, 99.9]), np.percentile(centre2, [0.1, 99.9])
-    span = float(max(ends1[1], ends2[1]) - min(ends1[0], ends2[0]))
+    span = _joint_span(centre1, centre2)
     a, b = _blur(_box_down(centre1, factor), 1.0), _blur(_box_down(centre2, factor), 1.0)
     h, w = a.shape
     if not np.isfinite(span) or span <= 0.0 or u.shape != (h, w) or min(h, w) < 16:
         return None
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-    x_at, y_at = xx + u, yy + v
-    keep = (x_at >= 0) & (x_at <= w - 1) & (y_at >= 0) & (y_at <= h - 1)
-    keep[:2] = keep[-2:] = False
-    keep[:, :2] = keep[:, -2:] = False
+    x_at, y_at, keep = _pilot_matches(u, v)
     if keep.sum() < 64:
         return None
     r = a - _bilinear(b, x_at, y_at)
-    gy, gx = np.gradient(a)
-    grad = np.hypot(gx, gy)
-    scale = max(float(np.percentile(grad[keep], 75.0)), 1e-3 * span)
-    base = np.where(keep, 1.0 / (1.0 + (grad / scale) ** 2), 0.0)
+    grad, flat = _flat_weights(a, keep, span)
+    base = np.where(keep, flat, 0.0)
     qx = np.clip(np.rint(x_at).astype(np.int64), 0, w - 1)[keep]
     qy = np.clip(np.rint(y_at).astype(np.int64), 0, h - 1)[keep]
     r_kept = r[keep]
