@@ -23,6 +23,10 @@ the paper's model, ``docs/MODEL.md`` in the source checkout, not installed):
 * ``δ2`` (``disp2``): the disparity at t2 of that same point, indexed by its pixel
   ``p`` at t1 (not the t2 disparity map);
 * ``occluded``: where the estimate does not see the point in the centre view at t2.
+
+With a calibrated camera, :class:`lfsf.Camera` turns δ into depth, Z = f·b / (δ + δ0), and
+``SceneFlow.points`` gives the 3-D points at t1 and t2, whose difference is the 3-D scene
+flow (MODEL.md §7; ``lfsf points`` on the command line).
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ __version__ = "0.1.0"
 # public name -> module that defines it (loaded on first use, PEP 562)
 _LAZY = {
     "LfsfWarning": "lfsf._errors",
+    "Camera": "lfsf.camera",
     "LightField": "lfsf.io",
     "read_lightfield": "lfsf.io",
     "write_lightfield": "lfsf.io",
@@ -51,7 +56,7 @@ __all__ = sorted(_LAZY) + ["__version__"]
 
 #: The submodules, reachable as attributes after ``import lfsf`` (``lfsf.synth.render_scene``),
 #: each imported on first use.
-SUBMODULES = ("batch", "bench", "cli", "decode", "device", "estimate", "evaluate", "gains", "io", "params",
+SUBMODULES = ("batch", "bench", "camera", "cli", "decode", "device", "estimate", "evaluate", "gains", "io", "params",
               "peers", "solver", "synth", "viz")
 
 

@@ -244,6 +244,89 @@ def cmd_eval(args) -> int:
     return 0
 
 
+def _camera(values: list[str]):
+    """``--camera F B [D0]`` or ``--camera FILE`` as an lfsf.Camera."""
+    from lfsf.camera import Camera
+
+    if len(values) == 1:
+        return Camera.from_file(values[0])
+    if len(values) in (2, 3):
+        try:
+            numbers = [float(v) for v in values]
+        except ValueError:
+            raise ValueError(f"--camera {' '.join(values)}: give the focal length f (px), the baseline b and "
+                             "optionally δ0 as numbers, or one file (a gt.npz of 'lfsf synth', an HCI "
+                             "parameters.cfg)") from None
+        try:
+            return Camera(*numbers)
+        except ValueError as exc:
+            raise ValueError(f"--camera {' '.join(values)}: {str(exc).removeprefix('Camera: ')}") from None
+    raise ValueError(f"--camera {' '.join(values)}: give F B [D0] (three numbers at most) or one file")
+
+
+def cmd_points(args) -> int:
+    import numpy as np
+
+    from lfsf.estimate import SceneFlow
+    from lfsf.evaluate import recorded_downsample
+
+    suffix = args.out.suffix.lower()
+    if suffix not in (".ply", ".npz"):
+        raise ValueError(f"{args.out}: write the points to a .ply (a point cloud) or an .npz (the maps), not "
+                         f"{suffix or 'a file without a suffix'}")
+    output_file(args.out)
+    inputs = [args.result] + ([args.result / "sceneflow.npz"] if args.result.is_dir() else [])
+    if any(p.exists() and p.resolve() == args.out.resolve() for p in inputs + [args.colour] if p is not None):
+        raise ValueError(f"{args.out}: it would replace an input of this command; choose another --out")
+    camera = _camera(args.camera)
+    if args.principal is not None:
+        camera = type(camera)(camera.focal, camera.baseline, camera.offset, tuple(args.principal))
+    sf = SceneFlow.load(args.result)
+    k = recorded_downsample(args.result)
+    if k > 1:  # (a result of lfsf run --downsample K: its pixels are K of the camera's)
+        camera = camera.downsampled(k)
+    try:
+        points1, points2 = sf.points(camera)
+    except ValueError as exc:
+        raise ValueError(f"{args.result}: {str(exc).removeprefix('SceneFlow.points: ')}") from None
+    colours = None
+    if args.colour is not None:
+        from lfsf.io import read_lightfield
+
+        lf = read_lightfield(args.colour)
+        if k > 1:
+            lf = lf.downsample(k)
+        colours = lf.centre
+        if colours.shape[:2] != sf.disp1.shape:
+            raise ValueError(f"{args.colour}: its centre view is {colours.shape[1]}×{colours.shape[0]}"
+                             + (f" (shrunk {k} times as the result was)" if k > 1 else "")
+                             + f", the result {args.result} {sf.disp1.shape[1]}×{sf.disp1.shape[0]}")
+    flow3d = points2 - points1
+    at_infinity = int((~np.isfinite(points1).all(axis=-1) | ~np.isfinite(points2).all(axis=-1)).sum())
+    if suffix == ".ply":
+        from lfsf.io import write_ply
+
+        count = write_ply(args.out, points1, colours, flow3d,
+                          comment=f"lfsf points of {args.result}: the t1 centre view's points, flow_* their 3-D "
+                                  f"scene flow to t2; camera {camera.as_dict()}")
+    else:
+        import json
+
+        from lfsf._files import savez_atomic
+
+        extra = {} if sf.occluded is None else {"occluded": sf.occluded}
+        savez_atomic(args.out, compressed=True, points1=points1, points2=points2, scene_flow=flow3d,
+                     depth1=points1[..., 2], depth2=points2[..., 2], **extra,
+                     camera=np.str_(json.dumps(camera.as_dict())))
+        count = int(sf.disp1.size - at_infinity)
+    z = points1[..., 2][np.isfinite(points1[..., 2])]
+    depths = f"depths {float(z.min()):.4g} to {float(z.max()):.4g}" if z.size else "no finite depth"
+    _log(args, f"wrote {args.out}: {count} points of {sf.disp1.shape[1]}×{sf.disp1.shape[0]}, {depths} (the "
+               f"baseline's unit)" + (f"; {at_infinity} at or beyond infinity (δ + δ0 ≤ 0) left "
+                                      + ("out" if suffix == ".ply" else "NaN") if at_infinity else ""))
+    return 0
+
+
 # --- run and demo ----------------------------------------------------------------------------
 
 def _not_estimated_line(where, names) -> str:
@@ -671,6 +754,28 @@ def build_parser() -> argparse.ArgumentParser:
                         "divided by K, rounded up, for a result of 'lfsf run --downsample K')")
     p.add_argument("--json", type=_file_name, help="also write the figures to this JSON file")
     p.set_defaults(func=cmd_eval)
+
+    p = sub.add_parser("points", help="3-D points and scene flow of a result, for a calibrated camera",
+                       description="Turn a result's δ1, δ2 and flow into the 3-D points of the t1 centre view at "
+                                   "t1 and t2 and their difference, the 3-D scene flow (MODEL.md §7: Z = f·b / "
+                                   "(δ + δ0), in the centre camera's frame, x right, y down, z forward, in the "
+                                   "unit of b). OUT.ply: a point cloud of the t1 points with the flow as "
+                                   "flow_x, flow_y, flow_z; OUT.npz: the maps points1, points2, scene_flow, "
+                                   "depth1, depth2.")
+    p.add_argument("result", type=_input_name, help="a folder written by 'lfsf run' (or its sceneflow.npz)")
+    p.add_argument("--camera", nargs="+", required=True, metavar="F B [D0] | FILE",
+                   help="the centre view's focal length f (px), the baseline b between neighbouring views and the "
+                        "disparity offset δ0 of the focus plane (default 0: views aligned at infinity; f·b / Z_f "
+                        "for views focused at Z_f), or a file recording them: a gt.npz of 'lfsf synth' or an HCI "
+                        "parameters.cfg (or its folder); of the full views, for a result of 'lfsf run "
+                        "--downsample K' too")
+    p.add_argument("--principal", nargs=2, type=float, metavar=("CX", "CY"),
+                   help="the principal point in px (default: the views' centre)")
+    p.add_argument("--colour", type=_input_name, metavar="LF",
+                   help="colour the .ply's points by this light field's centre view (the t1 one)")
+    p.add_argument("--out", type=_file_name, required=True, help="OUT.ply or OUT.npz")
+    p.add_argument("--quiet", action="store_true", help="no messages")
+    p.set_defaults(func=cmd_points)
 
     p = sub.add_parser("run", help="estimate scene flow from two light fields",
                        description="Estimate δ1, δ2 and the flow of the centre view from light fields at t1 and "

@@ -107,6 +107,25 @@ class SceneFlow:
         there is one, is not among them (``evaluate(sf, gt)`` scores it too)."""
         return {"disp1": self.disp1, "disp2": self.disp2, "u": self.u, "v": self.v}
 
+    def points(self, camera) -> tuple[np.ndarray, np.ndarray]:
+        """The 3-D points of the t1 centre view's pixels at t1 and at t2, X(p, δ1) and
+        X(p + (u, v), δ2), float32 (H, W, 3) each, in the centre camera's frame (x right,
+        y down, z forward, the unit of the camera's baseline; NaN where δ + δ0 ≤ 0);
+        their difference is the 3-D scene flow (MODEL.md §7). ``camera``: an
+        :class:`lfsf.camera.Camera` of the views the estimate was made on (of views
+        shrunk by ``lfsf run --downsample K``: ``camera.downsampled(K)``).
+
+        >>> points1, points2 = sf.points(lfsf.Camera(focal=640, baseline=0.0375, offset=4))  # doctest: +SKIP
+        """
+        from lfsf.camera import Camera
+
+        if not isinstance(camera, Camera):
+            raise ValueError(f"SceneFlow.points: camera must be an lfsf.Camera, got {type(camera).__name__}")
+        if self.params.flow_only:
+            raise ValueError("SceneFlow.points: a flow-only result (one circle) has no disparities to take depths "
+                             "from; estimate with a light-field preset (paper, fast)")
+        return camera.points(self.disp1), camera.points(self.disp2, self.u, self.v)
+
     @classmethod
     def load(cls, path: str | Path) -> "SceneFlow":
         """The result that :meth:`save` (or ``lfsf run``) wrote, from its folder or its

@@ -1355,6 +1355,69 @@ def write_flo(path: str | os.PathLike, flow) -> None:
     write_bytes_atomic(path, _FLO_MAGIC + struct.pack("<ii", width, height) + body.tobytes())
 
 
+def write_ply(path: str | os.PathLike, points, colours=None, vectors=None, comment: str = "") -> int:
+    """Write a point cloud as a binary little-endian PLY file, atomically.
+
+    Parameters
+    ----------
+    path : str or path-like
+    points : array_like, shape (..., 3)
+        x, y, z of each point (float32); points with a non-finite coordinate (or vector
+        component) are left out.
+    colours : array_like, shape (..., 3) or (...), optional
+        RGB or grey per point, floats in [0, 1] (clipped) or uint8: the ``red``,
+        ``green``, ``blue`` properties.
+    vectors : array_like, shape (..., 3), optional
+        A vector per point (the 3-D scene flow): the float properties ``flow_x``,
+        ``flow_y``, ``flow_z``, which point-cloud viewers show as scalar fields.
+    comment : str
+        One line for the header.
+
+    Returns
+    -------
+    int : the number of points written.
+    """
+    pts = np.asarray(points, dtype=np.float32)
+    if pts.ndim < 2 or pts.shape[-1] != 3:
+        raise ValueError(f"{path}: expected points of shape (..., 3), got {pts.shape}")
+    pts = pts.reshape(-1, 3)
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    keep = np.isfinite(pts).all(axis=1)
+    rgb = vec = None
+    if colours is not None:
+        col = np.asarray(colours)
+        if col.shape == np.shape(points)[:-1]:       # grey
+            col = np.repeat(col.reshape(-1, 1), 3, axis=1)
+        elif col.shape == np.shape(points):
+            col = col.reshape(-1, 3)
+        else:
+            raise ValueError(f"{path}: colours of shape {col.shape} for points of shape {np.shape(points)}: "
+                             "give one grey value or an RGB triple a point")
+        rgb = col if col.dtype == np.uint8 else np.round(np.clip(col, 0.0, 1.0) * 255.0).astype(np.uint8)
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    if vectors is not None:
+        vec = np.asarray(vectors, dtype=np.float32)
+        if vec.shape != np.shape(points):
+            raise ValueError(f"{path}: vectors of shape {vec.shape}, points {np.shape(points)}")
+        vec = vec.reshape(-1, 3)
+        keep &= np.isfinite(vec).all(axis=1)
+        fields += [("flow_x", "<f4"), ("flow_y", "<f4"), ("flow_z", "<f4")]
+    body = np.empty(int(keep.sum()), dtype=fields)
+    for k, name in enumerate("xyz"):
+        body[name] = pts[keep, k]
+        if vec is not None:
+            body[f"flow_{name}"] = vec[keep, k]
+    if rgb is not None:
+        for k, name in enumerate(("red", "green", "blue")):
+            body[name] = rgb[keep, k]
+    kinds = {"<f4": "float", "u1": "uchar"}
+    header = ["ply", "format binary_little_endian 1.0"]
+    header += [f"comment {line}" for line in comment.splitlines() if line.strip()]
+    header += [f"element vertex {body.size}"] + [f"property {kinds[t]} {n}" for n, t in fields] + ["end_header"]
+    write_bytes_atomic(path, ("\n".join(header) + "\n").encode("ascii", "replace") + body.tobytes())
+    return int(body.size)
+
+
 # --------------------------------------------------------------------------------------
 # KITTI 16-bit PNG flow and disparity
 # --------------------------------------------------------------------------------------

@@ -1,0 +1,204 @@
+"""Depth, 3-D points and 3-D scene flow from an estimate, for a calibrated camera.
+
+The estimate is in the light field's own units: δ in pixels per view step, the flow in
+pixels. With the camera of the centre view known (MODEL.md §7: focal length f in pixels,
+baseline b between neighbouring views, disparity offset δ0 of the focus plane), a point
+of disparity δ lies at depth
+
+    Z = f·b / (δ + δ0),
+
+and the point seen at pixel p = (x, y) at t1 is X(p, δ1), at t2 X(p + (u, v), δ2), where
+
+    X(p, δ) = ((x − c_x)·Z / f, (y − c_y)·Z / f, Z)
+
+in the centre camera's frame (x right, y down, z forward; the unit of b). The 3-D scene
+flow is X(p + (u, v), δ2) − X(p, δ1). A camera that moves between the captures gives
+the t2 points in its t2 frame.
+
+>>> cam = Camera(focal=160.0, baseline=0.15, offset=4.0)      # doctest: +SKIP
+>>> points1, points2 = sf.points(cam)                          # doctest: +SKIP
+>>> scene_flow = points2 - points1                             # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+def _finite(name: str, value) -> float:
+    """A real number as a float, or a ValueError naming the setting."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"Camera: {name} must be a real number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise ValueError(f"Camera: {name} must be finite, got {value}")
+    return value
+
+
+@dataclass(frozen=True)
+class Camera:
+    """The pinhole camera of the centre view, to turn δ into depth and points (MODEL.md §7).
+
+    Parameters
+    ----------
+    focal : float
+        f, the focal length in pixels of the views (positive).
+    baseline : float
+        b, the distance between neighbouring views (positive); depths and points come out
+        in its unit.
+    offset : float
+        δ0 in px per view step: δ + δ0 = f·b / Z. A camera whose views are aligned at
+        infinity (a plain camera array) has δ0 = 0; one focused at distance Z_f, where
+        δ = 0 (a plenoptic camera, a rig with shifted sensors), has δ0 = f·b / Z_f.
+    principal : (c_x, c_y) or None
+        The principal point in pixels (x right, y down, pixel centres at whole numbers);
+        None: the views' centre, ((W − 1)/2, (H − 1)/2).
+    """
+
+    focal: float
+    baseline: float
+    offset: float = 0.0
+    principal: tuple[float, float] | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("focal", "baseline"):
+            value = _finite(name, getattr(self, name))
+            if value <= 0:
+                raise ValueError(f"Camera: {name} must be positive, got {value:g}")
+            object.__setattr__(self, name, value)
+        object.__setattr__(self, "offset", _finite("offset", self.offset))
+        if self.principal is not None:
+            try:
+                cx, cy = self.principal
+            except (TypeError, ValueError):
+                raise ValueError(f"Camera: principal must be (c_x, c_y) or None, got {self.principal!r}") from None
+            object.__setattr__(self, "principal", (_finite("principal c_x", cx), _finite("principal c_y", cy)))
+
+    def depth(self, disp) -> np.ndarray:
+        """Z = f·b / (δ + δ0) of a disparity map (float32); NaN where δ + δ0 ≤ 0 (a point
+        at or beyond infinity, or behind the camera) or δ is not finite."""
+        d = np.asarray(disp, dtype=np.float64) + self.offset
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.where(d > 0, self.focal * self.baseline / d, np.nan)
+        return z.astype(np.float32)
+
+    def disparity(self, depth) -> np.ndarray:
+        """δ = f·b / Z − δ0 of a depth map (float32), the inverse of :meth:`depth`."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return (self.focal * self.baseline / np.asarray(depth, dtype=np.float64) - self.offset).astype(np.float32)
+
+    def points(self, disp, u=None, v=None) -> np.ndarray:
+        """The 3-D points X(p + (u, v), δ) (float32 (H, W, 3)) of a disparity map δ (H, W)
+        indexed by pixel p; ``u``, ``v`` (H, W), where given, move each pixel first (the
+        t2 points of an estimate: ``points(disp2, u, v)``). NaN where :meth:`depth` is."""
+        disp = np.asarray(disp)
+        if disp.ndim != 2:
+            raise ValueError(f"Camera.points: the disparity must be a 2-D map, got shape {disp.shape}")
+        height, width = disp.shape
+        cx, cy = self.principal if self.principal is not None else ((width - 1) / 2.0, (height - 1) / 2.0)
+        y, x = np.mgrid[0:height, 0:width].astype(np.float64)
+        for name, shift, axis in (("u", u, x), ("v", v, y)):
+            if shift is not None:
+                shift = np.asarray(shift, dtype=np.float64)
+                if shift.shape != disp.shape:
+                    raise ValueError(f"Camera.points: {name} is {shift.shape}, the disparity {disp.shape}")
+                axis += shift
+        z = self.depth(disp).astype(np.float64)
+        return np.stack([(x - cx) * z / self.focal, (y - cy) * z / self.focal, z], axis=-1).astype(np.float32)
+
+    def downsampled(self, factor: int) -> "Camera":
+        """The camera of the views shrunk ``factor`` times, each pixel the mean of factor ×
+        factor (``LightField.downsample``, ``lfsf run --downsample``): f and δ0 divided
+        by the factor, the principal point moved onto the smaller pixels' grid. The
+        depths and points of the smaller views' δ are then those of the full views'."""
+        k = int(factor)
+        if k != factor or k < 1:
+            raise ValueError(f"Camera.downsampled: the factor must be a whole number ≥ 1, got {factor!r}")
+        principal = None if self.principal is None else tuple((c + 0.5) / k - 0.5 for c in self.principal)
+        return Camera(self.focal / k, self.baseline, self.offset / k, principal)
+
+    def as_dict(self) -> dict:
+        return {"focal": self.focal, "baseline": self.baseline, "offset": self.offset,
+                "principal": None if self.principal is None else list(self.principal)}
+
+    @classmethod
+    def from_truth(cls, gt) -> "Camera":
+        """The camera that ``lfsf synth`` rendered with, from its ground truth (a mapping
+        with ``focal``, ``baseline`` and ``shift``, as :func:`lfsf.render_scene` returns
+        and ``gt.npz`` holds): δ = f·b/Z − shift, so δ0 = shift."""
+        missing = [k for k in ("focal", "baseline", "shift") if k not in gt]
+        if missing:
+            raise ValueError(f"no camera in this ground truth: it lacks {', '.join(missing)} (a gt.npz of "
+                             "'lfsf synth' holds focal, baseline and shift)")
+        return cls(float(np.asarray(gt["focal"])), float(np.asarray(gt["baseline"])),
+                   float(np.asarray(gt["shift"])))
+
+    @classmethod
+    def from_hci(cls, parameters: dict) -> "Camera":
+        """The camera of an HCI 4D benchmark scene from its ``parameters.cfg`` (as
+        ``LightField.meta["parameters"]`` holds it, ``{section: {key: value}}``): f in
+        pixels = ``focal_length_mm`` / ``sensor_size_mm`` × the larger of
+        ``image_resolution_x_px`` and ``image_resolution_y_px``, b = ``baseline_mm``, and
+        the views focused (δ = 0) at ``focus_distance_m``: δ0 = f·b / Z_f. Depths and
+        points come out in millimetres."""
+        flat = {}
+        for section in parameters.values():
+            if isinstance(section, dict):
+                flat.update(section)
+        keys = ("focal_length_mm", "sensor_size_mm", "image_resolution_x_px", "image_resolution_y_px",
+                "baseline_mm", "focus_distance_m")
+        missing = [k for k in keys if not isinstance(flat.get(k), (int, float)) or isinstance(flat.get(k), bool)]
+        if missing:
+            raise ValueError(f"no camera in these parameters: {', '.join(missing)} missing or not a number "
+                             "(an HCI 4D benchmark parameters.cfg gives them)")
+        if flat["sensor_size_mm"] <= 0 or flat["focus_distance_m"] <= 0:
+            raise ValueError("no camera in these parameters: sensor_size_mm and focus_distance_m must be positive")
+        focal = flat["focal_length_mm"] / flat["sensor_size_mm"] * max(flat["image_resolution_x_px"],
+                                                                     flat["image_resolution_y_px"])
+        baseline = float(flat["baseline_mm"])
+        return cls(focal, baseline, focal * baseline / (1000.0 * flat["focus_distance_m"]))
+
+    @classmethod
+    def from_file(cls, path: str | os.PathLike) -> "Camera":
+        """The camera a file records: a ``gt.npz`` of ``lfsf synth`` (:meth:`from_truth`),
+        or an HCI ``parameters.cfg`` or a folder holding one (:meth:`from_hci`).
+
+        Raises
+        ------
+        FileNotFoundError
+            Where there is no such file, or the folder holds no ``parameters.cfg``.
+        ValueError
+            Naming the file, where it records no camera.
+        """
+        path = Path(path)
+        if path.is_dir():
+            if not (path / "parameters.cfg").is_file():
+                raise FileNotFoundError(f"{path}: no parameters.cfg in this folder (a camera is read from an HCI "
+                                        "parameters.cfg or a gt.npz of 'lfsf synth')")
+            path = path / "parameters.cfg"
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: no such file")
+        try:
+            if path.suffix.lower() == ".npz":
+                from lfsf.io import _read_npz_arrays
+
+                _, arrays = _read_npz_arrays(path, ("focal", "baseline", "shift"))
+                return cls.from_truth(arrays)
+            if path.suffix.lower() == ".cfg":
+                import warnings
+
+                from lfsf.io import _read_hci_parameters
+
+                with warnings.catch_warnings():
+                    warnings.simplefilter("error")
+                    parameters = _read_hci_parameters(path)
+                return cls.from_hci(parameters)
+        except (ValueError, Warning) as exc:
+            raise ValueError(f"{path}: {str(exc).removeprefix(f'{path}: ')}") from None
+        raise ValueError(f"{path}: a camera is read from a gt.npz of 'lfsf synth' or an HCI parameters.cfg, not a "
+                         f"{path.suffix or 'file without a suffix'}")
