@@ -202,3 +202,47 @@ class Camera:
             raise ValueError(f"{path}: {str(exc).removeprefix(f'{path}: ')}") from None
         raise ValueError(f"{path}: a camera is read from a gt.npz of 'lfsf synth' or an HCI parameters.cfg, not a "
                          f"{path.suffix or 'file without a suffix'}")
+
+
+def scene_flow_errors(estimate, gt, camera: Camera, border: int | None = None) -> dict[str, float]:
+    """Errors of an estimate's 3-D points and scene flow against a ground truth's, both
+    through ``camera`` (MODEL.md §7).
+
+    ``estimate``: an :class:`lfsf.SceneFlow` or a mapping with ``disp1``, ``disp2``,
+    ``u``, ``v``; ``gt``: the same maps of the truth (a ``gt.npz`` of ``lfsf synth``),
+    with optional bool ``valid`` and ``occluded``. Over the valid pixels where the true
+    points are finite, without ``border`` px at each edge (None: 8, as :func:`lfsf.evaluate.evaluate`):
+
+    * ``epe3d``: the mean end-point error of the 3-D scene flow, ‖(X2 − X1) − (X2* − X1*)‖,
+      in the baseline's unit, and ``epe3d_median``;
+    * ``epe3d_noc``: the same over the points seen at t2 as well (where ``gt`` has ``occluded``);
+    * ``depth1_rel``: the mean relative error of the t1 depth, |Z1 − Z1*| / Z1*;
+    * ``pixels``.
+
+    A point of the estimate at or beyond infinity (δ + δ0 ≤ 0) where the truth's is finite
+    counts as an infinite error."""
+    from lfsf.evaluate import SYNTH_BORDER, _mask
+
+    maps = estimate.as_dict() if hasattr(estimate, "as_dict") else estimate
+    missing = [k for k in ("disp1", "disp2", "u", "v") for m in (maps, gt) if k not in m]
+    if missing:
+        raise ValueError("scene_flow_errors: the estimate and the truth need disp1, disp2, u and v; missing "
+                         + ", ".join(sorted(set(missing))))
+    shape = np.shape(gt["disp1"])
+    if any(np.shape(m[k]) != shape for m in (maps, gt) for k in ("disp1", "disp2", "u", "v")):
+        raise ValueError(f"scene_flow_errors: the maps must all be {shape[1]}×{shape[0]}, as the truth's δ1")
+    est1, est2 = camera.points(maps["disp1"]), camera.points(maps["disp2"], maps["u"], maps["v"])
+    true1, true2 = camera.points(gt["disp1"]), camera.points(gt["disp2"], gt["u"], gt["v"])
+    finite = np.isfinite(true1).all(-1) & np.isfinite(true2).all(-1)
+    scored = _mask(shape, gt.get("valid"), SYNTH_BORDER if border is None else border, finite)
+    error = np.linalg.norm((est2 - est1) - (true2 - true1), axis=-1)
+    error = np.where(np.isfinite(error), error, np.inf)
+    depth = np.abs(est1[..., 2] - true1[..., 2]) / true1[..., 2]
+    depth = np.where(np.isfinite(depth), depth, np.inf)
+    out = {"epe3d": float(error[scored].mean()), "epe3d_median": float(np.median(error[scored])),
+           "depth1_rel": float(depth[scored].mean()), "pixels": int(scored.sum())}
+    if gt.get("occluded") is not None:
+        seen = scored & ~np.asarray(gt["occluded"], dtype=bool)
+        if seen.any():
+            out["epe3d_noc"] = float(error[seen].mean())
+    return out

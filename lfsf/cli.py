@@ -283,6 +283,22 @@ def cmd_points(args) -> int:
         camera = type(camera)(camera.focal, camera.baseline, camera.offset, tuple(args.principal))
     sf = SceneFlow.load(args.result)
     k = recorded_downsample(args.result)
+    gt = None
+    if args.gt is not None:  # (read and checked before the points are written)
+        from lfsf.evaluate import load_ground_truth
+
+        gt, _ = load_ground_truth(args.gt)
+        lacking = [name for name in ("disp1", "disp2", "u", "v") if name not in gt]
+        if lacking:
+            raise ValueError(f"{args.gt}: no 3-D truth without {', '.join(lacking)} (a gt.npz of 'lfsf synth' "
+                             "holds all four)")
+        if k > 1 and np.shape(gt["disp1"]) != sf.disp1.shape:
+            from lfsf.evaluate import downsample_truth
+
+            gt = downsample_truth(gt, k)
+        if np.shape(gt["disp1"]) != sf.disp1.shape:
+            raise ValueError(f"{args.gt}: its maps are {np.shape(gt['disp1'])[1]}×{np.shape(gt['disp1'])[0]}, the "
+                             f"result {args.result} {sf.disp1.shape[1]}×{sf.disp1.shape[0]}")
     if k > 1:  # (a result of lfsf run --downsample K: its pixels are K of the camera's)
         camera = camera.downsampled(k)
     try:
@@ -324,6 +340,16 @@ def cmd_points(args) -> int:
     _log(args, f"wrote {args.out}: {count} points of {sf.disp1.shape[1]}×{sf.disp1.shape[0]}, {depths} (the "
                f"baseline's unit)" + (f"; {at_infinity} at or beyond infinity (δ + δ0 ≤ 0) left "
                                       + ("out" if suffix == ".ply" else "NaN") if at_infinity else ""))
+    if gt is not None:
+        from lfsf.camera import scene_flow_errors
+        from lfsf.evaluate import SYNTH_BORDER, downsample_border
+
+        border = downsample_border(SYNTH_BORDER, k) if k > 1 else SYNTH_BORDER
+        e = scene_flow_errors(sf, gt, camera, border=border)
+        print(f"{args.result} against {args.gt} in 3-D (border {border} px, the baseline's unit): scene flow "
+              f"end-point error mean {e['epe3d']:.4g}, median {e['epe3d_median']:.4g}"
+              + (f", {e['epe3d_noc']:.4g} over the points seen at t2" if "epe3d_noc" in e else "")
+              + f"; t1 depth off by {100 * e['depth1_rel']:.3g} % on average; {e['pixels']} px", flush=True)
     return 0
 
 
@@ -774,7 +800,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--colour", type=_input_name, metavar="LF",
                    help="colour the .ply's points by this light field's centre view (the t1 one)")
     p.add_argument("--out", type=_file_name, required=True, help="OUT.ply or OUT.npz")
-    p.add_argument("--quiet", action="store_true", help="no messages")
+    p.add_argument("--gt", type=_input_name, metavar="GT",
+                   help="a gt.npz of 'lfsf synth': also print the 3-D scene flow's end-point error and the t1 "
+                        "depth's relative error against its points (through the same camera; valid pixels, an "
+                        "8-px border)")
+    p.add_argument("--quiet", action="store_true", help="no messages (the errors of --gt still print)")
     p.set_defaults(func=cmd_points)
 
     p = sub.add_parser("run", help="estimate scene flow from two light fields",

@@ -10,7 +10,7 @@ import pytest
 
 import lfsf
 from lfsf import synth
-from lfsf.camera import Camera
+from lfsf.camera import Camera, scene_flow_errors
 
 BACKDROP_DEPTH, SPHERE_DEPTH = 10.0, 5.0
 #: A backdrop and a sphere, each moving without turning: every point of each moves by its
@@ -92,6 +92,17 @@ def test_the_estimates_scene_flow_is_the_objects_motion():
     for mask, move, bound in zip((backdrop, sphere), _translations(size), (0.25, 0.02)):
         error = np.linalg.norm((points2 - points1)[mask] - move, axis=1)
         assert np.median(error) < bound * np.linalg.norm(move), (np.median(error), np.linalg.norm(move))
+    # the same through scene_flow_errors, over every scored pixel, and nothing for the truth itself
+    camera = Camera.from_truth(gt)
+    errors = scene_flow_errors(sf, gt, camera)
+    assert errors["pixels"] > 12000 and errors["epe3d_median"] < 0.25 * np.linalg.norm(_translations(size)[0])
+    assert errors["depth1_rel"] < 0.01
+    exact = scene_flow_errors({k: gt[k] for k in ("disp1", "disp2", "u", "v")}, gt, camera)
+    assert exact["epe3d"] == exact["depth1_rel"] == 0.0
+    off = scene_flow_errors({**{k: gt[k] for k in ("disp1", "disp2", "u")}, "v": gt["v"] + 1.0}, gt, camera)
+    # a flow 1 px off down moves every point 1 px sideways at its t2 depth: Z2 / f
+    z2 = camera.depth(gt["disp2"])[8:-8, 8:-8]
+    assert off["epe3d_median"] == pytest.approx(np.median(z2[(gt["valid"])[8:-8, 8:-8]]) / camera.focal, rel=0.05)
 
 
 def test_a_camera_of_shrunk_views_gives_the_same_depths():
@@ -173,6 +184,10 @@ def test_lfsf_points_writes_the_results_points(small_result):
     done = _lfsf("points", root / "r", "--camera", root / "s/gt.npz", "--colour", root / "s/lf1.npz", "--out",
                  root / "p.ply", "--quiet")
     assert done.returncode == 0 and done.stderr == ""
+    done = _lfsf("points", root / "r", "--camera", root / "s/gt.npz", "--out", root / "q.npz", "--gt",
+                 root / "s/gt.npz", "--quiet")
+    expected = scene_flow_errors(lfsf.SceneFlow.load(root / "r"), gt, camera)
+    assert done.returncode == 0 and f"end-point error mean {expected['epe3d']:.4g}," in done.stdout, done.stdout
     body = _read_ply(root / "p.ply")
     assert body.size == 64 * 48
     np.testing.assert_allclose(np.stack([body["x"], body["y"], body["z"]], 1), points1.reshape(-1, 3), rtol=1e-6)
