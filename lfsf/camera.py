@@ -58,12 +58,17 @@ class Camera:
     principal : (c_x, c_y) or None
         The principal point in pixels (x right, y down, pixel centres at whole numbers);
         None: the views' centre, ((W − 1)/2, (H − 1)/2).
+    size : (W, H) or None
+        The views' size the camera is for, where known (a ``gt.npz``, a
+        ``parameters.cfg``): maps of another size are refused, and
+        :meth:`downsampled` then knows the full views' centre.
     """
 
     focal: float
     baseline: float
     offset: float = 0.0
     principal: tuple[float, float] | None = None
+    size: tuple[int, int] | None = None
 
     def __post_init__(self) -> None:
         for name in ("focal", "baseline"):
@@ -78,6 +83,15 @@ class Camera:
             except (TypeError, ValueError):
                 raise ValueError(f"Camera: principal must be (c_x, c_y) or None, got {self.principal!r}") from None
             object.__setattr__(self, "principal", (_finite("principal c_x", cx), _finite("principal c_y", cy)))
+        if self.size is not None:
+            try:
+                width, height = (int(v) for v in self.size)
+                if (width, height) != tuple(self.size) or min(width, height) < 1:
+                    raise ValueError
+            except (TypeError, ValueError):
+                raise ValueError(f"Camera: size must be (W, H), two whole numbers ≥ 1, or None, got "
+                                 f"{self.size!r}") from None
+            object.__setattr__(self, "size", (width, height))
 
     def depth(self, disp) -> np.ndarray:
         """Z = f·b / (δ + δ0) of a disparity map (float32); NaN where δ + δ0 ≤ 0 (a point
@@ -100,6 +114,9 @@ class Camera:
         if disp.ndim != 2:
             raise ValueError(f"Camera.points: the disparity must be a 2-D map, got shape {disp.shape}")
         height, width = disp.shape
+        if self.size is not None and self.size != (width, height):
+            raise ValueError(f"Camera.points: this camera is for views of {self.size[0]}×{self.size[1]} px, the "
+                             f"map is {width}×{height} (for views shrunk K times: camera.downsampled(K))")
         cx, cy = self.principal if self.principal is not None else ((width - 1) / 2.0, (height - 1) / 2.0)
         y, x = np.mgrid[0:height, 0:width].astype(np.float64)
         for name, shift, axis in (("u", u, x), ("v", v, y)):
@@ -114,29 +131,39 @@ class Camera:
     def downsampled(self, factor: int) -> "Camera":
         """The camera of the views shrunk ``factor`` times, each pixel the mean of factor ×
         factor (``LightField.downsample``, ``lfsf run --downsample``): f and δ0 divided
-        by the factor, the principal point moved onto the smaller pixels' grid. The
-        depths and points of the smaller views' δ are then those of the full views'."""
-        k = int(factor)
+        by the factor, the principal point moved onto the smaller pixels' grid (the full
+        views' centre where it is None and the size is known; without the size, the
+        smaller views' centre, which is the same only where the factor divides the full
+        sides: the block means drop the rest). The depths and points of the smaller
+        views' δ are then those of the full views'."""
+        k = int(factor) if isinstance(factor, (int, float, np.integer, np.floating)) else 0
         if k != factor or k < 1:
             raise ValueError(f"Camera.downsampled: the factor must be a whole number ≥ 1, got {factor!r}")
-        principal = None if self.principal is None else tuple((c + 0.5) / k - 0.5 for c in self.principal)
-        return Camera(self.focal / k, self.baseline, self.offset / k, principal)
+        principal = self.principal
+        if principal is None and self.size is not None:
+            principal = ((self.size[0] - 1) / 2.0, (self.size[1] - 1) / 2.0)
+        if principal is not None:
+            principal = tuple((c + 0.5) / k - 0.5 for c in principal)
+        size = None if self.size is None else (self.size[0] // k, self.size[1] // k)
+        return Camera(self.focal / k, self.baseline, self.offset / k, principal, size)
 
     def as_dict(self) -> dict:
         return {"focal": self.focal, "baseline": self.baseline, "offset": self.offset,
-                "principal": None if self.principal is None else list(self.principal)}
+                "principal": None if self.principal is None else list(self.principal),
+                "size": None if self.size is None else list(self.size)}
 
     @classmethod
     def from_truth(cls, gt) -> "Camera":
         """The camera that ``lfsf synth`` rendered with, from its ground truth (a mapping
         with ``focal``, ``baseline`` and ``shift``, as :func:`lfsf.render_scene` returns
-        and ``gt.npz`` holds): δ = f·b/Z − shift, so δ0 = shift."""
+        and ``gt.npz`` holds): δ = f·b/Z − shift, so δ0 = shift; the size of its maps."""
         missing = [k for k in ("focal", "baseline", "shift") if k not in gt]
         if missing:
             raise ValueError(f"no camera in this ground truth: it lacks {', '.join(missing)} (a gt.npz of "
                              "'lfsf synth' holds focal, baseline and shift)")
+        size = np.shape(gt["disp1"])[::-1] if "disp1" in gt and np.ndim(gt["disp1"]) == 2 else None
         return cls(float(np.asarray(gt["focal"])), float(np.asarray(gt["baseline"])),
-                   float(np.asarray(gt["shift"])))
+                   float(np.asarray(gt["shift"])), size=size)
 
     @classmethod
     def from_hci(cls, parameters: dict) -> "Camera":
@@ -145,23 +172,27 @@ class Camera:
         pixels = ``focal_length_mm`` / ``sensor_size_mm`` × the larger of
         ``image_resolution_x_px`` and ``image_resolution_y_px``, b = ``baseline_mm``, and
         the views focused (δ = 0) at ``focus_distance_m``: δ0 = f·b / Z_f. Depths and
-        points come out in millimetres."""
+        points come out in millimetres; the size is the image resolution's."""
+        # (the benchmark's sections; any others only where a key is in neither)
         flat = {}
-        for section in parameters.values():
+        for name, section in sorted(parameters.items(), key=lambda item: item[0] in ("intrinsics", "extrinsics")):
             if isinstance(section, dict):
                 flat.update(section)
         keys = ("focal_length_mm", "sensor_size_mm", "image_resolution_x_px", "image_resolution_y_px",
                 "baseline_mm", "focus_distance_m")
-        missing = [k for k in keys if not isinstance(flat.get(k), (int, float)) or isinstance(flat.get(k), bool)]
-        if missing:
-            raise ValueError(f"no camera in these parameters: {', '.join(missing)} missing or not a number "
+        wrong = [k for k in keys if not isinstance(flat.get(k), (int, float)) or isinstance(flat.get(k), bool)
+                 or not math.isfinite(flat[k]) or flat[k] <= 0]
+        if wrong:
+            raise ValueError(f"no camera in these parameters: {', '.join(wrong)} missing, or not a positive number "
                              "(an HCI 4D benchmark parameters.cfg gives them)")
-        if flat["sensor_size_mm"] <= 0 or flat["focus_distance_m"] <= 0:
-            raise ValueError("no camera in these parameters: sensor_size_mm and focus_distance_m must be positive")
-        focal = flat["focal_length_mm"] / flat["sensor_size_mm"] * max(flat["image_resolution_x_px"],
-                                                                     flat["image_resolution_y_px"])
+        width, height = flat["image_resolution_x_px"], flat["image_resolution_y_px"]
+        if width != int(width) or height != int(height):
+            raise ValueError(f"no camera in these parameters: image_resolution_x_px and _y_px must be whole numbers, "
+                             f"got {width} and {height}")
+        focal = flat["focal_length_mm"] / flat["sensor_size_mm"] * max(width, height)
         baseline = float(flat["baseline_mm"])
-        return cls(focal, baseline, focal * baseline / (1000.0 * flat["focus_distance_m"]))
+        return cls(focal, baseline, focal * baseline / (1000.0 * flat["focus_distance_m"]),
+                   size=(int(width), int(height)))
 
     @classmethod
     def from_file(cls, path: str | os.PathLike) -> "Camera":
@@ -187,7 +218,7 @@ class Camera:
             if path.suffix.lower() == ".npz":
                 from lfsf.io import _read_npz_arrays
 
-                _, arrays = _read_npz_arrays(path, ("focal", "baseline", "shift"))
+                _, arrays = _read_npz_arrays(path, ("focal", "baseline", "shift", "disp1"))
                 return cls.from_truth(arrays)
             if path.suffix.lower() == ".cfg":
                 import warnings
@@ -198,8 +229,9 @@ class Camera:
                     warnings.simplefilter("error")
                     parameters = _read_hci_parameters(path)
                 return cls.from_hci(parameters)
-        except (ValueError, Warning) as exc:
-            raise ValueError(f"{path}: {str(exc).removeprefix(f'{path}: ')}") from None
+        except (ValueError, Warning) as exc:  # (the reader's warning says the metadata is 'ignored': not here)
+            said = str(exc).removeprefix(f"{path}: ").removeprefix("ignored, ").removeprefix("Camera: ")
+            raise ValueError(f"{path}: {said}") from None
         raise ValueError(f"{path}: a camera is read from a gt.npz of 'lfsf synth' or an HCI parameters.cfg, not a "
                          f"{path.suffix or 'file without a suffix'}")
 

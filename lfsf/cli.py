@@ -264,7 +264,20 @@ def _camera(values: list[str]):
     raise ValueError(f"--camera {' '.join(values)}: give F B [D0] (three numbers at most) or one file")
 
 
+def _recorded_views(result: Path) -> tuple[int, int] | None:
+    """The size of the views a result of ``lfsf run --downsample`` was shrunk from, where
+    it records it (``inputs.views``), else None."""
+    from lfsf.evaluate import _recorded
+
+    views = (_recorded(result).get("inputs") or {}).get("views")
+    if isinstance(views, list) and len(views) == 2 and all(isinstance(v, int) and v >= 1 for v in views):
+        return views[0], views[1]
+    return None
+
+
 def cmd_points(args) -> int:
+    from dataclasses import replace
+
     import numpy as np
 
     from lfsf.estimate import SceneFlow
@@ -275,14 +288,24 @@ def cmd_points(args) -> int:
         raise ValueError(f"{args.out}: write the points to a .ply (a point cloud) or an .npz (the maps), not "
                          f"{suffix or 'a file without a suffix'}")
     output_file(args.out)
+    if args.colour is not None and suffix == ".npz":
+        raise ValueError(f"--colour colours the points of a .ply; {args.out} (an .npz of maps) holds no colours")
     inputs = [args.result] + ([args.result / "sceneflow.npz"] if args.result.is_dir() else [])
-    if any(p.exists() and p.resolve() == args.out.resolve() for p in inputs + [args.colour] if p is not None):
+    inputs += [Path(v) for v in args.camera[:1] if len(args.camera) == 1] + [args.colour, args.gt]
+    if any(p is not None and p.exists() and p.resolve() == args.out.resolve() for p in inputs):
         raise ValueError(f"{args.out}: it would replace an input of this command; choose another --out")
     camera = _camera(args.camera)
     if args.principal is not None:
-        camera = type(camera)(camera.focal, camera.baseline, camera.offset, tuple(args.principal))
+        try:
+            camera = replace(camera, principal=tuple(args.principal))
+        except ValueError as exc:
+            raise ValueError(f"--principal {args.principal[0]:g} {args.principal[1]:g}: "
+                             f"{str(exc).removeprefix('Camera: principal ')}") from None
     sf = SceneFlow.load(args.result)
     k = recorded_downsample(args.result)
+    views = _recorded_views(args.result)
+    if camera.size is None and views is not None:  # (the full views' size, where lfsf run recorded it)
+        camera = replace(camera, size=views)
     gt = None
     if args.gt is not None:  # (read and checked before the points are written)
         from lfsf.evaluate import load_ground_truth
@@ -304,7 +327,8 @@ def cmd_points(args) -> int:
     try:
         points1, points2 = sf.points(camera)
     except ValueError as exc:
-        raise ValueError(f"{args.result}: {str(exc).removeprefix('SceneFlow.points: ')}") from None
+        said = str(exc).removeprefix("SceneFlow.points: ").removeprefix("Camera.points: ")
+        raise ValueError(f"{args.result}: {said}") from None
     colours = None
     if args.colour is not None:
         from lfsf.io import read_lightfield
@@ -319,6 +343,12 @@ def cmd_points(args) -> int:
                              + f", the result {args.result} {sf.disp1.shape[1]}×{sf.disp1.shape[0]}")
     flow3d = points2 - points1
     at_infinity = int((~np.isfinite(points1).all(axis=-1) | ~np.isfinite(points2).all(axis=-1)).sum())
+    if at_infinity == sf.disp1.size:
+        d = sf.disp1[np.isfinite(sf.disp1)]
+        span = f"δ1 spans {float(d.min()):.3g} to {float(d.max()):.3g}, " if d.size else ""
+        shrunk = f" (in the result's pixels, {k} times the views')" if k > 1 else ""
+        raise ValueError(f"{args.result}: no point lies in front of this camera ({span}δ0 = {camera.offset:g}"
+                         f"{shrunk}, and a point needs δ + δ0 > 0): check δ0, f·b / Z_f for views focused at Z_f")
     if suffix == ".ply":
         from lfsf.io import write_ply
 
@@ -462,6 +492,7 @@ def cmd_run(args) -> int:
                          f"px the estimate needs: " + (f"at most --downsample {largest}" if largest > 1 else
                                                       "they are too small to shrink"))
     gt, border = _run_ground_truth(args, lf1, params)
+    full_width, full_height = lf1.width, lf1.height
     if args.downsample > 1:
         full = f"{lf1.width}×{lf1.height}"
         lf1, lf2 = (lf1.downsample(args.downsample),) * 2 if lf2 is lf1 else (lf1.downsample(args.downsample),
@@ -480,7 +511,8 @@ def cmd_run(args) -> int:
     title = (f"lfsf run: {args.lf1.name} and {args.lf2.name} ({lf1.width}x{lf1.height}, {rows}x{cols} views, "
              f"{_preset_label(args)})" + (f" against {args.gt.name}" if gt is not None else ""))
     paths = sf.save(args.out, lf1.centre, lf2.centre, gt=gt, title=title, border=border or 0,
-                    inputs={"downsample": args.downsample} if args.downsample > 1 else None)
+                    inputs={"downsample": args.downsample, "views": [full_width, full_height]}
+                    if args.downsample > 1 else None)
     _log(args, f"estimated in {seconds:.1f} s on {device}; wrote {len(paths)} files to {args.out}"
                + (" (disp1 and disp2: zeros, not estimated by a flow-only run)" if params.flow_only else ""))
     if gt is not None:  # (after the results are written: an error here loses none of them)
@@ -786,17 +818,19 @@ def build_parser() -> argparse.ArgumentParser:
                                    "t1 and t2 and their difference, the 3-D scene flow (MODEL.md §7: Z = f·b / "
                                    "(δ + δ0), in the centre camera's frame, x right, y down, z forward, in the "
                                    "unit of b). OUT.ply: a point cloud of the t1 points with the flow as "
-                                   "flow_x, flow_y, flow_z; OUT.npz: the maps points1, points2, scene_flow, "
-                                   "depth1, depth2.")
+                                   "flow_x, flow_y, flow_z (the points whose t1 or t2 point lies at or beyond "
+                                   "infinity left out); OUT.npz: the maps points1, points2, scene_flow, depth1, "
+                                   "depth2 (NaN there), occluded and the camera (JSON). Negative numbers in "
+                                   "plain decimals (-0.001, not -1e-3).")
     p.add_argument("result", type=_input_name, help="a folder written by 'lfsf run' (or its sceneflow.npz)")
-    p.add_argument("--camera", nargs="+", required=True, metavar="F B [D0] | FILE",
+    p.add_argument("--camera", nargs="+", required=True, metavar=("F|FILE", "B"),
                    help="the centre view's focal length f (px), the baseline b between neighbouring views and the "
                         "disparity offset δ0 of the focus plane (default 0: views aligned at infinity; f·b / Z_f "
                         "for views focused at Z_f), or a file recording them: a gt.npz of 'lfsf synth' or an HCI "
                         "parameters.cfg (or its folder); of the full views, for a result of 'lfsf run "
                         "--downsample K' too")
     p.add_argument("--principal", nargs=2, type=float, metavar=("CX", "CY"),
-                   help="the principal point in px (default: the views' centre)")
+                   help="the principal point in px of the full views (default: their centre)")
     p.add_argument("--colour", type=_input_name, metavar="LF",
                    help="colour the .ply's points by this light field's centre view (the t1 one)")
     p.add_argument("--out", type=_file_name, required=True, help="OUT.ply or OUT.npz")

@@ -73,10 +73,16 @@ def test_the_ground_truths_points_move_as_their_objects():
         np.testing.assert_allclose((points2 - points1)[mask], np.broadcast_to(move, (mask.sum(), 3)), atol=1e-5)
     # the t1 points lie on the backdrop's plane, z = 10 (it is not tilted)
     np.testing.assert_allclose(points1[backdrop][:, 2], BACKDROP_DEPTH, rtol=1e-5)
-    # a principal point elsewhere moves the points sideways, not their depth
+    # a principal point elsewhere moves the points sideways, not their depth: the ray
+    # through it is the optical axis
     moved = Camera(camera.focal, camera.baseline, camera.offset, principal=(40.0, 30.0)).points(gt["disp1"])
     np.testing.assert_array_equal(moved[..., 2], points1[..., 2])
-    assert not np.allclose(moved[..., 0], points1[..., 0])
+    np.testing.assert_array_equal(moved[30, 40, :2], 0.0)
+    np.testing.assert_allclose(moved[..., 0] - points1[..., 0], (47.5 - 40.0) * points1[..., 2] / camera.focal,
+                               rtol=1e-5, atol=1e-6)
+    assert camera.size == (96, 72)
+    with pytest.raises(ValueError, match="for views of 96×72 px, the map is 48×36"):
+        camera.points(gt["disp1"][::2, ::2])
 
 
 def test_the_estimates_scene_flow_is_the_objects_motion():
@@ -105,6 +111,23 @@ def test_the_estimates_scene_flow_is_the_objects_motion():
     assert off["epe3d_median"] == pytest.approx(np.median(z2[(gt["valid"])[8:-8, 8:-8]]) / camera.focal, rel=0.05)
 
 
+@pytest.mark.parametrize("size, k", [((64, 48), 2), ((65, 49), 2), ((64, 48), 3)])
+def test_a_shrunk_cameras_points_are_the_block_means_of_the_full_ones(size, k):
+    """On a fronto-parallel plane (δ constant: X linear in the pixel) the points of the views
+    shrunk K times, as ``LightField.downsample`` shrinks them (K×K means, the rest of each
+    side dropped), are the means of the full views' points over each block, where the
+    camera knows the full views' size (K need not divide it)."""
+    width, height = size
+    y, x = np.mgrid[0:height, 0:width].astype(np.float64)
+    disp = np.full(x.shape, 1.5)
+    camera = Camera(80.0, 0.2, 2.0, size=size)
+    full = camera.points(disp).astype(np.float64)
+    h, w = height // k, width // k
+    blocks = full[:h * k, :w * k].reshape(h, k, w, k, 3).mean(axis=(1, 3))
+    small_disp = disp[:h * k, :w * k].reshape(h, k, w, k).mean(axis=(1, 3)) / k
+    np.testing.assert_allclose(camera.downsampled(k).points(small_disp), blocks, rtol=2e-5, atol=1e-5)
+
+
 def test_a_camera_of_shrunk_views_gives_the_same_depths():
     camera = Camera(320.0, 0.1, 2.0, principal=(161.5, 118.5))
     small = camera.downsampled(2)
@@ -121,7 +144,9 @@ def test_the_hci_camera_is_focused_at_its_focus_distance():
                                  "image_resolution_y_px": 512},
                   "extrinsics": {"baseline_mm": 90.0, "focus_distance_m": 8.0, "num_cams_x": 9}}
     camera = Camera.from_hci(parameters)
-    assert camera.focal == pytest.approx(100 / 35 * 512)
+    assert camera.focal == pytest.approx(100 / 35 * 512) and camera.size == (512, 512)
+    wide = Camera.from_hci({**parameters, "intrinsics": {**parameters["intrinsics"], "image_resolution_y_px": 384}})
+    assert wide.focal == camera.focal and wide.size == (512, 384)      # f from the larger side
     assert camera.depth(np.zeros(1))[0] == pytest.approx(8000.0)          # δ = 0 at the focus distance, in mm
     assert camera.depth(np.ones(1))[0] < 8000.0                          # δ > 0: nearer (the HCI sign)
     with pytest.raises(ValueError, match="focus_distance_m"):
@@ -194,6 +219,33 @@ def test_lfsf_points_writes_the_results_points(small_result):
     np.testing.assert_allclose(body["flow_z"], (points2 - points1)[..., 2].ravel(), rtol=1e-5, atol=1e-7)
     centre = lfsf.read_lightfield(root / "s/lf1.npz").centre
     np.testing.assert_array_equal(body["red"], np.round(np.clip(centre, 0, 1) * 255).astype(np.uint8).ravel())
+    np.testing.assert_array_equal(saved["depth2"], points2[..., 2])
+    np.testing.assert_array_equal(saved["occluded"], lfsf.SceneFlow.load(root / "r").occluded)
+
+
+def test_lfsf_points_keeps_the_colours_and_flows_of_the_points_it_writes(small_result, tmp_path):
+    """A camera that puts part of the points beyond infinity (δ0 = −the median δ1): the
+    .ply holds the others, each with its own RGB colour and 3-D flow; --principal moves
+    the optical axis onto that pixel."""
+    root = small_result
+    sf = lfsf.SceneFlow.load(root / "r")
+    offset = -float(np.median(sf.disp1))
+    camera = Camera(64.0, 0.375, offset, principal=(10.0, 20.0))
+    points1, points2 = sf.points(camera)
+    kept = np.isfinite(points1).all(-1) & np.isfinite(points2).all(-1)
+    assert 0.3 < kept.mean() < 0.7
+    rgb = np.random.default_rng(1).random((5, 5, 48, 64, 3)).astype(np.float32)
+    np.savez(tmp_path / "rgb.npz", views=rgb)
+    done = _lfsf("points", root / "r", "--camera", 64, 0.375, f"{offset:.9f}", "--principal", 10, 20, "--colour",
+                 tmp_path / "rgb.npz", "--out", tmp_path / "c.ply")
+    assert done.returncode == 0 and f"{int(kept.sum())} points of 64×48" in done.stderr, done.stderr
+    body = _read_ply(tmp_path / "c.ply")
+    assert body.size == kept.sum()
+    for k, name in enumerate(("red", "green", "blue")):
+        np.testing.assert_array_equal(body[name], np.round(rgb[2, 2][kept][:, k] * 255).astype(np.uint8))
+    np.testing.assert_allclose(body["x"], points1[kept][:, 0], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(body["flow_y"], (points2 - points1)[kept][:, 1], rtol=1e-4, atol=1e-6)
+    np.testing.assert_array_equal(camera.points(np.ones((48, 64)))[20, 10, :2], 0.0)
 
 
 @pytest.mark.parametrize("extra, message", [
@@ -204,6 +256,10 @@ def test_lfsf_points_writes_the_results_points(small_result):
     (["--camera", "100", "1", "--out", "{root}/p.txt"], "a .ply"),
     (["--camera", "{root}/s/lf1.npz"], "lacks focal, baseline, shift"),
     (["--camera", "100", "1", "--colour", "{root}/missing"], "missing"),
+    (["--camera", "100", "1", "-50"], "no point lies in front of this camera"),
+    (["--camera", "100", "1", "--principal", "nan", "3"], "--principal nan 3: c_x must be finite"),
+    (["--camera", "100", "1", "--colour", "{root}/s/lf1.npz", "--out", "{root}/p.npz"], "holds no colours"),
+    (["--camera", "{root}/s/gt.npz", "--out", "{root}/s/gt.npz"], "would replace an input"),
 ])
 def test_lfsf_points_refuses_bad_input(small_result, extra, message):
     root = small_result
