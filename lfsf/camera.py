@@ -249,6 +249,7 @@ def scene_flow_errors(estimate, gt, camera: Camera, border: int | None = None) -
       in the baseline's unit, and ``epe3d_median``;
     * ``epe3d_noc``: the same over the points seen at t2 as well (where ``gt`` has ``occluded``);
     * ``depth1_rel``: the mean relative error of the t1 depth, |Z1 − Z1*| / Z1*;
+    * ``motion``: the true 3-D motions' mean length, ‖X2* − X1*‖, for scale;
     * ``pixels``.
 
     A point of the estimate at or beyond infinity (δ + δ0 ≤ 0) where the truth's is finite
@@ -272,7 +273,8 @@ def scene_flow_errors(estimate, gt, camera: Camera, border: int | None = None) -
     depth = np.abs(est1[..., 2] - true1[..., 2]) / true1[..., 2]
     depth = np.where(np.isfinite(depth), depth, np.inf)
     out = {"epe3d": float(error[scored].mean()), "epe3d_median": float(np.median(error[scored])),
-           "depth1_rel": float(depth[scored].mean()), "pixels": int(scored.sum())}
+           "depth1_rel": float(depth[scored].mean()),
+           "motion": float(np.linalg.norm((true2 - true1)[scored], axis=-1).mean()), "pixels": int(scored.sum())}
     if gt.get("occluded") is not None:
         seen = scored & ~np.asarray(gt["occluded"], dtype=bool)
         if seen.any():

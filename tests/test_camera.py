@@ -103,6 +103,8 @@ def test_the_estimates_scene_flow_is_the_objects_motion():
     errors = scene_flow_errors(sf, gt, camera)
     assert errors["pixels"] > 12000 and errors["epe3d_median"] < 0.25 * np.linalg.norm(_translations(size)[0])
     assert errors["depth1_rel"] < 0.01
+    true_motion = np.linalg.norm(np.array(_translations(size)), axis=1)
+    assert true_motion[0] < errors["motion"] < true_motion[1]     # (most pixels are the backdrop's)
     exact = scene_flow_errors({k: gt[k] for k in ("disp1", "disp2", "u", "v")}, gt, camera)
     assert exact["epe3d"] == exact["depth1_rel"] == 0.0
     off = scene_flow_errors({**{k: gt[k] for k in ("disp1", "disp2", "u")}, "v": gt["v"] + 1.0}, gt, camera)

@@ -63,6 +63,9 @@ def test_demo_quiet_prints_the_error_table_alone_and_takes_the_device_asked(tmp_
     assert lines[0].split()[0] == "variable" and lines[1].split()[0] == "disp1", out
     assert not any(word in out for word in ("rendered", "estimated in", "wrote")), out
     assert (tmp_path / "q" / "overview.png").exists()
+    # and the same in 3-D, through the camera that rendered the scene: below the motions' own length
+    found = re.search(r"3-D scene flow.*true motions ([0-9.]+) long.*error mean ([0-9.]+)", out)
+    assert found and 0 < float(found.group(2)) < float(found.group(1)), out
     status, out, err = lfsf("demo", "--device", "cuda:9", "--size", 48, 36, "--grid", 3, "--preset", "fast",
                             "--out", tmp_path / "d")
     assert_clean_error(status, err, "cuda:9")
