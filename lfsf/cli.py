@@ -208,7 +208,8 @@ def cmd_eval(args) -> int:
     except ValueError as exc:
         raise ValueError(f"{args.result} against {args.gt}: {exc}") from None
     print(f"{args.result} against {args.gt} (border {border} px"
-          + (f"; estimated on views shrunk {k} times, the ground truth shrunk alike)" if shrunk else ")"))
+          + (f"; estimated on views shrunk {k} times, the ground truth shrunk alike){_shrunk_units(k)}"
+             if shrunk else ")"))
     print(format_table(errors))
     # a partial result (one map written, another lost) should not pass for a whole one
     lacking = [name for name, keys in (("disp1", ("disp1",)), ("disp2", ("disp2",)), ("flow", ("u", "v")))
@@ -242,6 +243,12 @@ def cmd_eval(args) -> int:
                   "not_evaluated": lacking, "notes": notes}
         write_json_atomic(args.json, report)
     return 0
+
+
+def _shrunk_units(k: int) -> str:
+    """What the errors of a result of ``--downsample K`` are in, for a table's header."""
+    return (f": δ and the flow in the shrunk views' pixels, so against a full-size run's MSE ×{k * k}, EPE "
+            f"×{k}, and BadPix(0.07) counts errors over {0.07 * k:g} of the full views' px")
 
 
 def _camera(values: list[str]):
@@ -501,6 +508,7 @@ def cmd_run(args) -> int:
         _log(args, f"lfsf run: views downsampled {full} → {lf1.width}×{lf1.height} (means of {args.downsample}×"
                    f"{args.downsample} px): δ and the flow are in the smaller views' pixels"
                    + (", the ground truth shrunk alike" if gt is not None else ""))
+    _warn_memory(args, lf1, lf2, params, device)
     progress = _Progress(args)
     t0 = time.perf_counter()
     try:
@@ -525,11 +533,57 @@ def cmd_run(args) -> int:
             raise ValueError(f"{args.out} against {args.gt}: {exc}") from None
         print(f"{args.out} against {args.gt} (border {border} px"
               + (f"; estimated on views shrunk {args.downsample} times, the ground truth shrunk alike)"
+                 f"{_shrunk_units(args.downsample)}"
                  if args.downsample > 1 else ")"))
         print(format_table(errors), flush=True)
         if params.flow_only and any(k in gt for k in ("disp1", "disp2")):
             print(_not_estimated_line(args.out, [k for k in ("disp1", "disp2") if k in gt]), flush=True)
     return 0
+
+
+#: Host memory of an estimate on the CPU, fitted to peak RSS of `lfsf run` (a helper's runs,
+#: fifty-fifth session, within 3 %): 640×480, 1280×960 and 625×434 (15×15 views) with 9×9
+#: or 5×5 views and the `paper` (17 samples) and `fast` (9) presets: a fixed part, a part
+#: per pixel and per pixel and sample, and the two light fields held (4 B a value).
+MEMORY_FIXED, MEMORY_PER_PIXEL, MEMORY_PER_SAMPLE = 0.3e9, 610.0, 76.0
+
+
+def memory_needed(width: int, height: int, values_per_pixel: int, samples: int) -> float:
+    """Bytes of host memory that an estimate on the CPU takes, about (:data:`MEMORY_FIXED`):
+    ``values_per_pixel`` the light fields' values at a pixel (views × channels, of each
+    light field held)."""
+    pixels = width * height
+    return MEMORY_FIXED + pixels * (MEMORY_PER_PIXEL + MEMORY_PER_SAMPLE * samples + 4 * values_per_pixel)
+
+
+def _memory_available() -> float | None:
+    """MemAvailable of /proc/meminfo in bytes (None where there is none: not Linux)."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def _warn_memory(args, lf1, lf2, params, device: str) -> None:
+    """A warning before the work where the estimate will likely need more host memory
+    than the machine has free (:func:`memory_needed`; CPU runs)."""
+    if not str(device).startswith("cpu"):
+        return
+    available = _memory_available()
+    if available is None:
+        return
+    per_pixel = sum(lf.views.size // (lf.height * lf.width) for lf in ((lf1,) if lf2 is lf1 else (lf1, lf2)))
+    samples = sum(params.samples)
+    needed = memory_needed(lf1.width, lf1.height, per_pixel, samples)
+    if needed > available:
+        smaller = memory_needed(lf1.width // 2, lf1.height // 2, per_pixel, samples)
+        print(f"lfsf run: warning: this estimate needs about {needed / 1e9:.1f} GB of memory, and "
+              f"{available / 1e9:.1f} GB are free: it may run out (--downsample 2: about {smaller / 1e9:.1f} GB)",
+              file=sys.stderr, flush=True)
 
 
 #: The smallest views the estimator takes (px along the shorter side): what --downsample

@@ -442,7 +442,8 @@ def test_run_downsamples_the_views_and_the_ground_truth_alike(tmp_path, capsys):
     assert "lfsf run: views downsampled 64×48 → 32×24 (means of 2×2 px)" in err
     assert "ground truth shrunk alike" in err
     # the table's line says so too, as lfsf eval's on the same result does
-    assert "(border 4 px; estimated on views shrunk 2 times, the ground truth shrunk alike)" in out
+    assert "(border 4 px; estimated on views shrunk 2 times, the ground truth shrunk alike): δ and the flow in the " \
+        "shrunk views' pixels, so against a full-size run's MSE ×4, EPE ×2" in out
     saved = SceneFlow.load(tmp_path / "r")
     lf1, lf2 = (read_lightfield(s / name).downsample(2) for name in ("lf1.npz", "lf2.npz"))
     again = estimate_scene_flow(lf1, lf2, "fast", device="cpu")
@@ -1387,3 +1388,25 @@ def test_a_hung_up_terminal_or_a_failing_stderr_does_not_end_the_work():
     assert _PipeSafe(Failing(errno.ENOSPC), "stderr").write("line\n") == 5
     with pytest.raises(OSError, match=r"No space left on device: '<stdout>'"):
         _PipeSafe(Failing(errno.ENOSPC), "stdout").write("line\n")
+
+
+def test_run_warns_before_the_work_where_memory_will_not_do(tmp_path, monkeypatch, capsys):
+    """Where the estimate's host memory (cli.memory_needed) is more than the machine has
+    free, `lfsf run` says so before the work, with what --downsample 2 would need; with
+    enough free, nothing."""
+    from lfsf import cli, synth
+    from lfsf.io import write_lightfield
+
+    lf1, lf2, _ = synth.render_scene("paper", size=(48, 36), grid=5, device="cpu")
+    write_lightfield(lf1, tmp_path / "lf1.npz")
+    write_lightfield(lf2, tmp_path / "lf2.npz")
+    needed = cli.memory_needed(48, 36, 2 * 25, 9)
+    small = cli.memory_needed(24, 18, 2 * 25, 9)
+    for free, warned in ((needed * 0.9, True), (needed * 1.1, False)):
+        monkeypatch.setattr(cli, "_memory_available", lambda free=free: free)
+        assert cli.main(["run", str(tmp_path / "lf1.npz"), str(tmp_path / "lf2.npz"), "--out", str(tmp_path / "r"),
+                         "--preset", "fast", "--device", "cpu", "--quiet"]) == 0
+        err = capsys.readouterr().err
+        said = (f"warning: this estimate needs about {needed / 1e9:.1f} GB of memory, and {free / 1e9:.1f} GB are "
+                f"free: it may run out (--downsample 2: about {small / 1e9:.1f} GB)")
+        assert (said in err) is warned, err
