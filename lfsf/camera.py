@@ -197,7 +197,8 @@ class Camera:
     @classmethod
     def from_file(cls, path: str | os.PathLike) -> "Camera":
         """The camera a file records: a ``gt.npz`` of ``lfsf synth`` (:meth:`from_truth`),
-        or an HCI ``parameters.cfg`` or a folder holding one (:meth:`from_hci`).
+        or an HCI ``parameters.cfg`` (:meth:`from_hci`), or a folder holding either (the
+        ``parameters.cfg`` first).
 
         Raises
         ------
@@ -207,11 +208,12 @@ class Camera:
             Naming the file, where it records no camera.
         """
         path = Path(path)
-        if path.is_dir():
-            if not (path / "parameters.cfg").is_file():
-                raise FileNotFoundError(f"{path}: no parameters.cfg in this folder (a camera is read from an HCI "
-                                        "parameters.cfg or a gt.npz of 'lfsf synth')")
-            path = path / "parameters.cfg"
+        if path.is_dir():  # (an HCI folder, or lfsf synth's, as lfsf eval takes a folder)
+            found = [path / name for name in ("parameters.cfg", "gt.npz") if (path / name).is_file()]
+            if not found:
+                raise FileNotFoundError(f"{path}: no parameters.cfg or gt.npz in this folder (a camera is read from "
+                                        "an HCI parameters.cfg or a gt.npz of 'lfsf synth')")
+            path = found[0]
         if not path.is_file():
             raise FileNotFoundError(f"{path}: no such file")
         try:
@@ -241,7 +243,9 @@ def scene_flow_errors(estimate, gt, camera: Camera, border: int | None = None) -
     through ``camera`` (MODEL.md §7).
 
     ``estimate``: an :class:`lfsf.SceneFlow` or a mapping with ``disp1``, ``disp2``,
-    ``u``, ``v``; ``gt``: the same maps of the truth (a ``gt.npz`` of ``lfsf synth``),
+    ``u``, ``v``; ``gt``: the same maps of the truth (a ``gt.npz`` of ``lfsf synth``;
+    for a result of ``lfsf run --downsample K``, shrunk alike, and ``camera`` the light
+    fields', which the result's recorded K shrinks here),
     with optional bool ``valid`` and ``occluded``. Over the valid pixels where the true
     points are finite, without ``border`` px at each edge (None: 8, as :func:`lfsf.evaluate.evaluate`):
 
@@ -256,6 +260,8 @@ def scene_flow_errors(estimate, gt, camera: Camera, border: int | None = None) -
     counts as an infinite error."""
     from lfsf.evaluate import SYNTH_BORDER, _mask
 
+    if hasattr(estimate, "maps_camera"):  # (a result of lfsf run --downsample K: its maps' camera, its truth's too)
+        camera = estimate.maps_camera(camera)
     maps = estimate.as_dict() if hasattr(estimate, "as_dict") else estimate
     missing = [k for k in ("disp1", "disp2", "u", "v") for m in (maps, gt) if k not in m]
     if missing:

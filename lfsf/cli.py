@@ -256,7 +256,12 @@ def _camera(values: list[str]):
     from lfsf.camera import Camera
 
     if len(values) == 1:
-        return Camera.from_file(values[0])
+        try:
+            float(values[0])
+        except ValueError:
+            return Camera.from_file(values[0])
+        raise ValueError(f"--camera {values[0]}: give the focal length f (px) and the baseline b (and δ0), or one "
+                         "file (a gt.npz of 'lfsf synth', an HCI parameters.cfg or its folder)")
     if len(values) in (2, 3):
         try:
             numbers = [float(v) for v in values]
@@ -269,17 +274,6 @@ def _camera(values: list[str]):
         except ValueError as exc:
             raise ValueError(f"--camera {' '.join(values)}: {str(exc).removeprefix('Camera: ')}") from None
     raise ValueError(f"--camera {' '.join(values)}: give F B [D0] (three numbers at most) or one file")
-
-
-def _recorded_views(result: Path) -> tuple[int, int] | None:
-    """The size of the views a result of ``lfsf run --downsample`` was shrunk from, where
-    it records it (``inputs.views``), else None."""
-    from lfsf.evaluate import _recorded
-
-    views = (_recorded(result).get("inputs") or {}).get("views")
-    if isinstance(views, list) and len(views) == 2 and all(isinstance(v, int) and v >= 1 for v in views):
-        return views[0], views[1]
-    return None
 
 
 def cmd_points(args) -> int:
@@ -310,9 +304,6 @@ def cmd_points(args) -> int:
                              f"{str(exc).removeprefix('Camera: principal ')}") from None
     sf = SceneFlow.load(args.result)
     k = recorded_downsample(args.result)
-    views = _recorded_views(args.result)
-    if camera.size is None and views is not None:  # (the full views' size, where lfsf run recorded it)
-        camera = replace(camera, size=views)
     gt = None
     if args.gt is not None:  # (read and checked before the points are written)
         from lfsf.evaluate import load_ground_truth
@@ -329,13 +320,14 @@ def cmd_points(args) -> int:
         if np.shape(gt["disp1"]) != sf.disp1.shape:
             raise ValueError(f"{args.gt}: its maps are {np.shape(gt['disp1'])[1]}×{np.shape(gt['disp1'])[0]}, the "
                              f"result {args.result} {sf.disp1.shape[1]}×{sf.disp1.shape[0]}")
-    if k > 1:  # (a result of lfsf run --downsample K: its pixels are K of the camera's)
-        camera = camera.downsampled(k)
-    try:
+    try:  # (of a result of lfsf run --downsample K: the camera shrunk K times, SceneFlow.maps_camera)
         points1, points2 = sf.points(camera)
+        camera = sf.maps_camera(camera)  # (the maps' own, as the messages and the .npz give it)
     except ValueError as exc:
         said = str(exc).removeprefix("SceneFlow.points: ").removeprefix("Camera.points: ")
-        raise ValueError(f"{args.result}: {said}") from None
+        said = said.split(" (for views shrunk")[0]  # (the Python hint: lfsf points shrinks the camera itself)
+        raise ValueError(f"{args.result}: {said}" + (" (give the camera of the light fields given to lfsf run)"
+                                                      if "this camera is for views" in said else "")) from None
     colours = None
     if args.colour is not None:
         from lfsf.io import read_lightfield
@@ -580,9 +572,10 @@ def _warn_memory(args, lf1, lf2, params, device: str) -> None:
     samples = sum(params.samples)
     needed = memory_needed(lf1.width, lf1.height, per_pixel, samples)
     if needed > available:
+        k = 2 * (args.downsample or 1)  # (the views here are those already shrunk by --downsample)
         smaller = memory_needed(lf1.width // 2, lf1.height // 2, per_pixel, samples)
         print(f"lfsf run: warning: this estimate needs about {needed / 1e9:.1f} GB of memory, and "
-              f"{available / 1e9:.1f} GB are free: it may run out (--downsample 2: about {smaller / 1e9:.1f} GB)",
+              f"{available / 1e9:.1f} GB are free: it may run out (--downsample {k}: about {smaller / 1e9:.1f} GB)",
               file=sys.stderr, flush=True)
 
 
@@ -899,13 +892,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gt", type=_input_name, metavar="GT",
                    help="a gt.npz of 'lfsf synth': also print the 3-D scene flow's end-point error and the t1 "
                         "depth's relative error against its points (through the same camera; valid pixels, an "
-                        "8-px border)")
+                        "8-px border, shrunk with the views of a result of 'lfsf run --downsample K')")
     p.add_argument("--quiet", action="store_true", help="no messages (the errors of --gt still print)")
     p.set_defaults(func=cmd_points)
 
     p = sub.add_parser("run", help="estimate scene flow from two light fields",
                        description="Estimate δ1, δ2 and the flow of the centre view from light fields at t1 and "
-                                   "t2; writes disp1.pfm, disp2.pfm, flow.flo, sceneflow.npz and pictures.")
+                                   "t2; writes disp1.pfm, disp2.pfm, flow.flo, sceneflow.npz and pictures. Warns "
+                                   "before the work where the estimate will likely need more memory than is free "
+                                   "(README, Large views).")
     p.add_argument("lf1", type=Path, help="light field at t1 (folder of views or .npz)")
     p.add_argument("lf2", type=Path, help="light field at t2")
     p.add_argument("--out", type=_folder_name, required=True, help="output folder")

@@ -56,6 +56,10 @@ class SceneFlow:
         regulariser and the neighbours. (The fill also takes points hidden by less than
         this mask's margin, ``lfsf.solver.FILL_MARGIN``, which the mask leaves out.)
         None for flow only (no depth to tell which point is nearer).
+    inputs : dict or None
+        What a saved result records of its inputs (:meth:`load`; ``lfsf run
+        --downsample K`` records ``downsample`` K and ``views``, the light fields' size
+        (W, H) before shrinking; ``lfsf batch`` its sources); None for a fresh estimate.
 
     ``==`` is identity: compare two results' maps with ``np.array_equal`` (``as_dict()``).
     """
@@ -70,6 +74,7 @@ class SceneFlow:
     timings: dict = field(default_factory=dict)
     exposure: tuple[float, float] | None = None
     occluded: np.ndarray | None = None
+    inputs: dict | None = None
 
     def __post_init__(self) -> None:
         # the maps as the files promise them (float32 H×W, one shape), whoever made this
@@ -112,8 +117,10 @@ class SceneFlow:
         X(p + (u, v), δ2), float32 (H, W, 3) each, in the centre camera's frame (x right,
         y down, z forward, the unit of the camera's baseline; NaN where δ + δ0 ≤ 0);
         their difference is the 3-D scene flow (MODEL.md §7). ``camera``: an
-        :class:`lfsf.camera.Camera` of the views the estimate was made on (of views
-        shrunk by ``lfsf run --downsample K``: ``camera.downsampled(K)``).
+        :class:`lfsf.camera.Camera` of the light fields given to the estimate. A result
+        of ``lfsf run --downsample K`` records K and the light fields' size
+        (``inputs``): the camera is shrunk alike here (:meth:`Camera.downsampled`), and
+        a camera without a size takes the recorded one.
 
         >>> points1, points2 = sf.points(lfsf.Camera(focal=640, baseline=0.0375, offset=4))  # doctest: +SKIP
         """
@@ -124,7 +131,25 @@ class SceneFlow:
         if self.params.flow_only:
             raise ValueError("SceneFlow.points: a flow-only result (one circle) has no disparities to take depths "
                              "from; estimate with a light-field preset (paper, fast)")
+        camera = self.maps_camera(camera)
         return camera.points(self.disp1), camera.points(self.disp2, self.u, self.v)
+
+    def maps_camera(self, camera):
+        """The camera of this result's maps, from the camera of the light fields given to
+        the estimate: itself, or for a result of ``lfsf run --downsample K`` (``inputs``)
+        shrunk K times, with the light fields' recorded size where the camera has none
+        (so that the principal point stays the full views' centre)."""
+        from dataclasses import replace
+
+        inputs = self.inputs if isinstance(self.inputs, dict) else {}
+        k = inputs.get("downsample", 1)
+        if not (isinstance(k, int) and not isinstance(k, bool) and k > 1):
+            return camera
+        views = inputs.get("views")
+        if camera.size is None and isinstance(views, list | tuple) and len(views) == 2 and all(
+                isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in views):
+            camera = replace(camera, size=(int(views[0]), int(views[1])))
+        return camera.downsampled(k)
 
     @classmethod
     def load(cls, path: str | Path) -> "SceneFlow":
@@ -164,8 +189,9 @@ class SceneFlow:
             raise ValueError(f"{file}: its recorded settings do not read as this version's ({exc})") from None
         occluded = arrays.get("occluded")
         try:
+            inputs = meta.get("inputs") if isinstance(meta.get("inputs"), dict) else None
             return cls(arrays["disp1"], arrays["disp2"], arrays["u"], arrays["v"], params, radius, device,
-                       timings, exposure, None if occluded is None else np.asarray(occluded))
+                       timings, exposure, None if occluded is None else np.asarray(occluded), inputs)
         except ValueError as exc:
             raise ValueError(f"{file}: {exc}") from None
 
@@ -248,6 +274,8 @@ class SceneFlow:
             # (the version that wrote it: settings added later read as their defaults)
             meta = {"params": self.params.as_dict(), "radius_used": self.radius, "device": self.device,
                     "timings": self.timings, "exposure": self.exposure, "lfsf_version": __version__}
+            if inputs is None:  # (what a loaded result recorded stays with it)
+                inputs = self.inputs
             if inputs is not None:
                 meta["inputs"] = inputs
             extra = {} if self.occluded is None else {"occluded": self.occluded}

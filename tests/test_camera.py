@@ -251,7 +251,8 @@ def test_lfsf_points_keeps_the_colours_and_flows_of_the_points_it_writes(small_r
 
 
 @pytest.mark.parametrize("extra, message", [
-    (["--camera", "100"], "no such file"),
+    (["--camera", "100"], "give the focal length f (px) and the baseline b"),
+    (["--camera", "{root}/missing.npz"], "no such file"),
     (["--camera", "100", "x"], "as numbers"),
     (["--camera", "-5", "1"], "focal must be positive"),
     (["--camera", "1", "2", "3", "4"], "three numbers at most"),
@@ -299,3 +300,13 @@ def test_lfsf_points_of_a_shrunk_result_takes_the_full_views_camera(small_result
     assert json.loads(str(half["camera"]))["focal"] == pytest.approx(json.loads(str(full["camera"]))["focal"] / 2)
     assert np.median(half["depth1"]) == pytest.approx(np.median(full["depth1"]), rel=0.03)
     assert np.median(half["points1"][..., 0]) == pytest.approx(np.median(full["points1"][..., 0]), abs=0.05)
+    # in Python, the result loaded knows its K and the light fields' size: the full camera
+    # given, a camera of numbers alone (no size) too, and the folder holding the gt.npz
+    gt = np.load(root / "s/gt.npz")
+    shrunk = lfsf.SceneFlow.load(tmp_path / "r2")
+    for camera in (Camera.from_truth(gt), Camera(float(gt["focal"]), float(gt["baseline"]), float(gt["shift"]))):
+        points1, _ = shrunk.points(camera)
+        np.testing.assert_allclose(points1, half["points1"], rtol=1e-6, atol=1e-7)
+    done = _lfsf("points", tmp_path / "r2", "--camera", root / "s", "--out", tmp_path / "dir.npz", "--quiet")
+    assert done.returncode == 0, done.stderr
+    np.testing.assert_array_equal(np.load(tmp_path / "dir.npz")["points1"], half["points1"])

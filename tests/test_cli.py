@@ -1410,3 +1410,8 @@ def test_run_warns_before_the_work_where_memory_will_not_do(tmp_path, monkeypatc
         said = (f"warning: this estimate needs about {needed / 1e9:.1f} GB of memory, and {free / 1e9:.1f} GB are "
                 f"free: it may run out (--downsample 2: about {small / 1e9:.1f} GB)")
         assert (said in err) is warned, err
+    # on views already shrunk by --downsample 2, the next step is 4
+    monkeypatch.setattr(cli, "_memory_available", lambda: 1.0)
+    assert cli.main(["run", str(tmp_path / "lf1.npz"), str(tmp_path / "lf2.npz"), "--out", str(tmp_path / "r2"),
+                     "--preset", "fast", "--device", "cpu", "--quiet", "--downsample", "2"]) == 0
+    assert "it may run out (--downsample 4: about" in capsys.readouterr().err
