@@ -345,7 +345,7 @@ def cmd_points(args) -> int:
     if at_infinity == sf.disp1.size:
         d = sf.disp1[np.isfinite(sf.disp1)]
         span = f"δ1 spans {float(d.min()):.3g} to {float(d.max()):.3g}, " if d.size else ""
-        shrunk = f" (in the result's pixels, {k} times the views')" if k > 1 else ""
+        shrunk = f" (in the result's pixels: the views shrunk {k} times)" if k > 1 else ""
         raise ValueError(f"{args.result}: no point lies in front of this camera ({span}δ0 = {camera.offset:g}"
                          f"{shrunk}, and a point needs δ + δ0 > 0): check δ0, f·b / Z_f for views focused at Z_f")
     if suffix == ".ply":
