@@ -448,11 +448,17 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
         # the estimator's warnings come to progress, this thread's alone (a worker runs pairs
         # on threads, which share the warnings module's filters; and its stderr is no one's)
         token = WARNINGS_TO_PROGRESS.set(True)
+        # the centre views copied, the light fields handed over (the estimate lets them go
+        # once sampled, as lfsf run)
+        centre1, centre2 = np.array(lf1.centre), np.array(lf2.centre)
+        given = [lf1, lf2]
+        del lf1, lf2
         try:
-            sf = estimate_scene_flow(lf1, lf2, params, device=_worker_device(device), init=init, progress=progress)
+            sf = estimate_scene_flow(given.pop(0), given.pop(0), params, device=_worker_device(device), init=init,
+                                     progress=progress)
         finally:
             WARNINGS_TO_PROGRESS.reset(token)
-        sf.save(tmp, lf1.centre, lf2.centre, inputs=inputs)   # (with overview.png, as lfsf run)
+        sf.save(tmp, centre1, centre2, inputs=inputs)   # (with overview.png, as lfsf run)
         if final.exists():  # an earlier result, complete or not, or one left by hand
             _refuse_foreign(final)  # (what was put there while the pair ran)
             shutil.rmtree(final)

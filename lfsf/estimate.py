@@ -2056,6 +2056,12 @@ def estimate_scene_flow(
     lap("sampling")
     colour = (_centre_colour(lf1, offset, stretch)
               if (params.colour_median_radius > 0 or params.colour_tensor) and n_samples > 1 else None)
+    # the light fields are not read again: where the caller no longer holds them (lfsf run
+    # hands them over) their memory is free for the levels' buffers (lf: the sampling loop's
+    # last; the centre views of the exposure match: slices of the views where nothing
+    # stretched them, which kept the whole arrays)
+    del lf1, lf2, lf
+    grey_centres = matched = None
     centres = [wp.clone(both[t * n_samples]) for t in range(2)]
     texture = _normalise_contrast(_structure_texture(both, params, dev), params, dev)
     lap("texture")
@@ -2266,7 +2272,7 @@ def _centre_colour(lf: LightField, offset: float, stretch: float) -> np.ndarray 
     of `weak_texture` at 64×48, `fast`: δ1 MSE 0.0044 → 0.0098 with the edge step)."""
     if not lf.is_colour:
         return None
-    out = np.asarray(lf.centre, np.float32)
+    out = np.array(lf.centre, np.float32)  # (a copy: a slice would hold the whole light field)
     if stretch != 1.0:
         out = (out - np.float32(offset)) * np.float32(stretch)
     chroma = np.ptp(out, axis=-1)
