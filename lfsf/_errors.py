@@ -200,9 +200,8 @@ def run_script(main, prog: str | None = None) -> int:
         if not out_of_memory(exc):
             raise
         print(f"{prog}: error: out of memory ({str(exc).rstrip('.') or type(exc).__name__}): free memory, or give "
-              f"smaller light fields (an estimate with the paper's setting takes about 1.1 GB at 640×480 with 9×9 "
-              f"grey views, 3.4 GB at 1280×960: 0.3 GB and 2.5 KB a pixel, RGB 3.8 KB; lfsf run --downsample 2 "
-              f"about a third)", file=sys.stderr)
+              f"smaller light fields (lfsf run with the paper's setting takes about 0.9 GB at 640×480, 2.6 GB at "
+              f"1280×960: 0.3 GB and 1.9 KB a pixel; --downsample 2 about a third)", file=sys.stderr)
         return EXIT_FAILED
 
 

@@ -502,7 +502,7 @@ def cmd_run(args) -> int:
         _log(args, f"lfsf run: views downsampled {full} → {lf1.width}×{lf1.height} (means of {args.downsample}×"
                    f"{args.downsample} px): δ and the flow are in the smaller views' pixels"
                    + (", the ground truth shrunk alike" if gt is not None else ""))
-    _warn_memory(args, lf1, lf2, params, device)
+    _warn_memory(args, lf1, lf2, params, device, read=(full_width, full_height))
     rows, cols = lf1.grid
     title = (f"lfsf run: {args.lf1.name} and {args.lf2.name} ({lf1.width}x{lf1.height}, {rows}x{cols} views, "
              f"{_preset_label(args)})" + (f" against {args.gt.name}" if gt is not None else ""))
@@ -540,19 +540,23 @@ def cmd_run(args) -> int:
     return 0
 
 
-#: Host memory of an estimate on the CPU, fitted to peak RSS of `lfsf run` (a helper's runs,
-#: fifty-fifth session, within 3 %): 640×480, 1280×960 and 625×434 (15×15 views) with 9×9
-#: or 5×5 views and the `paper` (17 samples) and `fast` (9) presets: a fixed part, a part
-#: per pixel and per pixel and sample, and the two light fields held (4 B a value).
-MEMORY_FIXED, MEMORY_PER_PIXEL, MEMORY_PER_SAMPLE = 0.3e9, 610.0, 76.0
+#: Host memory of `lfsf run` on the CPU, fitted to its peak RSS (fifty-fifth session): a
+#: fixed part and, per pixel, the larger of the levels' buffers (a part, and a part a
+#: sample; within 3 % of 0.86, 2.61 and 1.89 GB measured at 640×480 and 1280×960 with 9×9
+#: views, `paper` (17 samples) and `fast` (9)) and the light fields while they are read
+#: (4 B a value and what reading takes besides; within 15 % of 1.02 GB at 625×434 with 15×15
+#: views and 1.15 GB for 1280×960 9×9 with --downsample 2), which the estimate lets go
+#: once sampled.
+MEMORY_FIXED, MEMORY_PER_PIXEL, MEMORY_PER_SAMPLE, MEMORY_PER_VALUE = 0.3e9, 610.0, 76.0, 5.0
 
 
 def memory_needed(width: int, height: int, values_per_pixel: int, samples: int) -> float:
-    """Bytes of host memory that an estimate on the CPU takes, about (:data:`MEMORY_FIXED`):
+    """Bytes of host memory that ``lfsf run`` takes on the CPU, about (:data:`MEMORY_FIXED`):
     ``values_per_pixel`` the light fields' values at a pixel (views × channels, of each
-    light field held)."""
+    light field read)."""
     pixels = width * height
-    return MEMORY_FIXED + pixels * (MEMORY_PER_PIXEL + MEMORY_PER_SAMPLE * samples + 4 * values_per_pixel)
+    return MEMORY_FIXED + pixels * max(MEMORY_PER_PIXEL + MEMORY_PER_SAMPLE * samples,
+                                       MEMORY_PER_VALUE * values_per_pixel)
 
 
 def _memory_available() -> float | None:
@@ -567,9 +571,11 @@ def _memory_available() -> float | None:
     return None
 
 
-def _warn_memory(args, lf1, lf2, params, device: str) -> None:
+def _warn_memory(args, lf1, lf2, params, device: str, read: tuple[int, int]) -> None:
     """A warning before the work where the estimate will likely need more host memory
-    than the machine has free (:func:`memory_needed`; CPU runs)."""
+    than the machine has free (:func:`memory_needed`; CPU runs), with what the next
+    ``--downsample`` would need: its estimate, or the reading of the light fields as
+    they are on disk (``read``: their width and height), whichever is more."""
     if not str(device).startswith("cpu"):
         return
     available = _memory_available()
@@ -580,7 +586,8 @@ def _warn_memory(args, lf1, lf2, params, device: str) -> None:
     needed = memory_needed(lf1.width, lf1.height, per_pixel, samples)
     if needed > available:
         k = 2 * (args.downsample or 1)  # (the views here are those already shrunk by --downsample)
-        smaller = memory_needed(lf1.width // 2, lf1.height // 2, per_pixel, samples)
+        smaller = max(memory_needed(lf1.width // 2, lf1.height // 2, per_pixel, samples),
+                      MEMORY_FIXED + read[0] * read[1] * MEMORY_PER_VALUE * per_pixel)
         print(f"lfsf run: warning: this estimate needs about {needed / 1e9:.1f} GB of memory, and "
               f"{available / 1e9:.1f} GB are free: it may run out (--downsample {k}: about {smaller / 1e9:.1f} GB)",
               file=sys.stderr, flush=True)
