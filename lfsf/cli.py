@@ -320,9 +320,17 @@ def cmd_points(args) -> int:
         if np.shape(gt["disp1"]) != sf.disp1.shape:
             raise ValueError(f"{args.gt}: its maps are {np.shape(gt['disp1'])[1]}×{np.shape(gt['disp1'])[0]}, the "
                              f"result {args.result} {sf.disp1.shape[1]}×{sf.disp1.shape[0]}")
+    given = camera  # (the light fields' camera, which sf.points and scene_flow_errors shrink as the result was)
     try:  # (of a result of lfsf run --downsample K: the camera shrunk K times, SceneFlow.maps_camera)
         points1, points2 = sf.points(camera)
         camera = sf.maps_camera(camera)  # (the maps' own, as the messages and the .npz give it)
+        errors = None
+        if gt is not None:  # (before anything is written)
+            from lfsf.camera import scene_flow_errors
+            from lfsf.evaluate import SYNTH_BORDER, downsample_border
+
+            border = downsample_border(SYNTH_BORDER, k) if k > 1 else SYNTH_BORDER
+            errors = scene_flow_errors(sf, gt, given, border=border)
     except ValueError as exc:
         said = str(exc).removeprefix("SceneFlow.points: ").removeprefix("Camera.points: ")
         said = said.split(" (for views shrunk")[0]  # (the Python hint: lfsf points shrinks the camera itself)
@@ -369,12 +377,8 @@ def cmd_points(args) -> int:
     _log(args, f"wrote {args.out}: {count} points of {sf.disp1.shape[1]}×{sf.disp1.shape[0]}, {depths} (the "
                f"baseline's unit)" + (f"; {at_infinity} at or beyond infinity (δ + δ0 ≤ 0) left "
                                       + ("out" if suffix == ".ply" else "NaN") if at_infinity else ""))
-    if gt is not None:
-        from lfsf.camera import scene_flow_errors
-        from lfsf.evaluate import SYNTH_BORDER, downsample_border
-
-        border = downsample_border(SYNTH_BORDER, k) if k > 1 else SYNTH_BORDER
-        e = scene_flow_errors(sf, gt, camera, border=border)
+    if errors is not None:
+        e = errors
         print(f"{args.result} against {args.gt} in 3-D (border {border} px, the baseline's unit; the true motions "
               f"{e['motion']:.4g} long on average): scene flow end-point error mean {e['epe3d']:.4g}, median "
               f"{e['epe3d_median']:.4g}"

@@ -125,8 +125,10 @@ def main(argv=None) -> int:
         print(f"| {name} | {figures['true_mean_3d_motion']:.4g} | {epe} | {ratio:.3f} | {depth} |", flush=True)
     ratios = [report["scenes"][n]["lfsf"]["epe3d"] / max(report["scenes"][n]["plenpy + opencv"]["epe3d"], 1e-12)
               for n in scenes]
+    finite = [r for r in ratios if 0 < r < math.inf]  # (a point at or beyond infinity makes a mean inf)
     report["summary"] = (f"lfsf's EPE3D below the peers' on {sum(r < 1 for r in ratios)} of {len(ratios)}; geometric "
-                         f"mean of lfsf / peers {math.exp(float(np.mean(np.log(ratios)))):.3f}")
+                         f"mean of lfsf / peers {math.exp(float(np.mean(np.log(finite)))) if finite else math.nan:.3f}"
+                         + (f" (over the {len(finite)} finite ratios)" if len(finite) < len(ratios) else ""))
     print(report["summary"])
     if args.json:
         from lfsf._files import write_json_atomic

@@ -310,3 +310,13 @@ def test_lfsf_points_of_a_shrunk_result_takes_the_full_views_camera(small_result
     done = _lfsf("points", tmp_path / "r2", "--camera", root / "s", "--out", tmp_path / "dir.npz", "--quiet")
     assert done.returncode == 0, done.stderr
     np.testing.assert_array_equal(np.load(tmp_path / "dir.npz")["points1"], half["points1"])
+    # --gt on it: the truth shrunk alike, the camera shrunk once (it had been twice, and refused)
+    from lfsf.evaluate import downsample_truth, load_ground_truth
+
+    truth, _ = load_ground_truth(root / "s/gt.npz")
+    expected = scene_flow_errors(shrunk, downsample_truth(truth, 2), Camera.from_truth(gt), border=4)
+    for camera_args in ([root / "s/gt.npz"], [gt["focal"], gt["baseline"], gt["shift"]]):
+        done = _lfsf("points", tmp_path / "r2", "--camera", *camera_args, "--gt", root / "s/gt.npz", "--out",
+                     tmp_path / "gt.npz", "--quiet")
+        assert done.returncode == 0, done.stderr
+        assert f"(border 4 px" in done.stdout and f"error mean {expected['epe3d']:.4g}," in done.stdout, done.stdout
