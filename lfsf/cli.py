@@ -282,7 +282,7 @@ def cmd_points(args) -> int:
     import numpy as np
 
     from lfsf.estimate import SceneFlow
-    from lfsf.evaluate import recorded_downsample
+    from lfsf.evaluate import downsample_of
 
     suffix = args.out.suffix.lower()
     if suffix not in (".ply", ".npz"):
@@ -303,7 +303,7 @@ def cmd_points(args) -> int:
             raise ValueError(f"--principal {args.principal[0]:g} {args.principal[1]:g}: "
                              f"{str(exc).removeprefix('Camera: principal ')}") from None
     sf = SceneFlow.load(args.result)
-    k = recorded_downsample(args.result)
+    k = downsample_of(sf.inputs)  # (what SceneFlow.load read: not the file again)
     gt = None
     if args.gt is not None:  # (read and checked before the points are written)
         from lfsf.evaluate import load_ground_truth

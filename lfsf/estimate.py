@@ -141,11 +141,12 @@ class SceneFlow:
         (so that the principal point stays the full views' centre)."""
         from dataclasses import replace
 
-        inputs = self.inputs if isinstance(self.inputs, dict) else {}
-        k = inputs.get("downsample", 1)
-        if not (isinstance(k, int) and not isinstance(k, bool) and k > 1):
+        from lfsf.evaluate import downsample_of
+
+        k = downsample_of(self.inputs)
+        if k == 1:
             return camera
-        views = inputs.get("views")
+        views = self.inputs.get("views")
         if camera.size is None and isinstance(views, list | tuple) and len(views) == 2 and all(
                 isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in views):
             camera = replace(camera, size=(int(views[0]), int(views[1])))

@@ -378,7 +378,12 @@ def recorded_downsample(path: str | Path) -> int:
     ``lfsf run`` or its ``sceneflow.npz``; 1 where none is recorded): its maps are that
     many times smaller than the light fields, and a ground truth of the light fields'
     size is shrunk alike to score them (:func:`downsample_truth`)."""
-    inputs = _recorded(path).get("inputs")
+    return downsample_of(_recorded(path).get("inputs"))
+
+
+def downsample_of(inputs) -> int:
+    """The factor ``lfsf run --downsample`` recorded in a result's ``inputs`` (the dict of
+    its ``sceneflow.npz``, ``SceneFlow.inputs``; 1 where none, or none that reads)."""
     factor = inputs.get("downsample", 1) if isinstance(inputs, dict) else 1
     return factor if isinstance(factor, int) and not isinstance(factor, bool) and factor >= 1 else 1
 
