@@ -6,6 +6,7 @@ import contextlib
 import errno
 import math
 import numbers
+import re
 
 
 class LfsfWarning(UserWarning):
@@ -247,7 +248,13 @@ def interrupted(exc: BaseException) -> KeyboardInterrupt | None:
 class ArgumentParser(argparse.ArgumentParser):
     """argparse, with usage errors reported like every other bad input: one line
     ``PROG: error: …`` (pointing to ``--help`` for the usage) and status 2. The ``lfsf``
-    commands and the scripts parse their options with it."""
+    commands and the scripts parse their options with it. A value such as ``-1e-3`` or
+    ``-.5`` is a negative number, not an unknown option, as from Python 3.13 on (3.11 took
+    only ``-1`` and ``-0.5`` for numbers: ``--camera 100 0.1 -1e-3`` was refused)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = re.compile(r"-\.?\d")  # (argparse's own, 3.13)
 
     def error(self, message):
         self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} ({self.prog} --help lists the options)\n")

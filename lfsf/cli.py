@@ -893,8 +893,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "unit of b). OUT.ply: a point cloud of the t1 points with the flow as "
                                    "flow_x, flow_y, flow_z (the points whose t1 or t2 point lies at or beyond "
                                    "infinity left out); OUT.npz: the maps points1, points2, scene_flow, depth1, "
-                                   "depth2 (NaN there), occluded and the camera (JSON). Negative numbers in "
-                                   "plain decimals (-0.001, not -1e-3).")
+                                   "depth2 (NaN there), occluded and the camera (JSON).")
     p.add_argument("result", type=_input_name, help="a folder written by 'lfsf run' (or its sceneflow.npz)")
     p.add_argument("--camera", nargs="+", required=True, metavar=("F|FILE", "B"),
                    help="the centre view's focal length f (px), the baseline b between neighbouring views and the "

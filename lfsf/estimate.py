@@ -2094,14 +2094,22 @@ def estimate_scene_flow(
         lap("search")
     flow_search = params.flow_search
     if flow_search:
-        k = flow_search_level(sizes, params.flow_range, params.pyramid_scale)
-        half = flow_search_half(params.flow_range, params.pyramid_scale, k, sizes[k])
+        flow_range = params.flow_search_range(sizes[0])
+        k = flow_search_level(sizes, flow_range, params.pyramid_scale)
+        half = flow_search_half(flow_range, params.pyramid_scale, k, sizes[k])
         if half > MAX_FLOW_SEARCH_HALF:
             coarser = ("allow more pyramid levels (max_levels)" if params.max_levels and len(sizes) == params.max_levels
                        else f"a smaller min_size ({params.min_size}) for coarser pyramid levels")
-            raise ValueError(f"flow_range {params.flow_range:g} px needs a block search of ±{half} px on the "
+            shared = flow_range > params.flow_range
+            named = (f"flow_range_share {params.flow_range_share:g} of {max(sizes[0])} px ({flow_range:g} px)"
+                     if shared else f"flow_range {flow_range:g} px")
+            raise ValueError(f"{named} needs a block search of ±{half} px on the "
                              f"{sizes[k][1]}×{sizes[k][0]} level ({(2 * half + 1) ** 2} shifts per pixel; at most "
-                             f"±{MAX_FLOW_SEARCH_HALF}): lower flow_range, or {coarser}")
+                             f"±{MAX_FLOW_SEARCH_HALF}): lower {'flow_range_share' if shared else 'flow_range'}, "
+                             f"or {coarser}")
+        if flow_range > params.flow_range:
+            note(f"flow search ±{flow_range:g} px: flow_range_share {params.flow_range_share:g} of the views' "
+                 f"{max(sizes[0])} px (more than flow_range {params.flow_range:g})")
         tex = levels[k][0]
         c1, c2 = wp.clone(tex[0]), wp.clone(tex[n_samples])
         forward, ambiguous = _flow_search(c1, c2, half, params.search_radius, dev, ambiguity=True)

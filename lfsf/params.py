@@ -319,7 +319,14 @@ class Params:
             the centre views on a coarse level, for motions too large for the pyramid;
             not fused where the point is hidden at t2 (by the searches both ways, or
             by the estimate so far).
-        flow_range : the flow search covers ±this many px (full resolution).
+        flow_range : the flow search covers at least ±this many px (full resolution).
+        flow_range_share : … and at least this share of the views' longer side (0.025:
+            ±32 px on views 1280 px wide, ±48 on 1920; below 961 px flow_range decides).
+            A scene's motions in pixels grow with its views: on `paper` at 1920×1080 (flows
+            up to 51 px) ±24 lost the fast objects (EPE 0.714), ±48 did not (0.100); a wider
+            search also fuses more false matches (`large_motion` there 0.052 → 0.057), so
+            the range grows only with the views (:meth:`flow_search_range`). 0: flow_range
+            alone.
     """
 
     circles: int = 3
@@ -377,6 +384,7 @@ class Params:
     search_radius: int = 1
     flow_search: bool = True
     flow_range: float = 24.0
+    flow_range_share: float = 0.025
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -609,6 +617,14 @@ class Params:
         # level; past what the coarsest level can shrink, n grows with the range
         need(0 < self.flow_range <= MAX_FLOW_RANGE,
              f"flow_range must be in (0, {MAX_FLOW_RANGE:g}] px, got {self.flow_range}")
+        need(0 <= self.flow_range_share <= MAX_FLOW_RANGE_SHARE,
+             f"flow_range_share must be in 0…{MAX_FLOW_RANGE_SHARE:g} (of the views' longer side), got "
+             f"{self.flow_range_share}")
+
+    def flow_search_range(self, size: tuple[int, int]) -> float:
+        """The flow search's range in full-resolution px for views of ``size`` (h, w):
+        ±max(flow_range, flow_range_share × the longer side), at most MAX_FLOW_RANGE."""
+        return min(MAX_FLOW_RANGE, max(self.flow_range, self.flow_range_share * max(size)))
 
     def sample_offsets(self, grid: tuple[int, int]) -> tuple[np.ndarray, float]:
         """The angular offsets φ_ij = r_i (cos s_ij, sin s_ij) in view steps, centre first,
@@ -729,6 +745,8 @@ MAX_WARPS = 1000
 MAX_ITERATIONS = 100_000
 MAX_DISPARITY_RANGE = 32.0
 MAX_FLOW_RANGE = 512.0
+#: flow_range_share's bound: a quarter of the longer side already searches most of a level.
+MAX_FLOW_RANGE_SHARE = 0.25
 
 
 def _bad(name: str, expected: str, value) -> ValueError:

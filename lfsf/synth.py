@@ -882,10 +882,11 @@ def _warn_beyond_ranges(gts: list, out) -> None:
             continue
         disparity = max(float(np.abs(gt[key][valid]).max()) for key in ("disp1", "disp2"))
         flow = float(np.hypot(gt["u"], gt["v"])[valid].max())
-        if disparity > defaults.disparity_range or flow > defaults.flow_range:
+        flow_range = defaults.flow_search_range(valid.shape)
+        if disparity > defaults.disparity_range or flow > flow_range:
             warnings.warn(f"{out}: from pair f{k:03d} on, the ground truth reaches |δ| = {disparity:.1f} px per view "
                           f"step and flows of {flow:.1f} px, beyond the estimator's defaults (disparity_range "
-                          f"{defaults.disparity_range:g}, flow_range {defaults.flow_range:g}); fewer --frames keep "
+                          f"{defaults.disparity_range:g}, flow search ±{flow_range:g} px); fewer --frames keep "
                           "within them", LfsfWarning, stacklevel=3)
             return
 

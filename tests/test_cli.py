@@ -784,6 +784,20 @@ def test_ctrl_c_is_held_back_while_a_set_of_outputs_moves_into_place():
         signal.signal(signal.SIGINT, inherited)
 
 
+def test_negative_numbers_in_any_notation_are_values_not_options(capsys):
+    """``-1e-3`` and ``-.5`` are numbers (Python 3.11's argparse took them for unknown
+    options: a camera's negative δ0 in scientific notation was refused); an unknown
+    option is still one."""
+    from lfsf.cli import build_parser
+
+    args = build_parser().parse_args(["points", "r", "--camera", "100", "0.1", "-1e-3", "--principal", "-1.5e2",
+                                      "-.5", "--out", "p.ply"])
+    assert args.camera == ["100", "0.1", "-1e-3"] and args.principal == [-150.0, -0.5]
+    with pytest.raises(SystemExit) as stop:
+        build_parser().parse_args(["points", "r", "--camera", "100", "0.1", "-x", "--out", "p.ply"])
+    assert stop.value.code == 2 and "unrecognized arguments: -x" in capsys.readouterr().err
+
+
 def test_ctrl_c_while_the_parser_is_built_is_an_interrupt(monkeypatch, capsys):
     """Ctrl-C in the first moments, while the commands' parser is built, exits 130 with
     one line, as later, not with a traceback."""

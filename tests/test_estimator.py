@@ -509,6 +509,11 @@ def test_bad_inputs_raise():
     with pytest.raises(ValueError, match=r"flow_range 512 px needs a block search of ±159 px .*a smaller min_size "
                                          r"\(100\)"):
         estimate_scene_flow(wide1, wide2, QUICK.replace(min_size=100, flow_range=512), device="cpu")
+    # a range set by the views' size names the share that set it
+    long1, long2 = shift_lightfields(h=24, w=280, grid=3)
+    with pytest.raises(ValueError, match=r"flow_range_share 0.25 of 280 px \(70 px\) needs a block search of ±70 px"
+                                         r".*lower flow_range_share"):
+        estimate_scene_flow(long1, long2, QUICK.replace(max_levels=1, flow_range_share=0.25), device="cpu")
     small = lfsf.LightField(np.zeros((3, 3, 16, 20), np.float32))
     with pytest.raises(ValueError, match="grid and view size"):
         estimate_scene_flow(lf1, small, QUICK)
@@ -518,6 +523,30 @@ def test_bad_inputs_raise():
         Params(rof_weight=0.0)
     with pytest.raises(ValueError, match="step_ratio"):
         Params(step_ratio=0.0)
+
+
+def test_the_flow_search_range_grows_with_the_views():
+    """flow_range_share: a scene's motions in pixels grow with its views, and on views 1200
+    px wide the flow search covers ±30 px (2.5 % of 1200), which finds a pan of 27 px that
+    ±flow_range (24 px) alone loses; below 961 px flow_range decides. The decision is a
+    Note of the progress."""
+    assert Params().flow_search_range((40, 1200)) == 30
+    assert Params().flow_search_range((960, 720)) == 24
+    assert Params().flow_search_range((1080, 1920)) == 48
+    assert Params(flow_range_share=0).flow_search_range((40, 1200)) == 24
+    assert Params(flow_range=64).flow_search_range((40, 1200)) == 64
+    assert Params(flow_range_share=0.25).flow_search_range((4000, 8000)) == 512  # (MAX_FLOW_RANGE)
+    lf1, lf2 = shift_lightfields(h=40, w=1200, grid=3, flow=(27.0, 0.0))
+    flow_only = QUICK.replace(circles=1, samples=(1,))
+    errors = {}
+    for share in (0.025, 0.0):
+        lines = []
+        sf = estimate_scene_flow(lf1, lf2, flow_only.replace(flow_range_share=share), device="cpu",
+                                 progress=lines.append)
+        errors[share] = float(np.median(np.hypot(interior(sf.u) - 27.0, interior(sf.v))))
+        noted = [line for line in lines if isinstance(line, lfsf.estimate.Note) and "flow search ±30 px" in line]
+        assert len(noted) == (1 if share else 0), lines
+    assert errors[0.025] < 0.05 and errors[0.0] > 1.0, errors
 
 
 def test_a_flow_range_beyond_the_image_searches_the_whole_level():

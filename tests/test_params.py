@@ -74,6 +74,7 @@ BAD = [
     ("speckle_radius", 4), ("speckle_radius", -1), ("speckle_radius", 1.5),
     # bounds on what sizes buffers and loops
     ("occlusion_reach", 1000), ("flow_range", 1e6), ("disparity_range", 1e6), ("hidden_fill_sigma", 1000.0),
+    ("flow_range_share", 0.3), ("flow_range_share", -0.01), ("flow_range_share", math.nan),
     ("iterations", 10 ** 9), ("rof_iterations", 10 ** 9), ("warps", 10 ** 6), ("samples", (1, 8, 10_000)),
     ("final_iterations", 10 ** 9), ("final_iterations", -1), ("final_iterations", 2.5),
     ("view_gain_sigma", -1.0), ("view_gain_sigma", 1000.0), ("view_gain_sigma", math.inf), ("view_gain_sigma", True),
@@ -117,7 +118,8 @@ def test_ints_and_numpy_numbers_are_stored_as_floats_and_numpy_bools_as_bools():
 
 def test_the_bounds_themselves_are_accepted():
     params = Params(disparity_range=32, flow_range=512, occlusion_reach=32, hidden_fill_sigma=64,
-                    samples=(1, 127, 128), iterations=100_000, rof_iterations=100_000, warps=1000)
+                    samples=(1, 127, 128), iterations=100_000, rof_iterations=100_000, warps=1000,
+                    flow_range_share=0.25)
     assert params.disparity_range == 32.0 and params.samples == (1, 127, 128)
     with pytest.raises(ValueError, match="samples"):
         Params(samples=(1, 128, 128))

@@ -473,7 +473,7 @@ def test_a_sequence_beyond_the_estimators_ranges_is_warned_of(tmp_path):
     import warnings
 
     with pytest.warns(LfsfWarning, match=r"from pair f00\d on, the ground truth reaches \|δ\| = .* beyond the "
-                                         r"estimator's defaults \(disparity_range 4, flow_range 24\)"):
+                                         r"estimator's defaults \(disparity_range 4, flow search ±24 px\)"):
         synth.write_sequence("paper", tmp_path / "long", 10, size=(32, 24), grid=3, supersample=1, device="cpu")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
