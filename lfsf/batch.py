@@ -324,7 +324,7 @@ def _estimated_with(folder: Path, params, inputs: dict) -> bool:
             for key in ("disp1", "disp2", "u", "v"):
                 z[key]
             record = json.loads(str(z["params"]))
-        recorded = Params(**record["params"])
+        recorded = Params.recorded(record["params"])
     except Exception:  # noqa: BLE001 - whatever fails to read is no result of this run
         return False
     # (through JSON, as the record was: lists for tuples)

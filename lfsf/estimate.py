@@ -22,7 +22,7 @@ from lfsf._filters import gaussian_blur as _blur
 from lfsf.gains import (GAIN_CHANGE, MAX_GAIN, MIN_VIEW_SIZE, fit_reduced_gains, gain_change, reduction_factor,
                         sampled_views)
 from lfsf.io import LightField, _a, _check_pair_brightest, _refuse_non_finite, centre_view, luma, read_lightfield
-from lfsf.params import Params
+from lfsf.params import MAX_FLOW_RANGE, Params
 
 
 @dataclass(eq=False, repr=False)
@@ -182,7 +182,7 @@ class SceneFlow:
                              f"(keys: {', '.join(keys)})")
         try:
             meta = json.loads(str(arrays["params"]))
-            params = Params().replace(**meta["params"])
+            params = Params.recorded(meta["params"])
             radius, device = float(meta["radius_used"]), str(meta["device"])
             timings, exposure = dict(meta.get("timings") or {}), meta.get("exposure")
             exposure = None if exposure is None else (float(exposure[0]), float(exposure[1]))
@@ -273,7 +273,8 @@ class SceneFlow:
             io.write_flo(tmp / "flow.flo", np.stack([self.u, self.v], -1))
             from lfsf import __version__
 
-            # (the version that wrote it: settings added later read as their defaults)
+            # (the version that wrote it: settings added later read as their defaults, or as
+            # what that version did, Params.recorded)
             meta = {"params": self.params.as_dict(), "radius_used": self.radius, "device": self.device,
                     "timings": self.timings, "exposure": self.exposure, "lfsf_version": __version__}
             if inputs is None:  # (what a loaded result recorded stays with it)
@@ -2094,22 +2095,28 @@ def estimate_scene_flow(
         lap("search")
     flow_search = params.flow_search
     if flow_search:
+        longer = max(sizes[0])
         flow_range = params.flow_search_range(sizes[0])
+        # a range that the views' size sets goes no further than the coarsest level can search
+        # (a strip of 2600×14 px has one level: ±65 px there had been an error)
+        reach = MAX_FLOW_SEARCH_HALF / params.pyramid_scale ** (len(sizes) - 1)
+        flow_range = max(params.flow_range, min(flow_range, reach))
+        by_share = flow_range > params.flow_range  # (the views' size set the range, not flow_range)
+        share = f"flow_range_share {params.flow_range_share:g} of the views' {longer} px"
+        if params.flow_range_share * longer > flow_range:
+            share += (f" ({params.flow_range_share * longer:g}, at most "
+                      + (f"{MAX_FLOW_RANGE:g})" if flow_range == MAX_FLOW_RANGE else f"{flow_range:g} on this pyramid)"))
         k = flow_search_level(sizes, flow_range, params.pyramid_scale)
         half = flow_search_half(flow_range, params.pyramid_scale, k, sizes[k])
         if half > MAX_FLOW_SEARCH_HALF:
             coarser = ("allow more pyramid levels (max_levels)" if params.max_levels and len(sizes) == params.max_levels
                        else f"a smaller min_size ({params.min_size}) for coarser pyramid levels")
-            shared = flow_range > params.flow_range
-            named = (f"flow_range_share {params.flow_range_share:g} of {max(sizes[0])} px ({flow_range:g} px)"
-                     if shared else f"flow_range {flow_range:g} px")
-            raise ValueError(f"{named} needs a block search of ±{half} px on the "
+            # (flow_range's own: a range that the views' size sets stays within reach, above)
+            raise ValueError(f"flow_range {flow_range:g} px needs a block search of ±{half} px on the "
                              f"{sizes[k][1]}×{sizes[k][0]} level ({(2 * half + 1) ** 2} shifts per pixel; at most "
-                             f"±{MAX_FLOW_SEARCH_HALF}): lower {'flow_range_share' if shared else 'flow_range'}, "
-                             f"or {coarser}")
-        if flow_range > params.flow_range:
-            note(f"flow search ±{flow_range:g} px: flow_range_share {params.flow_range_share:g} of the views' "
-                 f"{max(sizes[0])} px (more than flow_range {params.flow_range:g})")
+                             f"±{MAX_FLOW_SEARCH_HALF}): lower flow_range, or {coarser}")
+        if by_share:
+            note(f"flow search ±{flow_range:g} px: {share}, more than flow_range {params.flow_range:g}")
         tex = levels[k][0]
         c1, c2 = wp.clone(tex[0]), wp.clone(tex[n_samples])
         forward, ambiguous = _flow_search(c1, c2, half, params.search_radius, dev, ambiguity=True)

@@ -108,6 +108,8 @@ def layout_costs(views: np.ndarray, max_disparity: float = 4.0) -> dict[str, flo
     if k < 1:
         return None
     factor = max(1, int(round(max(views.shape[2:4]) / ORIENTATION_WIDTH)))
+    if min(views.shape[2:4]) // factor < 16:  # (a strip: 2600×14 shrunk 16 times had no rows left)
+        return None
     picked = [(ca, cb), (ca, cb + k), (ca, cb - k), (ca + k, cb), (ca - k, cb)]
     centre, right, left, below, above = (block_mean(_grey(views[a, b]), factor).astype(np.float64)
                                          for a, b in picked)

@@ -321,12 +321,13 @@ class Params:
             by the estimate so far).
         flow_range : the flow search covers at least ±this many px (full resolution).
         flow_range_share : … and at least this share of the views' longer side (0.025:
-            ±32 px on views 1280 px wide, ±48 on 1920; below 961 px flow_range decides).
+            ±32 px where it is 1280 px, ±48 at 1920; with flow_range 24, ±24 up to 960).
             A scene's motions in pixels grow with its views: on `paper` at 1920×1080 (flows
             up to 51 px) ±24 lost the fast objects (EPE 0.714), ±48 did not (0.100); a wider
             search also fuses more false matches (`large_motion` there 0.052 → 0.057), so
-            the range grows only with the views (:meth:`flow_search_range`). 0: flow_range
-            alone.
+            the range grows only with the views (:meth:`flow_search_range`), and no
+            further than the coarsest pyramid level can search (±64 px there). 0:
+            flow_range alone.
     """
 
     circles: int = 3
@@ -503,6 +504,14 @@ class Params:
             raise ValueError(f"{path}: {exc}") from None
 
     @classmethod
+    def recorded(cls, settings: dict) -> "Params":
+        """The settings that a result records (``Params.as_dict()`` in its
+        ``sceneflow.npz``), to estimate it again as it was: a setting added since it was
+        written takes the value that does what that version did (:data:`BEFORE_ADDED`), or
+        else its default."""
+        return cls(**{**{k: v for k, v in BEFORE_ADDED.items() if k not in settings}, **settings})
+
+    @classmethod
     def _from_result(cls, path: Path, preset: str | None) -> "Params":
         """The settings a result records (:meth:`from_toml` on a result's folder or
         ``sceneflow.npz``)."""
@@ -516,7 +525,7 @@ class Params:
             raise ValueError(f"{path}: a result's recorded settings are complete; --preset {preset} beside them "
                              "would be ignored: leave it out")
         try:
-            return cls(**settings)
+            return cls.recorded(settings)
         except (ValueError, TypeError) as exc:  # (a result of another version's settings)
             raise ValueError(f"{path}: its recorded settings are not this version's: {exc}") from None
 
@@ -745,6 +754,10 @@ MAX_WARPS = 1000
 MAX_ITERATIONS = 100_000
 MAX_DISPARITY_RANGE = 32.0
 MAX_FLOW_RANGE = 512.0
+#: Settings added since results were first recorded, each with the value that does what
+#: the versions before it did, where its default does not (:meth:`Params.recorded`): a
+#: result written before flow_range_share searched ±flow_range at any size.
+BEFORE_ADDED = {"flow_range_share": 0.0}
 #: flow_range_share's bound: a quarter of the longer side already searches most of a level.
 MAX_FLOW_RANGE_SHARE = 0.25
 

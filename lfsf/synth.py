@@ -868,7 +868,8 @@ PREVIEW_NAME = "preview.png"
 
 def _warn_beyond_ranges(gts: list, out) -> None:
     """Warn where a sequence's ground truth goes beyond what the estimator reaches with its
-    defaults (``Params.disparity_range``, ``flow_range``): a long sequence of a moving
+    defaults (``Params.disparity_range``, and the flow search's range for views of its
+    size, ``Params.flow_search_range``): a long sequence of a moving
     scene runs on into disparities no preset can follow (a helper's 10 frames of `paper`
     reached δ2 = 34 px per view step, and the batch's last pairs were garbage, silently)."""
     import warnings

@@ -196,3 +196,12 @@ def test_the_costs_are_those_of_the_textured_half_of_reduced_views(size):
     on views reduced along their longer side (480×200: by 3, not by the shorter side's 1)."""
     views = render_scene("random-3", size=size, grid=5)[0].views
     assert layout_costs(views)["no parallax"] == pytest.approx(_no_parallax_reference(views), rel=1e-6)
+
+
+def test_a_strip_of_views_is_not_checked():
+    """Views far wider than tall (a reviewer's 2600×14): the check reduces both axes by a
+    factor of the longer side, which left no rows (an error from block_mean, status 2);
+    it now leaves such views unchecked, as it does views too small."""
+    views = np.random.default_rng(0).random((3, 3, 14, 2600), dtype=np.float32)
+    assert layout_costs(views) is None
+    assert layout_costs(np.random.default_rng(0).random((3, 3, 40, 320), dtype=np.float32)) is not None

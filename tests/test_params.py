@@ -383,3 +383,27 @@ def test_samples_along_the_long_axis_of_a_rig(grid, radius):
     along = 0 if cols >= rows else 1  # (φ = (ξ along the columns, η along the rows))
     np.testing.assert_allclose(np.abs(phis[1:, along]), radius, atol=1e-6)
     np.testing.assert_allclose(phis[1:, 1 - along], 0.0, atol=1e-6)
+
+
+def test_a_result_written_before_a_setting_was_added_reads_as_what_it_did(tmp_path):
+    """A result recorded before flow_range_share searched ±flow_range at any size: read
+    back (SceneFlow.load, --config RESULT, lfsf batch's test of a finished pair) it gets
+    0, not the new default, so that it is estimated again as it was; a result that
+    records the setting keeps its value."""
+    import json
+
+    from lfsf import SceneFlow
+
+    old = Params.preset("fast").as_dict()
+    del old["flow_range_share"]
+    assert Params.recorded(old) == Params.preset("fast").replace(flow_range_share=0.0)
+    assert Params.recorded(Params.preset("fast").as_dict()) == Params.preset("fast")
+    zeros = np.zeros((4, 6), np.float32)
+    SceneFlow(zeros, zeros, zeros, zeros, params=Params.preset("fast"), radius=2.0, device="cpu").save(tmp_path / "r")
+    saved = dict(np.load(tmp_path / "r/sceneflow.npz"))
+    meta = json.loads(str(saved["params"]))
+    del meta["params"]["flow_range_share"]
+    saved["params"] = np.str_(json.dumps(meta))
+    np.savez_compressed(tmp_path / "r/sceneflow.npz", **saved)
+    assert SceneFlow.load(tmp_path / "r").params.flow_range_share == 0.0
+    assert Params.from_toml(tmp_path / "r").flow_range_share == 0.0
