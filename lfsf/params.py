@@ -509,7 +509,7 @@ class Params:
         ``sceneflow.npz``), to estimate it again as it was: a setting added since it was
         written takes the value that does what that version did (:data:`BEFORE_ADDED`), or
         else its default."""
-        return cls(**{**{k: v for k, v in BEFORE_ADDED.items() if k not in settings}, **settings})
+        return cls().replace(**{**{k: v for k, v in BEFORE_ADDED.items() if k not in settings}, **settings})
 
     @classmethod
     def _from_result(cls, path: Path, preset: str | None) -> "Params":
