@@ -1324,6 +1324,17 @@ def flow_search_level(sizes: list[tuple[int, int]], flow_range: float, pyramid_s
                 len(sizes) - 1)
 
 
+def _shared_range_note(params: Params, longer: int, flow_range: float) -> str:
+    """The Note of a flow search whose range ``flow_range`` the views' longer side set
+    (``Params.flow_range_share``), naming the bound that cut it, if any: MAX_FLOW_RANGE or
+    what the pyramid's coarsest level can search."""
+    wanted = params.flow_range_share * longer
+    bound = ("" if wanted <= flow_range else f" ({wanted:g}, at most " + (
+        f"{MAX_FLOW_RANGE:g})" if flow_range == MAX_FLOW_RANGE else f"{flow_range:g} on this pyramid)"))
+    return (f"flow search ±{flow_range:g} px: flow_range_share {params.flow_range_share:g} of the views' {longer} px"
+            f"{bound}, more than flow_range {params.flow_range:g}")
+
+
 def flow_search_half(flow_range: float, pyramid_scale: float, level: int,
                      size: tuple[int, int] | None = None) -> int:
     """The flow search's half-width in whole pixels on pyramid level ``level``: the range
@@ -2095,17 +2106,11 @@ def estimate_scene_flow(
         lap("search")
     flow_search = params.flow_search
     if flow_search:
-        longer = max(sizes[0])
         flow_range = params.flow_search_range(sizes[0])
         # a range that the views' size sets goes no further than the coarsest level can search
         # (a strip of 2600×14 px has one level: ±65 px there had been an error)
         reach = MAX_FLOW_SEARCH_HALF / params.pyramid_scale ** (len(sizes) - 1)
         flow_range = max(params.flow_range, min(flow_range, reach))
-        by_share = flow_range > params.flow_range  # (the views' size set the range, not flow_range)
-        share = f"flow_range_share {params.flow_range_share:g} of the views' {longer} px"
-        if params.flow_range_share * longer > flow_range:
-            share += (f" ({params.flow_range_share * longer:g}, at most "
-                      + (f"{MAX_FLOW_RANGE:g})" if flow_range == MAX_FLOW_RANGE else f"{flow_range:g} on this pyramid)"))
         k = flow_search_level(sizes, flow_range, params.pyramid_scale)
         half = flow_search_half(flow_range, params.pyramid_scale, k, sizes[k])
         if half > MAX_FLOW_SEARCH_HALF:
@@ -2115,8 +2120,8 @@ def estimate_scene_flow(
             raise ValueError(f"flow_range {flow_range:g} px needs a block search of ±{half} px on the "
                              f"{sizes[k][1]}×{sizes[k][0]} level ({(2 * half + 1) ** 2} shifts per pixel; at most "
                              f"±{MAX_FLOW_SEARCH_HALF}): lower flow_range, or {coarser}")
-        if by_share:
-            note(f"flow search ±{flow_range:g} px: {share}, more than flow_range {params.flow_range:g}")
+        if flow_range > params.flow_range:  # (the views' size set the range, not flow_range)
+            note(_shared_range_note(params, max(sizes[0]), flow_range))
         tex = levels[k][0]
         c1, c2 = wp.clone(tex[0]), wp.clone(tex[n_samples])
         forward, ambiguous = _flow_search(c1, c2, half, params.search_radius, dev, ambiguity=True)
