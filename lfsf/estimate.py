@@ -1324,6 +1324,15 @@ def flow_search_level(sizes: list[tuple[int, int]], flow_range: float, pyramid_s
                 len(sizes) - 1)
 
 
+def searched_flow_range(params: Params, sizes: list[tuple[int, int]]) -> float:
+    """The flow search's range in pixels on pyramid levels ``sizes`` (finest first):
+    ``Params.flow_search_range`` of the views' size, but a range that the size sets (not
+    ``flow_range``) goes no further than the coarsest level can search, ±MAX_FLOW_SEARCH_HALF
+    of its pixels (a strip of 2600×14 px has one level: ±65 px there had been an error)."""
+    reach = MAX_FLOW_SEARCH_HALF / params.pyramid_scale ** (len(sizes) - 1)
+    return max(params.flow_range, min(params.flow_search_range(sizes[0]), reach))
+
+
 def _shared_range_note(params: Params, longer: int, flow_range: float) -> str:
     """The Note of a flow search whose range ``flow_range`` the views' longer side set
     (``Params.flow_range_share``), naming the bound that cut it, if any: MAX_FLOW_RANGE or
@@ -2106,11 +2115,7 @@ def estimate_scene_flow(
         lap("search")
     flow_search = params.flow_search
     if flow_search:
-        flow_range = params.flow_search_range(sizes[0])
-        # a range that the views' size sets goes no further than the coarsest level can search
-        # (a strip of 2600×14 px has one level: ±65 px there had been an error)
-        reach = MAX_FLOW_SEARCH_HALF / params.pyramid_scale ** (len(sizes) - 1)
-        flow_range = max(params.flow_range, min(flow_range, reach))
+        flow_range = searched_flow_range(params, sizes)
         k = flow_search_level(sizes, flow_range, params.pyramid_scale)
         half = flow_search_half(flow_range, params.pyramid_scale, k, sizes[k])
         if half > MAX_FLOW_SEARCH_HALF:

@@ -869,11 +869,12 @@ PREVIEW_NAME = "preview.png"
 def _warn_beyond_ranges(gts: list, out) -> None:
     """Warn where a sequence's ground truth goes beyond what the estimator reaches with its
     defaults (``Params.disparity_range``, and the flow search's range for views of its
-    size, ``Params.flow_search_range``): a long sequence of a moving
+    size, ``lfsf.estimate.searched_flow_range``): a long sequence of a moving
     scene runs on into disparities no preset can follow (a helper's 10 frames of `paper`
     reached δ2 = 34 px per view step, and the batch's last pairs were garbage, silently)."""
     import warnings
 
+    from lfsf.estimate import pyramid_sizes, searched_flow_range
     from lfsf.params import Params
 
     defaults = Params()
@@ -883,7 +884,7 @@ def _warn_beyond_ranges(gts: list, out) -> None:
             continue
         disparity = max(float(np.abs(gt[key][valid]).max()) for key in ("disp1", "disp2"))
         flow = float(np.hypot(gt["u"], gt["v"])[valid].max())
-        flow_range = defaults.flow_search_range(valid.shape)
+        flow_range = searched_flow_range(defaults, pyramid_sizes(*valid.shape, defaults))
         if disparity > defaults.disparity_range or flow > flow_range:
             warnings.warn(f"{out}: from pair f{k:03d} on, the ground truth reaches |δ| = {disparity:.1f} px per view "
                           f"step and flows of {flow:.1f} px, beyond the estimator's defaults (disparity_range "

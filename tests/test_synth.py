@@ -478,3 +478,20 @@ def test_a_sequence_beyond_the_estimators_ranges_is_warned_of(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         synth.write_sequence("paper", tmp_path / "short", 4, size=(32, 24), grid=3, supersample=1, device="cpu")
+
+
+def test_the_sequence_warning_knows_what_the_coarsest_level_can_search(tmp_path):
+    """On a strip of 4000×14 px views the pyramid has one level, which searches ±64 px,
+    not the ±100 px that 2.5 % of 4000 px would give: a flow of 80 px is warned of, one
+    of 60 px is not (the warning had read the share's range alone)."""
+    import warnings
+
+    def gt(flow):
+        zeros = np.zeros((14, 4000), np.float32)
+        return {"disp1": zeros, "disp2": zeros, "u": zeros + flow, "v": zeros}
+
+    with pytest.warns(LfsfWarning, match=r"flows of 80\.0 px, .*flow search ±64 px\)"):
+        synth._warn_beyond_ranges([gt(80.0)], tmp_path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        synth._warn_beyond_ranges([gt(60.0)], tmp_path)
