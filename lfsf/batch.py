@@ -178,7 +178,12 @@ def _manifest_pairs(path: Path) -> list[Pair]:
     # ends (a quoted cell may span lines)
     text = "\n".join("" if line.lstrip().startswith("#") else line for line in text.split("\n"))
     reader = csv.reader(_io.StringIO(text))
-    rows = [(reader.line_num, row) for row in reader if row and any(c.strip() for c in row)]
+    rows = []
+    try:
+        rows.extend((reader.line_num, row) for row in reader if row and any(c.strip() for c in row))
+    except csv.Error as exc:  # (a stray quote runs a cell on past the csv module's limit: 128 KiB)
+        raise ValueError(f"{path}: line {reader.line_num} does not read as CSV ({exc}); a stray \" "
+                         "quote?") from None
     if rows and [c.strip().lower() for c in rows[0][1][:2]] == ["t1", "t2"]:
         rows = rows[1:]
     if not rows:

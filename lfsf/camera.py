@@ -40,6 +40,16 @@ def _finite(name: str, value) -> float:
     return value
 
 
+def _one_number(value, key: str) -> float:
+    """A ground truth's ``key``, one real number (a 0-d array, or one of one element as
+    ``np.savez(focal=[f])`` writes), as a float; else a ValueError naming it."""
+    a = np.asarray(value)
+    if a.size != 1 or a.dtype.kind not in "iuf":
+        raise ValueError(f"'{key}' must be one number, got " + (f"{a.size} values, shape {a.shape}" if a.size != 1
+                                                                 else f"dtype {a.dtype}"))
+    return float(a.reshape(()))
+
+
 @dataclass(frozen=True)
 class Camera:
     """The pinhole camera of the centre view, to turn δ into depth and points (MODEL.md §7).
@@ -162,8 +172,7 @@ class Camera:
             raise ValueError(f"no camera in this ground truth: it lacks {', '.join(missing)} (a gt.npz of "
                              "'lfsf synth' holds focal, baseline and shift)")
         size = np.shape(gt["disp1"])[::-1] if "disp1" in gt and np.ndim(gt["disp1"]) == 2 else None
-        return cls(float(np.asarray(gt["focal"])), float(np.asarray(gt["baseline"])),
-                   float(np.asarray(gt["shift"])), size=size)
+        return cls(*(_one_number(gt[key], key) for key in ("focal", "baseline", "shift")), size=size)
 
     @classmethod
     def from_hci(cls, parameters: dict) -> "Camera":

@@ -186,7 +186,7 @@ class SceneFlow:
             radius, device = float(meta["radius_used"]), str(meta["device"])
             timings, exposure = dict(meta.get("timings") or {}), meta.get("exposure")
             exposure = None if exposure is None else (float(exposure[0]), float(exposure[1]))
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
+        except (KeyError, TypeError, ValueError, IndexError, OverflowError, RecursionError) as exc:
             raise ValueError(f"{file}: its recorded settings do not read as this version's ({exc})") from None
         occluded = arrays.get("occluded")
         try:

@@ -359,7 +359,7 @@ def _recorded(path: str | Path) -> dict:
     try:
         _, arrays = io._read_npz_arrays(path, ("params",))
         record = json.loads(str(arrays["params"]))
-    except (KeyError, TypeError, ValueError):
+    except (KeyError, TypeError, ValueError, RecursionError):  # (RecursionError: nested 10⁵ deep)
         return {}
     return record if isinstance(record, dict) else {}
 
@@ -445,6 +445,8 @@ def _load_npz(path: Path, keys) -> dict[str, np.ndarray]:
     for k, a in out.items():
         if a.ndim != 2:
             raise ValueError(f"{path}: '{k}' should be a 2-D map, got shape {a.shape}")
+        if a.dtype.kind not in "biuf":   # (a record or string dtype: a TypeError deep in the scoring)
+            raise ValueError(f"{path}: '{k}' should hold numbers, got dtype {a.dtype}")
     return out
 
 

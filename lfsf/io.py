@@ -757,7 +757,7 @@ def _read_decode_report(path: Path) -> dict | None:
         return None
     try:
         report = json.loads(path.read_text())
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return None
     if not (isinstance(report, dict) and isinstance(report.get("lattice"), dict)
             and isinstance(report.get("views"), int)):

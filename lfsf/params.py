@@ -460,6 +460,8 @@ class Params:
             data = tomllib.loads(path.read_text())
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise ValueError(f"{path}: not valid TOML ({exc})") from None
+        except RecursionError:
+            raise ValueError(f"{path}: not valid TOML of settings (nested too deeply to read)") from None
         if "params" in data:
             outside = sorted(k for k in data if k not in ("params", "preset"))
             tables = [k for k in outside if isinstance(data[k], dict)]
@@ -488,6 +490,8 @@ class Params:
             raise ValueError(f"{path}: [params] must be a table of settings, got {data!r}")
         data = dict(data)
         named = data.pop("preset", None)
+        if named is not None and not isinstance(named, str):
+            raise ValueError(f"{path}: preset must be a name in quotes ({', '.join(PRESETS)}), got {named!r}")
         if named is not None and named not in PRESETS:   # (a typo, before any conflict with --preset)
             try:
                 cls.preset(named)

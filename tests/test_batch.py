@@ -235,6 +235,8 @@ def test_the_cleanup_after_a_cluster_keeps_a_live_processs_temporary_folder(tmp_
     ([("a.npz", "b.npz", ".hidden")], "cannot be a folder name"),
     ([("a.npz", "b\0.npz")], "line 1 holds a NUL byte"),
     ([("t1", "t2"), ("a.npz", "b.npz"), ("c\0.npz", "d.npz")], "line 3 holds a NUL byte"),
+    # a stray quote runs the cell on past the csv module's 128 KiB: its csv.Error's traceback had come out
+    ([("a.npz", "b.npz"), ("a.npz", '"' + "x" * 200_000 + '"')], "line 2 does not read as CSV (field larger"),
 ])
 def test_bad_manifest_is_a_clear_error(tmp_path, rows, message):
     path = _manifest(tmp_path / "m.csv", rows)

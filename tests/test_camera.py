@@ -2,6 +2,7 @@
 against the renderer's own geometry: the objects' 3-D motions of a scene."""
 
 import json
+import re
 import subprocess
 import sys
 
@@ -139,6 +140,17 @@ def test_a_camera_of_shrunk_views_gives_the_same_depths():
     np.testing.assert_allclose(small.depth(disp / 2), camera.depth(disp), rtol=1e-6)
     with pytest.raises(ValueError, match="whole number"):
         camera.downsampled(1.5)
+
+
+def test_a_ground_truths_camera_numbers_may_be_arrays_of_one(tmp_path):
+    """np.savez(focal=[f]) writes an array of one: read as f (it had been a TypeError's
+    traceback from float()); an array of two, or of text, names the key."""
+    gt = {"focal": np.array([100.0]), "baseline": np.float32(0.5), "shift": np.array([[0.25]])}
+    assert Camera.from_truth(gt) == Camera(100.0, 0.5, 0.25)
+    for value, said in ((np.array([1.0, 2.0]), "2 values, shape (2,)"), (np.array(["100"]), "dtype <U3")):
+        np.savez(tmp_path / "gt.npz", **{**gt, "focal": value})
+        with pytest.raises(ValueError, match=re.escape(f"gt.npz: 'focal' must be one number, got {said}")):
+            Camera.from_file(tmp_path / "gt.npz")
 
 
 def test_the_hci_camera_is_focused_at_its_focus_distance():

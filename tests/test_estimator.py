@@ -1975,6 +1975,13 @@ def test_a_saved_scene_flow_loads_back_whole(tmp_path):
     with pytest.raises(ValueError, match=r"old.npz: its recorded settings do not read as this version's "
                                          r"\(unknown parameter\(s\) lambda4"):
         SceneFlow.load(tmp_path / "old.npz")
+    # a radius beyond any float, a record nested past Python's recursion: their own tracebacks had come out
+    with np.load(tmp_path / "r" / "sceneflow.npz") as saved:
+        record = json.loads(str(saved["params"]))
+    for text in (json.dumps({**record, "radius_used": 10 ** 400}), "[" * 100_000 + "]" * 100_000):
+        np.savez(tmp_path / "odd.npz", **sf.as_dict(), params=np.str_(text))
+        with pytest.raises(ValueError, match=r"odd.npz: its recorded settings do not read as this version's"):
+            SceneFlow.load(tmp_path / "odd.npz")
 
     lf = np.zeros((6, 8), np.float32)
     for kwargs in ({"gt": {"disp1": maps[0]}}, {"title": "a run"}, {"centre1": lf}):

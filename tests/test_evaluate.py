@@ -280,6 +280,17 @@ def test_damaged_npz_results_and_ground_truth_name_the_file(tmp_path):
             load(tmp_path / "huge.npz")
 
 
+def test_maps_that_hold_no_numbers_name_the_file_and_the_map(tmp_path):
+    """A record dtype (or bytes) in a ground truth's or a result's map had been a
+    TypeError's traceback from deep in the scoring (a fuzzing helper)."""
+    maps = {k: np.zeros((20, 20), np.float32) for k in E.VARIABLES}
+    for key, bad in (("disp1", np.zeros((20, 20), [("a", "f4"), ("b", "i4")])), ("u", np.zeros((20, 20), "S3"))):
+        np.savez(tmp_path / "bad.npz", **{**maps, key: bad})
+        for load in (E.load_estimate, lambda p: E.load_ground_truth(p)[0]):
+            with pytest.raises(ValueError, match=re.escape(f"bad.npz: '{key}' should hold numbers, got dtype")):
+                load(tmp_path / "bad.npz")
+
+
 def test_hci_breakdown_parts_add_up_to_lfsf_eval():
     """scripts/hci_breakdown.py: its regions and the rest add up to the total, which is
     ``lfsf eval``'s MSE×100 with the benchmark's 15-px border; the part off by more than

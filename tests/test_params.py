@@ -156,13 +156,22 @@ def test_a_toml_file_with_whole_number_floats_loads(tmp_path):
 @pytest.mark.parametrize("text, name", [('visibility = "false"\n', "visibility"), ("warps = 1.5\n", "warps"),
                                         ('samples = "188"\n', "samples"), ("eps = 0\n", "eps"),
                                         ("flow_range = inf\n", "flow_range"), ('preset = "slow"\n', "preset"),
-                                        ("preset = 3\n", "preset")])
+                                        ("preset = 3\n", "preset"), ('preset = ["fast"]\n', "preset")])
 def test_a_bad_toml_setting_names_the_file_and_the_setting(tmp_path, text, name):
     path = tmp_path / "bad.toml"
     path.write_text(text)
     with pytest.raises(ValueError, match=named(name)) as info:
         Params.from_toml(path)
     assert str(info.value).startswith(f"{path}: ")
+
+
+def test_toml_nested_too_deeply_to_read_names_the_file(tmp_path):
+    """tomllib recurses once per level: 5000 nested arrays had been a RecursionError's
+    traceback (a fuzzing helper)."""
+    path = tmp_path / "deep.toml"
+    path.write_text("a = " + "[" * 5000 + "]" * 5000 + "\n")
+    with pytest.raises(ValueError, match=re.escape(f"{path}: not valid TOML of settings (nested too deeply")):
+        Params.from_toml(path)
 
 
 def test_a_params_key_that_is_no_table_names_the_file(tmp_path):
