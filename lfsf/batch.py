@@ -777,11 +777,35 @@ def _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, 
         except KeyboardInterrupt as exc:
             # (the wait for the pairs begun had been silent, and a second Ctrl-C abandoned them;
             # Ctrl-C alone: a SIGTERM or SIGHUP sent to the process group ends the workers too)
-            if (type(exc) is KeyboardInterrupt and not scheduler and finished < len(pairs)
-                    and callable(getattr(report, "interrupted", None))):
-                report.interrupted()
+            if type(exc) is KeyboardInterrupt and not scheduler and finished < len(pairs):
+                if callable(getattr(report, "interrupted", None)):
+                    report.interrupted()
+                _finish_begun(client, futures)   # (a second Ctrl-C raises out of it: abandoned)
             raise
         finish(outcomes)
+
+
+def _executing(dask_worker) -> list:
+    """The keys of the tasks a Dask worker runs now (``Client.run`` on every worker)."""
+    return [task.key for task in dask_worker.state.executing]
+
+
+def _finish_begun(client, futures) -> None:
+    """After a Ctrl-C: cancel the pairs that no worker has begun and wait for those that
+    the workers are running, which write their results (closing the local cluster had
+    ended its workers within 4 s, and the pairs with them, though the batch said it was
+    finishing them)."""
+    from distributed import wait
+
+    # (the keys the workers run: the scheduler's processing() names every pair sent to a
+    # worker, queued there too, as submitted pairs are not held back on the scheduler)
+    try:
+        begun = set().union(*client.run(_executing).values())
+    except Exception:  # noqa: BLE001 - a worker lost meanwhile: nothing to wait for that can be told
+        begun = set()
+    running = [f for f in futures if f.key in begun and not f.done()]
+    client.cancel([f for f in futures if f.key not in begun and not f.done()])
+    wait(running)
 
 
 def _start_resource_tracker_deaf_to_hangups() -> None:

@@ -440,22 +440,23 @@ def test_cluster_survives_a_worker_killed_mid_task(tmp_path):
         assert np.isfinite(data["disp1"]).all()
 
 
-def _signal_a_running_cluster_batch(start: list, folder: Path, out: Path, signum: int):
-    """``lfsf batch FOLDER --out OUT --workers 2`` started by ``python START…`` in a session
-    of its own, ``signum`` sent to its process group once a pair is running; (the process,
-    its stderr)."""
+def _signal_a_running_cluster_batch(start: list, folder: Path, out: Path, signum: int, settings=("--preset", "fast")):
+    """``lfsf batch FOLDER --out OUT --workers 2 SETTINGS…`` started by ``python START…``
+    in a session of its own, ``signum`` sent to its process group once a pair is running;
+    (the process, its stderr, the names of the pairs seen running then)."""
     import subprocess
     import sys
 
     proc = subprocess.Popen([sys.executable, *start, "batch", str(folder), "--out", str(out), "--workers", "2",
-                             "--preset", "fast"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             *settings], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
     deadline = time.monotonic() + 120
     while not list(out.glob(".*.part-*")) and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.002)
+    running = {p.name.split(".part-")[0].lstrip(".") for p in out.glob(".*.part-*")}
     os.killpg(proc.pid, signum)
     _, err = proc.communicate(timeout=120)
-    return proc, err
+    return proc, err, running
 
 
 @needs_dask
@@ -472,13 +473,19 @@ def test_ctrl_c_on_a_cluster_batch_is_one_line_not_the_workers_tracebacks(frames
     out = tmp_path / "out"
     answer_ctrl_c = "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); " \
                     "from lfsf.cli import entry; sys.argv[0] = 'lfsf'; entry()"
-    proc, err = _signal_a_running_cluster_batch(["-c", answer_ctrl_c], folder, out, signal.SIGINT)
+    # pairs of about 6 s (48×40 px, 1000 warps), past the 4 s in which a closing cluster ends its workers
+    slow = tmp_path / "slow.toml"
+    slow.write_text('preset = "fast"\nwarps = 1000\n')
+    proc, err, running = _signal_a_running_cluster_batch(["-c", answer_ctrl_c], folder, out, signal.SIGINT,
+                                                         ("--config", str(slow)))
     assert proc.returncode == 130, err
     assert "Traceback" not in err and err.strip().splitlines()[-1] == "lfsf batch: interrupted", err
     # … said at once: the wait for the pairs begun had been silent, and a second Ctrl-C abandoned them
     assert ("lfsf batch: interrupted: finishing the pairs in progress, which the next run skips (Ctrl-C again "
             "abandons them)") in err.splitlines(), err
     assert _leftovers(out) == []
+    # … and finished: closing the cluster had ended its workers, and the pairs with them
+    assert running and all(batch.is_complete(out / name) for name in running), (running, sorted(os.listdir(out)))
 
 
 @needs_dask
@@ -489,7 +496,7 @@ def test_a_hang_up_of_a_cluster_batchs_process_group_is_one_line(frames, tmp_pat
     blocked now. (The workers die of it too, and Dask's own log may then say so, in some
     runs with a traceback of a closed connection: not checked here.)"""
     folder, _ = frames
-    proc, err = _signal_a_running_cluster_batch(["-m", "lfsf"], folder, tmp_path / "out", signal.SIGHUP)
+    proc, err, _ = _signal_a_running_cluster_batch(["-m", "lfsf"], folder, tmp_path / "out", signal.SIGHUP)
     assert proc.returncode == 129, err
     assert "resource_tracker" not in err and "KeyError" not in err, err
     assert "lfsf batch: hung up (SIGHUP)" in err.splitlines(), err
