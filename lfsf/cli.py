@@ -667,7 +667,7 @@ def cmd_demo(args) -> int:
     _say(args, f"lfsf demo: scene '{args.scene}', {width}×{height}, {args.grid[0]}×{args.grid[1]} "
                f"{'RGB ' if args.colour else ''}views, {_preset_label(args)}, on {device}")
     # the renderer's kernels and the estimator's compiled together (on a cold kernel cache)
-    compiled = load_kernels(device, extra=[render])
+    compiled = load_kernels(device, extra=[render], say=lambda line: _say(args, line))
     if compiled:
         _say(args, compiled)
     t0 = time.perf_counter()

@@ -93,6 +93,8 @@ def warp():
             # start-up banner and driver warning out of the output; asking for a CUDA
             # device that is not there is still a clear error in resolve_device.
             wp.config.log_level = wp.LOG_ERROR
+            if wp.config.kernel_cache_dir is None and "WARP_CACHE_PATH" not in os.environ:
+                wp.config.kernel_cache_dir = _cache_without_home()
             try:
                 with _stderr_filtered("NVIDIA CUDA driver"):
                     wp.init()
@@ -102,6 +104,32 @@ def warp():
             wp.config.log_level = wp.LOG_WARNING
             _initialised = True
     return wp
+
+
+def _cache_without_home() -> str | None:
+    """Where Warp's kernel cache goes when there is no home folder to hold it: None
+    (Warp's own choice, ``~/.cache/warp``) where there is one, else a folder of this
+    user's in the temporary folder. With HOME unset and no passwd entry (``docker run
+    --user 12345``), ``~`` stays ``~``, and Warp had made a folder named ``~`` in the
+    current folder, and compiled again in each new one. The folder must be this user's
+    alone: its compiled code is loaded and run."""
+    import tempfile
+
+    if os.environ.get("XDG_CACHE_HOME") or not os.path.expanduser("~").startswith("~") or os.name == "nt":
+        return None
+    folder = os.path.join(tempfile.gettempdir(), f"lfsf-warp-cache-{os.getuid()}")
+    try:
+        os.mkdir(folder, 0o700)
+    except FileExistsError:
+        pass
+    except OSError as exc:
+        raise OSError(exc.errno, f"Warp cannot set up its kernel cache: there is no home folder, and {folder} "
+                                 f"cannot be made ({exc.strerror}); set WARP_CACHE_PATH to a writable folder") from None
+    status = os.lstat(folder)
+    if status.st_uid != os.getuid() or status.st_mode & 0o022 or not os.path.isdir(folder):
+        raise OSError(f"Warp cannot set up its kernel cache: there is no home folder, and {folder} is not this "
+                      "user's alone (its compiled code would be run); set WARP_CACHE_PATH to a folder of your own")
+    return folder
 
 
 def available_devices() -> list[str]:
@@ -201,10 +229,77 @@ def _load(modules: Sequence, device) -> float:
         todo = [m for m in modules if (id(m), str(device)) not in _loaded]
         if not todo:
             return 0.0
+        cache = wp.config.kernel_cache_dir
+        if wp.config.cache_kernels and _cold(todo, device):
+            _check_cache_room(cache)
         start = time.perf_counter()
-        wp.force_load(device=device, modules=todo, max_workers=min(len(todo), cpu_threads()))
+        try:
+            wp.force_load(device=device, modules=todo, max_workers=min(len(todo), cpu_threads()))
+        except OSError as exc:   # (the message had named a build folder of Warp's, or blamed the outputs)
+            if exc.errno not in _CACHE_ERRNOS:
+                raise
+            raise OSError(f"Warp's kernel cache {cache}: {exc.strerror} ({exc.filename}) while compiling lfsf's "
+                          f"kernels into it: set WARP_CACHE_PATH to a writable folder with room "
+                          f"({CACHE_ROOM >> 20} MB)") from None
+        except Exception as exc:  # noqa: BLE001 - narrowed below to a cache entry that does not read
+            import json
+
+            # (a .meta that is no JSON, an object file that LLVM does not take; not the
+            # codegen's own errors, some ValueErrors, which a damaged cache does not cause)
+            if not (isinstance(exc, json.JSONDecodeError) or str(exc).startswith("Failed to load CPU module")):
+                raise
+            raise OSError(f"Warp's kernel cache {cache} holds a damaged entry of lfsf's kernels ({exc}): delete "
+                          f"them (rm -r {os.path.join(cache, 'wp_lfsf.kernels.*')}), and they are compiled "
+                          "again") from None
         _loaded.update((id(m), str(device)) for m in todo)
         return time.perf_counter() - start
+
+
+#: Free space the kernel cache needs for lfsf's modules to be compiled into it: they take
+#: about 4 MB, and their build folders and objects more while they compile (a 200-KB
+#: folder had LLVM end the process with its own "IO failure on output stream").
+CACHE_ROOM = 64 << 20
+
+#: What a kernel cache that cannot take the compiled modules says: full, or not writable.
+_CACHE_ERRNOS = tuple(getattr(__import__("errno"), name) for name in ("ENOSPC", "EDQUOT", "EACCES", "EPERM", "EROFS")
+                      if hasattr(__import__("errno"), name))
+
+
+def _cold(modules, device) -> list:
+    """The Warp ``modules`` of which the kernel cache holds no build for the Warp
+    ``device``'s kind of launch (the folder that Warp names by a module's hash, for one
+    thread a block on the CPU, as a launch there compiles it, and the module's own block
+    size on CUDA); [] where this Warp names its folders otherwise."""
+    cache = warp().config.kernel_cache_dir
+    try:
+        return [m for m in modules if not os.path.isdir(os.path.join(cache, m.get_module_identifier(
+            block_dim=1 if device.is_cpu else m.options["block_dim"])))]
+    except (AttributeError, KeyError, TypeError):
+        return []
+
+
+def cold_modules(modules, device) -> list[str]:
+    """The names of the Python modules of kernels among ``modules`` (e.g.
+    :mod:`lfsf.kernels.tgv`) that Warp's kernel cache holds no build of for ``device``
+    (roughly, on CUDA: a build for another GPU counts): the ones that :func:`preload`
+    would compile."""
+    wp = warp()
+    return [m.name for m in _cold([wp.get_module(m.__name__) for m in modules], wp.get_device(device))]
+
+
+def _check_cache_room(cache: str) -> None:
+    """An OSError naming the kernel cache where its file system has less than
+    :data:`CACHE_ROOM` free: the compiler would end the process with a line of its own."""
+    import shutil
+
+    try:
+        free = shutil.disk_usage(cache).free
+    except OSError:
+        return
+    if free < CACHE_ROOM:
+        raise OSError(f"Warp's kernel cache {cache}: {free >> 10} KB free, where lfsf's kernels need about "
+                      f"{CACHE_ROOM >> 20} MB to be compiled into it (once): free some, or set WARP_CACHE_PATH "
+                      "to a folder with room")
 
 
 def preload(modules: Sequence, device) -> float:

@@ -715,12 +715,19 @@ def kernel_modules(device: str) -> list:
     return modules
 
 
-def load_kernels(device: str, extra=()) -> str | None:
+def load_kernels(device: str, extra=(), say: Callable[[str], None] | None = None) -> str | None:
     """Compile, or read from Warp's kernel cache, the kernels of :func:`kernel_modules`
     and of the modules ``extra`` for ``device``, several modules at once
-    (:func:`lfsf.device.preload`). Returns a progress line where that took a second or
-    more (it compiled them), else None."""
-    seconds = _device.preload([*kernel_modules(device), *extra], device)
+    (:func:`lfsf.device.preload`). ``say`` is told first where some are to be compiled
+    (on a cold cache, 10–20 s of silence had passed before the line this returns).
+    Returns a progress line where that took a second or more (it compiled them), else
+    None."""
+    modules = [*kernel_modules(device), *extra]
+    cold = _device.cold_modules(modules, device) if say is not None else []
+    if cold:
+        say(f"compiling the kernels for {device} ({len(cold)} module{'s' if len(cold) > 1 else ''}; the first run "
+            "only)…")
+    seconds = _device.preload(modules, device)
     if seconds < 1.0:
         return None
     return f"kernels compiled for {device} in {seconds:.1f} s (once: Warp's kernel cache keeps them)"
@@ -1924,7 +1931,7 @@ def estimate_scene_flow(
     lap("checks")  # (with the input's checks above)
     # every kernel module compiled (or read from Warp's cache) now, several at once, rather
     # than one at a time at each module's first launch
-    compiled = load_kernels(dev)
+    compiled = load_kernels(dev, say=progress)
     if compiled:
         say(compiled)
     lap("kernels")

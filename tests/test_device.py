@@ -1,6 +1,7 @@
 """Device choice and banded CPU launches."""
 
 import os
+import re
 import subprocess
 import sys
 
@@ -259,19 +260,84 @@ def test_preload_compiles_several_modules_at_once_into_the_cache(tmp_path):
         "from lfsf import device as D\n"
         "from lfsf.kernels import fusion, pyramid\n"
         "wp = D.warp()\n"
+        "cold = D.cold_modules([pyramid, fusion], 'cpu')\n"
         "first = D.preload([pyramid, fusion], 'cpu')\n"
         "again = D.preload([fusion, pyramid], 'cpu')\n"
         "src = wp.array(np.arange(48, dtype=np.float32).reshape(1, 6, 8), dtype=float, device='cpu')\n"
         "out = wp.empty((1, 6, 8), dtype=float, device='cpu')\n"
         "D.launch_rows(pyramid.upsample, dim=(6, 8), inputs=[src, 2.0], outputs=[out], device='cpu')\n"
         "print(first > 0.0, again == 0.0, np.array_equal(out.numpy(), 2 * src.numpy()))\n"
+        "print(*cold, *D.cold_modules([pyramid, fusion], 'cpu') or ['none'])\n"
     )
     env = {**os.environ, "WARP_CACHE_PATH": str(tmp_path)}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert out.returncode == 0, out.stderr
-    assert out.stdout.split() == ["True", "True", "True"]
+    assert out.stdout.split() == ["True", "True", "True", "lfsf.kernels.pyramid", "lfsf.kernels.fusion", "none"]
     compiled = {p.name.rsplit("_", 1)[0] for p in tmp_path.rglob("wp_lfsf.kernels.*") if p.is_dir()}
     assert compiled == {"wp_lfsf.kernels.pyramid", "wp_lfsf.kernels.fusion"}
+    # a cache entry damaged (a copy cut short, a network file system's fault): it had been a
+    # traceback ("Expecting value: line 1 column 1") or "Failed to load CPU module", every run
+    (meta,) = tmp_path.rglob("wp_lfsf.kernels.fusion_*/*.meta")
+    meta.write_text("garbage")
+    code = "from lfsf import device as D\nfrom lfsf.kernels import fusion\nD.preload([fusion], 'cpu')\n"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert out.returncode != 0 and f"OSError: Warp's kernel cache {meta.parent.parent} holds a damaged entry of " \
+        f"lfsf's kernels (Expecting value" in out.stderr, out.stderr
+    assert f"(rm -r {meta.parent.parent / 'wp_lfsf.kernels.*'}), and they are compiled again" in out.stderr
+
+
+def test_a_kernel_cache_that_cannot_take_the_kernels_is_named(monkeypatch):
+    """A full or read-only kernel cache: the compiler had ended the process with LLVM's own
+    "IO failure on output stream", or the message named a build folder of Warp's, or
+    blamed the outputs (a helper's full home quota and read-only shared cache). Other
+    errors of the compile go on as they were."""
+    import errno
+    import json
+    import shutil
+
+    wp = D.warp()
+    cache = wp.config.kernel_cache_dir
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: shutil._ntuple_diskusage(1 << 30, 1 << 30, 200 << 10))
+    with pytest.raises(OSError, match=f"Warp's kernel cache {cache}: 200 KB free, where lfsf's kernels need about "
+                                      f"64 MB to be compiled into it"):
+        D._check_cache_room(cache)
+
+    class Module:  # (not a Warp module: no cache folder to look for, no room checked)
+        pass
+
+    for raised, said in ((OSError(errno.EACCES, "Permission denied", f"{cache}/wp_x_p1_t2"),
+                          f"Warp's kernel cache {cache}: Permission denied ({cache}/wp_x_p1_t2) while compiling"),
+                         (OSError(errno.ENOSPC, "No space left on device", "f"), f"{cache}: No space left on device"),
+                         (Exception("Failed to load CPU module 'lfsf.kernels.x' (device='cpu')"), "a damaged entry"),
+                         (json.JSONDecodeError("Expecting value", "", 0), "a damaged entry"),
+                         (RuntimeError("a kernel's own error"), "a kernel's own error"),
+                         (ValueError("codegen"), "codegen")):
+        def load(raised=raised, **_):
+            raise raised
+
+        monkeypatch.setattr(wp, "force_load", load)
+        with pytest.raises(type(raised) if said in str(raised) else OSError, match=re.escape(said)):
+            D._load([Module()], wp.get_device("cpu"))
+
+
+def test_without_a_home_folder_the_kernel_cache_is_the_users_own_temporary_one(monkeypatch, tmp_path):
+    """HOME unset and no passwd entry (``docker run --user 12345``): ``~`` stays ``~``, and
+    Warp had made a folder named ``~`` in the current folder. A temporary folder of this
+    user's alone serves instead; one that others may write into is refused (its code is run)."""
+    import tempfile
+
+    monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
+    assert D._cache_without_home() is None or os.path.expanduser("~").startswith("~")
+    monkeypatch.setattr(os.path, "expanduser", lambda path: path)
+    monkeypatch.setattr(tempfile, "gettempdir", lambda: str(tmp_path))
+    folder = tmp_path / f"lfsf-warp-cache-{os.getuid()}"
+    assert D._cache_without_home() == str(folder) and folder.stat().st_mode & 0o777 == 0o700
+    assert D._cache_without_home() == str(folder)      # (found again)
+    folder.chmod(0o777)
+    with pytest.raises(OSError, match="is not this user's alone"):
+        D._cache_without_home()
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    assert D._cache_without_home() is None
 
 
 def test_the_estimator_preloads_every_kernel_module_it_imports():
@@ -379,3 +445,20 @@ def test_a_forked_child_estimates_after_its_parent_did():
         if child.is_alive():
             child.kill()
     assert got == mine.tobytes()
+
+
+def test_a_compile_is_announced_before_it_starts(monkeypatch):
+    """On a cold kernel cache 10–20 s had passed without a word before "kernels compiled
+    for cpu in … s" (a helper, pressing Ctrl-C meanwhile)."""
+    from lfsf import estimate
+
+    told = []
+    monkeypatch.setattr(D, "preload", lambda modules, device: told.append("preload") or 2.5)
+    monkeypatch.setattr(D, "cold_modules", lambda modules, device: [m.__name__ for m in modules][:3])
+    assert estimate.load_kernels("cpu", say=told.append) == ("kernels compiled for cpu in 2.5 s (once: Warp's "
+                                                              "kernel cache keeps them)")
+    assert told == ["compiling the kernels for cpu (3 modules; the first run only)…", "preload"]
+    monkeypatch.setattr(D, "cold_modules", lambda modules, device: [])
+    told.clear()
+    estimate.load_kernels("cpu", say=told.append)
+    assert told == ["preload"]
