@@ -1549,6 +1549,10 @@ def _valid_mask(path, valid, shape: tuple, finite: np.ndarray) -> np.ndarray:
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PNG_CHANNELS = {0: 1, 2: 3, 4: 2, 6: 4}        # colour type -> samples per pixel
+#: The most pixels a PNG may have: Pillow's own limit for the PNGs it reads (twice its
+#: MAX_IMAGE_PIXELS), four times a Lytro Illum's raw image. A 1.5-MB file of 16000×16000
+#: blank 16-bit pixels had asked for 1.5 GB and more (a fuzzing helper).
+MAX_PNG_PIXELS = 2 * 89_478_485
 _PNG_COLOUR_TYPE = {1: 0, 2: 4, 3: 2, 4: 6}     # samples per pixel -> colour type
 # Adam7 passes: (x0, y0, dx, dy)
 _ADAM7 = ((0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4),
@@ -1771,6 +1775,9 @@ def decode_png(data: bytes, source: str = "<bytes>") -> np.ndarray:
     if compression != 0 or filtering != 0 or interlace not in (0, 1) or width < 1 or height < 1:
         raise ValueError(f"{source}: corrupt PNG header: size {width}×{height}, compression "
                          f"{compression}, filter method {filtering}, interlace {interlace}")
+    if width * height > MAX_PNG_PIXELS:
+        raise ValueError(f"{source}: a PNG of {width}×{height} pixels, more than the {MAX_PNG_PIXELS} that lfsf reads "
+                         "(as Pillow does; a light field's views or a camera's raw image are far fewer)")
     channels = _PNG_CHANNELS[colour_type]
     bpp = channels * depth // 8                          # bytes per pixel
     # the bytes the header promises, filter bytes included; no more is decompressed, and

@@ -498,14 +498,20 @@ def test_decode_png_rejects_truncated_image_data():
 
 @pytest.mark.parametrize("interlace", [0, 1])
 def test_decode_png_claiming_a_huge_size_fails_before_allocating(interlace):
-    """A 70-byte file claiming 100000×100000 16-bit RGB pixels: interlaced, the image
-    (56 GiB) was allocated before the data were checked, a MemoryError; and a small IDAT
-    that inflates far beyond what the header promises is cut off at that size."""
-    data = (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", struct.pack(">IIBBBBB", 100000, 100000, 16, 2, 0, 0, interlace))
-            + _chunk(b"IDAT", zlib.compress(bytes(64))) + _chunk(b"IEND", b""))
-    with pytest.raises(ValueError, match=r"bomb.png: truncated PNG image data: expected 600001\d{5} bytes "
-                                         r"for 100000×100000 pixels, got 64"):
-        lio.decode_png(data, source="bomb.png")
+    """A 70-byte file claiming 10000×10000 16-bit RGB pixels: interlaced, the image
+    (0.6 GB; 56 GiB at 100000×100000) was allocated before the data were checked, a
+    MemoryError; and a small IDAT that inflates far beyond what the header promises is
+    cut off at that size. Beyond Pillow's limit of pixels a PNG is refused as Pillow
+    refuses it: 16000×16000 blank pixels had been decompressed from 1.5 MB, 1.5 GB."""
+    def claiming(width, height):
+        return (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 16, 2, 0, 0, interlace))
+                + _chunk(b"IDAT", zlib.compress(bytes(64))) + _chunk(b"IEND", b""))
+
+    with pytest.raises(ValueError, match=r"bomb.png: truncated PNG image data: expected 6000\d{5} bytes "
+                                         r"for 10000×10000 pixels, got 64"):
+        lio.decode_png(claiming(10000, 10000), source="bomb.png")
+    with pytest.raises(ValueError, match=r"bomb.png: a PNG of 16000×16000 pixels, more than the 178956970 that"):
+        lio.decode_png(claiming(16000, 16000), source="bomb.png")
     # 2×2 grey promises 2·(2 + 1) = 6 bytes; 100 MB of zeros (100 kB compressed) behind them
     bomb = (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", struct.pack(">IIBBBBB", 2, 2, 8, 0, 0, 0, interlace))
             + _chunk(b"IDAT", zlib.compress(bytes(100_000_000), 9)) + _chunk(b"IEND", b""))
