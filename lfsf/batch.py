@@ -42,7 +42,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from lfsf._errors import BAD_INPUT_ERRORS, whole
+from lfsf._errors import _FULL, BAD_INPUT_ERRORS, whole
 from lfsf._files import SET_PREFIX, dead_set, write_bytes_atomic
 
 #: The files of a complete result (those :meth:`lfsf.estimate.SceneFlow.save` writes
@@ -479,6 +479,8 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
 
 
 def _reason(exc: BaseException) -> str:
+    if isinstance(exc, OSError) and exc.errno in _FULL:  # (its file is the pair's temporary folder's, removed)
+        return f"no space left on the device ({exc.strerror}); nothing of the pair was kept"
     if isinstance(exc, BAD_INPUT_ERRORS):
         return str(exc)
     where = traceback.extract_tb(exc.__traceback__)[-1] if exc.__traceback__ else None

@@ -280,6 +280,17 @@ def test_pair_names_a_file_system_cannot_take_are_refused_before_any_work(tmp_pa
     assert outcome.status == "failed" and "File name too long" in outcome.reason
 
 
+def test_a_pair_that_found_the_disk_full_says_so_in_its_reason():
+    """failed.csv had given the raw "[Errno 28] … '.f003.part-7287-…/flow.flo'", a temporary
+    folder's file that is gone (a helper's full disk)."""
+    import errno
+
+    full = OSError(errno.ENOSPC, "No space left on device", "/out/.f003.part-7287-0123abcd/flow.flo")
+    assert batch._reason(full) == "no space left on the device (No space left on device); nothing of the pair was kept"
+    assert batch._reason(OSError(errno.ENOENT, "No such file or directory", "a.npz")) == \
+        "[Errno 2] No such file or directory: 'a.npz'"
+
+
 def test_failed_csv_keeps_paths_whose_bytes_are_not_utf8(tmp_path):
     """A failed pair read from b'fr\xff.npz': writing failed.csv raised UnicodeEncodeError."""
     source = tmp_path / os.fsdecode(b"fr\xff.npz")
