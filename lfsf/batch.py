@@ -873,6 +873,7 @@ class ProgressBar:
         self.width = width
         self.t0 = time.perf_counter()
         self.failed = 0
+        self.shown = 0   # (the length of the bar's line on the terminal: blanked before a line of text)
         self.noted: set = set()  # (each note once: the same for every pair of a sequence had repeated)
 
     def __call__(self, outcome: Outcome, finished: int, total: int) -> None:
@@ -897,10 +898,13 @@ class ProgressBar:
             filled = int(round(self.width * finished / total))
             bar = "#" * filled + "." * (self.width - filled)
             failed = f", {self.failed} failed" if self.failed else ""
-            self.stream.write(f"\r[{bar}] {finished}/{total} pairs{failed}, {_duration(elapsed)} elapsed, "
-                              f"about {_duration(left)} left ")
+            line = (f"[{bar}] {finished}/{total} pairs{failed}, {_duration(elapsed)} elapsed, "
+                    f"about {_duration(left)} left ")
+            self.stream.write("\r" + line)
+            self.shown = len(line)
             if finished == total:
                 self.stream.write("\n")
+                self.shown = 0
             self.stream.flush()
 
     def interrupted(self) -> None:
@@ -910,8 +914,9 @@ class ProgressBar:
                        "abandons them)")
 
     def _line(self, text: str) -> None:
-        if self.live:
-            self.stream.write("\r\033[K")
+        if self.live and self.shown:  # (blanks, not the escape ESC[K, which a TERM=dumb terminal shows)
+            self.stream.write("\r" + " " * self.shown + "\r")
+            self.shown = 0
         self.stream.write(f"lfsf batch: {text}\n")
         self.stream.flush()
 

@@ -731,6 +731,9 @@ def test_progress_bar_on_a_terminal_and_in_a_log(monkeypatch):
     terminal = streams["terminal"].getvalue()
     assert terminal.count("\r[") == 3 and "3/3 pairs, 1 failed" in terminal and "left" in terminal
     assert "[" + "#" * 30 + "]" in terminal and terminal.endswith("\n")
+    # the failure's line over the bar: the bar blanked by spaces (ESC[K showed as such with TERM=dumb)
+    first = terminal.split("\r")[1]
+    assert "\033" not in terminal and "\r" + " " * len(first) + "\rlfsf batch: pair b failed" in terminal
     log = streams["log"].getvalue().splitlines()
     assert log[0].startswith("lfsf batch: [1/3] a: done in 2.0 s; about ")
     assert log[1] == "lfsf batch: [2/3] pair b failed: b.npz: not a light field"
