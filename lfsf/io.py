@@ -711,7 +711,13 @@ def _check_npz_member_size(path: Path, archive: zipfile.ZipFile, key: str) -> No
 def _read_folder(folder: Path) -> LightField:
     # (hidden files skipped: macOS's AppleDouble ._view_01_01.png beside each view had read
     # as a second light field's prefix)
-    names = sorted(p.name for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
+    entries = sorted((p for p in folder.iterdir() if not p.name.startswith(".")), key=lambda p: p.name)
+    names = [p.name for p in entries if p.is_file()]
+    for p in entries:  # (a view's name on no file had been told as a view missing)
+        if not p.is_file() and (_HCI_NAME.fullmatch(p.name) or _ROWCOL_NAME.fullmatch(p.name)):
+            what = ("a link to nothing (or a loop of links)" if p.is_symlink() and not p.exists() else
+                    "a folder" if p.is_dir() else "not a regular file")
+            raise ValueError(f"{p}: named as a view, but {what}")
     hci = [(m, name) for name in names if (m := _HCI_NAME.fullmatch(name))]
     rowcol = [(m, name) for name in names if (m := _ROWCOL_NAME.fullmatch(name))]
     if hci and rowcol:
@@ -931,7 +937,8 @@ def _read_view(path: Path) -> np.ndarray:
         elif channels == 4:         # RGBA
             image = image[..., :3]
         elif channels != 3:
-            raise ValueError(f"{path}: expected a grey, RGB or RGBA image, got {channels} channels")
+            raise ValueError(f"{path}: expected a grey, RGB or RGBA image, got one of shape {image.shape}"
+                             + (" (an animated image's frames?)" if channels > 4 else ""))
     elif image.ndim != 2:
         raise ValueError(f"{path}: expected a 2-D image, got shape {image.shape}")
     if image.dtype.kind not in "biuf":

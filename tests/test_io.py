@@ -1003,6 +1003,28 @@ def test_a_folder_with_views_in_both_layouts_is_an_error(tmp_path):
         lio.read_lightfield(tmp_path / "both")
 
 
+def test_a_views_name_on_no_image_file_or_on_frames_is_named_as_such(tmp_path):
+    """A link to nothing, a link loop or a folder under a view's name had been told as the
+    view missing; an animated PNG as an image of 32 channels, its width (a fuzzing helper)."""
+    from PIL import Image
+
+    _hci_folder(tmp_path / "v", 2)
+    view = tmp_path / "v" / "input_Cam001.png"
+    for make, said in ((lambda: view.symlink_to(tmp_path / "nowhere"), "a link to nothing (or a loop of links)"),
+                       (lambda: view.symlink_to(view), "a link to nothing (or a loop of links)"),
+                       (lambda: view.mkdir(), "a folder")):
+        view.rmdir() if view.is_dir() and not view.is_symlink() else view.unlink()
+        make()
+        with pytest.raises(ValueError, match=re.escape(f"{view}: named as a view, but {said}")):
+            lio.read_lightfield(tmp_path / "v")
+    view.rmdir()
+    frames = [Image.fromarray(np.full((4, 5), k * 80, np.uint8)) for k in range(2)]
+    frames[0].save(view, save_all=True, append_images=frames[1:])
+    with pytest.raises(ValueError, match=re.escape(f"{view}: expected a grey, RGB or RGBA image, got one of shape "
+                                                   "(2, 4, 5) (an animated image's frames?)")):
+        lio.read_lightfield(tmp_path / "v")
+
+
 def test_writing_views_beside_those_of_the_other_layout_is_refused(tmp_path):
     """write_lightfield(hci) then write_lightfield(rowcol) into one folder wrote a folder
     that read_lightfield refuses (two layouts)."""
