@@ -99,8 +99,9 @@ def warp():
                 with _stderr_filtered("NVIDIA CUDA driver"):
                     wp.init()
             except OSError as exc:
-                raise OSError(exc.errno, f"Warp cannot set up its kernel cache ({exc.strerror}); set "
-                                         f"WARP_CACHE_PATH to a writable folder", exc.filename) from None
+                # (no errno: "[Errno 13]" had led the line, and a full disk's would read as the outputs')
+                raise OSError(f"Warp cannot set up its kernel cache{f' {exc.filename}' if exc.filename else ''} ({exc.strerror}); set "
+                              "WARP_CACHE_PATH to a writable folder") from None
             wp.config.log_level = wp.LOG_WARNING
             _initialised = True
     return wp
@@ -123,8 +124,8 @@ def _cache_without_home() -> str | None:
     except FileExistsError:
         pass
     except OSError as exc:
-        raise OSError(exc.errno, f"Warp cannot set up its kernel cache: there is no home folder, and {folder} "
-                                 f"cannot be made ({exc.strerror}); set WARP_CACHE_PATH to a writable folder") from None
+        raise OSError(f"Warp cannot set up its kernel cache: there is no home folder, and {folder} cannot be made "
+                      f"({exc.strerror}); set WARP_CACHE_PATH to a writable folder") from None
     status = os.lstat(folder)
     if status.st_uid != os.getuid() or status.st_mode & 0o022 or not os.path.isdir(folder):
         raise OSError(f"Warp cannot set up its kernel cache: there is no home folder, and {folder} is not this "

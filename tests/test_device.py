@@ -286,6 +286,18 @@ def test_preload_compiles_several_modules_at_once_into_the_cache(tmp_path):
     assert f"(rm -r {meta.parent.parent / 'wp_lfsf.kernels.*'}), and they are compiled again" in out.stderr
 
 
+def test_a_kernel_cache_that_cannot_be_made_is_one_line(tmp_path):
+    """WARP_CACHE_PATH on a file (or HOME read-only): one line naming the folder, which had
+    started with "[Errno 20]" and ended with the file's name in quotes."""
+    (tmp_path / "file").write_text("")
+    env = {**os.environ, "WARP_CACHE_PATH": str(tmp_path / "file")}
+    out = subprocess.run([sys.executable, "-m", "lfsf", "run", "a.npz", "b.npz", "--out", str(tmp_path / "o")],
+                         capture_output=True, text=True, env=env)
+    assert out.returncode == 2 and out.stderr.startswith(f"lfsf run: error: Warp cannot set up its kernel cache "
+                                                         f"{tmp_path / 'file'}"), out.stderr
+    assert "[Errno" not in out.stderr and out.stderr.rstrip().endswith("set WARP_CACHE_PATH to a writable folder")
+
+
 def test_a_kernel_cache_that_cannot_take_the_kernels_is_named(monkeypatch):
     """A full or read-only kernel cache: the compiler had ended the process with LLVM's own
     "IO failure on output stream", or the message named a build folder of Warp's, or
