@@ -763,18 +763,23 @@ def _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, 
         queue = as_completed([submit(index) for index in first])
         outcomes: list[Outcome | None] = [None] * len(pairs)
         finished = 0
+
+        def ended(future) -> None:
+            nonlocal finished
+            index = futures[future]
+            try:
+                outcome = future.result()
+            except Exception as exc:  # noqa: BLE001 - a task that died on every attempt
+                outcome = Outcome(pairs[index].name, "failed", reason=_dask_reason(exc))
+                _remove_stale(out, pairs[index].name)   # the last dead attempt's folder: no retry will
+            outcomes[index] = outcome
+            finished += 1
+            report(outcome, finished, len(pairs))
+
         try:
             for future in queue:
-                index = futures[future]
-                try:
-                    outcome = future.result()
-                except Exception as exc:  # noqa: BLE001 - a task that died on every attempt
-                    outcome = Outcome(pairs[index].name, "failed", reason=_dask_reason(exc))
-                    _remove_stale(out, pairs[index].name)   # the last dead attempt's folder: no retry will
-                outcomes[index] = outcome
-                finished += 1
-                report(outcome, finished, len(pairs))
-                for successor in after.pop(pairs[index].name, []):
+                ended(future)
+                for successor in after.pop(pairs[futures[future]].name, []):
                     queue.add(submit(successor))
         except KeyboardInterrupt as exc:
             # (the wait for the pairs begun had been silent, and a second Ctrl-C abandoned them;
@@ -782,7 +787,13 @@ def _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, 
             if type(exc) is KeyboardInterrupt and not scheduler and finished < len(pairs):
                 if callable(getattr(report, "interrupted", None)):
                     report.interrupted()
-                _finish_begun(client, futures)   # (a second Ctrl-C raises out of it: abandoned)
+                # (a second Ctrl-C raises out of it: abandoned; the pairs ended meanwhile, or
+                # before and not yet taken, are reported, and so reach failed.csv)
+                for future in [f for f in futures if f.status in ("finished", "error")
+                               and outcomes[futures[f]] is None]:
+                    ended(future)
+                for future in _finish_begun(client, list(futures)):
+                    ended(future)
             raise
         finish(outcomes)
 
@@ -792,22 +803,38 @@ def _executing(dask_worker) -> list:
     return [task.key for task in dask_worker.state.executing]
 
 
-def _finish_begun(client, futures) -> None:
+def _finish_begun(client, futures: list):
     """After a Ctrl-C: cancel the pairs that no worker has begun and wait for those that
-    the workers are running, which write their results (closing the local cluster had
-    ended its workers within 4 s, and the pairs with them, though the batch said it was
-    finishing them)."""
-    from distributed import wait
+    the workers are running, which write their results, yielding each future as it ends
+    (closing the local cluster had ended its workers within 4 s, and the pairs with them,
+    though the batch said it was finishing them). A pair whose worker stops running it
+    without its future ending (the worker died: Dask would run it again from its start,
+    up to three times) is cancelled, not waited for again."""
+    def running() -> dict:   # key: the worker running it (those that answer)
+        found = client.run(_executing, on_error="ignore")
+        return {key: worker for worker, keys in found.items() for key in keys}
 
-    # (the keys the workers run: the scheduler's processing() names every pair sent to a
-    # worker, queued there too, as submitted pairs are not held back on the scheduler)
     try:
-        begun = set().union(*client.run(_executing).values())
-    except Exception:  # noqa: BLE001 - a worker lost meanwhile: nothing to wait for that can be told
-        begun = set()
-    running = [f for f in futures if f.key in begun and not f.done()]
-    client.cancel([f for f in futures if f.key not in begun and not f.done()])
-    wait(running)
+        begun = running()
+    except Exception:  # noqa: BLE001 - the cluster gone meanwhile: nothing to wait for that can be told
+        begun = {}
+    waiting = {f: begun[f.key] for f in futures if f.key in begun and not f.done()}
+    client.cancel([f for f in futures if f not in waiting and not f.done()])
+    gone: dict = {}   # a future's polls since its worker stopped running it
+    while waiting:
+        time.sleep(0.2)
+        for future in [f for f in waiting if f.done()]:
+            del waiting[future]
+            yield future
+        try:
+            now = running()
+        except Exception:  # noqa: BLE001 - as above
+            now = {}
+        for future, worker in list(waiting.items()):
+            gone[future] = 0 if now.get(future.key) == worker else gone.get(future, 0) + 1
+            if gone[future] >= 5 and not future.done():  # (1 s: not a result on its way to the client)
+                client.cancel([future])
+                del waiting[future]
 
 
 def _start_resource_tracker_deaf_to_hangups() -> None:
@@ -873,6 +900,7 @@ class ProgressBar:
         self.width = width
         self.t0 = time.perf_counter()
         self.failed = 0
+        self.stopping = False
         self.shown = 0   # (the length of the bar's line on the terminal: blanked before a line of text)
         self.noted: set = set()  # (each note once: the same for every pair of a sequence had repeated)
 
@@ -880,13 +908,14 @@ class ProgressBar:
         self.failed += outcome.status == "failed"
         elapsed = time.perf_counter() - self.t0
         left = elapsed / finished * (total - finished)
+        bar = self.live and not self.stopping   # (after a Ctrl-C, lines: the bar would run into the last one)
         if outcome.status == "failed":  # (counted in a log, as every other pair's line)
-            count = f"[{finished}/{total}] " if not self.live and not self.quiet else ""
+            count = f"[{finished}/{total}] " if not bar and not self.quiet else ""
             self._line(f"{count}pair {outcome.name} failed: {outcome.reason}")
-        elif not self.live and not self.quiet:
+        elif not bar and not self.quiet:
             self._line(f"[{finished}/{total}] {outcome.name}: {outcome.status}"
                        + (f" in {outcome.seconds:.1f} s" if outcome.status == "done" else "")
-                       + f"; about {_duration(left)} left")
+                       + ("" if self.stopping else f"; about {_duration(left)} left"))
         if not self.quiet:  # what the estimator decided about the pair's input, on a terminal too
             for note in outcome.notes:
                 if note not in self.noted:
@@ -894,7 +923,7 @@ class ProgressBar:
                     self._line(f"pair {outcome.name}: {note}")
         for said in outcome.warned:  # (with --quiet too, as lfsf run's warnings)
             self._line(f"pair {outcome.name}: warning: {said}")
-        if self.live:
+        if bar:
             filled = int(round(self.width * finished / total))
             bar = "#" * filled + "." * (self.width - filled)
             failed = f", {self.failed} failed" if self.failed else ""
@@ -909,6 +938,7 @@ class ProgressBar:
 
     def interrupted(self) -> None:
         """Said at a Ctrl-C while a local cluster's pairs in progress are finished."""
+        self.stopping = True
         if not self.quiet:
             self._line("interrupted: finishing the pairs in progress, which the next run skips (Ctrl-C again "
                        "abandons them)")

@@ -454,7 +454,8 @@ def test_cluster_survives_a_worker_killed_mid_task(tmp_path):
 def _signal_a_running_cluster_batch(start: list, folder: Path, out: Path, signum: int, settings=("--preset", "fast")):
     """``lfsf batch FOLDER --out OUT --workers 2 SETTINGS…`` started by ``python START…``
     in a session of its own, ``signum`` sent to its process group once a pair is running;
-    (the process, its stderr, the names of the pairs seen running then)."""
+    (the process, its stderr, the names of the pairs seen running then, the seconds from
+    the signal to the process's end)."""
     import subprocess
     import sys
 
@@ -466,8 +467,9 @@ def _signal_a_running_cluster_batch(start: list, folder: Path, out: Path, signum
         time.sleep(0.002)
     running = {p.name.split(".part-")[0].lstrip(".") for p in out.glob(".*.part-*")}
     os.killpg(proc.pid, signum)
+    sent = time.monotonic()
     _, err = proc.communicate(timeout=120)
-    return proc, err, running
+    return proc, err, running, time.monotonic() - sent
 
 
 @needs_dask
@@ -484,19 +486,51 @@ def test_ctrl_c_on_a_cluster_batch_is_one_line_not_the_workers_tracebacks(frames
     out = tmp_path / "out"
     answer_ctrl_c = "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); " \
                     "from lfsf.cli import entry; sys.argv[0] = 'lfsf'; entry()"
-    # pairs of about 6 s (48×40 px, 1000 warps), past the 4 s in which a closing cluster ends its workers
+    # pairs of about 9 s here (48×40 px, 1000 warps of 45 iterations), past the 4 s in which a closing cluster ends its workers
     slow = tmp_path / "slow.toml"
-    slow.write_text('preset = "fast"\nwarps = 1000\n')
-    proc, err, running = _signal_a_running_cluster_batch(["-c", answer_ctrl_c], folder, out, signal.SIGINT,
-                                                         ("--config", str(slow)))
+    slow.write_text('preset = "fast"\nwarps = 1000\niterations = 45\n')
+    proc, err, running, waited = _signal_a_running_cluster_batch(["-c", answer_ctrl_c], folder, out, signal.SIGINT,
+                                                                 ("--config", str(slow)))
     assert proc.returncode == 130, err
     assert "Traceback" not in err and err.strip().splitlines()[-1] == "lfsf batch: interrupted", err
     # … said at once: the wait for the pairs begun had been silent, and a second Ctrl-C abandoned them
     assert ("lfsf batch: interrupted: finishing the pairs in progress, which the next run skips (Ctrl-C again "
             "abandons them)") in err.splitlines(), err
     assert _leftovers(out) == []
-    # … and finished: closing the cluster had ended its workers, and the pairs with them
+    # … and finished, and said to be: closing the cluster had ended its workers, and the pairs with them
     assert running and all(batch.is_complete(out / name) for name in running), (running, sorted(os.listdir(out)))
+    assert all(re.search(rf"^lfsf batch: \[\d/3\] {name}: done in [\d.]+ s$", err, re.M) for name in running), err
+    if waited < 5.0:  # (pairs that end within the cluster's closing would pass without the wait)
+        pytest.skip(f"the pairs ended {waited:.1f} s after Ctrl-C: too soon to tell the wait from the cluster's close")
+
+
+@needs_dask
+def test_ctrl_c_does_not_wait_for_a_pair_whose_worker_died(frames, tmp_path):
+    """After Ctrl-C the batch waits for the pairs being run; one whose worker then dies
+    is not waited for again: Dask would run it from its start on a new worker (up to
+    three times), and the batch had waited for that too (a reviewer's find)."""
+    import subprocess
+    import sys
+
+    folder, _ = frames
+    out, slow = tmp_path / "out", tmp_path / "slow.toml"
+    slow.write_text('preset = "fast"\nwarps = 1000\niterations = 45\n')
+    answer_ctrl_c = "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); " \
+                    "from lfsf.cli import entry; sys.argv[0] = 'lfsf'; entry()"
+    proc = subprocess.Popen([sys.executable, "-c", answer_ctrl_c, "batch", str(folder), "--out", str(out),
+                             "--config", str(slow)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    deadline = time.monotonic() + 120
+    while not list(out.glob(".*.part-*")) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.002)
+    (part,) = out.glob(".*.part-*")
+    os.killpg(proc.pid, signal.SIGINT)
+    time.sleep(1.0)   # (the batch now waits for the pair)
+    os.kill(int(part.name.split(".part-")[1].split("-")[0]), signal.SIGKILL)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    name = part.name.split(".part-")[0].lstrip(".")
+    assert not batch.is_complete(out / name) and _leftovers(out) == [], sorted(os.listdir(out))
 
 
 @needs_dask
@@ -507,7 +541,7 @@ def test_a_hang_up_of_a_cluster_batchs_process_group_is_one_line(frames, tmp_pat
     blocked now. (The workers die of it too, and Dask's own log may then say so, in some
     runs with a traceback of a closed connection: not checked here.)"""
     folder, _ = frames
-    proc, err, _ = _signal_a_running_cluster_batch(["-m", "lfsf"], folder, tmp_path / "out", signal.SIGHUP)
+    proc, err, *_ = _signal_a_running_cluster_batch(["-m", "lfsf"], folder, tmp_path / "out", signal.SIGHUP)
     assert proc.returncode == 129, err
     assert "resource_tracker" not in err and "KeyError" not in err, err
     assert "lfsf batch: hung up (SIGHUP)" in err.splitlines(), err
