@@ -108,28 +108,43 @@ def warp():
 
 
 def _cache_without_home() -> str | None:
-    """Where Warp's kernel cache goes when there is no home folder to hold it: None
-    (Warp's own choice, ``~/.cache/warp``) where there is one, else a folder of this
-    user's in the temporary folder. With HOME unset and no passwd entry (``docker run
-    --user 12345``), ``~`` stays ``~``, and Warp had made a folder named ``~`` in the
-    current folder, and compiled again in each new one. The folder must be this user's
-    alone: its compiled code is loaded and run."""
+    """Where Warp's kernel cache goes when no home folder can hold it: None (Warp's own
+    choice, ``~/.cache/warp``) where one can (or holds it already, writable or not), else
+    a folder of this user's in the temporary folder. With HOME unset and no passwd entry,
+    ``~`` stays ``~``, and Warp had made a folder named ``~`` in the current folder, and
+    compiled again in each new one; with HOME=/ (``docker run --user 12345``) it could
+    not start. The folder must be this user's alone: its compiled code is loaded and run."""
+    import stat
     import tempfile
 
-    if os.environ.get("XDG_CACHE_HOME") or not os.path.expanduser("~").startswith("~") or os.name == "nt":
+    if os.environ.get("XDG_CACHE_HOME") or os.name == "nt":
         return None
+    home = os.path.expanduser("~")
+    if not home.startswith("~"):
+        wanted = os.path.join(home, ".cache", "warp")
+        if os.path.isdir(wanted):
+            return None
+        existing = wanted
+        while not os.path.exists(existing) and os.path.dirname(existing) != existing:
+            existing = os.path.dirname(existing)
+        if os.access(existing, os.W_OK | os.X_OK):
+            return None
     folder = os.path.join(tempfile.gettempdir(), f"lfsf-warp-cache-{os.getuid()}")
+    where = f"there is no home folder to hold it{f' ({home} is not writable)' if not home.startswith('~') else ''}"
     try:
         os.mkdir(folder, 0o700)
     except FileExistsError:
         pass
     except OSError as exc:
-        raise OSError(f"Warp cannot set up its kernel cache: there is no home folder, and {folder} cannot be made "
-                      f"({exc.strerror}); set WARP_CACHE_PATH to a writable folder") from None
+        raise OSError(f"Warp cannot set up its kernel cache: {where}, and {folder} cannot be made ({exc.strerror}); "
+                      "set WARP_CACHE_PATH to a writable folder") from None
     status = os.lstat(folder)
-    if status.st_uid != os.getuid() or status.st_mode & 0o022 or not os.path.isdir(folder):
-        raise OSError(f"Warp cannot set up its kernel cache: there is no home folder, and {folder} is not this "
-                      "user's alone (its compiled code would be run); set WARP_CACHE_PATH to a folder of your own")
+    if not stat.S_ISDIR(status.st_mode):
+        raise OSError(f"Warp cannot set up its kernel cache: {where}, and {folder} is not a folder (a link, or a "
+                      "file); set WARP_CACHE_PATH to a folder of your own")
+    if status.st_uid != os.getuid() or status.st_mode & 0o022:
+        raise OSError(f"Warp cannot set up its kernel cache: {where}, and {folder} is not this user's alone (its "
+                      "compiled code would be run); set WARP_CACHE_PATH to a folder of your own")
     return folder
 
 
@@ -231,13 +246,17 @@ def _load(modules: Sequence, device) -> float:
         if not todo:
             return 0.0
         cache = wp.config.kernel_cache_dir
-        if wp.config.cache_kernels and _cold(todo, device):
+        cold = _cold(todo, device) if wp.config.cache_kernels else []
+        if cold:
             _check_cache_room(cache)
         start = time.perf_counter()
         try:
-            wp.force_load(device=device, modules=todo, max_workers=min(len(todo), cpu_threads()))
+            # (one thread a block on the CPU, as a launch there compiles it: Warp 1.17 preloaded
+            # its modules' default of 256 otherwise, a build that no launch used)
+            wp.force_load(device=device, modules=todo, max_workers=min(len(todo), cpu_threads()),
+                          block_dim=1 if device.is_cpu else None)
         except OSError as exc:   # (the message had named a build folder of Warp's, or blamed the outputs)
-            if exc.errno not in _CACHE_ERRNOS:
+            if exc.errno not in _CACHE_ERRNOS or not _within(exc.filename, cache):
                 raise
             raise OSError(f"Warp's kernel cache {cache}: {exc.strerror} ({exc.filename}) while compiling lfsf's "
                           f"kernels into it: set WARP_CACHE_PATH to a writable folder with room "
@@ -247,13 +266,23 @@ def _load(modules: Sequence, device) -> float:
 
             # (a .meta that is no JSON, an object file that LLVM does not take; not the
             # codegen's own errors, some ValueErrors, which a damaged cache does not cause)
-            if not (isinstance(exc, json.JSONDecodeError) or str(exc).startswith("Failed to load CPU module")):
+            # (nor a module compiled just now, which no deleting mends)
+            failed = re.match(r"Failed to load CPU module '([^']+)'", str(exc))
+            if not (isinstance(exc, json.JSONDecodeError) or failed and failed.group(1) not in {m.name for m in cold}):
                 raise
             raise OSError(f"Warp's kernel cache {cache} holds a damaged entry of lfsf's kernels ({exc}): delete "
                           f"them (rm -r {os.path.join(cache, 'wp_lfsf.kernels.*')}), and they are compiled "
                           "again") from None
         _loaded.update((id(m), str(device)) for m in todo)
         return time.perf_counter() - start
+
+
+def _within(path, folder: str) -> bool:
+    """Whether the file ``path`` (None: no file) lies in ``folder``."""
+    if path is None:
+        return False
+    folder = os.path.realpath(folder)
+    return os.path.commonpath([os.path.realpath(os.fsdecode(path)), folder]) == folder
 
 
 #: Free space the kernel cache needs for lfsf's modules to be compiled into it: they take

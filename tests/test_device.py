@@ -309,44 +309,76 @@ def test_a_kernel_cache_that_cannot_take_the_kernels_is_named(monkeypatch):
 
     wp = D.warp()
     cache = wp.config.kernel_cache_dir
-    monkeypatch.setattr(shutil, "disk_usage", lambda path: shutil._ntuple_diskusage(1 << 30, 1 << 30, 200 << 10))
-    with pytest.raises(OSError, match=f"Warp's kernel cache {cache}: 200 KB free, where lfsf's kernels need about "
-                                      f"64 MB to be compiled into it"):
-        D._check_cache_room(cache)
+    with monkeypatch.context() as patched:
+        patched.setattr(shutil, "disk_usage", lambda path: shutil._ntuple_diskusage(1 << 30, 1 << 30, 200 << 10))
+        with pytest.raises(OSError, match=f"Warp's kernel cache {cache}: 200 KB free, where lfsf's kernels need "
+                                          f"about 64 MB to be compiled into it"):
+            D._check_cache_room(cache)
 
     class Module:  # (not a Warp module: no cache folder to look for, no room checked)
-        pass
+        name = "lfsf.kernels.x"
 
-    for raised, said in ((OSError(errno.EACCES, "Permission denied", f"{cache}/wp_x_p1_t2"),
-                          f"Warp's kernel cache {cache}: Permission denied ({cache}/wp_x_p1_t2) while compiling"),
-                         (OSError(errno.ENOSPC, "No space left on device", "f"), f"{cache}: No space left on device"),
-                         (Exception("Failed to load CPU module 'lfsf.kernels.x' (device='cpu')"), "a damaged entry"),
-                         (json.JSONDecodeError("Expecting value", "", 0), "a damaged entry"),
-                         (RuntimeError("a kernel's own error"), "a kernel's own error"),
-                         (ValueError("codegen"), "codegen")):
+    class New(Module):  # (a module of no build in the cache: compiled in this call)
+        options = {"block_dim": 256}
+
+        def get_module_identifier(self, block_dim=None):
+            return "wp_lfsf.kernels.x_0000000"
+
+    build = os.path.join(cache, "wp_x_p1_t2")
+    failed = "Failed to load CPU module 'lfsf.kernels.x' (device='cpu')"
+    for module, raised, said in (
+            (Module, OSError(errno.EACCES, "Permission denied", build),
+             f"Warp's kernel cache {cache}: Permission denied ({build}) while compiling"),
+            (Module, OSError(errno.ENOSPC, "No space left on device", build), f"{cache}: No space left on device"),
+            (Module, OSError(errno.EACCES, "Permission denied", "/elsewhere"), None),  # (not the cache's: as it was)
+            (Module, Exception(failed), "a damaged entry"),
+            (New, Exception(failed), None),  # (compiled just now: no deleting mends it)
+            (Module, json.JSONDecodeError("Expecting value", "", 0), "a damaged entry"),
+            (Module, RuntimeError("a kernel's own error"), None),
+            (Module, ValueError("codegen"), None)):
         def load(raised=raised, **_):
             raise raised
 
         monkeypatch.setattr(wp, "force_load", load)
-        with pytest.raises(type(raised) if said in str(raised) else OSError, match=re.escape(said)):
-            D._load([Module()], wp.get_device("cpu"))
+        monkeypatch.setattr(D, "_check_cache_room", lambda cache: None)
+        with pytest.raises(Exception) as info:
+            D._load([module()], wp.get_device("cpu"))
+        if said is None:
+            assert info.value is raised
+        else:
+            assert type(info.value) is OSError and said in str(info.value), info.value
 
 
 def test_without_a_home_folder_the_kernel_cache_is_the_users_own_temporary_one(monkeypatch, tmp_path):
-    """HOME unset and no passwd entry (``docker run --user 12345``): ``~`` stays ``~``, and
-    Warp had made a folder named ``~`` in the current folder. A temporary folder of this
-    user's alone serves instead; one that others may write into is refused (its code is run)."""
+    """HOME unset and no passwd entry: ``~`` stays ``~``, and Warp had made a folder named
+    ``~`` in the current folder; HOME=/ (``docker run --user 12345``), not writable: Warp
+    could not start. A temporary folder of this user's alone serves instead; one that
+    others may write into, or a link, is refused (its code is run). A home folder that
+    holds Warp's cache already keeps it, writable or not (a shared, warm one)."""
     import tempfile
 
     monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
     assert D._cache_without_home() is None or os.path.expanduser("~").startswith("~")
-    monkeypatch.setattr(os.path, "expanduser", lambda path: path)
+    home = tmp_path / "home"
+    home.mkdir()
+    writable = [True]
+    monkeypatch.setattr(os, "access", lambda path, mode: writable[0] or not str(path).startswith(str(home)))
+    monkeypatch.setattr(os.path, "expanduser", lambda path: path.replace("~", str(home)))
     monkeypatch.setattr(tempfile, "gettempdir", lambda: str(tmp_path))
     folder = tmp_path / f"lfsf-warp-cache-{os.getuid()}"
+    assert D._cache_without_home() is None              # (Warp's own ~/.cache/warp can be made)
+    writable[0] = False
     assert D._cache_without_home() == str(folder) and folder.stat().st_mode & 0o777 == 0o700
-    assert D._cache_without_home() == str(folder)      # (found again)
+    (home / ".cache" / "warp").mkdir(parents=True)
+    assert D._cache_without_home() is None              # (there already: read, as before)
+    monkeypatch.setattr(os.path, "expanduser", lambda path: path)   # (no home at all)
+    assert D._cache_without_home() == str(folder)       # (found again)
     folder.chmod(0o777)
     with pytest.raises(OSError, match="is not this user's alone"):
+        D._cache_without_home()
+    folder.rmdir()
+    folder.symlink_to(home)
+    with pytest.raises(OSError, match=r"is not a folder \(a link, or a file\)"):
         D._cache_without_home()
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     assert D._cache_without_home() is None
