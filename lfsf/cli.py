@@ -428,8 +428,8 @@ class _Progress:
             except (AttributeError, OSError, ValueError):
                 columns = 0
             # (a terminal that reports no width, as under `script` or in some containers, had cut every
-            # line to "…": shutil's size is $COLUMNS, stdout's terminal's, else 80, never 0)
-            columns = (columns or shutil.get_terminal_size().columns) - 1
+            # line to "…": shutil's size is $COLUMNS, stdout's terminal's, else 80; 0 too on Python 3.10)
+            columns = (columns or shutil.get_terminal_size().columns or 80) - 1
             if len(line) > columns:
                 line = line[:max(columns - 1, 0)] + "…"
         sys.stderr.write("\r" + line.ljust(self.width))

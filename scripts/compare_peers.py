@@ -567,6 +567,15 @@ def selected_scenes(args) -> list[str]:
     return scenes
 
 
+def import_peers() -> None:
+    """Import the three peers: OpenCV's DualTVL1, scikit-image's TV-L1 and plenpy (an
+    ImportError naming the one missing)."""
+    peers._opencv_dual_tvl1()
+    import skimage.registration  # noqa: F401
+
+    peers.import_plenpy_lightfield()
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     if min(args.size) < 32:
@@ -630,10 +639,7 @@ def main(argv=None) -> int:
                 return 2
     if use_peers:  # import the peers once, outside the timings (and before any run: all three are needed)
         try:
-            peers._opencv_dual_tvl1()
-            import skimage.registration  # noqa: F401
-
-            peers.import_plenpy_lightfield()
+            import_peers()
         except ImportError as exc:
             print(f"error: the peers need OpenCV contrib, scikit-image and plenpy (pip install -e '.[peers]'): "
                   f"{exc}; or compare lfsf alone with --methods lfsf", file=sys.stderr)

@@ -385,8 +385,7 @@ def test_compare_peers_check_passes_only_when_every_target_does(monkeypatch, cap
 
     monkeypatch.setattr(script, "run_scene", fake_scene)
     monkeypatch.setattr(script, "lfsf_available", lambda: (True, ""))
-    monkeypatch.setattr(script.peers, "_opencv_dual_tvl1", lambda: None)
-    monkeypatch.setattr(script.peers, "import_plenpy_lightfield", lambda: None)
+    monkeypatch.setattr(script, "import_peers", lambda: None)   # (they need not be installed: skimage was)
     peers_rows = [("opencv-tvl1", {"flow": {"epe": 0.3}}), ("skimage-tvl1", {"flow": {"epe": 0.2}}),
                   ("plenpy", {"disp1": {"mse": 0.01}, "disp2": {"mse": 0.03}})]
     joint = ("lfsf", {"disp1": {"mse": 0.001}, "disp2": {"mse": 0.002}, "flow": {"epe": 0.05}})
