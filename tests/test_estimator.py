@@ -2101,6 +2101,8 @@ def test_the_views_uploaded_are_all_that_the_sampling_reads(grid, preset):
     assert np.isfinite(outs[1]).all() and np.array_equal(outs[0], outs[1])
 
 
+@pytest.mark.skipif(sys.version_info < (3, 11), reason="Python 3.10 holds a call's arguments on the caller's "
+                                                       "stack until the call returns: nothing can be handed over")
 def test_the_estimate_lets_go_of_light_fields_handed_over_to_it():
     """Once sampled, the light fields are not read again: where the caller holds them no
     more (lfsf run, lfsf batch), their views are freed before the levels' buffers are
