@@ -908,11 +908,11 @@ class ProgressBar:
         self.failed += outcome.status == "failed"
         elapsed = time.perf_counter() - self.t0
         left = elapsed / finished * (total - finished)
-        bar = self.live and not self.stopping   # (after a Ctrl-C, lines: the bar would run into the last one)
+        drawn = self.live and not self.stopping   # (after a Ctrl-C, lines: the bar would run into the last one)
         if outcome.status == "failed":  # (counted in a log, as every other pair's line)
-            count = f"[{finished}/{total}] " if not bar and not self.quiet else ""
+            count = f"[{finished}/{total}] " if not drawn and not self.quiet else ""
             self._line(f"{count}pair {outcome.name} failed: {outcome.reason}")
-        elif not bar and not self.quiet:
+        elif not drawn and not self.quiet:
             self._line(f"[{finished}/{total}] {outcome.name}: {outcome.status}"
                        + (f" in {outcome.seconds:.1f} s" if outcome.status == "done" else "")
                        + ("" if self.stopping else f"; about {_duration(left)} left"))
@@ -923,7 +923,7 @@ class ProgressBar:
                     self._line(f"pair {outcome.name}: {note}")
         for said in outcome.warned:  # (with --quiet too, as lfsf run's warnings)
             self._line(f"pair {outcome.name}: warning: {said}")
-        if bar:
+        if drawn:
             filled = int(round(self.width * finished / total))
             bar = "#" * filled + "." * (self.width - filled)
             failed = f", {self.failed} failed" if self.failed else ""

@@ -9,6 +9,7 @@ while a CPU kernel runs); on CUDA it is a single launch.
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import re
 import sys
@@ -100,8 +101,9 @@ def warp():
                     wp.init()
             except OSError as exc:
                 # (no errno: "[Errno 13]" had led the line, and a full disk's would read as the outputs')
-                raise OSError(f"Warp cannot set up its kernel cache{f' {exc.filename}' if exc.filename else ''} ({exc.strerror}); set "
-                              "WARP_CACHE_PATH to a writable folder") from None
+                where = f" {exc.filename}" if exc.filename else ""
+                raise OSError(f"Warp cannot set up its kernel cache{where} ({exc.strerror}); set WARP_CACHE_PATH to a "
+                              "writable folder") from None
             wp.config.log_level = wp.LOG_WARNING
             _initialised = True
     return wp
@@ -291,8 +293,8 @@ def _within(path, folder: str) -> bool:
 CACHE_ROOM = 64 << 20
 
 #: What a kernel cache that cannot take the compiled modules says: full, or not writable.
-_CACHE_ERRNOS = tuple(getattr(__import__("errno"), name) for name in ("ENOSPC", "EDQUOT", "EACCES", "EPERM", "EROFS")
-                      if hasattr(__import__("errno"), name))
+_CACHE_ERRNOS = tuple(getattr(errno, name) for name in ("ENOSPC", "EDQUOT", "EACCES", "EPERM", "EROFS")
+                      if hasattr(errno, name))
 
 
 def _cold(modules, device) -> list:
