@@ -789,10 +789,13 @@ def _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, 
                     report.interrupted()
                 # (a second Ctrl-C raises out of it: abandoned; the pairs ended meanwhile, or
                 # before and not yet taken, are reported, and so reach failed.csv)
+                for future in _finish_begun(client, list(futures)):
+                    if outcomes[futures[future]] is None:
+                        ended(future)
+                # (and those that ended meanwhile by another way: between the workers' answer and
+                # the check of the futures, or before, not yet taken from the queue)
                 for future in [f for f in futures if f.status in ("finished", "error")
                                and outcomes[futures[f]] is None]:
-                    ended(future)
-                for future in _finish_begun(client, list(futures)):
                     ended(future)
             raise
         finish(outcomes)
@@ -818,7 +821,7 @@ def _finish_begun(client, futures: list):
         begun = running()
     except Exception:  # noqa: BLE001 - the cluster gone meanwhile: nothing to wait for that can be told
         begun = {}
-    waiting = {f: begun[f.key] for f in futures if f.key in begun and not f.done()}
+    waiting = {f: begun[f.key] for f in futures if f.key in begun}   # (done ones too: yielded at once)
     client.cancel([f for f in futures if f not in waiting and not f.done()])
     gone: dict = {}   # a future's polls since its worker stopped running it
     while waiting:

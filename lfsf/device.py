@@ -95,7 +95,7 @@ def warp():
             # device that is not there is still a clear error in resolve_device.
             wp.config.log_level = wp.LOG_ERROR
             if wp.config.kernel_cache_dir is None and "WARP_CACHE_PATH" not in os.environ:
-                wp.config.kernel_cache_dir = _cache_without_home()
+                wp.config.kernel_cache_dir = _cache_without_home(wp.config.version)
             try:
                 with _stderr_filtered("NVIDIA CUDA driver"):
                     wp.init()
@@ -109,28 +109,34 @@ def warp():
     return wp
 
 
-def _cache_without_home() -> str | None:
-    """Where Warp's kernel cache goes when no home folder can hold it: None (Warp's own
-    choice, ``~/.cache/warp``) where one can (or holds it already, writable or not), else
-    a folder of this user's in the temporary folder. With HOME unset and no passwd entry,
-    ``~`` stays ``~``, and Warp had made a folder named ``~`` in the current folder, and
-    compiled again in each new one; with HOME=/ (``docker run --user 12345``) it could
-    not start. The folder must be this user's alone: its compiled code is loaded and run."""
+def _cache_without_home(version: str = "") -> str | None:
+    """Where Warp's kernel cache goes: None (Warp's own choice, ``$XDG_CACHE_HOME/warp`` or
+    ``~/.cache/warp``) where that can hold it (or holds this Warp ``version``'s already,
+    writable or not), the home's ``.cache/warp`` where ``XDG_CACHE_HOME`` is empty or
+    relative (which the XDG rules say to ignore; Warp took it as a folder in the current
+    one), else a folder of this user's in the temporary folder. With HOME unset and no
+    passwd entry, ``~`` stays ``~``, and Warp had made a folder named ``~`` in the current
+    folder, and compiled again in each new one; with HOME=/ (``docker run --user 12345``)
+    it could not start. The folder must be this user's alone: its compiled code is loaded
+    and run."""
     import stat
     import tempfile
 
-    if os.environ.get("XDG_CACHE_HOME") or os.name == "nt":
+    if os.name == "nt":
+        return None
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    if xdg and os.path.isabs(xdg):
         return None
     home = os.path.expanduser("~")
     if not home.startswith("~"):
         wanted = os.path.join(home, ".cache", "warp")
-        if os.path.isdir(wanted):
-            return None
+        if os.path.isdir(os.path.join(wanted, version)):
+            return None if xdg is None else wanted
         existing = wanted
-        while not os.path.exists(existing) and os.path.dirname(existing) != existing:
-            existing = os.path.dirname(existing)
-        if os.access(existing, os.W_OK | os.X_OK):
-            return None
+        while not os.path.lexists(existing) and os.path.dirname(existing) != existing:
+            existing = os.path.dirname(existing)   # (a dangling link is there, and cannot be made)
+        if os.path.isdir(existing) and os.access(existing, os.W_OK | os.X_OK):
+            return None if xdg is None else wanted
     folder = os.path.join(tempfile.gettempdir(), f"lfsf-warp-cache-{os.getuid()}")
     where = f"there is no home folder to hold it{f' ({home} is not writable)' if not home.startswith('~') else ''}"
     try:

@@ -358,7 +358,6 @@ def test_without_a_home_folder_the_kernel_cache_is_the_users_own_temporary_one(m
     import tempfile
 
     monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
-    assert D._cache_without_home() is None or os.path.expanduser("~").startswith("~")
     home = tmp_path / "home"
     home.mkdir()
     writable = [True]
@@ -366,20 +365,29 @@ def test_without_a_home_folder_the_kernel_cache_is_the_users_own_temporary_one(m
     monkeypatch.setattr(os.path, "expanduser", lambda path: path.replace("~", str(home)))
     monkeypatch.setattr(tempfile, "gettempdir", lambda: str(tmp_path))
     folder = tmp_path / f"lfsf-warp-cache-{os.getuid()}"
-    assert D._cache_without_home() is None              # (Warp's own ~/.cache/warp can be made)
+    assert D._cache_without_home("1.19.0") is None              # (Warp's own ~/.cache/warp can be made)
+    for xdg in ("", "relative"):  # (ignored, as the XDG rules say: Warp had made the folder in the current one)
+        monkeypatch.setenv("XDG_CACHE_HOME", xdg)
+        assert D._cache_without_home("1.19.0") == str(home / ".cache" / "warp")
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    (home / ".cache").symlink_to(tmp_path / "nowhere")   # (a link to nothing: cannot be made)
+    assert D._cache_without_home("1.19.0") == str(folder) and folder.stat().st_mode & 0o777 == 0o700
+    (home / ".cache").unlink()
     writable[0] = False
-    assert D._cache_without_home() == str(folder) and folder.stat().st_mode & 0o777 == 0o700
+    assert D._cache_without_home("1.19.0") == str(folder)
     (home / ".cache" / "warp").mkdir(parents=True)
-    assert D._cache_without_home() is None              # (there already: read, as before)
+    assert D._cache_without_home("1.19.0") == str(folder)       # (not this Warp's, and not writable)
+    (home / ".cache" / "warp" / "1.19.0").mkdir()
+    assert D._cache_without_home("1.19.0") is None              # (this Warp's there already: read, as before)
     monkeypatch.setattr(os.path, "expanduser", lambda path: path)   # (no home at all)
-    assert D._cache_without_home() == str(folder)       # (found again)
+    assert D._cache_without_home("1.19.0") == str(folder)       # (found again)
     folder.chmod(0o777)
     with pytest.raises(OSError, match="is not this user's alone"):
-        D._cache_without_home()
+        D._cache_without_home("1.19.0")
     folder.rmdir()
     folder.symlink_to(home)
     with pytest.raises(OSError, match=r"is not a folder \(a link, or a file\)"):
-        D._cache_without_home()
+        D._cache_without_home("1.19.0")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     assert D._cache_without_home() is None
 
