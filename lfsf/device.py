@@ -239,11 +239,12 @@ if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_forked_child)
 
 
-def _load(modules: Sequence, device) -> float:
+def _load(modules: Sequence, device, announce: Callable[[list[str]], None] | None = None) -> float:
     """Compile or load the Warp modules ``modules`` on ``device`` (a Warp device), those
     not loaded yet in this process, several at once; the seconds it took (0 where
-    nothing was left to load). Held under the lock, so that threads do not race to
-    compile a module."""
+    nothing was left to load). ``announce`` is given the names of those that the kernel
+    cache holds no build of, before they are compiled. Held under the lock, so that
+    threads do not race to compile a module."""
     if all((id(m), str(device)) in _loaded for m in modules):
         return 0.0
     import time
@@ -257,6 +258,8 @@ def _load(modules: Sequence, device) -> float:
         cold = _cold(todo, device) if wp.config.cache_kernels else []
         if cold:
             _check_cache_room(cache)
+            if announce is not None:
+                announce([m.name for m in cold])
         start = time.perf_counter()
         try:
             # (one thread a block on the CPU, as a launch there compiles it: Warp 1.17 preloaded
@@ -340,10 +343,12 @@ def _check_cache_room(cache: str) -> None:
                       "to a folder with room")
 
 
-def preload(modules: Sequence, device) -> float:
+def preload(modules: Sequence, device, announce: Callable[[list[str]], None] | None = None) -> float:
     """Compile the Warp kernels of the Python ``modules`` (e.g. :mod:`lfsf.kernels.tgv`)
     for ``device``, or load them from Warp's kernel cache, several modules at once, and
-    return the seconds it took. Modules already loaded in this process are skipped.
+    return the seconds it took. Modules already loaded in this process are skipped;
+    ``announce`` is given the names of those to be compiled (:func:`cold_modules`),
+    before the compile.
 
     Without this, Warp loads a module the first time one of its kernels is launched, so
     the modules compile one after another. With a cold kernel cache, the estimator's
@@ -355,7 +360,7 @@ def preload(modules: Sequence, device) -> float:
     Modules are loaded on :func:`cpu_threads` threads: the compiler runs in native code
     and releases the GIL."""
     wp = warp()
-    return _load([wp.get_module(m.__name__) for m in modules], wp.get_device(device))
+    return _load([wp.get_module(m.__name__) for m in modules], wp.get_device(device), announce)
 
 
 def vector_view(array, dtype, shape):

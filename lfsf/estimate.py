@@ -722,12 +722,11 @@ def load_kernels(device: str, extra=(), say: Callable[[str], None] | None = None
     (on a cold cache, 10–20 s of silence had passed before the line this returns).
     Returns a progress line where that took a second or more (it compiled them), else
     None."""
-    modules = [*kernel_modules(device), *extra]
-    cold = _device.cold_modules(modules, device) if say is not None else []
-    if cold:
+    def announce(cold: list[str]) -> None:
         say(f"compiling the kernels for {device} ({len(cold)} module{'s' if len(cold) > 1 else ''}; the first run "
             "only)…")
-    seconds = _device.preload(modules, device)
+
+    seconds = _device.preload([*kernel_modules(device), *extra], device, None if say is None else announce)
     if seconds < 1.0:
         return None
     return f"kernels compiled for {device} in {seconds:.1f} s (once: Warp's kernel cache keeps them)"

@@ -711,10 +711,11 @@ def _check_npz_member_size(path: Path, archive: zipfile.ZipFile, key: str) -> No
 def _read_folder(folder: Path) -> LightField:
     # (hidden files skipped: macOS's AppleDouble ._view_01_01.png beside each view had read
     # as a second light field's prefix)
-    entries = sorted((p for p in folder.iterdir() if not p.name.startswith(".")), key=lambda p: p.name)
-    names = [p.name for p in entries if p.is_file()]
-    for p in entries:  # (a view's name on no file had been told as a view missing)
-        if not p.is_file() and (_HCI_NAME.fullmatch(p.name) or _ROWCOL_NAME.fullmatch(p.name)):
+    names = []
+    for p in sorted((p for p in folder.iterdir() if not p.name.startswith(".")), key=lambda p: p.name):
+        if p.is_file():
+            names.append(p.name)
+        elif _HCI_NAME.fullmatch(p.name) or _ROWCOL_NAME.fullmatch(p.name):  # (had been told as a view missing)
             what = ("a link to nothing (or a loop of links)" if p.is_symlink() and not p.exists() else
                     "a folder" if p.is_dir() else "not a regular file")
             raise ValueError(f"{p}: named as a view, but {what}")

@@ -261,18 +261,21 @@ def test_preload_compiles_several_modules_at_once_into_the_cache(tmp_path):
         "from lfsf.kernels import fusion, pyramid\n"
         "wp = D.warp()\n"
         "cold = D.cold_modules([pyramid, fusion], 'cpu')\n"
-        "first = D.preload([pyramid, fusion], 'cpu')\n"
-        "again = D.preload([fusion, pyramid], 'cpu')\n"
+        "said = []\n"
+        "first = D.preload([pyramid, fusion], 'cpu', announce=said.append)\n"
+        "again = D.preload([fusion, pyramid], 'cpu', announce=said.append)\n"
         "src = wp.array(np.arange(48, dtype=np.float32).reshape(1, 6, 8), dtype=float, device='cpu')\n"
         "out = wp.empty((1, 6, 8), dtype=float, device='cpu')\n"
         "D.launch_rows(pyramid.upsample, dim=(6, 8), inputs=[src, 2.0], outputs=[out], device='cpu')\n"
         "print(first > 0.0, again == 0.0, np.array_equal(out.numpy(), 2 * src.numpy()))\n"
         "print(*cold, *D.cold_modules([pyramid, fusion], 'cpu') or ['none'])\n"
+        "print(said == [cold])\n"   # (announced once, before the compile: the cold ones)
     )
     env = {**os.environ, "WARP_CACHE_PATH": str(tmp_path)}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert out.returncode == 0, out.stderr
-    assert out.stdout.split() == ["True", "True", "True", "lfsf.kernels.pyramid", "lfsf.kernels.fusion", "none"]
+    assert out.stdout.split() == ["True", "True", "True", "lfsf.kernels.pyramid", "lfsf.kernels.fusion", "none",
+                                  "True"]
     compiled = {p.name.rsplit("_", 1)[0] for p in tmp_path.rglob("wp_lfsf.kernels.*") if p.is_dir()}
     assert compiled == {"wp_lfsf.kernels.pyramid", "wp_lfsf.kernels.fusion"}
     # a cache entry damaged (a copy cut short, a network file system's fault): it had been a
@@ -504,13 +507,20 @@ def test_a_compile_is_announced_before_it_starts(monkeypatch):
     for cpu in … s" (a helper, pressing Ctrl-C meanwhile)."""
     from lfsf import estimate
 
-    told = []
-    monkeypatch.setattr(D, "preload", lambda modules, device: told.append("preload") or 2.5)
-    monkeypatch.setattr(D, "cold_modules", lambda modules, device: [m.__name__ for m in modules][:3])
+    told, cold = [], []
+
+    def preload(modules, device, announce=None):   # (as lfsf.device._load: the cold ones announced, then compiled)
+        if cold and announce is not None:
+            announce(cold)
+        told.append("preload")
+        return 2.5
+
+    monkeypatch.setattr(D, "preload", preload)
+    cold[:] = ["lfsf.kernels.tgv", "lfsf.kernels.rof", "lfsf.kernels.median"]
     assert estimate.load_kernels("cpu", say=told.append) == ("kernels compiled for cpu in 2.5 s (once: Warp's "
                                                               "kernel cache keeps them)")
     assert told == ["compiling the kernels for cpu (3 modules; the first run only)…", "preload"]
-    monkeypatch.setattr(D, "cold_modules", lambda modules, device: [])
+    cold.clear()
     told.clear()
     estimate.load_kernels("cpu", say=told.append)
     assert told == ["preload"]
