@@ -25,6 +25,12 @@ class DependencyError(ImportError):
     message names the package, the version found and the ``pip install`` that mends it."""
 
 
+class MachineError(RuntimeError):
+    """Something of this machine's, not of the input, kept a run from going on (a local
+    Dask cluster that did not start): the CLI reports it in one line with exit status 1,
+    without a traceback."""
+
+
 #: The exceptions that mean bad input (a missing, unreadable or malformed file, a wrong
 #: setting, an output path that cannot be written: a file where a folder should be, a
 #: name too long, no permission; and a Python without what lfsf needs, a
@@ -163,7 +169,7 @@ def quiet_interrupts_in_finalisers(unraisable) -> None:
 def run_script(main, prog: str | None = None) -> int:
     """Run ``main()`` (a script's, or an ``lfsf`` command's) and return its exit status:
     bad input (a :data:`BAD_INPUT_ERRORS`) is one line ``PROG: error: …`` on stderr and
-    status 2; memory that ran out, or a full disk, one line and status 1; Ctrl-C ``PROG: interrupted``
+    status 2; memory that ran out, a full disk, or a :class:`MachineError`, one line and status 1; Ctrl-C ``PROG: interrupted``
     and status 130, SIGTERM ``PROG: terminated`` and 143, SIGHUP ``PROG: hung up
     (SIGHUP)`` and 129, each after the temporary files are removed
     (:func:`terminate_as_interrupt`). ``prog`` defaults to the script's file
@@ -197,6 +203,9 @@ def run_script(main, prog: str | None = None) -> int:
             return EXIT_FAILED
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except MachineError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
     except (MemoryError, RuntimeError) as exc:
         if not out_of_memory(exc):
             raise

@@ -42,7 +42,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from lfsf._errors import _FULL, BAD_INPUT_ERRORS, whole
+from lfsf._errors import _FULL, BAD_INPUT_ERRORS, MachineError, whole
 from lfsf._files import SET_PREFIX, dead_set, write_bytes_atomic
 
 #: The files of a complete result (those :meth:`lfsf.estimate.SceneFlow.save` writes
@@ -483,9 +483,19 @@ def _reason(exc: BaseException) -> str:
         return f"no space left on the device ({exc.strerror}); nothing of the pair was kept"
     if isinstance(exc, BAD_INPUT_ERRORS):
         return str(exc)
+    if isinstance(exc, AssertionError) and _raised_in(exc, "distributed"):
+        # distributed's LoopRunner asserts that its event loop's thread started within 10 s
+        return ("Dask's event loop did not start in time; a machine this busy or short of memory "
+                "may do that: try again")
     where = traceback.extract_tb(exc.__traceback__)[-1] if exc.__traceback__ else None
     at = f" (at {Path(where.filename).name}:{where.lineno})" if where else ""
     return f"{type(exc).__name__}: {exc}{at}"
+
+
+def _raised_in(exc: BaseException, package: str) -> bool:
+    """Whether ``exc`` was raised inside the installed ``package`` (its last frame)."""
+    frames = traceback.extract_tb(exc.__traceback__) if exc.__traceback__ else []
+    return bool(frames) and package in Path(frames[-1].filename).parts
 
 
 def _remove_stale(out: Path, name: str, dead_only: bool = False) -> None:
@@ -714,6 +724,8 @@ def _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, 
                                  "Dask scheduler (a dashboard's port, 8787, or another server's?)") from None
             except (OSError, ValueError, TypeError) as exc:
                 raise ValueError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+            except AssertionError as exc:  # (the client's own event loop did not start)
+                raise MachineError(f"cannot reach the Dask scheduler at {scheduler}: {_reason(exc)}") from None
             try:    # a scheduler without workers would take the tasks and wait for ever
                 client.wait_for_workers(1, timeout=WORKER_WAIT)
             except (TimeoutError, asyncio.TimeoutError, OSError):  # (Python 3.10: asyncio's is another class)
@@ -736,8 +748,8 @@ def _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, 
                         n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
                         silence_logs=logging.ERROR, env={"LFSF_THREADS": str(threads)},
                         preload=["lfsf._dask_worker"]))
-                except (OSError, RuntimeError, TimeoutError) as exc:  # (its traceback says no more than this)
-                    raise RuntimeError(f"the local Dask cluster did not start ({_reason(exc)})") from None
+                except (OSError, RuntimeError, TimeoutError, AssertionError) as exc:  # (its traceback says no more)
+                    raise MachineError(f"the local Dask cluster did not start ({_reason(exc)})") from None
             client = stack.enter_context(Client(cluster))
         out.mkdir(parents=True, exist_ok=True)  # only once there is a cluster to write into it
         futures = {}

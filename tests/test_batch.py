@@ -27,6 +27,19 @@ needs_dask = pytest.mark.skipif(not batch.have_dask(), reason="Dask distributed 
 PARAMS = Params.preset("fast")
 
 
+def _local_cluster(**kwargs):
+    """A Dask LocalCluster for a test, started a second time where distributed's check
+    that its event loop's thread began within 10 s failed (an AssertionError: seen once in
+    CI, on a machine busy with other processes; lfsf batch reports it, see
+    test_a_cluster_whose_event_loop_did_not_start_is_one_line)."""
+    from distributed import LocalCluster
+
+    try:
+        return LocalCluster(**kwargs)
+    except AssertionError:
+        return LocalCluster(**kwargs)
+
+
 @pytest.fixture(scope="module")
 def frames(tmp_path_factory):
     """A folder of 4 frames of the scene 'paper' moving at a constant rate (48×40, 5×5
@@ -710,11 +723,9 @@ def test_cli_on_a_scheduler_without_workers_gives_up(frames, tmp_path, capsys, m
     """It waited for ever (the tasks queued on a scheduler no worker would ever serve)."""
     import logging
 
-    from distributed import LocalCluster
-
     monkeypatch.setattr(batch, "WORKER_WAIT", "2s")
     folder, _ = frames
-    with LocalCluster(n_workers=0, dashboard_address=None, silence_logs=logging.ERROR) as cluster:
+    with _local_cluster(n_workers=0, dashboard_address=None, silence_logs=logging.ERROR) as cluster:
         assert main(["batch", str(folder), "--out", str(tmp_path / "out"), "--scheduler",
                      cluster.scheduler_address, "--quiet"]) == 2
     assert "has had no worker for 2s" in capsys.readouterr().err
@@ -734,12 +745,10 @@ def test_cli_on_a_running_scheduler(frames, tmp_path, capsys):
     2 processes standing in for a remote one)."""
     import logging
 
-    from distributed import LocalCluster
-
     folder, _ = frames
     out = tmp_path / "out"
-    with LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None,
-                      silence_logs=logging.ERROR) as cluster:
+    with _local_cluster(n_workers=2, threads_per_worker=1, dashboard_address=None,
+                        silence_logs=logging.ERROR) as cluster:
         assert main(["batch", str(folder), "--out", str(out), "--scheduler", cluster.scheduler_address,
                      "--preset", "fast", "--device", "cpu", "--warm-start"]) == 0
     assert "3 done" in capsys.readouterr().out
@@ -1114,6 +1123,35 @@ def test_a_current_folder_gone_is_refused_before_the_local_cluster_starts(monkey
     with pytest.raises(ValueError, match="the current folder no longer exists"):
         batch.check_dask(1, None)
     batch.check_dask(1, "tcp://localhost:8786")  # (a running scheduler's workers start where they are)
+
+
+@needs_dask
+@pytest.mark.parametrize("where", ["local", "scheduler"])
+def test_a_cluster_whose_event_loop_did_not_start_is_one_line(where, frames, tmp_path, capsys, monkeypatch):
+    """distributed asserts that its event loop's thread began within 10 s; on a machine
+    too busy the AssertionError (no message) was a traceback. Now one line, status 1 (the
+    machine's doing, not the input's), nothing written."""
+    import distributed
+
+    def loop_not_started(*args, **kwargs):
+        # raised from a frame of distributed's utils.py, as LoopRunner's own check is
+        code = compile("def start(loop=None):\n    assert loop is not None\n",
+                       str(Path(distributed.__file__).with_name("utils.py")), "exec")
+        scope = {}
+        exec(code, scope)
+        scope["start"]()
+
+    monkeypatch.setattr(distributed, "LocalCluster", loop_not_started)
+    monkeypatch.setattr(distributed, "Client", loop_not_started)
+    folder, _ = frames
+    out = tmp_path / "out"
+    extra = ["--scheduler", "tcp://127.0.0.1:8786"] if where == "scheduler" else []
+    assert main(["batch", str(folder), "--out", str(out), "--quiet", *extra]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    assert "Dask's event loop did not start in time" in err and "try again" in err
+    assert ("cannot reach the Dask scheduler" if extra else "the local Dask cluster did not start") in err
+    assert not out.exists()
 
 
 def test_a_note_said_of_an_earlier_pair_is_not_repeated():
