@@ -421,6 +421,7 @@ _WHEEL_KEY = 32  # the flow panels' colour wheel, px across (16 was too small to
 _BAR_HEIGHT = 16  # a colour bar's height
 _MAX_PANEL_HEIGHT = 2048  # … but not taller than this (or their own height, if taller)
 _FONT_SIZE = 13
+_PANEL_WIDTH_PER_FONT_PX = 30  # … and larger for panels wider than 13 × this
 _PAD = 4
 _GAP = 8
 _MARGIN = 8
@@ -469,11 +470,27 @@ class _Panel:
     label: str
     image: np.ndarray  # (H, W, 3) uint8 at the input's resolution
     footer: _ColorBar | _WheelKey | None = None
+    missing: np.ndarray | None = None  # (H, W) bool: the pixels without a value, hatched (_hatch)
 
 
-def _font() -> ImageFont.ImageFont | ImageFont.FreeTypeFont:
+#: The two greys of the hatching drawn over the pixels without a value in the overview
+#: (black had also been the far end of the error colours under protanopia and in print).
+HATCH_GREYS = ((96, 96, 96), (176, 176, 176))
+_HATCH_PERIOD = 6  # px of the drawn picture: diagonal stripes 3 px wide
+
+
+def _hatch(picture: np.ndarray, missing: np.ndarray) -> None:
+    """Draw diagonal stripes of :data:`HATCH_GREYS` over ``picture`` (H, W, 3, uint8,
+    in place) where ``missing`` (H, W) is set: no colour of a map, and told apart from
+    every one of them by its pattern in greyscale and to colour-blind readers too."""
+    ys, xs = np.nonzero(missing)
+    stripe = ((ys + xs) // (_HATCH_PERIOD // 2)) % 2
+    picture[ys, xs] = np.asarray(HATCH_GREYS, np.uint8)[stripe]
+
+
+def _font(size: int = _FONT_SIZE) -> ImageFont.ImageFont | ImageFont.FreeTypeFont:
     try:
-        return ImageFont.load_default(size=_FONT_SIZE)
+        return ImageFont.load_default(size=size)
     except TypeError:  # Pillow < 10.1: only the fixed-size bitmap font
         return ImageFont.load_default()
 
@@ -518,19 +535,22 @@ def _fmt(x: float) -> str:
     return f"{x:.3g}"
 
 
-#: The colour of the points not seen at t2 in the overview's mask panel.
-OCCLUDED_COLOUR = (255, 0, 255)
+#: The colour of the points not seen at t2 in the overview's mask panel: a dark magenta
+#: (L* 40) on the view dimmed into light greys (L* 72–94), so that the mask stays in
+#: print and greyscale too (255, 0, 255, L* 60, had vanished into the view's L* 27–77).
+OCCLUDED_COLOUR = (170, 0, 170)
 
 
 def occluded_picture(centre1, occluded) -> np.ndarray:
-    """The t1 centre view (H, W) or (H, W, 3), dimmed to grey, with the points not seen at
-    t2 (``occluded``, bool (H, W)) in :data:`OCCLUDED_COLOUR`: uint8 (H, W, 3)."""
+    """The t1 centre view (H, W) or (H, W, 3), dimmed into light greys (176…240), with the
+    points not seen at t2 (``occluded``, bool (H, W)) in :data:`OCCLUDED_COLOUR`: uint8
+    (H, W, 3)."""
     occluded = np.asarray(occluded)
     shape = occluded.shape
     if occluded.dtype != bool or occluded.ndim != 2:
         raise ValueError(f"expected occluded as a bool (H, W) mask, got {occluded.dtype} {occluded.shape}")
     rgb = _view_to_rgb("centre1", centre1, shape).astype(np.float32)
-    grey = 64.0 + 0.5 * rgb.mean(axis=2, keepdims=True)
+    grey = 176.0 + 0.25 * rgb.mean(axis=2, keepdims=True)
     out = np.where(occluded[..., None], np.asarray(OCCLUDED_COLOUR, np.float32), grey)
     return np.clip(np.round(out), 0, 255).astype(np.uint8)
 
@@ -585,10 +605,11 @@ def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="
                 row.append(_blank(f"{k}: no ground truth", shape))
             elif estimated:
                 row.append(_Panel(f"{k} {tag}", disparity_to_color(maps[k], lo, hi),
-                                  _ColorBar.of(_DISPARITY_LUT, lo, hi, *shown)))
+                                  _ColorBar.of(_DISPARITY_LUT, lo, hi, *shown), ~np.isfinite(maps[k])))
             else:
                 row.append(_not_estimated(k, shape))
-        row.append(_Panel(f"flow {tag}", flow_to_color(maps["u"], maps["v"], scale), _WheelKey(max_flow))
+        row.append(_Panel(f"flow {tag}", flow_to_color(maps["u"], maps["v"], scale), _WheelKey(max_flow),
+                          ~_flow_valid(maps["u"], maps["v"]))
                    if "u" in maps else _blank("flow: no ground truth", shape))
         return row
 
@@ -622,9 +643,10 @@ def _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label="
         vmax = flow_scale if k == "flow" else disp_scale
         shared = (inner["flow"],) if k == "flow" else tuple(inner[d] for d in ("disp1", "disp2") if d in inner)
         picture = error_to_color(e, vmax)
-        pale = ~scored & np.isfinite(e)  # the border that the means and the scale leave out (black stays black)
+        pale = ~scored & np.isfinite(e)  # the border that the means and the scale leave out (no value: hatched)
         picture[pale] = (0.4 * picture[pale] + 0.6 * 255).astype(np.uint8)
-        error_row.append(_Panel(f"{title}  mean {mean}", picture, _ColorBar.of(_ERROR_LUT, 0.0, vmax, *shared)))
+        error_row.append(_Panel(f"{title}  mean {mean}", picture, _ColorBar.of(_ERROR_LUT, 0.0, vmax, *shared),
+                                ~np.isfinite(e)))
     rows.append(error_row)
     return rows
 
@@ -644,19 +666,25 @@ def _not_estimated(name: str, shape: tuple[int, int]) -> _Panel:
 
 def _overview_notes(rows: list[list[_Panel]], gt, disparities: bool = True, border: int = 0) -> str:
     """The figure's last line: the units, and what the marks of its keys mean where
-    they appear (the flow's errors where drawn; black where the ground truth leaves
-    pixels out, by its ``valid`` mask or by values that are not finite; the border the
-    error means leave out)."""
+    they appear (the flow's errors where drawn; the hatching where the ground truth leaves
+    pixels out, by its ``valid`` mask or by values that are not finite, and where the
+    estimate is not finite; the border the error means leave out)."""
     flow = "flow and its errors in px" if gt is not None and "u" in gt and "v" in gt else "flow in px"
     notes = [f"disparities in px per view step, {flow}" if disparities or gt is not None else flow]
     bars = [p.footer for row in rows for p in row if isinstance(p.footer, _ColorBar)]
     if any(b.below or b.above for b in bars):
         notes.append("<= or >= at a bar's end: values beyond it take its colour")
+    hatched = []
     if gt is not None:
         valid = gt.get("valid")
         maps = [np.asarray(gt[k], np.float64) for k in ("disp1", "disp2", "u", "v") if k in gt]
         if (valid is not None and not np.all(valid)) or any(not np.isfinite(m).all() for m in maps):
-            notes.append("black: no ground truth there")
+            hatched.append("no ground truth there")
+    if any(p.missing is not None and p.missing.any() for p in rows[1]):  # (the estimate's row)
+        hatched.append("the estimate not finite there")
+    if hatched:
+        notes.append(f"hatched grey: {' or '.join(hatched)}")
+    if gt is not None:
         if border > 0:
             notes.append(f"error means and scales without the {border}-px border (paler), as lfsf eval")
     return "; ".join(notes)
@@ -700,12 +728,16 @@ def _compose(rows: list[list[_Panel]], title: str | None, notes: str | None = No
     # 3000×8 image would otherwise become a 360000-px-tall picture
     s = max(1, min(math.ceil(_MIN_PANEL_WIDTH / w), _MAX_PANEL_HEIGHT // h))
     pw, ph = w * s, h * s
-    font = _font()
+    # the text and keys grow with wide panels: a 640×480 input's 13-px labels read as 7 px
+    # once its 1952-px-wide overview is fitted to a page
+    size = max(_FONT_SIZE, round(pw / _PANEL_WIDTH_PER_FONT_PX))
+    font = _font(size)
     probe = ImageDraw.Draw(Image.new("RGB", (1, 1)))
     top, bottom = probe.textbbox((0, 0), "Ag|0.9", font=font)[1::2]
     line_h = bottom - top
     header_h = line_h + 2 * _PAD
-    footer_h = max(line_h, _WHEEL_KEY) + 2 * _PAD
+    key = max(_WHEEL_KEY, round(_WHEEL_KEY * size / _FONT_SIZE))
+    footer_h = max(line_h, key) + 2 * _PAD
     # a row without keys (the centre views) gets no footer strip: no blank band under it
     cells_h = [header_h + ph + (footer_h if any(p.footer is not None for p in row) else 0) for row in rows]
     tops = [_MARGIN + (header_h if title else 0) + sum(cells_h[:r]) + r * _GAP for r in range(len(rows))]
@@ -733,6 +765,8 @@ def _compose(rows: list[list[_Panel]], title: str | None, notes: str | None = No
             draw.rectangle([x0, y0, x0 + pw - 1, y0 + header_h - 1], fill=_HEADER_RGB)
             text_at(x0 + _PAD, y0 + _PAD, _fit_text(draw, panel.label, font, pw - 2 * _PAD))
             big = np.repeat(np.repeat(panel.image, s, axis=0), s, axis=1)
+            if panel.missing is not None and panel.missing.any():
+                _hatch(big, np.repeat(np.repeat(panel.missing, s, axis=0), s, axis=1))
             canvas.paste(Image.fromarray(big), (x0, y0 + header_h))
             _draw_footer(canvas, draw, panel.footer, x0, y0 + header_h + ph, pw, footer_h,
                          font, text_at, line_h)
@@ -762,7 +796,7 @@ def _draw_footer(canvas, draw, footer, x0, y0, pw, footer_h, font, text_at, line
         text_at(x0 + _PAD, text_y, lo)
         text_at(bar_x0 + max(bar_w, 0) + _PAD, text_y, hi)
         if bar_w > 0:
-            bar_h = min(inner, _BAR_HEIGHT)
+            bar_h = min(inner, max(_BAR_HEIGHT, line_h))
             idx = np.round(np.linspace(0, len(footer.lut) - 1, bar_w)).astype(np.intp)
             bar = np.repeat(footer.lut[idx][None], bar_h, axis=0)
             canvas.paste(Image.fromarray(bar), (bar_x0, y0 + (footer_h - bar_h) // 2))

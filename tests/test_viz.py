@@ -476,7 +476,15 @@ def test_the_overview_marks_clipped_bar_ends_and_says_its_units():
     valid[:, :3] = False
     masked = dict(gt, valid=valid)
     rows = viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], masked, None)
-    assert viz._overview_notes(rows, masked).endswith("; black: no ground truth there")
+    assert viz._overview_notes(rows, masked).endswith("; hatched grey: no ground truth there")
+    # … and where the estimate is not finite (drawn black, as the maps' no value, with no note)
+    holed = est["disp1"].copy()
+    holed[5, 5] = np.nan
+    rows = viz._overview_panels(c1, c2, holed, est["disp2"], est["u"], est["v"], masked, None)
+    assert viz._overview_notes(rows, masked).endswith(
+        "; hatched grey: no ground truth there or the estimate not finite there")
+    rows = viz._overview_panels(c1, c2, holed, est["disp2"], est["u"], est["v"], None, None)
+    assert viz._overview_notes(rows, None).endswith("; hatched grey: the estimate not finite there")
     hci = {"disp1": gt["disp1"]}
     rows = viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], hci, None)
     assert viz._overview_notes(rows, hci).startswith("disparities in px per view step, flow in px;")
@@ -601,3 +609,66 @@ def test_overview_names_the_flow_component_its_ground_truth_lacks():
     with pytest.raises(ValueError, match=r"^expected gt with keys disp1, disp2 and/or u with v; it has \['valid'\]$"):
         viz.overview_figure(z, z, z, z, z, z, gt={"valid": z > 0})
     assert viz.overview_figure(z, z, z, z, z, z, gt={"u": z, "v": z}).ndim == 3
+
+
+def test_pixels_without_a_value_are_hatched_not_black():
+    """Black had meant "no ground truth" in the error panels and was near their largest
+    errors' dark red for a protanope and in print (a helper's colour-vision simulation:
+    ΔE 19). The pixels without a value are hatched in two greys, told apart by their
+    pattern; the rest of each panel is its map's colours, unchanged."""
+    import math
+
+    c1, c2, est, gt = _scene()
+    valid = np.ones(c1.shape[:2], bool)
+    valid[10:30, 20:40] = False
+    rows = viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], dict(gt, valid=valid), None)
+    for panel in rows[2] + rows[3]:  # ground truth and errors: their hole
+        assert np.array_equal(panel.missing, ~valid)
+    assert not any(panel.missing.any() for panel in rows[1])
+    # drawn: both greys, in stripes, over the hole and nowhere else
+    s = math.ceil(viz._MIN_PANEL_WIDTH / c1.shape[1])
+    big = np.repeat(np.repeat(rows[3][0].image, s, axis=0), s, axis=1)
+    hole = np.repeat(np.repeat(~valid, s, axis=0), s, axis=1)
+    drawn = big.copy()
+    viz._hatch(drawn, hole)
+    counts = [int(np.all(drawn[hole] == grey, axis=1).sum()) for grey in viz.HATCH_GREYS]
+    assert sum(counts) == hole.sum() and min(counts) > 0.4 * hole.sum(), counts
+    assert np.array_equal(drawn[~hole], big[~hole])
+    row = drawn[hole.any(axis=1)][0][hole.any(axis=0)]  # a row of the hole: stripes 3 px wide, in turn
+    runs = np.diff(np.flatnonzero(np.any(np.diff(row.astype(int), axis=0) != 0, axis=1)))
+    assert len({tuple(p) for p in row}) == 2 and set(runs.tolist()) == {viz._HATCH_PERIOD // 2}, runs
+    # … and in the figure: the hole of 3 ground-truth and 3 error panels
+    figure = viz._compose(rows, None)
+    hatch = np.zeros(figure.shape[:2], bool)
+    for grey in viz.HATCH_GREYS:
+        hatch |= np.all(figure == grey, axis=2)
+    assert hatch.sum() >= 6 * hole.sum()
+
+
+def test_the_occlusion_mask_stays_in_greyscale():
+    """The mask's magenta (L* 60) had vanished in print into the dimmed view (L* 27–77):
+    now every marked pixel is darker in greyscale than every pixel of the view around."""
+    c1, _, _, _ = _scene()
+    occluded = np.zeros(c1.shape, bool)
+    occluded[10:20, 30:40] = True
+    picture = viz.occluded_picture(c1, occluded).astype(float) / 255.0
+    linear = np.where(picture <= 0.04045, picture / 12.92, ((picture + 0.055) / 1.055) ** 2.4)
+    luminance = linear @ np.array([0.2126, 0.7152, 0.0722])
+    lightness = np.where(luminance > 0.008856, 116 * np.cbrt(luminance) - 16, 903.3 * luminance)
+    assert lightness[occluded].max() + 25 < lightness[~occluded].min(), (lightness[occluded].max(),
+                                                                         lightness[~occluded].min())
+
+
+def test_text_and_keys_grow_with_wide_panels():
+    """A 640×480 input's overview is 1952 px wide; its 13-px labels read as 7 px fitted
+    to a page. Wide panels now get a font and keys in proportion; small ones as before."""
+    rng = np.random.default_rng(0)
+    heights = {}
+    for w, h in ((64, 48), (640, 480)):
+        c = rng.random((h, w))
+        d = rng.random((h, w))
+        rows = viz._overview_panels(c, c, d, d, d, d, None, None)
+        figure = viz._compose(rows, "title")
+        scale = max(1, min(-(-viz._MIN_PANEL_WIDTH // w), viz._MAX_PANEL_HEIGHT // h))
+        heights[w] = figure.shape[0] - 2 * scale * h  # what is not the panels: text and keys
+    assert heights[640] > 1.3 * heights[64], heights
