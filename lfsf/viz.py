@@ -783,8 +783,7 @@ def _draw_footer(canvas, draw, footer, x0, y0, pw, footer_h, font, text_at, line
     if isinstance(footer, _WheelKey):
         key = flow_wheel_legend(inner)
         canvas.paste(Image.fromarray(key), (x0 + _PAD, y0 + _PAD))
-        label = f"full colour at |(u,v)| = {_fmt(footer.max_flow)} px"
-        label = _fit_text(draw, label, font, pw - 3 * _PAD - inner)
+        label = _wheel_label(draw, font, footer.max_flow, pw - 3 * _PAD - inner)
         text_at(x0 + 2 * _PAD + inner, text_y, label)
     elif isinstance(footer, _ColorBar):
         lo = ("<=" if footer.below else "") + _fmt(footer.lo)
@@ -800,6 +799,14 @@ def _draw_footer(canvas, draw, footer, x0, y0, pw, footer_h, font, text_at, line
             idx = np.round(np.linspace(0, len(footer.lut) - 1, bar_w)).astype(np.intp)
             bar = np.repeat(footer.lut[idx][None], bar_h, axis=0)
             canvas.paste(Image.fromarray(bar), (bar_x0, y0 + (footer_h - bar_h) // 2))
+
+
+def _wheel_label(draw: ImageDraw.ImageDraw, font, max_flow: float, width: int) -> str:
+    """The flow key's words, for ``width`` pixels: shortened before its number is (a
+    narrow panel had cut "full colour at |(u,v)| = 9.28 px" to "… = ..")."""
+    labels = [f"{words}{_fmt(max_flow)} px" for words in ("full colour at |(u,v)| = ", "full: ", "")]
+    fits = [text for text in labels if draw.textlength(text, font=font) <= width]
+    return fits[0] if fits else _fit_text(draw, labels[-1], font, width)
 
 
 def ground_truth_maps(gt, shape: tuple[int, int]) -> tuple[dict[str, np.ndarray], np.ndarray]:

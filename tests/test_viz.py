@@ -672,3 +672,16 @@ def test_text_and_keys_grow_with_wide_panels():
         scale = max(1, min(-(-viz._MIN_PANEL_WIDTH // w), viz._MAX_PANEL_HEIGHT // h))
         heights[w] = figure.shape[0] - 2 * scale * h  # what is not the panels: text and keys
     assert heights[640] > 1.3 * heights[64], heights
+
+
+def test_a_narrow_flow_key_keeps_its_number():
+    """A tall, narrow input's flow key read "full colour at |(u,v)| = .." (a helper's
+    60×640 picture): the words go before the number does."""
+    from PIL import Image, ImageDraw
+
+    draw, font = ImageDraw.Draw(Image.new("RGB", (1, 1))), viz._font()
+    wide = viz._wheel_label(draw, font, 9.28, 400)
+    assert wide == "full colour at |(u,v)| = 9.28 px"
+    narrow = viz._wheel_label(draw, font, 9.28, int(draw.textlength(wide, font=font)) - 1)
+    assert narrow == "full: 9.28 px"
+    assert viz._wheel_label(draw, font, 9.28, int(draw.textlength("full: 9.28 px", font=font)) - 1) == "9.28 px"
