@@ -508,7 +508,9 @@ def cmd_run(args) -> int:
                    + (", the ground truth shrunk alike" if gt is not None else ""))
     _warn_memory(args, lf1, lf2, params, device, read=(full_width, full_height))
     rows, cols = lf1.grid
-    title = (f"lfsf run: {args.lf1.name} and {args.lf2.name} ({lf1.width}x{lf1.height}, {rows}x{cols} views, "
+    # (δ and the flow in the shrunk views' pixels: the overview's title says so, as its units)
+    shrunk = f" shrunk {args.downsample}x from {full_width}x{full_height}" if args.downsample > 1 else ""
+    title = (f"lfsf run: {args.lf1.name} and {args.lf2.name} ({lf1.width}x{lf1.height}{shrunk}, {rows}x{cols} views, "
              f"{_preset_label(args)})" + (f" against {args.gt.name}" if gt is not None else ""))
     # the centre views for the pictures, copied; the light fields handed over to the
     # estimate, which lets them go once it has sampled them (0.8 GB of 3.4 at 1280×960)

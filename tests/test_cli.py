@@ -427,19 +427,24 @@ def test_run_writes_every_result_and_eval_reads_them(tmp_path):
     assert status == 0, err and "flow" in out
 
 
-def test_run_downsamples_the_views_and_the_ground_truth_alike(tmp_path, capsys):
+def test_run_downsamples_the_views_and_the_ground_truth_alike(tmp_path, capsys, monkeypatch):
     """--downsample K: the estimate of the K times smaller views (what the library's
     LightField.downsample gives), scored against the truth shrunk alike with the border
     shrunk too; a factor that leaves no pixel is one clear line."""
-    from lfsf import SceneFlow, estimate_scene_flow, read_lightfield
+    from lfsf import SceneFlow, estimate_scene_flow, read_lightfield, viz
     from lfsf.evaluate import downsample_truth, evaluate, load_ground_truth
 
     s = tmp_path / "s"
     assert main(["synth", "paper", "--out", str(s), "--size", "64", "48", "--grid", "3", "--quiet"]) == 0
+    drawn, overview = [], viz.overview_figure
+    monkeypatch.setattr(viz, "overview_figure", lambda *a, **kw: drawn.append(kw["title"]) or overview(*a, **kw))
     assert main(["run", str(s / "lf1.npz"), str(s / "lf2.npz"), "--out", str(tmp_path / "r"), "--preset", "fast",
                  "--downsample", "2", "--gt", str(s / "gt.npz")]) == 0
     out, err = capsys.readouterr()
     assert "lfsf run: views downsampled 64×48 → 32×24 (means of 2×2 px)" in err
+    # the overview's title says so too: its δ and flow are in the shrunk views' pixels
+    assert drawn == [f"lfsf run: lf1.npz and lf2.npz (32x24 shrunk 2x from 64x48, 3x3 views, preset 'fast') "
+                     f"against gt.npz"], drawn
     assert "ground truth shrunk alike" in err
     # the table's line says so too, as lfsf eval's on the same result does
     assert "(border 4 px; estimated on views shrunk 2 times, the ground truth shrunk alike): δ and the flow in the " \
