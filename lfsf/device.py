@@ -291,8 +291,6 @@ def _compile(wp, modules: Sequence, device) -> None:
     begun: Warp's own pool went on to compile every one of them, so a Ctrl-C during a
     first run's compile took 12.7 s to end it (12 modules, 2 cores); now it waits only for
     the modules being compiled."""
-    from concurrent.futures import ThreadPoolExecutor
-
     # (one thread a block on the CPU, as a launch there compiles it: Warp 1.17 preloaded
     # its modules' default of 256 otherwise, a build that no launch used)
     block_dim = 1 if device.is_cpu else None
@@ -307,6 +305,21 @@ def _compile(wp, modules: Sequence, device) -> None:
             future.result()
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+def remove_warp_temporaries() -> None:
+    """Remove the folders that Warp keeps in the temporary folder for the life of the
+    process (``wp_pch_*``, the CPU compiler's precompiled headers, 4.6 MB each) and
+    removes at the interpreter's exit: a command ended at once by a signal
+    (``os._exit``) had left them, 8.9 MB a first run. Nothing where Warp was not
+    imported, or where this Warp keeps no such folders."""
+    context = sys.modules.get("warp._src.context") or sys.modules.get("warp.context")
+    folders = getattr(getattr(context, "runtime", None), "_pch_dirs", None)
+    if not isinstance(folders, dict):
+        return
+    for folder in list(folders.values()):
+        with contextlib.suppress(Exception):
+            folder.cleanup()
 
 
 def _within(path, folder: str) -> bool:

@@ -4,6 +4,7 @@ import os
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -568,3 +569,25 @@ def test_a_ctrl_c_during_the_compile_waits_only_for_the_modules_being_compiled(m
     with pytest.raises(RuntimeError, match="a kernel's own error"):
         D._compile(wp, [Module(k) for k in range(8)], wp.get_device("cpu"))
     assert len(begun) <= 3, begun
+
+
+def test_an_interrupted_command_leaves_no_warp_temporaries(tmp_path, monkeypatch):
+    """Warp keeps its precompiled headers in $TMPDIR/wp_pch_* for the process's life and
+    removes them at exit; lfsf ends an interrupted command with os._exit, which had left
+    them (8.9 MB a first run, a helper's SIGTERM and Ctrl-C). They go before the exit."""
+    import tempfile
+
+    from lfsf import cli
+
+    wp = D.warp()
+    runtime = sys.modules["warp._src.context"].runtime if "warp._src.context" in sys.modules else None
+    if not isinstance(getattr(runtime, "_pch_dirs", None), dict):
+        pytest.skip("this Warp keeps no precompiled-header folders")
+    folder = tempfile.TemporaryDirectory(prefix="wp_pch_", dir=tmp_path)
+    (Path(folder.name) / "header.pch").write_bytes(b"x" * 1000)
+    monkeypatch.setitem(runtime._pch_dirs, -1, folder)
+    ended = []
+    monkeypatch.setattr(cli.os, "_exit", ended.append)
+    cli._exit_now(130)
+    assert ended == [130] and not Path(folder.name).exists() and list(tmp_path.iterdir()) == []
+    assert wp is D.warp()
