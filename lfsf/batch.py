@@ -4,9 +4,11 @@ Each pair is one task that loads its two light fields, estimates, and writes its
 to ``OUT/NAME/`` as ``lfsf run`` does. Nothing is shared between tasks but the output
 folder:
 
-* a task writes into a hidden temporary folder ``OUT/.NAME.part-PID-…`` and renames it
-  to ``OUT/NAME`` only when every file is there, so a killed run never leaves a
-  half-written result, and a result folder that exists is complete;
+* a task writes into a hidden temporary folder ``OUT/.NAME.part-HOST-PID-…`` and renames
+  it to ``OUT/NAME`` only when every file is there (an earlier result moved aside first),
+  so a killed run never leaves a half-written result, and a result folder that exists is
+  complete; the temporary folders of gone processes are removed, another batch's into
+  the same folder are left to it;
 * a re-run skips the pairs whose result folder is complete and was estimated with the
   same settings, from the same input files (the paths, sizes and modification times its
   sceneflow.npz records) and with the same ``warm_start``; it estimates again, and
@@ -43,7 +45,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from lfsf._errors import _FULL, BAD_INPUT_ERRORS, MachineError, whole
-from lfsf._files import SET_PREFIX, dead_set, write_bytes_atomic
+from lfsf._files import SET_PREFIX, _alive, _host, dead_set, write_bytes_atomic
 
 #: The files of a complete result (those :meth:`lfsf.estimate.SceneFlow.save` writes
 #: without the centre views; with them, ``overview.png`` too, which results of earlier
@@ -354,8 +356,8 @@ def _refuse_foreign(folder: Path) -> None:
                          "replaced: move it away, or choose another --out")
 
 
-#: The longest pair name, in bytes: its temporary folder adds 24 (".", ".part-", a process
-#: id, "-" and 8 hex digits) and file systems take 255.
+#: The longest pair name, in bytes: its temporary folder adds 37 (".", ".part-", 12 hex
+#: digits of the machine, "-", a process id, "-" and 8 hex digits) and file systems take 255.
 MAX_PAIR_NAME = 200
 
 
@@ -371,7 +373,7 @@ def check_outputs(pairs: Sequence[Pair], out: str | os.PathLike) -> None:
     out = Path(out).absolute()
     sources = [Path(p).absolute() for pair in pairs for p in (pair.t1, pair.t2)]
     for pair in pairs:
-        # its folder and the temporary ".NAME.part-PID-XXXXXXXX" beside it must be names
+        # its folder and the temporary ".NAME.part-HOST-PID-XXXXXXXX" beside it must be names
         # the file system takes (255 bytes), and it must not be the list of failures
         if len(os.fsencode(pair.name)) > MAX_PAIR_NAME or "\0" in pair.name:
             raise ValueError(f"pair {pair.name[:40]!r}…: a pair's name must be a folder name of at most "
@@ -430,8 +432,10 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
             return Outcome(pair.name, "skipped")
         if final.exists():
             replaced = REPLACED
+        # (a gone process's: another batch's into the same folder, alive, is its own; removing
+        # it had failed that batch's pair with "No such file or directory", a helper's two batches)
         _remove_stale(out, pair.name)
-        tmp = out / f".{pair.name}.part-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        tmp = _temporary(out, pair.name)
         tmp.mkdir(parents=True)
         if final.exists():  # (before the work, which would be lost)
             _refuse_foreign(final)
@@ -466,8 +470,19 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
         sf.save(tmp, centre1, centre2, inputs=inputs)   # (with overview.png, as lfsf run)
         if final.exists():  # an earlier result, complete or not, or one left by hand
             _refuse_foreign(final)  # (what was put there while the pair ran)
-            shutil.rmtree(final)
-        os.replace(tmp, final)
+            # moved aside, not removed in place: a reader had seen the folder with part of its
+            # files (a helper's SceneFlow.load in a loop, 526 times); removed once the new one
+            # is in (a process killed meanwhile leaves it hidden, as a gone process's)
+            earlier = _temporary(out, pair.name)
+            os.replace(final, earlier)
+            try:
+                os.replace(tmp, final)
+            except BaseException:
+                os.replace(earlier, final)
+                raise
+            shutil.rmtree(earlier, ignore_errors=True)
+        else:
+            os.replace(tmp, final)
         return Outcome(pair.name, "done", time.perf_counter() - t0, replaced, warm=init is not None,
                        notes=tuple(notes), warned=tuple(warned))
     except Exception as exc:  # noqa: BLE001 - every failure of a pair is reported, the batch goes on
@@ -483,7 +498,7 @@ def _reason(exc: BaseException) -> str:
         return f"no space left on the device ({exc.strerror}); nothing of the pair was kept"
     if isinstance(exc, BAD_INPUT_ERRORS):
         return str(exc)
-    if isinstance(exc, AssertionError) and _raised_in(exc, "distributed"):
+    if isinstance(exc, AssertionError) and _raised_in(exc, "distributed", "_start_unlocked"):
         # distributed's LoopRunner asserts that its event loop's thread started within 10 s
         return ("Dask's event loop did not start in time; a machine this busy or short of memory "
                 "may do that: try again")
@@ -492,34 +507,43 @@ def _reason(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}{at}"
 
 
-def _raised_in(exc: BaseException, package: str) -> bool:
-    """Whether ``exc`` was raised inside the installed ``package`` (its last frame)."""
+def _raised_in(exc: BaseException, package: str, function: str) -> bool:
+    """Whether ``exc`` was raised in ``function`` of the installed ``package`` (its last
+    frame)."""
     frames = traceback.extract_tb(exc.__traceback__) if exc.__traceback__ else []
-    return bool(frames) and package in Path(frames[-1].filename).parts
+    return bool(frames) and frames[-1].name == function and package in Path(frames[-1].filename).parts
 
 
-def _remove_stale(out: Path, name: str, dead_only: bool = False) -> None:
-    """Temporary folders of earlier attempts at this pair (a killed worker's);
-    ``dead_only``: only those whose process (the id in their name) is gone."""
+def _temporary(out: Path, name: str) -> Path:
+    """A new name for a temporary folder of pair ``name`` in ``out``, of this machine
+    (:func:`lfsf._files._host`) and process: ``.NAME.part-HOST-PID-XXXXXXXX``."""
+    return out / f".{name}.part-{_host()}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+
+
+def _remove_stale(out: Path, name: str) -> None:
+    """The temporary folders of pair ``name`` whose process is gone (a killed worker's, an
+    interrupted batch's); another live process's, such as another batch's into the same
+    folder, stay."""
     if out.is_dir():
         for stale in out.glob(f".{glob.escape(name)}.part-*"):
-            if not (dead_only and _process_alive(stale.name)):
+            if not _process_alive(stale.name):
                 shutil.rmtree(stale, ignore_errors=True)
 
 
 def _process_alive(temporary: str) -> bool:
-    """Whether the process that made the temporary folder ``.NAME.part-PID-XXXXXXXX`` runs
-    (on this machine; a name without a process id reads as alive: it is not ours)."""
-    match = re.search(r"\.part-(\d+)-[0-9a-f]{8}$", temporary)
-    if match is None:
+    """Whether the process that made the temporary folder ``.NAME.part-HOST-PID-XXXXXXXX``
+    may still be writing it: True unless it is a process of this machine that is gone.
+    Another machine's (a cluster's shared file system), this process's own, a name of
+    another form and anything off POSIX read as alive. (The ``.NAME.part-PID-XXXXXXXX``
+    of lfsf before the fifty-eighth session had no machine: judged by the process alone.)"""
+    match = re.search(r"\.part-(?:([0-9a-f]{12})-)?(\d+)-[0-9a-f]{8}$", temporary)
+    if match is None or os.name != "posix" or match.group(1) not in (None, _host()):
         return True
     try:
-        os.kill(int(match.group(1)), 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, OverflowError, ValueError):
+        pid = int(match.group(2))
+        return pid == os.getpid() or _alive(pid)
+    except (OverflowError, ValueError):
         return True
-    return True
 
 
 def _previous_estimate(folder: Path, shape) -> dict | None:
@@ -700,7 +724,7 @@ def _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retrie
             # scheduler's workers go on with theirs, and their next attempt clears them;
             # another batch's into the same folder, alive, keeps its own)
             for pair in pairs:
-                _remove_stale(out, pair.name, dead_only=True)
+                _remove_stale(out, pair.name)
 
 
 def _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, retries, report, finish) -> None:

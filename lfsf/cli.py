@@ -1170,13 +1170,15 @@ def entry() -> None:  # pragma: no cover - the installed command; tests call mai
 def _exit_now(status: int) -> None:
     """End the process with ``status`` at once, what is printed flushed first and Warp's
     temporary folders removed (its own removal, at the interpreter's exit, is skipped)."""
-    from lfsf.device import remove_warp_temporaries
+    try:
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(OSError, ValueError):
+                stream.flush()
+        from lfsf.device import remove_warp_temporaries
 
-    for stream in (sys.stdout, sys.stderr):
-        with contextlib.suppress(OSError, ValueError):
-            stream.flush()
-    remove_warp_temporaries()
-    os._exit(status)
+        remove_warp_temporaries()
+    finally:  # (a second Ctrl-C meanwhile: the exit all the same)
+        os._exit(status)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -14,7 +14,7 @@ import os
 import re
 import sys
 import threading
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
 from typing import Callable, Sequence
 
 from lfsf._errors import DependencyError
@@ -300,9 +300,12 @@ def _compile(wp, modules: Sequence, device) -> None:
         return
     pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="lfsf-compile")
     try:
-        for future in [pool.submit(wp.force_load, device=device, modules=[m], max_workers=1, block_dim=block_dim)
-                       for m in modules]:
-            future.result()
+        futures = [pool.submit(wp.force_load, device=device, modules=[m], max_workers=1, block_dim=block_dim)
+                   for m in modules]
+        wait(futures, return_when=FIRST_EXCEPTION)  # (any module's error, not only once those before it ended)
+        for future in futures:
+            if future.done():
+                future.result()
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
 

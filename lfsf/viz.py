@@ -855,7 +855,7 @@ def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = N
         Centre views at t1 and t2, float in [0, 1] or uint8.
     disp1, disp2 : array_like, shape (H, W)
         Estimated disparities δ1 and δ2 (``help(lfsf)``, MODEL.md §1: δ2 is the t2 disparity of the
-        point seen at ``p`` at t1). NaN is drawn as invalid (black).
+        point seen at ``p`` at t1). NaN is drawn as invalid (hatched).
     u, v : array_like, shape (H, W)
         Estimated flow of the centre view, pixels.
     gt : mapping, optional

@@ -224,18 +224,78 @@ def test_the_input_record_leaves_out_hidden_files_and_resolves_links(tmp_path):
 
 def test_the_cleanup_after_a_cluster_keeps_a_live_processs_temporary_folder(tmp_path):
     """After a local cluster closed, every pair's temporary folders were removed, those of
-    another batch still writing into the same folder too; now only a gone process's."""
+    another batch still writing into the same folder too; and so did every pair's start
+    (a helper's two batches into one folder: the other's pair failed with "No such file or
+    directory", its failed.csv then removed). Now only a gone process's of this machine."""
     import subprocess
     import sys
 
+    from lfsf._files import _host
+
     gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
                           text=True).stdout.strip()
-    dead, live = tmp_path / f".p.part-{gone}-0123abcd", tmp_path / f".p.part-{os.getpid()}-0123abcd"
-    dead.mkdir(), live.mkdir()
-    batch._remove_stale(tmp_path, "p", dead_only=True)
-    assert not dead.exists() and live.exists()
-    batch._remove_stale(tmp_path, "p")          # (a pair's own start clears any)
-    assert not live.exists()
+    other = "0123456789ab" if _host() != "0123456789ab" else "ba9876543210"
+    folders = {
+        "dead": tmp_path / f".p.part-{_host()}-{gone}-0123abcd",
+        "live": tmp_path / f".p.part-{_host()}-{os.getpid()}-0123abcd",
+        "another machine's": tmp_path / f".p.part-{other}-{gone}-0123abcd",
+        "dead, before the machine was named": tmp_path / f".p.part-{gone}-0123abcd",
+        "another form": tmp_path / ".p.part-x",
+        "another pair's": tmp_path / f".q.part-{_host()}-{gone}-0123abcd",
+    }
+    for folder in folders.values():
+        folder.mkdir()
+    batch._remove_stale(tmp_path, "p")
+    assert {k for k, f in folders.items() if f.exists()} == {"live", "another machine's", "another form",
+                                                             "another pair's"}
+    assert batch._temporary(tmp_path, "p").name.startswith(f".p.part-{_host()}-{os.getpid()}-")
+
+
+def test_a_result_replaced_is_never_seen_in_part(frames, tmp_path, monkeypatch):
+    """The earlier result folder was removed file by file, then the new one renamed in: a
+    reader saw it with part of its files (a helper's SceneFlow.load in a loop: 526 of 18000
+    loads). Now it is moved aside whole, the new one put in, and then it is removed."""
+    from lfsf import Params
+
+    folder, _ = frames
+    out = tmp_path / "out"
+    pair = batch.Pair("f000", folder / "f000.npz", folder / "f001.npz")
+    assert batch.run_pair(pair, out, PARAMS, device="cpu").status == "done"
+    seen = []
+    replace = os.replace
+
+    def watched(src, dst, *args, **kwargs):  # (what a reader finds at every step)
+        final = out / "f000"
+        seen.append(batch.is_complete(final) or not final.exists())
+        return replace(src, dst, *args, **kwargs)
+
+    removed, rmtree = [], batch.shutil.rmtree
+
+    def removing(path, *args, **kwargs):  # (a folder removed file by file: seen in part meanwhile)
+        removed.append(Path(path))
+        return rmtree(path, *args, **kwargs)
+
+    monkeypatch.setattr(batch.os, "replace", watched)
+    monkeypatch.setattr(batch.shutil, "rmtree", removing)
+    other = Params.preset("fast").replace(iterations=3)
+    outcome = batch.run_pair(pair, out, other, device="cpu")
+    assert outcome.status == "done" and outcome.reason == batch.REPLACED and seen and all(seen), seen
+    assert out / "f000" not in removed and removed, removed
+    assert sorted(p.name for p in out.iterdir()) == ["f000"] and batch.is_complete(out / "f000")
+    # a new result that cannot be put in: the earlier one is put back
+    first = {f: (out / "f000" / f).read_bytes() for f in batch.RESULT_FILES}
+
+    def refused(src, dst, *args, **kwargs):  # (the new folder's move into place)
+        if Path(src).name.startswith(".f000.part-") and Path(dst) == out / "f000" and Path(src).is_dir() \
+                and (Path(src) / "sceneflow.npz").read_bytes() != first["sceneflow.npz"]:
+            raise PermissionError(13, "Permission denied", str(src))
+        return replace(src, dst, *args, **kwargs)
+
+    monkeypatch.setattr(batch.os, "replace", refused)
+    outcome = batch.run_pair(pair, out, PARAMS, device="cpu")
+    assert outcome.status == "failed" and "Permission denied" in outcome.reason
+    assert sorted(p.name for p in out.iterdir()) == ["f000"]
+    assert {f: (out / "f000" / f).read_bytes() for f in batch.RESULT_FILES} == first
 
 
 @pytest.mark.parametrize("rows, message", [
@@ -433,7 +493,7 @@ def _kill_when_running(out: Path, pattern: str, killed: list) -> threading.Threa
         deadline = time.monotonic() + 120
         while not killed and time.monotonic() < deadline:
             for part in out.glob(pattern):
-                pid = int(part.name.split(".part-")[1].split("-")[0])
+                pid = int(part.name.split(".part-")[1].split("-")[1])
                 if pid != os.getpid():
                     os.kill(pid, signal.SIGKILL)
                     killed.append((part.name, pid))
@@ -539,7 +599,7 @@ def test_ctrl_c_does_not_wait_for_a_pair_whose_worker_died(frames, tmp_path):
     (part,) = out.glob(".*.part-*")
     os.killpg(proc.pid, signal.SIGINT)
     time.sleep(1.0)   # (the batch now waits for the pair)
-    os.kill(int(part.name.split(".part-")[1].split("-")[0]), signal.SIGKILL)
+    os.kill(int(part.name.split(".part-")[1].split("-")[1]), signal.SIGKILL)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err
     name = part.name.split(".part-")[0].lstrip(".")
@@ -1135,11 +1195,11 @@ def test_a_cluster_whose_event_loop_did_not_start_is_one_line(where, frames, tmp
 
     def loop_not_started(*args, **kwargs):
         # raised from a frame of distributed's utils.py, as LoopRunner's own check is
-        code = compile("def start(loop=None):\n    assert loop is not None\n",
+        code = compile("def _start_unlocked(loop=None):\n    assert loop is not None\n",
                        str(Path(distributed.__file__).with_name("utils.py")), "exec")
         scope = {}
         exec(code, scope)
-        scope["start"]()
+        scope["_start_unlocked"]()
 
     monkeypatch.setattr(distributed, "LocalCluster", loop_not_started)
     monkeypatch.setattr(distributed, "Client", loop_not_started)

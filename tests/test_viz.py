@@ -477,7 +477,7 @@ def test_the_overview_marks_clipped_bar_ends_and_says_its_units():
     masked = dict(gt, valid=valid)
     rows = viz._overview_panels(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], masked, None)
     assert viz._overview_notes(rows, masked).endswith("; hatched grey: no ground truth there")
-    # … and where the estimate is not finite (drawn black, as the maps' no value, with no note)
+    # … and where the estimate is not finite (it had been black, as the truth's no value, without a note)
     holed = est["disp1"].copy()
     holed[5, 5] = np.nan
     rows = viz._overview_panels(c1, c2, holed, est["disp2"], est["u"], est["v"], masked, None)
