@@ -266,8 +266,10 @@ def _load(modules: Sequence, device, announce: Callable[[list[str]], None] | Non
         except OSError as exc:   # (the message had named a build folder of Warp's, or blamed the outputs)
             if exc.errno not in _CACHE_ERRNOS or not _within(exc.filename, cache):
                 raise
+            # (a folder of the user's own: in a shared cache with the sticky bit, as /tmp, the
+            # folder is writable and the entries of another user's are not)
             raise OSError(f"Warp's kernel cache {cache}: {exc.strerror} ({exc.filename}) while compiling lfsf's "
-                          f"kernels into it: set WARP_CACHE_PATH to a writable folder with room "
+                          f"kernels into it: set WARP_CACHE_PATH to a folder of your own, writable, with room "
                           f"({CACHE_ROOM >> 20} MB)") from None
         except Exception as exc:  # noqa: BLE001 - narrowed below to a cache entry that does not read
             import json
@@ -276,6 +278,14 @@ def _load(modules: Sequence, device, announce: Callable[[list[str]], None] | Non
             # codegen's own errors, some ValueErrors, which a damaged cache does not cause)
             # (nor a module compiled just now, which no deleting mends)
             failed = re.match(r"Failed to load CPU module '([^']+)'", str(exc))
+            # (a cache filled on a machine of another CPU: the module's folder is there, with
+            # no object of this CPU's in it; Warp could not add this one, which it had compiled)
+            unbuilt = [_build(m, device) for m in cold if failed and m.name == failed.group(1)]
+            if unbuilt and os.path.isdir(unbuilt[0][0]) and unbuilt[0][1] and not os.path.exists(unbuilt[0][1]):
+                folder = unbuilt[0][0]
+                raise OSError(f"Warp's kernel cache {cache}: its entry {folder} holds lfsf's kernels built for "
+                              f"another CPU, and this CPU's could not be added to it (it is another user's, or "
+                              f"not writable): set WARP_CACHE_PATH to a folder of your own") from None
             if not (isinstance(exc, json.JSONDecodeError) or failed and failed.group(1) not in {m.name for m in cold}):
                 raise
             raise OSError(f"Warp's kernel cache {cache} holds a damaged entry of lfsf's kernels ({exc}): delete "
@@ -343,17 +353,37 @@ _CACHE_ERRNOS = tuple(getattr(errno, name) for name in ("ENOSPC", "EDQUOT", "EAC
                       if hasattr(errno, name))
 
 
+def _build(module, device) -> tuple[str, str | None]:
+    """Where the kernel cache keeps the Warp ``module``'s build for the Warp ``device``'s
+    kind of launch: the folder that Warp names by the module's hash (for one thread a
+    block on the CPU, as a launch there compiles it, and the module's own block size on
+    CUDA), and the object file in it of this CPU's target (or this GPU's architecture),
+    None where this Warp does not say."""
+    block_dim = 1 if device.is_cpu else module.options["block_dim"]
+    folder = os.path.join(warp().config.kernel_cache_dir, module.get_module_identifier(block_dim=block_dim))
+    try:  # (Warp's own name for it: a folder of a cache shared by machines holds one for each CPU)
+        name = module._get_compile_output_name(device, block_dim=block_dim)
+    except Exception:  # noqa: BLE001 - another Warp's; the folder alone then
+        name = None
+    return folder, None if not isinstance(name, str) else os.path.join(folder, name)
+
+
+def _built(module, device) -> bool | None:
+    """Whether the kernel cache holds the Warp ``module``'s build for ``device`` (its
+    folder, and in it the object file of this CPU or GPU where Warp names it); None where
+    this Warp names its folders otherwise."""
+    try:
+        folder, binary = _build(module, device)
+    except (AttributeError, KeyError, TypeError):
+        return None
+    return os.path.isdir(folder) and (binary is None or os.path.exists(binary))
+
+
 def _cold(modules, device) -> list:
     """The Warp ``modules`` of which the kernel cache holds no build for the Warp
-    ``device``'s kind of launch (the folder that Warp names by a module's hash, for one
-    thread a block on the CPU, as a launch there compiles it, and the module's own block
-    size on CUDA); [] where this Warp names its folders otherwise."""
-    cache = warp().config.kernel_cache_dir
-    try:
-        return [m for m in modules if not os.path.isdir(os.path.join(cache, m.get_module_identifier(
-            block_dim=1 if device.is_cpu else m.options["block_dim"])))]
-    except (AttributeError, KeyError, TypeError):
-        return []
+    ``device`` (:func:`_built`: a folder of another machine's CPU's alone, in a cache that
+    machines share, counts as none); [] where this Warp names its folders otherwise."""
+    return [m for m in modules if _built(m, device) is False]
 
 
 def cold_modules(modules, device) -> list[str]:

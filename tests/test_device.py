@@ -593,3 +593,39 @@ def test_an_interrupted_command_leaves_no_warp_temporaries(tmp_path, monkeypatch
     cli._exit_now(130)
     assert ended == [130] and not Path(folder.name).exists() and list(tmp_path.iterdir()) == []
     assert wp is D.warp()
+
+
+def test_a_cache_filled_on_another_cpu_counts_as_cold_and_is_named(monkeypatch, tmp_path):
+    """Warp names a module's CPU object by the CPU's target (``….cpu1a2b3c4d.o``), in a
+    folder that machines sharing a cache share. A folder with another CPU's object alone
+    had counted as built (the compile then ran unannounced), and where Warp could not add
+    this CPU's object to another user's folder, lfsf called the entry damaged and said to
+    delete everyone's (a helper's cluster of mixed CPUs)."""
+    from lfsf.kernels import fusion
+
+    wp = D.warp()
+    cpu = wp.get_device("cpu")
+    module = wp.get_module(fusion.__name__)
+    monkeypatch.setattr(wp.config, "kernel_cache_dir", str(tmp_path))
+    folder, binary = D._build(module, cpu)
+    if binary is None:
+        pytest.skip("this Warp does not name its CPU objects")
+    assert Path(folder).parent == tmp_path and Path(binary).parent == Path(folder)
+    assert D._cold([module], cpu) == [module]
+    Path(folder).mkdir()
+    (Path(folder) / Path(binary).name.replace(".cpu", ".cpuffff")).write_bytes(b"")  # (another CPU's)
+    assert D._cold([module], cpu) == [module]
+    Path(binary).write_bytes(b"")
+    assert D._cold([module], cpu) == []
+    Path(binary).unlink()
+
+    def load(**_):  # (what Warp raises where it could not put this CPU's object in the folder)
+        raise Exception(f"Failed to load CPU module '{module.name}' (device='cpu')")
+
+    monkeypatch.setattr(wp, "force_load", load)
+    monkeypatch.setattr(D, "_check_cache_room", lambda cache: None)
+    monkeypatch.setattr(D, "_loaded", set())
+    with pytest.raises(OSError, match=f"its entry {folder} holds lfsf's kernels built for another CPU, and this "
+                                      f"CPU's could not be added to it .*: set WARP_CACHE_PATH to a folder of your "
+                                      f"own$"):
+        D._load([module], cpu)
