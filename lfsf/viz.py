@@ -903,7 +903,10 @@ def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = N
     marks' meaning.
     """
     rows = _overview_panels(centre1, centre2, disp1, disp2, u, v, gt, max_flow, label, occluded, disparities, border)
-    figure = _compose(rows, title, _overview_notes(rows, gt, disparities, border))
-    if path is not None:
-        save_png(path, figure)
+    notes = _overview_notes(rows, gt, disparities, border)
+    figure = _compose(rows, title, notes)
+    if path is not None:  # (its text in the file too, as the single maps' pictures have theirs)
+        panels = ", ".join(panel.label for row in rows for panel in row)
+        save_png(path, figure, text={"Title": " ".join(title.split()) if title else "lfsf overview",
+                                     "Comment": f"panels: {panels}. {notes}"})
     return figure

@@ -275,6 +275,14 @@ def test_overview_is_written_as_readable_png_without_leftovers(tmp_path):
                               est["u"], est["v"], gt=gt, path=target, title="test scene")
     assert sorted(p.name for p in target.parent.iterdir()) == ["overview.png"]
     np.testing.assert_array_equal(iio.imread(target), fig)
+    # its words in the file too (a picture's text, for readers that cannot see it)
+    from PIL import Image
+
+    with Image.open(target) as png:
+        text = dict(png.text)
+    assert text["Title"] == "test scene"
+    assert text["Comment"].startswith("panels: centre view t1, centre view t2, disp1 estimate, ")
+    assert "flow EPE  mean" in text["Comment"] and "disparities in px per view step" in text["Comment"]
 
 
 def test_overview_error_panels_mean_and_valid_mask():
