@@ -389,8 +389,8 @@ def _cold(modules, device) -> list:
 def cold_modules(modules, device) -> list[str]:
     """The names of the Python modules of kernels among ``modules`` (e.g.
     :mod:`lfsf.kernels.tgv`) that Warp's kernel cache holds no build of for ``device``
-    (roughly, on CUDA: a build for another GPU counts): the ones that :func:`preload`
-    would compile."""
+    (of this CPU's target, or this GPU's architecture, where Warp names its objects so):
+    the ones that :func:`preload` would compile."""
     wp = warp()
     return [m.name for m in _cold([wp.get_module(m.__name__) for m in modules], wp.get_device(device))]
 
