@@ -258,6 +258,7 @@ def _load(modules: Sequence, device, announce: Callable[[list[str]], None] | Non
         cold = _cold(todo, device) if wp.config.cache_kernels else []
         if cold:
             _check_cache_room(cache)
+            _remove_dead_builds(cache)
             if announce is not None:
                 announce([m.name for m in cold])
         start = time.perf_counter()
@@ -318,6 +319,33 @@ def _compile(wp, modules: Sequence, device) -> None:
                 future.result()
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+#: A build folder of Warp's older than this, whose process is not running here, is a
+#: killed compile's (a module's compile takes seconds; another machine's, on a cache that
+#: machines share, is not asked after by its process id alone).
+DEAD_BUILD_AGE = 3600.0
+
+
+def _remove_dead_builds(cache: str) -> None:
+    """Remove the build folders of lfsf's modules that Warp compiles into (the module's
+    folder name and ``_pPID_tTHREAD``) and renames into place, where the process is gone:
+    a process killed outright during its compile (SIGKILL, the out-of-memory killer) had
+    left them in the cache for good, two a kill (a helper's). Only those older than
+    :data:`DEAD_BUILD_AGE` and of no process running here."""
+    import shutil
+    import time
+
+    from lfsf._files import _alive
+
+    now = time.time()
+    with contextlib.suppress(OSError):
+        for entry in os.scandir(cache):
+            made = re.fullmatch(r"wp_lfsf\.kernels\.[A-Za-z0-9_]+_[0-9a-f]+_p(\d+)_t\d+", entry.name)
+            with contextlib.suppress(OSError, OverflowError, ValueError):
+                if (made and entry.is_dir(follow_symlinks=False) and now - entry.stat().st_mtime > DEAD_BUILD_AGE
+                        and int(made[1]) != os.getpid() and not _alive(int(made[1]))):
+                    shutil.rmtree(entry.path, ignore_errors=True)
 
 
 def remove_warp_temporaries() -> None:

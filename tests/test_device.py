@@ -629,3 +629,33 @@ def test_a_cache_filled_on_another_cpu_counts_as_cold_and_is_named(monkeypatch, 
                                       f"CPU's could not be added to it .*: set WARP_CACHE_PATH to a folder of your "
                                       f"own$"):
         D._load([module], cpu)
+
+
+def test_a_killed_compiles_build_folders_are_removed_by_a_later_compile(monkeypatch, tmp_path):
+    """A process killed outright while it compiled left Warp's build folders
+    (``wp_lfsf.kernels.X_HASH_pPID_tTID``) in the cache for good (a helper: two a kill).
+    A later compile removes those of a gone process older than an hour; a live
+    process's, a recent one's (another machine's, perhaps, on a shared cache) and
+    anything else stay."""
+    import subprocess
+    import time
+
+    gone = int(subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                              text=True).stdout)
+    old = time.time() - 2 * D.DEAD_BUILD_AGE
+    folders = {
+        "dead": f"wp_lfsf.kernels.rof_f988f00_p{gone}_t140240488494784",
+        "live": f"wp_lfsf.kernels.rof_f988f00_p{os.getpid()}_t1",
+        "recent": f"wp_lfsf.kernels.tgv_0123abc_p{gone}_t2",
+        "a module's own": "wp_lfsf.kernels.rof_f988f00",
+        "another program's": f"wp_mine_0123abc_p{gone}_t3",
+    }
+    for name, folder in folders.items():
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "x.cpp").write_text("")
+        if name != "recent":
+            os.utime(tmp_path / folder, (old, old))
+    D._remove_dead_builds(str(tmp_path))
+    assert {name for name, folder in folders.items() if (tmp_path / folder).exists()} == {
+        "live", "recent", "a module's own", "another program's"}
+    D._remove_dead_builds(str(tmp_path / "missing"))  # (no cache folder: nothing to do)
