@@ -477,8 +477,12 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
             os.replace(final, earlier)
             try:
                 os.replace(tmp, final)
-            except BaseException:
-                os.replace(earlier, final)
+            except BaseException as exc:
+                try:
+                    os.replace(earlier, final)
+                except OSError as back:  # (another process's result there meanwhile: both said)
+                    raise OSError(f"{final}: the new result could not be put in ({exc}), nor the earlier one "
+                                  f"back ({back}); the earlier one is in {earlier}") from exc
                 raise
             shutil.rmtree(earlier, ignore_errors=True)
         else:
@@ -520,14 +524,21 @@ def _temporary(out: Path, name: str) -> Path:
     return out / f".{name}.part-{_host()}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
 
 
+#: A pair's temporary folder older than this is a gone process's whatever its name says:
+#: another machine's (a worker killed there, its pair run again here), or any off POSIX.
+STALE_PART_AGE = 24 * 3600.0
+
+
 def _remove_stale(out: Path, name: str) -> None:
     """The temporary folders of pair ``name`` whose process is gone (a killed worker's, an
-    interrupted batch's); another live process's, such as another batch's into the same
-    folder, stay."""
+    interrupted batch's), or older than :data:`STALE_PART_AGE`; another live process's,
+    such as another batch's into the same folder, stay."""
     if out.is_dir():
+        now = time.time()
         for stale in out.glob(f".{glob.escape(name)}.part-*"):
-            if not _process_alive(stale.name):
-                shutil.rmtree(stale, ignore_errors=True)
+            with contextlib.suppress(OSError):
+                if not _process_alive(stale.name) or now - stale.stat().st_mtime > STALE_PART_AGE:
+                    shutil.rmtree(stale, ignore_errors=True)
 
 
 def _process_alive(temporary: str) -> bool:
@@ -727,6 +738,18 @@ def _run_dask(pairs, out, params, workers, scheduler, device, warm_start, retrie
                 _remove_stale(out, pair.name)
 
 
+def _close_what_failed() -> None:
+    """Collect the garbage now, after a Dask Client or cluster failed in its constructor
+    (outside the ``except``, so that the error, its frames and the half-made object are
+    garbage): that object closes itself in its ``__del__``, which takes the lock of
+    distributed's event-loop runner. Collected later, within another Client's or
+    cluster's start, which holds that lock, it deadlocked (this project's test run hung
+    in a LocalCluster's start, a failed Client of an earlier test closing inside it)."""
+    import gc
+
+    gc.collect()
+
+
 def _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, retries, report, finish) -> None:
     """The pairs on a Dask cluster (a local one, or ``scheduler``'s); ``finish`` gets the
     outcomes once all are in, before the cluster closes."""
@@ -739,17 +762,21 @@ def _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, 
     with contextlib.ExitStack() as stack:
         if scheduler:
             check_scheduler_address(scheduler)
+            failure = None
             try:
                 client = stack.enter_context(Client(scheduler, timeout="10s"))
             except MemoryError:
                 # a server that is not Dask's answered: its first bytes ("HTTP/1.1") read as
                 # a message length of exabytes, reported as out of memory
-                raise ValueError(f"cannot reach the Dask scheduler at {scheduler}: what answers there is not a "
-                                 "Dask scheduler (a dashboard's port, 8787, or another server's?)") from None
+                failure = ValueError(f"cannot reach the Dask scheduler at {scheduler}: what answers there is not a "
+                                     "Dask scheduler (a dashboard's port, 8787, or another server's?)")
             except (OSError, ValueError, TypeError) as exc:
-                raise ValueError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+                failure = ValueError(f"cannot reach the Dask scheduler at {scheduler}: {exc}")
             except AssertionError as exc:  # (the client's own event loop did not start)
-                raise MachineError(f"cannot reach the Dask scheduler at {scheduler}: {_reason(exc)}") from None
+                failure = MachineError(f"cannot reach the Dask scheduler at {scheduler}: {_reason(exc)}")
+            if failure is not None:
+                _close_what_failed()
+                raise failure
             try:    # a scheduler without workers would take the tasks and wait for ever
                 client.wait_for_workers(1, timeout=WORKER_WAIT)
             except (TimeoutError, asyncio.TimeoutError, OSError):  # (Python 3.10: asyncio's is another class)
@@ -767,13 +794,17 @@ def _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, 
                 # one pair a worker at a time (Dask holds 1.1 tasks a thread by default: a second pair
                 # queued on a worker that kept dying had failed with the pair that killed it)
                 stack.enter_context(dask.config.set({"distributed.scheduler.worker-saturation": 1.0}))
+                failure = None
                 try:
                     cluster = stack.enter_context(LocalCluster(
                         n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
                         silence_logs=logging.ERROR, env={"LFSF_THREADS": str(threads)},
                         preload=["lfsf._dask_worker"]))
                 except (OSError, RuntimeError, TimeoutError, AssertionError) as exc:  # (its traceback says no more)
-                    raise MachineError(f"the local Dask cluster did not start ({_reason(exc)})") from None
+                    failure = MachineError(f"the local Dask cluster did not start ({_reason(exc)})")
+                if failure is not None:
+                    _close_what_failed()
+                    raise failure
             client = stack.enter_context(Client(cluster))
         out.mkdir(parents=True, exist_ok=True)  # only once there is a cluster to write into it
         futures = {}

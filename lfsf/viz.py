@@ -408,7 +408,9 @@ def save_png(path: str | os.PathLike, img, text: Mapping[str, str] | None = None
 
             info = PngInfo()
             for key, value in text.items():
-                info.add_text(str(key), str(value))
+                # (a file name not in UTF-8 reaches Python with stand-ins, which PNG text
+                # cannot hold: the whole result had failed to save)
+                info.add_text(*(str(t).encode("utf-8", "backslashreplace").decode("utf-8") for t in (key, value)))
             Image.fromarray(img).save(tmp, format="PNG", pnginfo=info)
         else:
             iio.imwrite(tmp, img, extension=".png")

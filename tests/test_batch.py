@@ -243,8 +243,11 @@ def test_the_cleanup_after_a_cluster_keeps_a_live_processs_temporary_folder(tmp_
         "another form": tmp_path / ".p.part-x",
         "another pair's": tmp_path / f".q.part-{_host()}-{gone}-0123abcd",
     }
+    folders["another machine's, a day old"] = tmp_path / f".p.part-{other}-{gone}-4567abcd"
     for folder in folders.values():
         folder.mkdir()
+    old = time.time() - batch.STALE_PART_AGE - 60
+    os.utime(folders["another machine's, a day old"], (old, old))
     batch._remove_stale(tmp_path, "p")
     assert {k for k, f in folders.items() if f.exists()} == {"live", "another machine's", "another form",
                                                              "another pair's"}
@@ -724,11 +727,26 @@ def test_cli_exit_status_1_when_a_pair_fails_and_2_for_bad_input(frames, tmp_pat
 
 @needs_dask
 def test_cli_unreachable_scheduler_is_a_clear_error(frames, tmp_path, capsys):
+    """… and the Client that failed is closed before the command ends: left to the cyclic
+    garbage collector, it closed itself whenever that ran, and within a later LocalCluster's
+    start (holding distributed's event-loop lock, which its close takes) the test run hung."""
+    import gc
+
+    import distributed
+
     folder, _ = frames
     out = tmp_path / "out"
-    assert main(["batch", str(folder), "--out", str(out), "--scheduler", "tcp://127.0.0.1:1", "--quiet"]) == 2
+    gc.collect()
+    gc.disable()
+    try:
+        before = sum(isinstance(o, distributed.Client) for o in gc.get_objects())
+        assert main(["batch", str(folder), "--out", str(out), "--scheduler", "tcp://127.0.0.1:1", "--quiet"]) == 2
+        left = sum(isinstance(o, distributed.Client) for o in gc.get_objects()) - before
+    finally:
+        gc.enable()
     assert "cannot reach the Dask scheduler at tcp://127.0.0.1:1" in capsys.readouterr().err
     assert not out.exists()  # nothing written without a cluster
+    assert left == 0, left
 
 
 @needs_dask

@@ -642,10 +642,12 @@ def test_a_killed_compiles_build_folders_are_removed_by_a_later_compile(monkeypa
 
     gone = int(subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
                               text=True).stdout)
+    running = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
     old = time.time() - 2 * D.DEAD_BUILD_AGE
     folders = {
         "dead": f"wp_lfsf.kernels.rof_f988f00_p{gone}_t140240488494784",
-        "live": f"wp_lfsf.kernels.rof_f988f00_p{os.getpid()}_t1",
+        "live": f"wp_lfsf.kernels.rof_f988f00_p{running.pid}_t1",
+        "this process's": f"wp_lfsf.kernels.rof_f988f00_p{os.getpid()}_t1",
         "recent": f"wp_lfsf.kernels.tgv_0123abc_p{gone}_t2",
         "a module's own": "wp_lfsf.kernels.rof_f988f00",
         "another program's": f"wp_mine_0123abc_p{gone}_t3",
@@ -655,7 +657,11 @@ def test_a_killed_compiles_build_folders_are_removed_by_a_later_compile(monkeypa
         (tmp_path / folder / "x.cpp").write_text("")
         if name != "recent":
             os.utime(tmp_path / folder, (old, old))
-    D._remove_dead_builds(str(tmp_path))
+    try:
+        D._remove_dead_builds(str(tmp_path))
+    finally:
+        running.kill()
+        running.wait()
     assert {name for name, folder in folders.items() if (tmp_path / folder).exists()} == {
-        "live", "recent", "a module's own", "another program's"}
+        "live", "this process's", "recent", "a module's own", "another program's"}
     D._remove_dead_builds(str(tmp_path / "missing"))  # (no cache folder: nothing to do)

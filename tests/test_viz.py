@@ -281,6 +281,11 @@ def test_overview_is_written_as_readable_png_without_leftovers(tmp_path):
     with Image.open(target) as png:
         text = dict(png.text)
     assert text["Title"] == "test scene"
+    # a title with a file name not in UTF-8 (its bytes as Python's stand-ins): it had failed the save
+    viz.overview_figure(c1, c2, est["disp1"], est["disp2"], est["u"], est["v"], path=target,
+                        title="lfsf run: caf\udce9.npz and b.npz")
+    with Image.open(target) as png:
+        assert png.text["Title"] == "lfsf run: caf\\udce9.npz and b.npz"
     assert text["Comment"].startswith("panels: centre view t1, centre view t2, disp1 estimate, ")
     assert "flow EPE  mean" in text["Comment"] and "disparities in px per view step" in text["Comment"]
 
