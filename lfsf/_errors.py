@@ -169,8 +169,8 @@ def quiet_interrupts_in_finalisers(unraisable) -> None:
 def run_script(main, prog: str | None = None) -> int:
     """Run ``main()`` (a script's, or an ``lfsf`` command's) and return its exit status:
     bad input (a :data:`BAD_INPUT_ERRORS`) is one line ``PROG: error: …`` on stderr and
-    status 2; memory that ran out, a full disk, or a :class:`MachineError`, one line and status 1; Ctrl-C ``PROG: interrupted``
-    and status 130, SIGTERM ``PROG: terminated`` and 143, SIGHUP ``PROG: hung up
+    status 2; memory that ran out, a full disk, or a :class:`MachineError`, one line and
+    status 1; Ctrl-C ``PROG: interrupted`` and status 130, SIGTERM ``PROG: terminated`` and 143, SIGHUP ``PROG: hung up
     (SIGHUP)`` and 129, each after the temporary files are removed
     (:func:`terminate_as_interrupt`). ``prog`` defaults to the script's file
     name."""
