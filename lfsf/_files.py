@@ -334,9 +334,18 @@ def _alive(pid: int) -> bool:
         os.kill(pid, 0)  # (signal 0: only whether the process is there)
     except ProcessLookupError:
         return False
-    except OSError:  # there, another user's
+    except (OSError, OverflowError):  # there, another user's; or no process id at all
         return True
     return True
+
+
+def gone(pid: int, host: str | None = None) -> bool:
+    """Whether the process ``pid`` of the machine ``host`` (:func:`_host`'s digits; None:
+    this machine) is known to be gone: a process of this machine, not this one, that no
+    longer runs. Never another machine's, nor any off POSIX (:func:`_alive`). What the
+    temporary folders of :func:`file_set`, of ``lfsf batch``'s pairs and of Warp's
+    builds are asked before they are removed."""
+    return (host is None or host == _host()) and pid != os.getpid() and not _alive(pid)
 
 
 def dead_set(path: Path) -> bool:
@@ -346,11 +355,8 @@ def dead_set(path: Path) -> bool:
     another form, and anything off POSIX, where a process cannot be asked whether it is
     there. (Containers that share a host name but not their process ids would see each
     other's as gone: give them their own output folders.)"""
-    if os.name != "posix":
-        return False
     made = re.fullmatch(re.escape(SET_PREFIX) + r"([0-9a-f]{12})-(\d+)\..+", path.name)
-    return (made is not None and made[1] == _host() and int(made[2]) != os.getpid()
-            and not _alive(int(made[2])) and path.is_dir())
+    return made is not None and gone(int(made[2]), made[1]) and path.is_dir()
 
 
 def remove_dead_sets(out: Path) -> None:

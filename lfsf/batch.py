@@ -45,7 +45,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from lfsf._errors import _FULL, BAD_INPUT_ERRORS, MachineError, whole
-from lfsf._files import SET_PREFIX, _alive, _host, dead_set, write_bytes_atomic
+from lfsf._files import SET_PREFIX, _host, dead_set, gone, write_bytes_atomic
 
 #: The files of a complete result (those :meth:`lfsf.estimate.SceneFlow.save` writes
 #: without the centre views; with them, ``overview.png`` too, which results of earlier
@@ -548,13 +548,7 @@ def _process_alive(temporary: str) -> bool:
     another form and anything off POSIX read as alive. (The ``.NAME.part-PID-XXXXXXXX``
     of lfsf before the fifty-eighth session had no machine: judged by the process alone.)"""
     match = re.search(r"\.part-(?:([0-9a-f]{12})-)?(\d+)-[0-9a-f]{8}$", temporary)
-    if match is None or os.name != "posix" or match.group(1) not in (None, _host()):
-        return True
-    try:
-        pid = int(match.group(2))
-        return pid == os.getpid() or _alive(pid)
-    except (OverflowError, ValueError):
-        return True
+    return match is None or not gone(int(match.group(2)), match.group(1))
 
 
 def _previous_estimate(folder: Path, shape) -> dict | None:

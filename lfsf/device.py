@@ -281,9 +281,9 @@ def _load(modules: Sequence, device, announce: Callable[[list[str]], None] | Non
             failed = re.match(r"Failed to load CPU module '([^']+)'", str(exc))
             # (a cache filled on a machine of another CPU: the module's folder is there, with
             # no object of this CPU's in it; Warp could not add this one, which it had compiled)
-            unbuilt = [_build(m, device) for m in cold if failed and m.name == failed.group(1)]
-            if unbuilt and os.path.isdir(unbuilt[0][0]) and unbuilt[0][1] and not os.path.exists(unbuilt[0][1]):
-                folder = unbuilt[0][0]
+            module = next((m for m in cold if failed and m.name == failed.group(1)), None)
+            folder, binary = (None, None) if module is None else _build(module, device)
+            if binary is not None and os.path.isdir(folder) and not os.path.exists(binary):
                 raise OSError(f"Warp's kernel cache {cache}: its entry {folder} holds lfsf's kernels built for "
                               f"another CPU, and this CPU's could not be added to it (it is another user's, or "
                               f"not writable): set WARP_CACHE_PATH to a folder of your own") from None
@@ -336,15 +336,15 @@ def _remove_dead_builds(cache: str) -> None:
     import shutil
     import time
 
-    from lfsf._files import _alive
+    from lfsf._files import gone
 
     now = time.time()
     with contextlib.suppress(OSError):
         for entry in os.scandir(cache):
             made = re.fullmatch(r"wp_lfsf\.kernels\.[A-Za-z0-9_]+_[0-9a-f]+_p(\d+)_t\d+", entry.name)
-            with contextlib.suppress(OSError, OverflowError, ValueError):
+            with contextlib.suppress(OSError):
                 if (made and entry.is_dir(follow_symlinks=False) and now - entry.stat().st_mtime > DEAD_BUILD_AGE
-                        and int(made[1]) != os.getpid() and not _alive(int(made[1]))):
+                        and gone(int(made[1]))):
                     shutil.rmtree(entry.path, ignore_errors=True)
 
 

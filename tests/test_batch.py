@@ -566,7 +566,8 @@ def test_ctrl_c_on_a_cluster_batch_is_one_line_not_the_workers_tracebacks(frames
     out = tmp_path / "out"
     answer_ctrl_c = "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); " \
                     "from lfsf.cli import entry; sys.argv[0] = 'lfsf'; entry()"
-    # pairs of about 9 s here (48×40 px, 1000 warps of 45 iterations), past the 4 s in which a closing cluster ends its workers
+    # pairs of about 9 s here (48×40 px, 1000 warps of 45 iterations), past the 4 s in which a closing
+    # cluster ends its workers
     slow = tmp_path / "slow.toml"
     slow.write_text('preset = "fast"\nwarps = 1000\niterations = 45\n')
     proc, err, running, waited = _signal_a_running_cluster_batch(["-c", answer_ctrl_c], folder, out, signal.SIGINT,

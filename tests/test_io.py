@@ -1534,6 +1534,33 @@ def test_a_set_whose_move_fails_puts_the_earlier_files_back(tmp_path, monkeypatc
     assert {p.name: p.read_bytes() for p in out.iterdir()} == earlier
 
 
+def test_a_temporary_folders_process_is_gone_only_where_it_can_be_told(tmp_path, monkeypatch):
+    """One rule for every temporary folder lfsf removes (file_set's, lfsf batch's pairs',
+    Warp's builds): a process of this machine, not this one, that no longer runs. A
+    process id beyond C's long in a folder's name had raised OverflowError in dead_set."""
+    import os
+    import subprocess
+    import sys
+
+    from lfsf import _files
+
+    ended = int(subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                               text=True).stdout)
+    other = "0123456789ab" if _files._host() != "0123456789ab" else "ba9876543210"
+    assert _files.gone(ended) and _files.gone(ended, _files._host())
+    assert not _files.gone(os.getpid()) and not _files.gone(os.getppid())
+    assert not _files.gone(ended, other)   # (another machine's: its processes cannot be asked)
+    assert not _files.gone(10 ** 30)       # (no process id at all: not known to be gone)
+    huge = tmp_path / f"{_files.SET_PREFIX}{_files._host()}-{10 ** 30}.abcd"
+    huge.mkdir()
+    assert not _files.dead_set(huge)
+    dead = tmp_path / f"{_files.SET_PREFIX}{_files._host()}-{ended}.abcd"
+    dead.mkdir()
+    assert _files.dead_set(dead)
+    monkeypatch.setattr(_files.os, "name", "nt")   # (off POSIX a process cannot be asked: Windows' kill ends it)
+    assert not _files.gone(ended) and not _files.dead_set(dead)
+
+
 @pytest.mark.parametrize("signum", ["SIGINT", "SIGTERM"])
 def test_a_signal_as_a_set_is_tidied_away_leaves_no_hidden_folder(tmp_path, monkeypatch, signum):
     """A signal while file_set removed its temporary folder (which keeps the earlier set's
