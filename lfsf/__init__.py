@@ -32,6 +32,7 @@ flow (MODEL.md §7; ``lfsf points`` on the command line).
 from __future__ import annotations
 
 import importlib
+from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
 
@@ -52,7 +53,42 @@ _LAZY = {
     "list_scenes": "lfsf.synth",
 }
 
-__all__ = sorted(_LAZY) + ["__version__"]
+# a literal list, which type checkers read (tests/test_api.py checks it against _LAZY)
+__all__ = [
+    "Camera",
+    "LfsfWarning",
+    "LightField",
+    "Note",
+    "Params",
+    "SceneFlow",
+    "estimate_scene_flow",
+    "list_scenes",
+    "predict_next",
+    "read_lightfield",
+    "render_scene",
+    "resolve_device",
+    "write_lightfield",
+    "__version__",
+]
+
+if TYPE_CHECKING:
+    # what the lazy loading below gives, for type checkers (never run): without these every
+    # name reached as ``lfsf.X`` would be typed Any
+    from lfsf import (batch, bench, camera, cli, decode, device, estimate, evaluate, gains, io, params, peers, solver,
+                      synth, viz)
+    from lfsf._errors import LfsfWarning as LfsfWarning
+    from lfsf.camera import Camera as Camera
+    from lfsf.device import resolve_device as resolve_device
+    from lfsf.estimate import Note as Note
+    from lfsf.estimate import SceneFlow as SceneFlow
+    from lfsf.estimate import estimate_scene_flow as estimate_scene_flow
+    from lfsf.estimate import predict_next as predict_next
+    from lfsf.io import LightField as LightField
+    from lfsf.io import read_lightfield as read_lightfield
+    from lfsf.io import write_lightfield as write_lightfield
+    from lfsf.params import Params as Params
+    from lfsf.synth import list_scenes as list_scenes
+    from lfsf.synth import render_scene as render_scene
 
 #: The submodules, reachable as attributes after ``import lfsf`` (``lfsf.synth.render_scene``),
 #: each imported on first use.
@@ -60,7 +96,7 @@ SUBMODULES = ("batch", "bench", "camera", "cli", "decode", "device", "estimate",
               "peers", "solver", "synth", "viz")
 
 
-def __getattr__(name: str):
+def __getattr__(name: str) -> Any:
     if name in SUBMODULES:
         return importlib.import_module(f"lfsf.{name}")   # (the import sets the attribute too)
     module = _LAZY.get(name)
@@ -71,5 +107,5 @@ def __getattr__(name: str):
     return value
 
 
-def __dir__():
+def __dir__() -> list[str]:
     return __all__ + list(SUBMODULES)

@@ -489,6 +489,7 @@ def bench_peers(size=(640, 480), device: str | None = None, repeats: int = 3, sc
             rows.append(skipped(name, exc))
             continue
         epe = evaluate({"u": u, "v": v}, gt, border=SYNTH_BORDER)["flow"]["epe"]
+        assert epe is not None    # (None is only the occlusion row's share of nothing)
         rows.append({"method": name, "device": dev if name.startswith("lfsf") else "cpu", "size": [width, height],
                      "epe": round(float(epe), 5), **summarise(seconds)})
     return rows

@@ -24,10 +24,15 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 
 def _finite(name: str, value) -> float:
@@ -103,7 +108,7 @@ class Camera:
                                  f"{self.size!r}") from None
             object.__setattr__(self, "size", (width, height))
 
-    def depth(self, disp) -> np.ndarray:
+    def depth(self, disp: ArrayLike) -> np.ndarray:
         """Z = f·b / (δ + δ0) of a disparity map (float32); NaN where δ + δ0 ≤ 0 (a point
         at or beyond infinity, or behind the camera) or δ is not finite."""
         d = np.asarray(disp, dtype=np.float64) + self.offset
@@ -111,12 +116,12 @@ class Camera:
             z = np.where(d > 0, self.focal * self.baseline / d, np.nan)
         return z.astype(np.float32)
 
-    def disparity(self, depth) -> np.ndarray:
+    def disparity(self, depth: ArrayLike) -> np.ndarray:
         """δ = f·b / Z − δ0 of a depth map (float32), the inverse of :meth:`depth`."""
         with np.errstate(divide="ignore", invalid="ignore"):
             return (self.focal * self.baseline / np.asarray(depth, dtype=np.float64) - self.offset).astype(np.float32)
 
-    def points(self, disp, u=None, v=None) -> np.ndarray:
+    def points(self, disp: ArrayLike, u: ArrayLike | None = None, v: ArrayLike | None = None) -> np.ndarray:
         """The 3-D points X(p + (u, v), δ) (float32 (H, W, 3)) of a disparity map δ (H, W)
         indexed by pixel p; ``u``, ``v`` (H, W), where given, move each pixel first (the
         t2 points of an estimate: ``points(disp2, u, v)``). NaN where :meth:`depth` is."""
@@ -163,7 +168,7 @@ class Camera:
                 "size": None if self.size is None else list(self.size)}
 
     @classmethod
-    def from_truth(cls, gt) -> "Camera":
+    def from_truth(cls, gt: Mapping[str, Any]) -> "Camera":
         """The camera that ``lfsf synth`` rendered with, from its ground truth (a mapping
         with ``focal``, ``baseline`` and ``shift``, as :func:`lfsf.render_scene` returns
         and ``gt.npz`` holds): δ = f·b/Z − shift, so δ0 = shift; the size of its maps."""

@@ -50,12 +50,18 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from lfsf import device as _device
 from lfsf._errors import LfsfWarning
 from lfsf._filters import box_mean as _box_blur
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from lfsf.io import LightField
 
 __all__ = [
     "HEX_ROW_HEIGHT",
@@ -612,7 +618,7 @@ def _fit(kind: str, i, j, x, y):
     return lattice, np.hypot(px - x, py - y)
 
 
-def calibrate(white, *, bayer: str | None = None, source: str | None = None) -> Lattice:
+def calibrate(white: RawImage | ArrayLike, *, bayer: str | None = None, source: str | None = None) -> Lattice:
     """Fit the micro-lens lattice to a white image.
 
     Parameters
@@ -943,8 +949,9 @@ def _note_white_levels(white: "RawImage", high: float) -> None:
                       "lower exposure", LfsfWarning, stacklevel=3)
 
 
-def decode(raw, white, *, views: int | None = None, bayer: str | None = None, flip: bool = False,
-           lattice: Lattice | None = None, device: str | None = None):
+def decode(raw: RawImage | ArrayLike, white: RawImage | ArrayLike, *, views: int | None = None,
+           bayer: str | None = None, flip: bool = False, lattice: Lattice | None = None,
+           device: str | None = None) -> LightField:
     """Decode a raw lenslet image into an N×N light field.
 
     Parameters

@@ -11,7 +11,7 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, NamedTuple, Union
+from typing import TYPE_CHECKING, Callable, NamedTuple, Union
 
 import numpy as np
 
@@ -23,6 +23,9 @@ from lfsf.gains import (GAIN_CHANGE, MAX_GAIN, MIN_VIEW_SIZE, fit_reduced_gains,
                         sampled_views)
 from lfsf.io import LightField, _a, _check_pair_brightest, _refuse_non_finite, centre_view, luma, read_lightfield
 from lfsf.params import MAX_FLOW_RANGE, Params
+
+if TYPE_CHECKING:
+    from lfsf.camera import Camera
 
 
 @dataclass(eq=False, repr=False)
@@ -39,6 +42,8 @@ class SceneFlow:
         The settings used.
     radius : float
         The sampling radius R used (limited to the view grid).
+    device : str
+        The Warp device that estimated it (``"cpu"``, ``"cuda:0"``).
     timings : dict
         Seconds per stage.
     exposure : (g, b) or None
@@ -112,7 +117,7 @@ class SceneFlow:
         there is one, is not among them (``evaluate(sf, gt)`` scores it too)."""
         return {"disp1": self.disp1, "disp2": self.disp2, "u": self.u, "v": self.v}
 
-    def points(self, camera) -> tuple[np.ndarray, np.ndarray]:
+    def points(self, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
         """The 3-D points of the t1 centre view's pixels at t1 and at t2, X(p, δ1) and
         X(p + (u, v), δ2), float32 (H, W, 3) each, in the centre camera's frame (x right,
         y down, z forward, the unit of the camera's baseline; NaN where δ + δ0 ≤ 0);
@@ -134,7 +139,7 @@ class SceneFlow:
         camera = self.maps_camera(camera)
         return camera.points(self.disp1), camera.points(self.disp2, self.u, self.v)
 
-    def maps_camera(self, camera):
+    def maps_camera(self, camera: Camera) -> Camera:
         """The camera of this result's maps, from the camera of the light fields given to
         the estimate: itself, or for a result of ``lfsf run --downsample K`` (``inputs``)
         shrunk K times, with the light fields' recorded size where the camera has none
@@ -153,7 +158,7 @@ class SceneFlow:
         return camera.downsampled(k)
 
     @classmethod
-    def load(cls, path: str | Path) -> "SceneFlow":
+    def load(cls, path: str | os.PathLike) -> "SceneFlow":
         """The result that :meth:`save` (or ``lfsf run``) wrote, from its folder or its
         ``sceneflow.npz``: the maps, ``occluded``, and the settings, sampling radius,
         device, timings and exposure it records. (:func:`lfsf.evaluate.load_estimate`
@@ -196,11 +201,12 @@ class SceneFlow:
         except ValueError as exc:
             raise ValueError(f"{file}: {exc}") from None
 
-    def save(self, out: str | Path, centre1=None, centre2=None, gt=None, title: str | None = None,
+    def save(self, out: str | os.PathLike, centre1: np.ndarray | None = None, centre2: np.ndarray | None = None,
+             gt: Mapping[str, np.ndarray] | str | os.PathLike | None = None, title: str | None = None,
              border: int | None = None, inputs: dict | None = None) -> list[Path]:
         """Write ``disp1.pfm``, ``disp2.pfm``, ``flow.flo``, ``sceneflow.npz`` and the
         pictures ``disp1.png``, ``disp2.png``, ``flow.png`` (and ``overview.png`` when the
-        centre views are given) into ``out``, as one set: all are written into a
+        centre views ``centre1`` and ``centre2``, at t1 and t2, are given) into ``out``, as one set: all are written into a
         temporary folder inside ``out`` first and moved into place only when every one
         is complete, so a failure or an interrupt leaves none of them (and no mix with an
         earlier run's). ``gt``, ``title`` and ``border`` (that its error means leave out, as
@@ -2755,7 +2761,7 @@ def _checked_maps(maps, what: str, shape: tuple[int, int] | None = None) -> np.n
     return np.stack(arrays, -1)
 
 
-def predict_next(previous) -> dict[str, np.ndarray]:
+def predict_next(previous: SceneFlow | Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     """The estimate of the next pair of a sequence predicted from this pair's, assuming
     every point keeps its motion (image velocity and change of disparity).
 

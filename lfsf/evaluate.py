@@ -19,12 +19,17 @@ truth's: precision, recall and F1 (:func:`occlusion_scores`).
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from lfsf._errors import whole
+
+if TYPE_CHECKING:
+    from lfsf.estimate import SceneFlow
 
 VARIABLES = ("disp1", "disp2", "u", "v")
 BADPIX_THRESHOLD = 0.07
@@ -170,7 +175,8 @@ def flow_errors(u, v, gt_u, gt_v, valid=None, border: int = 0) -> dict[str, floa
     }
 
 
-def evaluate(estimate, gt: dict, border: int = SYNTH_BORDER) -> dict[str, dict[str, float]]:
+def evaluate(estimate: SceneFlow | Mapping[str, np.ndarray], gt: Mapping[str, np.ndarray],
+             border: int = SYNTH_BORDER) -> dict[str, Mapping[str, float | None]]:
     """Errors of an estimate (a mapping with some of ``disp1, disp2, u, v``) against a
     ground truth (the same keys, optional bool ``valid``). Only variables present in both
     are evaluated; the flow needs both ``u`` and ``v``.
@@ -186,7 +192,8 @@ def evaluate(estimate, gt: dict, border: int = SYNTH_BORDER) -> dict[str, dict[s
     points seen at t2 as well; with one in the estimate too (bool; a SceneFlow's
     ``occluded``), the row ``occluded`` scores it against the truth's
     (:func:`occlusion_scores`: precision, recall, f1, pixels, marked_px, occluded_px,
-    and no MSE). A non-finite value in the estimate is an infinite error (``mse`` inf,
+    and no MSE; precision, recall and f1 are None where they would be a share of nothing,
+    hence the values' type ``float | None``). A non-finite value in the estimate is an infinite error (``mse`` inf,
     the pixel bad); ``lfsf eval --json`` writes such values as null.
 
     Raises ``ValueError`` for maps of different sizes, a negative ``border``, or when the
@@ -207,7 +214,7 @@ def evaluate(estimate, gt: dict, border: int = SYNTH_BORDER) -> dict[str, dict[s
             raise ValueError(f"the {name} must be a dict of maps{' or a SceneFlow' if name == 'estimate' else ''} "
                              f"(load_estimate / load_ground_truth read them from files), got {type(maps).__name__}")
     valid = gt.get("valid")
-    out: dict[str, dict[str, float]] = {}
+    out: dict[str, Mapping[str, float | None]] = {}
     for name in ("disp1", "disp2"):
         if name in estimate and name in gt:
             out[name] = disparity_errors(estimate[name], gt[name], valid, border)
@@ -231,12 +238,16 @@ def evaluate(estimate, gt: dict, border: int = SYNTH_BORDER) -> dict[str, dict[s
         seen = ~occluded
         if valid is not None:
             seen &= _bool_mask(valid, "valid").astype(bool)
-        for name, score, maps in (("disp2", disparity_errors, ("disp2",)), ("flow", flow_errors, ("u", "v"))):
-            if name in out:
-                try:
-                    out[name + "_noc"] = score(*(estimate[k] for k in maps), *(gt[k] for k in maps), seen, border)
-                except ValueError:  # every point evaluated is hidden at t2: nothing to add
-                    pass
+        for name in ("disp2", "flow"):
+            if name not in out:
+                continue
+            try:
+                if name == "disp2":
+                    out["disp2_noc"] = disparity_errors(estimate["disp2"], gt["disp2"], seen, border)
+                else:
+                    out["flow_noc"] = flow_errors(estimate["u"], estimate["v"], gt["u"], gt["v"], seen, border)
+            except ValueError:  # every point evaluated is hidden at t2: nothing to add
+                pass
     if "occluded" in estimate and gt.get("occluded") is not None:
         out["occluded"] = occlusion_scores(estimate["occluded"], gt["occluded"], valid, border)
     return out
@@ -301,7 +312,7 @@ def occlusion_scores(est, gt, valid=None, border: int = 0) -> dict[str, float | 
             "occluded_px": occluded}
 
 
-def load_estimate(path: str | Path) -> dict[str, np.ndarray]:
+def load_estimate(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """Read a result: a folder written by ``lfsf run`` (``sceneflow.npz``, else
     ``disp1.pfm``/``disp2.pfm``/``flow.flo``), or a ``.npz`` / ``.pfm`` / ``.flo`` file. A
     ``.pfm`` is δ1 (disp1), but for one named ``disp2.pfm``, which is δ2."""
@@ -344,7 +355,7 @@ def load_estimate(path: str | Path) -> dict[str, np.ndarray]:
     raise ValueError(f"{path}: not a result (expected a folder, .npz, .pfm or .flo)")
 
 
-def _recorded(path: str | Path) -> dict:
+def _recorded(path: str | os.PathLike) -> dict:
     """What a result (a folder of ``lfsf run`` or its ``sceneflow.npz``) records of how it
     was made (:meth:`lfsf.estimate.SceneFlow.save`: the settings, the inputs, …), {}
     where there is no ``sceneflow.npz`` or it records nothing that reads."""
@@ -364,7 +375,7 @@ def _recorded(path: str | Path) -> dict:
     return record if isinstance(record, dict) else {}
 
 
-def recorded_settings(path: str | Path) -> dict | None:
+def recorded_settings(path: str | os.PathLike) -> dict | None:
     """The settings a result (a folder of ``lfsf run`` or its ``sceneflow.npz``) records
     it was estimated with (:meth:`lfsf.estimate.SceneFlow.save`), as a dict of
     :class:`lfsf.params.Params` fields; None where there is no ``sceneflow.npz`` or it
@@ -373,7 +384,7 @@ def recorded_settings(path: str | Path) -> dict | None:
     return settings if isinstance(settings, dict) else None
 
 
-def recorded_downsample(path: str | Path) -> int:
+def recorded_downsample(path: str | os.PathLike) -> int:
     """The factor ``lfsf run --downsample`` shrank a result's views by (a folder of
     ``lfsf run`` or its ``sceneflow.npz``; 1 where none is recorded): its maps are that
     many times smaller than the light fields, and a ground truth of the light fields'
@@ -388,7 +399,7 @@ def downsample_of(inputs) -> int:
     return factor if isinstance(factor, int) and not isinstance(factor, bool) and factor >= 1 else 1
 
 
-def flow_only(path: str | Path) -> bool:
+def flow_only(path: str | os.PathLike) -> bool:
     """Whether a result (a folder of ``lfsf run`` or its ``sceneflow.npz``) was estimated
     with one circle (``--preset flow``): its disparities are zeros, not estimates."""
     settings = recorded_settings(path)
@@ -399,7 +410,7 @@ def flow_only(path: str | Path) -> bool:
 GT_FILES = ("gt.npz", "gt_disp_lowres.pfm")
 
 
-def load_ground_truth(path: str | Path) -> tuple[dict[str, np.ndarray], int]:
+def load_ground_truth(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], int]:
     """Read ground truth: a ``gt.npz`` of ``lfsf synth`` or an HCI ``gt_disp_lowres.pfm``
     (disparity at t1 only), or a folder holding one (:data:`GT_FILES`, the first found).
     Returns the arrays and the default border for that kind."""
@@ -450,7 +461,7 @@ def _load_npz(path: Path, keys) -> dict[str, np.ndarray]:
     return out
 
 
-def format_table(errors: dict[str, dict[str, float]]) -> str:
+def format_table(errors: Mapping[str, Mapping[str, float | None]]) -> str:
     """A small fixed-width table of :func:`evaluate`'s result (a ``noc`` row, where there
     is one, right under its variable's)."""
     lines = [f"{'variable':<9} {'MSE':>10} {'MSE×100':>9} {'BadPix.07':>9} {'EPE':>8} {'pixels':>8}"]

@@ -48,12 +48,16 @@ from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import imageio.v3 as iio
 import numpy as np
 
 from lfsf._errors import LfsfWarning, whole
 from lfsf._files import interrupts_held, is_special_file, output_folder, savez_atomic, write_bytes_atomic
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 __all__ = [
     "BT601_LUMA",
@@ -76,6 +80,7 @@ __all__ = [
     "write_kitti_disparity",
     "read_image",
     "write_png",
+    "write_ply",
     "decode_png",
     "encode_png",
 ]
@@ -123,7 +128,7 @@ _OTHER_FORMATS[".hdf5"] = _OTHER_FORMATS[".h5"]
 # --------------------------------------------------------------------------------------
 
 
-@dataclass(eq=False, repr=False)
+@dataclass(init=False, eq=False, repr=False)
 class LightField:
     """A 4-D light field: a grid of sub-aperture views.
 
@@ -160,13 +165,15 @@ class LightField:
     source: str = "<array>"
     meta: dict = field(default_factory=dict)
 
-    def __post_init__(self):
-        self.source = str(self.source)
-        self.views = _validated_views(self.views, self.source)
-        if self.meta is not None and not isinstance(self.meta, Mapping):
+    # (written out, not the dataclass's, so that type checkers take array_like views: a
+    # list, a memmap; the attribute is the float32 array)
+    def __init__(self, views: ArrayLike, source: str = "<array>", meta: Mapping[str, Any] | None = None) -> None:
+        self.source = str(source)
+        self.views = _validated_views(views, self.source)
+        if meta is not None and not isinstance(meta, Mapping):
             raise ValueError(f"{self.source}: meta must be a dict (what is known of the light field), got "
-                             f"{type(self.meta).__name__}")
-        self.meta = dict(self.meta) if self.meta is not None else {}
+                             f"{type(meta).__name__}")
+        self.meta = dict(meta) if meta is not None else {}
 
     def __repr__(self) -> str:
         rows, cols = self.grid

@@ -6,6 +6,7 @@ import dataclasses
 import difflib
 import math
 import numbers
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -433,7 +434,7 @@ class Params:
         return dataclasses.replace(self, **changes)
 
     @classmethod
-    def from_toml(cls, path: str | Path, base: "Params | None" = None, preset: str | None = None) -> "Params":
+    def from_toml(cls, path: str | os.PathLike, base: "Params | None" = None, preset: str | None = None) -> "Params":
         """Settings from a TOML file (top-level keys, or a ``[params]`` table; a
         ``preset = "name"`` key picks the base), over ``base`` (default: the preset).
         ``preset``: a preset named elsewhere (``--preset``), the base where the file

@@ -20,14 +20,22 @@ image) at t2.
 from __future__ import annotations
 
 import math
+import os
 import zlib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from lfsf import device as _device
 from lfsf._errors import LfsfWarning
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from lfsf.io import LightField
 
 #: Depth (world units) seen with zero disparity, and f·B (px · world units): a point at
 #: depth Z has disparity δ = f·B/Z − f·B/Z0, so Z = 4 gives +2 and Z = 12 gives −2.
@@ -253,7 +261,7 @@ def with_images_of_name(name: str, count: int) -> Scene:
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
 
 
-def load_images(folder: str | Path) -> list[np.ndarray]:
+def load_images(folder: str | os.PathLike) -> list[np.ndarray]:
     """The images of a folder (PNG, JPEG, TIFF; sorted by name) as float32 (h, w, 3)
     arrays in [0, 1] (grey repeated, alpha dropped), for :func:`with_images`.
     FileNotFoundError or ValueError names a missing folder, a folder without images or
@@ -277,7 +285,7 @@ SKIMAGE_IMAGES = ("astronaut", "coffee", "chelsea", "rocket", "camera", "brick",
                   "moon")
 
 
-def photographs(source: str | Path) -> list[np.ndarray]:
+def photographs(source: str | os.PathLike) -> list[np.ndarray]:
     """Images for :func:`with_images`: scikit-image's samples for ``"skimage"``
     (:data:`SKIMAGE_IMAGES`, as they come; the renderer scales integers to [0, 1]; needs
     the ``peers`` extra), else the images of a folder (:func:`load_images`, whose errors
@@ -604,8 +612,8 @@ def render_scene(
     supersample: int = 2,
     colour: bool = False,
     device: str | None = None,
-    images=None,
-):
+    images: Sequence[ArrayLike] | None = None,
+) -> tuple[LightField, LightField, dict[str, Any]]:
     """Render a light-field pair of a scene and its exact ground truth.
 
     Parameters
@@ -737,8 +745,8 @@ def render_sequence(
     supersample: int = 2,
     colour: bool = False,
     device: str | None = None,
-    images=None,
-):
+    images: Sequence[ArrayLike] | None = None,
+) -> tuple[list[LightField], list[dict[str, Any]]]:
     """Render ``frames`` light fields of a scene moving at a constant rate, and the exact
     ground truth of each consecutive pair.
 
@@ -803,7 +811,7 @@ def render_sequence(
 
 def write_scene(
     scene: str | Scene,
-    out: str | Path,
+    out: str | os.PathLike,
     *,
     size: tuple[int, int] = (640, 480),
     grid: int | tuple[int, int] = 9,
@@ -895,7 +903,7 @@ def _warn_beyond_ranges(gts: list, out) -> None:
 
 def write_sequence(
     scene: str | Scene,
-    out: str | Path,
+    out: str | os.PathLike,
     frames: int,
     *,
     size: tuple[int, int] = (640, 480),
