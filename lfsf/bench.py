@@ -19,11 +19,13 @@ a list of rows (dicts) that the command prints as a table and writes as JSON.
 from __future__ import annotations
 
 import math
+import os
+import platform
 import resource
 import statistics
 import sys
 import time
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -37,18 +39,66 @@ PIPELINE_SETTINGS = (
 )
 
 
-def peak_rss_mb() -> float:
-    """Peak resident set size of this process since :func:`reset_peak_rss` (where Linux
-    allows it to be reset: VmHWM), else since it started (ru_maxrss), in MB."""
+def _proc_status_mb(key: str) -> float | None:
+    """A size of /proc/self/status (``VmHWM``, ``VmRSS``; kB there, 1024 bytes) in MB
+    (10⁶ bytes), or None where there is no such file (not Linux)."""
     try:
         with open("/proc/self/status") as f:
             for line in f:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1]) / 1024.0
+                if line.startswith(key + ":"):
+                    return int(line.split()[1]) * 1024 / 1e6
     except OSError:
         pass
+    return None
+
+
+def peak_rss_mb() -> float:
+    """Peak resident set size of this process since :func:`reset_peak_rss` (where Linux
+    allows it to be reset: VmHWM), else since it started (ru_maxrss), in MB of 10⁶ bytes
+    (until the fifty-ninth session MiB, 2²⁰ bytes: its figures read 4.6 % lower)."""
+    peak = _proc_status_mb("VmHWM")
+    if peak is not None:
+        return peak
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return rss / 1024.0 if sys.platform != "darwin" else rss / 2**20
+    return rss * 1024 / 1e6 if sys.platform != "darwin" else rss / 1e6
+
+
+def rss_mb() -> float | None:
+    """This process's resident set size now, in MB (None where it cannot be read)."""
+    return _proc_status_mb("VmRSS")
+
+
+def cpu_model() -> str:
+    """The processor's model name (Linux's /proc/cpuinfo, e.g. "AMD EPYC 9454 48-Core
+    Processor"), else what :mod:`platform` says (often the architecture alone)."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def machine(device: str | None = None) -> dict[str, Any]:
+    """What every row records of the machine it was measured on, for comparing machines:
+    the CPU model, its logical CPUs (``cpus``) and those this process may use
+    (``usable_cpus``), the threads that CPU launches run on, ``device`` and its name
+    (a GPU's model), the Python, Warp and lfsf versions, and the time (UTC)."""
+    import datetime
+
+    from lfsf import __version__
+
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    record: dict[str, Any] = {"cpu": cpu_model(), "cpus": os.cpu_count(), "usable_cpus": usable,
+                              "cpu_threads": _device.cpu_threads(), "python": platform.python_version(),
+                              "lfsf": __version__}
+    if device is not None:
+        wp = _device.warp()
+        record.update(device=device, device_name=str(wp.get_device(device).name), warp=wp.config.version)
+    record["date"] = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+    return record
 
 
 def reset_peak_rss() -> bool:
@@ -63,23 +113,30 @@ def reset_peak_rss() -> bool:
 
 
 def summarise(seconds: list[float]) -> dict:
-    """Median and spread of repeated timings."""
+    """Median and spread of repeated timings, and the timings themselves (``seconds``)."""
     return {
         "seconds_median": statistics.median(seconds),
         "seconds_min": min(seconds),
         "seconds_max": max(seconds),
         "repeats": len(seconds),
+        "seconds": [float(x) for x in seconds],
     }
 
 
-def time_repeated(fn: Callable[[], object], repeats: int, warmup: int = 1, sync: Callable[[], None] | None = None):
+def time_repeated(fn: Callable[[], object], repeats: int, warmup: int = 1, sync: Callable[[], None] | None = None,
+                  warmup_seconds: list[float] | None = None):
     """Run ``fn`` ``warmup`` times untimed, then ``repeats`` times timed; returns the
     list of seconds and the last result. ``sync`` (e.g. a device synchronisation) runs
-    before each clock reading."""
+    before each clock reading. The warm-ups' seconds (a first run's kernel compile, on a
+    cold cache, among them) are appended to ``warmup_seconds`` where it is given."""
     sync = sync or (lambda: None)
     result = None
     for _ in range(warmup):
+        t0 = time.perf_counter()
         result = fn()
+        sync()
+        if warmup_seconds is not None:
+            warmup_seconds.append(time.perf_counter() - t0)
     sync()
     seconds = []
     for _ in range(repeats):
@@ -94,8 +151,13 @@ def time_repeated(fn: Callable[[], object], repeats: int, warmup: int = 1, sync:
 
 def bench_pipeline(size=(640, 480), device: str | None = None, repeats: int = 3, scene: str = "paper",
                    settings=PIPELINE_SETTINGS, progress: Callable[[str], None] | None = None) -> list[dict]:
-    """Rows of the whole estimator per setting: seconds (median, spread), per-stage
-    seconds of the median run, peak RSS, and the errors against the ground truth."""
+    """Rows of the whole estimator per setting: seconds (median, spread) of the timed
+    runs, per-stage seconds of the median run, peak RSS, and the errors against the
+    ground truth. Each setting runs once untimed first (``warmup_seconds``: a cold
+    kernel cache's compile falls there, as does its memory, in ``peak_rss_mb``); the
+    scene's rendering is not timed. ``rss_start_mb`` is the resident set when the
+    setting began (the modules imported, the scene rendered, what earlier settings
+    left), which its peak includes."""
     from lfsf import synth
     from lfsf.estimate import estimate_scene_flow
     from lfsf.evaluate import SYNTH_BORDER, evaluate
@@ -107,9 +169,11 @@ def bench_pipeline(size=(640, 480), device: str | None = None, repeats: int = 3,
     say(f"rendering '{scene}' at {width}×{height}")
     lf1, lf2, gt = synth.render_scene(scene, size=(width, height), grid=9, device=dev)
     rows = []
+    where = machine(dev)
     for name, preset, overrides in settings:
         params = Params.preset(preset).replace(**overrides)
         runs = []
+        warmups: list[float] = []
 
         def once():
             sf = estimate_scene_flow(lf1, lf2, params, device=dev)
@@ -119,7 +183,8 @@ def bench_pipeline(size=(640, 480), device: str | None = None, repeats: int = 3,
         say(f"{name}: warm-up and {repeats} run{'s' if repeats != 1 else ''}")
         # each setting's own peak (it was the process's so far: the paper setting's for all)
         own_peak = reset_peak_rss()
-        seconds, _ = time_repeated(once, repeats, warmup=1)
+        start = rss_mb()
+        seconds, _ = time_repeated(once, repeats, warmup=1, warmup_seconds=warmups)
         timed = runs[1:]
         order = np.argsort(seconds)
         median_run = timed[int(order[len(seconds) // 2])]
@@ -136,10 +201,13 @@ def bench_pipeline(size=(640, 480), device: str | None = None, repeats: int = 3,
             "size": [width, height],
             "views": len(phis),
             **summarise(seconds),
+            "warmup_seconds": warmups,
             "stages": {k: round(v, 4) for k, v in stages.items()},
             "peak_rss_mb": round(peak_rss_mb(), 1),
             "peak_rss_scope": "setting" if own_peak else "process",
+            "rss_start_mb": None if start is None else round(start, 1),
             "errors": {k: {m: _rounded(x) for m, x in v.items()} for k, v in errors.items()},
+            "machine": where,
         })
     return rows
 
@@ -382,10 +450,10 @@ def bench_kernels(size=(640, 480), device: str | None = None, repeats: int = 20,
         return (time.perf_counter() - t0) / times
 
     rows = []
+    where = machine(dev)
     if inputs == "scene":
         say(f"rendering the paper scene at {size[0]}×{size[1]} for the kernels' inputs")
     for name, run, nbytes in kernel_cases(size, dev, inputs):
-        say(f"{name}: {repeats} launch{'es' if repeats != 1 else ''}, each followed by the copies")
         copies = _copies(nbytes // 2, dev)  # a copy of nbytes/2 reads and writes nbytes in all
         steps = {name: run, **copies}
         for fn in steps.values():  # warm-up
@@ -397,7 +465,9 @@ def bench_kernels(size=(640, 480), device: str | None = None, repeats: int = 20,
         # and the synchronisation; a sample's time is their mean
         times = {k: max(1, min(MAX_BATCH, math.ceil(MIN_SAMPLE_SECONDS / max(timed(fn), 1e-9))))
                  for k, fn in steps.items()}
-        seconds = {k: [] for k in steps}
+        each = f" (the mean of {times[name]} launches)" if times[name] > 1 else ""
+        say(f"{name}: {repeats} sample{'s' if repeats != 1 else ''}{each}, each followed by the copies'")
+        seconds: dict[str, list[float]] = {k: [] for k in steps}
         for _ in range(repeats):
             for k, fn in steps.items():
                 seconds[k].append(timed(fn, times[k]))
@@ -416,6 +486,7 @@ def bench_kernels(size=(640, 480), device: str | None = None, repeats: int = 20,
             "memcpy": how,
             "fraction_of_memcpy": round(gbs / copy_gbs, 3),
             "launches_per_sample": times[name],
+            "machine": where,
         })
     return rows
 
@@ -424,7 +495,10 @@ def bench_kernels(size=(640, 480), device: str | None = None, repeats: int = 20,
 
 def _rounded(value):
     """An error figure for the JSON rows: counts (pixels, marked_px) whole, as ``lfsf eval
-    --json`` writes them, the rest to 5 decimals."""
+    --json`` writes them, the rest to 5 decimals; None (an occlusion share of nothing:
+    a tiny view may have no occluded pixel) stays None, null in the JSON."""
+    if value is None:
+        return None
     if isinstance(value, (int, np.integer)):
         return int(value)
     return round(float(value), 5)
@@ -433,8 +507,10 @@ def _rounded(value):
 def bench_peers(size=(640, 480), device: str | None = None, repeats: int = 3, scene: str = "paper",
                 progress: Callable[[str], None] | None = None) -> list[dict]:
     """Rows per method on the same synthetic pair: seconds (median, spread) and the flow
-    end-point error over valid pixels (8-px border). Peers that are not installed get a
-    row saying so, with :data:`lfsf.peers.INSTALL_HINT`."""
+    end-point error over valid pixels (8-px border), and the median's ratio to OpenCV's
+    (``ratio_to_opencv``). Peers are checked before any run: one that is not installed
+    gets a row saying so and what to install (:data:`PEER_PACKAGES`), one whose import
+    or run fails another way a row saying how, and the others are measured still."""
     from lfsf import peers, synth
     from lfsf.estimate import estimate_scene_flow
     from lfsf.evaluate import SYNTH_BORDER, evaluate
@@ -459,79 +535,126 @@ def bench_peers(size=(640, 480), device: str | None = None, repeats: int = 3, sc
         ("opencv DualTVL1", lambda: peers.opencv_tvl1(c1, c2)),
         ("skimage TV-L1", lambda: peers.skimage_tvl1(c1, c2)),
     ]
-    def not_installed(name: str) -> ImportError | None:
-        # a peer's import, tried before its progress line (which said "warm-up and 1 run"
-        # for a peer that then did not run)
+    def unusable(name: str) -> str | None:
+        # a peer's import, tried before any run (lfsf's runs take minutes at 640×480): why it
+        # cannot run, or None. Not only ImportError: an installed peer whose import fails
+        # otherwise (a NumPy ABI mismatch raises other errors) has its row too
         try:
             if name.startswith("opencv"):
                 peers._opencv_dual_tvl1()
             elif name.startswith("skimage"):
                 import skimage.registration  # noqa: F401
         except ImportError as exc:
-            return exc
+            return f"not installed ({exc}); pip install {PEER_PACKAGES[name]} (or pip install -e '.[peers]' in the " \
+                "lfsf checkout)"
+        except Exception as exc:  # noqa: BLE001 (any failure of a peer's import is that peer's row)
+            return f"failed to import ({type(exc).__name__}: {exc})"
         return None
 
-    def skipped(name: str, exc: ImportError) -> dict:
-        return {"method": name, "epe": None, "seconds_median": None,
-                "note": f"not installed ({exc}); {peers.INSTALL_HINT}"}
-
+    problems = {name: unusable(name) for name, _fn in methods if not name.startswith("lfsf")}
+    for name, problem in problems.items():
+        if problem is not None:
+            say(f"{name}: skipped, {problem.split(' (')[0]}")
     rows = []
     for name, fn in methods:
-        missing = not_installed(name)
-        if missing is not None:
-            say(f"{name}: skipped, not installed")
-            rows.append(skipped(name, missing))
+        if problems.get(name) is not None:
+            rows.append({"method": name, "epe": None, "seconds_median": None, "note": problems[name]})
             continue
         say(f"{name}: warm-up and {repeats} run{'s' if repeats != 1 else ''}")
+        warmups: list[float] = []
         try:
-            seconds, (u, v) = time_repeated(fn, repeats, warmup=1)
-        except ImportError as exc:  # (one the check above does not try)
-            rows.append(skipped(name, exc))
+            seconds, (u, v) = time_repeated(fn, repeats, warmup=1, warmup_seconds=warmups)
+        except Exception as exc:  # a peer's failure is its row; lfsf's own is an error
+            if name.startswith("lfsf"):
+                raise
+            rows.append({"method": name, "epe": None, "seconds_median": None,
+                         "note": f"failed ({type(exc).__name__}: {exc})"})
             continue
         epe = evaluate({"u": u, "v": v}, gt, border=SYNTH_BORDER)["flow"]["epe"]
         assert epe is not None    # (None is only the occlusion row's share of nothing)
         rows.append({"method": name, "device": dev if name.startswith("lfsf") else "cpu", "size": [width, height],
-                     "epe": round(float(epe), 5), **summarise(seconds)})
+                     "epe": round(float(epe), 5), **summarise(seconds), "warmup_seconds": warmups})
+    # each method's median time over OpenCV's, measured in this run (the issue's comparison)
+    opencv = next((r["seconds_median"] for r in rows if r["method"] == "opencv DualTVL1"), None)
+    where = machine(dev)
+    for r in rows:
+        r["ratio_to_opencv"] = (None if opencv is None or r["seconds_median"] is None
+                                else round(r["seconds_median"] / opencv, 4))
+        r["machine"] = where
     return rows
+
+
+#: The package of each peer of ``lfsf bench peers``, for the line that says how to install it.
+PEER_PACKAGES = {"opencv DualTVL1": "opencv-contrib-python-headless", "skimage TV-L1": "scikit-image"}
 
 
 # --- table ---------------------------------------------------------------------------------
 
 #: What the kernels table's columns mean (printed under it).
 KERNELS_KEY = ("GB/s: the bytes the kernel must read and write at least (its inputs and outputs once), over "
-               "its median time; memcpy GB/s: a plain copy's, read and write counted alike, timed in alternation "
-               "with the kernel; fraction: the first over the second (the target is 0.5); copy: the faster of "
-               "one wp.copy and a copy in row bands, which that rate is of.")
+               "its median time; copy GB/s: a plain copy's, read and write counted alike, timed in alternation "
+               "with the kernel (the faster of one wp.copy and a copy in row bands; at small sizes a copy runs "
+               "from the caches, so compare fractions at one size); fraction: the first over the second (the "
+               "target is 0.5).")
+
+
+def _wrapped(text: str) -> list[str]:
+    """``text`` in lines of at most :data:`TABLE_WIDTH` characters."""
+    import textwrap
+
+    return textwrap.wrap(text, TABLE_WIDTH)
+
+
+#: The widest line of the tables and their notes, a terminal's (the pipeline's had 13
+#: stage columns, 212 characters).
+TABLE_WIDTH = 80
 
 
 def format_rows(kind: str, rows: list[dict]) -> str:
-    """A Markdown table of benchmark rows."""
+    """Markdown tables of benchmark rows, each line at most :data:`TABLE_WIDTH` wide
+    (the pipeline's stages a table of their own, a column per setting; notes under the
+    table, not in its cells)."""
     def sec(r):
         if r.get("seconds_median") is None:
             return "–"
         return f"{r['seconds_median']:.4g} ({r['seconds_min']:.4g}–{r['seconds_max']:.4g})"
 
     if kind == "pipeline":
-        stages = sorted({k for r in rows for k in r["stages"]}, key=lambda k: -max(r["stages"].get(k, 0) for r in rows))
-        head = "| setting | device | size | views | seconds median (min–max) | peak RSS MB | " + \
-            " | ".join(stages) + " |"
-        lines = [head, "|" + "---|" * (6 + len(stages))]
+        lines = ["| setting | device | size | views | seconds median (min–max) | peak RSS MB |", "|---|---|---|---|---|---|"]
         for r in rows:
             lines.append(f"| {r['setting']} | {r['device']} | {r['size'][0]}×{r['size'][1]} | {r['views']} | {sec(r)} | "
-                         f"{r['peak_rss_mb']:.0f} | "
-                         + " | ".join(f"{r['stages'][k]:.2f}" if k in r["stages"] else "–" for k in stages) + " |")
+                         f"{r['peak_rss_mb']:.0f} |")
+        # the stages, slowest first: seconds of each setting's median run ('–' where a setting has no such stage)
+        stages = sorted({k for r in rows for k in r["stages"]}, key=lambda k: -max(r["stages"].get(k, 0) for r in rows))
+        lines += ["", "| stage, seconds | " + " | ".join(r["setting"] for r in rows) + " |", "|---|" + "---|" * len(rows)]
+        for k in stages:
+            lines.append(f"| {k} | " + " | ".join(f"{r['stages'][k]:.3g}" if k in r["stages"] else "–" for r in rows)
+                         + " |")
+        warm = ", ".join(f"{r['setting']} {sum(r.get('warmup_seconds', [])):.3g} s" for r in rows)
+        lines += [""] + _wrapped(f"Not timed: the scene's rendering and each setting's warm-up run ({warm}; a cold "
+                                 "kernel cache's compile falls there). Peak RSS: each setting's own, from the resident "
+                                 "set at its start (the modules and the scene).")
         return "\n".join(lines)
     if kind == "kernels":
-        lines = ["| kernel | device | seconds per launch median (min–max) | GB/s | memcpy GB/s | fraction | copy |",
-                 "|---|---|---|---|---|---|---|"]
+        lines = ["| kernel | ms a launch, median (min–max) | GB/s | copy GB/s | fraction |", "|---|---|---|---|---|"]
         for r in rows:
-            lines.append(f"| {r['kernel']} | {r['device']} | {sec(r)} | {r['gbytes_per_s']:.2f} | "
-                         f"{r['memcpy_gbytes_per_s']:.2f} | {r['fraction_of_memcpy']:.2f} | {r.get('memcpy', 'wp.copy')} |")
-        lines.append("")
-        lines.append(KERNELS_KEY)
+            ms = f"{1e3 * r['seconds_median']:.4g} ({1e3 * r['seconds_min']:.4g}–{1e3 * r['seconds_max']:.4g})"
+            lines.append(f"| {r['kernel']} | {ms} | {r['gbytes_per_s']:.2f} | {r['memcpy_gbytes_per_s']:.2f} | "
+                         f"{r['fraction_of_memcpy']:.2f} |")
+        copies = sorted({r.get("memcpy", "wp.copy") for r in rows})
+        lines += [""] + _wrapped(KERNELS_KEY + f" Device {rows[0]['device'] if rows else '–'}; the copy: "
+                                 + ", ".join(copies) + ".")
         return "\n".join(lines)
-    lines = ["| method | seconds median (min–max) | flow EPE |", "|---|---|---|"]
+    lines = ["| method | seconds median (min–max) | × OpenCV | flow EPE |", "|---|---|---|---|"]
+    notes = []
     for r in rows:
         epe = "–" if r.get("epe") is None else f"{r['epe']:.4f}"
-        lines.append(f"| {r['method']} | {sec(r)} | {epe}{' (' + r['note'] + ')' if r.get('note') else ''} |")
+        ratio = "–" if r.get("ratio_to_opencv") is None else f"{r['ratio_to_opencv']:.3g}"
+        lines.append(f"| {r['method']} | {sec(r)} | {ratio} | {epe} |")
+        if r.get("note"):
+            notes.append(f"{r['method']}: {r['note']}")
+    if notes:
+        lines.append("")
+        for note in notes:
+            lines += _wrapped(note)
     return "\n".join(lines)

@@ -820,10 +820,13 @@ def cmd_bench(args) -> int:
 
 
 def _machine() -> str:
-    import os
+    """The machine in a line: the CPU's model (not only its architecture, which
+    ``platform.processor()`` gives on Linux), its CPUs, Python's version."""
     import platform
 
-    return f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}"
+    from lfsf.bench import cpu_model
+
+    return f"{cpu_model()}, {os.cpu_count()} CPUs, Python {platform.python_version()}"
 
 
 def _device_options(p) -> None:

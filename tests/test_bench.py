@@ -18,10 +18,15 @@ from lfsf import bench
 
 def test_time_repeated_warms_up_then_times_each_run():
     calls = []
-    seconds, result = bench.time_repeated(lambda: calls.append(1) or len(calls), repeats=3, warmup=2)
+    warmups = []
+    seconds, result = bench.time_repeated(lambda: calls.append(1) or len(calls), repeats=3, warmup=2,
+                                          warmup_seconds=warmups)
     assert len(calls) == 5 and result == 5 and len(seconds) == 3 and all(s >= 0 for s in seconds)
+    assert len(warmups) == 2 and all(s >= 0 for s in warmups)
     s = bench.summarise([3.0, 1.0, 2.0])
-    assert s == {"seconds_median": 2.0, "seconds_min": 1.0, "seconds_max": 3.0, "repeats": 3}
+    # the runs themselves too, from which anyone can recompute the median and spread
+    assert s == {"seconds_median": 2.0, "seconds_min": 1.0, "seconds_max": 3.0, "repeats": 3,
+                 "seconds": [3.0, 1.0, 2.0]}
 
 
 def test_kernel_cases_count_the_bytes_of_their_arrays():
@@ -160,11 +165,15 @@ def test_bench_pipeline_scores_a_flow_only_setting_on_its_flow_alone():
     assert {"disp1", "disp2", "flow"} <= set(rows[0]["errors"])
     assert "flow" in rows[1]["errors"] and not {"disp1", "disp2"} & set(rows[1]["errors"])
     table = bench.format_rows("pipeline", rows).splitlines()
-    stages = [c.strip() for c in table[0].split("|")[7:-1]]
     missing = [k for k in rows[0]["stages"] if k not in rows[1]["stages"]]
     assert missing, "the flow preset runs every stage of paper"
-    cells = [c.strip() for c in table[3].split("|")[7:-1]]
-    assert all(cells[stages.index(k)] == "–" for k in missing)
+    # the stages' table: a row per stage, a column per setting
+    start = table.index("| stage, seconds | paper | flow only |")
+    cells = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]]
+             for line in table[start + 2:] if line.startswith("|")}
+    assert set(cells) == set(rows[0]["stages"]) | set(rows[1]["stages"])
+    assert all(cells[k][1] == "–" and cells[k][0] != "–" for k in missing)
+    assert all(cells[k][1] == f"{rows[1]['stages'][k]:.3g}" for k in rows[1]["stages"])
 
 
 def test_bench_command_writes_json(tmp_path):
@@ -206,8 +215,76 @@ def test_bench_peers_says_a_missing_peer_is_skipped_and_how_to_install_it(monkey
     rows = bench.bench_peers((48, 32), "cpu", repeats=1, progress=said.append)
     assert "opencv DualTVL1: skipped, not installed" in said and "skimage TV-L1: skipped, not installed" in said
     assert not any(m.startswith(("opencv", "skimage")) and "run" in m for m in said)
-    for r in rows[3:]:
-        assert r["epe"] is None and "pip install opencv-contrib-python-headless scikit-image plenpy" in r["note"]
+    assert "pip install opencv-contrib-python-headless (or pip install -e '.[peers]'" in rows[3]["note"]
+    assert "pip install scikit-image (or" in rows[4]["note"]
+    assert all(r["epe"] is None and r["seconds_median"] is None and r["ratio_to_opencv"] is None for r in rows[3:])
+
+
+def test_bench_peers_checks_the_peers_first_and_a_broken_one_is_its_row(monkeypatch):
+    """A peer installed but broken (its import raising another error than ImportError, as
+    a NumPy ABI mismatch does) had ended the whole run with a traceback, the lfsf rows
+    measured lost; it is now its row, said before any run, and the others are measured.
+    A peer that fails in its run is its row too."""
+    from lfsf import peers
+
+    def broken():
+        raise RuntimeError("module compiled against ABI version 0x1000009")
+
+    def failing(*_a, **_k):
+        raise MemoryError("out of memory")
+
+    monkeypatch.setattr(peers, "_opencv_dual_tvl1", broken)
+    monkeypatch.setattr(peers, "skimage_tvl1", failing)
+    monkeypatch.setitem(sys.modules, "skimage.registration", sys.modules["os"])  # (imports)
+    said = []
+    rows = bench.bench_peers((48, 32), "cpu", repeats=1, progress=said.append)
+    assert said[1] == "opencv DualTVL1: skipped, failed to import", said
+    assert rows[3]["note"] == "failed to import (RuntimeError: module compiled against ABI version 0x1000009)"
+    assert rows[4]["note"] == "failed (MemoryError: out of memory)" and rows[4]["epe"] is None
+    assert all(np.isfinite(r["epe"]) and r["ratio_to_opencv"] is None for r in rows[:3])
+    table = bench.format_rows("peers", rows)
+    assert "opencv DualTVL1: failed to import (RuntimeError" in table
+    assert max(len(line) for line in table.splitlines()) <= bench.TABLE_WIDTH
+
+
+def test_bench_rows_say_what_they_were_measured_on_and_the_tables_fit_80_columns(monkeypatch):
+    """Every row records the machine (the CPU's model, not only 'x86_64'; the versions;
+    the time) for comparing machines; the timed runs are in the row with the warm-up's
+    seconds apart; the tables fit a terminal (the pipeline's had 212 characters). At
+    17×17, the smallest size, a view with no occluded pixel has occlusion shares of
+    None: null in the JSON (its rounding had raised TypeError)."""
+    from lfsf._files import json_bytes
+
+    rows = bench.bench_pipeline((17, 17), "cpu", repeats=2, settings=(("paper", "paper", {}),))
+    (row,) = rows
+    assert row["errors"]["occluded"]["f1"] is None and '"f1": null' in json_bytes(rows).decode()
+    assert len(row["seconds"]) == 2 and row["seconds_median"] == pytest.approx(np.median(row["seconds"]))
+    assert len(row["warmup_seconds"]) == 1 and 0 < row["rss_start_mb"] <= row["peak_rss_mb"]
+    where = row["machine"]
+    assert where["cpu"] == bench.cpu_model() and where["cpus"] == os.cpu_count() and where["device"] == "cpu"
+    assert {"python", "warp", "lfsf", "date", "usable_cpus", "cpu_threads"} <= set(where)
+    if os.path.exists("/proc/cpuinfo"):
+        with open("/proc/cpuinfo") as f:
+            models = [line.split(":", 1)[1].strip() for line in f if line.startswith("model name")]
+        if models:
+            assert where["cpu"] == models[0]
+    kernels = bench.bench_kernels((24, 16), "cpu", repeats=2, inputs="random")
+    assert all(r["machine"]["cpu"] == where["cpu"] and len(r["seconds"]) == 2 for r in kernels)
+    for kind, some in (("pipeline", rows), ("kernels", kernels)):
+        table = bench.format_rows(kind, some)
+        assert max(len(line) for line in table.splitlines()) <= bench.TABLE_WIDTH, table
+
+
+def test_peak_rss_is_in_megabytes_of_a_million_bytes():
+    """``peak_rss_mb`` is what its name says: /proc's kB are 1024 bytes, and its figure
+    had been MiB (4.6 % below MB)."""
+    if not os.path.exists("/proc/self/status"):
+        pytest.skip("no /proc on this system")
+    with open("/proc/self/status") as f:
+        kb = {line.split(":")[0]: int(line.split()[1]) for line in f if line.startswith(("VmHWM", "VmRSS"))}
+    assert bench.peak_rss_mb() == pytest.approx(kb["VmHWM"] * 1024 / 1e6, rel=0.05)
+    assert bench.rss_mb() == pytest.approx(kb["VmRSS"] * 1024 / 1e6, rel=0.05)
+    assert bench.peak_rss_mb() > kb["VmHWM"] / 1024 * 1.04
 
 
 def test_peak_rss_is_each_settings_own_where_it_can_be_reset():
