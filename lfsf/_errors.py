@@ -7,6 +7,10 @@ import errno
 import math
 import numbers
 import re
+from typing import Callable, ParamSpec, TypeVar
+
+P = ParamSpec("P")
+R = TypeVar("R")
 
 
 class LfsfWarning(UserWarning):
@@ -117,13 +121,15 @@ REDELIVERY_DELAY = 0.01
 
 
 @contextlib.contextmanager
-def _interrupts_redelivered():
+def _interrupts_redelivered(raise_lost: bool = False):
     """While the body runs, a KeyboardInterrupt (or :class:`Terminated`) that Python
     could not raise, because its handler ran inside a ``__del__`` (a Warp array freed as
     the signal that :func:`lfsf._files.interrupts_held` held back came through), is
     sent again a moment later (REDELIVERY_DELAY), instead of "Exception ignored in …"
     with a traceback and the signal lost (status 0). One not yet sent again when the body
-    ends is dropped: the command ended first, as with a signal after its end."""
+    ends is dropped (a command's: it ended first, as with a signal after its end), or
+    with ``raise_lost`` raised as the body ends (a library call's: the interrupt came
+    during the call). Main thread only (``sys.unraisablehook`` is the process's)."""
     import os
     import signal
     import sys
@@ -131,6 +137,16 @@ def _interrupts_redelivered():
 
     previous = sys.unraisablehook
     pending: list = []
+    lost: list = []
+    lock = threading.Lock()
+    state = {"ended": False, "sent": 0}
+
+    def resend(signum) -> None:
+        with lock:
+            if state["ended"]:
+                return
+            state["sent"] += 1
+        os.kill(os.getpid(), signum)
 
     def hook(unraisable):
         exc = unraisable.exc_value
@@ -139,9 +155,10 @@ def _interrupts_redelivered():
             # has left the hook (raise_signal or _thread.interrupt_main here run the handler
             # at once, inside the hook, where its exception is lost as well)
             signum = getattr(exc, "signum", None) or signal.SIGINT
-            timer = threading.Timer(REDELIVERY_DELAY, os.kill, (os.getpid(), signum))
+            timer = threading.Timer(REDELIVERY_DELAY, resend, (signum,))
             timer.daemon = True
             pending.append(timer)
+            lost.append(exc)
             timer.start()
             return
         previous(unraisable)
@@ -151,8 +168,33 @@ def _interrupts_redelivered():
         yield
     finally:
         sys.unraisablehook = previous
+        with lock:
+            state["ended"] = True
         for timer in pending:
             timer.cancel()
+    # (only where the body ended without an exception: one in flight goes on as it is)
+    if raise_lost and len(lost) > state["sent"]:
+        raise lost[state["sent"]]
+
+
+def interrupts_kept(fn: Callable[P, R]) -> Callable[P, R]:
+    """``fn`` (a long library call: :func:`lfsf.estimate_scene_flow`) with a Ctrl-C that
+    Python dropped in a ``__del__`` during it raised after all
+    (:func:`_interrupts_redelivered`): in a notebook or a script, one in some 75 during an
+    estimate had been lost, the call running on to its end with "Exception ignored in:
+    <function array.__del__ …> KeyboardInterrupt" on stderr. Called from another thread
+    than the main one (which alone gets signals), ``fn`` runs as it is."""
+    import functools
+    import threading
+
+    @functools.wraps(fn)
+    def kept(*args: P.args, **kwargs: P.kwargs) -> R:
+        if threading.current_thread() is not threading.main_thread():
+            return fn(*args, **kwargs)
+        with _interrupts_redelivered(raise_lost=True):
+            return fn(*args, **kwargs)
+
+    return kept
 
 
 def quiet_interrupts_in_finalisers(unraisable) -> None:

@@ -23,6 +23,8 @@ ENV_DEVICE = "LFSF_DEVICE"
 ENV_THREADS = "LFSF_THREADS"
 
 _init_lock = threading.Lock()
+#: The names of the modules that the thread holding _init_lock compiles (:func:`_load`).
+_compiling: list[str] = []
 _loaded: set[tuple[int, str]] = set()
 _pool: ThreadPoolExecutor | None = None
 _initialised = False
@@ -233,10 +235,33 @@ def _forked_child() -> None:
     global _pool, _init_lock
     _pool = None
     _init_lock = threading.Lock()
+    _compiling.clear()
 
 
 if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_forked_child)
+
+
+def _wait_for_compile(modules: Sequence, device, announce: Callable[[list[str]], None] | None) -> float:
+    """Where another thread holds the lock of :func:`_load`, wait for it, with
+    ``announce`` told first of the modules that thread compiles where it compiles some
+    (a thread that waited 14.5 s for another's compile had said nothing); the seconds it
+    waited where there was such a compile, else 0. The lock is not kept: :func:`_load`
+    takes it again."""
+    import time
+
+    if _init_lock.acquire(blocking=False):
+        _init_lock.release()
+        return 0.0
+    start = time.perf_counter()
+    # (the names the other thread compiles, which it sets under the lock: asking the cache
+    # here, as the compile goes on, would hash Warp's modules outside the lock)
+    cold = list(_compiling)
+    if cold and announce is not None:
+        announce(cold)
+    with _init_lock:
+        pass
+    return time.perf_counter() - start if cold else 0.0
 
 
 def _load(modules: Sequence, device, announce: Callable[[list[str]], None] | None = None) -> float:
@@ -250,10 +275,11 @@ def _load(modules: Sequence, device, announce: Callable[[list[str]], None] | Non
     import time
 
     wp = warp()
+    waited = _wait_for_compile(modules, device, announce)
     with _init_lock:
         todo = [m for m in modules if (id(m), str(device)) not in _loaded]
         if not todo:
-            return 0.0
+            return waited
         cache = wp.config.kernel_cache_dir
         cold = _cold(todo, device) if wp.config.cache_kernels else []
         if cold:
@@ -262,6 +288,7 @@ def _load(modules: Sequence, device, announce: Callable[[list[str]], None] | Non
             if announce is not None:
                 announce([m.name for m in cold])
         start = time.perf_counter()
+        _compiling[:] = [m.name for m in cold]
         try:
             _compile(wp, todo, device)
         except OSError as exc:   # (the message had named a build folder of Warp's, or blamed the outputs)
@@ -292,6 +319,8 @@ def _load(modules: Sequence, device, announce: Callable[[list[str]], None] | Non
             raise OSError(f"Warp's kernel cache {cache} holds a damaged entry of lfsf's kernels ({exc}): delete "
                           f"them (rm -r {os.path.join(cache, 'wp_lfsf.kernels.*')}), and they are compiled "
                           "again") from None
+        finally:
+            _compiling.clear()
         _loaded.update((id(m), str(device)) for m in todo)
         return time.perf_counter() - start
 
@@ -313,12 +342,23 @@ def _compile(wp, modules: Sequence, device) -> None:
     try:
         futures = [pool.submit(wp.force_load, device=device, modules=[m], max_workers=1, block_dim=block_dim)
                    for m in modules]
-        wait(futures, return_when=FIRST_EXCEPTION)  # (any module's error, not only once those before it ended)
+        # (any module's error, not only once those before it ended; in short waits, so that an
+        # interrupt that comes as a flag, not a signal, _thread.interrupt_main's, is not held
+        # until every module is compiled)
+        while True:
+            done, running = wait(futures, timeout=COMPILE_POLL, return_when=FIRST_EXCEPTION)
+            if not running or any(f.exception() is not None for f in done if not f.cancelled()):
+                break
         for future in futures:
             if future.done():
                 future.result()
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+#: Seconds between the checks of :func:`_compile`'s wait for its modules (an interrupt
+#: raised as a flag is seen at the next).
+COMPILE_POLL = 0.1
 
 
 #: A build folder of Warp's older than this, whose process is not running here, is a

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Callable, NamedTuple, Union
 import numpy as np
 
 from lfsf import device as _device
-from lfsf._errors import LfsfWarning
+from lfsf._errors import LfsfWarning, interrupts_kept
 from lfsf._filters import box_mean
 from lfsf._filters import gaussian_blur as _blur
 from lfsf.gains import (GAIN_CHANGE, MAX_GAIN, MIN_VIEW_SIZE, fit_reduced_gains, gain_change, reduction_factor,
@@ -1731,6 +1731,7 @@ def _fuse_disparities(x, s1, s2, phis, found1, found2, params: Params, device: s
 LightFieldLike = Union[LightField, np.ndarray, str, os.PathLike]
 
 
+@interrupts_kept
 def estimate_scene_flow(
     lf1: LightFieldLike,
     lf2: LightFieldLike,

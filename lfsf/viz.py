@@ -25,7 +25,6 @@ import os
 from dataclasses import dataclass
 from typing import Mapping, Sequence
 
-import imageio.v3 as iio
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
@@ -403,6 +402,7 @@ def save_png(path: str | os.PathLike, img, text: Mapping[str, str] | None = None
                          f"{f', not {suffix}' if suffix else ''}")
     img = _to_uint8_image(img)
     with atomic_path(path, suffix=".png") as tmp:
+        info = None
         if text:
             from PIL.PngImagePlugin import PngInfo
 
@@ -411,9 +411,10 @@ def save_png(path: str | os.PathLike, img, text: Mapping[str, str] | None = None
                 # (a file name not in UTF-8 reaches Python with stand-ins, which PNG text
                 # cannot hold: the whole result had failed to save)
                 info.add_text(*(str(t).encode("utf-8", "backslashreplace").decode("utf-8") for t in (key, value)))
-            Image.fromarray(img).save(tmp, format="PNG", pnginfo=info)
-        else:
-            iio.imwrite(tmp, img, extension=".png")
+        # (a file of lfsf's own, closed however the save ends: Pillow closes the one it opens
+        # on an Exception only, and an interrupt left it open until collected)
+        with open(tmp, "wb") as f:
+            Image.fromarray(img).save(f, format="PNG", pnginfo=info)
 
 
 # --------------------------------------------------------------------------- overview

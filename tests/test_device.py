@@ -527,10 +527,52 @@ def test_a_compile_is_announced_before_it_starts(monkeypatch):
     assert told == ["preload"]
 
 
-def test_a_ctrl_c_during_the_compile_waits_only_for_the_modules_being_compiled(monkeypatch):
+def test_a_thread_that_waits_for_another_threads_compile_says_so(monkeypatch):
+    """Two estimates in two threads on a cold cache: the thread that waited for the
+    other's compile (14.5 s) had said nothing; it is told of the modules being compiled,
+    and does not compile them again."""
+    import threading
+    import time
+
+    compiled, told = [], []
+    started = threading.Event()
+
+    class Module:
+        def __init__(self, name):
+            self.name = name
+
+    modules = [Module("lfsf.kernels.tgv"), Module("lfsf.kernels.rof")]
+
+    def compile_slowly(wp, todo, device):
+        compiled.append([m.name for m in todo])
+        started.set()
+        time.sleep(0.5)
+
+    monkeypatch.setattr(D, "_compile", compile_slowly)
+    monkeypatch.setattr(D, "_loaded", set())  # (these stand-ins' ids are not kept as loaded modules')
+    monkeypatch.setattr(D, "_cold", lambda todo, device: list(todo))
+    monkeypatch.setattr(D, "_check_cache_room", lambda cache: None)
+    monkeypatch.setattr(D, "_remove_dead_builds", lambda cache: None)
+    first = threading.Thread(target=D._load, args=(modules, "cpu", lambda names: told.append(("first", names))))
+    first.start()
+    assert started.wait(10)
+    waited = D._load(modules, "cpu", lambda names: told.append(("second", names)))
+    first.join()
+    names = ["lfsf.kernels.tgv", "lfsf.kernels.rof"]
+    assert told == [("first", names), ("second", names)] and compiled == [names]
+    assert waited > 0.1 and D._compiling == []
+    assert D._load(modules, "cpu", lambda names: told.append(("third", names))) == 0.0 and len(told) == 2
+
+
+@pytest.mark.parametrize("how", ["signal", "interrupt_main"])
+def test_a_ctrl_c_during_the_compile_waits_only_for_the_modules_being_compiled(monkeypatch, how):
     """Warp's own pool compiled every module given before a Ctrl-C could end the process
     (12.7 s on a first run's 12 modules, 2 cores). Now the modules not begun are
-    cancelled: the interrupt comes after the modules being compiled, on their threads."""
+    cancelled: the interrupt comes after the modules being compiled, on their threads.
+    So too an interrupt that comes as a flag, not a signal (``_thread.interrupt_main``,
+    as a notebook's or an IDE's may): the wait had not woken for it until every module
+    was compiled."""
+    import _thread
     import signal
     import threading
     import time
@@ -542,8 +584,10 @@ def test_a_ctrl_c_during_the_compile_waits_only_for_the_modules_being_compiled(m
         with lock:
             begun.extend(m.name for m in modules)
             first = len(begun) == 1
-        if first:  # (a Ctrl-C, delivered to the main thread, which waits for the modules)
+        if first and how == "signal":  # (a Ctrl-C, delivered to the main thread, which waits for the modules)
             signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)
+        elif first:  # (once the main thread waits: a flag raised before is seen as it submits)
+            threading.Timer(0.3, _thread.interrupt_main).start()
         time.sleep(1.0)
 
     class Module:

@@ -2127,3 +2127,45 @@ def test_the_estimate_lets_go_of_light_fields_handed_over_to_it():
         del lf1, lf2
         estimate_scene_flow(given.pop(0), given.pop(0), "fast", device="cpu", progress=progress)
         assert seen and seen[0] == [False, False], (colour, seen[:1])
+
+
+def test_an_interrupt_that_python_drops_in_a_finaliser_still_ends_the_estimate():
+    """A Ctrl-C whose handler runs inside a ``__del__`` (a Warp array freed as it came)
+    raises there, where Python drops it: a library call (a notebook's, a script's) had run
+    on to its end with "Exception ignored in … KeyboardInterrupt" on stderr (2 of about
+    150 interrupts of an estimate). Here a progress callable drops such an object during
+    the estimate; the estimate ends with KeyboardInterrupt, and a call whose interrupt was
+    dropped just before its end raises it as it returns; Python's hook is put back."""
+    code = (
+        "import signal, sys, time\n"
+        "import numpy as np\n"
+        "import lfsf\n"
+        "from lfsf._errors import interrupts_kept\n"
+        "class Freed:\n"
+        "    def __del__(self): signal.raise_signal(signal.SIGINT)\n"
+        "said = []\n"
+        "def progress(line):\n"
+        "    said.append(line)\n"
+        "    if len(said) == 1: Freed()\n"
+        "views = np.random.default_rng(0).random((3, 3, 24, 32)).astype(np.float32)\n"
+        "try:\n"
+        "    lfsf.estimate_scene_flow(views, views, 'fast', device='cpu', progress=progress)\n"
+        "    print('returned')\n"
+        "except KeyboardInterrupt:\n"
+        "    print('interrupted')\n"
+        "@interrupts_kept\n"
+        "def call():\n"
+        "    Freed()\n"
+        "    return 'returned'\n"
+        "try:\n"
+        "    print(call())\n"
+        "except KeyboardInterrupt:\n"
+        "    print('interrupted')\n"
+        "time.sleep(0.1)\n"
+        "print(sys.unraisablehook is sys.__unraisablehook__)\n"
+    )
+    import subprocess
+
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert proc.stdout.splitlines() == ["interrupted", "interrupted", "True"], (proc.stdout, proc.stderr[-3000:])
+    assert "Exception ignored" not in proc.stderr, proc.stderr

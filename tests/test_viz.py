@@ -382,22 +382,28 @@ def test_save_png_converts_float_and_grey(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.png", "g.png", "w.png"]
 
 
-def test_failing_write_leaves_no_partial_file(tmp_path, monkeypatch):
+@pytest.mark.parametrize("failure", [OSError("disk full"), KeyboardInterrupt()])
+def test_failing_write_leaves_no_partial_file(tmp_path, monkeypatch, failure):
+    """A write that fails (a full disk) or is interrupted leaves neither a partial file
+    nor an open one: Pillow closes a file it opened itself on an Exception only, and an
+    interrupt had left the part file open until the collector came (a ResourceWarning)."""
     target = tmp_path / "out.png"
     target.write_bytes(b"previous")
+    files = []
 
-    def broken_imwrite(uri, image, **kwargs):
-        with open(uri, "wb") as f:
-            f.write(b"\x89PNG half")  # a partial file, then the disk "fails"
-        raise OSError("disk full")
+    def broken_save(image, fp, format=None, **params):
+        fp.write(b"\x89PNG half")  # a partial file, then the disk "fails"
+        files.append(fp)
+        raise failure
 
-    monkeypatch.setattr(viz.iio, "imwrite", broken_imwrite)
-    with pytest.raises(OSError, match="disk full"):
+    monkeypatch.setattr(viz.Image.Image, "save", broken_save)
+    with pytest.raises(type(failure)):
         viz.save_png(target, np.zeros((4, 4), dtype=np.uint8))
-    with pytest.raises(OSError, match="disk full"):
-        viz.save_png(tmp_path / "new.png", np.zeros((4, 4), dtype=np.uint8))
+    with pytest.raises(type(failure)):
+        viz.save_png(tmp_path / "new.png", np.zeros((4, 4), dtype=np.uint8), text={"Title": "a"})
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.png"]
     assert target.read_bytes() == b"previous"
+    assert len(files) == 2 and all(f.closed for f in files)
 
 
 def test_a_tall_narrow_image_is_not_enlarged_into_a_huge_picture():
