@@ -9,6 +9,7 @@ import json
 import os
 import subprocess
 import sys
+import types
 
 import numpy as np
 import pytest
@@ -235,7 +236,8 @@ def test_bench_peers_checks_the_peers_first_and_a_broken_one_is_its_row(monkeypa
 
     monkeypatch.setattr(peers, "_opencv_dual_tvl1", broken)
     monkeypatch.setattr(peers, "skimage_tvl1", failing)
-    monkeypatch.setitem(sys.modules, "skimage.registration", sys.modules["os"])  # (imports)
+    for name in ("skimage", "skimage.registration"):  # (import, installed or not)
+        monkeypatch.setitem(sys.modules, name, types.ModuleType(name))
     said = []
     rows = bench.bench_peers((48, 32), "cpu", repeats=1, progress=said.append)
     assert said[1] == "opencv DualTVL1: skipped, failed to import", said
