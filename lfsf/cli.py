@@ -165,6 +165,39 @@ def cmd_synth(args) -> int:
 
 # --- eval ----------------------------------------------------------------------------------
 
+#: ``--json -``: the JSON on stdout, what a command prints besides it on stderr.
+JSON_TO_STDOUT = "-"
+
+
+def _json_on_stdout(args) -> bool:
+    """Whether ``--json -`` asks for the JSON on stdout (for a pipe: ``lfsf eval R GT --json - | jq``)."""
+    return getattr(args, "json", None) is not None and str(args.json) == JSON_TO_STDOUT
+
+
+def _with_json_report(make_report):
+    """A command whose ``make_report(args)`` prints its tables and returns the JSON
+    report: written to ``--json FILE`` atomically (the file checked first, by the
+    command), or with ``--json -`` to stdout, what it prints then going to stderr (it
+    had written a file named '-')."""
+    import functools
+
+    @functools.wraps(make_report)
+    def command(args) -> int:
+        from lfsf._files import json_bytes, write_json_atomic
+
+        on_stdout = _json_on_stdout(args)
+        with contextlib.redirect_stdout(sys.stderr) if on_stdout else contextlib.nullcontext():
+            report = make_report(args)
+        if on_stdout:
+            sys.stdout.write(json_bytes(report).decode("utf-8"))
+            sys.stdout.flush()
+        elif args.json:
+            write_json_atomic(args.json, report)
+        return 0
+
+    return command
+
+
 def _not_an_input(report: Path, result: Path, gt: Path) -> None:
     """Refuse a report path that is the ground truth, the result or one of a result
     folder's files: the JSON would replace what it reports on."""
@@ -181,14 +214,14 @@ def _not_an_input(report: Path, result: Path, gt: Path) -> None:
                              "--json file")
 
 
-def cmd_eval(args) -> int:
+@_with_json_report
+def cmd_eval(args) -> dict:
     import numpy as np
 
-    from lfsf._files import write_json_atomic
     from lfsf.evaluate import (VARIABLES, downsample_border, downsample_truth, evaluate, format_table, load_estimate,
                                load_ground_truth, recorded_downsample)
 
-    if args.json:
+    if args.json and not _json_on_stdout(args):
         output_file(args.json)
         _not_an_input(args.json, args.result, args.gt)
     estimate = load_estimate(args.result)
@@ -238,11 +271,8 @@ def cmd_eval(args) -> int:
                      "'valid' mask" + ("" if finite else "; its NaN or infinite values are left out"))
     for note in notes:
         print(note)
-    if args.json:
-        report = {"result": str(args.result), "ground_truth": str(args.gt), "border": border, "errors": errors,
-                  "not_evaluated": lacking, "notes": notes}
-        write_json_atomic(args.json, report)
-    return 0
+    return {"result": str(args.result), "ground_truth": str(args.gt), "border": border, "errors": errors,
+            "not_evaluated": lacking, "notes": notes}
 
 
 def _shrunk_units(k: int) -> str:
@@ -779,13 +809,13 @@ def cmd_decode(args) -> int:
 
 # --- bench ---------------------------------------------------------------------------------
 
-def cmd_bench(args) -> int:
+@_with_json_report
+def cmd_bench(args) -> list:
     from lfsf import bench
-    from lfsf._files import write_json_atomic
     from lfsf.device import resolve_device
 
     device = resolve_device(args.device)
-    if args.json:
+    if args.json and not _json_on_stdout(args):
         output_file(args.json)
     if args.inputs and args.kind != "kernels":
         raise ValueError(f"--inputs applies to `lfsf bench kernels`, not to {args.kind}")
@@ -814,9 +844,7 @@ def cmd_bench(args) -> int:
     peak = (f"{max(r['peak_rss_mb'] for r in rows):.0f} MB (the largest setting's)" if args.kind == "pipeline"
             else f"{bench.peak_rss_mb():.0f} MB")
     print(f"peak RSS {peak}; {_machine()}")
-    if args.json:
-        write_json_atomic(args.json, rows)
-    return 0
+    return rows
 
 
 def _machine() -> str:
@@ -888,7 +916,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--border", type=int, default=None,
                    help="pixels left out at each edge (default 15 for a .pfm, as the HCI benchmark; 8 for gt.npz; "
                         "divided by K, rounded up, for a result of 'lfsf run --downsample K')")
-    p.add_argument("--json", type=_file_name, help="also write the figures to this JSON file")
+    p.add_argument("--json", type=_file_name, help="also write the figures to this JSON file ('-': to stdout, and "
+                   "the table to stderr)")
     p.set_defaults(func=cmd_eval)
 
     p = sub.add_parser("points", help="3-D points and scene flow of a result, for a calibrated camera",
@@ -1004,7 +1033,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--inputs", choices=("scene", "random"),
                    help="kernels: what they run on, the arrays of a rendered scene's last warp (default) or "
                         "random views and unknowns (a worst case: every pixel takes the occlusion tests' path)")
-    p.add_argument("--json", type=_file_name, help="also write the rows to this JSON file")
+    p.add_argument("--json", type=_file_name, help="also write the rows to this JSON file ('-': to stdout, and the "
+                   "tables to stderr)")
     _device_options(p)
     p.set_defaults(func=cmd_bench)
     return parser

@@ -162,6 +162,25 @@ def test_eval_of_ground_truth_against_itself_is_zero(tmp_path):
     assert report["errors"]["disp2_noc"]["pixels"] == seen and "flow noc" in out
 
 
+def test_json_dash_writes_the_report_to_stdout_and_the_table_to_stderr(tmp_path, monkeypatch):
+    """``--json -`` (a pipe into jq, a script reading the report) had written a file named
+    '-'. The JSON is stdout's alone, the same report as a file's; what the command
+    prints besides goes to stderr. So for ``lfsf bench``."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["synth", "paper", "--out", str(tmp_path), "--size", "48", "36", "--grid", "1", "--quiet"]) == 0
+    status, out, err = lfsf("eval", tmp_path / "gt.npz", tmp_path / "gt.npz", "--json", "-")
+    assert status == 0, err
+    assert json.loads(out)["errors"]["flow"]["epe"] == 0.0 and "flow noc" in err
+    assert lfsf("eval", tmp_path / "gt.npz", tmp_path / "gt.npz", "--json", tmp_path / "e.json")[0] == 0
+    assert json.loads(out) == json.loads((tmp_path / "e.json").read_text())
+    assert not (tmp_path / "-").exists()
+    status, out, err = lfsf("bench", "kernels", "--size", "16", "12", "--repeats", "1", "--json", "-", "--quiet")
+    assert status == 0, err
+    rows = json.loads(out)
+    assert [r["kernel"] for r in rows][0] == "sample_subaperture" and "| kernel |" in err and "peak RSS" in err
+    assert not (tmp_path / "-").exists()
+
+
 def test_eval_with_no_border(tmp_path, capsys):
     """--border 0 scores every pixel (it had read as no border given: the default 8)."""
     assert main(["synth", "paper", "--out", str(tmp_path), "--size", "48", "36", "--grid", "1", "--quiet"]) == 0
