@@ -120,6 +120,20 @@ def terminate_as_interrupt():
 REDELIVERY_DELAY = 0.01
 
 
+def send_again(signum: int) -> None:
+    """Deliver ``signum`` (SIGINT, SIGTERM) to this process's main thread once more: as a
+    real signal on POSIX, which also wakes a main thread blocked in a wait; on Windows,
+    where ``os.kill`` of any signal but the console events ends the process outright
+    (TerminateProcess), as Python's simulation of one (``_thread.interrupt_main``)."""
+    import _thread
+    import os
+
+    if os.name == "nt":
+        _thread.interrupt_main(signum)
+    else:
+        os.kill(os.getpid(), signum)
+
+
 @contextlib.contextmanager
 def _interrupts_redelivered(raise_lost: bool = False):
     """While the body runs, a KeyboardInterrupt (or :class:`Terminated`) that Python
@@ -130,7 +144,6 @@ def _interrupts_redelivered(raise_lost: bool = False):
     ends is dropped (a command's: it ended first, as with a signal after its end), or
     with ``raise_lost`` raised as the body ends (a library call's: the interrupt came
     during the call). Main thread only (``sys.unraisablehook`` is the process's)."""
-    import os
     import signal
     import sys
     import threading
@@ -146,7 +159,7 @@ def _interrupts_redelivered(raise_lost: bool = False):
             if state["ended"]:
                 return
             state["sent"] += 1
-        os.kill(os.getpid(), signum)
+        send_again(signum)
 
     def hook(unraisable):
         exc = unraisable.exc_value

@@ -2169,3 +2169,30 @@ def test_an_interrupt_that_python_drops_in_a_finaliser_still_ends_the_estimate()
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
     assert proc.stdout.splitlines() == ["interrupted", "interrupted", "True"], (proc.stdout, proc.stderr[-3000:])
     assert "Exception ignored" not in proc.stderr, proc.stderr
+
+
+def test_an_interrupt_is_sent_again_without_os_kill_on_windows(monkeypatch):
+    """On Windows ``os.kill`` of SIGINT ends the process outright (TerminateProcess): a
+    notebook's kernel would have died where a dropped Ctrl-C was sent again. There it is
+    simulated for the main thread instead, and still raised."""
+    import os
+    import signal
+    import threading
+
+    from lfsf import _errors
+
+    def killed(*_a):
+        raise AssertionError("os.kill called")
+
+    monkeypatch.setattr(os, "name", "nt")
+    monkeypatch.setattr(os, "kill", killed)
+    raised = False
+    try:
+        timer = threading.Timer(0.05, _errors.send_again, (signal.SIGINT,))
+        timer.start()
+        timer.join()
+        for _ in range(100):   # (the flag is seen at the main thread's next bytecodes)
+            sum(range(100))
+    except KeyboardInterrupt:
+        raised = True
+    assert raised
