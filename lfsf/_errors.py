@@ -139,11 +139,16 @@ def _interrupts_redelivered(raise_lost: bool = False):
     """While the body runs, a KeyboardInterrupt (or :class:`Terminated`) that Python
     could not raise, because its handler ran inside a ``__del__`` (a Warp array freed as
     the signal that :func:`lfsf._files.interrupts_held` held back came through), is
-    sent again a moment later (REDELIVERY_DELAY), instead of "Exception ignored in …"
-    with a traceback and the signal lost (status 0). One not yet sent again when the body
-    ends is dropped (a command's: it ended first, as with a signal after its end), or
-    with ``raise_lost`` raised as the body ends (a library call's: the interrupt came
-    during the call). Main thread only (``sys.unraisablehook`` is the process's)."""
+    sent again a moment later (REDELIVERY_DELAY, :func:`send_again`), instead of
+    "Exception ignored in …" with a traceback and the signal lost (status 0). One not yet
+    sent again when the body ends is dropped (a command's: it ended first, as with a
+    signal after its end), or with ``raise_lost`` raised as the body ends (a library
+    call's: the interrupt came during the call). With ``raise_lost`` it is sent again
+    only where the signal's handler is Python's own (``signal.default_int_handler``, as
+    in a script or a notebook's cell): a handler of the user's is not run a second time
+    (one that ends the process on a second Ctrl-C would), nor an ignored signal sent;
+    those are raised as the body ends. Main thread only (``sys.unraisablehook`` is the
+    process's)."""
     import signal
     import sys
     import threading
@@ -155,24 +160,28 @@ def _interrupts_redelivered(raise_lost: bool = False):
     state = {"ended": False, "sent": 0}
 
     def resend(signum) -> None:
+        # (sent under the lock, which the main thread takes as the body ends: its wait is
+        # interruptible, so the signal lands within the body, not after it, in the caller's code)
         with lock:
             if state["ended"]:
                 return
             state["sent"] += 1
-        send_again(signum)
+            send_again(signum)
 
     def hook(unraisable):
         exc = unraisable.exc_value
         if isinstance(exc, KeyboardInterrupt):
-            # the signal sent again a moment later, from another thread, when the main thread
-            # has left the hook (raise_signal or _thread.interrupt_main here run the handler
-            # at once, inside the hook, where its exception is lost as well)
             signum = getattr(exc, "signum", None) or signal.SIGINT
-            timer = threading.Timer(REDELIVERY_DELAY, resend, (signum,))
-            timer.daemon = True
-            pending.append(timer)
+            exc.__traceback__ = None   # (its frames, the object being finalised among them, are not kept)
             lost.append(exc)
-            timer.start()
+            if not raise_lost or signal.getsignal(signum) is signal.default_int_handler:
+                # sent again a moment later, from another thread, when the main thread has left
+                # the hook (raise_signal or _thread.interrupt_main here run the handler at once,
+                # inside the hook, where its exception is lost as well)
+                timer = threading.Timer(REDELIVERY_DELAY, resend, (signum,))
+                timer.daemon = True
+                pending.append(timer)
+                timer.start()
             return
         previous(unraisable)
 
@@ -181,13 +190,15 @@ def _interrupts_redelivered(raise_lost: bool = False):
         yield
     finally:
         sys.unraisablehook = previous
-        with lock:
-            state["ended"] = True
-        for timer in pending:
-            timer.cancel()
+        try:
+            with lock:
+                state["ended"] = True
+        finally:
+            for timer in pending:
+                timer.cancel()
     # (only where the body ended without an exception: one in flight goes on as it is)
     if raise_lost and len(lost) > state["sent"]:
-        raise lost[state["sent"]]
+        raise lost[-1]
 
 
 def interrupts_kept(fn: Callable[P, R]) -> Callable[P, R]:

@@ -113,7 +113,8 @@ def reset_peak_rss() -> bool:
 
 
 def summarise(seconds: list[float]) -> dict:
-    """Median and spread of repeated timings, and the timings themselves (``seconds``)."""
+    """Median and spread of repeated timings, and the timings themselves (``seconds``: a
+    kernel's are its samples, each the mean of ``launches_per_sample`` launches)."""
     return {
         "seconds_median": statistics.median(seconds),
         "seconds_min": min(seconds),
@@ -555,7 +556,7 @@ def bench_peers(size=(640, 480), device: str | None = None, repeats: int = 3, sc
     for name, problem in problems.items():
         if problem is not None:
             say(f"{name}: skipped, {problem.split(' (')[0]}")
-    rows = []
+    rows: list[dict[str, Any]] = []
     for name, fn in methods:
         if problems.get(name) is not None:
             rows.append({"method": name, "epe": None, "seconds_median": None, "note": problems[name]})
@@ -571,7 +572,6 @@ def bench_peers(size=(640, 480), device: str | None = None, repeats: int = 3, sc
                          "note": f"failed ({type(exc).__name__}: {exc})"})
             continue
         epe = evaluate({"u": u, "v": v}, gt, border=SYNTH_BORDER)["flow"]["epe"]
-        assert epe is not None    # (None is only the occlusion row's share of nothing)
         rows.append({"method": name, "device": dev if name.startswith("lfsf") else "cpu", "size": [width, height],
                      "epe": round(float(epe), 5), **summarise(seconds), "warmup_seconds": warmups})
     # each method's median time over OpenCV's, measured in this run (the issue's comparison)
@@ -631,9 +631,12 @@ def format_rows(kind: str, rows: list[dict]) -> str:
             lines.append(f"| {k} | " + " | ".join(f"{r['stages'][k]:.3g}" if k in r["stages"] else "–" for r in rows)
                          + " |")
         warm = ", ".join(f"{r['setting']} {sum(r.get('warmup_seconds', [])):.3g} s" for r in rows)
+        own = all(r.get("peak_rss_scope") == "setting" for r in rows)
         lines += [""] + _wrapped(f"Not timed: the scene's rendering and each setting's warm-up run ({warm}; a cold "
-                                 "kernel cache's compile falls there). Peak RSS: each setting's own, from the resident "
-                                 "set at its start (the modules and the scene).")
+                                 "kernel cache's compile falls there). Peak RSS: "
+                                 + ("each setting's own, from the resident set at its start (the modules and the "
+                                    "scene)." if own else "the process's so far (this system cannot reset it between "
+                                    "settings)."))
         return "\n".join(lines)
     if kind == "kernels":
         lines = ["| kernel | ms a launch, median (min–max) | GB/s | copy GB/s | fraction |", "|---|---|---|---|---|"]

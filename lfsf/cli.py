@@ -843,7 +843,8 @@ def cmd_bench(args) -> list:
     # setting began would be the last one's alone)
     peak = (f"{max(r['peak_rss_mb'] for r in rows):.0f} MB (the largest setting's)" if args.kind == "pipeline"
             else f"{bench.peak_rss_mb():.0f} MB")
-    print(f"peak RSS {peak}; {_machine()}")
+    print(f"peak RSS {peak}")
+    print(f"machine: {_machine()}")
     return rows
 
 

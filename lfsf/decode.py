@@ -53,14 +53,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from lfsf import device as _device
 from lfsf._errors import LfsfWarning
 from lfsf._filters import box_mean as _box_blur
 
 if TYPE_CHECKING:
-    from numpy.typing import ArrayLike
-
     from lfsf.io import LightField
 
 __all__ = [

@@ -23,7 +23,8 @@ ENV_DEVICE = "LFSF_DEVICE"
 ENV_THREADS = "LFSF_THREADS"
 
 _init_lock = threading.Lock()
-#: The names of the modules that the thread holding _init_lock compiles (:func:`_load`).
+#: The device and the names of the modules that the thread holding _init_lock compiles
+#: (:func:`_load`; empty where it compiles none).
 _compiling: list[str] = []
 _loaded: set[tuple[int, str]] = set()
 _pool: ThreadPoolExecutor | None = None
@@ -242,12 +243,13 @@ if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_forked_child)
 
 
-def _wait_for_compile(modules: Sequence, device, announce: Callable[[list[str]], None] | None) -> float:
+def _wait_for_compile(device, announce: Callable[[list[str]], None] | None) -> float:
     """Where another thread holds the lock of :func:`_load`, wait for it, with
     ``announce`` told first of the modules that thread compiles where it compiles some
-    (a thread that waited 14.5 s for another's compile had said nothing); the seconds it
-    waited where there was such a compile, else 0. The lock is not kept: :func:`_load`
-    takes it again."""
+    for the same ``device`` (a thread that waited 14.5 s for another's compile had said
+    nothing); the seconds it waited where there was such a compile, else 0. The wait
+    polls (COMPILE_POLL), so that an interrupt raised as a flag is seen. The lock is not
+    kept: :func:`_load` takes it again."""
     import time
 
     if _init_lock.acquire(blocking=False):
@@ -256,11 +258,13 @@ def _wait_for_compile(modules: Sequence, device, announce: Callable[[list[str]],
     start = time.perf_counter()
     # (the names the other thread compiles, which it sets under the lock: asking the cache
     # here, as the compile goes on, would hash Warp's modules outside the lock)
-    cold = list(_compiling)
+    compiling = _compiling[:]
+    cold = compiling[1:] if compiling and compiling[0] == str(device) else []
     if cold and announce is not None:
         announce(cold)
-    with _init_lock:
+    while not _init_lock.acquire(timeout=COMPILE_POLL):
         pass
+    _init_lock.release()
     return time.perf_counter() - start if cold else 0.0
 
 
@@ -275,20 +279,26 @@ def _load(modules: Sequence, device, announce: Callable[[list[str]], None] | Non
     import time
 
     wp = warp()
-    waited = _wait_for_compile(modules, device, announce)
+    waited = _wait_for_compile(device, announce)
     with _init_lock:
         todo = [m for m in modules if (id(m), str(device)) not in _loaded]
         if not todo:
             return waited
         cache = wp.config.kernel_cache_dir
         cold = _cold(todo, device) if wp.config.cache_kernels else []
+        # (set before the checks and the announcement, which a waiting thread would otherwise
+        # sit through in silence; cleared in the finally below, or by the checks' error)
+        _compiling[:] = [str(device), *(m.name for m in cold)] if cold else []
         if cold:
-            _check_cache_room(cache)
-            _remove_dead_builds(cache)
-            if announce is not None:
-                announce([m.name for m in cold])
+            try:
+                _check_cache_room(cache)
+                _remove_dead_builds(cache)
+                if announce is not None:
+                    announce([m.name for m in cold])
+            except BaseException:
+                _compiling.clear()
+                raise
         start = time.perf_counter()
-        _compiling[:] = [m.name for m in cold]
         try:
             _compile(wp, todo, device)
         except OSError as exc:   # (the message had named a build folder of Warp's, or blamed the outputs)

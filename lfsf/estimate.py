@@ -206,10 +206,10 @@ class SceneFlow:
              border: int | None = None, inputs: dict | None = None) -> list[Path]:
         """Write ``disp1.pfm``, ``disp2.pfm``, ``flow.flo``, ``sceneflow.npz`` and the
         pictures ``disp1.png``, ``disp2.png``, ``flow.png`` (and ``overview.png`` when the
-        centre views ``centre1`` and ``centre2``, at t1 and t2, are given) into ``out``, as one set: all are written into a
-        temporary folder inside ``out`` first and moved into place only when every one
-        is complete, so a failure or an interrupt leaves none of them (and no mix with an
-        earlier run's). ``gt``, ``title`` and ``border`` (that its error means leave out, as
+        centre views ``centre1`` and ``centre2``, at t1 and t2, are given) into ``out``, as
+        one set: all are written into a temporary folder inside ``out`` first and moved
+        into place only when every one is complete, so a failure or an interrupt leaves
+        none of them (and no mix with an earlier run's). ``gt``, ``title`` and ``border`` (that its error means leave out, as
         :func:`lfsf.evaluate.evaluate`'s) go to the overview (:func:`lfsf.viz.overview_figure`):
         ``gt`` or ``title`` without the centre views is an error. ``inputs``: what to
         record in ``sceneflow.npz`` of the inputs (``lfsf batch``'s
@@ -343,16 +343,22 @@ WARNINGS_TO_PROGRESS: contextvars.ContextVar[bool] = contextvars.ContextVar("lfs
                                                                             default=False)
 
 
-def _warn(message: str, say, stacklevel: int) -> None:
+def _warn(message: str, say) -> None:
     """``message`` as a :class:`Warned` line to ``say`` (:data:`WARNINGS_TO_PROGRESS`), or
-    as an :class:`lfsf.LfsfWarning` at ``stacklevel`` counted from the caller of this
-    function."""
+    as an :class:`lfsf.LfsfWarning` at the line that called into lfsf (the first frame
+    outside the package: a filter's ``module`` matches the user's; a count of frames had
+    pointed into lfsf once :func:`lfsf._errors.interrupts_kept` added one)."""
     if WARNINGS_TO_PROGRESS.get():
         say(Warned(message))
     else:
+        import sys
         import warnings
 
-        warnings.warn(message, LfsfWarning, stacklevel=stacklevel + 1)
+        package = os.path.dirname(os.path.abspath(__file__)) + os.sep
+        frame, level = sys._getframe(1), 2    # (level 1 is this function's)
+        while frame.f_back is not None and os.path.abspath(frame.f_code.co_filename).startswith(package):
+            frame, level = frame.f_back, level + 1
+        warnings.warn(message, LfsfWarning, stacklevel=level)
 
 
 class Note(str):
@@ -919,8 +925,7 @@ def _warn_out_of_unit_range(source: str, lo: float, hi: float, stretched: bool, 
             else "used as they are")
     hint = (" (divide by 255, or 65535, if they are 8-bit or 16-bit values, or give them as integers, "
             "which are scaled by their type's maximum)" if hi > UNIT_RANGE_SLACK[1] else "")
-    _warn(f"{source}: float views range {lo:.4g}…{hi:.4g}, where lfsf expects [0, 1]; {done}{hint}", say,
-          stacklevel=3)
+    _warn(f"{source}: float views range {lo:.4g}…{hi:.4g}, where lfsf expects [0, 1]; {done}{hint}", say)
 
 
 def data_weights(params: Params, n_samples: int) -> np.ndarray:
@@ -1933,7 +1938,7 @@ def estimate_scene_flow(
         for lf in (lf1,) if lf2.views is lf1.views else (lf1, lf2):
             told = layout_warning(lf.views, lf.source, params.disparity_range)
             if told:
-                _warn(told, say, stacklevel=2)
+                _warn(told, say)
     lap("checks")  # (with the input's checks above)
     # every kernel module compiled (or read from Warp's cache) now, several at once, rather
     # than one at a time at each module's first launch

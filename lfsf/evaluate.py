@@ -22,7 +22,7 @@ from __future__ import annotations
 import os
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Optional, TypedDict
 
 import numpy as np
 
@@ -135,7 +135,17 @@ def _check_pair(name, est, ref):
                          f"a ground truth of shape {ref.shape}")
 
 
-def disparity_errors(est, gt, valid=None, border: int = 0) -> dict[str, float]:
+#: A row of :func:`evaluate`'s table, by metric (a plain dict at run time, typed per key for
+#: type checkers): a disparity's ``mse``, ``mse_x100``, ``badpix_0.07``; the flow's ``epe``,
+#: ``mse_u``, ``mse_v``; the occlusion row's ``precision``, ``recall``, ``f1`` (None where
+#: a share of nothing), ``marked_px``, ``occluded_px``; every row's ``pixels``.
+Scores = TypedDict("Scores", {
+    "mse": float, "mse_x100": float, "badpix_0.07": float, "epe": float, "mse_u": float, "mse_v": float,
+    "precision": Optional[float], "recall": Optional[float], "f1": Optional[float], "marked_px": int,
+    "occluded_px": int, "pixels": int}, total=False)
+
+
+def disparity_errors(est, gt, valid=None, border: int = 0) -> Scores:
     """MSE, MSE×100 and BadPix(0.07) (%) of a disparity map over valid, finite pixels."""
     est = _float_map(est)
     gt = _float_map(gt)
@@ -154,7 +164,7 @@ def disparity_errors(est, gt, valid=None, border: int = 0) -> dict[str, float]:
     }
 
 
-def flow_errors(u, v, gt_u, gt_v, valid=None, border: int = 0) -> dict[str, float]:
+def flow_errors(u, v, gt_u, gt_v, valid=None, border: int = 0) -> Scores:
     """Mean end-point error and the MSE of each component over valid, finite pixels."""
     u, v, gt_u, gt_v = (_float_map(a) for a in (u, v, gt_u, gt_v))
     _check_pair("flow", u, gt_u)
@@ -176,7 +186,7 @@ def flow_errors(u, v, gt_u, gt_v, valid=None, border: int = 0) -> dict[str, floa
 
 
 def evaluate(estimate: SceneFlow | Mapping[str, np.ndarray], gt: Mapping[str, np.ndarray],
-             border: int = SYNTH_BORDER) -> dict[str, Mapping[str, float | None]]:
+             border: int = SYNTH_BORDER) -> dict[str, Scores]:
     """Errors of an estimate (a mapping with some of ``disp1, disp2, u, v``) against a
     ground truth (the same keys, optional bool ``valid``). Only variables present in both
     are evaluated; the flow needs both ``u`` and ``v``.
@@ -192,8 +202,8 @@ def evaluate(estimate: SceneFlow | Mapping[str, np.ndarray], gt: Mapping[str, np
     points seen at t2 as well; with one in the estimate too (bool; a SceneFlow's
     ``occluded``), the row ``occluded`` scores it against the truth's
     (:func:`occlusion_scores`: precision, recall, f1, pixels, marked_px, occluded_px,
-    and no MSE; precision, recall and f1 are None where they would be a share of nothing,
-    hence the values' type ``float | None``). A non-finite value in the estimate is an infinite error (``mse`` inf,
+    and no MSE; precision, recall and f1 are None where they would be a share of nothing:
+    :data:`Scores` types each metric). A non-finite value in the estimate is an infinite error (``mse`` inf,
     the pixel bad); ``lfsf eval --json`` writes such values as null.
 
     Raises ``ValueError`` for maps of different sizes, a negative ``border``, or when the
@@ -214,7 +224,7 @@ def evaluate(estimate: SceneFlow | Mapping[str, np.ndarray], gt: Mapping[str, np
             raise ValueError(f"the {name} must be a dict of maps{' or a SceneFlow' if name == 'estimate' else ''} "
                              f"(load_estimate / load_ground_truth read them from files), got {type(maps).__name__}")
     valid = gt.get("valid")
-    out: dict[str, Mapping[str, float | None]] = {}
+    out: dict[str, Scores] = {}
     for name in ("disp1", "disp2"):
         if name in estimate and name in gt:
             out[name] = disparity_errors(estimate[name], gt[name], valid, border)
@@ -289,7 +299,7 @@ def downsample_border(border: int, factor: int) -> int:
     return -(-int(border) // int(factor))
 
 
-def occlusion_scores(est, gt, valid=None, border: int = 0) -> dict[str, float | int | None]:
+def occlusion_scores(est, gt, valid=None, border: int = 0) -> Scores:
     """How an estimate's mask of the points not seen at t2 (``occluded``, bool) meets the
     ground truth's, over the ``valid`` pixels without ``border``: precision (the share of
     the points marked that are occluded), recall (the share of the occluded points
@@ -461,7 +471,7 @@ def _load_npz(path: Path, keys) -> dict[str, np.ndarray]:
     return out
 
 
-def format_table(errors: Mapping[str, Mapping[str, float | None]]) -> str:
+def format_table(errors: Mapping[str, Scores]) -> str:
     """A small fixed-width table of :func:`evaluate`'s result (a ``noc`` row, where there
     is one, right under its variable's)."""
     lines = [f"{'variable':<9} {'MSE':>10} {'MSE×100':>9} {'BadPix.07':>9} {'EPE':>8} {'pixels':>8}"]

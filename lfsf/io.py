@@ -48,16 +48,14 @@ from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import imageio.v3 as iio
 import numpy as np
+from numpy.typing import ArrayLike
 
 from lfsf._errors import LfsfWarning, whole
 from lfsf._files import interrupts_held, is_special_file, output_folder, savez_atomic, write_bytes_atomic
-
-if TYPE_CHECKING:
-    from numpy.typing import ArrayLike
 
 __all__ = [
     "BT601_LUMA",
@@ -166,14 +164,21 @@ class LightField:
     meta: dict = field(default_factory=dict)
 
     # (written out, not the dataclass's, so that type checkers take array_like views: a
-    # list, a memmap; the attribute is the float32 array)
+    # list, a memmap; the attribute is the float32 array that __post_init__ makes)
     def __init__(self, views: ArrayLike, source: str = "<array>", meta: Mapping[str, Any] | None = None) -> None:
-        self.source = str(source)
-        self.views = _validated_views(views, self.source)
-        if meta is not None and not isinstance(meta, Mapping):
+        self.views = views  # type: ignore[assignment]
+        self.source = source
+        self.meta = meta  # type: ignore[assignment]
+        self.__post_init__()
+
+    # (the checks here, where a dataclass of its own that extends LightField calls them too)
+    def __post_init__(self) -> None:
+        self.source = str(self.source)
+        self.views = _validated_views(self.views, self.source)
+        if self.meta is not None and not isinstance(self.meta, Mapping):
             raise ValueError(f"{self.source}: meta must be a dict (what is known of the light field), got "
-                             f"{type(meta).__name__}")
-        self.meta = dict(meta) if meta is not None else {}
+                             f"{type(self.meta).__name__}")
+        self.meta = dict(self.meta) if self.meta is not None else {}
 
     def __repr__(self) -> str:
         rows, cols = self.grid

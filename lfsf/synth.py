@@ -28,13 +28,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from lfsf import device as _device
 from lfsf._errors import LfsfWarning
 
 if TYPE_CHECKING:
-    from numpy.typing import ArrayLike
-
     from lfsf.io import LightField
 
 #: Depth (world units) seen with zero disparity, and f·B (px · world units): a point at

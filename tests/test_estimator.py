@@ -2196,3 +2196,40 @@ def test_an_interrupt_is_sent_again_without_os_kill_on_windows(monkeypatch):
     except KeyboardInterrupt:
         raised = True
     assert raised
+
+
+def test_a_dropped_interrupt_under_a_users_own_handler_is_raised_not_sent_again():
+    """Where the user's program has a SIGINT handler of its own (say, one that ends the
+    process on a second Ctrl-C), a Ctrl-C dropped in a ``__del__`` is not sent again,
+    which would run that handler a second time: it is raised as the call ends. So where
+    SIGINT is ignored (it had been swallowed without a word)."""
+    code = (
+        "import signal, time\n"
+        "from lfsf._errors import interrupts_kept\n"
+        "calls = []\n"
+        "def handler(signum, frame):\n"
+        "    calls.append(signum)\n"
+        "    raise KeyboardInterrupt\n"
+        "class Freed:\n"
+        "    def __del__(self):\n"
+        "        if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:\n"
+        "            raise KeyboardInterrupt\n"
+        "        signal.raise_signal(signal.SIGINT)\n"
+        "@interrupts_kept\n"
+        "def call():\n"
+        "    Freed()\n"
+        "    time.sleep(0.3)\n"
+        "    return 'returned'\n"
+        "for how in (handler, signal.SIG_IGN):\n"
+        "    signal.signal(signal.SIGINT, how)\n"
+        "    try:\n"
+        "        print(call())\n"
+        "    except KeyboardInterrupt:\n"
+        "        print('interrupted')\n"
+        "    time.sleep(0.1)\n"
+        "print(calls)\n"
+    )
+    import subprocess
+
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.stdout.splitlines() == ["interrupted", "interrupted", "[2]"], (proc.stdout, proc.stderr[-3000:])

@@ -64,6 +64,8 @@ lf = lfsf.LightField([[np.zeros((8, 8), np.float32)]], source="a list")
 sf = lfsf.estimate_scene_flow(lf1, lf2, "fast", device="cpu")
 errors = evaluate.evaluate(sf, truth)
 mse = errors["disp1"]["mse"]
+percent = 100 * errors["flow"]["epe"] + round(errors["disp1"]["mse"], 3)
+f1 = errors["occluded"]["f1"]
 camera = lfsf.Camera.from_truth(truth)
 points1, points2 = sf.points(camera)
 reveal_type(lf1)
@@ -72,6 +74,7 @@ reveal_type(lfsf.Params.preset("paper"))
 reveal_type(synth.render_scene)
 reveal_type(mse)
 reveal_type(points1)
+reveal_type(f1)
 '''
 
 WRONG_PROGRAM = '''
@@ -85,9 +88,10 @@ sf.nothing
 
 def test_mypy_types_the_public_api_and_refuses_a_wrong_call(tmp_path):
     """mypy --strict on a user's program: a correct one has no error, its values are
-    typed (LightField, SceneFlow, Params; an error figure ``float | None``, as the
-    occlusion row's shares can be None), and a wrong argument type or attribute is an
-    error (with the lazily loaded names typed Any both passed)."""
+    typed (LightField, SceneFlow, Params; an error figure a float, but the occlusion
+    row's shares ``float | None``, as they can be None: ``evaluate.Scores``), and a wrong
+    argument type or attribute is an error (with the lazily loaded names typed Any both
+    passed)."""
     if importlib.util.find_spec("mypy") is None:
         pytest.skip("mypy is not installed (the dev extra installs it)")
     root = INIT.parent.parent
@@ -109,12 +113,12 @@ def test_mypy_types_the_public_api_and_refuses_a_wrong_call(tmp_path):
              if "Revealed type" in line]
     errors = [line for line in lines if ": error:" in line]
     assert [e for e in errors if e.startswith("user.py")] == [], out.stdout
-    assert len(notes) == 6, out.stdout + out.stderr
+    assert len(notes) == 7, out.stdout + out.stderr
     assert notes[0] == "lfsf.io.LightField" and notes[1] == "lfsf.estimate.SceneFlow", notes
     assert notes[2] == "lfsf.params.Params", notes
     assert "-> tuple[lfsf.io.LightField, lfsf.io.LightField, dict[str, Any]]" in notes[3], notes
-    # (mypy before 1.11 or so writes Union[float, None])
-    assert notes[4] in ("float | None", "Union[float, None]") and notes[5].startswith("numpy.ndarray"), notes
+    assert notes[4] == "float" and notes[5].startswith("numpy.ndarray"), notes
+    assert notes[6] in ("float | None", "Union[float, None]"), notes   # (mypy before 1.11 or so: Union[…])
     wrong = [e for e in errors if e.startswith("wrong.py")]
     assert len(wrong) == 2 and "wrong.py:5:" in wrong[0] and '"device"' in wrong[0], out.stdout
     assert "wrong.py:6:" in wrong[1] and '"nothing"' in wrong[1], out.stdout
