@@ -7,10 +7,6 @@ import errno
 import math
 import numbers
 import re
-from typing import Callable, ParamSpec, TypeVar
-
-P = ParamSpec("P")
-R = TypeVar("R")
 
 
 class LfsfWarning(UserWarning):
@@ -201,24 +197,23 @@ def _interrupts_redelivered(raise_lost: bool = False):
         raise lost[-1]
 
 
-def interrupts_kept(fn: Callable[P, R]) -> Callable[P, R]:
-    """``fn`` (a long library call: :func:`lfsf.estimate_scene_flow`) with a Ctrl-C that
+@contextlib.contextmanager
+def interrupts_kept():
+    """A long library call's body (:func:`lfsf.estimate_scene_flow`) with a Ctrl-C that
     Python dropped in a ``__del__`` during it raised after all
     (:func:`_interrupts_redelivered`): in a notebook or a script, one in some 75 during an
     estimate had been lost, the call running on to its end with "Exception ignored in:
-    <function array.__del__ …> KeyboardInterrupt" on stderr. Called from another thread
-    than the main one (which alone gets signals), ``fn`` runs as it is."""
-    import functools
+    <function array.__del__ …> KeyboardInterrupt" on stderr. In another thread than the
+    main one (which alone gets signals), the body runs as it is. (A context, not a
+    decorator: a wrapper's frame would hold the call's arguments, the light fields that
+    the estimate frees once sampled.)"""
     import threading
 
-    @functools.wraps(fn)
-    def kept(*args: P.args, **kwargs: P.kwargs) -> R:
-        if threading.current_thread() is not threading.main_thread():
-            return fn(*args, **kwargs)
-        with _interrupts_redelivered(raise_lost=True):
-            return fn(*args, **kwargs)
-
-    return kept
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    with _interrupts_redelivered(raise_lost=True):
+        yield
 
 
 def quiet_interrupts_in_finalisers(unraisable) -> None:
