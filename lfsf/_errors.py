@@ -168,9 +168,15 @@ def _interrupts_redelivered(raise_lost: bool = False):
         exc = unraisable.exc_value
         if isinstance(exc, KeyboardInterrupt):
             signum = getattr(exc, "signum", None) or signal.SIGINT
+            own = signal.getsignal(signum) is signal.default_int_handler
+            if raise_lost and not own and getattr(previous, "redelivers", False):
+                # within a command's own guard, whose handlers these are (lfsf run's): it sends
+                # the signal again (an estimate had otherwise run on to its end)
+                previous(unraisable)
+                return
             exc.__traceback__ = None   # (its frames, the object being finalised among them, are not kept)
             lost.append(exc)
-            if not raise_lost or signal.getsignal(signum) is signal.default_int_handler:
+            if not raise_lost or own:
                 # sent again a moment later, from another thread, when the main thread has left
                 # the hook (raise_signal or _thread.interrupt_main here run the handler at once,
                 # inside the hook, where its exception is lost as well)
@@ -181,17 +187,17 @@ def _interrupts_redelivered(raise_lost: bool = False):
             return
         previous(unraisable)
 
+    hook.redelivers = True  # type: ignore[attr-defined]
     sys.unraisablehook = hook
     try:
         yield
     finally:
         sys.unraisablehook = previous
-        try:
-            with lock:
-                state["ended"] = True
-        finally:
-            for timer in pending:
-                timer.cancel()
+        state["ended"] = True   # (before the lock: an interrupt while waiting for it leaves no timer to send)
+        for timer in pending:
+            timer.cancel()
+        with lock:   # (a re-send under way holds it: its signal lands here, within the body)
+            pass
     # (only where the body ended without an exception: one in flight goes on as it is)
     if raise_lost and len(lost) > state["sent"]:
         raise lost[-1]

@@ -56,6 +56,12 @@ def _file_name(text: str) -> Path:
     return Path(text)
 
 
+def _report_name(text: str) -> Path | str:
+    """``--json``'s file (:func:`_file_name`), or '-' alone, kept as the text '-': the
+    report on stdout (:data:`JSON_TO_STDOUT`); './-' is a file named '-'."""
+    return text if text == JSON_TO_STDOUT else _file_name(text)
+
+
 def _input_name(text: str) -> Path:
     """An input file: '' would read as the current folder ('.')."""
     if not text:
@@ -171,7 +177,8 @@ JSON_TO_STDOUT = "-"
 
 def _json_on_stdout(args) -> bool:
     """Whether ``--json -`` asks for the JSON on stdout (for a pipe: ``lfsf eval R GT --json - | jq``)."""
-    return getattr(args, "json", None) is not None and str(args.json) == JSON_TO_STDOUT
+    # (the text '-' itself: Path('./-') reads as '-' too, and is a file)
+    return isinstance(getattr(args, "json", None), str) and args.json == JSON_TO_STDOUT
 
 
 def _with_json_report(make_report):
@@ -917,7 +924,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--border", type=int, default=None,
                    help="pixels left out at each edge (default 15 for a .pfm, as the HCI benchmark; 8 for gt.npz; "
                         "divided by K, rounded up, for a result of 'lfsf run --downsample K')")
-    p.add_argument("--json", type=_file_name, help="also write the figures to this JSON file ('-': to stdout, and "
+    p.add_argument("--json", type=_report_name, help="also write the figures to this JSON file ('-': to stdout, and "
                    "the table to stderr)")
     p.set_defaults(func=cmd_eval)
 
@@ -1034,7 +1041,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--inputs", choices=("scene", "random"),
                    help="kernels: what they run on, the arrays of a rendered scene's last warp (default) or "
                         "random views and unknowns (a worst case: every pixel takes the occlusion tests' path)")
-    p.add_argument("--json", type=_file_name, help="also write the rows to this JSON file ('-': to stdout, and the "
+    p.add_argument("--json", type=_report_name, help="also write the rows to this JSON file ('-': to stdout, and the "
                    "tables to stderr)")
     _device_options(p)
     p.set_defaults(func=cmd_bench)

@@ -256,16 +256,20 @@ def _wait_for_compile(device, announce: Callable[[list[str]], None] | None) -> f
         _init_lock.release()
         return 0.0
     start = time.perf_counter()
-    # (the names the other thread compiles, which it sets under the lock: asking the cache
-    # here, as the compile goes on, would hash Warp's modules outside the lock)
-    compiling = _compiling[:]
-    cold = compiling[1:] if compiling and compiling[0] == str(device) else []
-    if cold and announce is not None:
-        announce(cold)
-    while not _init_lock.acquire(timeout=COMPILE_POLL):
-        pass
+    told = False
+    while True:
+        # (the names the other thread compiles, which it sets under the lock once it knows
+        # them, read again at every poll: asking the cache here, as the compile goes on,
+        # would hash Warp's modules outside the lock)
+        compiling = _compiling[:]
+        if not told and compiling[:1] == [str(device)] and len(compiling) > 1:
+            told = True
+            if announce is not None:
+                announce(compiling[1:])
+        if _init_lock.acquire(timeout=COMPILE_POLL):
+            break
     _init_lock.release()
-    return time.perf_counter() - start if cold else 0.0
+    return time.perf_counter() - start if told else 0.0
 
 
 def _load(modules: Sequence, device, announce: Callable[[list[str]], None] | None = None) -> float:
@@ -276,8 +280,6 @@ def _load(modules: Sequence, device, announce: Callable[[list[str]], None] | Non
     threads do not race to compile a module."""
     if all((id(m), str(device)) in _loaded for m in modules):
         return 0.0
-    import time
-
     wp = warp()
     waited = _wait_for_compile(device, announce)
     with _init_lock:
@@ -287,52 +289,57 @@ def _load(modules: Sequence, device, announce: Callable[[list[str]], None] | Non
         cache = wp.config.kernel_cache_dir
         cold = _cold(todo, device) if wp.config.cache_kernels else []
         # (set before the checks and the announcement, which a waiting thread would otherwise
-        # sit through in silence; cleared in the finally below, or by the checks' error)
+        # sit through in silence; cleared in the finally below, whatever ends them)
         _compiling[:] = [str(device), *(m.name for m in cold)] if cold else []
-        if cold:
-            try:
+        try:
+            if cold:
                 _check_cache_room(cache)
                 _remove_dead_builds(cache)
                 if announce is not None:
                     announce([m.name for m in cold])
-            except BaseException:
-                _compiling.clear()
-                raise
-        start = time.perf_counter()
-        try:
-            _compile(wp, todo, device)
-        except OSError as exc:   # (the message had named a build folder of Warp's, or blamed the outputs)
-            if exc.errno not in _CACHE_ERRNOS or not _within(exc.filename, cache):
-                raise
-            # (a folder of the user's own: in a shared cache with the sticky bit, as /tmp, the
-            # folder is writable and the entries of another user's are not)
-            raise OSError(f"Warp's kernel cache {cache}: {exc.strerror} ({exc.filename}) while compiling lfsf's "
-                          f"kernels into it: set WARP_CACHE_PATH to a folder of your own, writable, with room "
-                          f"({CACHE_ROOM >> 20} MB)") from None
-        except Exception as exc:  # noqa: BLE001 - narrowed below to a cache entry that does not read
-            import json
-
-            # (a .meta that is no JSON, an object file that LLVM does not take; not the
-            # codegen's own errors, some ValueErrors, which a damaged cache does not cause)
-            # (nor a module compiled just now, which no deleting mends)
-            failed = re.match(r"Failed to load CPU module '([^']+)'", str(exc))
-            # (a cache filled on a machine of another CPU: the module's folder is there, with
-            # no object of this CPU's in it; Warp could not add this one, which it had compiled)
-            module = next((m for m in cold if failed and m.name == failed.group(1)), None)
-            folder, binary = (None, None) if module is None else _build(module, device)
-            if binary is not None and os.path.isdir(folder) and not os.path.exists(binary):
-                raise OSError(f"Warp's kernel cache {cache}: its entry {folder} holds lfsf's kernels built for "
-                              f"another CPU, and this CPU's could not be added to it (it is another user's, or "
-                              f"not writable): set WARP_CACHE_PATH to a folder of your own") from None
-            if not (isinstance(exc, json.JSONDecodeError) or failed and failed.group(1) not in {m.name for m in cold}):
-                raise
-            raise OSError(f"Warp's kernel cache {cache} holds a damaged entry of lfsf's kernels ({exc}): delete "
-                          f"them (rm -r {os.path.join(cache, 'wp_lfsf.kernels.*')}), and they are compiled "
-                          "again") from None
+            return _compile_into_cache(wp, todo, cold, device, cache)
         finally:
             _compiling.clear()
-        _loaded.update((id(m), str(device)) for m in todo)
-        return time.perf_counter() - start
+
+
+def _compile_into_cache(wp, todo: list, cold: list, device, cache: str) -> float:
+    """:func:`_load`'s compile of ``todo`` (of which ``cold`` the cache holds no build),
+    under its lock: the seconds it took, the cache's errors named."""
+    import time
+
+    start = time.perf_counter()
+    try:
+        _compile(wp, todo, device)
+    except OSError as exc:   # (the message had named a build folder of Warp's, or blamed the outputs)
+        if exc.errno not in _CACHE_ERRNOS or not _within(exc.filename, cache):
+            raise
+        # (a folder of the user's own: in a shared cache with the sticky bit, as /tmp, the
+        # folder is writable and the entries of another user's are not)
+        raise OSError(f"Warp's kernel cache {cache}: {exc.strerror} ({exc.filename}) while compiling lfsf's "
+                      f"kernels into it: set WARP_CACHE_PATH to a folder of your own, writable, with room "
+                      f"({CACHE_ROOM >> 20} MB)") from None
+    except Exception as exc:  # noqa: BLE001 - narrowed below to a cache entry that does not read
+        import json
+
+        # (a .meta that is no JSON, an object file that LLVM does not take; not the
+        # codegen's own errors, some ValueErrors, which a damaged cache does not cause)
+        # (nor a module compiled just now, which no deleting mends)
+        failed = re.match(r"Failed to load CPU module '([^']+)'", str(exc))
+        # (a cache filled on a machine of another CPU: the module's folder is there, with
+        # no object of this CPU's in it; Warp could not add this one, which it had compiled)
+        module = next((m for m in cold if failed and m.name == failed.group(1)), None)
+        folder, binary = (None, None) if module is None else _build(module, device)
+        if binary is not None and os.path.isdir(folder) and not os.path.exists(binary):
+            raise OSError(f"Warp's kernel cache {cache}: its entry {folder} holds lfsf's kernels built for "
+                          f"another CPU, and this CPU's could not be added to it (it is another user's, or "
+                          f"not writable): set WARP_CACHE_PATH to a folder of your own") from None
+        if not (isinstance(exc, json.JSONDecodeError) or failed and failed.group(1) not in {m.name for m in cold}):
+            raise
+        raise OSError(f"Warp's kernel cache {cache} holds a damaged entry of lfsf's kernels ({exc}): delete "
+                      f"them (rm -r {os.path.join(cache, 'wp_lfsf.kernels.*')}), and they are compiled "
+                      "again") from None
+    _loaded.update((id(m), str(device)) for m in todo)
+    return time.perf_counter() - start
 
 
 def _compile(wp, modules: Sequence, device) -> None:

@@ -19,10 +19,11 @@ truth's: precision, recall and F1 (:func:`occlusion_scores`).
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Optional, TypedDict
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -135,17 +136,7 @@ def _check_pair(name, est, ref):
                          f"a ground truth of shape {ref.shape}")
 
 
-#: A row of :func:`evaluate`'s table, by metric (a plain dict at run time, typed per key for
-#: type checkers): a disparity's ``mse``, ``mse_x100``, ``badpix_0.07``; the flow's ``epe``,
-#: ``mse_u``, ``mse_v``; the occlusion row's ``precision``, ``recall``, ``f1`` (None where
-#: a share of nothing), ``marked_px``, ``occluded_px``; every row's ``pixels``.
-Scores = TypedDict("Scores", {
-    "mse": float, "mse_x100": float, "badpix_0.07": float, "epe": float, "mse_u": float, "mse_v": float,
-    "precision": Optional[float], "recall": Optional[float], "f1": Optional[float], "marked_px": int,
-    "occluded_px": int, "pixels": int}, total=False)
-
-
-def disparity_errors(est, gt, valid=None, border: int = 0) -> Scores:
+def disparity_errors(est, gt, valid=None, border: int = 0) -> dict[str, float]:
     """MSE, MSE×100 and BadPix(0.07) (%) of a disparity map over valid, finite pixels."""
     est = _float_map(est)
     gt = _float_map(gt)
@@ -164,7 +155,7 @@ def disparity_errors(est, gt, valid=None, border: int = 0) -> Scores:
     }
 
 
-def flow_errors(u, v, gt_u, gt_v, valid=None, border: int = 0) -> Scores:
+def flow_errors(u, v, gt_u, gt_v, valid=None, border: int = 0) -> dict[str, float]:
     """Mean end-point error and the MSE of each component over valid, finite pixels."""
     u, v, gt_u, gt_v = (_float_map(a) for a in (u, v, gt_u, gt_v))
     _check_pair("flow", u, gt_u)
@@ -186,7 +177,7 @@ def flow_errors(u, v, gt_u, gt_v, valid=None, border: int = 0) -> Scores:
 
 
 def evaluate(estimate: SceneFlow | Mapping[str, np.ndarray], gt: Mapping[str, np.ndarray],
-             border: int = SYNTH_BORDER) -> dict[str, Scores]:
+             border: int = SYNTH_BORDER) -> dict[str, dict[str, float]]:
     """Errors of an estimate (a mapping with some of ``disp1, disp2, u, v``) against a
     ground truth (the same keys, optional bool ``valid``). Only variables present in both
     are evaluated; the flow needs both ``u`` and ``v``.
@@ -202,8 +193,8 @@ def evaluate(estimate: SceneFlow | Mapping[str, np.ndarray], gt: Mapping[str, np
     points seen at t2 as well; with one in the estimate too (bool; a SceneFlow's
     ``occluded``), the row ``occluded`` scores it against the truth's
     (:func:`occlusion_scores`: precision, recall, f1, pixels, marked_px, occluded_px,
-    and no MSE; precision, recall and f1 are None where they would be a share of nothing:
-    :data:`Scores` types each metric). A non-finite value in the estimate is an infinite error (``mse`` inf,
+    and no MSE; precision, recall and f1 are NaN where they would be a share of nothing,
+    so that every value is a number, as its type says). A non-finite value in the estimate is an infinite error (``mse`` inf,
     the pixel bad); ``lfsf eval --json`` writes such values as null.
 
     Raises ``ValueError`` for maps of different sizes, a negative ``border``, or when the
@@ -224,7 +215,7 @@ def evaluate(estimate: SceneFlow | Mapping[str, np.ndarray], gt: Mapping[str, np
             raise ValueError(f"the {name} must be a dict of maps{' or a SceneFlow' if name == 'estimate' else ''} "
                              f"(load_estimate / load_ground_truth read them from files), got {type(maps).__name__}")
     valid = gt.get("valid")
-    out: dict[str, Scores] = {}
+    out: dict[str, dict[str, float]] = {}
     for name in ("disp1", "disp2"):
         if name in estimate and name in gt:
             out[name] = disparity_errors(estimate[name], gt[name], valid, border)
@@ -299,14 +290,16 @@ def downsample_border(border: int, factor: int) -> int:
     return -(-int(border) // int(factor))
 
 
-def occlusion_scores(est, gt, valid=None, border: int = 0) -> Scores:
+def occlusion_scores(est, gt, valid=None, border: int = 0) -> dict[str, float]:
     """How an estimate's mask of the points not seen at t2 (``occluded``, bool) meets the
     ground truth's, over the ``valid`` pixels without ``border``: precision (the share of
     the points marked that are occluded), recall (the share of the occluded points
     marked), their harmonic mean F1, the pixels scored, and of them the points marked
-    (``marked_px``) and the points occluded (``occluded_px``). A share of nothing is None
+    (``marked_px``) and the points occluded (``occluded_px``). A share of nothing is NaN
     (null in JSON): precision where none is marked, recall where none is occluded, F1
-    (2·hits / (marked + occluded)) where neither is; they had read 1.0 (or 0.0) there."""
+    (2·hits / (marked + occluded)) where neither is; they had read 1.0 (or 0.0) there,
+    and then None, which the type ``float`` of every value did not say (NaN since the
+    fifty-ninth session)."""
     est = _bool_mask(est, "estimate's occluded").astype(bool)
     gt = _bool_mask(gt, "occluded").astype(bool)
     if est.shape != gt.shape:
@@ -315,9 +308,9 @@ def occlusion_scores(est, gt, valid=None, border: int = 0) -> Scores:
     e, g = est[mask], gt[mask]
     hits = int(np.count_nonzero(e & g))
     marked, occluded = int(np.count_nonzero(e)), int(np.count_nonzero(g))
-    precision = hits / marked if marked else None
-    recall = hits / occluded if occluded else None
-    f1 = 2 * hits / (marked + occluded) if marked + occluded else None
+    precision = hits / marked if marked else math.nan
+    recall = hits / occluded if occluded else math.nan
+    f1 = 2 * hits / (marked + occluded) if marked + occluded else math.nan
     return {"precision": precision, "recall": recall, "f1": f1, "pixels": int(mask.sum()), "marked_px": marked,
             "occluded_px": occluded}
 
@@ -471,7 +464,7 @@ def _load_npz(path: Path, keys) -> dict[str, np.ndarray]:
     return out
 
 
-def format_table(errors: Mapping[str, Scores]) -> str:
+def format_table(errors: Mapping[str, Mapping[str, float]]) -> str:
     """A small fixed-width table of :func:`evaluate`'s result (a ``noc`` row, where there
     is one, right under its variable's)."""
     lines = [f"{'variable':<9} {'MSE':>10} {'MSE×100':>9} {'BadPix.07':>9} {'EPE':>8} {'pixels':>8}"]
@@ -496,7 +489,7 @@ def format_table(errors: Mapping[str, Scores]) -> str:
             lines.append(f"occluded at t2: none marked and none occluded of {e['pixels']} px")
         else:
             def score(value):
-                return "n/a" if value is None else f"{value:.3f}"
+                return "n/a" if math.isnan(value) else f"{value:.3f}"
 
             lines.append(f"occluded at t2: precision {score(e['precision'])}, recall {score(e['recall'])}, F1 "
                          f"{score(e['f1'])} ({e['marked_px']} px marked, {e['occluded_px']} occluded of {e['pixels']})")

@@ -254,12 +254,13 @@ def test_bench_rows_say_what_they_were_measured_on_and_the_tables_fit_80_columns
     the time) for comparing machines; the timed runs are in the row with the warm-up's
     seconds apart; the tables fit a terminal (the pipeline's had 212 characters). At
     17×17, the smallest size, a view with no occluded pixel has occlusion shares of
-    None: null in the JSON (its rounding had raised TypeError)."""
+    nothing, NaN: null in the JSON (their rounding, when they were None, had raised
+    TypeError)."""
     from lfsf._files import json_bytes
 
     rows = bench.bench_pipeline((17, 17), "cpu", repeats=2, settings=(("paper", "paper", {}),))
     (row,) = rows
-    assert row["errors"]["occluded"]["f1"] is None and '"f1": null' in json_bytes(rows).decode()
+    assert np.isnan(row["errors"]["occluded"]["f1"]) and '"f1": null' in json_bytes(rows).decode()
     assert len(row["seconds"]) == 2 and row["seconds_median"] == pytest.approx(np.median(row["seconds"]))
     assert len(row["warmup_seconds"]) == 1 and 0 < row["rss_start_mb"] <= row["peak_rss_mb"]
     where = row["machine"]

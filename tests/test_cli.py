@@ -174,6 +174,11 @@ def test_json_dash_writes_the_report_to_stdout_and_the_table_to_stderr(tmp_path,
     assert lfsf("eval", tmp_path / "gt.npz", tmp_path / "gt.npz", "--json", tmp_path / "e.json")[0] == 0
     assert json.loads(out) == json.loads((tmp_path / "e.json").read_text())
     assert not (tmp_path / "-").exists()
+    # './-' is a file of that name, as for any other command (Path('./-') reads as '-')
+    status, out, err = lfsf("eval", tmp_path / "gt.npz", tmp_path / "gt.npz", "--json", "./-")
+    assert status == 0 and "flow noc" in out and json.loads((tmp_path / "-").read_text()) == json.loads(
+        (tmp_path / "e.json").read_text())
+    (tmp_path / "-").unlink()
     status, out, err = lfsf("bench", "kernels", "--size", "16", "12", "--repeats", "1", "--json", "-", "--quiet")
     assert status == 0, err
     rows = json.loads(out)
@@ -1023,6 +1028,30 @@ def test_a_signal_whose_exception_is_lost_in_a_finaliser_still_ends_the_command(
             "c.entry()\n")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert (proc.returncode, proc.stderr) == (status, f"lfsf x: {said}\n")
+
+
+@pytest.mark.parametrize("signame, status, said", [("SIGINT", 130, "interrupted"), ("SIGTERM", 143, "terminated")])
+def test_a_signal_lost_in_a_finaliser_during_an_estimate_ends_the_command_at_once(signame, status, said):
+    """Inside a command, the estimate's own guard (lfsf.estimate_scene_flow) sees the
+    command's signal handlers, not Python's, and had kept such a signal to raise as the
+    estimate ended: lfsf run went on to the end of the estimate (minutes; under a
+    scheduler's SIGTERM, up to its SIGKILL). It leaves it to the command's guard, which
+    sends it again at once."""
+    code = ("import signal, time, lfsf.cli as c\n"
+            "from lfsf._errors import interrupts_kept\n"
+            "class Freed:\n"
+            f"    def __del__(self): signal.raise_signal(signal.{signame})\n"
+            "def command():\n"
+            "    with interrupts_kept():\n"
+            "        Freed()\n"
+            "        time.sleep(5)\n"
+            "        print('ran to its end', flush=True)\n"
+            "    return 0\n"
+            "c.main = lambda: c.run_script(command, prog='lfsf x')\n"
+            "c.entry()\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    # (nothing on stdout: ended within the body, not at its end)
+    assert (proc.returncode, proc.stderr, proc.stdout) == (status, f"lfsf x: {said}\n", "")
 
 
 def test_a_signal_between_the_commands_end_and_the_exit_is_the_commands_interrupt():

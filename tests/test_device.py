@@ -562,6 +562,26 @@ def test_a_thread_that_waits_for_another_threads_compile_says_so(monkeypatch):
     assert told == [("first", names), ("second", names)] and compiled == [names]
     assert waited > 0.1 and D._compiling == []
     assert D._load(modules, "cpu", lambda names: told.append(("third", names))) == 0.0 and len(told) == 2
+    # a thread that began to wait before the compiling one knew its modules (hashing them,
+    # under the lock) is told once it does; and not of another device's compile
+    for device, heard in (("cpu", [["lfsf.kernels.tgv"]]), ("cuda:0", [])):
+        said = []
+        ready = threading.Event()
+
+        def holder():
+            with D._init_lock:
+                ready.set()
+                time.sleep(0.3)
+                D._compiling[:] = ["cpu", "lfsf.kernels.tgv"]
+                time.sleep(0.5)
+                D._compiling.clear()
+
+        thread = threading.Thread(target=holder)
+        thread.start()
+        assert ready.wait(10)
+        waited = D._wait_for_compile(device, said.append)
+        thread.join()
+        assert said == heard and (waited > 0.3) == bool(heard), (device, said, waited)
 
 
 @pytest.mark.parametrize("how", ["signal", "interrupt_main"])

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from lfsf import evaluate as E
+from lfsf._files import json_bytes
 
 
 def test_disparity_errors_by_hand():
@@ -78,11 +79,13 @@ def test_an_estimates_occlusion_mask_is_scored_against_the_ground_truths():
     assert inner["precision"] == pytest.approx(3 / 5) and inner["recall"] == pytest.approx(3 / 6)
     assert inner["f1"] == pytest.approx(2 * 0.6 * 0.5 / 1.1) and inner["pixels"] == 19
     none = np.zeros((6, 7), bool)
-    # a share of nothing is None (it had read 1.0, or 0.0)
-    assert E.occlusion_scores(none, none)["f1"] is None
-    assert E.occlusion_scores(none, gt_occ) == {"precision": None, "recall": 0.0, "f1": 0.0, "pixels": 42,
-                                                "marked_px": 0, "occluded_px": 6}
-    assert E.occlusion_scores(est_occ, none)["recall"] is None and E.occlusion_scores(est_occ, none)["f1"] == 0.0
+    # a share of nothing is NaN (it had read 1.0, or 0.0; then None, which its type float did not say)
+    assert math.isnan(E.occlusion_scores(none, none)["f1"])
+    scores = E.occlusion_scores(none, gt_occ)
+    assert math.isnan(scores.pop("precision")) and scores == {"recall": 0.0, "f1": 0.0, "pixels": 42, "marked_px": 0,
+                                                              "occluded_px": 6}
+    assert math.isnan(E.occlusion_scores(est_occ, none)["recall"]) and E.occlusion_scores(est_occ, none)["f1"] == 0.0
+    assert '"recall": null' in json_bytes(E.occlusion_scores(est_occ, none)).decode()  # (JSON has no NaN)
     assert "precision 0.000, recall n/a, F1 0.000" in E.format_table(
         E.evaluate({"u": z, "v": z, "occluded": est_occ}, {**gt, "occluded": np.zeros_like(gt_occ)}, border=0))
     assert "occluded at t2: precision 0.500, recall 0.500, F1 0.500 (6 px marked, 6 occluded of 41)" in E.format_table(

@@ -88,10 +88,9 @@ sf.nothing
 
 def test_mypy_types_the_public_api_and_refuses_a_wrong_call(tmp_path):
     """mypy --strict on a user's program: a correct one has no error, its values are
-    typed (LightField, SceneFlow, Params; an error figure a float, but the occlusion
-    row's shares ``float | None``, as they can be None: ``evaluate.Scores``), and a wrong
-    argument type or attribute is an error (with the lazily loaded names typed Any both
-    passed)."""
+    typed (LightField, SceneFlow, Params; an error figure a float, the occlusion row's
+    shares too, NaN where a share of nothing), and a wrong argument type or attribute is
+    an error (with the lazily loaded names typed Any both passed)."""
     if importlib.util.find_spec("mypy") is None:
         pytest.skip("mypy is not installed (the dev extra installs it)")
     root = INIT.parent.parent
@@ -118,7 +117,7 @@ def test_mypy_types_the_public_api_and_refuses_a_wrong_call(tmp_path):
     assert notes[2] == "lfsf.params.Params", notes
     assert "-> tuple[lfsf.io.LightField, lfsf.io.LightField, dict[str, Any]]" in notes[3], notes
     assert notes[4] == "float" and notes[5].startswith("numpy.ndarray"), notes
-    assert notes[6] in ("float | None", "Union[float, None]"), notes   # (mypy before 1.11 or so: Union[…])
+    assert notes[6] == "float", notes
     wrong = [e for e in errors if e.startswith("wrong.py")]
     assert len(wrong) == 2 and "wrong.py:5:" in wrong[0] and '"device"' in wrong[0], out.stdout
     assert "wrong.py:6:" in wrong[1] and '"nothing"' in wrong[1], out.stdout
