@@ -1176,6 +1176,24 @@ def lenslet_to_views(raw, grid: tuple[int, int]) -> np.ndarray:
 _PFM_HEADER = re.compile(rb"(\S+)\s+(\S+)\s+(\S+)\s+(\S+)\s")
 
 
+def _without_pfm_comments(data: bytes) -> bytes:
+    """PFM bytes with the header's comment lines (``#`` …, after the magic, before the
+    scale: some writers put them there, and the HCI toolkit's reader skips them) taken
+    out; the data untouched. Only the first few lines are looked at."""
+    if b"#" not in data[:256]:
+        return data
+    lines = data.split(b"\n", 8)
+    kept, fields = [], 0
+    for k, line in enumerate(lines[:-1]):
+        if fields >= 4:        # (magic, width, height and scale read: the data follow)
+            return b"\n".join(kept + lines[k:])
+        if k > 0 and line.lstrip().startswith(b"#"):
+            continue
+        kept.append(line)
+        fields += len(line.split())
+    return b"\n".join(kept + lines[-1:])
+
+
 def _refuse_special_file(path: Path) -> None:
     """A ValueError for a path that is there but neither a file nor a folder: reading a
     named pipe waits for a writer, and a device may never end."""
@@ -1211,7 +1229,10 @@ def read_pfm(path: str | os.PathLike) -> np.ndarray:
     -------
     numpy.ndarray, float32, shape (H, W) for ``Pf`` or (H, W, 3) for ``PF``
         Rows top to bottom (the file stores them bottom to top). Values as stored; the
-        magnitude of the scale is not applied (it is 1 in practice).
+        magnitude of the scale is not applied (it is 1 in lfsf's files, the HCI
+        benchmark's and Middlebury's): another is warned about (an LfsfWarning), as the
+        HCI toolkit's reader multiplies the values by it. Header lines that start with
+        ``#`` are skipped, as that reader does (the format has no comments).
 
     Raises
     ------
@@ -1224,6 +1245,7 @@ def read_pfm(path: str | os.PathLike) -> np.ndarray:
     data = _read_bytes(path)
     if data[:2] not in (b"PF", b"Pf"):
         raise ValueError(f"{path}: not a PFM file: expected magic 'PF' or 'Pf', got {data[:2]!r}")
+    data = _without_pfm_comments(data)
     header = _PFM_HEADER.match(data)
     if header is None or header.group(1) not in (b"PF", b"Pf"):
         raise ValueError(f"{path}: malformed PFM header {data[:40]!r}: expected "
@@ -1243,6 +1265,9 @@ def read_pfm(path: str | os.PathLike) -> np.ndarray:
     if scale == 0 or not math.isfinite(scale):
         raise ValueError(f"{path}: bad PFM scale: expected a non-zero number (negative for "
                          f"little-endian), got {scale_text!r}")
+    if abs(scale) != 1:
+        warnings.warn(f"{path}: PFM scale {scale_text.decode('ascii', 'replace')}: the values are read as stored; "
+                      f"the HCI toolkit's reader multiplies them by {abs(scale):g}", LfsfWarning, stacklevel=2)
     channels = 3 if magic == b"PF" else 1
     count = width * height * channels
     # The scale ends with one whitespace byte; writers that put more (a trailing space or
@@ -1385,8 +1410,8 @@ def write_ply(path: str | os.PathLike, points, colours=None, vectors=None, comme
         x, y, z of each point (float32); points with a non-finite coordinate (or vector
         component) are left out.
     colours : array_like, shape (..., 3) or (...), optional
-        RGB or grey per point, floats in [0, 1] (clipped) or uint8: the ``red``,
-        ``green``, ``blue`` properties.
+        RGB or grey per point, floats in [0, 1] (clipped), uint8, or 16-bit integers
+        (scaled by their type's maximum): the ``red``, ``green``, ``blue`` properties.
     vectors : array_like, shape (..., 3), optional
         A vector per point (the 3-D scene flow): the float properties ``flow_x``,
         ``flow_y``, ``flow_z``, which point-cloud viewers show as scalar fields.
@@ -1413,6 +1438,12 @@ def write_ply(path: str | os.PathLike, points, colours=None, vectors=None, comme
         else:
             raise ValueError(f"{path}: colours of shape {col.shape} for points of shape {np.shape(points)}: "
                              "give one grey value or an RGB triple a point")
+        if col.dtype.kind in "iu" and col.dtype != np.uint8:
+            # (integers of another width, 16-bit views': scaled by their type's maximum, as
+            # views are; they had been clipped as floats, to 0 or 255)
+            if col.dtype.itemsize > 2:
+                raise ValueError(f"{path}: colours of {col.dtype}: give floats in [0, 1], uint8 or uint16")
+            col = col.astype(np.float64) / np.iinfo(col.dtype).max
         rgb = col if col.dtype == np.uint8 else np.round(np.clip(col, 0.0, 1.0) * 255.0).astype(np.uint8)
         fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
     if vectors is not None:

@@ -552,6 +552,38 @@ def test_pfm_hand_made_big_endian_colour_with_odd_whitespace(tmp_path):
     assert (tmp_path / "ours.pfm").read_bytes() == b"PF\n2 2\n1\n" + body
 
 
+def test_pfm_comment_lines_are_skipped_and_a_scale_other_than_1_is_warned_about(tmp_path):
+    """Header lines starting with '#' (no part of the format, but some writers put them, and
+    the HCI toolkit's reader skips them) had been a "bad PFM dimensions" error; a scale of
+    magnitude other than 1, which that reader multiplies the values by, was read silently
+    as stored. Data bytes that happen to be '#' (0x23) are data."""
+    top, bottom = [1.5, -2.0, 0.25], [3.0, np.inf, -0.125]
+    body = struct.pack("<6f", *bottom, *top)
+    (tmp_path / "c.pfm").write_bytes(b"Pf\n# made by a tool\n3 2\n  # another\n-1\n" + body)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        np.testing.assert_array_equal(lio.read_pfm(tmp_path / "c.pfm"), [top, bottom])
+    hashes = np.frombuffer(b"#\x00\x80?" * 6, "<f4").reshape(2, 3)   # floats whose bytes hold '#'
+    lio.write_pfm(tmp_path / "h.pfm", hashes)
+    np.testing.assert_array_equal(lio.read_pfm(tmp_path / "h.pfm"), hashes)
+    (tmp_path / "s.pfm").write_bytes(b"Pf\n3 2\n-2.0\n" + body)
+    with pytest.warns(LfsfWarning, match=r"s.pfm: PFM scale -2.0: the values are read as stored; the HCI "
+                                              r"toolkit's reader multiplies them by 2"):
+        np.testing.assert_array_equal(lio.read_pfm(tmp_path / "s.pfm"), [top, bottom])
+
+
+def test_ply_colours_of_16_bit_integers_are_scaled_by_their_maximum(tmp_path):
+    """16-bit colours (a 16-bit view's) had been clipped as floats, to 0 or 255."""
+    points = np.arange(12, dtype=np.float32).reshape(4, 3)
+    colours = np.array([[0, 32768, 65535]] * 4, np.uint16)
+    assert lio.write_ply(tmp_path / "c.ply", points, colours=colours) == 4
+    data = (tmp_path / "c.ply").read_bytes()
+    body = np.frombuffer(data[data.index(b"end_header\n") + 11:], dtype=[("xyz", "<f4", 3), ("rgb", "u1", 3)])
+    np.testing.assert_array_equal(body["rgb"], [[0, 128, 255]] * 4)
+    with pytest.raises(ValueError, match="colours of int64"):
+        lio.write_ply(tmp_path / "d.ply", points, colours=colours.astype(np.int64))
+
+
 @pytest.mark.parametrize("shape", [(5, 7), (5, 7, 3), (1, 1)])
 @pytest.mark.parametrize("little_endian", [True, False])
 def test_pfm_round_trip(tmp_path, shape, little_endian):
