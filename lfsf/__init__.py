@@ -53,7 +53,7 @@ _LAZY = {
     "list_scenes": "lfsf.synth",
 }
 
-# a literal list, which type checkers read (tests/test_api.py checks it against _LAZY)
+# a literal list, which type checkers read (tests/test_typing.py checks it against _LAZY)
 __all__ = [
     "Camera",
     "LfsfWarning",

@@ -7,6 +7,9 @@ import errno
 import math
 import numbers
 import re
+import signal
+import sys
+import threading
 
 
 class LfsfWarning(UserWarning):
@@ -18,6 +21,20 @@ class LfsfWarning(UserWarning):
     silences them, ``"error"`` makes them exceptions; the ``module`` of a filter cannot
     tell them apart, as they are raised at the caller's line. A UserWarning, so that a
     filter of those catches them too."""
+
+
+def warn_at_caller(message: str, category: type[Warning] = LfsfWarning) -> None:
+    """``warnings.warn`` at the line that called into lfsf: the first frame outside the
+    package (a filter's ``module`` matches the user's, wherever in lfsf the warning
+    arises and however many of lfsf's frames lie between)."""
+    import os
+    import warnings
+
+    package = os.path.dirname(os.path.abspath(__file__)) + os.sep
+    frame, level = sys._getframe(1), 2    # (level 1 is this function's)
+    while frame.f_back is not None and os.path.abspath(frame.f_code.co_filename).startswith(package):
+        frame, level = frame.f_back, level + 1
+    warnings.warn(message, category, stacklevel=level)
 
 
 class DependencyError(ImportError):
@@ -78,7 +95,6 @@ def ending_signals() -> tuple:
     """The signals besides SIGINT that end a command as an interrupt does: SIGTERM, and
     SIGHUP where the system has it (the session that ran the command gone: it had left
     its temporary folders behind)."""
-    import signal
 
     return (signal.SIGTERM,) + ((signal.SIGHUP,) if hasattr(signal, "SIGHUP") else ())
 
@@ -88,8 +104,6 @@ def terminate_as_interrupt():
     """While the body runs, SIGTERM and SIGHUP raise :class:`Terminated` (in the main
     thread; from any other thread, or where the signal is ignored, as under ``nohup``,
     nothing changes)."""
-    import signal
-    import threading
 
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -130,77 +144,92 @@ def send_again(signum: int) -> None:
         os.kill(os.getpid(), signum)
 
 
+class _RedeliveringHook:
+    """``sys.unraisablehook`` while a body runs (:func:`_interrupts_redelivered`): a
+    KeyboardInterrupt that Python dropped in a ``__del__`` is sent again a moment later
+    (REDELIVERY_DELAY, :func:`send_again`, from a timer thread, once the main thread has
+    left the hook: ``raise_signal`` or ``_thread.interrupt_main`` here would run the
+    handler at once, inside the hook, where its exception is dropped as well), kept to be
+    raised as the body ends, or handed to the command's own guard; anything else goes to
+    the ``previous`` hook."""
+
+    def __init__(self, previous, raise_lost: bool) -> None:
+        self.previous = previous
+        self.raise_lost = raise_lost
+        self.ended = False
+        self.sent = 0
+        self.lost: list[KeyboardInterrupt] = []
+        self.timers: list[threading.Timer] = []
+        self.lock = threading.Lock()
+
+    def __call__(self, unraisable) -> None:
+        exc = unraisable.exc_value
+        if not isinstance(exc, KeyboardInterrupt):
+            self.previous(unraisable)
+            return
+        signum = getattr(exc, "signum", None) or signal.SIGINT
+        pythons_own = signal.getsignal(signum) is signal.default_int_handler
+        inside_command_guard = isinstance(self.previous, _RedeliveringHook) and not self.previous.raise_lost
+        if self.raise_lost and not pythons_own and inside_command_guard:
+            self.previous(unraisable)   # (the command's handlers: its guard sends the signal again)
+            return
+        exc.__traceback__ = None   # (its frames, the object being finalised among them, are not kept)
+        self.lost.append(exc)
+        if self.raise_lost and not pythons_own:
+            return                 # (a handler of the user's, or none: raised as the body ends)
+        timer = threading.Timer(REDELIVERY_DELAY, self._send_again, (signum,))
+        timer.daemon = True
+        self.timers.append(timer)
+        timer.start()
+
+    def _send_again(self, signum: int) -> None:
+        # (under the lock, which the main thread takes as the body ends: its wait is
+        # interruptible, so the signal lands within the body, not in the caller's code)
+        with self.lock:
+            if self.ended:
+                return
+            self.sent += 1
+            send_again(signum)
+
+    def end(self) -> KeyboardInterrupt | None:
+        """Stop sending; the last interrupt kept and not sent again, if any."""
+        self.ended = True   # (before the lock: an interrupt while waiting for it leaves no timer to send)
+        for timer in self.timers:
+            timer.cancel()
+        with self.lock:     # (a send under way holds it: its signal lands here, within the body)
+            pass
+        return self.lost[-1] if len(self.lost) > self.sent else None
+
+
 @contextlib.contextmanager
 def _interrupts_redelivered(raise_lost: bool = False):
     """While the body runs, a KeyboardInterrupt (or :class:`Terminated`) that Python
     could not raise, because its handler ran inside a ``__del__`` (a Warp array freed as
-    the signal that :func:`lfsf._files.interrupts_held` held back came through), is
-    sent again a moment later (REDELIVERY_DELAY, :func:`send_again`), instead of
-    "Exception ignored in …" with a traceback and the signal lost (status 0). One not yet
-    sent again when the body ends is dropped (a command's: it ended first, as with a
-    signal after its end), or with ``raise_lost`` raised as the body ends (a library
-    call's: the interrupt came during the call). With ``raise_lost`` it is sent again
-    only where the signal's handler is Python's own (``signal.default_int_handler``, as
-    in a script or a notebook's cell): a handler of the user's is not run a second time
-    (one that ends the process on a second Ctrl-C would), nor an ignored signal sent;
-    those are raised as the body ends. Main thread only (``sys.unraisablehook`` is the
-    process's)."""
-    import signal
-    import sys
-    import threading
+    the signal that :func:`lfsf._files.interrupts_held` held back came through), is not
+    lost with "Exception ignored in …" and a traceback (status 0) (:class:`_RedeliveringHook`).
+    Main thread only (``sys.unraisablehook`` is the process's).
 
-    previous = sys.unraisablehook
-    pending: list = []
-    lost: list = []
-    lock = threading.Lock()
-    state = {"ended": False, "sent": 0}
-
-    def resend(signum) -> None:
-        # (sent under the lock, which the main thread takes as the body ends: its wait is
-        # interruptible, so the signal lands within the body, not after it, in the caller's code)
-        with lock:
-            if state["ended"]:
-                return
-            state["sent"] += 1
-            send_again(signum)
-
-    def hook(unraisable):
-        exc = unraisable.exc_value
-        if isinstance(exc, KeyboardInterrupt):
-            signum = getattr(exc, "signum", None) or signal.SIGINT
-            own = signal.getsignal(signum) is signal.default_int_handler
-            if raise_lost and not own and getattr(previous, "redelivers", False):
-                # within a command's own guard, whose handlers these are (lfsf run's): it sends
-                # the signal again (an estimate had otherwise run on to its end)
-                previous(unraisable)
-                return
-            exc.__traceback__ = None   # (its frames, the object being finalised among them, are not kept)
-            lost.append(exc)
-            if not raise_lost or own:
-                # sent again a moment later, from another thread, when the main thread has left
-                # the hook (raise_signal or _thread.interrupt_main here run the handler at once,
-                # inside the hook, where its exception is lost as well)
-                timer = threading.Timer(REDELIVERY_DELAY, resend, (signum,))
-                timer.daemon = True
-                pending.append(timer)
-                timer.start()
-            return
-        previous(unraisable)
-
-    hook.redelivers = True  # type: ignore[attr-defined]
+    Parameters
+    ----------
+    raise_lost : bool
+        False (a command's guard, :func:`run_script`): sent again; one not yet sent when
+        the body ends is dropped (the command ended first, as with a signal after its
+        end). True (a library call's, :func:`interrupts_kept`): sent again where the
+        signal's handler is Python's own (``signal.default_int_handler``: a script, a
+        notebook's cell); inside a command's guard, whose handlers are lfsf's, handed to
+        that guard; else (a handler of the user's, which is not run a second time, or an
+        ignored signal) raised as the body ends, as is one not yet sent.
+    """
+    hook = _RedeliveringHook(sys.unraisablehook, raise_lost)
     sys.unraisablehook = hook
     try:
         yield
     finally:
-        sys.unraisablehook = previous
-        state["ended"] = True   # (before the lock: an interrupt while waiting for it leaves no timer to send)
-        for timer in pending:
-            timer.cancel()
-        with lock:   # (a re-send under way holds it: its signal lands here, within the body)
-            pass
+        sys.unraisablehook = hook.previous
+        lost = hook.end()
     # (only where the body ended without an exception: one in flight goes on as it is)
-    if raise_lost and len(lost) > state["sent"]:
-        raise lost[-1]
+    if raise_lost and lost is not None:
+        raise lost
 
 
 @contextlib.contextmanager
@@ -210,11 +239,10 @@ def interrupts_kept():
     (:func:`_interrupts_redelivered`): in a notebook or a script, one in some 75 during an
     estimate had been lost, the call running on to its end with "Exception ignored in:
     <function array.__del__ …> KeyboardInterrupt" on stderr. In another thread than the
-    main one (which alone gets signals), the body runs as it is. (A context, not a
-    decorator: a wrapper's frame would hold the call's arguments, the light fields that
-    the estimate frees once sampled.)"""
-    import threading
-
+    main one (which alone gets signals), the body runs as it is; inside an lfsf command,
+    the command's guard sends the signal again. (A context, not a decorator: a wrapper's
+    frame would hold the call's arguments, the light fields that the estimate frees once
+    sampled.)"""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -227,7 +255,6 @@ def quiet_interrupts_in_finalisers(unraisable) -> None:
     (or SIGTERM) whose handler ran inside a ``__del__`` of what the command left (Warp
     arrays freed after it) is dropped without the traceback Python prints for it; any
     other exception goes to Python's own hook."""
-    import sys
 
     if not isinstance(unraisable.exc_value, KeyboardInterrupt):
         sys.__unraisablehook__(unraisable)
@@ -242,7 +269,6 @@ def run_script(main, prog: str | None = None) -> int:
     (:func:`terminate_as_interrupt`). ``prog`` defaults to the script's file
     name."""
     import os
-    import sys
 
     prog = prog or os.path.basename(sys.argv[0]) or "script"
     try:
@@ -294,10 +320,8 @@ def out_of_memory(exc: BaseException) -> bool:
 
 
 def _stopped(prog: str, exc: KeyboardInterrupt) -> int:
-    import sys
 
     if isinstance(exc, Terminated):
-        import signal
 
         if exc.signum == getattr(signal, "SIGHUP", None):
             print(f"{prog}: hung up (SIGHUP)", file=sys.stderr)

@@ -55,7 +55,7 @@ def _proc_status_mb(key: str) -> float | None:
 def peak_rss_mb() -> float:
     """Peak resident set size of this process since :func:`reset_peak_rss` (where Linux
     allows it to be reset: VmHWM), else since it started (ru_maxrss), in MB of 10⁶ bytes
-    (until the fifty-ninth session MiB, 2²⁰ bytes: its figures read 4.6 % lower)."""
+    (not MiB: the kernel's kB are 1024 bytes)."""
     peak = _proc_status_mb("VmHWM")
     if peak is not None:
         return peak
@@ -81,11 +81,11 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
-def machine(device: str | None = None) -> dict[str, Any]:
+def machine_record(device: str | None = None) -> dict[str, Any]:
     """What every row records of the machine it was measured on, for comparing machines:
     the CPU model, its logical CPUs (``cpus``) and those this process may use
     (``usable_cpus``), the threads that CPU launches run on, ``device`` and its name
-    (a GPU's model), the Python, Warp and lfsf versions, and the time (UTC)."""
+    (a GPU's model), the Python, Warp and lfsf versions, and when (``measured_at``, UTC)."""
     import datetime
 
     from lfsf import __version__
@@ -97,7 +97,7 @@ def machine(device: str | None = None) -> dict[str, Any]:
     if device is not None:
         wp = _device.warp()
         record.update(device=device, device_name=str(wp.get_device(device).name), warp=wp.config.version)
-    record["date"] = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+    record["measured_at"] = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
     return record
 
 
@@ -170,7 +170,7 @@ def bench_pipeline(size=(640, 480), device: str | None = None, repeats: int = 3,
     say(f"rendering '{scene}' at {width}×{height}")
     lf1, lf2, gt = synth.render_scene(scene, size=(width, height), grid=9, device=dev)
     rows = []
-    where = machine(dev)
+    machine_info = machine_record(dev)
     for name, preset, overrides in settings:
         params = Params.preset(preset).replace(**overrides)
         runs = []
@@ -208,7 +208,7 @@ def bench_pipeline(size=(640, 480), device: str | None = None, repeats: int = 3,
             "peak_rss_scope": "setting" if own_peak else "process",
             "rss_start_mb": None if start is None else round(start, 1),
             "errors": {k: {m: _rounded(x) for m, x in v.items()} for k, v in errors.items()},
-            "machine": where,
+            "machine": machine_info,
         })
     return rows
 
@@ -451,7 +451,7 @@ def bench_kernels(size=(640, 480), device: str | None = None, repeats: int = 20,
         return (time.perf_counter() - t0) / times
 
     rows = []
-    where = machine(dev)
+    machine_info = machine_record(dev)
     if inputs == "scene":
         say(f"rendering the paper scene at {size[0]}×{size[1]} for the kernels' inputs")
     for name, run, nbytes in kernel_cases(size, dev, inputs):
@@ -467,7 +467,7 @@ def bench_kernels(size=(640, 480), device: str | None = None, repeats: int = 20,
         times = {k: max(1, min(MAX_BATCH, math.ceil(MIN_SAMPLE_SECONDS / max(timed(fn), 1e-9))))
                  for k, fn in steps.items()}
         each = f" (the mean of {times[name]} launches)" if times[name] > 1 else ""
-        say(f"{name}: {repeats} sample{'s' if repeats != 1 else ''}{each}, each followed by the copies'")
+        say(f"{name}: {repeats} sample{'s' if repeats != 1 else ''}{each}, each followed by the copies")
         seconds: dict[str, list[float]] = {k: [] for k in steps}
         for _ in range(repeats):
             for k, fn in steps.items():
@@ -487,7 +487,7 @@ def bench_kernels(size=(640, 480), device: str | None = None, repeats: int = 20,
             "memcpy": how,
             "fraction_of_memcpy": round(gbs / copy_gbs, 3),
             "launches_per_sample": times[name],
-            "machine": where,
+            "machine": machine_info,
         })
     return rows
 
@@ -496,10 +496,8 @@ def bench_kernels(size=(640, 480), device: str | None = None, repeats: int = 20,
 
 def _rounded(value):
     """An error figure for the JSON rows: counts (pixels, marked_px) whole, as ``lfsf eval
-    --json`` writes them, the rest to 5 decimals; None (an occlusion share of nothing:
-    a tiny view may have no occluded pixel) stays None, null in the JSON."""
-    if value is None:
-        return None
+    --json`` writes them, the rest to 5 decimals (NaN, an occlusion share of nothing,
+    stays NaN: null in the JSON)."""
     if isinstance(value, (int, np.integer)):
         return int(value)
     return round(float(value), 5)
@@ -536,30 +534,32 @@ def bench_peers(size=(640, 480), device: str | None = None, repeats: int = 3, sc
         ("opencv DualTVL1", lambda: peers.opencv_tvl1(c1, c2)),
         ("skimage TV-L1", lambda: peers.skimage_tvl1(c1, c2)),
     ]
-    def unusable(name: str) -> str | None:
+    def unusable(name: str) -> tuple[str, str] | None:
         # a peer's import, tried before any run (lfsf's runs take minutes at 640×480): why it
-        # cannot run, or None. Not only ImportError: an installed peer whose import fails
-        # otherwise (a NumPy ABI mismatch raises other errors) has its row too
+        # cannot run (in short, and in full), or None. Not only ImportError: an installed peer
+        # whose import fails otherwise (a NumPy ABI mismatch raises other errors) has its row too
         try:
             if name.startswith("opencv"):
                 peers._opencv_dual_tvl1()
             elif name.startswith("skimage"):
                 import skimage.registration  # noqa: F401
         except ImportError as exc:
-            return f"not installed ({exc}); pip install {PEER_PACKAGES[name]} (or pip install -e '.[peers]' in the " \
-                "lfsf checkout)"
+            return "not installed", (f"not installed ({exc}); pip install {peers.PEER_PACKAGES[name]} "
+                                     f"{peers.PEERS_EXTRA_HINT}")
         except Exception as exc:  # noqa: BLE001 (any failure of a peer's import is that peer's row)
-            return f"failed to import ({type(exc).__name__}: {exc})"
+            return "failed to import", f"failed to import ({type(exc).__name__}: {exc})"
         return None
 
+    machine_info = machine_record(dev)
     problems = {name: unusable(name) for name, _fn in methods if not name.startswith("lfsf")}
     for name, problem in problems.items():
         if problem is not None:
-            say(f"{name}: skipped, {problem.split(' (')[0]}")
+            say(f"{name}: skipped, {problem[0]}")
     rows: list[dict[str, Any]] = []
     for name, fn in methods:
-        if problems.get(name) is not None:
-            rows.append({"method": name, "epe": None, "seconds_median": None, "note": problems[name]})
+        problem = problems.get(name)
+        if problem is not None:
+            rows.append({"method": name, "epe": None, "seconds_median": None, "note": problem[1]})
             continue
         say(f"{name}: warm-up and {repeats} run{'s' if repeats != 1 else ''}")
         warmups: list[float] = []
@@ -574,18 +574,13 @@ def bench_peers(size=(640, 480), device: str | None = None, repeats: int = 3, sc
         epe = evaluate({"u": u, "v": v}, gt, border=SYNTH_BORDER)["flow"]["epe"]
         rows.append({"method": name, "device": dev if name.startswith("lfsf") else "cpu", "size": [width, height],
                      "epe": round(float(epe), 5), **summarise(seconds), "warmup_seconds": warmups})
-    # each method's median time over OpenCV's, measured in this run (the issue's comparison)
+    # each method's median time over OpenCV's, measured in this run
     opencv = next((r["seconds_median"] for r in rows if r["method"] == "opencv DualTVL1"), None)
-    where = machine(dev)
     for r in rows:
         r["ratio_to_opencv"] = (None if opencv is None or r["seconds_median"] is None
                                 else round(r["seconds_median"] / opencv, 4))
-        r["machine"] = where
+        r["machine"] = machine_info
     return rows
-
-
-#: The package of each peer of ``lfsf bench peers``, for the line that says how to install it.
-PEER_PACKAGES = {"opencv DualTVL1": "opencv-contrib-python-headless", "skimage TV-L1": "scikit-image"}
 
 
 # --- table ---------------------------------------------------------------------------------
@@ -598,6 +593,10 @@ KERNELS_KEY = ("GB/s: the bytes the kernel must read and write at least (its inp
                "target is 0.5).")
 
 
+#: The widest line of the tables and their notes: a terminal's width.
+TABLE_WIDTH = 80
+
+
 def _wrapped(text: str) -> list[str]:
     """``text`` in lines of at most :data:`TABLE_WIDTH` characters."""
     import textwrap
@@ -605,9 +604,6 @@ def _wrapped(text: str) -> list[str]:
     return textwrap.wrap(text, TABLE_WIDTH)
 
 
-#: The widest line of the tables and their notes, a terminal's (the pipeline's had 13
-#: stage columns, 212 characters).
-TABLE_WIDTH = 80
 
 
 def format_rows(kind: str, rows: list[dict]) -> str:
@@ -620,13 +616,15 @@ def format_rows(kind: str, rows: list[dict]) -> str:
         return f"{r['seconds_median']:.4g} ({r['seconds_min']:.4g}–{r['seconds_max']:.4g})"
 
     if kind == "pipeline":
-        lines = ["| setting | device | size | views | seconds median (min–max) | peak RSS MB |", "|---|---|---|---|---|---|"]
+        lines = ["| setting | device | size | views | seconds median (min–max) | peak RSS MB |",
+                 "|---|---|---|---|---|---|"]
         for r in rows:
             lines.append(f"| {r['setting']} | {r['device']} | {r['size'][0]}×{r['size'][1]} | {r['views']} | {sec(r)} | "
                          f"{r['peak_rss_mb']:.0f} |")
         # the stages, slowest first: seconds of each setting's median run ('–' where a setting has no such stage)
         stages = sorted({k for r in rows for k in r["stages"]}, key=lambda k: -max(r["stages"].get(k, 0) for r in rows))
-        lines += ["", "| stage, seconds | " + " | ".join(r["setting"] for r in rows) + " |", "|---|" + "---|" * len(rows)]
+        lines += ["", "| stage, seconds | " + " | ".join(r["setting"] for r in rows) + " |",
+                  "|---|" + "---|" * len(rows)]
         for k in stages:
             lines.append(f"| {k} | " + " | ".join(f"{r['stages'][k]:.3g}" if k in r["stages"] else "–" for r in rows)
                          + " |")

@@ -56,6 +56,10 @@ def _file_name(text: str) -> Path:
     return Path(text)
 
 
+#: ``--json -``: the JSON on stdout, what a command prints besides it on stderr.
+JSON_TO_STDOUT = "-"
+
+
 def _report_name(text: str) -> Path | str:
     """``--json``'s file (:func:`_file_name`), or '-' alone, kept as the text '-': the
     report on stdout (:data:`JSON_TO_STDOUT`); './-' is a file named '-'."""
@@ -171,10 +175,6 @@ def cmd_synth(args) -> int:
 
 # --- eval ----------------------------------------------------------------------------------
 
-#: ``--json -``: the JSON on stdout, what a command prints besides it on stderr.
-JSON_TO_STDOUT = "-"
-
-
 def _json_on_stdout(args) -> bool:
     """Whether ``--json -`` asks for the JSON on stdout (for a pipe: ``lfsf eval R GT --json - | jq``)."""
     # (the text '-' itself: Path('./-') reads as '-' too, and is a file)
@@ -183,9 +183,8 @@ def _json_on_stdout(args) -> bool:
 
 def _with_json_report(make_report):
     """A command whose ``make_report(args)`` prints its tables and returns the JSON
-    report: written to ``--json FILE`` atomically (the file checked first, by the
-    command), or with ``--json -`` to stdout, what it prints then going to stderr (it
-    had written a file named '-')."""
+    report: written to ``--json FILE`` atomically (the file checked before any work), or
+    with ``--json -`` to stdout, what it prints then going to stderr."""
     import functools
 
     @functools.wraps(make_report)
@@ -193,6 +192,8 @@ def _with_json_report(make_report):
         from lfsf._files import json_bytes, write_json_atomic
 
         on_stdout = _json_on_stdout(args)
+        if args.json and not on_stdout:
+            output_file(args.json)
         with contextlib.redirect_stdout(sys.stderr) if on_stdout else contextlib.nullcontext():
             report = make_report(args)
         if on_stdout:
@@ -229,7 +230,6 @@ def cmd_eval(args) -> dict:
                                load_ground_truth, recorded_downsample)
 
     if args.json and not _json_on_stdout(args):
-        output_file(args.json)
         _not_an_input(args.json, args.result, args.gt)
     estimate = load_estimate(args.result)
     gt, default_border = load_ground_truth(args.gt)
@@ -822,8 +822,6 @@ def cmd_bench(args) -> list:
     from lfsf.device import resolve_device
 
     device = resolve_device(args.device)
-    if args.json and not _json_on_stdout(args):
-        output_file(args.json)
     if args.inputs and args.kind != "kernels":
         raise ValueError(f"--inputs applies to `lfsf bench kernels`, not to {args.kind}")
     size = tuple(args.size) if args.size else None
@@ -856,13 +854,12 @@ def cmd_bench(args) -> list:
 
 
 def _machine() -> str:
-    """The machine in a line: the CPU's model (not only its architecture, which
-    ``platform.processor()`` gives on Linux), its CPUs, Python's version."""
-    import platform
+    """The machine in a line (:func:`lfsf.bench.machine_record`): the CPU's model, its
+    CPUs, Python's version."""
+    from lfsf.bench import machine_record
 
-    from lfsf.bench import cpu_model
-
-    return f"{cpu_model()}, {os.cpu_count()} CPUs, Python {platform.python_version()}"
+    m = machine_record()
+    return f"{m['cpu']}, {m['cpus']} CPUs, Python {m['python']}"
 
 
 def _device_options(p) -> None:

@@ -23,9 +23,13 @@ ENV_DEVICE = "LFSF_DEVICE"
 ENV_THREADS = "LFSF_THREADS"
 
 _init_lock = threading.Lock()
-#: The device and the names of the modules that the thread holding _init_lock compiles
-#: (:func:`_load`; empty where it compiles none).
-_compiling: list[str] = []
+#: Seconds between the checks of a wait for a compile (:func:`_compile`'s for its modules,
+#: :func:`_wait_for_compile`'s for another thread's): an interrupt raised as a flag, not a
+#: signal, is seen at the next.
+COMPILE_POLL = 0.1
+#: (device, names of the modules) that the thread holding _init_lock compiles
+#: (:func:`_load`), or None where it compiles none.
+_compiling: tuple[str, tuple[str, ...]] | None = None
 _loaded: set[tuple[int, str]] = set()
 _pool: ThreadPoolExecutor | None = None
 _initialised = False
@@ -233,10 +237,10 @@ def _forked_child() -> None:
     default on Linux before Python 3.14): the parent's pool is forgotten, whose threads
     the child does not have (its launches waited for them for ever), and so is the
     lock, which a thread of the parent may have held at the fork."""
-    global _pool, _init_lock
+    global _pool, _init_lock, _compiling
     _pool = None
     _init_lock = threading.Lock()
-    _compiling.clear()
+    _compiling = None
 
 
 if hasattr(os, "register_at_fork"):
@@ -245,11 +249,10 @@ if hasattr(os, "register_at_fork"):
 
 def _wait_for_compile(device, announce: Callable[[list[str]], None] | None) -> float:
     """Where another thread holds the lock of :func:`_load`, wait for it, with
-    ``announce`` told first of the modules that thread compiles where it compiles some
-    for the same ``device`` (a thread that waited 14.5 s for another's compile had said
-    nothing); the seconds it waited where there was such a compile, else 0. The wait
-    polls (COMPILE_POLL), so that an interrupt raised as a flag is seen. The lock is not
-    kept: :func:`_load` takes it again."""
+    ``announce`` told of the modules that thread compiles for the same ``device`` (once
+    it knows them); the seconds it waited where there was such a compile, else 0. The
+    wait polls (COMPILE_POLL), so that an interrupt raised as a flag is seen. The lock is
+    not kept: :func:`_load` takes it again."""
     import time
 
     if _init_lock.acquire(blocking=False):
@@ -261,11 +264,11 @@ def _wait_for_compile(device, announce: Callable[[list[str]], None] | None) -> f
         # (the names the other thread compiles, which it sets under the lock once it knows
         # them, read again at every poll: asking the cache here, as the compile goes on,
         # would hash Warp's modules outside the lock)
-        compiling = _compiling[:]
-        if not told and compiling[:1] == [str(device)] and len(compiling) > 1:
+        compiling = _compiling
+        if not told and compiling is not None and compiling[0] == str(device) and compiling[1]:
             told = True
             if announce is not None:
-                announce(compiling[1:])
+                announce(list(compiling[1]))
         if _init_lock.acquire(timeout=COMPILE_POLL):
             break
     _init_lock.release()
@@ -274,10 +277,13 @@ def _wait_for_compile(device, announce: Callable[[list[str]], None] | None) -> f
 
 def _load(modules: Sequence, device, announce: Callable[[list[str]], None] | None = None) -> float:
     """Compile or load the Warp modules ``modules`` on ``device`` (a Warp device), those
-    not loaded yet in this process, several at once; the seconds it took (0 where
-    nothing was left to load). ``announce`` is given the names of those that the kernel
-    cache holds no build of, before they are compiled. Held under the lock, so that
-    threads do not race to compile a module."""
+    not loaded yet in this process, several at once, under a lock, so that threads do
+    not race to compile a module. Returns the seconds spent waiting for another thread's
+    compile for this device plus compiling or loading what was still missing (0 where
+    all were loaded). ``announce`` is given the names of the modules that the kernel
+    cache holds no build of, before they are compiled, or while this thread waits, those
+    that another thread compiles (:func:`_wait_for_compile`)."""
+    global _compiling
     if all((id(m), str(device)) in _loaded for m in modules):
         return 0.0
     wp = warp()
@@ -290,21 +296,22 @@ def _load(modules: Sequence, device, announce: Callable[[list[str]], None] | Non
         cold = _cold(todo, device) if wp.config.cache_kernels else []
         # (set before the checks and the announcement, which a waiting thread would otherwise
         # sit through in silence; cleared in the finally below, whatever ends them)
-        _compiling[:] = [str(device), *(m.name for m in cold)] if cold else []
+        _compiling = (str(device), tuple(m.name for m in cold)) if cold else None
         try:
             if cold:
                 _check_cache_room(cache)
                 _remove_dead_builds(cache)
                 if announce is not None:
                     announce([m.name for m in cold])
-            return _compile_into_cache(wp, todo, cold, device, cache)
+            return waited + _compile_or_load(wp, todo, cold, device, cache)
         finally:
-            _compiling.clear()
+            _compiling = None
 
 
-def _compile_into_cache(wp, todo: list, cold: list, device, cache: str) -> float:
-    """:func:`_load`'s compile of ``todo`` (of which ``cold`` the cache holds no build),
-    under its lock: the seconds it took, the cache's errors named."""
+def _compile_or_load(wp, todo: list, cold: list, device, cache: str) -> float:
+    """:func:`_load`'s compile or load of ``todo`` (of which the cache holds no build of
+    ``cold``) under its lock: marks them loaded and returns the seconds; Warp's errors
+    from the cache become an OSError naming it."""
     import time
 
     start = time.perf_counter()
@@ -371,11 +378,6 @@ def _compile(wp, modules: Sequence, device) -> None:
                 future.result()
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
-
-
-#: Seconds between the checks of :func:`_compile`'s wait for its modules (an interrupt
-#: raised as a flag is seen at the next).
-COMPILE_POLL = 0.1
 
 
 #: A build folder of Warp's older than this, whose process is not running here, is a

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Callable, NamedTuple, Union
 import numpy as np
 
 from lfsf import device as _device
-from lfsf._errors import LfsfWarning, interrupts_kept
+from lfsf._errors import interrupts_kept, warn_at_caller
 from lfsf._filters import box_mean
 from lfsf._filters import gaussian_blur as _blur
 from lfsf.gains import (GAIN_CHANGE, MAX_GAIN, MIN_VIEW_SIZE, fit_reduced_gains, gain_change, reduction_factor,
@@ -209,9 +209,10 @@ class SceneFlow:
         centre views ``centre1`` and ``centre2``, at t1 and t2, are given) into ``out``, as
         one set: all are written into a temporary folder inside ``out`` first and moved
         into place only when every one is complete, so a failure or an interrupt leaves
-        none of them (and no mix with an earlier run's). ``gt``, ``title`` and ``border`` (that its error means leave out, as
-        :func:`lfsf.evaluate.evaluate`'s) go to the overview (:func:`lfsf.viz.overview_figure`):
-        ``gt`` or ``title`` without the centre views is an error. ``inputs``: what to
+        none of them (and no mix with an earlier run's). ``gt``, ``title`` and ``border``
+        (that its error means leave out, as :func:`lfsf.evaluate.evaluate`'s) go to the
+        overview (:func:`lfsf.viz.overview_figure`): ``gt`` or ``title`` without the centre
+        views is an error. ``inputs``: what to
         record in ``sceneflow.npz`` of the inputs (``lfsf batch``'s
         :func:`lfsf.batch.input_record`; None: this result's own ``inputs``).
         :meth:`load` reads the result back.
@@ -345,20 +346,12 @@ WARNINGS_TO_PROGRESS: contextvars.ContextVar[bool] = contextvars.ContextVar("lfs
 
 def _warn(message: str, say) -> None:
     """``message`` as a :class:`Warned` line to ``say`` (:data:`WARNINGS_TO_PROGRESS`), or
-    as an :class:`lfsf.LfsfWarning` at the line that called into lfsf (the first frame
-    outside the package: a filter's ``module`` matches the user's; a count of frames had
-    pointed into lfsf once a frame was added between the estimate and its caller)."""
+    as an :class:`lfsf.LfsfWarning` at the line that called into lfsf
+    (:func:`lfsf._errors.warn_at_caller`)."""
     if WARNINGS_TO_PROGRESS.get():
         say(Warned(message))
     else:
-        import sys
-        import warnings
-
-        package = os.path.dirname(os.path.abspath(__file__)) + os.sep
-        frame, level = sys._getframe(1), 2    # (level 1 is this function's)
-        while frame.f_back is not None and os.path.abspath(frame.f_code.co_filename).startswith(package):
-            frame, level = frame.f_back, level + 1
-        warnings.warn(message, LfsfWarning, stacklevel=level)
+        warn_at_caller(message)
 
 
 class Note(str):
@@ -1831,7 +1824,7 @@ def estimate_scene_flow(
         return _estimate_scene_flow(handed, params, device=device, progress=progress, init=init)
 
 
-def _estimate_scene_flow(handed: list, params: Params | str | None, *, device: str | None,
+def _estimate_scene_flow(handed: list[LightFieldLike], params: Params | str | None, *, device: str | None,
                          progress: ProgressFn | None, init: SceneFlow | Mapping[str, np.ndarray] | None) -> SceneFlow:
     """:func:`estimate_scene_flow` of the two light fields in ``handed`` (taken out of it)."""
     lf1, lf2 = handed.pop(0), handed.pop(0)

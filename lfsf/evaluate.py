@@ -19,6 +19,7 @@ truth's: precision, recall and F1 (:func:`occlusion_scores`).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 from collections.abc import Mapping
@@ -194,8 +195,9 @@ def evaluate(estimate: SceneFlow | Mapping[str, np.ndarray], gt: Mapping[str, np
     ``occluded``), the row ``occluded`` scores it against the truth's
     (:func:`occlusion_scores`: precision, recall, f1, pixels, marked_px, occluded_px,
     and no MSE; precision, recall and f1 are NaN where they would be a share of nothing,
-    so that every value is a number, as its type says). A non-finite value in the estimate is an infinite error (``mse`` inf,
-    the pixel bad); ``lfsf eval --json`` writes such values as null.
+    so that every value is a number, as its type says). A non-finite value in the
+    estimate is an infinite error (``mse`` inf, the pixel bad); ``lfsf eval --json``
+    writes such values as null.
 
     Raises ``ValueError`` for maps of different sizes, a negative ``border``, or when the
     border, the ``valid`` mask and non-finite ground truth leave no pixel to evaluate.
@@ -239,16 +241,13 @@ def evaluate(estimate: SceneFlow | Mapping[str, np.ndarray], gt: Mapping[str, np
         seen = ~occluded
         if valid is not None:
             seen &= _bool_mask(valid, "valid").astype(bool)
-        for name in ("disp2", "flow"):
-            if name not in out:
-                continue
-            try:
-                if name == "disp2":
-                    out["disp2_noc"] = disparity_errors(estimate["disp2"], gt["disp2"], seen, border)
-                else:
-                    out["flow_noc"] = flow_errors(estimate["u"], estimate["v"], gt["u"], gt["v"], seen, border)
-            except ValueError:  # every point evaluated is hidden at t2: nothing to add
-                pass
+        # (a ValueError: every point evaluated is hidden at t2, nothing to add)
+        if "disp2" in out:
+            with contextlib.suppress(ValueError):
+                out["disp2_noc"] = disparity_errors(estimate["disp2"], gt["disp2"], seen, border)
+        if "flow" in out:
+            with contextlib.suppress(ValueError):
+                out["flow_noc"] = flow_errors(estimate["u"], estimate["v"], gt["u"], gt["v"], seen, border)
     if "occluded" in estimate and gt.get("occluded") is not None:
         out["occluded"] = occlusion_scores(estimate["occluded"], gt["occluded"], valid, border)
     return out
@@ -297,9 +296,8 @@ def occlusion_scores(est, gt, valid=None, border: int = 0) -> dict[str, float]:
     marked), their harmonic mean F1, the pixels scored, and of them the points marked
     (``marked_px``) and the points occluded (``occluded_px``). A share of nothing is NaN
     (null in JSON): precision where none is marked, recall where none is occluded, F1
-    (2·hits / (marked + occluded)) where neither is; they had read 1.0 (or 0.0) there,
-    and then None, which the type ``float`` of every value did not say (NaN since the
-    fifty-ninth session)."""
+    (2·hits / (marked + occluded)) where neither is (not 1.0 or 0.0, which would claim a
+    score; not None, which the type ``float`` of every value does not allow)."""
     est = _bool_mask(est, "estimate's occluded").astype(bool)
     gt = _bool_mask(gt, "occluded").astype(bool)
     if est.shape != gt.shape:

@@ -54,7 +54,7 @@ import imageio.v3 as iio
 import numpy as np
 from numpy.typing import ArrayLike
 
-from lfsf._errors import LfsfWarning, whole
+from lfsf._errors import LfsfWarning, warn_at_caller, whole
 from lfsf._files import interrupts_held, is_special_file, output_folder, savez_atomic, write_bytes_atomic
 
 __all__ = [
@@ -171,7 +171,8 @@ class LightField:
         self.meta = meta  # type: ignore[assignment]
         self.__post_init__()
 
-    # (the checks here, where a dataclass of its own that extends LightField calls them too)
+    # (kept as __post_init__, so that a dataclass that extends LightField, whose generated
+    # __init__ calls it, gets the same checks)
     def __post_init__(self) -> None:
         self.source = str(self.source)
         self.views = _validated_views(self.views, self.source)
@@ -1176,13 +1177,18 @@ def lenslet_to_views(raw, grid: tuple[int, int]) -> np.ndarray:
 _PFM_HEADER = re.compile(rb"(\S+)\s+(\S+)\s+(\S+)\s+(\S+)\s")
 
 
+#: The lines of a PFM header looked at for comments (the magic, the size, the scale and
+#: comments between them).
+PFM_HEADER_LINES = 8
+
+
 def _without_pfm_comments(data: bytes) -> bytes:
     """PFM bytes with the header's comment lines (``#`` …, after the magic, before the
     scale: some writers put them there, and the HCI toolkit's reader skips them) taken
-    out; the data untouched. Only the first few lines are looked at."""
-    if b"#" not in data[:256]:
+    out; the data untouched. Only the first PFM_HEADER_LINES lines are looked at."""
+    lines = data.split(b"\n", PFM_HEADER_LINES)
+    if not any(line.lstrip().startswith(b"#") for line in lines[1:-1]):
         return data
-    lines = data.split(b"\n", 8)
     kept, fields = [], 0
     for k, line in enumerate(lines[:-1]):
         if fields >= 4:        # (magic, width, height and scale read: the data follow)
@@ -1264,10 +1270,10 @@ def read_pfm(path: str | os.PathLike) -> np.ndarray:
         scale = math.nan
     if scale == 0 or not math.isfinite(scale):
         raise ValueError(f"{path}: bad PFM scale: expected a non-zero number (negative for "
-                         f"little-endian), got {scale_text!r}")
+                         f"little-endian), got {scale_text.decode('ascii', 'replace')!r}")
     if abs(scale) != 1:
-        warnings.warn(f"{path}: PFM scale {scale_text.decode('ascii', 'replace')}: the values are read as stored; "
-                      f"the HCI toolkit's reader multiplies them by {abs(scale):g}", LfsfWarning, stacklevel=2)
+        warn_at_caller(f"{path}: PFM scale {scale_text.decode('ascii', 'replace')}: the values are read as stored; "
+                       f"the HCI toolkit's reader multiplies them by {abs(scale):g}")
     channels = 3 if magic == b"PF" else 1
     count = width * height * channels
     # The scale ends with one whitespace byte; writers that put more (a trailing space or
@@ -1410,8 +1416,8 @@ def write_ply(path: str | os.PathLike, points, colours=None, vectors=None, comme
         x, y, z of each point (float32); points with a non-finite coordinate (or vector
         component) are left out.
     colours : array_like, shape (..., 3) or (...), optional
-        RGB or grey per point, floats in [0, 1] (clipped), uint8, or 16-bit integers
-        (scaled by their type's maximum): the ``red``, ``green``, ``blue`` properties.
+        RGB or grey per point, floats in [0, 1] (clipped), uint8, or integers of 8 or 16
+        bits (scaled by their type's maximum): the ``red``, ``green``, ``blue`` properties.
     vectors : array_like, shape (..., 3), optional
         A vector per point (the 3-D scene flow): the float properties ``flow_x``,
         ``flow_y``, ``flow_z``, which point-cloud viewers show as scalar fields.
@@ -1438,12 +1444,9 @@ def write_ply(path: str | os.PathLike, points, colours=None, vectors=None, comme
         else:
             raise ValueError(f"{path}: colours of shape {col.shape} for points of shape {np.shape(points)}: "
                              "give one grey value or an RGB triple a point")
-        if col.dtype.kind in "iu" and col.dtype != np.uint8:
-            # (integers of another width, 16-bit views': scaled by their type's maximum, as
-            # views are; they had been clipped as floats, to 0 or 255)
-            if col.dtype.itemsize > 2:
-                raise ValueError(f"{path}: colours of {col.dtype}: give floats in [0, 1], uint8 or uint16")
-            col = col.astype(np.float64) / np.iinfo(col.dtype).max
+        if col.dtype.kind in "iu" and col.dtype != np.uint8:   # (scaled by their type's maximum, as views are)
+            refuse_wide_integers(col, str(path), what="colours")
+            col = _to_unit_float32(col)
         rgb = col if col.dtype == np.uint8 else np.round(np.clip(col, 0.0, 1.0) * 255.0).astype(np.uint8)
         fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
     if vectors is not None:

@@ -7,8 +7,11 @@ import difflib
 import math
 import numbers
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from types import MappingProxyType
+from typing import Any
 
 import numpy as np
 
@@ -295,8 +298,8 @@ class Params:
         disparity_search : start each level's disparities from whichever is better, per
             pixel, of the warped estimate and a plane sweep over the samples.
         late_search : fuse the sweep's maps once more on the finest level, before its
-            last warp, where the flow does not match the centre views (an addition; needs
-            ``disparity_search``). Through the cross-time rows (ρ3) a wrong flow at an
+            last warp, where the flow does not match the centre views (an addition; without
+            ``disparity_search`` it does nothing). Through the cross-time rows (ρ3) a wrong flow at an
             outline drags δ1 and δ2 over the warps to the other surface's depth, which the
             t1 samples alone do not give them; there ties go to the sweep
             (``lfsf.estimate.LATE_SEARCH_MARGIN``), where a surface at the sweep's depth
@@ -558,9 +561,10 @@ class Params:
                 need(MIN_REAL <= abs(value) <= MAX_REAL,
                      f"{f.name} must be {'positive and' if f.name in positive else '0 or'} of magnitude "
                      f"{MIN_REAL:g}…{MAX_REAL:g}, got {value:g}")
-        need(self.circles >= 1, f"circles (M) must be at least 1, got {self.circles}")
+        need(1 <= self.circles <= MAX_SAMPLES, f"circles (M) must be in 1…{MAX_SAMPLES}, got {_shown(self.circles)}")
         need(len(self.samples) == self.circles,
-             f"samples (N_i) must give one count per circle: M = {self.circles}, N = {self.samples}")
+             f"samples (N_i) must give one count per circle: M = {self.circles}, N = {self.samples} (set "
+             f"circles = {len(self.samples)} with these samples)")
         need(self.samples[0] == 1,
              f"samples: the first circle is the centre view, N_0 must be 1, got {self.samples[0]}")
         need(all(n >= 1 for n in self.samples), f"samples: every N_i must be at least 1, got {self.samples}")
@@ -577,7 +581,8 @@ class Params:
                      "rof_weight", "eps"):
             value = getattr(self, name)
             need(value >= 0, f"{name} must be a finite number {'> 0' if name in positive else '≥ 0'}, got {value}")
-        need(self.alpha0 > 0 and self.alpha1 > 0, "alpha0 and alpha1 must be positive")
+        for name in ("alpha0", "alpha1"):
+            need(getattr(self, name) > 0, f"{name} must be positive, got {getattr(self, name)}")
         need(self.alpha0_flow is None or MIN_REAL <= self.alpha0_flow <= MAX_REAL,
              f"alpha0_flow must be positive and of magnitude {MIN_REAL:g}…{MAX_REAL:g} (or None: alpha0's), "
              f"got {self.alpha0_flow}")
@@ -601,7 +606,8 @@ class Params:
         need(0 <= self.dark_view_fraction < 1,
              f"dark_view_fraction must be in [0, 1), got {self.dark_view_fraction}")
         need(0 < self.pyramid_scale < 1, f"pyramid_scale (η_s) must be in (0, 1), got {self.pyramid_scale}")
-        need(self.min_size >= 4, f"min_size must be at least 4, got {self.min_size}")
+        need(4 <= self.min_size <= MAX_MIN_SIZE,
+             f"min_size must be in 4…{MAX_MIN_SIZE} px, got {_shown(self.min_size)}")
         # run time grows linearly with these; the presets use 3–5 warps of 20–100
         # iterations and 30–60 ROF iterations
         for name, most in (("warps", MAX_WARPS), ("iterations", MAX_ITERATIONS)):
@@ -611,8 +617,9 @@ class Params:
              f"final_iterations must be in 0…{MAX_ITERATIONS} (0: as iterations), got {self.final_iterations}")
         need(0 <= self.rof_iterations <= MAX_ITERATIONS,
              f"rof_iterations must be in 0…{MAX_ITERATIONS}, got {self.rof_iterations}")
-        need(self.max_levels >= 0, f"max_levels must be ≥ 0, got {self.max_levels}")
-        need(self.warm_levels >= 0, f"warm_levels must be ≥ 0, got {self.warm_levels}")
+        for name in ("max_levels", "warm_levels"):
+            value = getattr(self, name)
+            need(0 <= value <= MAX_LEVELS, f"{name} must be in 0…{MAX_LEVELS}, got {_shown(value)}")
         need(0 <= self.median_radius <= 3, f"median_radius must be in 0…3, got {self.median_radius}")
         need(self.median_tolerance >= 0, f"median_tolerance must be ≥ 0, got {self.median_tolerance}")
         need(0 <= self.depth_change_radius <= 3,
@@ -700,6 +707,17 @@ class Params:
         again)."""
         return dataclasses.asdict(self)
 
+    def key(self) -> str:
+        """A name of these settings that is the same in every process and every run of
+        Python, for a sweep's stored results (``hash()`` is not: Python hashes None, and
+        text, anew in each process): the first 16 hex digits of the SHA-256 of the
+        settings as sorted JSON. Equal Params have equal keys."""
+        import hashlib
+        import json
+
+        text = json.dumps(self.as_dict(), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
+
     def __repr__(self) -> str:
         """The settings that differ from the defaults (the `paper` preset), as a call
         that makes the same Params: ``Params()`` for `paper`; all of them (55) made a repr
@@ -757,6 +775,10 @@ MAX_HIDDEN_FILL_SIGMA = 64.0
 MAX_VIEW_GAIN_SIGMA = 256.0
 MAX_WARPS = 1000
 MAX_ITERATIONS = 100_000
+#: max_levels' and warm_levels' bound, and min_size's (px): far beyond any pyramid (one of
+#: η_s = 0.99 over 8192 px has some 700 levels); 1e300 had been taken, its 300 digits shown.
+MAX_LEVELS = 10_000
+MAX_MIN_SIZE = 1 << 16
 MAX_DISPARITY_RANGE = 32.0
 MAX_FLOW_RANGE = 512.0
 #: Settings added since results were first recorded, each with the value that does what
@@ -765,6 +787,15 @@ MAX_FLOW_RANGE = 512.0
 BEFORE_ADDED = {"flow_range_share": 0.0}
 #: flow_range_share's bound: a quarter of the longer side already searches most of a level.
 MAX_FLOW_RANGE_SHARE = 0.25
+
+
+def _shown(value) -> str:
+    """A setting's value for a message: a whole number of more than 12 digits as about
+    its magnitude (1e300 taken as an int had filled the message with 300 digits)."""
+    if isinstance(value, int) and abs(value) >= 10 ** 12:
+        digits = str(abs(value))
+        return f"{'-' if value < 0 else ''}{digits[0]}.{digits[1:3]}e{len(digits) - 1}"
+    return str(value)
 
 
 def _bad(name: str, expected: str, value) -> ValueError:
@@ -816,7 +847,7 @@ _TYPE_CHECKS = {"int": _whole, "float": _real, "bool": _flag, "tuple[int, ...]":
                 "float | None": lambda name, value: None if value is None else _real(name, value)}
 
 
-PRESETS: dict[str, dict] = {
+_PRESETS: dict[str, dict] = {
     "paper": {},
     # (ROF with the default 60 steps since the forty-third session: with 30, unconverged,
     # the structure part's blurred edges left a halo in the texture that moved with the
@@ -837,3 +868,7 @@ PRESETS: dict[str, dict] = {
     "flow": {"circles": 1, "samples": (1,), "warps": 5, "iterations": 20, "final_iterations": 0,
              "rof_iterations": 30, "step_ratio": 0.25},
 }
+#: The presets by name, read-only (a setting changed here had changed every later
+#: ``Params.preset`` in the process, and in its forked workers but not its spawned ones).
+PRESETS: Mapping[str, Mapping[str, Any]] = MappingProxyType({name: MappingProxyType(settings)
+                                                            for name, settings in _PRESETS.items()})

@@ -30,10 +30,11 @@ import warnings
 
 import numpy as np
 
-#: How to install the peers, for messages where one is missing (from anywhere: the
-#: ``peers`` extra needs the lfsf checkout).
-INSTALL_HINT = ("pip install opencv-contrib-python-headless scikit-image plenpy "
-                "(or pip install -e '.[peers]' in the lfsf checkout)")
+#: The package that installs each peer of ``lfsf bench peers``, and the extra that installs
+#: them all from the lfsf checkout (which the extra needs): what the line of a peer not
+#: installed says to do.
+PEER_PACKAGES = {"opencv DualTVL1": "opencv-contrib-python-headless", "skimage TV-L1": "scikit-image"}
+PEERS_EXTRA_HINT = "(or pip install -e '.[peers]' in the lfsf checkout)"
 
 #: ITU-R BT.601 luma weights, as ``lfsf.io.LightField.grey`` uses.
 _LUMA = np.asarray((0.299, 0.587, 0.114), dtype=np.float32)

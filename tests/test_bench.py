@@ -265,7 +265,7 @@ def test_bench_rows_say_what_they_were_measured_on_and_the_tables_fit_80_columns
     assert len(row["warmup_seconds"]) == 1 and 0 < row["rss_start_mb"] <= row["peak_rss_mb"]
     where = row["machine"]
     assert where["cpu"] == bench.cpu_model() and where["cpus"] == os.cpu_count() and where["device"] == "cpu"
-    assert {"python", "warp", "lfsf", "date", "usable_cpus", "cpu_threads"} <= set(where)
+    assert {"python", "warp", "lfsf", "measured_at", "usable_cpus", "cpu_threads"} <= set(where)
     if os.path.exists("/proc/cpuinfo"):
         with open("/proc/cpuinfo") as f:
             models = [line.split(":", 1)[1].strip() for line in f if line.startswith("model name")]

@@ -527,10 +527,10 @@ def test_a_compile_is_announced_before_it_starts(monkeypatch):
     assert told == ["preload"]
 
 
-def test_a_thread_that_waits_for_another_threads_compile_says_so(monkeypatch):
+def test_a_thread_that_waits_for_another_threads_compile_is_told_the_modules_being_compiled(monkeypatch):
     """Two estimates in two threads on a cold cache: the thread that waited for the
-    other's compile (14.5 s) had said nothing; it is told of the modules being compiled,
-    and does not compile them again."""
+    other's compile (14.5 s) had been told nothing; it is told of the modules being
+    compiled, does not compile them again, and counts the wait in its seconds."""
     import threading
     import time
 
@@ -560,28 +560,35 @@ def test_a_thread_that_waits_for_another_threads_compile_says_so(monkeypatch):
     first.join()
     names = ["lfsf.kernels.tgv", "lfsf.kernels.rof"]
     assert told == [("first", names), ("second", names)] and compiled == [names]
-    assert waited > 0.1 and D._compiling == []
+    assert waited > 0.1 and D._compiling is None
     assert D._load(modules, "cpu", lambda names: told.append(("third", names))) == 0.0 and len(told) == 2
-    # a thread that began to wait before the compiling one knew its modules (hashing them,
-    # under the lock) is told once it does; and not of another device's compile
-    for device, heard in (("cpu", [["lfsf.kernels.tgv"]]), ("cuda:0", [])):
-        said = []
-        ready = threading.Event()
 
-        def holder():
-            with D._init_lock:
-                ready.set()
-                time.sleep(0.3)
-                D._compiling[:] = ["cpu", "lfsf.kernels.tgv"]
-                time.sleep(0.5)
-                D._compiling.clear()
 
-        thread = threading.Thread(target=holder)
-        thread.start()
-        assert ready.wait(10)
-        waited = D._wait_for_compile(device, said.append)
-        thread.join()
-        assert said == heard and (waited > 0.3) == bool(heard), (device, said, waited)
+@pytest.mark.parametrize("device, heard", [("cpu", [["lfsf.kernels.tgv"]]), ("cuda:0", [])])
+def test_a_waiting_thread_is_told_once_the_compile_knows_its_modules_and_only_of_its_devices(monkeypatch, device,
+                                                                                              heard):
+    """A thread that began to wait before the compiling one knew its modules (hashing them,
+    under the lock) is told once it does; a compile for another device is not its own."""
+    import threading
+    import time
+
+    said = []
+    ready = threading.Event()
+
+    def holder():
+        with D._init_lock:
+            ready.set()
+            time.sleep(0.3)
+            monkeypatch.setattr(D, "_compiling", ("cpu", ("lfsf.kernels.tgv",)))
+            time.sleep(0.5)
+            monkeypatch.setattr(D, "_compiling", None)
+
+    thread = threading.Thread(target=holder)
+    thread.start()
+    assert ready.wait(10)
+    waited = D._wait_for_compile(device, said.append)
+    thread.join()
+    assert said == heard and (waited > 0.3) == bool(heard), (device, said, waited)
 
 
 @pytest.mark.parametrize("how", ["signal", "interrupt_main"])

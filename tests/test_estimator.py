@@ -2181,11 +2181,11 @@ def test_an_interrupt_is_sent_again_without_os_kill_on_windows(monkeypatch):
 
     from lfsf import _errors
 
-    def killed(*_a):
+    def refuse_os_kill(*_a):
         raise AssertionError("os.kill called")
 
     monkeypatch.setattr(os, "name", "nt")
-    monkeypatch.setattr(os, "kill", killed)
+    monkeypatch.setattr(os, "kill", refuse_os_kill)
     raised = False
     try:
         timer = threading.Timer(0.05, _errors.send_again, (signal.SIGINT,))

@@ -580,7 +580,7 @@ def test_ply_colours_of_16_bit_integers_are_scaled_by_their_maximum(tmp_path):
     data = (tmp_path / "c.ply").read_bytes()
     body = np.frombuffer(data[data.index(b"end_header\n") + 11:], dtype=[("xyz", "<f4", 3), ("rgb", "u1", 3)])
     np.testing.assert_array_equal(body["rgb"], [[0, 128, 255]] * 4)
-    with pytest.raises(ValueError, match="colours of int64"):
+    with pytest.raises(ValueError, match="integer colours of dtype int64 .*give them as np.uint16"):
         lio.write_ply(tmp_path / "d.ply", points, colours=colours.astype(np.int64))
 
 

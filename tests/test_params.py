@@ -416,3 +416,45 @@ def test_a_result_written_before_a_setting_was_added_reads_as_what_it_did(tmp_pa
     np.savez_compressed(tmp_path / "r/sceneflow.npz", **saved)
     assert SceneFlow.load(tmp_path / "r").params.flow_range_share == 0.0
     assert Params.from_toml(tmp_path / "r").flow_range_share == 0.0
+
+
+def test_a_params_key_is_the_same_in_every_process_and_differs_with_any_setting():
+    """``hash()`` of a Params differs from process to process (Python hashes None anew in
+    each): a sweep's stored results keyed by it missed. ``key()`` is stable."""
+    import subprocess
+    import sys
+
+    fast = Params.preset("fast")
+    code = "from lfsf import Params; print(Params.preset('fast').key(), Params.preset('fast').replace(lambda1=2).key())"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == [fast.key(), fast.replace(lambda1=2).key()] and out[0] != out[1]
+    assert fast.replace(warps=3.0).key() == fast.key() and len(fast.key()) == 16
+    assert len({Params.preset(name).key() for name in PRESETS}) == len(PRESETS)
+
+
+def test_the_presets_cannot_be_changed_for_the_whole_process():
+    """``PRESETS["fast"]["warps"] = 9`` had changed every later ``Params.preset("fast")``
+    (in forked workers too, not in spawned ones)."""
+    with pytest.raises(TypeError):
+        PRESETS["fast"]["warps"] = 9
+    with pytest.raises(TypeError):
+        PRESETS["mine"] = {}
+    assert Params.preset("fast").warps == 3
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"max_levels": 10 ** 400}, "max_levels must be in 0…10000, got 1.00e400"),
+    ({"warm_levels": 1e300}, "warm_levels must be in 0…10000"),
+    ({"min_size": 1e300}, "min_size must be in 4…65536 px"),
+    ({"circles": 1e300}, "circles (M) must be in 1…256, got 1.00e300"),
+    ({"alpha0": 0}, "alpha0 must be positive, got 0"),
+    ({"alpha1": 0}, "alpha1 must be positive, got 0"),
+    ({"samples": (1, 16)}, "M = 3, N = (1, 16) (set circles = 2 with these samples)"),
+])
+def test_settings_out_of_range_say_which_and_what_to_do(changes, message):
+    """Bounds for the pyramid's settings (1e300 had been taken, and shown with its 300
+    digits); alpha0 = 0 named neither setting; samples alone did not say that circles
+    must follow."""
+    with pytest.raises(ValueError) as caught:
+        Params.preset("paper").replace(**changes)
+    assert message in str(caught.value) and len(str(caught.value)) < 300, str(caught.value)

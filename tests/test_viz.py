@@ -383,7 +383,7 @@ def test_save_png_converts_float_and_grey(tmp_path):
 
 
 @pytest.mark.parametrize("failure", [OSError("disk full"), KeyboardInterrupt()])
-def test_failing_write_leaves_no_partial_file(tmp_path, monkeypatch, failure):
+def test_failing_write_leaves_no_partial_or_open_file(tmp_path, monkeypatch, failure):
     """A write that fails (a full disk) or is interrupted leaves neither a partial file
     nor an open one: Pillow closes a file it opened itself on an Exception only, and an
     interrupt had left the part file open until the collector came (a ResourceWarning)."""
