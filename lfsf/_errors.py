@@ -320,9 +320,7 @@ def out_of_memory(exc: BaseException) -> bool:
 
 
 def _stopped(prog: str, exc: KeyboardInterrupt) -> int:
-
     if isinstance(exc, Terminated):
-
         if exc.signum == getattr(signal, "SIGHUP", None):
             print(f"{prog}: hung up (SIGHUP)", file=sys.stderr)
             return EXIT_HUNG_UP
