@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import math
 import numbers
 import os
@@ -425,15 +426,7 @@ class Params:
 
     def replace(self, **changes) -> "Params":
         """A copy with some settings changed (validated)."""
-        names = [f.name for f in dataclasses.fields(self)]
-        unknown = sorted(set(changes) - set(names))
-        if unknown:
-            guesses = {k: _nearest_names(k, names) for k in unknown}
-            meant = [f"{k}: did you mean {' or '.join(guess)}?" for k, guess in guesses.items() if guess]
-            # (the 50-odd names only where some name has no near one: a line of 900 characters)
-            known = "" if all(guesses.values()) else f"; known: {', '.join(names)}"
-            raise ValueError(f"unknown parameter(s) {', '.join(unknown)}"
-                             + (f" ({'; '.join(meant)})" if meant else "") + known)
+        _refuse_unknown(changes)
         return dataclasses.replace(self, **changes)
 
     @classmethod
@@ -787,6 +780,35 @@ MAX_FLOW_RANGE = 512.0
 BEFORE_ADDED = {"flow_range_share": 0.0}
 #: flow_range_share's bound: a quarter of the longer side already searches most of a level.
 MAX_FLOW_RANGE_SHARE = 0.25
+
+
+def _refuse_unknown(settings: Mapping[str, Any]) -> None:
+    """A ValueError for names in ``settings`` that are no setting of :class:`Params`,
+    with the nearest names ("did you mean lambda1?")."""
+    names = [f.name for f in dataclasses.fields(Params)]
+    unknown = sorted(set(settings) - set(names))
+    if unknown:
+        guesses = {k: _nearest_names(k, names) for k in unknown}
+        meant = [f"{k}: did you mean {' or '.join(guess)}?" for k, guess in guesses.items() if guess]
+        # (the 50-odd names only where some name has no near one: a line of 900 characters)
+        known = "" if all(guesses.values()) else f"; known: {', '.join(names)}"
+        raise ValueError(f"unknown parameter(s) {', '.join(unknown)}"
+                         + (f" ({'; '.join(meant)})" if meant else "") + known)
+
+
+def _init_naming_unknown_settings(init):
+    """The dataclass's ``__init__`` with a setting of no such name refused as
+    :meth:`Params.replace` and TOML files refuse it, with the nearest names: ``Params(
+    lamda1=3)`` had been Python's TypeError, without a hint."""
+    @functools.wraps(init)
+    def checked(self, *args, **kwargs) -> None:
+        _refuse_unknown(kwargs)
+        init(self, *args, **kwargs)
+
+    return checked
+
+
+Params.__init__ = _init_naming_unknown_settings(Params.__init__)  # type: ignore[method-assign]
 
 
 def _shown(value) -> str:

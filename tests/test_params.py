@@ -458,3 +458,17 @@ def test_settings_out_of_range_say_which_and_what_to_do(changes, message):
     with pytest.raises(ValueError) as caught:
         Params.preset("paper").replace(**changes)
     assert message in str(caught.value) and len(str(caught.value)) < 300, str(caught.value)
+
+
+def test_a_setting_of_no_such_name_is_refused_with_the_nearest_names_however_params_is_made():
+    """``Params(lamda1=3)`` and ``dataclasses.replace`` had been Python's TypeError with no
+    hint, where ``.replace`` and TOML files say "did you mean lambda1?"; the constructor's
+    signature and positional use are as before."""
+    import inspect
+
+    for make in (lambda: Params(lamda1=3), lambda: dataclasses.replace(Params(), lamda1=3),
+                 lambda: Params.preset("fast").replace(lamda1=3), lambda: Params(**{**Params().as_dict(), "lamda1": 3})):
+        with pytest.raises(ValueError, match=r"unknown parameter\(s\) lamda1 \(lamda1: did you mean lambda1\?\)"):
+            make()
+    assert list(inspect.signature(Params).parameters)[:3] == ["circles", "samples", "radius"]
+    assert Params(2, (1, 8)) == Params.preset("paper").replace(circles=2, samples=(1, 8))
