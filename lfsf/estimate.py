@@ -111,6 +111,20 @@ class SceneFlow:
         height, width = self.disp1.shape
         return f"SceneFlow({width}×{height}, R={self.radius:g}, device={self.device!r})"
 
+    def _repr_png_(self) -> bytes:
+        """The maps as a picture, which IPython and Jupyter show for a result at a cell's
+        end: δ1, δ2 and the flow with their keys (:func:`lfsf.viz.maps_figure`), under a
+        title of its size, sampling radius and device."""
+        from lfsf import viz
+        from lfsf.io import encode_png
+
+        height, width = self.disp1.shape
+        # ("x", not the repr's "×", which the pictures' font lacks)
+        title = f"SceneFlow {width}x{height}, R={self.radius:g}, {self.device}"
+        figure = viz.maps_figure(self.disp1, self.disp2, self.u, self.v, title=title,
+                                 disparities=not self.params.flow_only)
+        return encode_png(figure, source="SceneFlow")
+
     def as_dict(self) -> dict[str, np.ndarray]:
         """The four maps δ1, δ2, u, v by name (``disp1``, ``disp2``, ``u``, ``v``), as
         :func:`lfsf.evaluate.evaluate` and ``np.savez`` take them; ``occluded``, where

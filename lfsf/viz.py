@@ -838,6 +838,18 @@ def ground_truth_maps(gt, shape: tuple[int, int]) -> tuple[dict[str, np.ndarray]
     return {k: np.where(valid, a, np.nan) for k, a in truth.items()}, valid
 
 
+def maps_figure(disp1, disp2, u, v, *, title: str | None = None, label: str = "estimate",
+                disparities: bool = True, max_flow: float | None = None) -> np.ndarray:
+    """The estimate's row of :func:`overview_figure` alone: δ1, δ2 (one colour scale) and
+    the flow, each with its key, under an optional ``title``, as an (H', W', 3) uint8
+    picture; for a result without its centre views at hand (a notebook shows a
+    :class:`lfsf.SceneFlow` so). ``disparities`` False draws δ1 and δ2 as not estimated
+    (a flow-only result's)."""
+    blank = np.zeros(np.shape(disp1), np.float32)   # (the centre views' row, left out)
+    rows = _overview_panels(blank, blank, disp1, disp2, u, v, None, max_flow, label, None, disparities)
+    return _compose(rows[1:], title, _overview_notes(rows, None, disparities))
+
+
 def overview_figure(centre1, centre2, disp1, disp2, u, v, gt: Mapping | None = None,
                     path: str | os.PathLike | None = None, title: str | None = None,
                     max_flow: float | None = None, label: str = "estimate", occluded=None,

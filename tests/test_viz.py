@@ -704,3 +704,30 @@ def test_a_narrow_flow_key_keeps_its_number():
     narrow = viz._wheel_label(draw, font, 9.28, int(draw.textlength(wide, font=font)) - 1)
     assert narrow == "full: 9.28 px"
     assert viz._wheel_label(draw, font, 9.28, int(draw.textlength("full: 9.28 px", font=font)) - 1) == "9.28 px"
+
+
+def test_a_scene_flow_shows_itself_as_a_picture_of_its_maps():
+    """A notebook shows a result at a cell's end by its ``_repr_png_``: the overview's
+    estimate row (δ1, δ2 on one scale, the flow, their keys) under its size, radius and
+    device, without the centre views it does not hold; a flow-only result's disparities
+    as not estimated."""
+    import io as io_module
+
+    from PIL import Image
+
+    from lfsf import Params
+    from lfsf.estimate import SceneFlow
+
+    rng = np.random.default_rng(3)
+    d1, d2, u, v = (rng.normal(size=(30, 40)).astype(np.float32) for _ in range(4))
+    sf = SceneFlow(d1, d2, u, v, Params.preset("fast"), 2.0, "cpu")
+    picture = np.asarray(Image.open(io_module.BytesIO(sf._repr_png_())).convert("RGB"))
+    expected = viz.maps_figure(d1, d2, u, v, title="SceneFlow 40x30, R=2, cpu")
+    np.testing.assert_array_equal(picture, expected)
+    whole = viz.overview_figure(d1, d1, d1, d2, u, v)
+    assert expected.shape[1] == whole.shape[1] and expected.shape[0] < whole.shape[0]
+    flow_only = SceneFlow(d1 * 0, d2 * 0, u, v, Params.preset("flow"), 0.0, "cpu")
+    shown = np.asarray(Image.open(io_module.BytesIO(flow_only._repr_png_())).convert("RGB"))
+    assert shown.shape == expected.shape and not np.array_equal(shown, expected)
+    grey = np.all(shown == viz.NOT_ESTIMATED_GREY, axis=-1)
+    assert grey[:, : shown.shape[1] // 3].mean() > 0.4   # (δ1's panel: plain grey)
