@@ -187,6 +187,13 @@ class LightField:
         return (f"LightField(grid={rows}×{cols}, size={self.width}×{self.height}, {kind}, "
                 f"source={self.source!r})")
 
+    def _repr_png_(self) -> bytes:
+        """The centre view as a picture, which IPython and Jupyter show for a light field
+        at a cell's end (:func:`lfsf.viz.view_picture`)."""
+        from lfsf.viz import view_picture
+
+        return encode_png(view_picture(self.centre), source=self.source)
+
     @property
     def grid(self) -> tuple[int, int]:
         """(rows, cols) of the view grid."""

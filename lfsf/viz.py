@@ -527,6 +527,13 @@ def _shown_together(centre1, centre2):
     return tuple((c.astype(np.float64) - lo) / (hi - lo) for c in views)
 
 
+def view_picture(view) -> np.ndarray:
+    """A view (H, W) or (H, W, 3) as an 8-bit picture, as the overview draws the centre
+    views: float views beyond [0, 1] (counts given as floats) mapped from their range."""
+    shown, _ = _shown_together(view, view)
+    return _to_uint8_image(shown)
+
+
 def _check_map_shape(name: str, a, shape: tuple[int, ...]) -> np.ndarray:
     a = _check_map(name, a)
     if a.shape != shape:

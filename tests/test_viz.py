@@ -731,3 +731,23 @@ def test_a_scene_flow_shows_itself_as_a_picture_of_its_maps():
     assert shown.shape == expected.shape and not np.array_equal(shown, expected)
     grey = np.all(shown == viz.NOT_ESTIMATED_GREY, axis=-1)
     assert grey[:, : shown.shape[1] // 3].mean() > 0.4   # (δ1's panel: plain grey)
+
+
+def test_a_light_field_shows_itself_as_its_centre_view():
+    """A notebook shows a light field at a cell's end by its ``_repr_png_``: the centre
+    view, 8 bits, grey or RGB; float views beyond [0, 1] from their range (not clipped to
+    white), as the overview draws them."""
+    import io as io_module
+
+    from PIL import Image
+
+    from lfsf.io import LightField
+
+    rng = np.random.default_rng(5)
+    for views in (rng.random((3, 3, 12, 16)), rng.random((3, 3, 12, 16, 3))):
+        lf = LightField(views.astype(np.float32))
+        shown = np.asarray(Image.open(io_module.BytesIO(lf._repr_png_())))
+        np.testing.assert_array_equal(shown, np.round(lf.centre * 255).astype(np.uint8))
+    counts = LightField((views * 200).astype(np.float32))          # 0…200 given as floats
+    shown = np.asarray(Image.open(io_module.BytesIO(counts._repr_png_()))).astype(float)
+    assert (shown == 255).mean() < 0.05 and shown.std() > 30   # (clipped, nearly all would read 255)
