@@ -95,7 +95,6 @@ def ending_signals() -> tuple:
     """The signals besides SIGINT that end a command as an interrupt does: SIGTERM, and
     SIGHUP where the system has it (the session that ran the command gone: it had left
     its temporary folders behind)."""
-
     return (signal.SIGTERM,) + ((signal.SIGHUP,) if hasattr(signal, "SIGHUP") else ())
 
 
@@ -104,7 +103,6 @@ def terminate_as_interrupt():
     """While the body runs, SIGTERM and SIGHUP raise :class:`Terminated` (in the main
     thread; from any other thread, or where the signal is ignored, as under ``nohup``,
     nothing changes)."""
-
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -255,7 +253,6 @@ def quiet_interrupts_in_finalisers(unraisable) -> None:
     (or SIGTERM) whose handler ran inside a ``__del__`` of what the command left (Warp
     arrays freed after it) is dropped without the traceback Python prints for it; any
     other exception goes to Python's own hook."""
-
     if not isinstance(unraisable.exc_value, KeyboardInterrupt):
         sys.__unraisablehook__(unraisable)
 

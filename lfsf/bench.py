@@ -508,7 +508,7 @@ def bench_peers(size=(640, 480), device: str | None = None, repeats: int = 3, sc
     """Rows per method on the same synthetic pair: seconds (median, spread) and the flow
     end-point error over valid pixels (8-px border), and the median's ratio to OpenCV's
     (``ratio_to_opencv``). Peers are checked before any run: one that is not installed
-    gets a row saying so and what to install (:data:`PEER_PACKAGES`), one whose import
+    gets a row saying so and what to install (:data:`lfsf.peers.PEER_PACKAGES`), one whose import
     or run fails another way a row saying how, and the others are measured still."""
     from lfsf import peers, synth
     from lfsf.estimate import estimate_scene_flow
@@ -604,16 +604,15 @@ def _wrapped(text: str) -> list[str]:
     return textwrap.wrap(text, TABLE_WIDTH)
 
 
-
-
 def format_rows(kind: str, rows: list[dict]) -> str:
     """Markdown tables of benchmark rows, each line at most :data:`TABLE_WIDTH` wide
     (the pipeline's stages a table of their own, a column per setting; notes under the
     table, not in its cells)."""
-    def sec(r):
+    def sec(r, unit: float = 1.0):
+        """Median (min–max) of a row's times, in seconds over ``unit`` (1e-3: ms)."""
         if r.get("seconds_median") is None:
             return "–"
-        return f"{r['seconds_median']:.4g} ({r['seconds_min']:.4g}–{r['seconds_max']:.4g})"
+        return f"{r['seconds_median'] / unit:.4g} ({r['seconds_min'] / unit:.4g}–{r['seconds_max'] / unit:.4g})"
 
     if kind == "pipeline":
         lines = ["| setting | device | size | views | seconds median (min–max) | peak RSS MB |",
@@ -639,8 +638,7 @@ def format_rows(kind: str, rows: list[dict]) -> str:
     if kind == "kernels":
         lines = ["| kernel | ms a launch, median (min–max) | GB/s | copy GB/s | fraction |", "|---|---|---|---|---|"]
         for r in rows:
-            ms = f"{1e3 * r['seconds_median']:.4g} ({1e3 * r['seconds_min']:.4g}–{1e3 * r['seconds_max']:.4g})"
-            lines.append(f"| {r['kernel']} | {ms} | {r['gbytes_per_s']:.2f} | {r['memcpy_gbytes_per_s']:.2f} | "
+            lines.append(f"| {r['kernel']} | {sec(r, 1e-3)} | {r['gbytes_per_s']:.2f} | {r['memcpy_gbytes_per_s']:.2f} | "
                          f"{r['fraction_of_memcpy']:.2f} |")
         copies = sorted({r.get("memcpy", "wp.copy") for r in rows})
         lines += [""] + _wrapped(KERNELS_KEY + f" Device {rows[0]['device'] if rows else '–'}; the copy: "

@@ -226,9 +226,9 @@ class SceneFlow:
         none of them (and no mix with an earlier run's). ``gt``, ``title`` and ``border``
         (that its error means leave out, as :func:`lfsf.evaluate.evaluate`'s) go to the
         overview (:func:`lfsf.viz.overview_figure`): ``gt`` or ``title`` without the centre
-        views is an error. ``inputs``: what to
-        record in ``sceneflow.npz`` of the inputs (``lfsf batch``'s
-        :func:`lfsf.batch.input_record`; None: this result's own ``inputs``).
+        views is an error. ``inputs``: what to record in ``sceneflow.npz`` of the inputs
+        (``lfsf batch``'s :func:`lfsf.batch.input_record`; None: this result's own
+        ``inputs``).
         :meth:`load` reads the result back.
         A flow-only result's (one circle) δ1 and δ2 pictures are plain grey
         (:data:`lfsf.viz.NOT_ESTIMATED_GREY`), and said to be not estimated in the overview.

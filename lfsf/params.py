@@ -299,9 +299,9 @@ class Params:
         disparity_search : start each level's disparities from whichever is better, per
             pixel, of the warped estimate and a plane sweep over the samples.
         late_search : fuse the sweep's maps once more on the finest level, before its
-            last warp, where the flow does not match the centre views (an addition; without
-            ``disparity_search`` it does nothing). Through the cross-time rows (ρ3) a wrong flow at an
-            outline drags δ1 and δ2 over the warps to the other surface's depth, which the
+            last warp, where the flow does not match the centre views (an addition;
+            without ``disparity_search`` it does nothing). Through the cross-time rows (ρ3)
+            a wrong flow at an outline drags δ1 and δ2 over the warps to the other surface's depth, which the
             t1 samples alone do not give them; there ties go to the sweep
             (``lfsf.estimate.LATE_SEARCH_MARGIN``), where a surface at the sweep's depth
             lies within 3 px (``LATE_SEARCH_REACH``, ``LATE_SEARCH_DEPTH``). Paired geometric means of δ1 / δ2 /
@@ -425,8 +425,8 @@ class Params:
         return self.circles == 1
 
     def replace(self, **changes) -> "Params":
-        """A copy with some settings changed (validated)."""
-        _refuse_unknown(changes)
+        """A copy with some settings changed (validated; a name of no setting refused with
+        the nearest names, by ``__init__``: :func:`_init_naming_unknown_settings`)."""
         return dataclasses.replace(self, **changes)
 
     @classmethod
