@@ -21,7 +21,6 @@ from __future__ import annotations
 import math
 import os
 import platform
-import resource
 import statistics
 import sys
 import time
@@ -52,15 +51,55 @@ def _proc_status_mb(key: str) -> float | None:
     return None
 
 
-def peak_rss_mb() -> float:
+def peak_rss_mb() -> float | None:
     """Peak resident set size of this process since :func:`reset_peak_rss` (where Linux
-    allows it to be reset: VmHWM), else since it started (ru_maxrss), in MB of 10⁶ bytes
-    (not MiB: the kernel's kB are 1024 bytes)."""
+    allows it to be reset: VmHWM), else since it started (ru_maxrss; on Windows the peak
+    working set), in MB of 10⁶ bytes (not MiB: the kernel's kB are 1024 bytes); None where
+    the system tells none."""
     peak = _proc_status_mb("VmHWM")
     if peak is not None:
         return peak
+    try:
+        import resource  # (POSIX only)
+    except ImportError:
+        return _windows_peak_mb()
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return rss * 1024 / 1e6 if sys.platform != "darwin" else rss / 1e6
+
+
+def _windows_peak_mb() -> float | None:
+    """The process's peak working set (Windows' ``GetProcessMemoryInfo``) in MB, or None."""
+    try:
+        import ctypes
+        from ctypes import wintypes
+
+        class Counters(ctypes.Structure):  # PROCESS_MEMORY_COUNTERS
+            _fields_ = [("cb", wintypes.DWORD), ("PageFaultCount", wintypes.DWORD)] + [
+                (name, ctypes.c_size_t) for name in (
+                    "PeakWorkingSetSize", "WorkingSetSize", "QuotaPeakPagedPoolUsage", "QuotaPagedPoolUsage",
+                    "QuotaPeakNonPagedPoolUsage", "QuotaNonPagedPoolUsage", "PagefileUsage", "PeakPagefileUsage")]
+
+        counters = Counters()
+        counters.cb = ctypes.sizeof(Counters)
+        kernel32 = ctypes.WinDLL("kernel32")  # type: ignore[attr-defined]
+        kernel32.GetCurrentProcess.restype = wintypes.HANDLE
+        query = kernel32.K32GetProcessMemoryInfo  # (psapi's GetProcessMemoryInfo, in kernel32 since Windows 7)
+        query.argtypes = [wintypes.HANDLE, ctypes.POINTER(Counters), wintypes.DWORD]
+        if not query(kernel32.GetCurrentProcess(), ctypes.byref(counters), counters.cb):
+            return None
+        return counters.PeakWorkingSetSize / 1e6
+    except (OSError, AttributeError, ValueError):
+        return None
+
+
+def _rounded_mb(mb: float | None) -> float | None:
+    """A size in MB to a tenth (None stays None: a system that tells none)."""
+    return None if mb is None else round(mb, 1)
+
+
+def mb_text(mb: float | None) -> str:
+    """A size in MB as the tables print it ("–" where the system tells none)."""
+    return "–" if mb is None else f"{mb:.0f}"
 
 
 def rss_mb() -> float | None:
@@ -204,9 +243,9 @@ def bench_pipeline(size=(640, 480), device: str | None = None, repeats: int = 3,
             **summarise(seconds),
             "warmup_seconds": warmups,
             "stages": {k: round(v, 4) for k, v in stages.items()},
-            "peak_rss_mb": round(peak_rss_mb(), 1),
+            "peak_rss_mb": _rounded_mb(peak_rss_mb()),
             "peak_rss_scope": "setting" if own_peak else "process",
-            "rss_start_mb": None if start is None else round(start, 1),
+            "rss_start_mb": _rounded_mb(start),
             "errors": {k: {m: _rounded(x) for m, x in v.items()} for k, v in errors.items()},
             "machine": machine_info,
         })
@@ -619,7 +658,7 @@ def format_rows(kind: str, rows: list[dict]) -> str:
                  "|---|---|---|---|---|---|"]
         for r in rows:
             lines.append(f"| {r['setting']} | {r['device']} | {r['size'][0]}×{r['size'][1]} | {r['views']} | {sec(r)} | "
-                         f"{r['peak_rss_mb']:.0f} |")
+                         f"{mb_text(r['peak_rss_mb'])} |")
         # the stages, slowest first: seconds of each setting's median run ('–' where a setting has no such stage)
         stages = sorted({k for r in rows for k in r["stages"]}, key=lambda k: -max(r["stages"].get(k, 0) for r in rows))
         lines += ["", "| stage, seconds | " + " | ".join(r["setting"] for r in rows) + " |",

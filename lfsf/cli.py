@@ -846,8 +846,10 @@ def cmd_bench(args) -> list:
     print(bench.format_rows(args.kind, rows))
     # (the pipeline's rows hold each setting's own peak; the process's since the last
     # setting began would be the last one's alone)
-    peak = (f"{max(r['peak_rss_mb'] for r in rows):.0f} MB (the largest setting's)" if args.kind == "pipeline"
-            else f"{bench.peak_rss_mb():.0f} MB")
+    peaks = [r["peak_rss_mb"] for r in rows if r.get("peak_rss_mb") is not None]
+    process_peak = bench.peak_rss_mb()
+    peak = (f"{max(peaks):.0f} MB (the largest setting's)" if args.kind == "pipeline" and peaks
+            else "unknown (this system does not tell it)" if process_peak is None else f"{process_peak:.0f} MB")
     print(f"peak RSS {peak}")
     print(f"machine: {_machine()}")
     return rows

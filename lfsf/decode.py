@@ -1149,7 +1149,7 @@ def decode_files(raw_path, white_path, out, *, views: int | None = None, bayer: 
         write_lightfield(lf, tmp)
         with open(tmp / "views.npz", "wb") as f:
             np.savez(f, views=lf.views)
-        (tmp / "decode.json").write_text(json.dumps(report, indent=2) + "\n")
+        (tmp / "decode.json").write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
     return lf, report
 
 

@@ -783,7 +783,7 @@ def _read_decode_report(path: Path) -> dict | None:
     if not path.is_file():
         return None
     try:
-        report = json.loads(path.read_text())
+        report = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError, RecursionError):
         return None
     if not (isinstance(report, dict) and isinstance(report.get("lattice"), dict)

@@ -454,7 +454,8 @@ class Params:
             raise ValueError(f"{path}: a folder, not a TOML file of settings (nor a result's, with a "
                              "sceneflow.npz)")
         try:
-            data = tomllib.loads(path.read_text())
+            # TOML is UTF-8 whatever the locale (Windows' would be cp1252); a BOM is let through
+            data = tomllib.loads(path.read_text(encoding="utf-8-sig"))
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise ValueError(f"{path}: not valid TOML ({exc})") from None
         except RecursionError:

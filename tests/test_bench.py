@@ -302,3 +302,18 @@ def test_peak_rss_is_each_settings_own_where_it_can_be_reset():
     if not bench.reset_peak_rss():
         pytest.skip("this system cannot reset the peak resident set")
     assert bench.peak_rss_mb() < with_big - 32
+
+
+def test_peak_rss_without_proc_or_the_resource_module_is_unknown_not_an_error(monkeypatch):
+    """Windows has neither /proc nor :mod:`resource`, which bench imported at the top: every
+    ``lfsf bench`` ended in ModuleNotFoundError there. Without them (and off Windows, where
+    its own query fails too) the peak is None, and the table and the summary say so."""
+    monkeypatch.setattr(bench, "_proc_status_mb", lambda key: None)
+    monkeypatch.setitem(sys.modules, "resource", None)   # import resource: ImportError
+    if sys.platform != "win32":
+        assert bench.peak_rss_mb() is None
+    else:
+        assert bench.peak_rss_mb() > 10
+    row = {"setting": "paper", "device": "cpu", "size": [64, 48], "views": 17, "seconds_median": 1.0,
+           "seconds_min": 1.0, "seconds_max": 1.0, "stages": {"iterate": 0.5}, "peak_rss_mb": None}
+    assert "| 17 | 1 (1–1) | – |" in bench.format_rows("pipeline", [row])

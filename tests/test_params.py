@@ -2,7 +2,10 @@
 
 import dataclasses
 import math
+import os
 import re
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -151,6 +154,17 @@ def test_a_toml_file_with_whole_number_floats_loads(tmp_path):
     assert params.iterations == 40 and type(params.iterations) is int
     assert params.lambda3 == 20.0 and type(params.lambda3) is float
     assert params.samples == (1, 8, 8) and params.visibility is False
+
+
+def test_a_toml_file_is_read_as_utf_8_whatever_the_locale(tmp_path):
+    """TOML is UTF-8: a comment with δ (or Notepad's BOM) had been decoded with the
+    locale's encoding, cp1252 on Windows, ASCII under LANG=C ("not valid TOML")."""
+    path = tmp_path / "run.toml"
+    path.write_bytes("\ufeff# δ1 smoothness, µ – “a note”\nwarps = 3\n".encode("utf-8"))
+    env = {**os.environ, "PYTHONUTF8": "0", "LANG": "C", "LC_ALL": "C", "PYTHONIOENCODING": "ascii"}
+    code = f"from lfsf import Params; print(Params.from_toml({str(path)!r}).warps)"
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == "3", done.stderr
 
 
 @pytest.mark.parametrize("text, name", [('visibility = "false"\n', "visibility"), ("warps = 1.5\n", "warps"),
