@@ -118,7 +118,7 @@ def warp():
 
 def _cache_without_home(version: str = "") -> str | None:
     """Where Warp's kernel cache goes: None (Warp's own choice, ``$XDG_CACHE_HOME/warp`` or
-    ``~/.cache/warp``) where that can hold it (or holds this Warp ``version``'s already,
+    ``~/.cache/warp``; ``~/Library/Caches/warp`` on macOS) where that can hold it (or holds this Warp ``version``'s already,
     writable or not), the home's ``.cache/warp`` where ``XDG_CACHE_HOME`` is empty or
     relative (which the XDG rules say to ignore; Warp took it as a folder in the current
     one), else a folder of this user's in the temporary folder. With HOME unset and no
@@ -131,12 +131,13 @@ def _cache_without_home(version: str = "") -> str | None:
 
     if os.name == "nt":
         return None
-    xdg = os.environ.get("XDG_CACHE_HOME")
+    macos = sys.platform == "darwin"   # (Warp's is ~/Library/Caches/warp there, XDG or not)
+    xdg = None if macos else os.environ.get("XDG_CACHE_HOME")
     if xdg and os.path.isabs(xdg):
         return None
     home = os.path.expanduser("~")
     if not home.startswith("~"):
-        wanted = os.path.join(home, ".cache", "warp")
+        wanted = os.path.join(home, *(("Library", "Caches") if macos else (".cache",)), "warp")
         if os.path.isdir(os.path.join(wanted, version)):
             return None if xdg is None else wanted
         existing = wanted
@@ -325,6 +326,9 @@ def _compile_or_load(wp, todo: list, cold: list, device, cache: str) -> float:
         raise OSError(f"Warp's kernel cache {cache}: {exc.strerror} ({exc.filename}) while compiling lfsf's "
                       f"kernels into it: set WARP_CACHE_PATH to a folder of your own, writable, with room "
                       f"({CACHE_ROOM >> 20} MB)") from None
+    except UnicodeError as exc:   # (Warp hands the path to its compiler as UTF-8: the C locale's undecoded bytes fail)
+        raise OSError(f"Warp's kernel cache {cache}: its path cannot be handed to Warp's compiler ({exc.reason}); "
+                      "set WARP_CACHE_PATH to a folder whose path is ASCII, or use a UTF-8 locale") from None
     except Exception as exc:  # noqa: BLE001 - narrowed below to a cache entry that does not read
         import json
 
@@ -427,7 +431,10 @@ def _within(path, folder: str) -> bool:
     if path is None:
         return False
     folder = os.path.realpath(folder)
-    return os.path.commonpath([os.path.realpath(os.fsdecode(path)), folder]) == folder
+    try:
+        return os.path.commonpath([os.path.realpath(os.fsdecode(path)), folder]) == folder
+    except ValueError:   # (Windows: on another drive)
+        return False
 
 
 #: Free space the kernel cache needs for lfsf's modules to be compiled into it: they take

@@ -339,7 +339,10 @@ def test_a_kernel_cache_that_cannot_take_the_kernels_is_named(monkeypatch):
             (New, Exception(failed), None),  # (compiled just now: no deleting mends it)
             (Module, json.JSONDecodeError("Expecting value", "", 0), "a damaged entry"),
             (Module, RuntimeError("a kernel's own error"), None),
-            (Module, ValueError("codegen"), None)):
+            (Module, ValueError("codegen"), None),
+            # (a cache path of undecoded bytes under the C locale, which Warp hands its compiler as UTF-8)
+            (Module, UnicodeEncodeError("utf-8", "cach\udcc3", 4, 5, "surrogates not allowed"),
+             f"Warp's kernel cache {cache}: its path cannot be handed to Warp's compiler (surrogates not allowed)")):
         def load(raised=raised, **_):
             raise raised
 
@@ -394,6 +397,36 @@ def test_without_a_home_folder_the_kernel_cache_is_the_users_own_temporary_one(m
         D._cache_without_home("1.19.0")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     assert D._cache_without_home() is None
+
+
+def test_on_macos_the_kernel_cache_probed_is_warps_own_there(monkeypatch, tmp_path):
+    """Warp's cache on macOS is ~/Library/Caches/warp, XDG_CACHE_HOME or not: lfsf had
+    probed ~/.cache, and moved the cache to the temporary folder (purged there) where
+    that was not writable, or forced ~/.cache/warp for an empty XDG_CACHE_HOME."""
+    import tempfile
+
+    home = tmp_path / "home"
+    (home / ".cache").mkdir(parents=True)
+    monkeypatch.setattr(sys, "platform", "darwin")
+    monkeypatch.setattr(os.path, "expanduser", lambda path: path.replace("~", str(home)))
+    monkeypatch.setattr(tempfile, "gettempdir", lambda: str(tmp_path))
+    monkeypatch.setattr(os, "access", lambda path, mode: not str(path).startswith(str(home / ".cache")))
+    for xdg in ("", "relative", None):
+        if xdg is None:
+            monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
+        else:
+            monkeypatch.setenv("XDG_CACHE_HOME", xdg)
+        assert D._cache_without_home("1.19.0") is None   # (~/Library/Caches/warp can be made)
+
+
+def test_a_file_on_another_drive_is_not_within_the_cache(monkeypatch):
+    """Windows' commonpath raises ValueError for paths on two drives: it had replaced the
+    error it was asked about."""
+    def two_drives(paths):
+        raise ValueError("Paths don't have the same drive")
+
+    monkeypatch.setattr(os.path, "commonpath", two_drives)
+    assert D._within("D:/cache/x", "C:/cache") is False
 
 
 def test_the_estimator_preloads_every_kernel_module_it_imports():
