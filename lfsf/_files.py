@@ -189,12 +189,32 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
             raise _named(exc, path, tmp_path) from exc
         # mkstemp makes the file private (0600); give it the mode a plain open() would.
         os.chmod(tmp_path, 0o666 & ~_umask())
-        os.replace(tmp_path, path)
+        replace(tmp_path, path)
     except BaseException:
         if tmp_path is not None:
             with contextlib.suppress(FileNotFoundError):
                 tmp_path.unlink()
         raise
+
+
+#: Tries of :func:`replace` (Windows: a file that a viewer, a virus scanner or the search
+#: indexer holds open for a moment cannot be replaced; elsewhere one try).
+REPLACE_TRIES = 6 if os.name == "nt" else 1
+
+
+def replace(src: str | os.PathLike, dst: str | os.PathLike) -> None:
+    """:func:`os.replace`, tried again a few times over about 3 s where Windows refuses it
+    (PermissionError: the target or source held open by another process for a moment)."""
+    import time
+
+    for attempt in range(REPLACE_TRIES):
+        try:
+            os.replace(src, dst)
+            return
+        except PermissionError:
+            if attempt == REPLACE_TRIES - 1:
+                raise
+            time.sleep(0.1 * 2 ** attempt)
 
 
 def _named(exc: OSError, path: Path, tmp: Path | None = None) -> OSError:
@@ -436,16 +456,16 @@ def _put_in_place(out: Path, tmp: Path, names: list, stale: list) -> None:
                 with atomic_path(out / name) as through:
                     shutil.copyfile(tmp / name, through)
             else:
-                os.replace(tmp / name, out / name)
+                replace(tmp / name, out / name)
             placed.append(name)  # (each move is whole or not at all)
         for k, name in enumerate(stale):
-            os.replace(out / name, kept / f"stale-{k}")  # (removed with the temporary folder)
+            replace(out / name, kept / f"stale-{k}")  # (removed with the temporary folder)
             removed.append((name, kept / f"stale-{k}"))
     except OSError as exc:
         back = True  # every earlier file put back
         for done, at in reversed(removed):
             try:
-                os.replace(at, out / done)
+                replace(at, out / done)
             except OSError:
                 back = False
         for done in reversed(placed):
@@ -456,7 +476,7 @@ def _put_in_place(out: Path, tmp: Path, names: list, stale: list) -> None:
                 elif (out / done).is_symlink():  # (it named no file before)
                     os.unlink(os.path.realpath(out / done))
                 elif done in earlier:
-                    os.replace(earlier[done], out / done)
+                    replace(earlier[done], out / done)
                 elif os.path.lexists(out / done):
                     os.unlink(out / done)
             except OSError:

@@ -44,8 +44,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from lfsf._errors import _FULL, BAD_INPUT_ERRORS, MachineError, whole
-from lfsf._files import SET_PREFIX, _host, dead_set, gone, write_bytes_atomic
+from lfsf._errors import _FULL, BAD_INPUT_ERRORS, DependencyError, MachineError, whole
+from lfsf._files import SET_PREFIX, _host, dead_set, gone, replace, write_bytes_atomic
 
 #: The files of a complete result (those :meth:`lfsf.estimate.SceneFlow.save` writes
 #: without the centre views; with them, ``overview.png`` too, which results of earlier
@@ -159,11 +159,16 @@ def pairs_from_sources(sources: Sequence[str | os.PathLike] | str | os.PathLike,
         pairs.extend(_folder_pairs(path, out) if path.is_dir() else _manifest_pairs(path))
     seen: dict[str, Pair] = {}
     for pair in pairs:
-        if pair.name in seen:
-            first = seen[pair.name]
-            raise ValueError(f"two pairs are both named {pair.name!r} ({first.t1} → {first.t2} and {pair.t1} → "
-                             f"{pair.t2}); name them in a manifest's third column")
-        seen[pair.name] = pair
+        # (casefolded: Scene and scene are one folder on macOS and Windows, and where the
+        # results are copied to; the second pair's result had replaced the first's)
+        first = seen.get(pair.name.casefold())
+        if first is not None:
+            named = (f"both named {pair.name!r}" if first.name == pair.name else
+                     f"named {first.name!r} and {pair.name!r}, one folder where case is not told apart (macOS, "
+                     "Windows)")
+            raise ValueError(f"two pairs are {named} ({first.t1} → {first.t2} and {pair.t1} → {pair.t2}); name "
+                             "them in a manifest's third column")
+        seen[pair.name.casefold()] = pair
     return pairs
 
 
@@ -202,6 +207,18 @@ def _manifest_pairs(path: Path) -> list[Pair]:
             raise ValueError(f"{path}: line {line} names the pair {name!r}, which cannot be a folder name")
         pairs.append(Pair(name, t1, t2))
     return pairs
+
+
+#: Names that Windows keeps for devices, with or without an extension (``NUL.txt``).
+_WINDOWS_DEVICES = {"con", "prn", "aux", "nul", *(f"{kind}{n}" for kind in ("com", "lpt") for n in range(1, 10))}
+
+
+def _not_a_windows_folder(name: str, windows: bool = os.name == "nt") -> bool:
+    """On Windows (``windows``), whether ``name`` cannot be a folder's there: one of
+    ``<>:"|?*`` or a control character in it, a device's name (CON, NUL.x, COM1, …), or a
+    dot or space at its end (a pair would fail only after its estimate)."""
+    return windows and (any(c in '<>:"|?*' or ord(c) < 32 for c in name) or name.endswith((".", " "))
+                        or name.split(".")[0].strip().lower() in _WINDOWS_DEVICES)
 
 
 def _within(path: Path, folder: Path) -> bool:
@@ -378,7 +395,11 @@ def check_outputs(pairs: Sequence[Pair], out: str | os.PathLike) -> None:
         if len(os.fsencode(pair.name)) > MAX_PAIR_NAME or "\0" in pair.name:
             raise ValueError(f"pair {pair.name[:40]!r}…: a pair's name must be a folder name of at most "
                              f"{MAX_PAIR_NAME} bytes; name it in a manifest's third column")
-        if pair.name == "failed.csv":
+        if _not_a_windows_folder(pair.name):  # (the pair would fail after its estimate)
+            raise ValueError(f"pair {pair.name!r}: Windows takes no folder of that name (one of <>:\"|?* or a "
+                             "control character in it, a device's name as CON or NUL, or a dot or space at its "
+                             "end); name it in a manifest's third column")
+        if pair.name.casefold() == "failed.csv":   # (Failed.CSV too, on macOS and Windows)
             raise ValueError(f"{out / pair.name}: a pair may not be named failed.csv, the list of failed pairs")
         final = out / pair.name
         for source in sources:
@@ -474,19 +495,19 @@ def run_pair(pair: Pair, out: str | os.PathLike, params, device: str | None = No
             # files (a helper's SceneFlow.load in a loop, 526 times); removed once the new one
             # is in (a process killed meanwhile leaves it hidden, as a gone process's)
             earlier = _temporary(out, pair.name)
-            os.replace(final, earlier)
+            replace(final, earlier)
             try:
-                os.replace(tmp, final)
+                replace(tmp, final)
             except BaseException as exc:
                 try:
-                    os.replace(earlier, final)
+                    replace(earlier, final)
                 except OSError as back:  # (another process's result there meanwhile: both said)
                     raise OSError(f"{final}: the new result could not be put in ({exc}), nor the earlier one "
                                   f"back ({back}); the earlier one is in {earlier}") from exc
                 raise
             shutil.rmtree(earlier, ignore_errors=True)
         else:
-            os.replace(tmp, final)
+            replace(tmp, final)
         return Outcome(pair.name, "done", time.perf_counter() - t0, replaced, warm=init is not None,
                        notes=tuple(notes), warned=tuple(warned))
     except Exception as exc:  # noqa: BLE001 - every failure of a pair is reported, the batch goes on
@@ -582,10 +603,17 @@ def _worker_device(device: str | None) -> str:
 # --- the batch --------------------------------------------------------------------------------
 
 def have_dask() -> bool:
+    """Whether Dask's ``distributed`` is installed. One that is there and fails to import
+    (a dependency of its own broken or of another version) is a DependencyError saying
+    why: it had read as "Dask is not installed"."""
     try:
         import distributed  # noqa: F401
-    except ImportError:
-        return False
+    except ModuleNotFoundError as exc:
+        if exc.name in ("distributed", "dask"):
+            return False
+        raise DependencyError(f"Dask's distributed is installed but does not import ({exc}); {INSTALL_HINT}") from exc
+    except ImportError as exc:
+        raise DependencyError(f"Dask's distributed is installed but does not import ({exc}); {INSTALL_HINT}") from exc
     return True
 
 
@@ -596,11 +624,14 @@ def check_dask(workers: int, scheduler: str | None) -> None:
     if whole(workers) is None or workers < 1:
         # (run_batch's own check: -1 had waited forever on a cluster of no workers, 0 divided by zero)
         raise ValueError(f"workers must be a whole number of at least 1, got {workers!r}")
-    cores = os.cpu_count() or 1
+    from lfsf.device import usable_cpus
+
+    cores = usable_cpus()
     if not scheduler and workers > cores:
         # each worker runs the estimator on threads of its own: more processes than cores
         # only divide them, and multiply the memory (hundreds of MB each)
-        raise ValueError(f"--workers {workers}: this machine has {cores} cores; give at most {cores}")
+        raise ValueError(f"--workers {workers}: this process may use {cores} CPU{'s' if cores != 1 else ''} (the "
+                         f"machine's, or its share of them); give at most {cores}")
     if (workers > 1 or scheduler) and not have_dask():
         # (--workers and --scheduler together are refused by the command line)
         asked, instead = (("--scheduler", "leave out --scheduler") if scheduler else
@@ -778,7 +809,9 @@ def _run_on_cluster(pairs, out, params, workers, scheduler, device, warm_start, 
                                  "start one (dask worker ADDRESS)") from None
         else:
             # one thread per worker: the estimator runs its own CPU threads
-            threads = max(1, (os.cpu_count() or 1) // workers)
+            from lfsf.device import usable_cpus
+
+            threads = max(1, usable_cpus() // workers)
             # (the workers ignore Ctrl-C once started: lfsf._dask_worker)
             with warnings.catch_warnings():
                 # the scheduler's HTTP server (no dashboard here) takes another port where

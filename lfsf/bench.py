@@ -129,8 +129,7 @@ def machine_record(device: str | None = None) -> dict[str, Any]:
 
     from lfsf import __version__
 
-    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    record: dict[str, Any] = {"cpu": cpu_model(), "cpus": os.cpu_count(), "usable_cpus": usable,
+    record: dict[str, Any] = {"cpu": cpu_model(), "cpus": os.cpu_count(), "usable_cpus": _device.usable_cpus(),
                               "cpu_threads": _device.cpu_threads(), "python": platform.python_version(),
                               "lfsf": __version__}
     if device is not None:

@@ -467,8 +467,7 @@ class _Progress:
             # (a terminal that reports no width, as under `script` or in some containers, had cut every
             # line to "…": shutil's size is $COLUMNS, stdout's terminal's, else 80; 0 too on Python 3.10)
             columns = (columns or shutil.get_terminal_size().columns or 80) - 1
-            if len(line) > columns:
-                line = line[:max(columns - 1, 0)] + "…"
+            line = _cut_to(line, columns, getattr(sys.stderr, "encoding", None))
         sys.stderr.write("\r" + line.ljust(self.width))
         if isinstance(message, Note):  # kept: the next line starts below it
             sys.stderr.write("\n")
@@ -480,6 +479,33 @@ class _Progress:
         if self.live and self.width:
             sys.stderr.write("\n")
             sys.stderr.flush()
+
+
+def _cut_to(line: str, columns: int, encoding: str | None) -> str:
+    """``line`` as a stream of ``encoding`` shows it (:func:`_as_shown`), cut to ``columns``
+    with "…" (or "..." where the stream has no "…"). Counted as shown: on an ASCII
+    terminal × is \xd7, four columns, and lines counted in characters had wrapped."""
+    shown = _as_shown(line, encoding)
+    if len(shown) <= columns:
+        return shown
+    more = "…" if _as_shown("…", encoding) == "…" else "..."
+    pieces, width = [], 0
+    for c in line:  # (whole characters: an escape is not cut in two)
+        piece = _as_shown(c, encoding)
+        if width + len(piece) > columns - len(more):
+            break
+        pieces.append(piece)
+        width += len(piece)
+    return "".join(pieces) + more
+
+
+def _as_shown(text: str, encoding: str | None) -> str:
+    """``text`` as a stream of ``encoding`` writes it, characters it lacks backslash-escaped
+    (:func:`_usable_streams`' errors)."""
+    try:
+        return text.encode(encoding or "utf-8", "backslashreplace").decode(encoding or "utf-8", "replace")
+    except LookupError:
+        return text
 
 
 def _result_names() -> tuple[str, ...]:

@@ -217,10 +217,17 @@ def cpu_threads() -> int:
             raise ValueError(f"{ENV_THREADS} must be in 1…{MAX_THREADS} (this machine has {os.cpu_count()} "
                              f"CPUs), got {threads}")
         return threads
+    return usable_cpus()
+
+
+def usable_cpus() -> int:
+    """The CPUs this process may run on (its affinity: a container's or ``taskset``'s
+    share, not the machine's count), at least 1."""
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover - not on Linux
-        return max(1, os.cpu_count() or 1)
+        count = getattr(os, "process_cpu_count", os.cpu_count)()   # (Python ≥ 3.13: the affinity's too)
+        return max(1, count or 1)
 
 
 def thread_pool() -> ThreadPoolExecutor:

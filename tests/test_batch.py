@@ -4,11 +4,13 @@ synthetic pairs."""
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import os
 import re
 import signal
+import sys
 import threading
 import time
 import warnings
@@ -313,6 +315,9 @@ def test_a_result_replaced_is_never_seen_in_part(frames, tmp_path, monkeypatch):
     ([("t1", "t2")], "names no pairs"),
     ([("a.npz", "b.npz", "same"), ("c.npz", "d.npz", "same")], "both named 'same'"),
     ([("a.npz", "b.npz", ".hidden")], "cannot be a folder name"),
+    # (one folder on macOS and Windows: the second pair's result had replaced the first's)
+    ([("a.npz", "b.npz", "Scene"), ("c.npz", "d.npz", "scene")],
+     "two pairs are named 'Scene' and 'scene', one folder where case is not told apart"),
     ([("a.npz", "b\0.npz")], "line 1 holds a NUL byte"),
     ([("t1", "t2"), ("a.npz", "b.npz"), ("c\0.npz", "d.npz")], "line 3 holds a NUL byte"),
     # a stray quote runs the cell on past the csv module's 128 KiB: its csv.Error's traceback had come out
@@ -358,6 +363,46 @@ def test_pair_names_a_file_system_cannot_take_are_refused_before_any_work(tmp_pa
     outcome = batch.run_pair(batch.Pair("a" * 300, tmp_path / "a.npz", tmp_path / "b.npz"), tmp_path / "out",
                              PARAMS)
     assert outcome.status == "failed" and "File name too long" in outcome.reason
+
+
+def test_pair_names_windows_cannot_take_are_refused_there_before_any_work(tmp_path, monkeypatch):
+    """A manifest's name with ':' or '?', CON, or a dot at its end: on Windows the pair
+    failed only after its estimate. Elsewhere these names are folders like any other."""
+    refused = ["a:b", "what?", "CON", "nul.txt", "Com1", "trail.", "trail ", "tab\there", 'say"so']
+    assert all(batch._not_a_windows_folder(name, windows=True) for name in refused)
+    taken = ["scene", "a.b", "CONSOLE", "com10", "é", "con-1"]
+    assert not any(batch._not_a_windows_folder(name, windows=True) for name in taken)
+    assert not any(batch._not_a_windows_folder(name, windows=False) for name in refused)
+    monkeypatch.setattr(batch, "_not_a_windows_folder", lambda name: name == "CON")
+    with pytest.raises(ValueError, match="pair 'CON': Windows takes no folder of that name"):
+        batch.check_outputs([batch.Pair("CON", tmp_path / "a.npz", tmp_path / "b.npz")], tmp_path / "out")
+
+
+def test_a_dask_that_is_there_but_does_not_import_says_why(monkeypatch):
+    """Any ImportError of distributed (a dependency of its own broken, a NumPy ABI
+    mismatch) had read as "Dask is not installed" with an install hint."""
+    import importlib.abc
+
+    from lfsf._errors import DependencyError
+
+    class Broken(importlib.abc.MetaPathFinder):
+        def __init__(self, error):
+            self.error = error
+
+        def find_spec(self, name, path=None, target=None):
+            if name == "distributed":
+                raise self.error
+
+    for name in [m for m in sys.modules if m == "distributed" or m.startswith("distributed.")]:
+        monkeypatch.delitem(sys.modules, name)
+    for error in (ImportError("cannot import name 'x' from 'psutil'"),
+                  ModuleNotFoundError("No module named 'tornado'", name="tornado")):
+        monkeypatch.setattr(sys, "meta_path", [Broken(error), *sys.meta_path])
+        with pytest.raises(DependencyError, match="Dask's distributed is installed but does not import"):
+            batch.have_dask()
+    monkeypatch.setattr(sys, "meta_path", [Broken(ModuleNotFoundError("No module named 'distributed'",
+                                                                       name="distributed")), *sys.meta_path])
+    assert batch.have_dask() is False
 
 
 def test_a_pair_that_found_the_disk_full_says_so_in_its_reason():
@@ -677,11 +722,29 @@ def test_a_taken_dashboard_port_is_not_the_users_concern(frames, tmp_path, capsy
     assert code == 0 and "Port" not in err and "warning" not in err, err
 
 
+@contextlib.contextmanager
+def _affinity(cpus):
+    """This process on ``cpus`` alone for a while (``taskset``'s)."""
+    before = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, cpus)
+    try:
+        yield
+    finally:
+        os.sched_setaffinity(0, before)
+
+
 def test_more_local_workers_than_cores_are_refused():
-    """--workers 1000 started a thousand processes, each with the estimator's memory."""
-    cores = os.cpu_count() or 1
-    with pytest.raises(ValueError, match=f"--workers {cores + 1}: this machine has {cores} cores"):
+    """--workers 1000 started a thousand processes, each with the estimator's memory. The
+    count is of the CPUs the process may use (a container's share), not the machine's."""
+    from lfsf import device
+
+    cores = device.usable_cpus()
+    with pytest.raises(ValueError, match=f"--workers {cores + 1}: this process may use {cores} CPU"):
         batch.check_dask(cores + 1, None)
+    if hasattr(os, "sched_getaffinity") and cores > 1:
+        with pytest.raises(ValueError, match="--workers 2: this process may use 1 CPU "):
+            with _affinity({min(os.sched_getaffinity(0))}):
+                batch.check_dask(2, None)
     if batch.have_dask():
         batch.check_dask(cores + 1, "tcp://elsewhere:8786")    # a remote cluster's workers are its own
 

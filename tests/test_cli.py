@@ -980,6 +980,18 @@ def test_the_estimators_notes_reach_a_log_and_the_progress_only_a_terminal(monke
     progress = _Progress(argparse.Namespace(command="run", quiet=False))
     progress("level 1/3 (40×30), warp 1/3")
     assert sys.stderr.getvalue().endswith("level 1/3 (40×30), warp 1/3"), sys.stderr.getvalue()
+    # on an ASCII terminal × is written \xd7, four columns: the line is cut to its width as
+    # shown (it had been counted in characters, and wrapped), and ends in "..."
+
+    class _Ascii(_Stream):
+        encoding = "ascii"
+
+    monkeypatch.setattr(sys, "stderr", _Ascii(True))
+    monkeypatch.setenv("COLUMNS", "40")
+    progress = _Progress(argparse.Namespace(command="run", quiet=False))
+    progress("level 1/3 (40×30), warp 1/3, iteration 20 of 100")
+    shown = sys.stderr.getvalue().split("\r")[1]
+    assert shown.startswith("[") and shown.endswith("] level 1/3 (40\\xd730), war...") and len(shown) == 39, shown
 
 
 def test_run_says_in_its_log_that_it_matched_t2s_exposure(tmp_path):

@@ -1566,6 +1566,35 @@ def test_a_set_whose_move_fails_puts_the_earlier_files_back(tmp_path, monkeypatc
     assert {p.name: p.read_bytes() for p in out.iterdir()} == earlier
 
 
+def test_a_file_held_open_for_a_moment_is_replaced_on_a_later_try(tmp_path, monkeypatch):
+    """Windows refuses to replace a file that a viewer, a virus scanner or the search
+    indexer holds open (PermissionError), often for a moment: lfsf's writes try again there
+    (REPLACE_TRIES), and give up with the error after the last try."""
+    import os
+    import time
+
+    from lfsf import _files
+
+    real, tries = os.replace, []
+
+    def held(src, dst):
+        tries.append(dst)
+        if len(tries) < 3:
+            raise PermissionError(13, "Permission denied", os.fspath(dst))
+        real(src, dst)
+
+    monkeypatch.setattr(_files.os, "replace", held)
+    monkeypatch.setattr(time, "sleep", lambda seconds: None)   # (replace's waits between tries)
+    monkeypatch.setattr(_files, "REPLACE_TRIES", 3)
+    _files.write_bytes_atomic(tmp_path / "a.pfm", b"new")
+    assert (tmp_path / "a.pfm").read_bytes() == b"new" and len(tries) == 3
+    tries.clear()
+    monkeypatch.setattr(_files, "REPLACE_TRIES", 2)
+    with pytest.raises(PermissionError):
+        _files.write_bytes_atomic(tmp_path / "b.pfm", b"new")
+    assert len(tries) == 2 and [p.name for p in tmp_path.iterdir()] == ["a.pfm"]   # (no temporary file left)
+
+
 def test_a_temporary_folders_process_is_gone_only_where_it_can_be_told(tmp_path, monkeypatch):
     """One rule for every temporary folder lfsf removes (file_set's, lfsf batch's pairs',
     Warp's builds): a process of this machine, not this one, that no longer runs. A
