@@ -79,6 +79,20 @@ class Terminated(KeyboardInterrupt):
         self.signum = signum
 
 
+def shown_number(value) -> str:
+    """A number for a message: a whole number of more than 12 digits as about its
+    magnitude, "9.99e399" (1e300 taken as an int had filled a message with 300 digits;
+    past 4300 digits ``str`` raises)."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10 ** 12:
+        size = abs(value)
+        exponent = int(math.log10(size))
+        exponent += 10 ** (exponent + 1) <= size   # (log10 rounded up or down at the ends)
+        exponent -= 10 ** exponent > size
+        lead = size // 10 ** (exponent - 2)   # (three digits)
+        return f"{'-' if value < 0 else ''}{lead // 100}.{lead % 100:02d}e{exponent}"
+    return str(value)
+
+
 def whole(value) -> int | None:
     """``value`` as an int where it is a whole number (an int, NumPy's too, or a float of
     no fraction: 2.0, as :class:`lfsf.Params` takes them), else None (a bool, 2.5, text)."""

@@ -151,6 +151,31 @@ def is_special_file(path: Path) -> bool:
     return path.exists() and not path.is_file() and not path.is_dir()
 
 
+def refuse_special_file(path: Path) -> None:
+    """A ValueError for a path that is there but neither a file nor a folder: reading a
+    named pipe waits for a writer, and a device (/dev/zero) may never end."""
+    if is_special_file(path):
+        raise ValueError(f"{path}: not a regular file (a named pipe or a device would be read forever)")
+
+
+def file_name(path, what: str = "a file name") -> Path:
+    """``path`` (str or os.PathLike) as a Path; a ValueError naming what was given else
+    (None, a number, bytes: pathlib's TypeError had said nothing of the argument; "", which
+    pathlib takes for the current folder)."""
+    if not isinstance(path, (str, os.PathLike)) or isinstance(os.fspath(path), bytes):
+        raise ValueError(f"expected {what} (str or path), got {type(path).__name__} {path!r}")
+    if os.fspath(path) == "":
+        raise ValueError(f"expected {what}, got an empty one")
+    return Path(path)
+
+
+def resolved(path: str | os.PathLike) -> Path:
+    """``path`` with its links followed, absolute: :meth:`Path.resolve` without its
+    RuntimeError on a loop of links (Python < 3.13; a loop stays as it is, and fails
+    where it is read, with a message of its own)."""
+    return Path(os.path.realpath(path))
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path in the target's folder; rename it onto ``path`` on success.

@@ -26,21 +26,29 @@ import math
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
+
+from lfsf._errors import shown_number
+
+
+#: The widest or tallest views a camera may have, in pixels.
+MAX_SIZE = 1 << 20
 
 
 def _finite(name: str, value) -> float:
     """A real number as a float, or a ValueError naming the setting."""
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise ValueError(f"Camera: {name} must be a real number, got {value!r}")
-    value = float(value)
-    if not math.isfinite(value):
-        raise ValueError(f"Camera: {name} must be finite, got {value}")
-    return value
+    try:
+        number = float(value)
+    except OverflowError:   # (a whole number beyond a float's range)
+        number = math.inf
+    if not math.isfinite(number):
+        raise ValueError(f"Camera: {name} must be finite, got {shown_number(value)}")
+    return number
 
 
 def _one_number(value, key: str) -> float:
@@ -99,11 +107,13 @@ class Camera:
         if self.size is not None:
             try:
                 width, height = (int(v) for v in self.size)
-                if (width, height) != tuple(self.size) or min(width, height) < 1:
+                if (width, height) != tuple(self.size) or not 1 <= min(width, height) <= max(width, height) <= MAX_SIZE:
                     raise ValueError
-            except (TypeError, ValueError):
-                raise ValueError(f"Camera: size must be (W, H), two whole numbers ≥ 1, or None, got "
-                                 f"{self.size!r}") from None
+            except (TypeError, ValueError, OverflowError):
+                shown = (f"({shown_number(self.size[0])}, {shown_number(self.size[1])})"
+                         if isinstance(self.size, tuple) and len(self.size) == 2 else repr(self.size))
+                raise ValueError(f"Camera: size must be (W, H), two whole numbers 1…{MAX_SIZE}, or None, got "
+                                 f"{shown}") from None
             object.__setattr__(self, "size", (width, height))
 
     def depth(self, disp: ArrayLike) -> np.ndarray:
@@ -152,6 +162,8 @@ class Camera:
         k = int(factor) if isinstance(factor, (int, float, np.integer, np.floating)) else 0
         if k != factor or k < 1:
             raise ValueError(f"Camera.downsampled: the factor must be a whole number ≥ 1, got {factor!r}")
+        if self.size is not None and min(self.size) < k:
+            raise ValueError(f"Camera.downsampled: views of {self.size[0]}×{self.size[1]} cannot be shrunk {k} times")
         principal = self.principal
         if principal is None and self.size is not None:
             principal = ((self.size[0] - 1) / 2.0, (self.size[1] - 1) / 2.0)
@@ -192,11 +204,19 @@ class Camera:
                 flat.update(section)
         keys = ("focal_length_mm", "sensor_size_mm", "image_resolution_x_px", "image_resolution_y_px",
                 "baseline_mm", "focus_distance_m")
-        wrong = [k for k in keys if not isinstance(flat.get(k), (int, float)) or isinstance(flat.get(k), bool)
-                 or not math.isfinite(flat[k]) or flat[k] <= 0]
+        def positive(value) -> bool:
+            """A positive number of a float's range (a 400-digit integer had been an OverflowError)."""
+            if not isinstance(value, (int, float)) or isinstance(value, bool):
+                return False
+            try:
+                return math.isfinite(float(value)) and value > 0
+            except OverflowError:
+                return False
+
+        wrong = [k for k in keys if not positive(flat.get(k))]
         if wrong:
             raise ValueError(f"no camera in these parameters: {', '.join(wrong)} missing, or not a positive number "
-                             "(an HCI 4D benchmark parameters.cfg gives them)")
+                             "of a float's range (an HCI 4D benchmark parameters.cfg gives them)")
         width, height = flat["image_resolution_x_px"], flat["image_resolution_y_px"]
         if width != int(width) or height != int(height):
             raise ValueError(f"no camera in these parameters: image_resolution_x_px and _y_px must be whole numbers, "
@@ -219,7 +239,9 @@ class Camera:
         ValueError
             Naming the file, where it records no camera.
         """
-        path = Path(path)
+        from lfsf._files import file_name
+
+        path = file_name(path, "a camera's file or folder")
         if path.is_dir():  # (an HCI folder, or lfsf synth's, as lfsf eval takes a folder)
             found = [path / name for name in ("parameters.cfg", "gt.npz") if (path / name).is_file()]
             if not found:
@@ -243,7 +265,7 @@ class Camera:
                     warnings.simplefilter("error")
                     parameters = _read_hci_parameters(path)
                 return cls.from_hci(parameters)
-        except (ValueError, Warning) as exc:  # (the reader's warning says the metadata is 'ignored': not here)
+        except (ValueError, OverflowError, Warning) as exc:  # (the reader's warning says 'ignored': not here)
             said = str(exc).removeprefix(f"{path}: ").removeprefix("ignored, ").removeprefix("Camera: ")
             raise ValueError(f"{path}: {said}") from None
         raise ValueError(f"{path}: a camera is read from a gt.npz of 'lfsf synth' or an HCI parameters.cfg, not a "

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from lfsf._errors import (EXIT_BAD_INPUT, EXIT_HUNG_UP, EXIT_INTERRUPTED, EXIT_TERMINATED, ArgumentParser, LfsfWarning,
                           run_script)
-from lfsf._files import output_file, output_folder, refuse_replacing_inputs
+from lfsf._files import output_file, output_folder, refuse_replacing_inputs, resolved
 
 
 def _log(args, message: str) -> None:
@@ -212,12 +212,12 @@ def _not_an_input(report: Path, result: Path, gt: Path) -> None:
     from lfsf.batch import RESULT_FILES
     from lfsf.evaluate import GT_FILES
 
-    target = report.resolve()
+    target = resolved(report)
     inputs = [gt, result] + ([result / name for name in (*RESULT_FILES, "overview.png")] if result.is_dir() else [])
     if gt.is_dir():  # (the ground truth read from the folder)
         inputs += [gt / name for name in GT_FILES]
     for path in inputs:
-        if path.resolve() == target:
+        if resolved(path) == target:
             raise ValueError(f"{report}: the report would replace {path}, which it reports on; choose another "
                              "--json file")
 
@@ -330,7 +330,7 @@ def cmd_points(args) -> int:
         raise ValueError(f"--colour colours the points of a .ply; {args.out} (an .npz of maps) holds no colours")
     inputs = [args.result] + ([args.result / "sceneflow.npz"] if args.result.is_dir() else [])
     inputs += [Path(v) for v in args.camera[:1] if len(args.camera) == 1] + [args.colour, args.gt]
-    if any(p is not None and p.exists() and p.resolve() == args.out.resolve() for p in inputs):
+    if any(p is not None and p.exists() and resolved(p) == resolved(args.out) for p in inputs):
         raise ValueError(f"{args.out}: it would replace an input of this command; choose another --out")
     camera = _camera(args.camera)
     if args.principal is not None:

@@ -397,9 +397,10 @@ def read_raw(path: str | os.PathLike, *, role: str = "raw") -> RawImage:
     ValueError
         If it cannot be read (unknown format, truncated, corrupt), naming the file.
     """
-    from lfsf.io import read_image
+    from lfsf._files import file_name
+    from lfsf.io import read_image, refuse_wide_integers
 
-    path = Path(path)
+    path = file_name(path, f"a {role} image file's name")
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such {role} image file")
     if not path.is_file():
@@ -425,6 +426,9 @@ def read_raw(path: str | os.PathLike, *, role: str = "raw") -> RawImage:
                                  f"{image.shape[2]} channels, or a stack of images (pages of a TIFF)")
         if image.ndim not in (2, 3) or image.size == 0:
             raise ValueError(f"{path}: expected a 2-D sensor image, got shape {image.shape}")
+        # (a 16-bit sensor image saved as int32 had been scaled by int32's maximum, to views of 1e-5)
+        refuse_wide_integers(image, str(path), "pixels", fix="save the sensor image with 8 or 16 bits (uint8 or "
+                             "uint16), or as floats in [0, 1]")
         if image.dtype.kind in "iu":
             data = image.astype(np.float32) / np.float32(np.iinfo(image.dtype).max)
         elif image.dtype.kind == "f":

@@ -169,7 +169,11 @@ class SceneFlow:
         if camera.size is None and isinstance(views, list | tuple) and len(views) == 2 and all(
                 isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in views):
             camera = replace(camera, size=(int(views[0]), int(views[1])))
-        return camera.downsampled(k)
+        try:
+            return camera.downsampled(k)
+        except ValueError as exc:   # (a result's own record that does not fit its camera)
+            raise ValueError(f"{str(exc).removeprefix('Camera.downsampled: ')}, as this result records its "
+                             f"light fields were (--downsample {k})") from None
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "SceneFlow":
@@ -188,8 +192,9 @@ class SceneFlow:
         import json
 
         from lfsf import io
+        from lfsf._files import file_name
 
-        path = Path(path)
+        path = file_name(path, "a result's file or folder")
         file = path / "sceneflow.npz" if path.is_dir() else path
         if not file.is_file():
             raise FileNotFoundError(f"{file}: no such file (SceneFlow.load reads the sceneflow.npz that "
@@ -834,7 +839,7 @@ def _rim_radius(lf: LightField) -> float | None:
     and a folder's ``decode.json`` give; kept where the views are cropped to the central
     ones); None for others."""
     n = lf.meta.get("lens_views")
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 2 <= n <= 1 << 16:
         return None
     return round(RIM_FRACTION * int(n) / 2.0, 6)
 

@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from lfsf._errors import whole
+from lfsf._files import file_name
 
 if TYPE_CHECKING:
     from lfsf.estimate import SceneFlow
@@ -313,23 +314,36 @@ def occlusion_scores(est, gt, valid=None, border: int = 0) -> dict[str, float]:
             "occluded_px": occluded}
 
 
+def _file_in(folder: Path, name: str) -> bool:
+    """Whether ``folder`` holds the file ``name``; a ValueError where something else is
+    there by that name (a folder, a link to nothing: they had been said to be missing)."""
+    path = folder / name
+    if not os.path.lexists(path):
+        return False
+    if path.is_file():
+        return True
+    what = ("a link to nothing (or a loop of links)" if path.is_symlink() and not path.exists() else
+            "a folder" if path.is_dir() else "not a regular file")
+    raise ValueError(f"{path}: {what}, where a file was expected")
+
+
 def load_estimate(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """Read a result: a folder written by ``lfsf run`` (``sceneflow.npz``, else
     ``disp1.pfm``/``disp2.pfm``/``flow.flo``), or a ``.npz`` / ``.pfm`` / ``.flo`` file. A
     ``.pfm`` is δ1 (disp1), but for one named ``disp2.pfm``, which is δ2."""
     from lfsf import io
 
-    path = Path(path)
+    path = file_name(path, "a result's file or folder")
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file or folder")
     if path.is_dir():
-        if (path / "sceneflow.npz").exists():
+        if _file_in(path, "sceneflow.npz"):
             return load_estimate(path / "sceneflow.npz")
         out: dict[str, np.ndarray] = {}
         for name in ("disp1", "disp2"):
-            if (path / f"{name}.pfm").exists():
+            if _file_in(path, f"{name}.pfm"):
                 out[name] = _read_disparity_pfm(path / f"{name}.pfm")
-        if (path / "flow.flo").exists():
+        if _file_in(path, "flow.flo"):
             flow = io.read_flo(path / "flow.flo")
             out["u"], out["v"] = flow[..., 0], flow[..., 1]
         if not out:
@@ -397,7 +411,8 @@ def downsample_of(inputs) -> int:
     """The factor ``lfsf run --downsample`` recorded in a result's ``inputs`` (the dict of
     its ``sceneflow.npz``, ``SceneFlow.inputs``; 1 where none, or none that reads)."""
     factor = inputs.get("downsample", 1) if isinstance(inputs, dict) else 1
-    return factor if isinstance(factor, int) and not isinstance(factor, bool) and factor >= 1 else 1
+    # (10⁴⁰⁰ had been an OverflowError's traceback where the camera is shrunk)
+    return factor if isinstance(factor, int) and not isinstance(factor, bool) and 1 <= factor <= 1 << 12 else 1
 
 
 def flow_only(path: str | os.PathLike) -> bool:
@@ -415,12 +430,12 @@ def load_ground_truth(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], i
     """Read ground truth: a ``gt.npz`` of ``lfsf synth`` or an HCI ``gt_disp_lowres.pfm``
     (disparity at t1 only), or a folder holding one (:data:`GT_FILES`, the first found).
     Returns the arrays and the default border for that kind."""
-    path = Path(path)
+    path = file_name(path, "a ground truth's file or folder")
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")
     if path.is_dir():
         for name in GT_FILES:
-            if (path / name).exists():
+            if _file_in(path, name):
                 return load_ground_truth(path / name)
         raise FileNotFoundError(f"{path}: no gt.npz or gt_disp_lowres.pfm in this folder")
     suffix = path.suffix.lower()
@@ -459,25 +474,37 @@ def _load_npz(path: Path, keys) -> dict[str, np.ndarray]:
             raise ValueError(f"{path}: '{k}' should be a 2-D map, got shape {a.shape}")
         if a.dtype.kind not in "biuf":   # (a record or string dtype: a TypeError deep in the scoring)
             raise ValueError(f"{path}: '{k}' should hold numbers, got dtype {a.dtype}")
+        if a.dtype.kind == "f" and a.dtype.itemsize > 4 and a.size:
+            # (1e300 had overflowed in the scoring, with NumPy's warning, and filled the table)
+            largest = float(np.max(np.abs(a), initial=0.0, where=np.isfinite(a)))
+            if largest > float(np.finfo(np.float32).max):
+                raise ValueError(f"{path}: '{k}' holds {largest:.3g}, beyond float32's range (lfsf's maps are "
+                                 "float32)")
     return out
 
 
 def format_table(errors: Mapping[str, Mapping[str, float]]) -> str:
     """A small fixed-width table of :func:`evaluate`'s result (a ``noc`` row, where there
     is one, right under its variable's)."""
+    def fixed(value: float, width: int, decimals: int) -> str:
+        """``value`` right-aligned in ``width`` with ``decimals``, or in %g where that
+        does not fit (an MSE of 1e40 had printed 41 digits)."""
+        text = f"{value:>{width}.{decimals}f}"
+        return text if len(text) <= width else f"{value:>{width}.3g}"
+
     lines = [f"{'variable':<9} {'MSE':>10} {'MSE×100':>9} {'BadPix.07':>9} {'EPE':>8} {'pixels':>8}"]
     order = [n for base in ("disp1", "disp2", "flow") for n in (base, base + "_noc") if n in errors]
     for name in order + [n for n in errors if n not in order and n != "occluded"]:
         e = errors[name]
         if name == "flow_noc":
-            lines.append(f"{'flow noc':<9} {'':>10} {'':>9} {'':>9} {e['epe']:>8.4f} {e['pixels']:>8d}")
+            lines.append(f"{'flow noc':<9} {'':>10} {'':>9} {'':>9} {fixed(e['epe'], 8, 4)} {e['pixels']:>8d}")
         elif name == "flow":
-            lines.append(f"{'u':<9} {e['mse_u']:>10.5f} {'':>9} {'':>9} {'':>8} {e['pixels']:>8d}")
-            lines.append(f"{'v':<9} {e['mse_v']:>10.5f} {'':>9} {'':>9} {'':>8} {e['pixels']:>8d}")
-            lines.append(f"{'flow':<9} {'':>10} {'':>9} {'':>9} {e['epe']:>8.4f} {e['pixels']:>8d}")
+            lines.append(f"{'u':<9} {fixed(e['mse_u'], 10, 5)} {'':>9} {'':>9} {'':>8} {e['pixels']:>8d}")
+            lines.append(f"{'v':<9} {fixed(e['mse_v'], 10, 5)} {'':>9} {'':>9} {'':>8} {e['pixels']:>8d}")
+            lines.append(f"{'flow':<9} {'':>10} {'':>9} {'':>9} {fixed(e['epe'], 8, 4)} {e['pixels']:>8d}")
         else:
             label = name.replace("_noc", " noc")
-            lines.append(f"{label:<9} {e['mse']:>10.5f} {e['mse_x100']:>9.3f} {e['badpix_0.07']:>8.2f}% "
+            lines.append(f"{label:<9} {fixed(e['mse'], 10, 5)} {fixed(e['mse_x100'], 9, 3)} {e['badpix_0.07']:>8.2f}% "
                          f"{'':>8} {e['pixels']:>8d}")
     if any(name.endswith("_noc") for name in errors):
         lines.append("noc: the points seen at t2 as well (the ground truth's 'occluded' left out)")

@@ -54,8 +54,9 @@ import imageio.v3 as iio
 import numpy as np
 from numpy.typing import ArrayLike
 
-from lfsf._errors import LfsfWarning, warn_at_caller, whole
-from lfsf._files import interrupts_held, is_special_file, output_folder, savez_atomic, write_bytes_atomic
+from lfsf._errors import LfsfWarning, shown_number, warn_at_caller, whole
+from lfsf._files import file_name, interrupts_held, output_folder, savez_atomic, write_bytes_atomic
+from lfsf._files import refuse_special_file as _refuse_special_file
 
 __all__ = [
     "BT601_LUMA",
@@ -714,10 +715,17 @@ def _check_npz_member_size(path: Path, archive: zipfile.ZipFile, key: str) -> No
         version = np.lib.format.read_magic(f)
         if version == (1, 0):
             shape, _, dtype = np.lib.format.read_array_header_1_0(f)
-        elif version == (2, 0):
-            shape, _, dtype = np.lib.format.read_array_header_2_0(f)
+        elif version in ((2, 0), (3, 0)):
+            # (3.0 is 2.0's layout with UTF-8 field names: a huge shape there had reached
+            # np.load's allocation, "out of memory")
+            try:
+                shape, _, dtype = np.lib.format.read_array_header_2_0(f)
+            except ValueError:
+                if version == (2, 0):
+                    raise
+                return                       # (field names beyond Latin-1: left to np.load)
         else:
-            return                           # format 3.0 (utf-8 names): left to np.load
+            return                           # (a version NumPy does not know: np.load says so)
         header = f.tell()
     if dtype.hasobject:
         return                               # np.load refuses these without allow_pickle
@@ -774,6 +782,11 @@ def _read_folder(folder: Path) -> LightField:
     return LightField(_read_view_grid(files), source=str(folder), meta=meta)
 
 
+#: The most views across a micro-lens a decode report may give (Lytro's 15, Raytrix's
+#: ~25); one beyond is not taken as a report.
+MAX_LENS_VIEWS = 1024
+
+
 def _read_decode_report(path: Path) -> dict | None:
     """``lfsf decode``'s report beside the views it wrote (the lattice, the number of
     views across a lens, …), or None where there is none that reads as one: the views
@@ -786,8 +799,12 @@ def _read_decode_report(path: Path) -> dict | None:
         report = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError, RecursionError):
         return None
-    if not (isinstance(report, dict) and isinstance(report.get("lattice"), dict)
-            and isinstance(report.get("views"), int)):
+    if not isinstance(report, dict):
+        return None
+    views = report.get("views")
+    # (a count no lens holds, 10⁴⁰⁰ say, had been an OverflowError's traceback in the estimate)
+    if not (isinstance(report.get("lattice"), dict) and isinstance(views, int) and not isinstance(views, bool)
+            and 0 < views <= MAX_LENS_VIEWS):
         return None
     return report
 
@@ -801,6 +818,11 @@ def _listed_first(items, count: int) -> str:
     shown = list(itertools.islice(items, _MAX_NAMES_LISTED))
     more = count - len(shown)
     return ", ".join(str(i) for i in shown) + (f" and {more} more" if more > 0 else "")
+
+
+#: The most cameras across or down a grid that ``parameters.cfg`` may give (HCI's 9; the
+#: largest arrays, Stanford's 17; 10³⁰⁰ had been taken, and printed in full).
+MAX_CAMS = 1024
 
 
 def _hci_cameras(parameters: dict, cfg: Path) -> tuple[int, int] | None:
@@ -817,11 +839,12 @@ def _hci_cameras(parameters: dict, cfg: Path) -> tuple[int, int] | None:
         value = found.get(key)
         if isinstance(value, float) and value.is_integer():  # (9.0)
             value = int(value)
-        if not isinstance(value, int) or value < 1:
+        if not isinstance(value, int) or not 1 <= value <= MAX_CAMS:
             other = "num_cams_x" if key == "num_cams_y" else "num_cams_y"
-            why = f"it gives {other} but not {key}" if value is None else f"{key} = {found[key]!r}"
+            why = (f"it gives {other} but not {key}" if value is None else
+                   f"{key} = {shown_number(found[key]) if isinstance(found[key], int) else repr(found[key])}")
             raise ValueError(f"{cfg}: {why}; the grid of views needs num_cams_x and num_cams_y as whole numbers "
-                             "≥ 1 (or no such line, for a square grid)")
+                             f"1…{MAX_CAMS} (or no such line, for a square grid)")
         counts.append(value)
     return counts[0], counts[1]
 
@@ -1207,17 +1230,14 @@ def _without_pfm_comments(data: bytes) -> bytes:
     return b"\n".join(kept + lines[-1:])
 
 
-def _refuse_special_file(path: Path) -> None:
-    """A ValueError for a path that is there but neither a file nor a folder: reading a
-    named pipe waits for a writer, and a device may never end."""
-    if is_special_file(path):
-        raise ValueError(f"{path}: not a regular file (a named pipe or a device would be read forever)")
+def _cut(text: bytes, most: int = 24) -> str:
+    """``text`` for a message: its repr, cut after ``most`` bytes (a header's 5000 digits
+    had filled the message)."""
+    return repr(text) if len(text) <= most else f"{text[:most]!r}… ({len(text)} bytes)"
 
 
 def _read_bytes(path: str | os.PathLike) -> bytes:
-    if not isinstance(path, (str, os.PathLike)):
-        raise ValueError(f"expected a file name (str or path), got {type(path).__name__} {path!r}")
-    path = Path(path)
+    path = file_name(path)
     _refuse_special_file(path)
     try:
         return path.read_bytes()
@@ -1270,7 +1290,10 @@ def read_pfm(path: str | os.PathLike) -> np.ndarray:
         width = height = 0
     if width < 1 or height < 1:
         raise ValueError(f"{path}: bad PFM dimensions: expected positive integers width "
-                         f"height, got {width_text!r} {height_text!r}")
+                         f"height, got {_cut(width_text)} {_cut(height_text)}")
+    if width * height > MAX_PNG_PIXELS:  # (the 'truncated' message had given the product's thousands of digits)
+        raise ValueError(f"{path}: bad PFM dimensions: {shown_number(width)}×{shown_number(height)} pixels, more "
+                         f"than the {MAX_PNG_PIXELS} that lfsf reads")
     try:
         scale = float(scale_text)
     except ValueError:
@@ -1635,7 +1658,7 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     ValueError
         If the file cannot be decoded.
     """
-    path = Path(path)
+    path = file_name(path, "an image file's name")
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such image file")
     if not path.is_file():
@@ -1648,16 +1671,22 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     if (len(head) == 26 and head.startswith(_PNG_SIGNATURE) and head[12:16] == b"IHDR"
             and head[24] == 16 and head[25] in (2, 4, 6)):
         return decode_png(path.read_bytes(), source=str(path))
-    told = []
+    told: list[str] = []
+    tiff = path.suffix.lower() in (".tif", ".tiff") or head.startswith((b"II*\0", b"MM\0*"))
     # (tifffile logs what it finds wrong with a corrupt TIFF and returns no pixels: its
     # lines are kept for the error below rather than printed on their own; one TIFF at a
     # time, as the logger is shared by the threads that read a folder's views)
-    kept = _log_lines("tifffile", told) if path.suffix.lower() in (".tif", ".tiff") else contextlib.nullcontext()
+    kept = _log_lines("tifffile", told) if tiff else contextlib.nullcontext()
     try:
         # (from a file this function closes: imageio leaves its own open when no plugin reads it)
         with kept, open(path, "rb") as f:
-            image = np.asarray(iio.imread(f, extension=path.suffix or None))
+            if tiff:
+                image = _read_tiff(f, path)
+            else:
+                image = np.asarray(iio.imread(f, extension=path.suffix or None))
     except Exception as err:        # imageio/Pillow raise many kinds for a corrupt file
+        if isinstance(err, _TooLarge):
+            raise ValueError(str(err)) from None
         first_line = (str(err).strip().splitlines() or [""])[0]
         if first_line.startswith("Could not find a backend"):
             # imageio's multi-line advice to install a video plugin does not apply
@@ -1671,6 +1700,41 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
         why = re.sub(r"^<[^>]*> ", "", told[0]) if told else "the file holds none"
         raise ValueError(f"{path}: cannot read image: no pixels decoded ({why}); a corrupt or truncated file?")
     return image
+
+
+class _TooLarge(Exception):
+    """An image of more pixels than lfsf reads (:data:`MAX_PNG_PIXELS`), said as it is."""
+
+
+def _read_tiff(f, path: Path) -> np.ndarray:
+    """A TIFF's first series by tifffile (as imageio's plugin reads it), else by Pillow,
+    never by imageio's other plugins: OpenCV's printed its own WARN and ERROR lines for
+    a truncated file and named no fault. The first page's size is checked before any
+    pixel is decoded (an 825-KB tiled TIFF of 20000×20000 had taken 2.9 GB)."""
+    import warnings
+
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(f) as tif:
+            if not len(tif.pages):   # (what tifffile logged says why: read_image's "no pixels decoded")
+                return np.zeros((0,), np.uint8)
+            page = tif.pages[0]
+            width, height = int(page.imagewidth), int(page.imagelength)
+            if width * height > MAX_PNG_PIXELS:
+                raise _TooLarge(f"{path}: a TIFF of {width}×{height} pixels, more than the {MAX_PNG_PIXELS} that "
+                                "lfsf reads")
+            return np.asarray(tif.asarray(series=0))
+    except _TooLarge:
+        raise
+    except Exception as first:   # noqa: BLE001 - Pillow's try; tifffile's error is the one said
+        f.seek(0)
+        try:
+            with warnings.catch_warnings():   # (Pillow's "Corrupt EXIF data" of a truncated file)
+                warnings.simplefilter("ignore")
+                return np.asarray(iio.imread(f, plugin="pillow"))
+        except Exception:   # noqa: BLE001
+            raise first from None
 
 
 @contextlib.contextmanager

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from lfsf._errors import whole
+from lfsf._errors import shown_number, whole
 
 
 @dataclass(frozen=True)
@@ -445,9 +445,12 @@ class Params:
             import tomllib
         except ModuleNotFoundError:  # Python 3.10
             import tomli as tomllib
-        path = Path(path)
+        from lfsf._files import file_name, refuse_special_file
+
+        path = file_name(path, "a TOML file's name")
         if not path.exists():
             raise FileNotFoundError(f"{path}: no such file")
+        refuse_special_file(path)   # (a named pipe, /dev/zero: read for ever)
         if path.suffix.lower() == ".npz" or (path.is_dir() and (path / "sceneflow.npz").is_file()):
             return cls._from_result(path, preset)
         if path.is_dir():
@@ -789,12 +792,20 @@ def _refuse_unknown(settings: Mapping[str, Any]) -> None:
     names = [f.name for f in dataclasses.fields(Params)]
     unknown = sorted(set(settings) - set(names))
     if unknown:
-        guesses = {k: _nearest_names(k, names) for k in unknown}
+        # (the first few, each cut short: a file of 200 000 names had been a message of
+        # 1.7 MB after 14 s of guessing)
+        shown = [k if len(k) <= 40 else k[:39] + "…" for k in unknown[:MAX_UNKNOWN_SHOWN]]
+        more = f" and {len(unknown) - len(shown)} more" if len(unknown) > len(shown) else ""
+        guesses = {k: _nearest_names(k, names) for k in shown}
         meant = [f"{k}: did you mean {' or '.join(guess)}?" for k, guess in guesses.items() if guess]
         # (the 50-odd names only where some name has no near one: a line of 900 characters)
         known = "" if all(guesses.values()) else f"; known: {', '.join(names)}"
-        raise ValueError(f"unknown parameter(s) {', '.join(unknown)}"
+        raise ValueError(f"unknown parameter(s) {', '.join(shown)}{more}"
                          + (f" ({'; '.join(meant)})" if meant else "") + known)
+
+
+#: Unknown settings named in an error, at most.
+MAX_UNKNOWN_SHOWN = 8
 
 
 def _init_naming_unknown_settings(init):
@@ -813,12 +824,8 @@ Params.__init__ = _init_naming_unknown_settings(Params.__init__)  # type: ignore
 
 
 def _shown(value) -> str:
-    """A setting's value for a message: a whole number of more than 12 digits as about
-    its magnitude (1e300 taken as an int had filled the message with 300 digits)."""
-    if isinstance(value, int) and abs(value) >= 10 ** 12:
-        digits = str(abs(value))
-        return f"{'-' if value < 0 else ''}{digits[0]}.{digits[1:3]}e{len(digits) - 1}"
-    return str(value)
+    """A setting's value for a message (:func:`lfsf._errors.shown_number`)."""
+    return shown_number(value)
 
 
 def _bad(name: str, expected: str, value) -> ValueError:

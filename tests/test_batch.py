@@ -378,6 +378,26 @@ def test_pair_names_windows_cannot_take_are_refused_there_before_any_work(tmp_pa
         batch.check_outputs([batch.Pair("CON", tmp_path / "a.npz", tmp_path / "b.npz")], tmp_path / "out")
 
 
+def test_odd_sources_are_refused_before_any_work(tmp_path):
+    """A named pipe or /dev/zero as the manifest had been read for ever; a source that is
+    a loop of links had been Path.resolve's RuntimeError (Python < 3.13) in a traceback;
+    "" had been the current folder; a name with a line break or an escape had made such
+    a folder and printed the escape raw."""
+    os.mkfifo(tmp_path / "fifo.csv")
+    (tmp_path / "zero.csv").symlink_to("/dev/zero")
+    for special in ("fifo.csv", "zero.csv"):
+        with pytest.raises(ValueError, match=f"{special}: not a regular file"):
+            batch.pairs_from_sources([tmp_path / special])
+    with pytest.raises(ValueError, match="expected a manifest or a folder of frames, got an empty one"):
+        batch.pairs_from_sources([""])
+    (tmp_path / "loop.npz").symlink_to("loop.npz")
+    pairs = batch.pairs_from_sources([_manifest(tmp_path / "m.csv", [("loop.npz", "b.npz", "a")])])
+    batch.check_outputs(pairs, tmp_path / "out")     # (the pair fails as it is read, with its reason)
+    for name in ("a\nb", "red\x1b[31m", "tab\tbed"):
+        with pytest.raises(ValueError, match="a control character"):
+            batch.check_outputs([batch.Pair(name, tmp_path / "a.npz", tmp_path / "b.npz")], tmp_path / "out")
+
+
 def test_a_dask_that_is_there_but_does_not_import_says_why(monkeypatch):
     """Any ImportError of distributed (a dependency of its own broken, a NumPy ABI
     mismatch) had read as "Dask is not installed" with an install hint."""

@@ -332,3 +332,23 @@ def test_lfsf_points_of_a_shrunk_result_takes_the_full_views_camera(small_result
                      tmp_path / "gt.npz", "--quiet")
         assert done.returncode == 0, done.stderr
         assert f"(border 4 px" in done.stdout and f"error mean {expected['epe3d']:.4g}," in done.stdout, done.stdout
+
+
+def test_numbers_beyond_a_floats_range_are_one_line_errors_naming_their_magnitude(tmp_path):
+    """A 400-digit focal or size (a parameters.cfg's, a result's recorded --downsample) had
+    been an OverflowError's traceback, or a message of 400 digits."""
+    with pytest.raises(ValueError, match=r"^Camera: focal must be finite, got 1.00e400$"):
+        Camera(10 ** 400, 1.0, 0.0)
+    with pytest.raises(ValueError, match=r"size must be \(W, H\), two whole numbers 1…1048576, or None, got "
+                                         r"\(1.00e400, 5\)"):
+        Camera(1.0, 1.0, 0.0, size=(10 ** 400, 5))
+    cfg = tmp_path / "parameters.cfg"
+    cfg.write_text("[intrinsics]\nfocal_length_mm=50\nsensor_size_mm=36\nimage_resolution_x_px=" + "9" * 400
+                   + "\nimage_resolution_y_px=48\n[extrinsics]\nbaseline_mm=1\nfocus_distance_m=1\n")
+    with pytest.raises(ValueError, match=r"parameters.cfg: no camera in these parameters: image_resolution_x_px"):
+        Camera.from_file(cfg)
+    with pytest.raises(ValueError, match=r"views of 64×48 cannot be shrunk 1000 times"):
+        Camera(1.0, 1.0, 0.0, size=(64, 48)).downsampled(1000)
+    from lfsf.evaluate import downsample_of
+
+    assert downsample_of({"downsample": 10 ** 400}) == 1 and downsample_of({"downsample": 4}) == 4

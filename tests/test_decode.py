@@ -586,6 +586,19 @@ def test_unreadable_and_truncated_files_fail_clearly(lenslet_files, tmp_path, ca
     assert not (tmp_path / "o").exists()
 
 
+def test_a_raw_image_of_wide_integers_is_refused(tmp_path):
+    """A 16-bit sensor image saved as int32 had been scaled by int32's maximum: views of
+    1e-5, without a word (views and textures were refused so already)."""
+    import tifffile
+
+    tifffile.imwrite(tmp_path / "wide.tif", np.full((12, 16), 40000, np.int32))
+    with pytest.raises(ValueError, match=r"wide.tif: integer pixels of dtype int32 .* save the sensor image with 8 "
+                                         r"or 16 bits"):
+        D.read_raw(tmp_path / "wide.tif")
+    tifffile.imwrite(tmp_path / "ok.tif", np.full((12, 16), 40000, np.uint16))
+    assert D.read_raw(tmp_path / "ok.tif").data.max() == pytest.approx(40000 / 65535)
+
+
 def test_a_stack_of_images_is_not_taken_for_channels(tmp_path):
     """A TIFF of two pages reads as (2, H, W): the message gives the shape and says what
     it may be (it said "got W channels")."""

@@ -390,3 +390,30 @@ def test_a_depth_map_is_not_scored_as_disparity(tmp_path):
         lio.write_pfm(tmp_path / name, depth)
         truth, border = E.load_ground_truth(tmp_path / name)
         np.testing.assert_array_equal(truth["disp1"], depth)
+
+
+def test_a_result_folder_with_a_folder_or_a_dangling_link_in_a_files_place_says_so(tmp_path):
+    """A folder named sceneflow.npz (or a link to nothing) had been "no sceneflow.npz …
+    in this folder"; the same for a ground truth's gt.npz."""
+    (tmp_path / "r").mkdir()
+    (tmp_path / "r" / "sceneflow.npz").mkdir()
+    with pytest.raises(ValueError, match=r"r/sceneflow.npz: a folder, where a file was expected"):
+        E.load_estimate(tmp_path / "r")
+    (tmp_path / "g").mkdir()
+    (tmp_path / "g" / "gt.npz").symlink_to(tmp_path / "nowhere")
+    with pytest.raises(ValueError, match=r"g/gt.npz: a link to nothing \(or a loop of links\), where a file"):
+        E.load_ground_truth(tmp_path / "g")
+
+
+def test_a_ground_truth_beyond_float32_is_refused_and_wide_errors_fit_the_table(tmp_path):
+    """1e300 in a float64 gt.npz had overflowed in the scoring with NumPy's warning, and an
+    MSE of 1e40 had printed 41 digits in its column."""
+    np.savez(tmp_path / "gt.npz", disp1=np.full((4, 5), 1e300))
+    with pytest.raises(ValueError, match=r"gt.npz: 'disp1' holds 1e\+300, beyond float32's range"):
+        E.load_ground_truth(tmp_path / "gt.npz")
+    np.savez(tmp_path / "gt.npz", disp1=np.full((4, 5), 1e30), u=np.array([[np.inf, 1.0]]))
+    assert E.load_ground_truth(tmp_path / "gt.npz")[0]["disp1"][0, 0] == 1e30   # (within float32: taken)
+    table = E.format_table({"disp1": {"mse": 1e40, "mse_x100": 1e42, "badpix_0.07": 100.0, "pixels": 20},
+                            "flow": {"mse_u": 0.1, "mse_v": 1e30, "epe": 1e15, "pixels": 20}})
+    widths = {len(line) for line in table.splitlines()}
+    assert widths == {len(table.splitlines()[0])} and "1e+40" in table and "1e+15" in table, table

@@ -22,6 +22,7 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
+from lfsf import Params
 from lfsf import io as lio
 from lfsf._errors import LfsfWarning
 
@@ -612,7 +613,11 @@ def test_pfm_accepts_single_channel_3d_and_rejects_bad_shapes(tmp_path):
     (b"Pf\n2 2\nabc\n" + bytes(16), "scale"),
     (b"Pf\n2 2\n-1\n" + bytes(15), "truncated"),
     (b"PF\n2 2\n-1\n" + bytes(16), "truncated"),
-    (b"Pf\n100000 100000\n-1\n" + bytes(16), "truncated"),
+    (b"Pf\n10000 10000\n-1\n" + bytes(16), "truncated"),
+    # more pixels than lfsf reads, its digits cut short (5000 had filled the message)
+    (b"Pf\n100000 100000\n-1\n" + bytes(16), r"dimensions: 100000×100000 pixels, more than"),
+    (b"Pf\n" + b"9" * 5000 + b" 5\n-1\n" + bytes(16), r"dimensions: .*got b'9{24}'… \(5000 bytes\) b'5'$"),
+    (b"Pf\n" + b"9" * 400 + b" 5\n-1\n" + bytes(16), r"dimensions: 9.99e399×5 pixels"),
     (b"Pf\n2", "header"),
 ])
 def test_corrupt_pfm_names_the_file(tmp_path, content, problem):
@@ -620,6 +625,50 @@ def test_corrupt_pfm_names_the_file(tmp_path, content, problem):
     with pytest.raises(ValueError, match=problem) as info:
         lio.read_pfm(tmp_path / "broken.pfm")
     assert "broken.pfm" in str(info.value)
+
+
+def test_a_tiff_is_read_by_tifffile_or_pillow_alone_and_its_size_checked_first(tmp_path, monkeypatch, capfd):
+    """A TIFF larger than lfsf reads is refused from its header (an 825-KB tiled file of
+    20000×20000 had taken 2.9 GB); a truncated one is tifffile's error, without OpenCV's
+    WARN and ERROR lines or Pillow's warning on stderr (imageio had fallen through to
+    them, and named no fault)."""
+    import tifffile
+
+    image = (np.arange(20 * 30, dtype=np.uint16).reshape(20, 30) * 97).astype(np.uint16)
+    tifffile.imwrite(tmp_path / "v.tif", image)
+    assert np.array_equal(lio.read_image(tmp_path / "v.tif"), image)
+    monkeypatch.setattr(lio, "MAX_PNG_PIXELS", 599)
+    with pytest.raises(ValueError, match=r"v.tif: a TIFF of 30×20 pixels, more than the 599 that lfsf reads"):
+        lio.read_image(tmp_path / "v.tif")
+    monkeypatch.undo()
+    (tmp_path / "cut.tif").write_bytes((tmp_path / "v.tif").read_bytes()[:20])
+    capfd.readouterr()
+    with pytest.raises(ValueError, match=r"cut.tif: cannot read image \(TiffFileError"):
+        lio.read_image(tmp_path / "cut.tif")
+    assert capfd.readouterr().err == ""
+
+
+def test_readers_given_no_path_say_what_they_got(tmp_path):
+    """None, a number, bytes or "" had been pathlib's TypeError (or "" the current folder)."""
+    from lfsf import SceneFlow, evaluate
+    from lfsf.camera import Camera
+    from lfsf.decode import read_raw
+
+    readers = (lio.read_image, lio.read_kitti_flow, lio.read_kitti_disparity, read_raw, Camera.from_file,
+               evaluate.load_estimate, evaluate.load_ground_truth, SceneFlow.load, Params.from_toml)
+    for reader in readers:
+        for given in (None, 3, b"x.png", ""):
+            with pytest.raises(ValueError, match=r"^expected .*(got (NoneType|int|bytes)|got an empty one)"):
+                reader(given)
+
+
+def test_a_decode_report_with_a_count_no_lens_holds_is_not_taken(tmp_path):
+    """decode.json's "views" of 400 digits had been an OverflowError in the estimate."""
+    _hci_folder(tmp_path / "hci", 2)
+    (tmp_path / "hci" / "decode.json").write_text('{"lattice": {"a": 1}, "views": 1' + "0" * 400 + "}")
+    assert "lens_views" not in lio.read_lightfield(tmp_path / "hci").meta
+    (tmp_path / "hci" / "decode.json").write_text('{"lattice": {"a": 1}, "views": 15}')
+    assert lio.read_lightfield(tmp_path / "hci").meta["lens_views"] == 15
 
 
 def test_missing_files_raise_file_not_found(tmp_path):
@@ -1245,13 +1294,16 @@ def test_damaged_compressed_npz_names_the_file(tmp_path):
         lio.read_lightfield(tmp_path / "views.npz")
 
 
-def _npz_claiming_shape(path: Path, key: str, shape: tuple) -> None:
-    """A small .npz whose member's .npy header claims ``shape`` but holds 16 bytes."""
+def _npz_claiming_shape(path: Path, key: str, shape: tuple, version: tuple = (1, 0)) -> None:
+    """A small .npz whose member's .npy header (of format ``version``) claims ``shape`` but
+    holds 16 bytes."""
     header = io.BytesIO()
-    np.lib.format.write_array_header_1_0(header, {"descr": "<f4", "fortran_order": False,
-                                                  "shape": shape})
+    write = np.lib.format.write_array_header_1_0 if version == (1, 0) else np.lib.format.write_array_header_2_0
+    write(header, {"descr": "<f4", "fortran_order": False, "shape": shape})
+    header = bytearray(header.getvalue())
+    header[6] = version[0]   # (3.0: 2.0's layout, another version byte)
     with zipfile.ZipFile(path, "w") as archive:
-        archive.writestr(key + ".npy", header.getvalue() + bytes(16))
+        archive.writestr(key + ".npy", bytes(header) + bytes(16))
 
 
 def test_npz_whose_header_claims_a_huge_shape_is_a_value_error(tmp_path):
@@ -1262,6 +1314,11 @@ def test_npz_whose_header_claims_a_huge_shape_is_a_value_error(tmp_path):
         lio.read_lightfield(tmp_path / "huge.npz")
     _npz_claiming_shape(tmp_path / "fits.npz", "views", (1, 1, 2, 2))    # exactly 16 bytes
     assert lio.read_lightfield(tmp_path / "fits.npz").views.shape == (1, 1, 2, 2)
+    # format 3.0 (UTF-8 field names) too: it had reached np.load's allocation, "out of memory"
+    for version in ((2, 0), (3, 0)):
+        _npz_claiming_shape(tmp_path / "v.npz", "views", (9, 9, 99999, 99999), version)
+        with pytest.raises(ValueError, match=r"v.npz: 'views' is damaged: its header claims shape"):
+            lio.read_lightfield(tmp_path / "v.npz")
 
 
 def test_npz_that_is_not_a_zip_says_so(tmp_path):

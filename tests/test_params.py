@@ -156,6 +156,22 @@ def test_a_toml_file_with_whole_number_floats_loads(tmp_path):
     assert params.samples == (1, 8, 8) and params.visibility is False
 
 
+def test_a_named_pipe_or_a_device_as_the_config_is_refused(tmp_path):
+    """It had been read for ever (a pipe waits for a writer; /dev/zero never ends)."""
+    os.mkfifo(tmp_path / "fifo.toml")
+    (tmp_path / "zero.toml").symlink_to("/dev/zero")
+    for name in ("fifo.toml", "zero.toml"):
+        with pytest.raises(ValueError, match=f"{name}: not a regular file"):
+            Params.from_toml(tmp_path / name)
+
+
+def test_many_unknown_settings_are_named_in_a_short_message():
+    """A file of 200 000 unknown names had been a message of 1.7 MB after 14 s."""
+    with pytest.raises(ValueError) as info:
+        Params.preset("fast").replace(**{f"k{i}": 1 for i in range(20000)})
+    assert "and 19992 more" in str(info.value) and len(str(info.value)) < 1200
+
+
 def test_a_toml_file_is_read_as_utf_8_whatever_the_locale(tmp_path):
     """TOML is UTF-8: a comment with δ (or Notepad's BOM) had been decoded with the
     locale's encoding, cp1252 on Windows, ASCII under LANG=C ("not valid TOML")."""
