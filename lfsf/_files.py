@@ -158,6 +158,17 @@ def refuse_special_file(path: Path) -> None:
         raise ValueError(f"{path}: not a regular file (a named pipe or a device would be read forever)")
 
 
+def read_capped(path: Path, most: int, what: str) -> bytes:
+    """The bytes of ``path``, of which there may be at most ``most``: a named pipe or
+    ``/dev/stdin`` is read as a file (``--config <(…)``), and ``/dev/zero``, which had been
+    read for ever, ends in a ValueError saying the file is too long to be ``what``."""
+    with open(path, "rb") as f:
+        data = f.read(most + 1)
+    if len(data) > most:
+        raise ValueError(f"{path}: more than {most >> 20} MB, too long for {what}")
+    return data
+
+
 def file_name(path, what: str = "a file name") -> Path:
     """``path`` (str or os.PathLike) as a Path; a ValueError naming what was given else
     (None, a number, bytes: pathlib's TypeError had said nothing of the argument; "", which

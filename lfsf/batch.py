@@ -45,7 +45,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from lfsf._errors import _FULL, BAD_INPUT_ERRORS, DependencyError, MachineError, whole
-from lfsf._files import (SET_PREFIX, _host, dead_set, file_name, gone, refuse_special_file, replace, resolved,
+from lfsf._files import (SET_PREFIX, _host, dead_set, file_name, gone, read_capped, replace, resolved,
                          write_bytes_atomic)
 
 #: The files of a complete result (those :meth:`lfsf.estimate.SceneFlow.save` writes
@@ -162,21 +162,35 @@ def pairs_from_sources(sources: Sequence[str | os.PathLike] | str | os.PathLike,
     for pair in pairs:
         # (casefolded: Scene and scene are one folder on macOS and Windows, and where the
         # results are copied to; the second pair's result had replaced the first's)
-        first = seen.get(pair.name.casefold())
+        folded = _folded(pair.name)
+        first = seen.get(folded)
         if first is not None:
             named = (f"both named {pair.name!r}" if first.name == pair.name else
-                     f"named {first.name!r} and {pair.name!r}, one folder where case is not told apart (macOS, "
-                     "Windows)")
+                     f"named {first.name!r} and {pair.name!r}, one folder on macOS and Windows (which tell apart "
+                     "neither case nor an accent's two forms)")
             raise ValueError(f"two pairs are {named} ({first.t1} → {first.t2} and {pair.t1} → {pair.t2}); name "
                              "them in a manifest's third column")
-        seen[pair.name.casefold()] = pair
+        seen[folded] = pair
     return pairs
 
 
+def _folded(name: str) -> str:
+    """A pair's name as macOS and Windows compare folder names, about: composed (macOS
+    takes é and e + ◌́ for one name) and case-folded (it over-refuses Straße against STRASSE,
+    two folders on NTFS)."""
+    import unicodedata
+
+    return unicodedata.normalize("NFC", name).casefold()
+
+
+#: The longest manifest read: some 300 000 pairs.
+MAX_MANIFEST_BYTES = 64 << 20
+
+
 def _manifest_pairs(path: Path) -> list[Pair]:
-    refuse_special_file(path)   # (a named pipe, /dev/zero: read for ever)
     try:
-        text = path.read_text(encoding="utf-8-sig")    # (-sig: Excel's "CSV UTF-8" starts with a BOM)
+        # (-sig: Excel's "CSV UTF-8" starts with a BOM; a named pipe is read, /dev/zero is not for ever)
+        text = read_capped(path, MAX_MANIFEST_BYTES, "a manifest").decode("utf-8-sig")
     except UnicodeDecodeError:
         raise ValueError(f"{path}: not a text CSV manifest") from None
     if "\0" in text:  # (before the csv module: Python 3.10's refuses the line with an error of its own)
@@ -212,7 +226,8 @@ def _manifest_pairs(path: Path) -> list[Pair]:
 
 
 #: Names that Windows keeps for devices, with or without an extension (``NUL.txt``).
-_WINDOWS_DEVICES = {"con", "prn", "aux", "nul", *(f"{kind}{n}" for kind in ("com", "lpt") for n in range(1, 10))}
+_WINDOWS_DEVICES = {"con", "prn", "aux", "nul", "conin$", "conout$",
+                    *(f"{kind}{n}" for kind in ("com", "lpt") for n in (*"0123456789", "¹", "²", "³"))}
 
 
 def _not_a_windows_folder(name: str, windows: bool = os.name == "nt") -> bool:
@@ -220,7 +235,7 @@ def _not_a_windows_folder(name: str, windows: bool = os.name == "nt") -> bool:
     ``<>:"|?*`` or a control character in it, a device's name (CON, NUL.x, COM1, …), or a
     dot or space at its end (a pair would fail only after its estimate)."""
     return windows and (any(c in '<>:"|?*' or ord(c) < 32 for c in name) or name.endswith((".", " "))
-                        or name.split(".")[0].strip().lower() in _WINDOWS_DEVICES)
+                        or name.split(".")[0].rstrip(" ").lower() in _WINDOWS_DEVICES)
 
 
 def _within(path: Path, folder: Path) -> bool:
@@ -404,14 +419,14 @@ def check_outputs(pairs: Sequence[Pair], out: str | os.PathLike) -> None:
         if len(os.fsencode(pair.name)) > MAX_PAIR_NAME or "\0" in pair.name:
             raise ValueError(f"pair {pair.name[:40]!r}…: a pair's name must be a folder name of at most "
                              f"{MAX_PAIR_NAME} bytes; name it in a manifest's third column")
-        if any(ord(c) < 32 or ord(c) == 127 for c in pair.name):   # (an escape had been printed raw)
+        if any(ord(c) < 32 or 127 <= ord(c) < 160 for c in pair.name):   # (an escape had been printed raw)
             raise ValueError(f"pair {pair.name!r}: a control character (a line break, a tab, an escape) in a pair's "
                              "name; name it in a manifest's third column")
         if _not_a_windows_folder(pair.name):  # (the pair would fail after its estimate)
             raise ValueError(f"pair {pair.name!r}: Windows takes no folder of that name (one of <>:\"|?* or a "
                              "control character in it, a device's name as CON or NUL, or a dot or space at its "
                              "end); name it in a manifest's third column")
-        if pair.name.casefold() == "failed.csv":   # (Failed.CSV too, on macOS and Windows)
+        if _folded(pair.name) == "failed.csv":   # (Failed.CSV too, on macOS and Windows)
             raise ValueError(f"{out / pair.name}: a pair may not be named failed.csv, the list of failed pairs")
         final = out / pair.name
         source = held.get(resolved(final))
@@ -615,18 +630,20 @@ def _worker_device(device: str | None) -> str:
 # --- the batch --------------------------------------------------------------------------------
 
 def have_dask() -> bool:
-    """Whether Dask's ``distributed`` is installed. One that is there and fails to import
-    (a dependency of its own broken or of another version) is a DependencyError saying
-    why: it had read as "Dask is not installed"."""
+    """Whether Dask's ``distributed`` imports (a batch without it runs in this process)."""
+    return _dask_problem() is None
+
+
+def _dask_problem() -> str | None:
+    """None where Dask's ``distributed`` imports; else why not: "not installed", or the
+    error of one that is installed and fails to import (a dependency of its own broken, or
+    of another version), which had read as "not installed"."""
     try:
         import distributed  # noqa: F401
-    except ModuleNotFoundError as exc:
-        if exc.name in ("distributed", "dask"):
-            return False
-        raise DependencyError(f"Dask's distributed is installed but does not import ({exc}); {INSTALL_HINT}") from exc
     except ImportError as exc:
-        raise DependencyError(f"Dask's distributed is installed but does not import ({exc}); {INSTALL_HINT}") from exc
-    return True
+        missing = isinstance(exc, ModuleNotFoundError) and exc.name in ("distributed", "dask")
+        return "not installed" if missing else f"installed but does not import ({exc})"
+    return None
 
 
 def check_dask(workers: int, scheduler: str | None) -> None:
@@ -644,12 +661,13 @@ def check_dask(workers: int, scheduler: str | None) -> None:
         # only divide them, and multiply the memory (hundreds of MB each)
         raise ValueError(f"--workers {workers}: this process may use {cores} CPU{'s' if cores != 1 else ''} (the "
                          f"machine's, or its share of them); give at most {cores}")
-    if (workers > 1 or scheduler) and not have_dask():
+    problem = _dask_problem() if workers > 1 or scheduler else None
+    if problem is not None:
         # (--workers and --scheduler together are refused by the command line)
         asked, instead = (("--scheduler", "leave out --scheduler") if scheduler else
                           (f"--workers {workers}", "run with --workers 1"))
-        raise ValueError(f"{asked} needs Dask, which is not installed: {INSTALL_HINT}; or {instead} "
-                         "to run the pairs in this process")
+        raise (ValueError if problem == "not installed" else DependencyError)(
+            f"{asked} needs Dask, which is {problem}: {INSTALL_HINT}; or {instead} to run the pairs in this process")
     if not scheduler and have_dask():
         try:
             os.getcwd()

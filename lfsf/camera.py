@@ -110,8 +110,8 @@ class Camera:
                 if (width, height) != tuple(self.size) or not 1 <= min(width, height) <= max(width, height) <= MAX_SIZE:
                     raise ValueError
             except (TypeError, ValueError, OverflowError):
-                shown = (f"({shown_number(self.size[0])}, {shown_number(self.size[1])})"
-                         if isinstance(self.size, tuple) and len(self.size) == 2 else repr(self.size))
+                shown = (f"({', '.join(shown_number(v) if isinstance(v, int) else repr(v) for v in self.size)})"
+                         if isinstance(self.size, (tuple, list)) and len(self.size) == 2 else repr(self.size))
                 raise ValueError(f"Camera: size must be (W, H), two whole numbers 1…{MAX_SIZE}, or None, got "
                                  f"{shown}") from None
             object.__setattr__(self, "size", (width, height))

@@ -489,6 +489,8 @@ def _cut_to(line: str, columns: int, encoding: str | None) -> str:
     if len(shown) <= columns:
         return shown
     more = "…" if _as_shown("…", encoding) == "…" else "..."
+    if columns <= len(more):
+        return shown[:max(columns, 0)]
     pieces, width = [], 0
     for c in line:  # (whole characters: an escape is not cut in two)
         piece = _as_shown(c, encoding)
@@ -800,9 +802,10 @@ def cmd_batch(args) -> int:
     batch.check_outputs(pairs, args.out)  # before the first line of the run
     batch.check_warm_start(pairs, args.warm_start)
     batch.check_dask(workers, args.scheduler)  # before the first line of the run
+    dask = batch._dask_problem()
     where = (f"the Dask scheduler at {args.scheduler}" if args.scheduler
              else f"a local Dask cluster of {workers} process{'es' if workers > 1 else ''}"
-             if batch.have_dask() else "this process (Dask is not installed)")
+             if dask is None else f"this process (Dask is {dask})")
     count = f"{len(pairs)} pair{'s' if len(pairs) != 1 else ''}"
     _log(args, f"lfsf batch: {count} to {args.out}, {_preset_label(args)}, on {where}"
                + (", each pair of a folder's frames starting from the one before" if args.warm_start else ""))

@@ -118,14 +118,14 @@ def warp():
 
 def _cache_without_home(version: str = "") -> str | None:
     """Where Warp's kernel cache goes: None (Warp's own choice, ``$XDG_CACHE_HOME/warp`` or
-    ``~/.cache/warp``; ``~/Library/Caches/warp`` on macOS) where that can hold it (or holds this Warp ``version``'s already,
-    writable or not), the home's ``.cache/warp`` where ``XDG_CACHE_HOME`` is empty or
-    relative (which the XDG rules say to ignore; Warp took it as a folder in the current
-    one), else a folder of this user's in the temporary folder. With HOME unset and no
-    passwd entry, ``~`` stays ``~``, and Warp had made a folder named ``~`` in the current
-    folder, and compiled again in each new one; with HOME=/ (``docker run --user 12345``)
-    it could not start. The folder must be this user's alone: its compiled code is loaded
-    and run."""
+    ``~/.cache/warp``; ``~/Library/Caches/warp`` on macOS) where that can hold it (or
+    holds this Warp ``version``'s already, writable or not), the home's ``.cache/warp``
+    where ``XDG_CACHE_HOME`` is empty or relative (which the XDG rules say to ignore; Warp
+    took it as a folder in the current one), else a folder of this user's in the temporary
+    folder. With HOME unset and no passwd entry, ``~`` stays ``~``, and Warp had made a
+    folder named ``~`` in the current folder, and compiled again in each new one; with
+    HOME=/ (``docker run --user 12345``) it could not start. The folder must be this
+    user's alone: its compiled code is loaded and run."""
     import stat
     import tempfile
 

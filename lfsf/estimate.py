@@ -21,7 +21,8 @@ from lfsf._filters import box_mean
 from lfsf._filters import gaussian_blur as _blur
 from lfsf.gains import (GAIN_CHANGE, MAX_GAIN, MIN_VIEW_SIZE, fit_reduced_gains, gain_change, reduction_factor,
                         sampled_views)
-from lfsf.io import LightField, _a, _check_pair_brightest, _refuse_non_finite, centre_view, luma, read_lightfield
+from lfsf.io import (MAX_LENS_VIEWS, LightField, _a, _check_pair_brightest, _refuse_non_finite, centre_view, luma,
+                     read_lightfield)
 from lfsf.params import MAX_FLOW_RANGE, Params
 
 if TYPE_CHECKING:
@@ -166,14 +167,14 @@ class SceneFlow:
         if k == 1:
             return camera
         views = self.inputs.get("views")
-        if camera.size is None and isinstance(views, list | tuple) and len(views) == 2 and all(
-                isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in views):
-            camera = replace(camera, size=(int(views[0]), int(views[1])))
         try:
+            if camera.size is None and isinstance(views, list | tuple) and len(views) == 2 and all(
+                    isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in views):
+                camera = replace(camera, size=(int(views[0]), int(views[1])))
             return camera.downsampled(k)
         except ValueError as exc:   # (a result's own record that does not fit its camera)
-            raise ValueError(f"{str(exc).removeprefix('Camera.downsampled: ')}, as this result records its "
-                             f"light fields were (--downsample {k})") from None
+            raise ValueError(f"{str(exc).removeprefix('Camera.downsampled: ')}; from what this result records of its "
+                             f"light fields (their size, and --downsample {k})") from None
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "SceneFlow":
@@ -839,7 +840,7 @@ def _rim_radius(lf: LightField) -> float | None:
     and a folder's ``decode.json`` give; kept where the views are cropped to the central
     ones); None for others."""
     n = lf.meta.get("lens_views")
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 2 <= n <= 1 << 16:
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 2 <= n <= MAX_LENS_VIEWS:
         return None
     return round(RIM_FRACTION * int(n) / 2.0, 6)
 

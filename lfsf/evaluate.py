@@ -412,7 +412,13 @@ def downsample_of(inputs) -> int:
     its ``sceneflow.npz``, ``SceneFlow.inputs``; 1 where none, or none that reads)."""
     factor = inputs.get("downsample", 1) if isinstance(inputs, dict) else 1
     # (10⁴⁰⁰ had been an OverflowError's traceback where the camera is shrunk)
-    return factor if isinstance(factor, int) and not isinstance(factor, bool) and 1 <= factor <= 1 << 12 else 1
+    ok = isinstance(factor, int) and not isinstance(factor, bool) and 1 <= factor <= MAX_DOWNSAMPLE
+    return factor if ok else 1
+
+
+#: The largest ``--downsample`` factor a result's record is taken with (views of 17 px,
+#: the estimate's least, from 65536).
+MAX_DOWNSAMPLE = 1 << 12
 
 
 def flow_only(path: str | os.PathLike) -> bool:
@@ -490,7 +496,11 @@ def format_table(errors: Mapping[str, Mapping[str, float]]) -> str:
         """``value`` right-aligned in ``width`` with ``decimals``, or in %g where that
         does not fit (an MSE of 1e40 had printed 41 digits)."""
         text = f"{value:>{width}.{decimals}f}"
-        return text if len(text) <= width else f"{value:>{width}.3g}"
+        for digits in (3, 2, 1):
+            if len(text) <= width:
+                break
+            text = f"{value:>{width}.{digits}g}"
+        return text
 
     lines = [f"{'variable':<9} {'MSE':>10} {'MSE×100':>9} {'BadPix.07':>9} {'EPE':>8} {'pixels':>8}"]
     order = [n for base in ("disp1", "disp2", "flow") for n in (base, base + "_noc") if n in errors]

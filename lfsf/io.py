@@ -1291,9 +1291,6 @@ def read_pfm(path: str | os.PathLike) -> np.ndarray:
     if width < 1 or height < 1:
         raise ValueError(f"{path}: bad PFM dimensions: expected positive integers width "
                          f"height, got {_cut(width_text)} {_cut(height_text)}")
-    if width * height > MAX_PNG_PIXELS:  # (the 'truncated' message had given the product's thousands of digits)
-        raise ValueError(f"{path}: bad PFM dimensions: {shown_number(width)}×{shown_number(height)} pixels, more "
-                         f"than the {MAX_PNG_PIXELS} that lfsf reads")
     try:
         scale = float(scale_text)
     except ValueError:
@@ -1316,8 +1313,9 @@ def read_pfm(path: str | os.PathLike) -> np.ndarray:
         start = tail
     available = len(data) - start
     if available < 4 * count:
-        raise ValueError(f"{path}: truncated PFM data: expected {4 * count} bytes for "
-                         f"{width}×{height}×{channels} float32, got {available}")
+        # (numbers of a damaged header cut to their magnitude: they had filled the message)
+        raise ValueError(f"{path}: truncated PFM data: expected {shown_number(4 * count)} bytes for "
+                         f"{shown_number(width)}×{shown_number(height)}×{channels} float32, got {available}")
     dtype = "<f4" if scale < 0 else ">f4"
     image = np.frombuffer(data, dtype=dtype, count=count, offset=start)
     image = image.reshape((height, width, 3) if channels == 3 else (height, width))
@@ -1637,6 +1635,9 @@ _PNG_CHANNELS = {0: 1, 2: 3, 4: 2, 6: 4}        # colour type -> samples per pix
 #: MAX_IMAGE_PIXELS), four times a Lytro Illum's raw image. A 1.5-MB file of 16000×16000
 #: blank 16-bit pixels had asked for 1.5 GB and more (a fuzzing helper).
 MAX_PNG_PIXELS = 2 * 89_478_485
+#: The most values a TIFF's series may hold (pages × pixels × samples): an RGBA image of
+#: :data:`MAX_PNG_PIXELS`.
+MAX_TIFF_VALUES = 4 * MAX_PNG_PIXELS
 _PNG_COLOUR_TYPE = {1: 0, 2: 4, 3: 2, 4: 6}     # samples per pixel -> colour type
 # Adam7 passes: (x0, y0, dx, dy)
 _ADAM7 = ((0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4),
@@ -1649,7 +1650,8 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     """Read an image file as stored: (H, W) or (H, W, C), usually uint8 or uint16.
 
     16-bit colour PNGs (RGB, RGBA, grey + alpha) are decoded by :func:`decode_png`, since
-    Pillow would truncate them to 8 bits; everything else goes through imageio.
+    Pillow would truncate them to 8 bits; TIFFs (by name or header) by tifffile, else by
+    Pillow (:func:`_read_tiff`); everything else goes through imageio.
 
     Raises
     ------
@@ -1672,7 +1674,8 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
             and head[24] == 16 and head[25] in (2, 4, 6)):
         return decode_png(path.read_bytes(), source=str(path))
     told: list[str] = []
-    tiff = path.suffix.lower() in (".tif", ".tiff") or head.startswith((b"II*\0", b"MM\0*"))
+    # (by its name, or by its header: classic TIFF or BigTIFF, either byte order)
+    tiff = path.suffix.lower() in (".tif", ".tiff") or head.startswith((b"II*\0", b"MM\0*", b"II+\0", b"MM\0+"))
     # (tifffile logs what it finds wrong with a corrupt TIFF and returns no pixels: its
     # lines are kept for the error below rather than printed on their own; one TIFF at a
     # time, as the logger is shared by the threads that read a folder's views)
@@ -1707,13 +1710,16 @@ class _TooLarge(Exception):
 
 
 def _read_tiff(f, path: Path) -> np.ndarray:
-    """A TIFF's first series by tifffile (as imageio's plugin reads it), else by Pillow,
-    never by imageio's other plugins: OpenCV's printed its own WARN and ERROR lines for
-    a truncated file and named no fault. The first page's size is checked before any
-    pixel is decoded (an 825-KB tiled TIFF of 20000×20000 had taken 2.9 GB)."""
+    """A TIFF's first series by tifffile (as imageio's plugin reads it); a one-page TIFF
+    that tifffile cannot decode (LZW or JPEG without imagecodecs) by Pillow; never by
+    imageio's other plugins, OpenCV's of which printed its own WARN and ERROR lines for a
+    truncated file and named no fault. The size is checked before any pixel is decoded
+    (an 825-KB tiled TIFF of 20000×20000 had taken 2.9 GB): the first page's pixels
+    against :data:`MAX_PNG_PIXELS`, the series' values against :data:`MAX_TIFF_VALUES`."""
     import warnings
 
     import tifffile
+    from PIL import Image
 
     try:
         with tifffile.TiffFile(f) as tif:
@@ -1724,17 +1730,26 @@ def _read_tiff(f, path: Path) -> np.ndarray:
             if width * height > MAX_PNG_PIXELS:
                 raise _TooLarge(f"{path}: a TIFF of {width}×{height} pixels, more than the {MAX_PNG_PIXELS} that "
                                 "lfsf reads")
+            series = tif.series[0]
+            if series.size > MAX_TIFF_VALUES:
+                raise _TooLarge(f"{path}: a TIFF of shape {tuple(series.shape)}, {series.size} values, more than "
+                                f"the {MAX_TIFF_VALUES} that lfsf reads")
             return np.asarray(tif.asarray(series=0))
-    except _TooLarge:
+    except (_TooLarge, MemoryError):
         raise
     except Exception as first:   # noqa: BLE001 - Pillow's try; tifffile's error is the one said
         f.seek(0)
         try:
             with warnings.catch_warnings():   # (Pillow's "Corrupt EXIF data" of a truncated file)
                 warnings.simplefilter("ignore")
-                return np.asarray(iio.imread(f, plugin="pillow"))
+                with Image.open(f) as image:
+                    pages = getattr(image, "n_frames", 1)
+                f.seek(0)
+                if pages == 1:   # (of a stack, Pillow would give the first page alone)
+                    return np.asarray(iio.imread(f, plugin="pillow"))
         except Exception:   # noqa: BLE001
-            raise first from None
+            pass
+        raise first from None
 
 
 @contextlib.contextmanager

@@ -445,12 +445,11 @@ class Params:
             import tomllib
         except ModuleNotFoundError:  # Python 3.10
             import tomli as tomllib
-        from lfsf._files import file_name, refuse_special_file
+        from lfsf._files import file_name, read_capped
 
         path = file_name(path, "a TOML file's name")
         if not path.exists():
             raise FileNotFoundError(f"{path}: no such file")
-        refuse_special_file(path)   # (a named pipe, /dev/zero: read for ever)
         if path.suffix.lower() == ".npz" or (path.is_dir() and (path / "sceneflow.npz").is_file()):
             return cls._from_result(path, preset)
         if path.is_dir():
@@ -458,7 +457,7 @@ class Params:
                              "sceneflow.npz)")
         try:
             # TOML is UTF-8 whatever the locale (Windows' would be cp1252); a BOM is let through
-            data = tomllib.loads(path.read_text(encoding="utf-8-sig"))
+            data = tomllib.loads(read_capped(path, MAX_TOML_BYTES, "a TOML file of settings").decode("utf-8-sig"))
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise ValueError(f"{path}: not valid TOML ({exc})") from None
         except RecursionError:
@@ -558,7 +557,8 @@ class Params:
                 need(MIN_REAL <= abs(value) <= MAX_REAL,
                      f"{f.name} must be {'positive and' if f.name in positive else '0 or'} of magnitude "
                      f"{MIN_REAL:g}…{MAX_REAL:g}, got {value:g}")
-        need(1 <= self.circles <= MAX_SAMPLES, f"circles (M) must be in 1…{MAX_SAMPLES}, got {_shown(self.circles)}")
+        need(1 <= self.circles <= MAX_SAMPLES,
+             f"circles (M) must be in 1…{MAX_SAMPLES}, got {shown_number(self.circles)}")
         need(len(self.samples) == self.circles,
              f"samples (N_i) must give one count per circle: M = {self.circles}, N = {self.samples} (set "
              f"circles = {len(self.samples)} with these samples)")
@@ -604,7 +604,7 @@ class Params:
              f"dark_view_fraction must be in [0, 1), got {self.dark_view_fraction}")
         need(0 < self.pyramid_scale < 1, f"pyramid_scale (η_s) must be in (0, 1), got {self.pyramid_scale}")
         need(4 <= self.min_size <= MAX_MIN_SIZE,
-             f"min_size must be in 4…{MAX_MIN_SIZE} px, got {_shown(self.min_size)}")
+             f"min_size must be in 4…{MAX_MIN_SIZE} px, got {shown_number(self.min_size)}")
         # run time grows linearly with these; the presets use 3–5 warps of 20–100
         # iterations and 30–60 ROF iterations
         for name, most in (("warps", MAX_WARPS), ("iterations", MAX_ITERATIONS)):
@@ -616,7 +616,7 @@ class Params:
              f"rof_iterations must be in 0…{MAX_ITERATIONS}, got {self.rof_iterations}")
         for name in ("max_levels", "warm_levels"):
             value = getattr(self, name)
-            need(0 <= value <= MAX_LEVELS, f"{name} must be in 0…{MAX_LEVELS}, got {_shown(value)}")
+            need(0 <= value <= MAX_LEVELS, f"{name} must be in 0…{MAX_LEVELS}, got {shown_number(value)}")
         need(0 <= self.median_radius <= 3, f"median_radius must be in 0…3, got {self.median_radius}")
         need(self.median_tolerance >= 0, f"median_tolerance must be ≥ 0, got {self.median_tolerance}")
         need(0 <= self.depth_change_radius <= 3,
@@ -804,6 +804,9 @@ def _refuse_unknown(settings: Mapping[str, Any]) -> None:
                          + (f" ({'; '.join(meant)})" if meant else "") + known)
 
 
+#: The longest TOML file of settings read (a named pipe is read; /dev/zero is not for ever).
+MAX_TOML_BYTES = 16 << 20
+
 #: Unknown settings named in an error, at most.
 MAX_UNKNOWN_SHOWN = 8
 
@@ -821,11 +824,6 @@ def _init_naming_unknown_settings(init):
 
 
 Params.__init__ = _init_naming_unknown_settings(Params.__init__)  # type: ignore[method-assign]
-
-
-def _shown(value) -> str:
-    """A setting's value for a message (:func:`lfsf._errors.shown_number`)."""
-    return shown_number(value)
 
 
 def _bad(name: str, expected: str, value) -> ValueError:

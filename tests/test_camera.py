@@ -349,6 +349,13 @@ def test_numbers_beyond_a_floats_range_are_one_line_errors_naming_their_magnitud
         Camera.from_file(cfg)
     with pytest.raises(ValueError, match=r"views of 64×48 cannot be shrunk 1000 times"):
         Camera(1.0, 1.0, 0.0, size=(64, 48)).downsampled(1000)
+    from lfsf.estimate import SceneFlow
+
+    maps = np.zeros((12, 16), np.float32)
+    sf = SceneFlow(maps, maps, maps, maps, lfsf.Params.preset("fast"), 2.0, "cpu",
+                   inputs={"downsample": 4, "views": [10 ** 400, 48]})
+    with pytest.raises(ValueError, match=r"got \(1.00e400, 48\); from what this result records of its light fields"):
+        sf.maps_camera(Camera(1.0, 1.0, 0.0))
     from lfsf.evaluate import downsample_of
 
     assert downsample_of({"downsample": 10 ** 400}) == 1 and downsample_of({"downsample": 4}) == 4

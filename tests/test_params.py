@@ -156,13 +156,19 @@ def test_a_toml_file_with_whole_number_floats_loads(tmp_path):
     assert params.samples == (1, 8, 8) and params.visibility is False
 
 
-def test_a_named_pipe_or_a_device_as_the_config_is_refused(tmp_path):
-    """It had been read for ever (a pipe waits for a writer; /dev/zero never ends)."""
-    os.mkfifo(tmp_path / "fifo.toml")
+def test_a_named_pipe_is_read_as_the_config_and_a_device_without_end_is_not(tmp_path):
+    """/dev/zero as the config had been read for ever; a named pipe (a shell's
+    ``--config <(…)``) is read as a file."""
+    import threading
+
     (tmp_path / "zero.toml").symlink_to("/dev/zero")
-    for name in ("fifo.toml", "zero.toml"):
-        with pytest.raises(ValueError, match=f"{name}: not a regular file"):
-            Params.from_toml(tmp_path / name)
+    with pytest.raises(ValueError, match="zero.toml: more than 16 MB, too long for a TOML file of settings"):
+        Params.from_toml(tmp_path / "zero.toml")
+    os.mkfifo(tmp_path / "fifo.toml")
+    writer = threading.Thread(target=(tmp_path / "fifo.toml").write_text, args=("warps = 3\n",), daemon=True)
+    writer.start()
+    assert Params.from_toml(tmp_path / "fifo.toml").warps == 3
+    writer.join(timeout=30)
 
 
 def test_many_unknown_settings_are_named_in_a_short_message():
