@@ -535,6 +535,24 @@ def _params(args):
     return Params.preset("paper" if args.preset is None else args.preset)
 
 
+def _warn_what_config_does_not_repeat(config, device: str) -> None:
+    """Warn where a result given as ``--config`` was made in a way that ``lfsf run`` does
+    not repeat with its settings: from the previous pair's result (``lfsf batch
+    --warm-start``; the run starts from nothing, and had given other maps without a
+    word), or on another device (CPU and CUDA round differently)."""
+    from lfsf.evaluate import _recorded
+
+    recorded = _recorded(config)
+    inputs = recorded.get("inputs") if isinstance(recorded.get("inputs"), dict) else {}
+    if inputs.get("warm_start") is True:
+        warnings.warn(f"{config} was estimated from the previous pair's result (lfsf batch --warm-start); lfsf run "
+                      "starts from nothing, so its maps will differ: run the batch again to repeat it", LfsfWarning)
+    made_on = recorded.get("device")
+    if isinstance(made_on, str) and (made_on == "cpu") != (device == "cpu"):
+        warnings.warn(f"{config} was estimated on {made_on}, this run is on {device}: the CPU and CUDA round "
+                      f"differently, and the maps will differ a little (--device {made_on} repeats it)", LfsfWarning)
+
+
 def cmd_run(args) -> int:
     import numpy as np
 
@@ -544,6 +562,8 @@ def cmd_run(args) -> int:
 
     device = resolve_device(args.device)
     params = _params(args)
+    if args.config:
+        _warn_what_config_does_not_repeat(args.config, device)
     if args.downsample is None:  # (a result given as --config was estimated as it recorded: on views so shrunk)
         from lfsf.evaluate import recorded_downsample
 
@@ -589,9 +609,13 @@ def cmd_run(args) -> int:
     finally:
         progress.done()
     seconds = time.perf_counter() - t0
-    paths = sf.save(args.out, centre1, centre2, gt=gt, title=title, border=border or 0,
-                    inputs={"downsample": args.downsample, "views": [full_width, full_height]}
-                    if args.downsample > 1 else None)
+    # (what the result came from, as lfsf batch records it: the light fields' paths, sizes and times)
+    from lfsf.batch import Pair, input_record
+
+    inputs = input_record(Pair("run", args.lf1, args.lf2), warm_start=False)
+    if args.downsample > 1:
+        inputs.update(downsample=args.downsample, views=[full_width, full_height])
+    paths = sf.save(args.out, centre1, centre2, gt=gt, title=title, border=border or 0, inputs=inputs)
     _log(args, f"estimated in {seconds:.1f} s on {device}; wrote {len(paths)} files to {args.out}"
                + (" (disp1 and disp2: zeros, not estimated by a flow-only run)" if params.flow_only else ""))
     if gt is not None:  # (after the results are written: an error here loses none of them)

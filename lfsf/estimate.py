@@ -65,7 +65,11 @@ class SceneFlow:
     inputs : dict or None
         What a saved result records of its inputs (:meth:`load`; ``lfsf run
         --downsample K`` records ``downsample`` K and ``views``, the light fields' size
-        (W, H) before shrinking; ``lfsf batch`` its sources); None for a fresh estimate.
+        (W, H) before shrinking; ``lfsf run`` and ``lfsf batch`` its light fields' paths,
+        sizes and times, :func:`lfsf.batch.input_record`); None for a fresh estimate.
+    made_with : dict or None
+        The versions that made it (:func:`made_with`: lfsf, Python, NumPy, Warp); None
+        for a result saved before they were recorded.
 
     ``==`` is identity: compare two results' maps with ``np.array_equal`` (``as_dict()``).
     """
@@ -81,6 +85,7 @@ class SceneFlow:
     exposure: tuple[float, float] | None = None
     occluded: np.ndarray | None = None
     inputs: dict | None = None
+    made_with: dict | None = None
 
     def __post_init__(self) -> None:
         # the maps as the files promise them (float32 H×W, one shape), whoever made this
@@ -216,8 +221,10 @@ class SceneFlow:
         occluded = arrays.get("occluded")
         try:
             inputs = meta.get("inputs") if isinstance(meta.get("inputs"), dict) else None
+            made = meta.get("made_with")
+            made = {str(k): str(v) for k, v in made.items()} if isinstance(made, dict) else None
             return cls(arrays["disp1"], arrays["disp2"], arrays["u"], arrays["v"], params, radius, device,
-                       timings, exposure, None if occluded is None else np.asarray(occluded), inputs)
+                       timings, exposure, None if occluded is None else np.asarray(occluded), inputs, made)
         except ValueError as exc:
             raise ValueError(f"{file}: {exc}") from None
 
@@ -308,6 +315,8 @@ class SceneFlow:
                 inputs = self.inputs
             if inputs is not None:
                 meta["inputs"] = inputs
+            if self.made_with is not None:
+                meta["made_with"] = self.made_with
             extra = {} if self.occluded is None else {"occluded": self.occluded}
             with open(tmp / "sceneflow.npz", "wb") as f:
                 np.savez_compressed(f, **self.as_dict(), **extra, params=np.str_(json.dumps(meta)))
@@ -2328,8 +2337,21 @@ def _estimate_scene_flow(handed: list[LightFieldLike], params: Params | str | No
         params=requested, radius=float(radius), device=dev, timings=timings,
         exposure=(None if exposure_fit is None or exposure_fit.change == 0.0
                   else (exposure_fit.gain, exposure_fit.shift)),
-        occluded=occluded,
+        occluded=occluded, made_with=made_with(),
     )
+
+
+def made_with() -> dict[str, str]:
+    """The versions an estimate is made with, as a result records them (``made_with`` in
+    ``sceneflow.npz``): lfsf's, Python's, NumPy's and Warp's (the same settings gave other
+    maps where Warp's code generation changed; lfsf's own version says which settings it
+    knew)."""
+    import platform
+
+    from lfsf import __version__
+
+    return {"lfsf": __version__, "python": platform.python_version(), "numpy": np.__version__,
+            "warp": str(_device.warp().__version__)}
 
 
 def _centre_colour(lf: LightField, offset: float, stretch: float) -> np.ndarray | None:

@@ -4,6 +4,7 @@ import argparse
 import io as io_module
 import json
 import os
+import platform
 import re
 import shlex
 import shutil
@@ -14,7 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lfsf import Params, io
+import lfsf as lfsf_package
+from lfsf import Params, SceneFlow, io
 from lfsf.cli import main
 
 
@@ -449,6 +451,35 @@ def test_run_writes_every_result_and_eval_reads_them(tmp_path):
         assert "lambda1" in str(z["params"])
     status, out, err = lfsf("eval", tmp_path / "r", tmp_path / "s" / "gt.npz")
     assert status == 0, err and "flow" in out
+    # what the result came from, and what made it (a plain run had recorded neither)
+    import warp as wp
+
+    sf = SceneFlow.load(tmp_path / "r")
+    assert sf.inputs["t1"] == str((tmp_path / "s" / "lf1.npz").resolve()) and sf.inputs["warm_start"] is False
+    assert sf.inputs["t2_files"][0][:2] == ["lf2.npz", (tmp_path / "s" / "lf2.npz").stat().st_size]
+    assert sf.made_with == {"lfsf": lfsf_package.__version__, "python": platform.python_version(),
+                            "numpy": np.__version__, "warp": wp.__version__}
+
+
+def test_a_config_made_in_a_way_run_does_not_repeat_is_warned_of(tmp_path, capsys):
+    """A result of lfsf batch --warm-start given as --config had been re-run from nothing,
+    every pixel different, without a word; one made on CUDA is said to round otherwise."""
+    from lfsf.estimate import SceneFlow
+
+    assert main(["synth", "paper", "--out", str(tmp_path / "s"), "--size", "40", "32", "--grid", "3", "--quiet"]) == 0
+    zeros = np.zeros((32, 40), np.float32)
+    SceneFlow(zeros, zeros, zeros, zeros, Params.preset("fast"), 1.0, "cuda:0",
+              inputs={"warm_start": True}).save(tmp_path / "made")
+    capsys.readouterr()
+    assert main(["run", str(tmp_path / "s" / "lf1.npz"), str(tmp_path / "s" / "lf2.npz"), "--out",
+                 str(tmp_path / "r"), "--config", str(tmp_path / "made"), "--device", "cpu", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "made was estimated from the previous pair's result (lfsf batch --warm-start)" in err, err
+    assert "made was estimated on cuda:0, this run is on cpu: the CPU and CUDA round differently" in err
+    SceneFlow(zeros, zeros, zeros, zeros, Params.preset("fast"), 1.0, "cpu").save(tmp_path / "plain")
+    assert main(["run", str(tmp_path / "s" / "lf1.npz"), str(tmp_path / "s" / "lf2.npz"), "--out",
+                 str(tmp_path / "q"), "--config", str(tmp_path / "plain"), "--device", "cpu", "--quiet"]) == 0
+    assert "warning" not in capsys.readouterr().err
 
 
 def test_run_downsamples_the_views_and_the_ground_truth_alike(tmp_path, capsys, monkeypatch):
