@@ -852,7 +852,10 @@ def row_column_costs(centre1: wp.array2d(dtype=float), centre2: wp.array2d(dtype
     out = float_run(colc.ptr, base, cw)
     for q in range(cw):
         out[q] = 0.0
-    lo = wp.max(0, -sx)  # columns lo … hi − 1: unclamped, their t2 pixel inside
+    # columns lo … hi − 1: unclamped, their t2 pixel inside; none where |sx| ≥ w (a shift
+    # of more than the width, on views taller than wide: lo had passed w, and the clamped
+    # columns' loop written past the row's end)
+    lo = wp.min(wp.max(0, -sx), w)
     hi = wp.min(w, w - sx)
     if hi < lo:
         hi = lo

@@ -2233,3 +2233,16 @@ def test_a_dropped_interrupt_under_a_users_own_handler_is_raised_not_sent_again(
 
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert proc.stdout.splitlines() == ["interrupted", "interrupted", "[2]"], (proc.stdout, proc.stderr[-3000:])
+
+
+@pytest.mark.parametrize("preset", ["fast", "flow"])
+def test_views_taller_than_wide_are_estimated(preset):
+    """Views of 32×8 (taller than wide): the flow search reaches past the width there,
+    and its CPU row kernel had written past its rows, crashing the process (a helper's
+    numerical sweep: 16×8 to 400×17, every preset)."""
+    g = np.random.default_rng(3)
+    views = g.random((3, 3, 32, 8), dtype=np.float32)
+    sf = estimate_scene_flow(lfsf.LightField(views), lfsf.LightField(np.roll(views, 1, axis=2)), preset,
+                             device="cpu")
+    assert all(np.isfinite(getattr(sf, k)).all() for k in ("disp1", "disp2", "u", "v"))
+    assert sf.u.shape == (32, 8)

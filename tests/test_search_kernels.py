@@ -94,11 +94,12 @@ def run_flow_search(centre1, centre2, half, radius, device, span=None, distance=
 
 
 @pytest.mark.parametrize("h,w,half,radius", [(13, 7, 3, 1), (20, 37, 12, 2), (9, 50, 20, 0), (31, 33, 4, 5),
-                                             (60, 80, 12, 2), (5, 5, 4, 2)])
+                                             (60, 80, 12, 2), (5, 5, 4, 2), (32, 8, 20, 2), (40, 6, 30, 3)])
 def test_flow_search_rows_is_flow_search_bit_for_bit(h, w, half, radius):
     """The CPU's row kernel (the row's column sums per shift in vector code) leaves the
     same best, best cost and runner-up as :func:`flow_search`, borders and shifts off the
-    image included."""
+    image included: shifts beyond the width too (views taller than wide, where the search
+    reaches past the width: it had written past the row's end, and crashed the process)."""
     from lfsf.kernels import search
 
     g = rng(11)
