@@ -2246,3 +2246,23 @@ def test_views_taller_than_wide_are_estimated(preset):
                              device="cpu")
     assert all(np.isfinite(getattr(sf, k)).all() for k in ("disp1", "disp2", "u", "v"))
     assert sf.u.shape == (32, 8)
+
+
+def test_a_flow_search_that_finds_no_clear_match_is_warned_of():
+    """Everything moved 30 px, beyond the ±24 px searched, had come back with an EPE of
+    26–33 and no word (a numerical helper): the search finds no clear match for most
+    pixels, and the estimate says so. The rendered pair, within reach, is not warned of."""
+    import warnings
+
+    from lfsf import synth
+
+    lf1, lf2, _ = synth.render_scene("paper", size=(96, 72), grid=5)
+    for second, warned in ((lf2, False), (lfsf.LightField(np.roll(lf1.views, 30, axis=3)), True)):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            estimate_scene_flow(lf1, second, "fast", device="cpu")
+        said = [str(w.message) for w in caught if "no clear match" in str(w.message)]
+        assert bool(said) == warned, said
+        if warned:
+            assert re.search(r"no clear match in t2 for (9\d|100)% of the pixels: the motion may reach beyond the "
+                             r"±24 px searched \(flow_range\)", said[0]), said
