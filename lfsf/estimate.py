@@ -645,6 +645,10 @@ SMALL_VIEWS_BRIGHTNESS = 0.05
 #: exposure at least 6.5 % (a helper's two layers at 119×71, ×1.1: flow EPE 0.571 unmatched,
 #: against 0.0138 at 120×71, where the fit ran).
 SMALL_VIEWS_CHANGE = 0.03
+#: A change of mean brightness left unmatched (views too small to measure one) that is a
+#: warning, not only a note: moving scenes of one exposure read at most 6 %
+#: (SMALL_VIEWS_BRIGHTNESS), t2 at 0.9 of t1's exposure 10–14 %.
+UNMATCHED_BRIGHTNESS_WARNING = 0.25
 #: The fit is refused where its two one-way slopes disagree, their product (r² for least
 #: squares) below this: on 16 pairs of one exposure at 160×120 it was 0.974 or more
 #: (median 0.998; with and without noise of σ = 0.02), and far below on mostly flat,
@@ -942,20 +946,36 @@ def pilot_estimate(lf1, lf2, params: Params, device: str) -> "SceneFlow":
         _IN_PILOT.reset(token)
 
 
-def _warn_out_of_unit_range(source: str, lo: float, hi: float, stretched: bool, say) -> None:
+def _warn_out_of_unit_range(source: str, lo: float, hi: float, stretched: bool, say, views=None) -> None:
     """Warn (at the caller of :func:`estimate_scene_flow`) where a light field's views lie
     far outside [0, 1], where lfsf expects them: what is done with them, stretched to
     [0, 1] by the pair's range (:func:`_intensity_stretch`) or used as they are, is not
     the same as the views divided by their scale (a dark capture's 0…120 of 255 comes out
-    as 0…1, not 0…0.47; Γ and the ROF weight μ read intensities in [0, 1]). Integer
-    views are scaled by their type's maximum and never reach here."""
+    as 0…1, not 0…0.47; Γ and the ROF weight μ read intensities in [0, 1]). Unsigned
+    integer views are scaled by their type's maximum and never reach here (signed ones,
+    below 0, do). Where a few values lie far beyond the rest (``views``: a hot pixel of
+    1e3 in views of [0, 1]), the stretch leaves the rest nearly flat, and the warning
+    says so: the estimate had been wrecked by one pixel under a warning of the range."""
     if (UNIT_RANGE_SLACK[0] <= lo and hi <= UNIT_RANGE_SLACK[1]) or _IN_PILOT.get():
         return
     done = ("stretched to [0, 1] by the two light fields' joint range" if stretched
             else "used as they are")
     hint = (" (divide by 255, or 65535, if they are 8-bit or 16-bit values, or give them as integers, "
             "which are scaled by their type's maximum)" if hi > UNIT_RANGE_SLACK[1] else "")
-    _warn(f"{source}: float views range {lo:.4g}…{hi:.4g}, where lfsf expects [0, 1]; {done}{hint}", say)
+    if views is not None and hi > lo:
+        values = np.asarray(views)[np.isfinite(views)]
+        low, high = (float(v) for v in np.percentile(values, (0.1, 99.9))) if values.size else (lo, hi)
+        if high - low < OUTLIER_SPAN * (hi - lo):
+            hint = (f"; 99.8 % of the values lie within {low:.4g}…{high:.4g}, under {OUTLIER_SPAN:.0%} of that "
+                    "range: a few stray values (hot pixels?) set the stretch and leave the rest nearly flat, and "
+                    "the estimate will be poor: clip them")
+    # ("views", not "float views": signed integers scaled by their maximum come here too)
+    _warn(f"{source}: views range {lo:.4g}…{hi:.4g}, where lfsf expects [0, 1]; {done}{hint}", say)
+
+
+#: Where 99.8 % of the views' values span less than this share of their whole range, a
+#: few stray values set :func:`_intensity_stretch`, and the warning of the range says so.
+OUTLIER_SPAN = 0.05
 
 
 def data_weights(params: Params, n_samples: int) -> np.ndarray:
@@ -2004,7 +2024,7 @@ def _estimate_scene_flow(handed: list[LightFieldLike], params: Params | str | No
     # sub-aperture images at the sample offsets, both times: (S, H, W) each
     offset, stretch = _intensity_stretch(lf1, lf2, ranges)
     for lf, (lo, hi) in zip((lf1, lf2), ranges):
-        _warn_out_of_unit_range(lf.source, lo, hi, stretch != 1.0, say)
+        _warn_out_of_unit_range(lf.source, lo, hi, stretch != 1.0, say, lf.views)
 
     def stretched(grey: np.ndarray) -> np.ndarray:
         if stretch == 1.0:
@@ -2014,6 +2034,17 @@ def _estimate_scene_flow(handed: list[LightFieldLike], params: Params | str | No
         return (grey - np.float32(offset)) * np.float32(stretch)
 
     exposure_fit = None  # (the change of exposure t2 is matched by, where one is)
+
+    def unmatched_exposure(message: str) -> None:
+        """A change of brightness left unmatched: a note, and a warning where it is as
+        large as UNMATCHED_BRIGHTNESS_WARNING (t2 at 0.1 of t1's exposure on 48×36 views:
+        δ2 MSE 1.9, EPE 3.1, said only in the progress that library callers do not see)."""
+        if abs(brighter) > UNMATCHED_BRIGHTNESS_WARNING:
+            _warn(f"{source_name}: {message}; the flow and δ2 will be poor: give t2 at t1's exposure", say)
+        else:
+            note(message)
+
+    source_name = lf1.source
     large = max(height, width) >= EXPOSURE_MIN_SIZE
     brighter = 0.0  # (small or short views: how far t2's mean brightness lies from t1's, as a share)
     if params.match_exposure and not (large and min(height, width) >= EXPOSURE_MIN_SHORT):
@@ -2043,9 +2074,10 @@ def _estimate_scene_flow(handed: list[LightFieldLike], params: Params | str | No
                                "tone_curve = true (params.replace(tone_curve=True)) matches it by a curve")
                 told = f"exposure: t2 matched to t1 by {how}"  # (said below, with the local field's line)
             elif not large:
-                note(f"exposure: not matched, though t2's mean brightness differs from t1's by {100 * brighter:+.1f} "
-                     f"%: on views of {width}×{height} the fit found a change of {100 * change:.1f} % of the range, "
-                     f"and views under {EXPOSURE_MIN_SIZE} px need {100 * SMALL_VIEWS_CHANGE:g} %")
+                unmatched_exposure(f"exposure: not matched, though t2's mean brightness differs from t1's by "
+                                   f"{100 * brighter:+.1f} %: on views of {width}×{height} the fit found a change of "
+                                   f"{100 * change:.1f} % of the range, and views under {EXPOSURE_MIN_SIZE} px need "
+                                   f"{100 * SMALL_VIEWS_CHANGE:g} %")
             light = None
             if fitted.pilot is not None and large:  # (smaller views: their pilot runs for a global change alone)
                 matched = grey_centres[1] if exposure_fit is None else exposure_fit.apply(grey_centres[1])
@@ -2068,9 +2100,9 @@ def _estimate_scene_flow(handed: list[LightFieldLike], params: Params | str | No
     elif params.match_exposure and abs(brighter) > SMALL_VIEWS_BRIGHTNESS:
         # views too short to fit: said, since a change of exposure then goes unmatched, and it
         # costs the flow dearly (×1.1 at 96×72 took the flow's EPE from 0.05 to 0.76)
-        note(f"exposure: not matched, though t2's mean brightness differs from t1's by "
-             f"{100 * brighter:+.1f} % (views of {width}×{height}; measuring a change of "
-             f"exposure needs {EXPOSURE_MIN_SHORT} px along the shorter side)")
+        unmatched_exposure(f"exposure: not matched, though t2's mean brightness differs from t1's by "
+                           f"{100 * brighter:+.1f} % (views of {width}×{height}; measuring a change of "
+                           f"exposure needs {EXPOSURE_MIN_SHORT} px along the shorter side)")
     gains = views1 = None
     if params.view_gain_sigma > 0 and n_samples > 1 and min(height, width) >= MIN_VIEW_SIZE:
         # the views' brightness matched to the centre's, the same fields at both times: fitted
