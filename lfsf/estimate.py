@@ -469,12 +469,32 @@ FLOW_INCOHERENT_AREA = 25
 FLOW_INCOHERENT_REGION = 0.85
 
 #: A warning where the flow search finds no clear match (ambiguous or incoherent) for more
-#: than this share of the pixels. Measured at 96×72, `fast`: 0–2 % on the built-in scenes
-#: and `random-3`, also with everything moved 20 px (within the ±24 px searched); 84–100 %
-#: moved 30 or 40 px, and 97 % for two unrelated noise images, where the estimate had
-#: come back without a word (EPE 26–33); 31 % on HCI antinous and 1.4 % on the Lytro
-#: scene given as both times (flat regions).
+#: than this share of the pixels and the flow estimated leaves t2 unlike t1 by more than
+#: FLOW_UNMATCHED_RESIDUAL (:func:`_match_residual`). Shares measured at 96×72, `fast`:
+#: 0–2 % on the built-in scenes and `random-3`, also with everything moved 20 px (within
+#: the ±24 px searched); 84–100 % moved 30 or 40 px, and 97 % for two unrelated noise
+#: images, where the estimate had come back without a word (EPE 26–33); 31 % on HCI
+#: antinous and 1.4 % on the Lytro scene given as both times (flat regions). Residuals:
+#: 0.75–0.86 moved 30 or 40 px, 1.05 for the noise; 0.0005 on a texture finer than the
+#: search's level, which the search cannot match and the warping does.
 FLOW_UNMATCHED_SHARE = 0.7
+FLOW_UNMATCHED_RESIDUAL = 0.5
+
+
+def _match_residual(centres: np.ndarray, u: np.ndarray, v: np.ndarray) -> float:
+    """How unlike t1 the flow (u, v) leaves t2: the median of |I1(p) − I2(p + (u, v))| over
+    the pixels whose p + (u, v) lies inside, over the median absolute deviation of I1 (the
+    centre views ``centres``, (2, h, w)); about 0 where the flow matches, 1 or more where it
+    does not (two unrelated images)."""
+    c1, c2 = centres[0].astype(np.float64), centres[1].astype(np.float64)
+    h, w = c1.shape
+    yy, xx = np.mgrid[0:h, 0:w]
+    px, py = xx + u, yy + v
+    inside = (px >= 0) & (px <= w - 1) & (py >= 0) & (py <= h - 1)
+    spread = float(np.median(np.abs(c1 - np.median(c1))))
+    if not inside.any() or spread <= 0:
+        return 0.0
+    return float(np.median(np.abs(c1 - _bilinear(c2, px, py))[inside])) / spread
 
 
 def _coherent(flow: np.ndarray, share: float = FLOW_COHERENCE_SHARE, tolerance: float = 1.0) -> np.ndarray:
@@ -2207,6 +2227,7 @@ def _estimate_scene_flow(handed: list[LightFieldLike], params: Params | str | No
                  for t in (0, 1)]
         lap("search")
     flow_search = params.flow_search
+    unmatched = 0.0   # (the share of pixels the flow search found no clear match for)
     if flow_search:
         flow_range = searched_flow_range(params, sizes)
         k = flow_search_level(sizes, flow_range, params.pyramid_scale)
@@ -2226,12 +2247,7 @@ def _estimate_scene_flow(handed: list[LightFieldLike], params: Params | str | No
         hidden = _hidden_matches(forward, _flow_search(c2, c1, half, params.search_radius, dev))
         # (unfused, as the ambiguous matches: where the matches are noise, FLOW_INCOHERENT_REGION)
         ambiguous |= _incoherent_regions(forward)
-        unmatched = float(np.mean(ambiguous))
-        if unmatched > FLOW_UNMATCHED_SHARE:
-            _warn(f"{source}: the flow search found no clear match in t2 for {unmatched:.0%} of the pixels: the "
-                  f"motion may reach beyond the ±{flow_range:g} px searched (flow_range), or the two light fields do "
-                  "not show the same scene, or its texture is flat or repeats; the flow there is the regulariser's "
-                  "guess", say)
+        unmatched = float(np.mean(ambiguous))   # (told at the end where the estimate does not match either)
         flow_found = [wp.array(np.ascontiguousarray(a, np.float32), dtype=float, device=dev)
                       for a in (forward[..., 0], forward[..., 1], hidden, ambiguous)]
         lap("search")
@@ -2377,6 +2393,13 @@ def _estimate_scene_flow(handed: list[LightFieldLike], params: Params | str | No
         x = _remove_speckles(x, params, dev)
         lap("median")
 
+    if unmatched > FLOW_UNMATCHED_SHARE:
+        left = _match_residual(cen.numpy(), x[..., 2], x[..., 3])
+        if left > FLOW_UNMATCHED_RESIDUAL:
+            _warn(f"{source}: the flow search found no clear match in t2 for {unmatched:.0%} of the pixels, and the "
+                  f"flow estimated leaves t2 unlike t1 (a median difference of {left:.2f} of the contrast): the motion "
+                  f"may reach beyond the ±{flow_range:g} px searched (flow_range), or the two light fields do not "
+                  "show the same scene; the flow and δ2 are not to be trusted", say)
     occluded = None if solver.flow_only else solver.occluded_at(x)
     lap("occlusion")
     return SceneFlow(
