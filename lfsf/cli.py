@@ -600,6 +600,13 @@ def cmd_run(args) -> int:
     # the centre views for the pictures, copied; the light fields handed over to the
     # estimate, which lets them go once it has sampled them (0.8 GB of 3.4 at 1280×960)
     centre1, centre2 = np.array(lf1.centre), np.array(lf2.centre)
+    # what the result came from, as lfsf batch records it (the light fields' paths, sizes and
+    # times), taken before the work as batch takes it: an input changed meanwhile is not the one read
+    from lfsf.batch import Pair, input_record
+
+    inputs = input_record(Pair("run", args.lf1, args.lf2), warm_start=False)
+    if args.downsample > 1:
+        inputs.update(downsample=args.downsample, views=[full_width, full_height])
     pair = [lf1, lf2]
     del lf1, lf2
     progress = _Progress(args)
@@ -609,12 +616,6 @@ def cmd_run(args) -> int:
     finally:
         progress.done()
     seconds = time.perf_counter() - t0
-    # (what the result came from, as lfsf batch records it: the light fields' paths, sizes and times)
-    from lfsf.batch import Pair, input_record
-
-    inputs = input_record(Pair("run", args.lf1, args.lf2), warm_start=False)
-    if args.downsample > 1:
-        inputs.update(downsample=args.downsample, views=[full_width, full_height])
     paths = sf.save(args.out, centre1, centre2, gt=gt, title=title, border=border or 0, inputs=inputs)
     _log(args, f"estimated in {seconds:.1f} s on {device}; wrote {len(paths)} files to {args.out}"
                + (" (disp1 and disp2: zeros, not estimated by a flow-only run)" if params.flow_only else ""))

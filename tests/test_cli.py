@@ -477,6 +477,7 @@ def test_a_config_made_in_a_way_run_does_not_repeat_is_warned_of(tmp_path, capsy
     assert "made was estimated from the previous pair's result (lfsf batch --warm-start)" in err, err
     assert "made was estimated on cuda:0, this run is on cpu: the CPU and CUDA round differently" in err
     SceneFlow(zeros, zeros, zeros, zeros, Params.preset("fast"), 1.0, "cpu").save(tmp_path / "plain")
+    assert SceneFlow.load(tmp_path / "plain").made_with is None   # (as a result saved before they were recorded)
     assert main(["run", str(tmp_path / "s" / "lf1.npz"), str(tmp_path / "s" / "lf2.npz"), "--out",
                  str(tmp_path / "q"), "--config", str(tmp_path / "plain"), "--device", "cpu", "--quiet"]) == 0
     assert "warning" not in capsys.readouterr().err

@@ -2264,23 +2264,31 @@ def test_views_taller_than_wide_are_estimated(preset):
 def test_a_flow_search_that_finds_no_clear_match_is_warned_of():
     """Everything moved 30 px, beyond the ±24 px searched, had come back with an EPE of
     26–33 and no word (a numerical helper): the search finds no clear match for most
-    pixels, the flow estimated leaves t2 unlike t1, and the estimate says so. The rendered
+    pixels, the flow estimated leaves t2 unlike t1, and the estimate says so, once (the
+    exposure pilot's own run, on views of 120 px and more, had said it again). The rendered
     pair, within reach, is not warned of, nor a texture finer than the search's level,
-    which the search cannot match and the warping does (EPE under 0.05)."""
+    which the search cannot match and the warping does (EPE under 0.05), nor weak
+    textures under noise (σ = 0.03), whose flow matches as well as their noise allows
+    (a reviewer: they had been warned of as the scenes moved too far)."""
     from lfsf import synth
 
-    lf1, lf2, _ = synth.render_scene("paper", size=(96, 72), grid=5)
+    lf1, lf2, _ = synth.render_scene("paper", size=(160, 120), grid=3)
     fine = [lfsf.LightField(v) for v in _fine_texture_pair(72, 96, 3, 3)]
     flow_only = Params.preset("paper").replace(circles=1, samples=(1,))
+    weak = synth.render_scene("weak_texture", size=(96, 72), grid=3)[:2]
+    g = np.random.default_rng(3)
+    noisy = [lfsf.LightField(np.clip(lf.views + 0.03 * g.standard_normal(lf.views.shape), 0, 1).astype(np.float32))
+             for lf in weak]
     for first, second, params, warned in ((lf1, lf2, "fast", False), (*fine, flow_only, False),
+                                          (*noisy, "fast", False), (*noisy, "flow", False),
                                           (lf1, lfsf.LightField(np.roll(lf1.views, 30, axis=3)), "fast", True)):
         said = [str(w.message) for w in _warnings_of(estimate_scene_flow, first, second, params, device="cpu")
                 if "no clear match" in str(w.message)]
-        assert bool(said) == warned, said
+        assert len(said) == warned, said
         if warned:
             assert re.search(r"no clear match in t2 for (9\d|100)% of the pixels, and the flow estimated leaves t2 "
-                             r"unlike t1 \(a median difference of 0\.\d\d of the contrast\): the motion may reach "
-                             r"beyond the ±24 px searched \(flow_range\)", said[0]), said
+                             r"unlike t1 \(a median difference of [\d.]+ times that of neighbouring pixels\): the "
+                             r"motion may reach beyond the ±24 px searched \(flow_range\)", said[0]), said
 
 
 def test_a_large_change_of_brightness_left_unmatched_is_a_warning():
@@ -2297,4 +2305,5 @@ def test_a_large_change_of_brightness_left_unmatched_is_a_warning():
         said = [str(w.message) for w in caught if "exposure: not matched" in str(w.message)]
         assert bool(said) == warned and bool([n for n in notes if "exposure: not matched" in n]) != warned, said
         if warned:
-            assert "by -89." in said[0] and said[0].endswith("the flow and δ2 will be poor: give t2 at t1's exposure")
+            assert "by -89." in said[0] and said[0].endswith("the flow and δ2 will be poor where the exposure or the "
+                                                             "light changed")
