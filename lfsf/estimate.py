@@ -500,7 +500,9 @@ def _match_residual(centres: np.ndarray, u: np.ndarray, v: np.ndarray) -> float:
         return 0.0
     left = float(np.median(np.abs(c1 - _bilinear(c2, px, py))[inside]))
     floor = float(np.median(np.abs(np.diff(c1, axis=1)))) if w > 1 else 0.0
-    return left / floor if floor > 0 else (math.inf if left > 0 else 0.0)
+    # (0 where most neighbours of I1 are equal, a dark centre view: nothing to tell a match
+    # by, and the dark view is told of on its own)
+    return left / floor if floor > 0 else 0.0
 
 
 def _coherent(flow: np.ndarray, share: float = FLOW_COHERENCE_SHARE, tolerance: float = 1.0) -> np.ndarray:
