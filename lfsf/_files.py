@@ -151,6 +151,14 @@ def is_special_file(path: Path) -> bool:
     return path.exists() and not path.is_file() and not path.is_dir()
 
 
+def not_a_file(path: Path) -> str:
+    """What is at ``path`` where a file was looked for and is not there: "a link to nothing
+    (or a loop of links)", "a folder", or "not a regular file" (a pipe, a device)."""
+    if path.is_symlink() and not path.exists():
+        return "a link to nothing (or a loop of links)"
+    return "a folder" if path.is_dir() else "not a regular file"
+
+
 def refuse_special_file(path: Path) -> None:
     """A ValueError for a path that is there but neither a file nor a folder: reading a
     named pipe waits for a writer, and a device (/dev/zero) may never end."""

@@ -992,7 +992,8 @@ def _warn_out_of_unit_range(source: str, lo: float, hi: float, stretched: bool, 
             "which are scaled by their type's maximum)" if hi > UNIT_RANGE_SLACK[1] else "")
     if views is not None and hi > lo:
         # (of a sample: every value of 9×9 views of 640×480 took 2.2 s and 100 MB)
-        sample = np.asarray(views).reshape(-1)[::max(1, np.asarray(views).size // OUTLIER_SAMPLE)]
+        flat = np.asarray(views).reshape(-1)
+        sample = flat[::max(1, flat.size // OUTLIER_SAMPLE)]
         values = sample[np.isfinite(sample)]
         low, high = (float(v) for v in np.percentile(values, (0.1, 99.9))) if values.size else (lo, hi)
         if high - low < OUTLIER_SPAN * (hi - lo):

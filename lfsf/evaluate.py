@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from lfsf._errors import whole
-from lfsf._files import file_name
+from lfsf._files import file_name, not_a_file
 
 if TYPE_CHECKING:
     from lfsf.estimate import SceneFlow
@@ -322,9 +322,7 @@ def _file_in(folder: Path, name: str) -> bool:
         return False
     if path.is_file():
         return True
-    what = ("a link to nothing (or a loop of links)" if path.is_symlink() and not path.exists() else
-            "a folder" if path.is_dir() else "not a regular file")
-    raise ValueError(f"{path}: {what}, where a file was expected")
+    raise ValueError(f"{path}: {not_a_file(path)}, where a file was expected")
 
 
 def load_estimate(path: str | os.PathLike) -> dict[str, np.ndarray]:

@@ -55,7 +55,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from lfsf._errors import LfsfWarning, shown_number, warn_at_caller, whole
-from lfsf._files import file_name, interrupts_held, output_folder, savez_atomic, write_bytes_atomic
+from lfsf._files import file_name, interrupts_held, not_a_file, output_folder, savez_atomic, write_bytes_atomic
 from lfsf._files import refuse_special_file as _refuse_special_file
 
 __all__ = [
@@ -744,9 +744,7 @@ def _read_folder(folder: Path) -> LightField:
         if p.is_file():
             names.append(p.name)
         elif _HCI_NAME.fullmatch(p.name) or _ROWCOL_NAME.fullmatch(p.name):  # (had been told as a view missing)
-            what = ("a link to nothing (or a loop of links)" if p.is_symlink() and not p.exists() else
-                    "a folder" if p.is_dir() else "not a regular file")
-            raise ValueError(f"{p}: named as a view, but {what}")
+            raise ValueError(f"{p}: named as a view, but {not_a_file(p)}")
     hci = [(m, name) for name in names if (m := _HCI_NAME.fullmatch(name))]
     rowcol = [(m, name) for name in names if (m := _ROWCOL_NAME.fullmatch(name))]
     if hci and rowcol:
