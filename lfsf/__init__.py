@@ -32,9 +32,43 @@ flow (MODEL.md §7; ``lfsf points`` on the command line).
 from __future__ import annotations
 
 import importlib
+import importlib.abc
+import importlib.util
+import os
+import sys
 from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
+
+
+class _CheckoutKernels(importlib.abc.MetaPathFinder):
+    """Finds ``lfsf.kernels`` in a source checkout's ``kernels/``, beside ``lfsf/``.
+
+    Installed, the kernels are the subpackage ``lfsf/kernels`` (pyproject.toml's
+    package-dir). Imported from a checkout without an editable install, as ``python -m
+    lfsf`` or ``python -m pytest`` in its root put ``./lfsf`` first on the path, nothing
+    else maps them: ``lfsf.kernels`` was missing (ModuleNotFoundError), or another tree's
+    (an editable install's elsewhere, a silent mix of two versions)."""
+
+    def __init__(self, folder: str) -> None:
+        self.folder = folder
+
+    def find_spec(self, name: str, path: Any = None, target: Any = None) -> Any:
+        if name != __name__ + ".kernels":
+            return None
+        return importlib.util.spec_from_file_location(name, os.path.join(self.folder, "__init__.py"),
+                                                      submodule_search_locations=[self.folder])
+
+
+def _find_checkout_kernels() -> None:
+    here = os.path.dirname(os.path.abspath(__file__))
+    beside = os.path.join(os.path.dirname(here), "kernels")
+    if (not os.path.isdir(os.path.join(here, "kernels")) and os.path.isfile(os.path.join(beside, "__init__.py"))
+            and not any(isinstance(finder, _CheckoutKernels) for finder in sys.meta_path)):
+        sys.meta_path.insert(0, _CheckoutKernels(beside))
+
+
+_find_checkout_kernels()
 
 # public name -> module that defines it (loaded on first use, PEP 562)
 _LAZY = {
