@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import dataclasses
 import glob
 import io as _io
 import os
@@ -127,7 +128,9 @@ def pairs_from_sources(sources: Sequence[str | os.PathLike] | str | os.PathLike,
     t1's stem). A folder holds one light field per frame (a sub-folder of views or a
     ``.npz``; not ``gt.npz`` or ``gt/``, :data:`GROUND_TRUTH_NAMES`), sorted by name;
     consecutive frames make the pairs, named after their first frame, each the successor
-    of the one before. Paths come back absolute: on a cluster,
+    of the one before. Where names given by default collide (two folders of frames named
+    alike, ``A/lf1.npz`` and ``B/lf1.npz``), the folder tells them apart: ``A-lf1``,
+    ``B-lf1`` (:func:`_told_apart`). Paths come back absolute: on a cluster,
     every worker must see them under the same names (a shared file system). ``out``, the
     batch's output folder, is no frame: where it lies inside a folder of frames it is
     left out of that folder's frames (a re-run would take the results for a frame).
@@ -145,7 +148,7 @@ def pairs_from_sources(sources: Sequence[str | os.PathLike] | str | os.PathLike,
     if not sources:
         raise ValueError("give at least one manifest CSV or folder of frames")
     out = None if out is None else Path(out).absolute()
-    pairs: list[Pair] = []
+    groups: list[tuple[list[Pair], list[bool] | None]] = []
     given: set[Path] = set()
     for source in sources:
         path = file_name(source, "a manifest or a folder of frames").absolute()  # (workers elsewhere see the same)
@@ -157,7 +160,8 @@ def pairs_from_sources(sources: Sequence[str | os.PathLike] | str | os.PathLike,
         if path.is_dir() and out is not None and _within(path, out):
             raise ValueError(f"{out}: the output folder must not be the folder of frames {path} itself (or "
                              "inside one of its frames): the results would be read as frames")
-        pairs.extend(_folder_pairs(path, out) if path.is_dir() else _manifest_pairs(path))
+        groups.append((_folder_pairs(path, out), None) if path.is_dir() else _manifest_pairs(path))
+    pairs = _told_apart(groups)
     seen: dict[str, Pair] = {}
     for pair in pairs:
         # (casefolded: Scene and scene are one folder on macOS and Windows, and where the
@@ -174,6 +178,34 @@ def pairs_from_sources(sources: Sequence[str | os.PathLike] | str | os.PathLike,
     return pairs
 
 
+def _told_apart(groups: list[tuple[list[Pair], list[bool] | None]]) -> list[Pair]:
+    """The pairs of every source, in order, where names that a pair was given by default
+    (t1's stem) collide, told apart by their frames' folder: ``A-lf1`` and ``B-lf1`` for
+    ``A/lf1.npz`` and ``B/lf1.npz`` (two folders of ``lfsf synth``, two sequences numbered
+    alike: the batch had been refused). A folder of frames (``defaulted`` None) is renamed
+    as a whole, its pairs' ``previous`` with them; a manifest's pairs one by one, only those
+    whose name ``defaulted`` (no third column). Names given in a manifest stay."""
+    counts: dict[str, int] = {}
+    for pairs, _ in groups:
+        for pair in pairs:
+            counts[_folded(pair.name)] = counts.get(_folded(pair.name), 0) + 1
+
+    def prefixed(name: str | None, folder: Path) -> str | None:
+        return f"{folder.name}-{name}" if name is not None and folder.name else name
+
+    told: list[Pair] = []
+    for pairs, defaulted in groups:
+        if defaulted is None:
+            if any(counts[_folded(pair.name)] > 1 for pair in pairs):
+                pairs = [dataclasses.replace(pair, name=prefixed(pair.name, pair.t1.parent),
+                                             previous=prefixed(pair.previous, pair.t1.parent)) for pair in pairs]
+        else:
+            pairs = [dataclasses.replace(pair, name=prefixed(pair.name, pair.t1.parent))
+                     if default and counts[_folded(pair.name)] > 1 else pair for pair, default in zip(pairs, defaulted)]
+        told.extend(pairs)
+    return told
+
+
 def _folded(name: str) -> str:
     """A pair's name as macOS and Windows compare folder names, about: composed (macOS
     takes é and e + ◌́ for one name) and case-folded (it over-refuses Straße against STRASSE,
@@ -187,7 +219,8 @@ def _folded(name: str) -> str:
 MAX_MANIFEST_BYTES = 64 << 20
 
 
-def _manifest_pairs(path: Path) -> list[Pair]:
+def _manifest_pairs(path: Path) -> tuple[list[Pair], list[bool]]:
+    """A manifest's pairs, and for each whether its name is t1's stem by default."""
     try:
         # (-sig: Excel's "CSV UTF-8" starts with a BOM; a named pipe is read, /dev/zero is not for ever)
         text = read_capped(path, MAX_MANIFEST_BYTES, "a manifest").decode("utf-8-sig")
@@ -211,7 +244,7 @@ def _manifest_pairs(path: Path) -> list[Pair]:
         rows = rows[1:]
     if not rows:
         raise ValueError(f"{path}: the manifest names no pairs (expected lines 't1,t2[,name]')")
-    pairs = []
+    pairs, defaulted = [], []
     for line, row in rows:
         cells = [c.strip() for c in row]
         if len(cells) not in (2, 3) or not cells[0] or not cells[1]:
@@ -222,7 +255,8 @@ def _manifest_pairs(path: Path) -> list[Pair]:
         if not name or name.startswith(".") or "/" in name or "\\" in name:
             raise ValueError(f"{path}: line {line} names the pair {name!r}, which cannot be a folder name")
         pairs.append(Pair(name, t1, t2))
-    return pairs
+        defaulted.append(len(cells) < 3 or not cells[2])
+    return pairs, defaulted
 
 
 #: Names that Windows keeps for devices, with or without an extension (``NUL.txt``).

@@ -202,6 +202,33 @@ def test_manifest_with_and_without_header(tmp_path):
     assert all(p.previous is None for p in pairs)
 
 
+def test_names_given_by_default_that_collide_are_told_apart_by_their_folder(tmp_path):
+    """Two folders of ``lfsf synth`` (``A/lf1.npz``, ``B/lf1.npz``) or two sequences
+    numbered alike, given as sources or in a manifest without names: every pair was named
+    after t1's stem, ``lf1``, and the whole batch was refused. A name given in a manifest
+    stays; so do names that collide with nothing, and a warm start's links follow the
+    renamed pairs."""
+    for folder in ("A", "B"):
+        (tmp_path / folder).mkdir()
+        for frame in ("lf1.npz", "lf2.npz", "lf3.npz"):
+            (tmp_path / folder / frame).write_bytes(b"")
+    (tmp_path / "C").mkdir()
+    for frame in ("x1.npz", "x2.npz"):
+        (tmp_path / "C" / frame).write_bytes(b"")
+    pairs = batch.pairs_from_sources([tmp_path / "A", tmp_path / "B", tmp_path / "C"])
+    assert [(p.name, p.t1.parent.name, p.t1.name, p.previous) for p in pairs] == [
+        ("A-lf1", "A", "lf1.npz", None), ("A-lf2", "A", "lf2.npz", "A-lf1"),
+        ("B-lf1", "B", "lf1.npz", None), ("B-lf2", "B", "lf2.npz", "B-lf1"), ("x1", "C", "x1.npz", None)]
+    path = _manifest(tmp_path / "m.csv", [("A/lf1.npz", "A/lf2.npz"), ("B/lf1.npz", "B/lf2.npz"),
+                                          ("A/lf2.npz", "A/lf3.npz", "lf2"), ("B/lf2.npz", "B/lf3.npz"),
+                                          ("C/x1.npz", "C/x2.npz")])
+    assert [p.name for p in batch.pairs_from_sources([path])] == ["A-lf1", "B-lf1", "lf2", "B-lf2", "x1"]
+    # the same t1 twice, unnamed: still one name for two pairs
+    path = _manifest(tmp_path / "twice.csv", [("A/lf1.npz", "A/lf2.npz"), ("A/lf1.npz", "A/lf3.npz")])
+    with pytest.raises(ValueError, match=re.escape("two pairs are both named 'A-lf1'")):
+        batch.pairs_from_sources([path])
+
+
 def test_a_manifest_may_hold_comment_lines(tmp_path):
     """A line starting with # (after any spaces) is a comment; it ended the batch. A
     quoted first cell starting with # is a path."""
