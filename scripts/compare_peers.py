@@ -42,6 +42,7 @@ Usage (from the repository root)::
     python scripts/compare_peers.py --config my.toml       # lfsf with other settings
     python scripts/compare_peers.py --colour               # RGB views (the peers: their luma)
     python scripts/compare_peers.py --images skimage       # photographs on the objects
+    python scripts/compare_peers.py --independent --scenes # the scenes of a second renderer
 
 ``--methods``: ``peers`` (peers only), ``lfsf`` (lfsf only; no bars), ``all`` (default:
 peers, and lfsf when ``lfsf.estimate_scene_flow`` exists, else a note). Exit status 1 if a
@@ -193,11 +194,14 @@ def run_scene(name, args, use_peers, lfsf_runs, warm):
     from lfsf import evaluate, synth
 
     scene, images = name, None
-    if args.images is not None:  # the scene's geometry and motion, photographs for textures
+    if name.startswith(INDEPENDENT_PREFIX):  # a second renderer's (scripts/independent_scenes.py)
+        lf1, lf2, gt = independent_scenes().render_scene(name, size=tuple(args.size), grid=args.grid)
+    elif args.images is not None:  # the scene's geometry and motion, photographs for textures
         images = IMAGES["list"]
         scene = synth.with_images_of_name(name, len(images))
-    lf1, lf2, gt = synth.render_scene(scene, size=tuple(args.size), grid=args.grid, colour=args.colour,
-                                      device=args.device, images=images)
+    if not name.startswith(INDEPENDENT_PREFIX):
+        lf1, lf2, gt = synth.render_scene(scene, size=tuple(args.size), grid=args.grid, colour=args.colour,
+                                          device=args.device, images=images)
     if args.vignetting > 0:  # the camera's, at t1 and t2 alike; in the lens, so before exposure and noise
         lf1, lf2 = synth.add_vignetting(lf1, args.vignetting), synth.add_vignetting(lf2, args.vignetting)
     if args.exposure is not None:  # t2 (or t1) captured at another exposure, clipped as a sensor would
@@ -266,8 +270,8 @@ def run_scene(name, args, use_peers, lfsf_runs, warm):
     for method, fn in lfsf_runs.items():
         try:
             if method not in warm:  # compile kernels etc. outside the timing
-                w1, w2, _ = synth.render_scene(name, size=(48, 32), grid=args.grid, colour=args.colour,
-                                               device=args.device)
+                w1, w2, _ = synth.render_scene("paper" if name.startswith(INDEPENDENT_PREFIX) else name,
+                                               size=(48, 32), grid=args.grid, colour=args.colour, device=args.device)
                 fn(w1, w2, args.device)
                 warm.add(method)
             out, s = peers.timed(fn, lf1, lf2, args.device)
@@ -504,6 +508,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "--random-from on")
     p.add_argument("--random-from", type=int, default=0, metavar="SEED",
                    help="first random scene's seed (default 0)")
+    p.add_argument("--independent", action="store_true",
+                   help="add the scenes of a second renderer, written apart from lfsf.synth "
+                        "(scripts/independent_scenes.py, indep-NAME; needs scikit-image)")
     p.add_argument("--colour", action="store_true",
                    help="RGB views (default grey); the peers get their luma, lfsf the colour")
     p.add_argument("--noise", type=float, default=0.0, metavar="SIGMA",
@@ -555,16 +562,43 @@ def selected_scenes(args) -> list[str]:
         raise ValueError("--random and --random-from must be ≥ 0")
     scenes = list(synth.list_scenes() if args.scenes is None else args.scenes)
     scenes += [f"{synth.RANDOM_PREFIX}{args.random_from + k}" for k in range(args.random)]
+    if args.independent:
+        scenes += [INDEPENDENT_PREFIX + name for name in independent_scenes().ALL]
     unknown = []
     for name in scenes:
+        if name.startswith(INDEPENDENT_PREFIX):
+            if name[len(INDEPENDENT_PREFIX):] not in independent_scenes().ALL:
+                unknown.append(name)
+            continue
         try:
             synth.get_scene(name)
         except ValueError:
             unknown.append(name)
     if unknown:
-        raise ValueError(f"unknown scene(s) {unknown}; known: {list(synth.list_scenes())} "
-                         f"and {synth.RANDOM_PREFIX}N")
+        raise ValueError(f"unknown scene(s) {unknown}; known: {list(synth.list_scenes())}, "
+                         f"{synth.RANDOM_PREFIX}N and {INDEPENDENT_PREFIX}NAME (NAME one of "
+                         f"{independent_scenes().ALL})")
+    if (args.colour or args.images is not None) and any(s.startswith(INDEPENDENT_PREFIX) for s in scenes):
+        raise ValueError("the independent scenes are grey, with textures of their own: not with --colour or --images")
     return scenes
+
+
+#: The scene names' prefix of the second renderer (``--independent``).
+INDEPENDENT_PREFIX = "indep-"
+
+
+def independent_scenes():
+    """``scripts/independent_scenes.py``, imported once."""
+    import importlib.util
+
+    module = sys.modules.get("lfsf_independent_scenes")
+    if module is None:
+        spec = importlib.util.spec_from_file_location("lfsf_independent_scenes", HERE / "independent_scenes.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        sys.modules["lfsf_independent_scenes"] = module
+    assert module.PREFIX == INDEPENDENT_PREFIX
+    return module
 
 
 def import_peers() -> None:

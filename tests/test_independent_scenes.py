@@ -1,0 +1,94 @@
+"""The second renderer (``scripts/independent_scenes.py``), written apart from lfsf.synth
+to check lfsf's accuracy on scenes it was not tuned on: its identities, and what
+``scripts/compare_peers.py --independent`` hands the methods."""
+
+import numpy as np
+import pytest
+
+from conftest import load_script
+
+
+@pytest.fixture(scope="module")
+def scenes():
+    return load_script("independent_scenes")
+
+
+def _noise_layers(scenes, size):
+    """A slanted backdrop and a disk that turns, recedes and tilts, both with noise
+    textures (the photographs need scikit-image)."""
+    W, H = size
+    return [scenes.backdrop(scenes.noise_tex(2.0, 1), -0.5, shift=(2.0, -1.0), gimg1=(0.004, 0.0), size=size),
+            scenes.obj(scenes.noise_tex(1.5, 2), ("disk", 12), (W / 2, H / 2), (W / 2 + 3, H / 2 + 1), 1.2, 0.9,
+                       A2=scenes.rot(10, 0.9), gimg2=(0.0, 0.01))]
+
+
+@pytest.mark.parametrize("delta", [1.0, 0.5, -1.0])
+def test_a_plane_is_its_centre_view_shifted_by_delta_phi(scenes, delta):
+    """MODEL.md §1: the point at p appears in the view at φ at p − δφ; where δφ is a whole
+    number of pixels the view is the centre view shifted, exactly."""
+    assert scenes.plane_shift_error(delta, size=(48, 36), grid=5) == 0.0
+    # (and the check can fail: the sign of φ turned round)
+    views = scenes.render([scenes.backdrop(scenes.noise_tex(1.5, 5), delta, size=(48, 36))], (48, 36), 5)
+    s = int(round(2 * delta))
+    assert np.abs(views[2, 4][:, max(0, -s):48 - max(0, s)] - views[2, 2][:, max(0, s):48 + min(0, s)]).max() == 0
+    assert np.abs(views[2, 0][:, max(0, -s):48 - max(0, s)] - views[2, 2][:, max(0, s):48 + min(0, s)]).max() > 0.05
+
+
+def test_the_inverse_mapping_and_the_ground_truth_agree_with_the_renderer(scenes):
+    size = (64, 48)
+    layers = _noise_layers(scenes, size)
+    assert scenes.inverse_error(layers) < 1e-9
+    worst, seen = scenes.ground_truth_error(layers, size)
+    assert worst < 1e-5 and seen > 4 * 0.8 * 64 * 48
+    # a ground truth that is wrong by a tenth of a pixel is caught
+    true = scenes.ground_truth
+
+    def off(*args):
+        gt = true(*args)
+        return {**gt, "u": gt["u"] + 0.1}
+
+    scenes.ground_truth = off
+    try:
+        assert scenes.ground_truth_error(layers, size)[0] > 1e-3
+    finally:
+        scenes.ground_truth = true
+
+
+def test_every_scene_renders_with_its_ground_truth(scenes):
+    pytest.importorskip("skimage")
+    assert scenes.self_check(size=(96, 72))
+    lf1, lf2, gt = scenes.render_scene("indep-rot_noisy", size=(48, 36), grid=5)
+    again = scenes.render_scene("rot_noisy", size=(48, 36), grid=5)
+    np.testing.assert_array_equal(lf2.views, again[1].views)  # (noise from the name: the same every run)
+    assert lf1.views.shape == (5, 5, 36, 48) and lf1.views.dtype == np.float32
+    assert set(gt) == {"disp1", "disp2", "u", "v", "valid", "occluded"} and gt["valid"].all()
+    with pytest.raises(ValueError, match="unknown independent scene 'nope'"):
+        scenes.render_scene("nope")
+
+
+def test_compare_peers_takes_the_independent_scenes():
+    script = load_script("compare_peers")
+
+    def selected(*argv):
+        return script.selected_scenes(script.build_parser().parse_args(list(argv)))
+
+    every = [script.INDEPENDENT_PREFIX + name for name in load_script("independent_scenes").ALL]
+    assert selected("--scenes", "--independent") == every
+    assert selected("--scenes", "paper", "indep-ring") == ["paper", "indep-ring"]
+    with pytest.raises(ValueError, match="indep-NAME"):
+        selected("--scenes", "indep-nope")
+    with pytest.raises(ValueError, match="not with --colour"):
+        selected("--scenes", "indep-ring", "--colour")
+    # what a method is handed, and scored against (a scene of noise textures: no scikit-image)
+    args = script.build_parser().parse_args(["--size", "48", "32", "--grid", "3"])
+    lf1, lf2, gt = load_script("independent_scenes").render_scene("indep-v_plane_noise", size=(48, 32), grid=3)
+    seen = []
+
+    def truth(lf1, lf2, device):
+        seen.append((lf1.views, lf2.views))
+        return {"u": gt["u"], "v": gt["v"] + 0.5}
+
+    rows = script.run_scene("indep-v_plane_noise", args, False, {"truth": truth}, {"truth"})
+    np.testing.assert_array_equal(seen[0][0], lf1.views)
+    np.testing.assert_array_equal(seen[0][1], lf2.views)
+    assert rows[0]["flow_epe"] == pytest.approx(0.5)
