@@ -50,11 +50,17 @@ class _CheckoutKernels(importlib.abc.MetaPathFinder):
     else maps them: ``lfsf.kernels`` was missing (ModuleNotFoundError), or another tree's
     (an editable install's elsewhere, a silent mix of two versions)."""
 
-    def __init__(self, folder: str) -> None:
-        self.folder = folder
+    #: (Told apart by this mark, not by class: a reload of lfsf makes a new class.)
+    lfsf_checkout_kernels = True
+
+    def __init__(self, package: str, folder: str) -> None:
+        self.package = package   # the checkout's lfsf/
+        self.folder = folder     # its kernels/
 
     def find_spec(self, name: str, path: Any = None, target: Any = None) -> Any:
-        if name != __name__ + ".kernels":
+        # only for the lfsf this finder came with (another copy imported later, a wheel's,
+        # has kernels of its own)
+        if name != __name__ + ".kernels" or not any(os.path.abspath(p) == self.package for p in path or ()):
             return None
         return importlib.util.spec_from_file_location(name, os.path.join(self.folder, "__init__.py"),
                                                       submodule_search_locations=[self.folder])
@@ -64,8 +70,9 @@ def _find_checkout_kernels() -> None:
     here = os.path.dirname(os.path.abspath(__file__))
     beside = os.path.join(os.path.dirname(here), "kernels")
     if (not os.path.isdir(os.path.join(here, "kernels")) and os.path.isfile(os.path.join(beside, "__init__.py"))
-            and not any(isinstance(finder, _CheckoutKernels) for finder in sys.meta_path)):
-        sys.meta_path.insert(0, _CheckoutKernels(beside))
+            and not any(getattr(finder, "lfsf_checkout_kernels", False) and getattr(finder, "package", None) == here
+                        for finder in sys.meta_path)):
+        sys.meta_path.insert(0, _CheckoutKernels(here, beside))
 
 
 _find_checkout_kernels()

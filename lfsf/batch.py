@@ -180,30 +180,40 @@ def pairs_from_sources(sources: Sequence[str | os.PathLike] | str | os.PathLike,
 
 def _told_apart(groups: list[tuple[list[Pair], list[bool] | None]]) -> list[Pair]:
     """The pairs of every source, in order, where names that a pair was given by default
-    (t1's stem) collide, told apart by their frames' folder: ``A-lf1`` and ``B-lf1`` for
-    ``A/lf1.npz`` and ``B/lf1.npz`` (two folders of ``lfsf synth``, two sequences numbered
-    alike: the batch had been refused). A folder of frames (``defaulted`` None) is renamed
-    as a whole, its pairs' ``previous`` with them; a manifest's pairs one by one, only those
-    whose name ``defaulted`` (no third column). Names given in a manifest stay."""
+    (t1's stem) collide, told apart by the folders that hold their frames: ``A-lf1`` and
+    ``B-lf1`` for ``A/lf1.npz`` and ``B/lf1.npz`` (two folders of ``lfsf synth``, two
+    sequences numbered alike: the batch had been refused), as many folders as it takes
+    (``A-frames-f000`` and ``B-frames-f000`` for two ``lfsf synth --frames`` outputs). A
+    folder of frames (``defaulted`` None) is renamed as a whole, its pairs' ``previous``
+    with them; a manifest's pairs one by one, only those whose name ``defaulted`` (no
+    third column). Names given in a manifest stay; where names still collide, the caller
+    says so."""
     counts: dict[str, int] = {}
     for pairs, _ in groups:
         for pair in pairs:
             counts[_folded(pair.name)] = counts.get(_folded(pair.name), 0) + 1
+    renamed = [[default and counts[_folded(pair.name)] > 1 for pair, default in
+                zip(pairs, [True] * len(pairs) if defaulted is None else defaulted)] for pairs, defaulted in groups]
+    for g, (pairs, defaulted) in enumerate(groups):
+        if defaulted is None and any(renamed[g]):
+            renamed[g] = [True] * len(pairs)
 
-    def prefixed(name: str | None, folder: Path) -> str | None:
-        return f"{folder.name}-{name}" if name is not None and folder.name else name
+    def folders(pair: Pair) -> list[str]:
+        # (the path as written, '..' taken out; a hidden folder's dot left out of the name)
+        return [part.lstrip(".") for part in Path(os.path.normpath(pair.t1.parent)).parts[1:]][::-1]
 
-    told: list[Pair] = []
-    for pairs, defaulted in groups:
-        if defaulted is None:
-            if any(counts[_folded(pair.name)] > 1 for pair in pairs):
-                pairs = [dataclasses.replace(pair, name=prefixed(pair.name, pair.t1.parent),
-                                             previous=prefixed(pair.previous, pair.t1.parent)) for pair in pairs]
-        else:
-            pairs = [dataclasses.replace(pair, name=prefixed(pair.name, pair.t1.parent))
-                     if default and counts[_folded(pair.name)] > 1 else pair for pair, default in zip(pairs, defaulted)]
-        told.extend(pairs)
-    return told
+    def prefixed(name: str | None, pair: Pair, depth: int) -> str | None:
+        parts = [part for part in folders(pair)[:depth] if part][::-1]
+        return None if name is None else "-".join([*parts, name])
+
+    deepest = max((len(folders(pair)) for pairs, _ in groups for pair in pairs), default=0)
+    for depth in range(1, deepest + 1):
+        told = [dataclasses.replace(pair, name=prefixed(pair.name, pair, depth),
+                                    previous=prefixed(pair.previous, pair, depth)) if rename else pair
+                for (pairs, _), flags in zip(groups, renamed) for pair, rename in zip(pairs, flags)]
+        if len({_folded(pair.name) for pair in told}) == len(told):
+            return told
+    return [pair for pairs, _ in groups for pair in pairs]
 
 
 def _folded(name: str) -> str:

@@ -510,7 +510,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="first random scene's seed (default 0)")
     p.add_argument("--independent", action="store_true",
                    help="add the scenes of a second renderer, written apart from lfsf.synth "
-                        "(scripts/independent_scenes.py, indep-NAME; needs scikit-image)")
+                        "(scripts/independent_scenes.py, indep-NAME; needs scikit-image); with '--scenes' "
+                        "alone, those only. Some of their bars are missed (docs/accuracy.md): --check "
+                        "then exits 1")
     p.add_argument("--colour", action="store_true",
                    help="RGB views (default grey); the peers get their luma, lfsf the colour")
     p.add_argument("--noise", type=float, default=0.0, metavar="SIGMA",

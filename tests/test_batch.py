@@ -225,8 +225,27 @@ def test_names_given_by_default_that_collide_are_told_apart_by_their_folder(tmp_
     assert [p.name for p in batch.pairs_from_sources([path])] == ["A-lf1", "B-lf1", "lf2", "B-lf2", "x1"]
     # the same t1 twice, unnamed: still one name for two pairs
     path = _manifest(tmp_path / "twice.csv", [("A/lf1.npz", "A/lf2.npz"), ("A/lf1.npz", "A/lf3.npz")])
-    with pytest.raises(ValueError, match=re.escape("two pairs are both named 'A-lf1'")):
+    with pytest.raises(ValueError, match=re.escape("two pairs are both named 'lf1'")):
         batch.pairs_from_sources([path])
+    # two `lfsf synth --frames` outputs (S/frames/f000.npz …): as many folders as it takes;
+    # a hidden folder's dot and a '..' are not in the names; names that differ in case only
+    for scene in ("S1", "S2", ".T"):
+        (tmp_path / scene / "frames").mkdir(parents=True)
+        for frame in ("f000.npz", "f001.npz", "f002.npz"):
+            (tmp_path / scene / "frames" / frame).write_bytes(b"")
+    pairs = batch.pairs_from_sources([tmp_path / "S1" / "frames", tmp_path / "S2" / "frames",
+                                      tmp_path / "A" / ".." / ".T" / "frames"])
+    assert [(p.name, p.previous) for p in pairs] == [
+        ("S1-frames-f000", None), ("S1-frames-f001", "S1-frames-f000"),
+        ("S2-frames-f000", None), ("S2-frames-f001", "S2-frames-f000"),
+        ("T-frames-f000", None), ("T-frames-f001", "T-frames-f000")]
+    pairs = batch.pairs_from_sources([tmp_path / "S1" / "frames", tmp_path / "C"])
+    assert [p.name for p in pairs] == ["f000", "f001", "x1"]   # (no collision: no folder in the names)
+    (tmp_path / "U").mkdir()
+    for frame in ("F001.npz", "F002.npz"):
+        (tmp_path / "U" / frame).write_bytes(b"")
+    pairs = batch.pairs_from_sources([tmp_path / "U", tmp_path / "S1" / "frames"])
+    assert [p.name for p in pairs] == ["U-F001", "frames-f000", "frames-f001"]
 
 
 def test_a_manifest_may_hold_comment_lines(tmp_path):

@@ -54,6 +54,23 @@ def test_the_inverse_mapping_and_the_ground_truth_agree_with_the_renderer(scenes
         scenes.ground_truth = true
 
 
+def test_the_numpy_filters_are_scipys(scenes):
+    """The renderer's bilinear lookup (mirrored outside) and wrapped Gaussian are SciPy's
+    ``map_coordinates(order=1, mode="mirror")`` and ``gaussian_filter(mode="wrap")``,
+    written in NumPy so that CI, without SciPy, renders the same scenes."""
+    ndimage = pytest.importorskip("scipy.ndimage")
+    r = np.random.default_rng(3)
+    for shape in ((2, 3), (37, 50)):
+        tex = r.random(shape)
+        qx, qy = r.uniform(-200, 200, (2, 5000))
+        np.testing.assert_allclose(scenes.sample_tex(tex, qx, qy),
+                                   ndimage.map_coordinates(tex, [qy, qx], order=1, mode="mirror"), atol=1e-12)
+    img = r.standard_normal((60, 80))
+    for sigma in (0.8, 2.0, 12.0):
+        np.testing.assert_allclose(scenes.gaussian_wrap(img, sigma), ndimage.gaussian_filter(img, sigma, mode="wrap"),
+                                   atol=1e-12)
+
+
 def test_every_scene_renders_with_its_ground_truth(scenes):
     pytest.importorskip("skimage")
     assert scenes.self_check(size=(96, 72))

@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import importlib.metadata
+import json
 import shutil
 import subprocess
 import sys
+import urllib.parse
+import urllib.request
 from pathlib import Path
 
 import pytest
@@ -33,10 +36,28 @@ def test_a_checkout_run_in_place_takes_its_own_kernels(tmp_path):
     assert paths == [copy / "lfsf" / "__init__.py", copy / "kernels" / "__init__.py", copy / "kernels" / "tgv.py"]
 
 
-def test_the_installed_version_is_lfsfs_own():
-    """pyproject.toml takes the version from ``lfsf.__version__`` (one place to change it)."""
+def _installed_from_here(dist) -> bool:
+    """Whether the installed distribution ``dist`` is the lfsf imported here: its files hold
+    this ``lfsf/__init__.py`` (a wheel), or it is an editable install of this checkout."""
+    here = Path(lfsf.__file__).resolve()
+    if any(Path(str(dist.locate_file(f))).resolve() == here for f in dist.files or ()):
+        return True
     try:
-        installed = importlib.metadata.version("lfsf")
+        url = json.loads(dist.read_text("direct_url.json") or "{}").get("url", "")
+    except ValueError:
+        return False
+    parsed = urllib.parse.urlparse(url)
+    return parsed.scheme == "file" and Path(urllib.request.url2pathname(parsed.path)).resolve() == ROOT.resolve()
+
+
+def test_the_installed_version_is_lfsfs_own():
+    """pyproject.toml takes the version from ``lfsf.__version__`` (one place to change it):
+    the installed metadata says the imported lfsf's version (where the install is this
+    lfsf, not another tree's)."""
+    try:
+        dist = importlib.metadata.distribution("lfsf")
     except importlib.metadata.PackageNotFoundError:
         pytest.skip("lfsf is not installed (imported from a checkout)")
-    assert installed == lfsf.__version__
+    if not _installed_from_here(dist):
+        pytest.skip("the lfsf installed is another tree's (this one is run in place)")
+    assert dist.version == lfsf.__version__
