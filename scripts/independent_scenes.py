@@ -13,8 +13,9 @@ centre-view position p_t(r) = c_t + A_t r and disparity δ_t(r) = d_t + ∇δ_t 
 (MODEL.md §1), which is affine in r and inverted exactly per view pixel; the nearest
 layer (largest δ) wins, and each pixel averages 2×2 samples. The ground truth at a t1
 centre pixel p comes from the same poses: δ1, u = p_2(r) − p, δ2 = δ_2(r) (the t2
-disparity of the same point), and ``occluded`` where a nearer layer covers p + u at t2 or
-p + u leaves the image. Every object is placed 0.27, 0.31 px off the pixel grid, so that
+disparity of the same point), ``occluded`` where a nearer layer covers p + u at t2 or
+p + u leaves the image, and ``valid`` false where a pixel's footprint sees two layers (as
+lfsf.synth's; the scores leave those out). Every object is placed 0.27, 0.31 px off the pixel grid, so that
 straight outlines do not run through pixel centres (a pixel half on each side has an
 arbitrary truth: lfsf's δ1 MSE on such a scene moved 3–15× with it).
 
@@ -182,8 +183,14 @@ def ground_truth(layers, size=(160, 120)):
     _, best2, _ = render_points(layers, 2, (0.0, 0.0), X2, Y2)
     occ = best2 > d2 + 1e-6
     occ |= (X2 < 0) | (X2 > W - 1) | (Y2 < 0) | (Y2 > H - 1)
+    # a pixel whose footprint (its centre and four corners) sees more than one layer
+    # straddles an outline: its truth (the centre's layer) is one of two, as lfsf.synth's
+    # ``valid`` leaves out too
+    straddles = np.zeros((H, W), bool)
+    for dx, dy in ((-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5)):
+        straddles |= render_points(layers, 1, (0.0, 0.0), xx + dx, yy + dy)[2] != front
     return dict(disp1=d1.astype(np.float32), disp2=d2.astype(np.float32), u=u.astype(np.float32),
-                v=v.astype(np.float32), occluded=occ)
+                v=v.astype(np.float32), occluded=occ, valid=~straddles)
 
 
 # --- textures ---------------------------------------------------------------------------
@@ -428,8 +435,8 @@ def render_scene(name: str, size=(160, 120), grid: int = 9):
     """Scene ``name`` (one of :data:`ALL`, with or without :data:`PREFIX`) rendered at
     ``size`` (W, H; its layout scales with W / 160) on a ``grid``×``grid`` view grid: the
     light fields at t1 and t2 (:class:`lfsf.LightField`, float32 in [0, 1]) and the ground
-    truth (``disp1``, ``disp2``, ``u``, ``v``, ``valid`` everywhere, ``occluded``), as
-    :func:`lfsf.synth.render_scene` gives them. Scenes with noise draw it from a seed of
+    truth (``disp1``, ``disp2``, ``u``, ``v``, ``valid``: false where a pixel straddles an
+    outline, ``occluded``), as :func:`lfsf.synth.render_scene` gives them. Scenes with noise draw it from a seed of
     the scene's name."""
     from lfsf.io import LightField
 
@@ -443,7 +450,6 @@ def render_scene(name: str, size=(160, 120), grid: int = 9):
         rng = np.random.default_rng(zlib.crc32(name.encode()))
         views = [np.clip(v + rng.normal(0.0, noise, v.shape), 0.0, 1.0).astype(np.float32) for v in views]
     gt = ground_truth(layers, size)
-    gt["valid"] = np.ones(gt["disp1"].shape, bool)
     source = f"independent scene {name!r} ({description})"
     return LightField(views[0], source=source + " at t1"), LightField(views[1], source=source + " at t2"), gt
 

@@ -78,7 +78,9 @@ def test_every_scene_renders_with_its_ground_truth(scenes):
     again = scenes.render_scene("rot_noisy", size=(48, 36), grid=5)
     np.testing.assert_array_equal(lf2.views, again[1].views)  # (noise from the name: the same every run)
     assert lf1.views.shape == (5, 5, 36, 48) and lf1.views.dtype == np.float32
-    assert set(gt) == {"disp1", "disp2", "u", "v", "valid", "occluded"} and gt["valid"].all()
+    assert set(gt) == {"disp1", "disp2", "u", "v", "valid", "occluded"}
+    # (not valid: the pixels that straddle the disk's outline, as lfsf.synth leaves out)
+    assert 0.01 < 1 - gt["valid"].mean() < 0.1
     with pytest.raises(ValueError, match="unknown independent scene 'nope'"):
         scenes.render_scene("nope")
 
