@@ -564,7 +564,7 @@ def selected_scenes(args) -> list[str]:
         raise ValueError("--random and --random-from must be ≥ 0")
     scenes = list(synth.list_scenes() if args.scenes is None else args.scenes)
     scenes += [f"{synth.RANDOM_PREFIX}{args.random_from + k}" for k in range(args.random)]
-    if args.independent:
+    if getattr(args, "independent", False):  # (other scripts' arguments lack it)
         scenes += [INDEPENDENT_PREFIX + name for name in independent_scenes().ALL]
     unknown = []
     for name in scenes:
@@ -580,7 +580,8 @@ def selected_scenes(args) -> list[str]:
         raise ValueError(f"unknown scene(s) {unknown}; known: {list(synth.list_scenes())}, "
                          f"{synth.RANDOM_PREFIX}N and {INDEPENDENT_PREFIX}NAME (NAME one of "
                          f"{independent_scenes().ALL})")
-    if (args.colour or args.images is not None) and any(s.startswith(INDEPENDENT_PREFIX) for s in scenes):
+    if ((getattr(args, "colour", False) or getattr(args, "images", None) is not None)
+            and any(s.startswith(INDEPENDENT_PREFIX) for s in scenes)):
         raise ValueError("the independent scenes are grey, with textures of their own: not with --colour or --images")
     return scenes
 
