@@ -196,9 +196,11 @@ def ground_truth(layers, size=(160, 120)):
 # --- textures ---------------------------------------------------------------------------
 
 def _grey(img):
+    from lfsf.io import BT601_LUMA
+
     img = np.asarray(img, float)
     if img.ndim == 3:
-        img = img[..., :3] @ np.array([0.299, 0.587, 0.114])
+        img = img[..., :3] @ np.array(BT601_LUMA)
     return img / 255.0
 
 
@@ -209,11 +211,11 @@ def gaussian_wrap(img, sigma):
     r = int(4.0 * sigma + 0.5)
     taps = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
     taps /= taps.sum()
-    kernel = np.zeros((h, w))
-    for dy, ty in zip(range(-r, r + 1), taps):
-        for dx, tx in zip(range(-r, r + 1), taps):
-            kernel[dy % h, dx % w] += ty * tx
-    return np.real(np.fft.ifft2(np.fft.fft2(img) * np.fft.fft2(kernel)))
+    # (separable: the 2-D kernel wrapped onto the image is the outer product of the 1-D ones)
+    ky, kx = np.zeros(h), np.zeros(w)
+    np.add.at(ky, np.arange(-r, r + 1) % h, taps)
+    np.add.at(kx, np.arange(-r, r + 1) % w, taps)
+    return np.real(np.fft.ifft2(np.fft.fft2(img) * np.fft.fft2(np.outer(ky, kx))))
 
 
 def natural(name, contrast=1.0):
