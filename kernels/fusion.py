@@ -239,6 +239,8 @@ def take_other_surface(
     flow_cur: wp.array2d(dtype=float),
     t1_new: wp.array2d(dtype=float),
     t1_cur: wp.array2d(dtype=float),
+    seen_new: wp.array2d(dtype=float),
+    seen_cur: wp.array2d(dtype=float),
     hidden: wp.array2d(dtype=float),
     floor: float,
     margin: float,
@@ -254,9 +256,11 @@ def take_other_surface(
     ``flow_gap`` px); the flow residual ``flow_new`` < ``margin`` · ``flow_cur``, with
     ``flow_cur`` above ``floor`` (a flow that matches leaves the pixel alone); the t1
     cost ``t1_new`` < ``margin`` · ``t1_cur`` and below ``best`` (the lowest t1 cost
-    taken so far, which this lowers); and p is not ``hidden`` (> 0.5: hidden at t2,
-    where the occluder matches better than the point's own flow). x is read, ``out``
-    written. Launch over (rows, columns)."""
+    taken so far, which this lowers); where the candidate lies behind x (a lower δ1),
+    also the cost over the samples that each map's z-buffers leave visible, ``seen_new``
+    < ``margin`` · ``seen_cur``; and p is not ``hidden`` (> 0.5: hidden at t2, where the
+    occluder matches better than the point's own flow). x is read, ``out`` written.
+    Launch over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0
     if hidden[i, j] > 0.5 or flow_cur[i, j] <= floor:
@@ -265,7 +269,10 @@ def take_other_surface(
     if flow_new[i, j] >= margin * flow_cur[i, j] or s >= margin * t1_cur[i, j] or s >= best[i, j]:
         return
     c = candidate[i, j]
-    if not states_apart(x[i, j], c, depth_gap, flow_gap):
+    v = x[i, j]
+    if not states_apart(v, c, depth_gap, flow_gap):
+        return
+    if c[0] < v[0] and seen_new[i, j] >= margin * seen_cur[i, j]:
         return
     best[i, j] = s
     out[i, j] = c

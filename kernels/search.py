@@ -66,10 +66,11 @@ def disparity_cost(
 
 @wp.func
 def visible_mean(samples: wp.array3d(dtype=float), phis: wp.array(dtype=wp.vec2), zbuf: wp.array3d(dtype=float),
-                 qx: float, qy: float, disparity: float, centre: float, margin: float):
+                 qx: float, qy: float, disparity: float, centre: float, margin: float, zx: float, zy: float):
     """Mean |L(q − δφ_s, φ_s) − c| over the samples s ≥ 1 whose warped position lies in
-    the image and is not covered by a nearer point (:func:`lfsf.kernels.common.visible`);
-    1 where none is."""
+    the image and is not covered by a nearer point (:func:`lfsf.kernels.common.visible`,
+    the z-buffers read (``zx``, ``zy``) px further: those of a map moved as a whole by
+    (−zx, −zy) are its own read there); 1 where none is."""
     total = float(0.0)
     count = float(0.0)
     for s in range(1, phis.shape[0]):
@@ -77,7 +78,7 @@ def visible_mean(samples: wp.array3d(dtype=float), phis: wp.array(dtype=wp.vec2)
         x = qx - disparity * phi[0]
         y = qy - disparity * phi[1]
         if inside(samples[s], x, y):
-            if visible(zbuf, s, x, y, disparity, margin):
+            if visible(zbuf, s, x + zx, y + zy, disparity, margin):
                 total += wp.abs(bilinear(samples[s], x, y) - centre)
                 count += 1.0
     c = float(1.0)
@@ -117,7 +118,8 @@ def disparity_cost_visible(
         qx = float(j) + o[2]
         qy = float(i) + o[3]
         centre = bilinear(samples[0], qx, qy)
-        cost[k, i, j] = visible_mean(samples, phis, zbuf, qx, qy, candidates[k] + base[i, j], centre, margin)
+        d = candidates[k] + base[i, j]
+        cost[k, i, j] = visible_mean(samples, phis, zbuf, qx, qy, d, centre, margin, 0.0, 0.0)
 
 
 @wp.kernel
@@ -1011,19 +1013,27 @@ def state_costs(
     centre2: wp.array2d(dtype=float),
     x: wp.array2d(dtype=wp.vec4),
     active: wp.array2d(dtype=float),
+    zbuf: wp.array3d(dtype=float),
+    dy: int,
+    dx: int,
+    margin: float,
     # outputs
     cost: wp.array3d(dtype=float),
 ):
-    """Per pixel p where ``active`` (> 0.5), the two costs of the state x(p):
+    """Per pixel p where ``active`` (> 0.5), the three costs of the state x(p):
     cost[0, p] = the t1 samples' best-half cost of δ1 (:func:`disparity_cost` with no
-    flow and δ = δ1(p)) and cost[1, p] = the flow residual |I1(p) − I2(p + (u, v))|
-    (:func:`flow_cost`), the same values as those kernels give; 0 elsewhere (the
-    outlines' relabelling reads them only where the windows hold active pixels alone).
-    Launch over (rows, columns)."""
+    flow and δ = δ1(p)), cost[1, p] = the flow residual |I1(p) − I2(p + (u, v))|
+    (:func:`flow_cost`), the same values as those kernels give, and cost[2, p] = the
+    mean over the t1 samples that the view z-buffers ``zbuf`` (S, h, w) leave visible
+    (:func:`visible_mean` with ``margin``, as :func:`disparity_cost_visible`), read
+    (``dx``, ``dy``) px further: for an x that is a map moved as a whole by (−dx, −dy),
+    ``zbuf`` may be that map's; 0 elsewhere (the outlines' relabelling reads them only
+    where the windows hold active pixels alone). Launch over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0
     t1 = float(0.0)
     flow = float(0.0)
+    seen = float(0.0)
     if active[i, j] > 0.5:
         v = x[i, j]
         qx = float(j)
@@ -1031,6 +1041,7 @@ def state_costs(
         centre = bilinear(samples[0], qx, qy)
         sums, counts, total, count = half_plane_residuals(samples, phis, qx, qy, v[0], centre)
         t1 = least_half_mean(sums, counts)
+        seen = visible_mean(samples, phis, zbuf, qx, qy, v[0], centre, margin, float(dx), float(dy))
         fx = float(j) + v[2]
         fy = float(i) + v[3]
         flow = float(1.0)
@@ -1038,3 +1049,4 @@ def state_costs(
             flow = wp.abs(centre1[i, j] - bilinear(centre2, fx, fy))
     cost[0, i, j] = t1
     cost[1, i, j] = flow
+    cost[2, i, j] = seen

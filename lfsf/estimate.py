@@ -1705,8 +1705,13 @@ def _relabel_outlines(solver, centres, params: Params, device: str, floor: float
     such a pixel mostly by its neighbours, which are right. Here each of the
     (2·RELABEL_REACH + 1)² − 1 neighbours' states, moved as a whole map, is judged at
     the pixel by the t1 samples (best half, ``search_radius`` windows, the plane sweep's
-    cost) and by the flow residual of the centre views (likewise windowed). Never where
-    the point is hidden at t2 (the occluder then matches better than the point's own
+    cost) and by the flow residual of the centre views (likewise windowed). A state that
+    puts the pixel behind its own (a lower δ1) must also explain the t1 samples that each
+    map's view z-buffers leave visible better: the best half lets a nearer surface's
+    samples, which cover a farther state's point in part of the views, speak for it, and
+    where the pixel is the nearer surface's own they show its colour (an object's outline
+    in weak texture whose flow is a little off took the backdrop's state: `indep-big_flow`,
+    δ1 MSE 13.5× stereo only's; see docs/accuracy.md). Never where the point is hidden at t2 (the occluder then matches better than the point's own
     flow), nor where the pixel's flow matches (the flow residual at most RELABEL_FLOOR ×
     ``floor``): a stereo pair (t1 = t2), whose zero flow matches everywhere, is left as it
     is, and so the stereo-only special case. ``centres``: the level's (2, h, w) centre
@@ -1720,14 +1725,18 @@ def _relabel_outlines(solver, centres, params: Params, device: str, floor: float
     reach = RELABEL_REACH
     c1, c2 = centres[0], centres[1]
     hidden = solver.find_hidden_at(x)
-    # each state map's t1 cost and flow residual (t1, flow), over the shiftable windows
-    current = wp.empty((2, *shape), dtype=float, device=device)
+    # the view z-buffers of δ1 at t1; a candidate map, x moved as a whole, reads them moved
+    margin = params.occlusion_margin
+    zbuf = _view_zbuffer(x, 0, False, solver.phis, device)
+    # each state map's t1 cost, flow residual and t1 cost over the visible samples (t1,
+    # flow, seen), over the shiftable windows
+    current = wp.empty((3, *shape), dtype=float, device=device)
     smooth = wp.empty_like(current)
-    _device.launch_rows(search.state_costs, dim=shape, inputs=[solver.samples1, solver.phis, c1, c2, x,
-                                                               wp.full(shape, 1.0, dtype=float, device=device)],
-                        outputs=[current], device=device)
+    _device.launch_rows(search.state_costs, dim=shape,
+                        inputs=[solver.samples1, solver.phis, c1, c2, x, wp.full(shape, 1.0, dtype=float, device=device),
+                                zbuf, 0, 0, margin], outputs=[current], device=device)
     _best_windows(current, r, device, smooth)
-    t1_cur, flow_cur = current[0], current[1]
+    t1_cur, flow_cur, seen_cur = current[0], current[1], current[2]
     # the candidates' costs only where a pixel may take one (a few per cent of them, at
     # outlines between surfaces that move apart) and within its windows' reach
     active = wp.empty(shape, dtype=float, device=device)
@@ -1745,12 +1754,13 @@ def _relabel_outlines(solver, centres, params: Params, device: str, floor: float
             if dy == 0 and dx == 0:
                 continue
             _device.launch_rows(fusion.shifted, dim=shape, inputs=[x, dy, dx], outputs=[cand], device=device)
-            _device.launch_rows(search.state_costs, dim=shape, inputs=[solver.samples1, solver.phis, c1, c2, cand,
-                                                                       support], outputs=[costs], device=device)
+            _device.launch_rows(search.state_costs, dim=shape,
+                                inputs=[solver.samples1, solver.phis, c1, c2, cand, support, zbuf, dy, dx, margin],
+                                outputs=[costs], device=device)
             _best_windows(costs, r, device, smooth)
             _device.launch_rows(fusion.take_other_surface, dim=shape,
-                                inputs=[x, cand, costs[1], flow_cur, costs[0], t1_cur, hidden, RELABEL_FLOOR * floor,
-                                        FUSION_MARGIN, RELABEL_DEPTH_GAP, RELABEL_FLOW_GAP],
+                                inputs=[x, cand, costs[1], flow_cur, costs[0], t1_cur, costs[2], seen_cur, hidden,
+                                        RELABEL_FLOOR * floor, FUSION_MARGIN, RELABEL_DEPTH_GAP, RELABEL_FLOW_GAP],
                                 outputs=[best, out], device=device)
     wp.copy(x, out)
 

@@ -388,8 +388,10 @@ def test_flow_cost_matches_reference(device, span):
 
 def test_state_costs_are_the_cost_kernels_values_where_active(device):
     """The outlines' relabelling's costs of a state map: the t1 best-half cost of each
-    pixel's δ1 (disparity_cost with no flow) and its flow residual (flow_cost), the same
-    values as those kernels give, against their NumPy references too; 0 where not active."""
+    pixel's δ1 (disparity_cost with no flow), its flow residual (flow_cost) and its t1
+    cost over the visible samples (disparity_cost_visible), the same values as those
+    kernels give, against their NumPy references too; 0 where not active. The z-buffers
+    read (dx, dy) px further are those of the map moved as a whole by (−dx, −dy)."""
     from lfsf.kernels import search
 
     r = rng(39)
@@ -401,21 +403,39 @@ def test_state_costs_are_the_cost_kernels_values_where_active(device):
     x[2, 3, 2:] = (30.0, 0.0)  # carried out of the image: flow cost 1
     active = (r.random((h, w)) > 0.3).astype(np.float32)
     active[2, 3] = 1.0
-    cost = wp.zeros((2, h, w), dtype=float, device=device)
-    launch(search.state_costs, (h, w), [arr(samples, float, device), arr(phis, wp.vec2, device),
-                                        arr(centre1, float, device), arr(centre2, float, device),
-                                        arr(x, wp.vec4, device), arr(active, float, device)], [cost], device)
+    zbuf = _random_zbuf(r, len(phis), h, w)
+    inputs = [arr(samples, float, device), arr(phis, wp.vec2, device), arr(centre1, float, device),
+              arr(centre2, float, device), arr(x, wp.vec4, device), arr(active, float, device), arr(zbuf, float, device)]
+    cost = wp.zeros((3, h, w), dtype=float, device=device)
+    launch(search.state_costs, (h, w), inputs + [0, 0, 0.25], [cost], device)
     got = cost.numpy()
     on = active > 0.5
     zero = np.zeros((1,), np.float32)
-    t1 = run_disparity_cost(samples, phis, zero, base, np.zeros_like(x), device)[0]
+    still = np.zeros_like(x)
+    t1 = run_disparity_cost(samples, phis, zero, base, still, device)[0]
     flow = run_flow_cost(centre1, centre2, np.zeros((1, 2), np.float32), x, device)[0]
+    seen = wp.zeros((1, h, w), dtype=float, device=device)
+    launch(search.disparity_cost_visible, (h, w),
+           [inputs[0], inputs[1], arr(zero, float, device), arr(base, float, device), arr(still, wp.vec4, device),
+            inputs[6], 0.25, 1], [seen], device)
     if D.is_cpu(device):
         np.testing.assert_array_equal(got[0][on], t1[on])
         np.testing.assert_array_equal(got[1][on], flow[on])
-    close(got[0][on], ref.disparity_cost(samples, phis, zero, base, np.zeros_like(x))[0][on], atol=2e-5)
+        np.testing.assert_array_equal(got[2][on], seen.numpy()[0][on])
+    close(got[0][on], ref.disparity_cost(samples, phis, zero, base, still)[0][on], atol=2e-5)
     close(got[1][on], ref.flow_cost(centre1, centre2, np.zeros((1, 2), np.float32), x)[0][on], atol=2e-6)
+    want = ref.disparity_cost_visible(samples, phis, zero, base, still, zbuf, 0.25)[0]
+    close(got[2][on], want[on], atol=2e-5)
     assert got[1][2, 3] == 1.0 and not got[:, ~on].any()
+    everything = ref.disparity_cost_visible(samples, phis, zero, base, still, np.full_like(zbuf, -1e30), 0.25)[0]
+    assert not np.allclose(everything[on], want[on])  # some samples were covered
+    # the z-buffers read moved: those of the map moved by (−dx, −dy), edge rows repeated
+    for dy, dx in ((1, 0), (-2, 1), (0, -1)):
+        launch(search.state_costs, (h, w), inputs + [dy, dx, 0.25], [cost], device)
+        moved = np.stack([ref.shifted(z, dy, dx) for z in zbuf])
+        want = ref.disparity_cost_visible(samples, phis, zero, base, still, moved, 0.25)[0]
+        close(cost.numpy()[2][on], want[on], atol=2e-5)
+        np.testing.assert_array_equal(cost.numpy()[:2], got[:2])
 
 
 def test_relabel_active_and_dilated_match_numpy(device):
@@ -837,51 +857,61 @@ def test_shifted_unknowns_match_numpy(device):
 
 def test_take_other_surface_matches_numpy(device):
     """The candidate's whole state where it explains the pixel better by both costs, over
-    a pixel not hidden whose flow does not match, with δ1 and flow apart by the gaps; a
-    second candidate replaces the first only where its t1 cost is lower still."""
+    a pixel not hidden whose flow does not match, with δ1 and flow apart by the gaps, and
+    a candidate behind the pixel's state by its visible samples too; a second candidate
+    replaces the first only where its t1 cost is lower still."""
     from lfsf.kernels import fusion
 
     r = rng(36)
     h, w = 9, 11
     x = r.normal(size=(h, w, 4)).astype(np.float32)
     hidden = (r.random((h, w)) > 0.8).astype(np.float32)
-    flow_cur, t1_cur = r.random((h, w)).astype(np.float32), r.random((h, w)).astype(np.float32)
+    flow_cur, t1_cur, seen_cur = (r.random((h, w)).astype(np.float32) for _ in range(3))
     floor, margin, depth_gap, flow_gap = 0.1, 0.8, 0.3, 1.0
     best = np.full((h, w), np.inf, np.float32)
     out = x.copy()
     best_d, out_d = arr(best, float, device), arr(out, wp.vec4, device)
+
+    def run(cand, flow_new, t1_new, seen_new):
+        launch(fusion.take_other_surface, (h, w),
+               [arr(x, wp.vec4, device), arr(cand, wp.vec4, device), arr(flow_new, float, device),
+                arr(flow_cur, float, device), arr(t1_new, float, device), arr(t1_cur, float, device),
+                arr(seen_new, float, device), arr(seen_cur, float, device), arr(hidden, float, device), floor,
+                margin, depth_gap, flow_gap], [best_d, out_d], device)
+
     taken = []
     for seed in (37, 38):
         c = np.random.default_rng(seed)
         cand = (x + c.normal(scale=1.0, size=x.shape)).astype(np.float32)
-        flow_new = (flow_cur * c.uniform(0.3, 1.2, (h, w))).astype(np.float32)
-        t1_new = (t1_cur * c.uniform(0.3, 1.2, (h, w))).astype(np.float32)
-        launch(fusion.take_other_surface, (h, w),
-               [arr(x, wp.vec4, device), arr(cand, wp.vec4, device), arr(flow_new, float, device),
-                arr(flow_cur, float, device), arr(t1_new, float, device), arr(t1_cur, float, device),
-                arr(hidden, float, device), floor, margin, depth_gap, flow_gap], [best_d, out_d], device)
-        before = out.copy()
-        best, out = ref.take_other_surface(x, cand, flow_new, flow_cur, t1_new, t1_cur, hidden, floor, margin,
-                                           depth_gap, flow_gap, best, out)
+        flow_new, t1_new, seen_new = ((cost * c.uniform(0.3, 1.2, (h, w))).astype(np.float32)
+                                      for cost in (flow_cur, t1_cur, seen_cur))
+        run(cand, flow_new, t1_new, seen_new)
+        before, best_before = out.copy(), best.copy()
+        best, out = ref.take_other_surface(x, cand, flow_new, flow_cur, t1_new, t1_cur, seen_new, seen_cur, hidden,
+                                           floor, margin, depth_gap, flow_gap, best, out)
         np.testing.assert_array_equal(best_d.numpy(), best)
         np.testing.assert_array_equal(out_d.numpy(), out)
         taken.append(np.any(out != before, axis=-1))
+        # candidates behind the pixel's state were taken, and some refused by their
+        # visible samples alone
+        _b, unseen = ref.take_other_surface(x, cand, flow_new, flow_cur, t1_new, t1_cur, np.zeros_like(seen_new),
+                                            np.ones_like(seen_cur), hidden, floor, margin, depth_gap, flow_gap,
+                                            best_before, before)
+        behind = cand[..., 0] < x[..., 0]
+        assert (taken[-1] & behind).any() and (np.any(unseen != out, axis=-1) & behind).any()
     assert 0 < taken[0].sum() < h * w and taken[1].any()
     np.testing.assert_array_equal(out[hidden > 0.5], x[hidden > 0.5])
     # a third candidate that passes every test but the best so far (1 % above it): the
     # state taken stays where one was, the candidate is taken where none was
-    cand = (x + 5.0).astype(np.float32)    # (δ1 and the flow apart from x's)
+    cand = (x + 5.0).astype(np.float32)    # (δ1 and the flow apart from x's, ahead)
     t1_new = np.where(np.isfinite(best), best * np.float32(1.01), t1_cur * np.float32(0.5)).astype(np.float32)
     flow_new = (flow_cur * np.float32(0.1)).astype(np.float32)
-    launch(fusion.take_other_surface, (h, w),
-           [arr(x, wp.vec4, device), arr(cand, wp.vec4, device), arr(flow_new, float, device),
-            arr(flow_cur, float, device), arr(t1_new, float, device), arr(t1_cur, float, device),
-            arr(hidden, float, device), floor, margin, depth_gap, flow_gap], [best_d, out_d], device)
+    run(cand, flow_new, t1_new, seen_cur)
     kept = np.isfinite(best) & (t1_new < np.float32(margin) * t1_cur)
     assert kept.sum() >= 5
     np.testing.assert_array_equal(out_d.numpy()[kept], out[kept])
-    best, out = ref.take_other_surface(x, cand, flow_new, flow_cur, t1_new, t1_cur, hidden, floor, margin,
-                                       depth_gap, flow_gap, best, out)
+    best, out = ref.take_other_surface(x, cand, flow_new, flow_cur, t1_new, t1_cur, seen_cur, seen_cur, hidden, floor,
+                                       margin, depth_gap, flow_gap, best, out)
     np.testing.assert_array_equal(out_d.numpy(), out)
 
 
