@@ -1706,13 +1706,14 @@ def _relabel_outlines(solver, centres, params: Params, device: str, floor: float
     (2·RELABEL_REACH + 1)² − 1 neighbours' states, moved as a whole map, is judged at
     the pixel by the t1 samples (best half, ``search_radius`` windows, the plane sweep's
     cost) and by the flow residual of the centre views (likewise windowed). A state that
-    puts the pixel behind its own (a lower δ1) must also explain the t1 samples that each
-    map's view z-buffers leave visible better: the best half lets a nearer surface's
-    samples, which cover a farther state's point in part of the views, speak for it, and
-    where the pixel is the nearer surface's own they show its colour (an object's outline
-    in weak texture whose flow is a little off took the backdrop's state: `indep-big_flow`,
-    δ1 MSE 13.5× stereo only's; see docs/accuracy.md). Never where the point is hidden at t2 (the occluder then matches better than the point's own
-    flow), nor where the pixel's flow matches (the flow residual at most RELABEL_FLOOR ×
+    puts the pixel behind its own (a lower δ1) must also explain better the t1 samples
+    that each map's view z-buffers leave visible: the best half lets a nearer surface's
+    samples, which cover a farther state's point in part of the views, speak for that
+    state, and where the pixel is the nearer surface's own they show its colour (the top
+    row of `indep-big_flow`'s card, in weak texture and with a flow 0.7 px off, took the
+    backdrop's state: δ1 MSE 13.5× stereo only's; docs/accuracy.md). Never where the
+    point is hidden at t2 (the occluder then matches better than the point's own flow),
+    nor where the pixel's flow matches (the flow residual at most RELABEL_FLOOR ×
     ``floor``): a stereo pair (t1 = t2), whose zero flow matches everywhere, is left as it
     is, and so the stereo-only special case. ``centres``: the level's (2, h, w) centre
     views; ``floor``: :func:`_match_floor` of the t1 one."""
@@ -1732,9 +1733,10 @@ def _relabel_outlines(solver, centres, params: Params, device: str, floor: float
     # flow, seen), over the shiftable windows
     current = wp.empty((3, *shape), dtype=float, device=device)
     smooth = wp.empty_like(current)
+    everywhere = wp.full(shape, 1.0, dtype=float, device=device)
     _device.launch_rows(search.state_costs, dim=shape,
-                        inputs=[solver.samples1, solver.phis, c1, c2, x, wp.full(shape, 1.0, dtype=float, device=device),
-                                zbuf, 0, 0, margin], outputs=[current], device=device)
+                        inputs=[solver.samples1, solver.phis, c1, c2, x, everywhere, zbuf, 0, 0, margin],
+                        outputs=[current], device=device)
     _best_windows(current, r, device, smooth)
     t1_cur, flow_cur, seen_cur = current[0], current[1], current[2]
     # the candidates' costs only where a pixel may take one (a few per cent of them, at
