@@ -69,8 +69,8 @@ def visible_mean(samples: wp.array3d(dtype=float), phis: wp.array(dtype=wp.vec2)
                  qx: float, qy: float, disparity: float, centre: float, margin: float, zx: float, zy: float):
     """Mean |L(q − δφ_s, φ_s) − c| over the samples s ≥ 1 whose warped position lies in
     the image and is not covered by a nearer point (:func:`lfsf.kernels.common.visible`,
-    the z-buffers read (``zx``, ``zy``) px further: those of a map moved as a whole by
-    (−zx, −zy) are its own read there); 1 where none is."""
+    the z-buffers read (``zx``, ``zy``) px further: a map's z-buffers read so are those of
+    the map moved as a whole by (−zx, −zy), away from the image's edges); 1 where none is."""
     total = float(0.0)
     count = float(0.0)
     for s in range(1, phis.shape[0]):
@@ -1027,7 +1027,8 @@ def state_costs(
     mean over the t1 samples that the view z-buffers ``zbuf`` (S, h, w) leave visible
     (:func:`visible_mean` with ``margin``, as :func:`disparity_cost_visible`), read
     (``dx``, ``dy``) px further: for an x that is a map moved as a whole by (−dx, −dy),
-    ``zbuf`` may be that map's; 0 elsewhere (the outlines' relabelling reads them only
+    ``zbuf`` may be that map's (exact away from the image's edges, where the moved map
+    repeats its edge pixels); 0 elsewhere (the outlines' relabelling reads them only
     where the windows hold active pixels alone). Launch over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0

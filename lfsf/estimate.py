@@ -1711,7 +1711,7 @@ def _relabel_outlines(solver, centres, params: Params, device: str, floor: float
     samples, which cover a farther state's point in part of the views, speak for that
     state, and where the pixel is the nearer surface's own they show its colour (the top
     row of `indep-big_flow`'s card, in weak texture and with a flow 0.7 px off, took the
-    backdrop's state: δ1 MSE 13.5× stereo only's; docs/accuracy.md). Never where the
+    backdrop's state: δ1 MSE 13.8× stereo only's; docs/accuracy.md). Never where the
     point is hidden at t2 (the occluder then matches better than the point's own flow),
     nor where the pixel's flow matches (the flow residual at most RELABEL_FLOOR ×
     ``floor``): a stereo pair (t1 = t2), whose zero flow matches everywhere, is left as it

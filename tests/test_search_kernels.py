@@ -405,7 +405,8 @@ def test_state_costs_are_the_cost_kernels_values_where_active(device):
     active[2, 3] = 1.0
     zbuf = _random_zbuf(r, len(phis), h, w)
     inputs = [arr(samples, float, device), arr(phis, wp.vec2, device), arr(centre1, float, device),
-              arr(centre2, float, device), arr(x, wp.vec4, device), arr(active, float, device), arr(zbuf, float, device)]
+              arr(centre2, float, device), arr(x, wp.vec4, device), arr(active, float, device),
+              arr(zbuf, float, device)]
     cost = wp.zeros((3, h, w), dtype=float, device=device)
     launch(search.state_costs, (h, w), inputs + [0, 0, 0.25], [cost], device)
     got = cost.numpy()
@@ -436,6 +437,44 @@ def test_state_costs_are_the_cost_kernels_values_where_active(device):
         want = ref.disparity_cost_visible(samples, phis, zero, base, still, moved, 0.25)[0]
         close(cost.numpy()[2][on], want[on], atol=2e-5)
         np.testing.assert_array_equal(cost.numpy()[:2], got[:2])
+
+
+def test_state_costs_read_a_moved_map_s_z_buffers_from_the_map_s_own(device):
+    """The relabelling splats x's view z-buffers once: a candidate map, x moved as a whole
+    (fusion.shifted by (dy, dx)), reads them (dx, dy) px further. Its visible-sample cost
+    is then the one its own z-buffers give, away from the image's edges (where the moved
+    map repeats its edge pixels); read unmoved, x's give another."""
+    from lfsf import estimate
+    from lfsf.kernels import fusion, search
+
+    r = rng(41)
+    h, w = 24, 30
+    phis = (2.0 * _cost_inputs(r, h, w)[0]).astype(np.float32)
+    samples = r.random((len(phis), h, w)).astype(np.float32)
+    x = np.zeros((h, w, 4), np.float32)
+    x[..., 0] = r.uniform(-0.8, -0.4, (h, w))                  # a backdrop ...
+    x[7:17, 9:21, 0] = r.uniform(1.0, 1.4, (10, 12))            # ... and a card in front
+    centre = arr(samples[0], float, device)
+    phis_d, samples_d = arr(phis, wp.vec2, device), arr(samples, float, device)
+    x_d = arr(x, wp.vec4, device)
+    everywhere = arr(np.ones((h, w), np.float32), float, device)
+    own = estimate._view_zbuffer(x_d, 0, False, phis_d, device)
+    cand = wp.empty_like(x_d)
+    cost = wp.zeros((3, h, w), dtype=float, device=device)
+
+    def seen(zbuf, dy, dx):
+        launch(search.state_costs, (h, w), [samples_d, phis_d, centre, centre, cand, everywhere, zbuf, dy, dx, 0.25],
+               [cost], device)
+        return cost.numpy()[2].copy()
+
+    for dy, dx in ((1, 0), (-2, 1), (0, -2), (2, 2)):
+        launch(fusion.shifted, (h, w), [x_d, dy, dx], [cand], device)
+        moved = estimate._view_zbuffer(cand, 0, False, phis_d, device)
+        m = abs(dy) + abs(dx) + 5                                    # |δφ| ≤ 1.4 · 2.9: 5 px from the edges
+        inner = (slice(m, h - m), slice(m, w - m))
+        read = seen(own, dy, dx)
+        np.testing.assert_array_equal(read[inner], seen(moved, 0, 0)[inner])
+        assert not np.array_equal(read[inner], seen(own, 0, 0)[inner])
 
 
 def test_relabel_active_and_dilated_match_numpy(device):
