@@ -246,6 +246,7 @@ def take_other_surface(
     margin: float,
     depth_gap: float,
     flow_gap: float,
+    seen_too: int,
     # outputs
     best: wp.array2d(dtype=float),
     out: wp.array2d(dtype=wp.vec4),
@@ -256,9 +257,9 @@ def take_other_surface(
     ``flow_gap`` px); the flow residual ``flow_new`` < ``margin`` · ``flow_cur``, with
     ``flow_cur`` above ``floor`` (a flow that matches leaves the pixel alone); the t1
     cost ``t1_new`` < ``margin`` · ``t1_cur`` and below ``best`` (the lowest t1 cost
-    taken so far, which this lowers); where the candidate lies behind x (a lower δ1),
-    also the cost over the samples that each map's z-buffers leave visible, ``seen_new``
-    < ``margin`` · ``seen_cur``; and p is not ``hidden`` (> 0.5: hidden at t2, where the
+    taken so far, which this lowers); with ``seen_too``, where the candidate lies behind
+    x (a lower δ1), also the cost over the samples that each map's z-buffers leave
+    visible, ``seen_new`` < ``margin`` · ``seen_cur``; and p is not ``hidden`` (> 0.5: hidden at t2, where the
     occluder matches better than the point's own flow). x is read, ``out`` written.
     Launch over (rows, columns)."""
     i, j = wp.tid()
@@ -272,7 +273,7 @@ def take_other_surface(
     v = x[i, j]
     if not states_apart(v, c, depth_gap, flow_gap):
         return
-    if c[0] < v[0] and seen_new[i, j] >= margin * seen_cur[i, j]:
+    if seen_too != 0 and c[0] < v[0] and seen_new[i, j] >= margin * seen_cur[i, j]:
         return
     best[i, j] = s
     out[i, j] = c

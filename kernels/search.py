@@ -1017,6 +1017,7 @@ def state_costs(
     dy: int,
     dx: int,
     margin: float,
+    seen_too: int,
     # outputs
     cost: wp.array3d(dtype=float),
 ):
@@ -1028,8 +1029,9 @@ def state_costs(
     (:func:`visible_mean` with ``margin``, as :func:`disparity_cost_visible`), read
     (``dx``, ``dy``) px further: for an x that is a map moved as a whole by (−dx, −dy),
     ``zbuf`` may be that map's (exact away from the image's edges, where the moved map
-    repeats its edge pixels); 0 elsewhere (the outlines' relabelling reads them only
-    where the windows hold active pixels alone). Launch over (rows, columns)."""
+    repeats its edge pixels; 0 without ``seen_too``, and ``zbuf`` is not read); 0
+    elsewhere (the outlines' relabelling reads them only where the windows hold active
+    pixels alone). Launch over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0
     t1 = float(0.0)
@@ -1042,7 +1044,8 @@ def state_costs(
         centre = bilinear(samples[0], qx, qy)
         sums, counts, total, count = half_plane_residuals(samples, phis, qx, qy, v[0], centre)
         t1 = least_half_mean(sums, counts)
-        seen = visible_mean(samples, phis, zbuf, qx, qy, v[0], centre, margin, float(dx), float(dy))
+        if seen_too != 0:
+            seen = visible_mean(samples, phis, zbuf, qx, qy, v[0], centre, margin, float(dx), float(dy))
         fx = float(j) + v[2]
         fy = float(i) + v[3]
         flow = float(1.0)

@@ -1711,7 +1711,9 @@ def _relabel_outlines(solver, centres, params: Params, device: str, floor: float
     samples, which cover a farther state's point in part of the views, speak for that
     state, and where the pixel is the nearer surface's own they show its colour (the top
     row of `indep-big_flow`'s card, in weak texture and with a flow 0.7 px off, took the
-    backdrop's state: δ1 MSE 13.8× stereo only's; docs/accuracy.md). Never where the
+    backdrop's state: δ1 MSE 13.8× stereo only's; docs/accuracy.md); with
+    ``Params.visibility`` only, as the estimator leaves it (off for samples on one side of
+    the centre, the two-view case: 1.003–1.012× on δ1 with the test). Never where the
     point is hidden at t2 (the occluder then matches better than the point's own flow),
     nor where the pixel's flow matches (the flow residual at most RELABEL_FLOOR ×
     ``floor``): a stereo pair (t1 = t2), whose zero flow matches everywhere, is left as it
@@ -1727,15 +1729,17 @@ def _relabel_outlines(solver, centres, params: Params, device: str, floor: float
     c1, c2 = centres[0], centres[1]
     hidden = solver.find_hidden_at(x)
     # the view z-buffers of δ1 at t1; a candidate map, x moved as a whole, reads them moved
-    margin = params.occlusion_margin
-    zbuf = _view_zbuffer(x, 0, False, solver.phis, device)
+    # (without Params.visibility, or where the estimator turned it off, as for samples on
+    # one side of the centre, no z-buffers: the best half alone, as before)
+    margin, seen = params.occlusion_margin, int(params.visibility)
+    zbuf = _view_zbuffer(x, 0, False, solver.phis, device) if seen else wp.empty((1, 1, 1), dtype=float, device=device)
     # each state map's t1 cost, flow residual and t1 cost over the visible samples (t1,
     # flow, seen), over the shiftable windows
     current = wp.empty((3, *shape), dtype=float, device=device)
     smooth = wp.empty_like(current)
     everywhere = wp.full(shape, 1.0, dtype=float, device=device)
     _device.launch_rows(search.state_costs, dim=shape,
-                        inputs=[solver.samples1, solver.phis, c1, c2, x, everywhere, zbuf, 0, 0, margin],
+                        inputs=[solver.samples1, solver.phis, c1, c2, x, everywhere, zbuf, 0, 0, margin, seen],
                         outputs=[current], device=device)
     _best_windows(current, r, device, smooth)
     t1_cur, flow_cur, seen_cur = current[0], current[1], current[2]
@@ -1757,12 +1761,14 @@ def _relabel_outlines(solver, centres, params: Params, device: str, floor: float
                 continue
             _device.launch_rows(fusion.shifted, dim=shape, inputs=[x, dy, dx], outputs=[cand], device=device)
             _device.launch_rows(search.state_costs, dim=shape,
-                                inputs=[solver.samples1, solver.phis, c1, c2, cand, support, zbuf, dy, dx, margin],
+                                inputs=[solver.samples1, solver.phis, c1, c2, cand, support, zbuf, dy, dx, margin,
+                                        seen],
                                 outputs=[costs], device=device)
             _best_windows(costs, r, device, smooth)
             _device.launch_rows(fusion.take_other_surface, dim=shape,
                                 inputs=[x, cand, costs[1], flow_cur, costs[0], t1_cur, costs[2], seen_cur, hidden,
-                                        RELABEL_FLOOR * floor, FUSION_MARGIN, RELABEL_DEPTH_GAP, RELABEL_FLOW_GAP],
+                                        RELABEL_FLOOR * floor, FUSION_MARGIN, RELABEL_DEPTH_GAP, RELABEL_FLOW_GAP,
+                                        seen],
                                 outputs=[best, out], device=device)
     wp.copy(x, out)
 

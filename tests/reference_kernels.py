@@ -1193,17 +1193,18 @@ def states_apart(x, cand, depth_gap, flow_gap) -> np.ndarray:
 
 
 def take_other_surface(x, cand, flow_new, flow_cur, t1_new, t1_cur, seen_new, seen_cur, hidden, floor, margin,
-                       depth_gap, flow_gap, best, out):
+                       depth_gap, flow_gap, best, out, seen_too=True):
     """(best, out) after kernels/fusion.py take_other_surface: the candidate's whole state
     where the pixel is not hidden, its flow residual is above floor and both costs fall
     below margin times the current ones (the t1 cost also below best), with δ1 and the
-    flow apart by more than the gaps; a candidate with a lower δ1 (behind) also needs its
-    visible samples' cost below margin times the current one."""
+    flow apart by more than the gaps; with ``seen_too`` a candidate with a lower δ1
+    (behind) also needs its visible samples' cost below margin times the current one."""
     f32 = np.float32
     take = (hidden <= 0.5) & (flow_cur > f32(floor))
     take &= (flow_new < f32(margin) * flow_cur) & (t1_new < f32(margin) * t1_cur) & (t1_new < best)
     take &= states_apart(x, cand, depth_gap, flow_gap)
-    take &= (cand[..., 0] >= x[..., 0]) | (seen_new < f32(margin) * seen_cur)
+    if seen_too:
+        take &= (cand[..., 0] >= x[..., 0]) | (seen_new < f32(margin) * seen_cur)
     best, out = best.copy(), out.copy()
     best[take] = t1_new[take]
     out[take] = cand[take]

@@ -408,7 +408,7 @@ def test_state_costs_are_the_cost_kernels_values_where_active(device):
               arr(centre2, float, device), arr(x, wp.vec4, device), arr(active, float, device),
               arr(zbuf, float, device)]
     cost = wp.zeros((3, h, w), dtype=float, device=device)
-    launch(search.state_costs, (h, w), inputs + [0, 0, 0.25], [cost], device)
+    launch(search.state_costs, (h, w), inputs + [0, 0, 0.25, 1], [cost], device)
     got = cost.numpy()
     on = active > 0.5
     zero = np.zeros((1,), np.float32)
@@ -432,11 +432,16 @@ def test_state_costs_are_the_cost_kernels_values_where_active(device):
     assert not np.allclose(everything[on], want[on])  # some samples were covered
     # the z-buffers read moved: those of the map moved by (−dx, −dy), edge rows repeated
     for dy, dx in ((1, 0), (-2, 1), (0, -1)):
-        launch(search.state_costs, (h, w), inputs + [dy, dx, 0.25], [cost], device)
+        launch(search.state_costs, (h, w), inputs + [dy, dx, 0.25, 1], [cost], device)
         moved = np.stack([ref.shifted(z, dy, dx) for z in zbuf])
         want = ref.disparity_cost_visible(samples, phis, zero, base, still, moved, 0.25)[0]
         close(cost.numpy()[2][on], want[on], atol=2e-5)
         np.testing.assert_array_equal(cost.numpy()[:2], got[:2])
+    # without the visible samples (Params.visibility off): that cost 0, the z-buffers not read
+    launch(search.state_costs, (h, w), inputs[:6] + [wp.empty((1, 1, 1), dtype=float, device=device), 0, 0, 0.25, 0],
+           [cost], device)
+    np.testing.assert_array_equal(cost.numpy()[:2], got[:2])
+    assert not cost.numpy()[2].any()
 
 
 def test_state_costs_read_a_moved_map_s_z_buffers_from_the_map_s_own(device):
@@ -463,8 +468,8 @@ def test_state_costs_read_a_moved_map_s_z_buffers_from_the_map_s_own(device):
     cost = wp.zeros((3, h, w), dtype=float, device=device)
 
     def seen(zbuf, dy, dx):
-        launch(search.state_costs, (h, w), [samples_d, phis_d, centre, centre, cand, everywhere, zbuf, dy, dx, 0.25],
-               [cost], device)
+        launch(search.state_costs, (h, w),
+               [samples_d, phis_d, centre, centre, cand, everywhere, zbuf, dy, dx, 0.25, 1], [cost], device)
         return cost.numpy()[2].copy()
 
     for dy, dx in ((1, 0), (-2, 1), (0, -2), (2, 2)):
@@ -911,12 +916,12 @@ def test_take_other_surface_matches_numpy(device):
     out = x.copy()
     best_d, out_d = arr(best, float, device), arr(out, wp.vec4, device)
 
-    def run(cand, flow_new, t1_new, seen_new):
+    def run(cand, flow_new, t1_new, seen_new, seen_too=1, best_d=best_d, out_d=out_d):
         launch(fusion.take_other_surface, (h, w),
                [arr(x, wp.vec4, device), arr(cand, wp.vec4, device), arr(flow_new, float, device),
                 arr(flow_cur, float, device), arr(t1_new, float, device), arr(t1_cur, float, device),
                 arr(seen_new, float, device), arr(seen_cur, float, device), arr(hidden, float, device), floor,
-                margin, depth_gap, flow_gap], [best_d, out_d], device)
+                margin, depth_gap, flow_gap, seen_too], [best_d, out_d], device)
 
     taken = []
     for seed in (37, 38):
@@ -938,6 +943,10 @@ def test_take_other_surface_matches_numpy(device):
                                             best_before, before)
         behind = cand[..., 0] < x[..., 0]
         assert (taken[-1] & behind).any() and (np.any(unseen != out, axis=-1) & behind).any()
+        # without seen_too (Params.visibility off) the visible samples' costs do not count
+        blind = arr(before, wp.vec4, device)
+        run(cand, flow_new, t1_new, seen_new, 0, arr(best_before, float, device), blind)
+        np.testing.assert_array_equal(blind.numpy(), unseen)
     assert 0 < taken[0].sum() < h * w and taken[1].any()
     np.testing.assert_array_equal(out[hidden > 0.5], x[hidden > 0.5])
     # a third candidate that passes every test but the best so far (1 % above it): the
