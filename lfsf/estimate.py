@@ -1728,21 +1728,17 @@ def _relabel_outlines(solver, centres, params: Params, device: str, floor: float
     reach = RELABEL_REACH
     c1, c2 = centres[0], centres[1]
     hidden = solver.find_hidden_at(x)
-    # the view z-buffers of δ1 at t1; a candidate map, x moved as a whole, reads them moved
-    # (without Params.visibility, or where the estimator turned it off, as for samples on
-    # one side of the centre, no z-buffers: the best half alone, as before)
-    margin, seen = params.occlusion_margin, int(params.visibility)
-    zbuf = _view_zbuffer(x, 0, False, solver.phis, device) if seen else wp.empty((1, 1, 1), dtype=float, device=device)
-    # each state map's t1 cost, flow residual and t1 cost over the visible samples (t1,
-    # flow, seen), over the shiftable windows
+    # each state map's t1 cost and flow residual (t1, flow), over the shiftable windows
     current = wp.empty((3, *shape), dtype=float, device=device)
     smooth = wp.empty_like(current)
     everywhere = wp.full(shape, 1.0, dtype=float, device=device)
+    margin, seen = params.occlusion_margin, int(params.visibility)
+    nothing = wp.empty((1, 1, 1), dtype=float, device=device)  # (no z-buffers read without seen_too)
     _device.launch_rows(search.state_costs, dim=shape,
-                        inputs=[solver.samples1, solver.phis, c1, c2, x, everywhere, zbuf, 0, 0, margin, seen],
+                        inputs=[solver.samples1, solver.phis, c1, c2, x, everywhere, nothing, 0, 0, margin, 0],
                         outputs=[current], device=device)
     _best_windows(current, r, device, smooth)
-    t1_cur, flow_cur, seen_cur = current[0], current[1], current[2]
+    t1_cur, flow_cur = current[0], current[1]
     # the candidates' costs only where a pixel may take one (a few per cent of them, at
     # outlines between surfaces that move apart) and within its windows' reach
     active = wp.empty(shape, dtype=float, device=device)
@@ -1752,6 +1748,18 @@ def _relabel_outlines(solver, centres, params: Params, device: str, floor: float
     support = wp.empty(shape, dtype=float, device=device)
     _device.launch_rows(search.dilated, dim=shape, inputs=[active, 2 * r], outputs=[support], device=device)
     costs = wp.empty_like(current)
+    # and, there too, the t1 cost over the samples that the view z-buffers of δ1 leave
+    # visible (seen); a candidate map, x moved as a whole, reads them moved. Without
+    # Params.visibility (or where the estimator turned it off, as for samples on one side
+    # of the centre) no z-buffers: the best half alone, as before
+    zbuf, seen_cur = nothing, current[2]
+    if seen:
+        zbuf = _view_zbuffer(x, 0, False, solver.phis, device)
+        _device.launch_rows(search.state_costs, dim=shape,
+                            inputs=[solver.samples1, solver.phis, c1, c2, x, support, zbuf, 0, 0, margin, 1],
+                            outputs=[costs], device=device)
+        _best_windows(costs, r, device, smooth)
+        seen_cur = wp.clone(costs[2])
     best = wp.full(shape, float("inf"), dtype=float, device=device)
     out = wp.clone(x)
     cand = wp.empty_like(x)
