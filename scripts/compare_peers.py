@@ -193,13 +193,13 @@ def run_scene(name, args, use_peers, lfsf_runs, warm):
     """Rows of one synthetic scene."""
     from lfsf import evaluate, synth
 
-    scene, images = name, None
     if name.startswith(INDEPENDENT_PREFIX):  # a second renderer's (scripts/independent_scenes.py)
         lf1, lf2, gt = independent_scenes().render_scene(name, size=tuple(args.size), grid=args.grid)
-    elif args.images is not None:  # the scene's geometry and motion, photographs for textures
-        images = IMAGES["list"]
-        scene = synth.with_images_of_name(name, len(images))
-    if not name.startswith(INDEPENDENT_PREFIX):
+    else:
+        scene, images = name, None
+        if args.images is not None:  # the scene's geometry and motion, photographs for textures
+            images = IMAGES["list"]
+            scene = synth.with_images_of_name(name, len(images))
         lf1, lf2, gt = synth.render_scene(scene, size=tuple(args.size), grid=args.grid, colour=args.colour,
                                           device=args.device, images=images)
     if args.vignetting > 0:  # the camera's, at t1 and t2 alike; in the lens, so before exposure and noise
