@@ -1704,12 +1704,8 @@ def _relabel_outlines(solver, centres, params: Params, device: str, floor: float
     flow) of the wrong surface then holds through the warps; the windowed fusions judge
     such a pixel mostly by its neighbours, which are right. Here each of the
     (2·RELABEL_REACH + 1)² − 1 neighbours' states, moved as a whole map, is judged at
-    the pixel by its t1 samples (the best half, the plane sweep's cost, at the pixel
-    alone: over windows, a state that is wrong at the pixel finds windows on its own
-    surface, which it explains; δ1 / δ2 0.950 / 0.986× over the built-in scenes and
-    `random-0…31`, 0.964 / 0.981× over `random-32…95`, 1.003 / 1.004× over the second
-    renderer's; docs/accuracy.md) and by the flow residual of the centre views (over the
-    ``search_radius`` windows, shiftable). A state that
+    the pixel by the t1 samples (best half, ``search_radius`` windows, the plane sweep's
+    cost) and by the flow residual of the centre views (likewise windowed). A state that
     puts the pixel behind its own (a lower δ1) must also explain better the t1 samples
     that each map's view z-buffers leave visible: the best half lets a nearer surface's
     samples, which cover a farther state's point in part of the views, speak for that
@@ -1732,9 +1728,7 @@ def _relabel_outlines(solver, centres, params: Params, device: str, floor: float
     reach = RELABEL_REACH
     c1, c2 = centres[0], centres[1]
     hidden = solver.find_hidden_at(x)
-    # each state map's t1 cost at the pixel alone (over windows a state that is wrong at
-    # the pixel finds windows on its own surface) and flow residual over the shiftable
-    # windows (t1, flow; the visible t1 cost, where it is read, is windowed too)
+    # each state map's t1 cost and flow residual (t1, flow), over the shiftable windows
     current = wp.empty((3, *shape), dtype=float, device=device)
     smooth = wp.empty_like(current)
     everywhere = wp.full(shape, 1.0, dtype=float, device=device)
@@ -1743,7 +1737,7 @@ def _relabel_outlines(solver, centres, params: Params, device: str, floor: float
     _device.launch_rows(search.state_costs, dim=shape,
                         inputs=[solver.samples1, solver.phis, c1, c2, x, everywhere, nothing, 0, 0, margin, 0],
                         outputs=[current], device=device)
-    _best_windows(current[1:], r, device, smooth[1:])
+    _best_windows(current, r, device, smooth)
     t1_cur, flow_cur = current[0], current[1]
     # the candidates' costs only where a pixel may take one (a few per cent of them, at
     # outlines between surfaces that move apart) and within its windows' reach
@@ -1764,7 +1758,7 @@ def _relabel_outlines(solver, centres, params: Params, device: str, floor: float
         _device.launch_rows(search.state_costs, dim=shape,
                             inputs=[solver.samples1, solver.phis, c1, c2, x, support, zbuf, 0, 0, margin, 1],
                             outputs=[costs], device=device)
-        _best_windows(costs[1:], r, device, smooth[1:])
+        _best_windows(costs, r, device, smooth)
         seen_cur = wp.clone(costs[2])
     best = wp.full(shape, float("inf"), dtype=float, device=device)
     out = wp.clone(x)
@@ -1778,7 +1772,7 @@ def _relabel_outlines(solver, centres, params: Params, device: str, floor: float
                                 inputs=[solver.samples1, solver.phis, c1, c2, cand, support, zbuf, dy, dx, margin,
                                         seen],
                                 outputs=[costs], device=device)
-            _best_windows(costs[1:], r, device, smooth[1:])
+            _best_windows(costs, r, device, smooth)
             _device.launch_rows(fusion.take_other_surface, dim=shape,
                                 inputs=[x, cand, costs[1], flow_cur, costs[0], t1_cur, costs[2], seen_cur, hidden,
                                         RELABEL_FLOOR * floor, FUSION_MARGIN, RELABEL_DEPTH_GAP, RELABEL_FLOW_GAP,

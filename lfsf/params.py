@@ -313,14 +313,13 @@ class Params:
             that explains both its t1 samples and the centre views better (an addition;
             :func:`lfsf.estimate._relabel_outlines`). An outline pixel whose flow went
             with the neighbouring surface is dragged by ρ3 to that surface's depth, and
-            the windowed fusions judge it mostly by its neighbours. The t1 samples are
-            judged at the pixel alone, the flow residual over windows. A state that puts
-            the pixel behind its own must also lower, below 0.8×, the cost over the t1
+            the windowed fusions judge it mostly by its neighbours. A state that puts the
+            pixel behind its own must also lower, below 0.8×, the cost over the t1
             samples that the view z-buffers leave visible. Never where the flow matches:
             a stereo pair (t1 = t2) is left as it is. The runs without it against those
-            with it (δ1 / δ2 / EPE, geometric means, 160×120, sixty-third session):
-            1.18 / 1.07 / 1.007× over the built-in scenes and `random-0…31`, 1.09 / 1.07
-            / 1.005× over `random-32…95`, 1.01 / 1.00 / 1.007× over the 23 scenes of
+            with it (δ1 / δ2 / EPE, geometric means, 160×120, sixty-second session):
+            1.12 / 1.06 / 1.006× over the built-in scenes and `random-0…31`, 1.05 / 1.05
+            / 1.004× over `random-32…95`, 1.01 / 1.00 / 1.006× over the 23 scenes of
             `scripts/independent_scenes.py` (docs/accuracy.md).
         disparity_range : the sweep covers ±this many px per view step (full resolution).
         search_radius : the sweep's matching costs are averaged over (2r+1)² windows.
