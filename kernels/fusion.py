@@ -259,9 +259,9 @@ def take_other_surface(
     cost ``t1_new`` < ``margin`` · ``t1_cur`` and below ``best`` (the lowest t1 cost
     taken so far, which this lowers); with ``seen_too``, where the candidate lies behind
     x (a lower δ1), also the cost over the samples that each map's z-buffers leave
-    visible, ``seen_new`` < ``margin`` · ``seen_cur``; and p is not ``hidden`` (> 0.5: hidden at t2, where the
-    occluder matches better than the point's own flow). x is read, ``out`` written.
-    Launch over (rows, columns)."""
+    visible, ``seen_new`` < ``margin`` · ``seen_cur``; and p is not ``hidden`` (> 0.5:
+    hidden at t2, where the occluder matches better than the point's own flow). x is
+    read, ``out`` written. Launch over (rows, columns)."""
     i, j = wp.tid()
     i = i + row0
     if hidden[i, j] > 0.5 or flow_cur[i, j] <= floor:
